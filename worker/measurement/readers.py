@@ -1,0 +1,113 @@
+"""Readers and writers of recordings and sidecars: the only place in `measurement` that touches files.
+
+A recording is opened lazily: `open_recording(path)` returns a `FrameSource` whose frames are decoded one at a
+time on access, so a multi-GB sequence is never held in memory. Sidecars (`z.csv`, `frames.csv`,
+`board.json`) are parsed and validated here with errors that name the file, line and column.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import re
+import zipfile
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".bmp", ".jpg", ".jpeg")
+
+
+def natural_key(name: str) -> list[object]:
+    """Sort key that orders frame2 before frame10."""
+    return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", name)]
+
+
+def decode_grey(data: bytes, *, name: str) -> np.ndarray:
+    """Decode image bytes to a 2-D grey array (uint8 or uint16), keeping the bit depth."""
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)
+    if image is None:
+        raise ValueError(f"{name}: not a readable image (corrupt, truncated or unsupported format)")
+    if image.ndim == 3:
+        code = cv2.COLOR_BGRA2GRAY if image.shape[2] == 4 else cv2.COLOR_BGR2GRAY
+        image = cv2.cvtColor(image, code)
+    return image
+
+
+@dataclass(frozen=True)
+class FrameSource(Sequence[np.ndarray]):
+    """Frames of a folder or ZIP of images, in natural name order, decoded on access."""
+
+    path: Path
+    frame_names: tuple[str, ...]
+
+    def __len__(self) -> int:
+        return len(self.frame_names)
+
+    def __getitem__(self, index):  # type: ignore[override]
+        if isinstance(index, slice):
+            return [self[i] for i in range(*index.indices(len(self)))]
+        name = self.frame_names[index]
+        return decode_grey(self.read_bytes(name), name=name)
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        for i in range(len(self)):
+            yield self[i]
+
+    def read_bytes(self, name: str) -> bytes:
+        if self.path.is_dir():
+            return (self.path / name).read_bytes()
+        with zipfile.ZipFile(self.path) as archive:
+            return archive.read(name)
+
+    def sidecar_text(self, name: str) -> str | None:
+        """Text of a sidecar file (`z.csv`, `frames.csv`, `board.json`) stored with the frames, if any."""
+        if self.path.is_dir():
+            candidate = self.path / name
+            return candidate.read_text() if candidate.is_file() else None
+        with zipfile.ZipFile(self.path) as archive:
+            for entry in archive.namelist():
+                if Path(entry).name == name:
+                    return archive.read(entry).decode()
+        return None
+
+
+def open_recording(path: str | Path) -> FrameSource:
+    """Open a folder or ZIP of frames. Raises ValueError when it holds no image."""
+    path = Path(path)
+    if path.is_dir():
+        names = [p.name for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES]
+    elif zipfile.is_zipfile(path):
+        with zipfile.ZipFile(path) as archive:
+            names = [n for n in archive.namelist() if Path(n).suffix.lower() in IMAGE_SUFFIXES]
+    else:
+        raise ValueError(f"{path}: not a folder or ZIP of frames")
+    if not names:
+        raise ValueError(f"{path}: no image frames found (accepted: {', '.join(IMAGE_SUFFIXES)})")
+    return FrameSource(path=path, frame_names=tuple(sorted(names, key=natural_key)))
+
+
+def read_z_csv(text: str, *, name: str = "z.csv") -> dict[int, float]:
+    """Parse `frame,z_mm` rows into {frame: z_mm}; errors name the line."""
+    reader = csv.DictReader(io.StringIO(text))
+    if reader.fieldnames is None or not {"frame", "z_mm"} <= {f.strip() for f in reader.fieldnames}:
+        raise ValueError(f"{name}: expected columns 'frame,z_mm', got {reader.fieldnames}")
+    z_by_frame: dict[int, float] = {}
+    for line_no, row in enumerate(reader, start=2):
+        row = {k.strip(): (v or "").strip() for k, v in row.items() if k is not None}
+        try:
+            frame = int(row["frame"])
+            z_mm = float(row["z_mm"])
+        except ValueError:
+            raise ValueError(f"{name} line {line_no}: 'frame' must be an integer and 'z_mm' a number") from None
+        if not np.isfinite(z_mm):
+            raise ValueError(f"{name} line {line_no}: z_mm is not finite")
+        if frame in z_by_frame:
+            raise ValueError(f"{name} line {line_no}: frame {frame} appears twice")
+        z_by_frame[frame] = z_mm
+    if not z_by_frame:
+        raise ValueError(f"{name}: no rows")
+    return z_by_frame
