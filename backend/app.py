@@ -1,0 +1,44 @@
+"""The FastAPI application factory: routers, the frontend and the shared state of one API process."""
+
+from __future__ import annotations
+
+from contextlib import asynccontextmanager
+from pathlib import Path
+
+from fastapi import FastAPI
+from fastapi.staticfiles import StaticFiles
+
+from backend import __version__
+from backend.api import health
+from backend.db import make_engine, make_sessionmaker
+from backend.settings import Settings
+from backend.state import AppState
+from worker.celery_app import create_celery
+
+FRONTEND_DIR = Path(__file__).resolve().parent.parent / "frontend"
+
+
+def create_app(settings: Settings) -> FastAPI:
+    engine = make_engine(settings.resolved_database_url)
+    state = AppState(
+        settings=settings, engine=engine, sessions=make_sessionmaker(engine), celery=create_celery(settings)
+    )
+
+    @asynccontextmanager
+    async def lifespan(_app: FastAPI):  # type: ignore[no-untyped-def]
+        yield
+        engine.dispose()
+
+    app = FastAPI(
+        title="fringelab",
+        version=__version__,
+        summary="Out-of-plane deformation of plates from structured light and photogrammetry.",
+        docs_url="/api/docs",
+        redoc_url="/api/redoc",
+        openapi_url="/api/openapi.json",
+        lifespan=lifespan,
+    )
+    app.state.fringelab = state
+    app.include_router(health.router, prefix="/api/v1")
+    app.mount("/", StaticFiles(directory=FRONTEND_DIR, html=True), name="frontend")
+    return app

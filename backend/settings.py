@@ -1,0 +1,77 @@
+"""Settings of every fringelab process: one `Settings` object, built once at start-up and passed down.
+
+Values come from `FRINGELAB_*` environment variables (and a `.env` file in the working directory, if any).
+Nothing here runs at import time; `load_settings()` is called by the CLI entry points and by tests.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field, ValidationError, field_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+ENV_PREFIX = "FRINGELAB_"
+
+
+class SettingsError(Exception):
+    """Settings with an invalid value; the message names the environment variable."""
+
+
+class Settings(BaseSettings):
+    model_config = SettingsConfigDict(env_prefix=ENV_PREFIX, env_file=".env", extra="ignore", frozen=True)
+
+    data_dir: Path = Field(Path("var"), description="Database (SQLite), uploads and results live here.")
+    database_url: str = Field("", description="SQLAlchemy URL; empty means SQLite at DATA_DIR/fringelab.db (WAL mode).")
+    redis_url: str = Field(
+        "", description="Broker and result backend; empty means `fringelab up` starts its own redis-server."
+    )
+    host: str = Field("127.0.0.1", description="Address the web server binds.")
+    port: int = Field(8000, ge=1, le=65535, description="Port of the web server.")
+    worker_concurrency: int = Field(0, ge=0, description="Worker processes; 0 means one per CPU core.")
+    job_time_limit_s: int = Field(6 * 3600, ge=10, description="Hard time limit of one task.")
+    visibility_timeout_s: int = Field(
+        12 * 3600, ge=60, description="Redis redelivers an unacknowledged task after this; longer than any job."
+    )
+    health_worker_timeout_s: float = Field(1.0, gt=0, le=30, description="How long /health waits for workers.")
+    log_level: Literal["debug", "info", "warning", "error"] = Field("info", description="Log level.")
+
+    @field_validator("log_level", mode="before")
+    @classmethod
+    def _lower(cls, value: object) -> object:
+        return value.lower() if isinstance(value, str) else value
+
+    @property
+    def data_path(self) -> Path:
+        return self.data_dir.resolve()
+
+    @property
+    def resolved_database_url(self) -> str:
+        return self.database_url or f"sqlite:///{self.data_path / 'fringelab.db'}"
+
+    @property
+    def resolved_worker_concurrency(self) -> int:
+        return self.worker_concurrency or os.cpu_count() or 1
+
+
+def load_settings(**overrides: object) -> Settings:
+    """Build the settings from the environment; an invalid value raises SettingsError naming its variable."""
+    try:
+        return Settings(**overrides)  # type: ignore[arg-type]
+    except ValidationError as error:
+        problems = []
+        for item in error.errors():
+            field = str(item["loc"][0]) if item["loc"] else "?"
+            problems.append(f"{ENV_PREFIX}{field.upper()}: {item['msg']} (got {item.get('input')!r})")
+        raise SettingsError("invalid setting " + "; ".join(problems)) from None
+
+
+def settings_table() -> list[tuple[str, str, str]]:
+    """(variable, default, description) of every setting, for the README and `.env.example`."""
+    rows = []
+    for name, field in Settings.model_fields.items():
+        default = field.default
+        rows.append((f"{ENV_PREFIX}{name.upper()}", "" if default is None else str(default), field.description or ""))
+    return rows

