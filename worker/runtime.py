@@ -1,0 +1,26 @@
+"""Per-process resources of a worker: the database sessions, made once per process (after the prefork fork)."""
+
+from __future__ import annotations
+
+import os
+
+from celery import Celery
+from sqlalchemy.orm import Session, sessionmaker
+
+from backend.db import make_engine, make_sessionmaker
+from backend.settings import Settings
+
+_sessions: dict[tuple[int, str], sessionmaker[Session]] = {}
+
+
+def settings_of(app: Celery) -> Settings:
+    return app.fringelab_settings  # type: ignore[attr-defined,no-any-return]
+
+
+def sessions_of(app: Celery) -> sessionmaker[Session]:
+    """The session factory of this process; a forked child makes its own engine instead of sharing sockets."""
+    url = settings_of(app).resolved_database_url
+    key = (os.getpid(), url)
+    if key not in _sessions:
+        _sessions[key] = make_sessionmaker(make_engine(url))
+    return _sessions[key]
