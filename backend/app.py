@@ -5,12 +5,14 @@ from __future__ import annotations
 from contextlib import asynccontextmanager
 from pathlib import Path
 
-from fastapi import FastAPI
+from fastapi import FastAPI, Request
+from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 
 from backend import __version__
-from backend.api import health
+from backend.api import health, jobs
 from backend.db import make_engine, make_sessionmaker
+from backend.jobs import JobError, reconcile_on_startup
 from backend.settings import Settings
 from backend.state import AppState
 from worker.celery_app import create_celery
@@ -26,6 +28,7 @@ def create_app(settings: Settings) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(_app: FastAPI):  # type: ignore[no-untyped-def]
+        reconcile_on_startup(state.sessions, state.celery, redis_url=settings.redis_url)
         yield
         engine.dispose()
 
@@ -40,5 +43,11 @@ def create_app(settings: Settings) -> FastAPI:
     )
     app.state.fringelab = state
     app.include_router(health.router, prefix="/api/v1")
+    app.include_router(jobs.router, prefix="/api/v1")
+
+    @app.exception_handler(JobError)
+    async def _job_error(_request: Request, error: JobError) -> JSONResponse:
+        return JSONResponse({"detail": error.detail, "code": error.code, "field": error.field}, error.status)
+
     app.mount("/", StaticFiles(directory=FRONTEND_DIR, html=True), name="frontend")
     return app

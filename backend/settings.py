@@ -36,6 +36,12 @@ class Settings(BaseSettings):
         12 * 3600, ge=60, description="Redis redelivers an unacknowledged task after this; longer than any job."
     )
     health_worker_timeout_s: float = Field(1.0, gt=0, le=30, description="How long /health waits for workers.")
+    chunk_frames: int = Field(
+        100, ge=1, description="Frames per parallel chunk of a topography (or selftest) job; smaller spreads wider."
+    )
+    cancel_grace_s: float = Field(
+        10.0, ge=0, description="After a cancel, seconds a running task has to stop before its process is terminated."
+    )
     log_level: Literal["debug", "info", "warning", "error"] = Field("info", description="Log level.")
 
     @field_validator("log_level", mode="before")

@@ -1,0 +1,156 @@
+"""The JSON job spec (one model per job kind, told apart by `kind`) and what the jobs API answers.
+
+The browser and scripts send the same spec to `POST /api/v1/jobs`. Shapes and ranges are checked here (FastAPI
+answers 422 naming the field); checks that need the database (is the recording ready, does the calibration
+belong to its camera, is the frame range inside the recording) live in `backend.jobs.prepare_job`.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+
+class _Spec(BaseModel):
+    model_config = ConfigDict(extra="forbid")  # a misspelt parameter is a 422 naming it, not silently ignored
+
+
+class FrameRange(_Spec):
+    """Frames `first`, `first + step`, ... up to `last` (inclusive), numbered from 0."""
+
+    first: int = Field(0, ge=0, description="First frame (0-based).")
+    last: int | None = Field(None, ge=0, description="Last frame, inclusive; empty means the recording's last.")
+    step: int = Field(1, ge=1, le=1000, description="Take every step-th frame.")
+
+    @model_validator(mode="after")
+    def _ordered(self) -> FrameRange:
+        if self.last is not None and self.last < self.first:
+            raise ValueError(f"last ({self.last}) is before first ({self.first})")
+        return self
+
+
+class SelftestSpec(_Spec):
+    """A diagnostic of the job system itself: every worker that takes a chunk computes synthetic frames (an FFT of
+    a seeded random image each), writes them to the shared data directory, and the merge checks that every frame
+    came back exactly once. It measures frames/s and shows which workers took part, without any upload."""
+
+    kind: Literal["selftest"]
+    frames: int = Field(200, ge=1, le=100_000, description="Synthetic frames to compute.")
+    frame_size_px: int = Field(256, ge=16, le=4096, description="Side of each square frame; sets the work per frame.")
+    chunk_frames: int | None = Field(
+        None, ge=1, description="Frames per parallel chunk; empty means FRINGELAB_CHUNK_FRAMES."
+    )
+
+
+class CameraCalibrationSpec(_Spec):
+    """Calibrate a camera from a ready camera-calibration recording (a chessboard moved along Z)."""
+
+    kind: Literal["camera_calibration"]
+    recording_id: int = Field(ge=1, description="A ready recording of kind camera_calibration.")
+    frames: FrameRange = Field(default_factory=FrameRange)
+
+
+class ProjectorCalibrationSpec(_Spec):
+    """Build the projector look-up table from a ready projector-calibration recording (a flat plate along Z)."""
+
+    kind: Literal["projector_calibration"]
+    recording_id: int = Field(ge=1, description="A ready recording of kind projector_calibration.")
+    camera_calibration_id: int = Field(ge=1, description="A camera calibration of the same camera and image size.")
+    frames: FrameRange = Field(default_factory=FrameRange)
+
+
+class TopographySpec(_Spec):
+    """Deflection of every frame of a ready test recording, from a camera and a projector calibration."""
+
+    kind: Literal["topography"]
+    recording_id: int = Field(ge=1, description="A ready recording of kind test.")
+    camera_calibration_id: int = Field(ge=1, description="A camera calibration of the same camera and image size.")
+    projector_calibration_id: int = Field(ge=1, description="A projector calibration of the same camera and size.")
+    frames: FrameRange = Field(default_factory=FrameRange)
+    chunk_frames: int | None = Field(
+        None, ge=1, description="Frames per parallel chunk; empty means FRINGELAB_CHUNK_FRAMES."
+    )
+
+
+class ExportSpec(_Spec):
+    """Write the results of a finished job to a file for other programs."""
+
+    kind: Literal["export"]
+    job_id: str = Field(min_length=1, max_length=36, description="A succeeded topography job.")
+    format: Literal["csv", "hdf5", "mat", "vtk"] = Field(description="csv, hdf5, mat (MATLAB) or vtk (ParaView).")
+    frames: FrameRange = Field(default_factory=FrameRange)
+
+
+JobSpec = Annotated[
+    SelftestSpec | CameraCalibrationSpec | ProjectorCalibrationSpec | TopographySpec | ExportSpec,
+    Field(discriminator="kind"),
+]
+JobState = Literal["queued", "running", "succeeded", "failed", "cancelled"]
+
+
+class Progress(BaseModel):
+    stage: str = Field(description="What the job is doing now, for people.")
+    done: int
+    total: int
+    fraction: float | None = Field(description="done / total, or null before the total is known.")
+    eta_s: float | None = Field(description="Seconds left in this stage at the rate so far; null when unknown.")
+
+
+class JobFileOut(BaseModel):
+    name: str
+    size_bytes: int
+    sha256: str
+    media_type: str
+    url: str
+
+
+class ChunkOut(BaseModel):
+    index: int
+    first_frame: int
+    stop_frame: int = Field(description="Exclusive.")
+    state: Literal["pending", "running", "done"]
+    done: int
+    worker: str
+
+
+class JobOut(BaseModel):
+    id: str
+    kind: str
+    state: JobState
+    stopping: bool = Field(description="Cancelled, and the worker has not stopped yet.")
+    spec: dict[str, Any]
+    experiment_id: int | None
+    progress: Progress
+    error: str = Field(description="Why it failed and what to do; empty unless failed.")
+    worker: str
+    files: list[JobFileOut]
+    result: dict[str, Any]
+    provenance: dict[str, Any]
+    attempt: int
+    retry_of: str | None
+    retried_by: str | None
+    chunks: list[ChunkOut]
+    created_at: datetime
+    started_at: datetime | None
+    finished_at: datetime | None
+    duration_s: float | None
+
+
+class JobList(BaseModel):
+    items: list[JobOut]
+    total: int
+
+
+class LogLineOut(BaseModel):
+    id: int
+    at: datetime
+    level: str
+    message: str
+
+
+class ErrorOut(BaseModel):
+    detail: str = Field(description="What is wrong and what to do.")
+    code: str = Field(description="A stable machine-readable code, e.g. recording_not_ready.")
+    field: str | None = Field(None, description="The spec field at fault, dotted (e.g. frames.last).")
