@@ -52,6 +52,10 @@ TASK_NAMES = {
 CHUNK_TASK = "fringelab.job_chunk"
 MERGE_TASK = "fringelab.job_merge"
 
+# How workers send the tasks that continue a job (chunks, merge): while Redis restarts they wait for it, up to
+# about two minutes, rather than drop the job's next step. The API does not wait: it answers 503 at once.
+WORKER_SEND_RETRY = {"max_retries": 60, "interval_start": 0.5, "interval_step": 0.5, "interval_max": 2.0}
+
 ACTIVE_STATES = ("queued", "running")
 FINAL_STATES = ("succeeded", "failed", "cancelled")
 

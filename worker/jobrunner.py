@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from celery import Task
+from celery import Task, group
 from sqlalchemy import func, select, update
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -34,6 +34,7 @@ from backend.jobs import (
     FINAL_STATES,
     HEARTBEAT_INTERVAL_S,
     MERGE_TASK,
+    WORKER_SEND_RETRY,
     add_log,
     chunk_task_id,
     merge_task_id,
@@ -258,9 +259,7 @@ def _dispatch_chunks(task: Task, sessions: sessionmaker[Session], job_id: str, p
         for index in pending
     ]
     if signatures:
-        from celery import group
-
-        group(signatures).apply_async()
+        group(signatures).apply_async(retry=True, retry_policy=WORKER_SEND_RETRY)
     else:
         _send_merge_once(task, sessions, job_id)
 
@@ -317,8 +316,22 @@ def _send_merge_once(task: Task, sessions: sessionmaker[Session], job_id: str) -
             .values(merge_queued_at=utcnow())
         ).rowcount  # type: ignore[attr-defined]
         session.commit()
-    if claimed:
-        task.app.send_task(MERGE_TASK, args=[job_id], task_id=merge_task_id(job_id), ignore_result=True)
+    if not claimed:
+        return
+    try:
+        task.app.send_task(
+            MERGE_TASK,
+            args=[job_id],
+            task_id=merge_task_id(job_id),
+            ignore_result=True,
+            retry=True,
+            retry_policy=WORKER_SEND_RETRY,
+        )
+    except Exception:  # give the claim back, so that a redelivered chunk or the reconciliation sends it
+        with sessions() as session:
+            session.execute(update(Job).where(Job.id == job_id).values(merge_queued_at=None))
+            session.commit()
+        raise
 
 
 def run_merge(task: Task, job_id: str, body: MergeBody) -> dict[str, Any]:
