@@ -313,8 +313,8 @@ def _revoke(celery: Celery, task_ids: list[str], *, terminate: bool) -> str:
 
 
 def cancel_job(session: Session, celery: Celery, job_id: str) -> Job:
-    """Cancel a queued or running job: the state changes now, its waiting tasks are revoked, and a running task
-    stops at its next frame (cooperative; every pool). `terminate_unstopped` ends one that does not (prefork)."""
+    """Cancel a queued or running job: the state changes now; a queued task is revoked, a running one stops at
+    its next frame (cooperative; every pool). `terminate_unstopped` ends one that does not (prefork)."""
     job = get_job(session, job_id)
     if job.state == "cancelled":
         raise JobError(409, "already_cancelled", f"job {job.id} was already cancelled; retry it to run it again")
@@ -330,13 +330,13 @@ def cancel_job(session: Session, celery: Celery, job_id: str) -> Job:
         session.rollback()
         session.refresh(job)
         raise JobError(409, "job_finished", f"job {job.id} already {job.state}; there is nothing to cancel")
-    note = _revoke(celery, job_task_ids(session, job), terminate=False)
-    add_log(
-        session,
-        job.id,
-        ("cancel requested: the worker stops after its current frame" if was_running else "cancelled before it started")
-        + note,
-    )
+    if was_running:
+        # Its waiting tasks are not revoked: the first one a worker takes confirms the stop (a job with every
+        # task revoked would have nobody left to say that it stopped), and the rest return at once.
+        add_log(session, job.id, "cancel requested: the worker stops after its current frame")
+    else:
+        note = _revoke(celery, [job.id], terminate=False)
+        add_log(session, job.id, "cancelled before it started" + note)
     session.commit()
     session.refresh(job)
     return job
@@ -353,7 +353,11 @@ def terminate_unstopped(session: Session, celery: Celery, job_id: str, *, grace_
         update(Job).where(Job.id == job.id, Job.finished_at.is_(None)).values(finished_at=utcnow())
     ).rowcount  # type: ignore[attr-defined]
     if done:
-        add_log(session, job.id, f"the worker did not stop within {grace_s:g} s; its process was terminated{note}")
+        add_log(
+            session,
+            job.id,
+            f"no worker confirmed the stop within {grace_s:g} s; a process still running it was terminated{note}",
+        )
     session.commit()
     return bool(done)
 

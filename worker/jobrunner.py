@@ -212,6 +212,7 @@ def run_job(task: Task, job_id: str, body: JobBody) -> dict[str, Any]:
             log.warning("job %s has no record; nothing to do", job_id)
             return {}
         if job.state in FINAL_STATES:  # a redelivered task whose job already ended
+            _confirm_cancel(sessions, job)
             return dict(job.result)
         again = job.state == "running"
         moment = utcnow()
@@ -271,6 +272,7 @@ def run_chunk(task: Task, job_id: str, index: int, body: ChunkBody) -> None:
         job = session.get(Job, job_id)
         chunk = session.get(JobChunk, (job_id, index))
         if job is None or chunk is None or job.state != "running":
+            _confirm_cancel(sessions, job)
             return
         if chunk.state == "done":  # redelivered after it finished: make sure the merge was sent, nothing else
             session.close()
@@ -340,6 +342,7 @@ def run_merge(task: Task, job_id: str, body: MergeBody) -> dict[str, Any]:
     with sessions() as session:
         job = session.get(Job, job_id)
         if job is None or job.state != "running":
+            _confirm_cancel(sessions, job)
             return dict(job.result) if job else {}
         ranges = [
             (c.first_frame, c.stop_frame)
@@ -354,6 +357,12 @@ def run_merge(task: Task, job_id: str, body: MergeBody) -> dict[str, Any]:
         return {}
     finish(sessions, job_id, state="succeeded", result=result, context=context)
     return dict(result)
+
+
+def _confirm_cancel(sessions: sessionmaker[Session], job: Job | None) -> None:
+    """A task of a cancelled job that has not stopped yet reached a worker: it stops here, so say so."""
+    if job is not None and job.state == "cancelled" and job.finished_at is None:
+        finish(sessions, job.id, state="cancelled")
 
 
 def _file_entry(context: JobContext, name: str, media_type: str) -> dict[str, Any]:
