@@ -3,19 +3,16 @@
 from __future__ import annotations
 
 from contextlib import asynccontextmanager
-from pathlib import Path
 
 from fastapi import FastAPI
-from fastapi.staticfiles import StaticFiles
 
 from backend import __version__
 from backend.api import health
 from backend.db import make_engine, make_sessionmaker
+from backend.frontend import mount_frontend
 from backend.settings import Settings
 from backend.state import AppState
 from worker.celery_app import create_celery
-
-FRONTEND_DIR = Path(__file__).resolve().parent.parent / "frontend"
 
 
 def create_app(settings: Settings) -> FastAPI:
@@ -40,5 +37,5 @@ def create_app(settings: Settings) -> FastAPI:
     )
     app.state.fringelab = state
     app.include_router(health.router, prefix="/api/v1")
-    app.mount("/", StaticFiles(directory=FRONTEND_DIR, html=True), name="frontend")
+    mount_frontend(app)  # last: it serves every path the API does not
     return app
