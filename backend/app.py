@@ -3,21 +3,22 @@
 from __future__ import annotations
 
 from contextlib import asynccontextmanager
-from pathlib import Path
 
 from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse
-from fastapi.staticfiles import StaticFiles
 
 from backend import __version__
-from backend.api import health, jobs
+from backend.api import auth, health, jobs
 from backend.db import make_engine, make_sessionmaker
+from backend.errors import install_error_handlers
+from backend.frontend import mount_frontend
 from backend.jobs import JobError, reconcile_on_startup
+from backend.limits import BodySizeLimit
 from backend.settings import Settings
 from backend.state import AppState
 from worker.celery_app import create_celery
 
-FRONTEND_DIR = Path(__file__).resolve().parent.parent / "frontend"
+UPLOAD_PREFIXES = ("/api/v1/uploads",)
 
 
 def create_app(settings: Settings) -> FastAPI:
@@ -42,12 +43,15 @@ def create_app(settings: Settings) -> FastAPI:
         lifespan=lifespan,
     )
     app.state.fringelab = state
+    install_error_handlers(app)
+    app.add_middleware(BodySizeLimit, max_bytes=settings.max_json_bytes, exempt_prefixes=UPLOAD_PREFIXES)
     app.include_router(health.router, prefix="/api/v1")
+    app.include_router(auth.router, prefix="/api/v1")
     app.include_router(jobs.router, prefix="/api/v1")
 
     @app.exception_handler(JobError)
-    async def _job_error(_request: Request, error: JobError) -> JSONResponse:
-        return JSONResponse({"detail": error.detail, "code": error.code, "field": error.field}, error.status)
+    async def _job_error(_request: Request, error: JobError) -> JSONResponse:  # an ApiError that names the field
+        return JSONResponse({"detail": error.detail, "code": error.code, "field": error.field}, error.status_code)
 
-    app.mount("/", StaticFiles(directory=FRONTEND_DIR, html=True), name="frontend")
+    mount_frontend(app)  # last: it serves every path the API does not
     return app

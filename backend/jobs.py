@@ -26,7 +26,7 @@ from __future__ import annotations
 import json
 import logging
 import uuid
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 from typing import Any
@@ -39,6 +39,7 @@ from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
 from backend import __version__
+from backend.errors import ApiError
 from backend.models import Calibration, Camera, Job, JobChunk, JobLog, Recording, utcnow
 
 TASK_NAMES = {
@@ -69,12 +70,12 @@ class QueueUnavailable(Exception):
     """The broker did not take the task; the job is marked failed with the reason."""
 
 
-class JobError(Exception):
+class JobError(ApiError):
     """A request about jobs that cannot be done; the API answers `status` with `{"detail", "code", "field"}`."""
 
     def __init__(self, status: int, code: str, detail: str, *, field: str | None = None) -> None:
-        super().__init__(detail)
-        self.status, self.code, self.detail, self.field = status, code, detail, field
+        super().__init__(detail, code=code)
+        self.status_code, self.field = status, field
 
 
 def chunk_task_id(job_id: str, index: int) -> str:
@@ -149,10 +150,18 @@ class Prepared:
     calibrations: list[dict[str, Any]] = field(default_factory=list)
 
 
-def _recording(session: Session, recording_id: int, *, kind: str, field_name: str) -> Recording:
+Authorize = Callable[[int | None], None]  # raises JobError when the caller may not start jobs of that experiment
+
+
+def _nobody_checks(_experiment_id: int | None) -> None:
+    return None
+
+
+def _recording(session: Session, recording_id: int, *, kind: str, field_name: str, authorize: Authorize) -> Recording:
     recording = session.get(Recording, recording_id)
     if recording is None:
         raise JobError(422, "recording_not_found", f"there is no recording {recording_id}", field=field_name)
+    authorize(recording.camera.experiment_id)
     if recording.kind != kind:
         raise JobError(
             422,
@@ -229,22 +238,27 @@ def _calibration_ref(calibration: Calibration) -> dict[str, Any]:
     }
 
 
-def prepare_job(session: Session, spec: dict[str, Any]) -> Prepared:
-    """Check a (shape-valid) spec against the database; raise JobError naming the field, or say what it uses."""
+def prepare_job(session: Session, spec: dict[str, Any], *, authorize: Authorize = _nobody_checks) -> Prepared:
+    """Check a (shape-valid) spec against the database; raise JobError naming the field, or say what it uses.
+    `authorize` is asked as soon as the experiment is known, before anything about its inputs is revealed."""
     kind = spec["kind"]
     if kind == "selftest":
+        authorize(None)
         return Prepared()
     if kind == "export":
         source = session.get(Job, spec["job_id"])
         if source is None or source.kind != "topography":
             raise JobError(422, "job_not_found", f"there is no topography job {spec['job_id']}", field="job_id")
+        authorize(source.experiment_id)
         if source.state != "succeeded":
             raise JobError(
                 409, "job_not_succeeded", f"topography job {source.id} is {source.state}; export a succeeded one"
             )
         return Prepared(experiment_id=source.experiment_id, inputs=[{"job_id": source.id}])
     recording_kind = "test" if kind == "topography" else kind
-    recording = _recording(session, spec["recording_id"], kind=recording_kind, field_name="recording_id")
+    recording = _recording(
+        session, spec["recording_id"], kind=recording_kind, field_name="recording_id", authorize=authorize
+    )
     _check_frames(spec, recording)
     prepared = Prepared(experiment_id=recording.camera.experiment_id, inputs=[_input(recording)])
     if kind in ("projector_calibration", "topography"):
@@ -268,9 +282,16 @@ def prepare_job(session: Session, spec: dict[str, Any]) -> Prepared:
     return prepared
 
 
-def create_job(session: Session, celery: Celery, spec: dict[str, Any]) -> Job:
-    """Check the spec, refuse a duplicate of a job still queued or running, store and queue the job."""
-    prepared = prepare_job(session, spec)
+def create_job(
+    session: Session,
+    celery: Celery,
+    spec: dict[str, Any],
+    *,
+    authorize: Authorize = _nobody_checks,
+) -> Job:
+    """Check the spec (and the caller's right to start it), refuse a duplicate of a job still queued or running,
+    then store and queue the job."""
+    prepared = prepare_job(session, spec, authorize=authorize)
     for active in session.scalars(select(Job).where(Job.kind == spec["kind"], Job.state.in_(ACTIVE_STATES))):
         if active.spec == spec:
             raise JobError(

@@ -63,3 +63,57 @@ class RedisServer:
         if self.process and self.process.poll() is None:
             self.process.terminate()
             self.process.wait(timeout=10)
+
+
+class UpProcess:
+    """`fringelab up` as a user runs it, in a subprocess on a free port with its own data directory."""
+
+    def __init__(self, data_dir: Path, *, extra_env: dict[str, str] | None = None) -> None:
+        import os
+        import sys
+
+        self.port = free_port()
+        self.data_dir = data_dir
+        self.log_path = data_dir.parent / f"up-{self.port}.log"
+        clean = {k: v for k, v in os.environ.items() if not k.startswith("FRINGELAB_")}
+        self.env = {**clean, "FRINGELAB_PORT": str(self.port), "FRINGELAB_DATA_DIR": str(data_dir), **(extra_env or {})}
+        self.argv = [sys.executable, "-m", "backend.cli", "up"]
+        self.process: subprocess.Popen[bytes] | None = None
+
+    @property
+    def base_url(self) -> str:
+        return f"http://127.0.0.1:{self.port}"
+
+    def log(self) -> str:
+        return self.log_path.read_text() if self.log_path.exists() else ""
+
+    def start(self, *, timeout_s: float = 120) -> None:
+        import httpx
+
+        with self.log_path.open("wb") as log:
+            self.process = subprocess.Popen(self.argv, env=self.env, stdout=log, stderr=subprocess.STDOUT)
+
+        def healthy() -> bool:
+            if self.process and self.process.poll() is not None:
+                raise RuntimeError(f"`fringelab up` exited early:\n{self.log()[-3000:]}")
+            try:
+                response = httpx.get(f"{self.base_url}/api/v1/health", timeout=5)
+            except httpx.HTTPError:
+                return False
+            return response.status_code == 200 and response.json()["workers"] >= 1
+
+        wait_for(healthy, timeout_s=timeout_s, what="a healthy `fringelab up`", interval_s=0.3)
+        banner = f"fringelab is running at {self.base_url}"
+        wait_for(lambda: banner in self.log(), timeout_s=30, what=banner)
+
+    def stop(self, *, timeout_s: float = 60) -> int:
+        import signal
+
+        assert self.process is not None
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGTERM)
+        try:
+            return self.process.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            raise

@@ -1,6 +1,10 @@
 """`/api/v1/jobs`: start, list, watch (JSON and Server-Sent Events), read the log of, cancel, retry and download
 the files of jobs. Thin: the rules live in `backend.jobs`; errors are `backend.jobs.JobError` (4xx with
-`{"detail", "code", "field"}`)."""
+`{"detail", "code", "field"}`).
+
+Access follows the job's experiment (`backend.auth`): reading needs read access, starting, cancelling and
+retrying need write access; a job of an experiment one may not read is a 404. Jobs outside any experiment
+(selftest) are for admins."""
 
 from __future__ import annotations
 
@@ -17,7 +21,8 @@ from fastapi.sse import EventSourceResponse, ServerSentEvent
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from backend.api.deps import SessionDep, StateDep
+from backend.api.deps import CurrentUser, SessionDep, StateDep
+from backend.auth import Principal, audit, can_access, readable_experiments
 from backend.jobs import (
     JobError,
     QueueUnavailable,
@@ -29,7 +34,7 @@ from backend.jobs import (
     retry_job,
     terminate_unstopped,
 )
-from backend.models import Job, JobChunk, JobLog, utcnow
+from backend.models import Experiment, Job, JobChunk, JobLog, utcnow
 from backend.schemas.jobs import (
     ChunkOut,
     ErrorOut,
@@ -116,26 +121,52 @@ def job_out(session: Session, job: Job, *, now: datetime | None = None) -> JobOu
     )
 
 
-def existing_job(job_id: str, session: SessionDep) -> Job:
-    return get_job(session, job_id)
+def _allowed(session: Session, principal: Principal, experiment_id: int | None, *, write: bool) -> bool:
+    if experiment_id is None:
+        return principal.is_admin
+    experiment = session.get(Experiment, experiment_id)
+    return experiment is not None and can_access(session, principal, experiment, write=write)
 
 
-JobDep = Annotated[Job, Depends(existing_job)]
+def job_for(session: Session, principal: Principal, job_id: str, *, write: bool = False) -> Job:
+    """The job if `principal` may see it (or change it); otherwise a 404, as if it did not exist."""
+    job = get_job(session, job_id)
+    if not _allowed(session, principal, job.experiment_id, write=False):
+        raise JobError(404, "job_not_found", f"there is no job {job_id}")
+    if write and not _allowed(session, principal, job.experiment_id, write=True):
+        raise JobError(403, "forbidden", f"you may read job {job_id} but not change it; ask the experiment's owner")
+    return job
+
+
+def readable_job(job_id: str, session: SessionDep, principal: CurrentUser) -> Job:
+    return job_for(session, principal, job_id)
+
+
+JobDep = Annotated[Job, Depends(readable_job)]
 
 
 @router.post("/jobs", status_code=201, response_model=JobOut, responses=ERRORS)
-def start_job(spec: Annotated[JobSpec, Body()], session: SessionDep, state: StateDep) -> JobOut:
+def start_job(spec: Annotated[JobSpec, Body()], session: SessionDep, state: StateDep, principal: CurrentUser) -> JobOut:
     """Check the spec against the recordings and calibrations it names, then queue the job."""
+
+    def may_start(experiment_id: int | None) -> None:
+        if not _allowed(session, principal, experiment_id, write=True):
+            what = f"experiment {experiment_id}" if experiment_id is not None else "a job outside any experiment"
+            raise JobError(403, "forbidden", f"starting jobs of {what} needs write access (or an admin account)")
+
     try:
-        job = create_job(session, state.celery, spec.model_dump(mode="json"))
+        job = create_job(session, state.celery, spec.model_dump(mode="json"), authorize=may_start)
     except QueueUnavailable as error:
         raise JobError(503, "queue_unavailable", str(error)) from None
+    audit(session, principal, "start", "job", job.id, kind=job.kind)
+    session.commit()
     return job_out(session, job)
 
 
 @router.get("/jobs", response_model=JobList)
 def list_jobs(
     session: SessionDep,
+    principal: CurrentUser,
     kind: str | None = None,
     state: JobState | None = None,
     experiment_id: int | None = None,
@@ -144,6 +175,10 @@ def list_jobs(
 ) -> JobList:
     """Jobs, newest first."""
     query = select(Job)
+    if not principal.is_admin:
+        query = query.where(
+            Job.experiment_id.in_(select(Experiment.id).where(readable_experiments(session, principal)))
+        )
     if kind is not None:
         query = query.where(Job.kind == kind)
     if state is not None:
@@ -216,10 +251,13 @@ def _snapshot(state: AppState, job_id: str, after: int) -> tuple[JobOut | None, 
 
 
 @router.post("/jobs/{job_id}/cancel", response_model=JobOut, responses=ERRORS)
-def cancel(job_id: str, session: SessionDep, state: StateDep) -> JobOut:
+def cancel(job_id: str, session: SessionDep, state: StateDep, principal: CurrentUser) -> JobOut:
     """Cancel a queued or running job. A running task stops after its current frame; one that has not stopped
     after FRINGELAB_CANCEL_GRACE_S has its worker process terminated (prefork workers)."""
+    job_for(session, principal, job_id, write=True)
     job = cancel_job(session, state.celery, job_id)
+    audit(session, principal, "cancel", "job", job.id)
+    session.commit()
     if job.finished_at is None:
         _terminate_later(state, job.id)
     return job_out(session, job)
@@ -241,12 +279,15 @@ def _terminate_later(state: AppState, job_id: str) -> None:
 
 
 @router.post("/jobs/{job_id}/retry", status_code=201, response_model=JobOut, responses=ERRORS)
-def retry(job_id: str, session: SessionDep, state: StateDep) -> JobOut:
+def retry(job_id: str, session: SessionDep, state: StateDep, principal: CurrentUser) -> JobOut:
     """A new attempt of a failed or cancelled job with the same spec (checked again), linked by `retry_of`."""
+    job_for(session, principal, job_id, write=True)
     try:
         job = retry_job(session, state.celery, job_id)
     except QueueUnavailable as error:
         raise JobError(503, "queue_unavailable", str(error)) from None
+    audit(session, principal, "retry", "job", job.id, retry_of=job_id)
+    session.commit()
     return job_out(session, job)
 
 

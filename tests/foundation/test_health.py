@@ -6,6 +6,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from backend.app import create_app
+from backend.frontend import PLOTLY_JS_URL
 from backend.services import free_port
 from backend.settings import Settings
 
@@ -50,6 +51,10 @@ def test_frontend_and_api_docs_are_served(settings):
         page = client.get("/")
         docs = client.get("/api/docs")
         schema = client.get("/api/openapi.json")
+        plotly_js = client.get(PLOTLY_JS_URL)
     assert page.status_code == 200 and "fringelab" in page.text
+    assert PLOTLY_JS_URL in page.text and "{{" not in page.text
+    assert plotly_js.status_code == 200 and "immutable" in plotly_js.headers["cache-control"]
+    assert len(plotly_js.content) > 1_000_000  # the real bundle, not a placeholder
     assert docs.status_code == 200
     assert "/api/v1/health" in schema.json()["paths"]

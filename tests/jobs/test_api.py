@@ -101,13 +101,13 @@ def test_an_invalid_spec_is_a_422_naming_the_field(client):
     ):
         response = client.post("/api/v1/jobs", json=spec)
         assert response.status_code == 422, spec
-        assert any(field in [str(part) for part in error["loc"]] for error in response.json()["detail"]), (
-            spec,
-            response.json(),
-        )
+        body = response.json()
+        assert body["code"] == "invalid_input"
+        assert field in body["detail"], body
+        assert any(field in [str(part) for part in error["loc"]] for error in body["errors"]), body
     unknown = client.post("/api/v1/jobs", json={"kind": "nonsense"})
     assert unknown.status_code == 422
-    assert "'kind'" in unknown.json()["detail"][0]["msg"] and "topography" in unknown.json()["detail"][0]["msg"]
+    assert "'kind'" in unknown.json()["detail"] and "topography" in unknown.json()["detail"]
 
 
 def test_inputs_are_checked_against_the_database_before_anything_is_queued(client, add_rows):

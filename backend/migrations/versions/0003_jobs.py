@@ -1,17 +1,15 @@
 """jobs: chunks, log lines, heartbeats and result files of jobs; versioned calibrations with image size
 
-The lead re-chains down_revision after the recordings migration "0002" at merge time.
-
 Revision ID: 0003
-Revises: 0001
-Create Date: 2026-11-21 01:04:04.139627
+Revises: 0004
+Create Date: 2026-11-21 01:20:26.775862
 """
 
 import sqlalchemy as sa
 from alembic import op
 
 revision = "0003"
-down_revision = "0001"
+down_revision = "0004"  # re-chain after 0002 (recordings) when it lands
 branch_labels = None
 depends_on = None
 
@@ -29,8 +27,8 @@ def upgrade() -> None:
         sa.Column("started_at", sa.DateTime(timezone=True), nullable=True),
         sa.Column("finished_at", sa.DateTime(timezone=True), nullable=True),
         sa.Column("heartbeat_at", sa.DateTime(timezone=True), nullable=True),
-        sa.ForeignKeyConstraint(["job_id"], ["jobs.id"], ondelete="CASCADE"),
-        sa.PrimaryKeyConstraint("job_id", "index"),
+        sa.ForeignKeyConstraint(["job_id"], ["jobs.id"], name=op.f("fk_job_chunks_job_id_jobs"), ondelete="CASCADE"),
+        sa.PrimaryKeyConstraint("job_id", "index", name=op.f("pk_job_chunks")),
     )
     op.create_table(
         "job_logs",
@@ -39,8 +37,8 @@ def upgrade() -> None:
         sa.Column("created_at", sa.DateTime(timezone=True), nullable=False),
         sa.Column("level", sa.String(length=8), nullable=False),
         sa.Column("message", sa.Text(), nullable=False),
-        sa.ForeignKeyConstraint(["job_id"], ["jobs.id"], ondelete="CASCADE"),
-        sa.PrimaryKeyConstraint("id"),
+        sa.ForeignKeyConstraint(["job_id"], ["jobs.id"], name=op.f("fk_job_logs_job_id_jobs"), ondelete="CASCADE"),
+        sa.PrimaryKeyConstraint("id", name=op.f("pk_job_logs")),
     )
     with op.batch_alter_table("job_logs", schema=None) as batch_op:
         batch_op.create_index(batch_op.f("ix_job_logs_job_id"), ["job_id"], unique=False)
