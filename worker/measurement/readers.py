@@ -47,7 +47,7 @@ class FrameSource(Sequence[np.ndarray]):
     def __len__(self) -> int:
         return len(self.frame_names)
 
-    def __getitem__(self, index):  # type: ignore[override]
+    def __getitem__(self, index):
         if isinstance(index, slice):
             return [self[i] for i in range(*index.indices(len(self)))]
         name = self.frame_names[index]
