@@ -717,6 +717,8 @@ def calibrate_camera_recording(
     origin: tuple[int, int] | None = None,
     reject_outliers: bool = False,
     pixel_pitch_um: tuple[float, float] | None = None,
+    detector: str = "auto",
+    subpix_half_window_px: int | None = None,
     progress: ProgressCallback | None = None,
     should_cancel: Callable[[], bool] | None = None,
 ) -> CameraCalibration:
@@ -725,8 +727,10 @@ def calibrate_camera_recording(
     source: a frame source from `readers.open_recording` (a sequence of grey frames with `frame_names` and
     `sidecar_text(name)`). board: the chessboard; None reads `board.json` from the recording. origin overrides
     the board's origin corner. mode: "zstack" (frames with `z.csv`, one shared pose) or "poses" (free views).
-    progress(done, total, stage) is called after each frame and each solver stage; should_cancel() is polled
-    between frames and raises CalibrationCancelled when it returns True.
+    detector and subpix_half_window_px are passed to `chessboard.detect_board` ("classic" and 11 reproduce
+    OpenCV's calibration sample). progress(done, total, stage) is called with stage "corners" after each
+    frame, "solving" before the solver and "done" at the end (total = frames + 2); should_cancel() is polled
+    between frames and before the solver, and CalibrationCancelled is raised when it returns True.
 
     Frames without the board are skipped and listed with the reason. Raises ValueError for malformed input
     (z.csv, board.json, mixed image sizes) and BoardNotFoundError / CalibrationError for what the user must fix.
@@ -772,7 +776,9 @@ def calibrate_camera_recording(
             )
         z_mm = None if heights is None else heights[i]
         try:
-            corners = detect_board(image, board=board, frame=name)
+            corners = detect_board(
+                image, board=board, frame=name, detector=detector, subpix_half_window_px=subpix_half_window_px
+            )
         except BoardNotFoundError as error:
             skipped.append(FrameResult(frame=name, status="skipped", reason=str(error), z_mm=z_mm))
         else:
@@ -784,11 +790,16 @@ def calibrate_camera_recording(
         reasons = sorted({f.reason.split(": ", 1)[-1] for f in skipped})
         raise BoardNotFoundError(f"{where}: no chessboard found in any of the {n_frames} frames ({'; '.join(reasons)})")
     assert image_size is not None  # at least one frame was read
+    if should_cancel is not None and should_cancel():
+        raise CalibrationCancelled(f"cancelled after corner extraction of {n_frames} frames")
+    if progress is not None:
+        progress(n_frames + 1, total, "solving")
     settings = {
         "mode": mode, "board": {"cols": board.cols, "rows": board.rows, "square_mm": board.square_mm,
                                 "origin": None if board.origin is None else list(board.origin)},
         "du_px_per_mm": du_px_per_mm, "dv_px_per_mm": dv_px_per_mm, "scale_on": scale_on,
-        "reject_outliers": reject_outliers, "pixel_pitch_um": None if pixel_pitch_um is None else list(pixel_pitch_um),
+        "reject_outliers": reject_outliers, "detector": detector, "subpix_half_window_px": subpix_half_window_px,
+        "pixel_pitch_um": None if pixel_pitch_um is None else list(pixel_pitch_um),
     }  # fmt: skip
     calibration = calibrate_from_views(
         views, image_size_px=image_size, mode=mode, du_px_per_mm=du_px_per_mm, dv_px_per_mm=dv_px_per_mm,

@@ -75,9 +75,14 @@ def _as_uint8(image: np.ndarray) -> np.ndarray:
     return np.clip(scaled, 0, 255).astype(np.uint8)
 
 
-def _detect_grid(image_u8: np.ndarray, pattern: tuple[int, int]) -> tuple[np.ndarray | None, str]:
-    """Raw corners (rows, cols, 2) in detector order, or None; also the detector name and a reason if larger."""
+DETECTORS = ("auto", "classic")
+
+
+def _detect_grid(image_u8: np.ndarray, pattern: tuple[int, int], detector: str) -> tuple[np.ndarray | None, str]:
+    """Raw corners (n_a, n_b, 2) in detector order and the detector's name, or (None, "")."""
     cols, rows = pattern
+    if detector == "classic":
+        return _detect_classic(image_u8, pattern)
     height, width = image_u8.shape
     scale = min(1.0, DETECTION_MAX_SIDE_PX / max(height, width))
     small = image_u8 if scale == 1.0 else cv2.resize(image_u8, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
@@ -91,6 +96,11 @@ def _detect_grid(image_u8: np.ndarray, pattern: tuple[int, int]) -> tuple[np.nda
         # u to (u + 0.5)·s − 0.5.
         grid = (corners.reshape(meta.shape[0], meta.shape[1], 2).astype(np.float64) + 0.5) / scale - 0.5
         return grid, "findChessboardCornersSB"
+    return _detect_classic(image_u8, pattern)
+
+
+def _detect_classic(image_u8: np.ndarray, pattern: tuple[int, int]) -> tuple[np.ndarray | None, str]:
+    cols, rows = pattern
     found, corners = cv2.findChessboardCorners(
         image_u8, pattern, flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
     )
@@ -99,7 +109,7 @@ def _detect_grid(image_u8: np.ndarray, pattern: tuple[int, int]) -> tuple[np.nda
     return None, ""
 
 
-def _refine_subpixel(image_u8: np.ndarray, grid_px: np.ndarray) -> np.ndarray:
+def _refine_subpixel(image_u8: np.ndarray, grid_px: np.ndarray, half_window_px: int | None) -> np.ndarray:
     steps = np.concatenate(
         [
             np.linalg.norm(np.diff(grid_px, axis=0), axis=2).ravel(),
@@ -107,22 +117,36 @@ def _refine_subpixel(image_u8: np.ndarray, grid_px: np.ndarray) -> np.ndarray:
         ]
     )
     half = int(np.clip(round(SUBPIX_WINDOW_FRACTION * float(np.min(steps))), SUBPIX_MIN_HALF_WINDOW_PX,
-                       SUBPIX_MAX_HALF_WINDOW_PX))  # fmt: skip
+                       SUBPIX_MAX_HALF_WINDOW_PX)) if half_window_px is None else half_window_px  # fmt: skip
     corners = grid_px.reshape(-1, 1, 2).astype(np.float32)
     refined = cv2.cornerSubPix(image_u8, corners, (half, half), (-1, -1), SUBPIX_CRITERIA)
     return refined.reshape(grid_px.shape).astype(np.float64)
 
 
-def find_board_corners(image: np.ndarray, *, board: Board, frame: str = "image") -> tuple[np.ndarray, str]:
+def find_board_corners(
+    image: np.ndarray,
+    *,
+    board: Board,
+    frame: str = "image",
+    detector: str = "auto",
+    subpix_half_window_px: int | None = None,
+) -> tuple[np.ndarray, str]:
     """Sub-pixel inner corners of `board` in a grey image, shape (H, W): grid (n_a, n_b, 2) in detector order.
+
+    detector: "auto" (findChessboardCornersSB, falling back to findChessboardCorners) or "classic"
+    (findChessboardCorners only, as OpenCV's calibration sample). subpix_half_window_px: cornerSubPix half-window;
+    None sizes it to 0.4 × the smallest square side seen (3..15 px), so it never reaches the next corner.
+    OpenCV's sample uses 11, which on small squares pulls corners toward their neighbours.
 
     Raises BoardNotFoundError naming `frame`, with the size actually found when the board differs from the
     declared one.
     """
     if image.ndim != 2:
         raise ValueError(f"{frame}: expected a grey image of shape (H, W), got {image.shape}")
+    if detector not in DETECTORS:
+        raise ValueError(f"detector: expected one of {DETECTORS}, got {detector!r}")
     image_u8 = _as_uint8(image)
-    grid, detector = _detect_grid(image_u8, (board.cols, board.rows))
+    grid, used = _detect_grid(image_u8, (board.cols, board.rows), detector)
     if grid is None:
         found = _found_size(image_u8)
         if found is not None and sorted(found) != sorted((board.cols, board.rows)):
@@ -135,7 +159,7 @@ def find_board_corners(image: np.ndarray, *, board: Board, frame: str = "image")
             f"{frame}: found a board of {grid.shape[1]} × {grid.shape[0]} inner corners, "
             f"declared {board.cols} × {board.rows}"
         )
-    return _refine_subpixel(image_u8, grid), detector
+    return _refine_subpixel(image_u8, grid, subpix_half_window_px), used
 
 
 def _found_size(image_u8: np.ndarray) -> tuple[int, int] | None:
@@ -186,8 +210,17 @@ def label_board_corners(grid_px: np.ndarray, *, board: Board) -> BoardCorners:
     )
 
 
-def detect_board(image: np.ndarray, *, board: Board, frame: str = "image") -> BoardCorners:
-    """Find, refine and label the inner corners of `board` in a grey image, shape (H, W)."""
-    grid, detector = find_board_corners(image, board=board, frame=frame)
+def detect_board(
+    image: np.ndarray,
+    *,
+    board: Board,
+    frame: str = "image",
+    detector: str = "auto",
+    subpix_half_window_px: int | None = None,
+) -> BoardCorners:
+    """Find, refine and label the inner corners of `board` in a grey image, shape (H, W) (see find_board_corners)."""
+    grid, detector = find_board_corners(
+        image, board=board, frame=frame, detector=detector, subpix_half_window_px=subpix_half_window_px
+    )
     labelled = label_board_corners(grid, board=board)
     return BoardCorners(labelled.q_px, labelled.ij, labelled.points_board_mm, detector)
