@@ -105,12 +105,12 @@ class FrameResult:
 
 @dataclass(frozen=True, eq=False)
 class ResidualVectors:
-    """Per-corner residuals of the used frames: frame_index (N,) into `frames`, q_px (N, 2), residual_px (N, 2).
-
-    residual = observed − model, in pixels.
+    """Per-corner residuals of the used frames: frame_index (N,) into `frames`, the corner's object point
+    points_obj_mm (N, 3) (board frame in poses mode), observed q_px (N, 2), residual_px (N, 2) = observed − model.
     """
 
     frame_index: np.ndarray
+    points_obj_mm: np.ndarray
     q_px: np.ndarray
     residual_px: np.ndarray
 
@@ -643,7 +643,7 @@ def _view_rms(residual, problem, views, active, k, mode) -> float:
 
 def _frame_results(views, active, rejected, skipped, problem, x, residual, mode):
     by_view: dict[int, FrameResult] = {}
-    frame_index, q_list, r_list = [], [], []
+    frame_index, p_list, q_list, r_list = [], [], [], []
     for k, i in enumerate(active):
         view = views[i]
         r = -residual[_view_rows(problem, views, active, k, mode)].reshape(-1, 2)  # observed − model
@@ -655,6 +655,7 @@ def _frame_results(views, active, rejected, skipped, problem, x, residual, mode)
             rvec_rad=None if pose is None else (float(pose[0]), float(pose[1]), float(pose[2])),
             tvec_mm=None if pose is None else (float(pose[3]), float(pose[4]), float(pose[5])),
         )  # fmt: skip
+        p_list.append(view.points_obj_mm)
         q_list.append(view.q_px)
         r_list.append(r)
     for i, reason in rejected.items():
@@ -666,7 +667,10 @@ def _frame_results(views, active, rejected, skipped, problem, x, residual, mode)
     for i in active:
         frame_index.append(np.full(len(views[i].q_px), order[views[i].frame]))
     residuals = ResidualVectors(
-        frame_index=np.concatenate(frame_index), q_px=np.vstack(q_list), residual_px=np.vstack(r_list)
+        frame_index=np.concatenate(frame_index),
+        points_obj_mm=np.vstack(p_list),
+        q_px=np.vstack(q_list),
+        residual_px=np.vstack(r_list),
     )
     return tuple(frames), residuals
 

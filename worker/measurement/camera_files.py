@@ -15,7 +15,7 @@ Document (schema "fringelab.camera-calibration", version 1), angles in degrees a
   inverse_model {a1..a8, residual_px, approximation_residual_px},
   rms_px (per corner, as cv2.calibrateCamera), residual_std_px (per coordinate), n_points, converged,
   frames [{frame, status, reason, z_mm, n_corners, rms_px, max_px, rvec_rad, tvec_mm}],
-  residuals {frame_index, u_px, v_px, du_px, dv_px} (observed − model),
+  residuals {frame_index, x_mm, y_mm, z_mm, u_px, v_px, du_px, dv_px} (observed − model),
   residual_map {cells_u, cells_v, count, mean_du_px, mean_dv_px, rms_px, systematic_px, coverage},
   verdict {level, reasons, checks [{name, value, unit, good_limit, bad_limit, higher_is_better, level, message}]},
   board {cols, rows, square_mm, origin} | null, provenance {...}.
@@ -126,6 +126,9 @@ def calibration_as_dict(calibration: CameraCalibration) -> dict[str, Any]:
         ],
         "residuals": {
             "frame_index": residuals.frame_index.astype(int).tolist(),
+            "x_mm": residuals.points_obj_mm[:, 0].tolist(),
+            "y_mm": residuals.points_obj_mm[:, 1].tolist(),
+            "z_mm": residuals.points_obj_mm[:, 2].tolist(),
             "u_px": residuals.q_px[:, 0].tolist(),
             "v_px": residuals.q_px[:, 1].tolist(),
             "du_px": residuals.residual_px[:, 0].tolist(),
@@ -210,6 +213,7 @@ def calibration_from_dict(document: dict[str, Any], *, name: str = "camera.json"
         res = document["residuals"]
         residuals = ResidualVectors(
             frame_index=np.array(res["frame_index"], dtype=int),
+            points_obj_mm=np.column_stack([_array(res["x_mm"]), _array(res["y_mm"]), _array(res["z_mm"])]),
             q_px=np.column_stack([_array(res["u_px"]), _array(res["v_px"])]),
             residual_px=np.column_stack([_array(res["du_px"]), _array(res["dv_px"])]),
         )

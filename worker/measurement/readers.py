@@ -146,3 +146,25 @@ def read_board_json(text: str, *, name: str = "board.json") -> Board:
         )
     except (TypeError, ValueError, IndexError) as error:
         raise ValueError(f"{name}: {error}") from None
+
+
+def write_frame_folder(
+    path: str | Path, frames: Sequence[np.ndarray], *, sidecars: dict[str, str] | None = None
+) -> Path:
+    """Write frames as frame0000.png, frame0001.png, ... and sidecar texts (e.g. {"z.csv": ...}) into a folder.
+
+    For synthetic recordings and tests; the folder is readable with `open_recording`.
+    """
+    path = Path(path)
+    path.mkdir(parents=True, exist_ok=True)
+    for index, frame in enumerate(frames):
+        if not cv2.imwrite(str(path / f"frame{index:04d}.png"), frame):
+            raise ValueError(f"{path}: could not write frame {index} (dtype {frame.dtype}, shape {frame.shape})")
+    for name, text in (sidecars or {}).items():
+        (path / name).write_text(text)
+    return path
+
+
+def z_csv_text(z_mm: Sequence[float], *, first_frame: int = 0) -> str:
+    """The text of a `z.csv` sidecar for frames numbered from `first_frame`."""
+    return "frame,z_mm\n" + "".join(f"{first_frame + i},{z!r}\n" for i, z in enumerate(map(float, z_mm)))
