@@ -147,18 +147,16 @@ def find_board_corners(
         raise ValueError(f"detector: expected one of {DETECTORS}, got {detector!r}")
     image_u8 = _as_uint8(image)
     grid, used = _detect_grid(image_u8, (board.cols, board.rows), detector)
-    if grid is None:
-        found = _found_size(image_u8)
-        if found is not None and sorted(found) != sorted((board.cols, board.rows)):
-            raise BoardNotFoundError(
-                f"{frame}: found a board of {found[0]} × {found[1]} inner corners, declared {board.cols} × {board.rows}"
-            )
-        raise BoardNotFoundError(f"{frame}: no {board.cols} × {board.rows} chessboard found")
-    if sorted(grid.shape[:2]) != sorted((board.cols, board.rows)):
+    found = _found_size(image_u8) if grid is None else (grid.shape[1], grid.shape[0])
+    if found is not None and sorted(found) != sorted((board.cols, board.rows)):
+        # Name the found size in the declared orientation (larger count first if declared so).
+        big, small = max(found), min(found)
+        found_cols, found_rows = (big, small) if board.cols >= board.rows else (small, big)
         raise BoardNotFoundError(
-            f"{frame}: found a board of {grid.shape[1]} × {grid.shape[0]} inner corners, "
-            f"declared {board.cols} × {board.rows}"
+            f"{frame}: found a board of {found_cols} × {found_rows} inner corners, declared {board.cols} × {board.rows}"
         )
+    if grid is None:
+        raise BoardNotFoundError(f"{frame}: no {board.cols} × {board.rows} chessboard found")
     return _refine_subpixel(image_u8, grid, subpix_half_window_px), used
 
 
