@@ -764,6 +764,7 @@ def calibrate_camera_recording(
     total = n_frames + 2
     views: list[CornerView] = []
     skipped: list[FrameResult] = []
+    found_sizes: list[tuple[int, int] | None] = []
     image_size: tuple[int, int] | None = None
     for i, name in enumerate(names):
         if should_cancel is not None and should_cancel():
@@ -784,6 +785,7 @@ def calibrate_camera_recording(
                 image, board=board, frame=name, detector=detector, subpix_half_window_px=subpix_half_window_px
             )
         except BoardNotFoundError as error:
+            found_sizes.append(error.found_size)
             skipped.append(FrameResult(frame=name, status="skipped", reason=str(error), z_mm=z_mm))
         else:
             z_column = np.full(len(corners.q_px), 0.0 if z_mm is None else z_mm)
@@ -791,8 +793,14 @@ def calibrate_camera_recording(
         if progress is not None:
             progress(i + 1, total, "corners")
     if not views:
-        reasons = sorted({f.reason.split(": ", 1)[-1] for f in skipped})
-        raise BoardNotFoundError(f"{where}: no chessboard found in any of the {n_frames} frames ({'; '.join(reasons)})")
+        sizes = [f for f in found_sizes if f is not None]
+        hint = ""
+        if sizes:
+            cols, rows = max(sizes, key=lambda size: size[0] * size[1])
+            hint = f"; the frames show a board of at least {cols} × {rows} inner corners: check the declared size"
+        raise BoardNotFoundError(
+            f"{where}: no {board.cols} × {board.rows} chessboard found in any of the {n_frames} frames{hint}"
+        )
     assert image_size is not None  # at least one frame was read
     if should_cancel is not None and should_cancel():
         raise CalibrationCancelled(f"cancelled after corner extraction of {n_frames} frames")

@@ -31,7 +31,15 @@ SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 40, 1e-4)
 
 
 class BoardNotFoundError(MeasurementError):
-    """The chessboard was not found in a frame (or in any frame), or not with the declared size."""
+    """The chessboard was not found in a frame (or in any frame), or not with the declared size.
+
+    found_size: (cols, rows) of a board of another size seen in the image, as a lower bound (the detector may
+    not grow it to its full extent), or None.
+    """
+
+    def __init__(self, message: str, *, found_size: tuple[int, int] | None = None) -> None:
+        super().__init__(message)
+        self.found_size = found_size
 
 
 @dataclass(frozen=True)
@@ -153,7 +161,9 @@ def find_board_corners(
         big, small = max(found), min(found)
         found_cols, found_rows = (big, small) if board.cols >= board.rows else (small, big)
         raise BoardNotFoundError(
-            f"{frame}: found a board of {found_cols} × {found_rows} inner corners, declared {board.cols} × {board.rows}"
+            f"{frame}: found a board of at least {found_cols} × {found_rows} inner corners, "
+            f"declared {board.cols} × {board.rows}",
+            found_size=(found_cols, found_rows),
         )
     if grid is None:
         raise BoardNotFoundError(f"{frame}: no {board.cols} × {board.rows} chessboard found")
