@@ -185,3 +185,22 @@ def test_z_csv_rows_are_validated(rows, n_frames, message):
 
 def test_z_heights_in_frame_order():
     assert zstack_heights_mm({1: 3.0, 2: 2.0, 3: -1.0}, 3) == [3.0, 2.0, -1.0]
+
+
+def test_levenberg_marquardt_reaches_scipys_minimum():
+    # Our LM on the block-sparse normal equations against scipy's MINPACK on the dense Jacobian, same start.
+    from scipy.optimize import least_squares
+
+    from worker.measurement.calibration import _build_problem, _initial_candidates, _levenberg_marquardt
+
+    camera = reference_camera("512x480")
+    views = pose_views(camera, rng=np.random.default_rng(26), sigma_px=SIGMA_PX, n_views=6)
+    (_, start), *_ = _initial_candidates(views, (512, 480), mode="poses", du=96.0, dv=96.0, scale_on="v")
+    problem = _build_problem(views, mode="poses")
+    ours, converged = _levenberg_marquardt(problem, start)
+    reference = least_squares(problem.residual, start, jac=problem.jacobian, method="lm", x_scale="jac",
+                              xtol=1e-12, ftol=1e-12, gtol=1e-12)  # fmt: skip
+    assert converged and reference.status > 0
+    cost_ours, cost_scipy = (float(np.sum(problem.residual(x) ** 2)) for x in (ours, reference.x))
+    assert cost_ours <= cost_scipy * (1 + 1e-9)  # the same minimum, to round-off in the cost
+    np.testing.assert_allclose(ours[:4], reference.x[:4], rtol=1e-6)  # fx, fy, cx, cy
