@@ -343,9 +343,11 @@ class _Problem:
 # Convergence: the cosine between the residual vector and any Jacobian column (MINPACK's gtol), or a relative
 # cost decrease (ftol) or scaled step (xtol) at round-off level.
 LM_GTOL = 1e-10
-LM_FTOL = 1e-12
+LM_FTOL = 1e-10
 LM_XTOL = 1e-12
 LM_MAX_ITERATIONS = 200
+# Relative to the diagonal of JᵀJ; small because the starts are close to the minimum.
+LM_INITIAL_DAMPING = 1e-6
 
 
 def _levenberg_marquardt(problem: _Problem, x0: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -360,7 +362,7 @@ def _levenberg_marquardt(problem: _Problem, x0: np.ndarray) -> tuple[np.ndarray,
     residual, normal, gradient = problem.normal_equations(x)
     cost = float(residual @ residual)
     scale = np.zeros(len(x))
-    damping, growth = 1e-3, 2.0
+    damping, growth = LM_INITIAL_DAMPING, 2.0
     for _ in range(LM_MAX_ITERATIONS):
         scale = np.maximum(scale, np.sqrt(np.diag(normal)))
         scale[scale == 0] = 1.0
