@@ -110,6 +110,10 @@ def test_frames_without_board_are_skipped_and_listed(small_stack, tmp_path):
     assert [f.frame for f in skipped] == ["frame0002.png"]
     assert "no 14 × 9 chessboard found" in skipped[0].reason
     assert [f.frame for f in calibration.frames] == [f"frame{i:04d}.png" for i in range(5)]
+    back = read_camera_json(write_camera_json(calibration, tmp_path / "camera.json"))
+    assert back.frames == calibration.frames
+    np.testing.assert_array_equal(back.residuals.frame_index, calibration.residuals.frame_index)
+    assert 2 not in set(back.residuals.frame_index)  # the skipped frame has no residuals
 
 
 def test_too_few_frames_after_skipping(small_stack, tmp_path):
@@ -174,6 +178,8 @@ def test_cli_errors_are_one_line_and_leave_no_file(small_stack, tmp_path, capsys
     assert run_cli("calibrate-camera", str(path), "--board-cols", "9", "-o", str(out)) == 2
     assert "give all of --board-cols" in capsys.readouterr().err
     assert run_cli("camera-export", str(tmp_path / "missing.json"), "--opencv-yaml", str(tmp_path / "x.yaml")) == 2
+    assert run_cli("calibrate-camera", str(path), "--pixel-pitch-um", "10", "--dv", "3", "-o", str(out)) == 2
+    assert "not both" in capsys.readouterr().err
 
 
 def test_failed_write_keeps_the_old_file(calibrations, tmp_path, monkeypatch):
