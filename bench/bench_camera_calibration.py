@@ -12,7 +12,7 @@ each case it prints the median time of
             non-planar view with initCameraMatrix2D's camera as the starting guess (OpenCV needs one there),
 and the ratio ours / opencv of the medians (and of the minima, steadier on a
 loaded machine). Targets: a 20-frame 1024 × 1024 calibration (corners + solver) under 5 s on one
-core; our solver within 2 × of OpenCV's time.
+core; our solver within 2 × of OpenCV's time. It also prints the rate of backproject_to_z (target ≥ 1e6 points/s).
 """
 
 from __future__ import annotations
@@ -38,6 +38,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from scipy.spatial.transform import Rotation  # noqa: E402
 
 from worker.measurement.calibration import CornerView, calibrate_from_views  # noqa: E402
+from worker.measurement.camera import backproject_to_z, fit_inverse_model  # noqa: E402
 from worker.measurement.chessboard import Board, BoardNotFoundError, detect_board  # noqa: E402
 from worker.measurement.readers import open_recording  # noqa: E402
 from worker.measurement.synthetic import (  # noqa: E402
@@ -147,6 +148,15 @@ def main() -> int:
     else:
         print(f"skipping real images: {REAL_DATA.resolve()} not found")
 
+    for size in ("512x480", "1024x1024"):
+        camera = reference_camera(size)
+        inverse = fit_inverse_model(camera)
+        q_px = np.random.default_rng(2).uniform(0, [camera.image_width_px, camera.image_height_px], (1_000_000, 2))
+        backproject_s, _, _ = timed(
+            lambda camera=camera, q_px=q_px, inverse=inverse: backproject_to_z(camera, q_px, 10.0, inverse=inverse),
+            args.repeats,
+        )
+        print(f"backproject_to_z {size}: {1e-6 * len(q_px) / backproject_s:.2f} million points/s (median)")
     print(f"one core, median of {args.repeats} runs, times in seconds")
     print(
         f"{'case':22s} {'mode':6s} {'frames':>6s} {'corners':>7s} {'corners_s':>9s} {'ours_s':>7s} {'opencv_s':>8s} "
