@@ -204,3 +204,29 @@ def test_levenberg_marquardt_reaches_scipys_minimum():
     cost_ours, cost_scipy = (float(np.sum(problem.residual(x) ** 2)) for x in (ours, reference.x))
     assert cost_ours <= cost_scipy * (1 + 1e-9)  # the same minimum, to round-off in the cost
     np.testing.assert_allclose(ours[:4], reference.x[:4], rtol=1e-6)  # fx, fy, cx, cy
+
+
+@pytest.mark.parametrize("scale_on", ["u", "v"])
+def test_covariance_conversion_jacobian(scale_on):
+    # The block-diagonal Jacobian used to carry the covariance over, against differences of the whole conversion.
+    from worker.measurement.calibration import CAMERA_PARAMETERS, _heikkila_from_opencv_jacobian
+    from worker.measurement.camera import OpenCVCamera, camera_from_opencv
+
+    o = camera_as_opencv(dataclasses.replace(reference_camera("1024x1024"), scale_on=scale_on))
+    x14 = np.array([o.fx_px, o.fy_px, o.cx_px, o.cy_px, o.k1, o.k2, o.p1, o.p2, *o.rvec_rad, *o.tvec_mm])
+
+    def heikkila(x):
+        camera = camera_from_opencv(
+            OpenCVCamera(1024, 1024, *x[:8], rvec_rad=tuple(x[8:11]), tvec_mm=tuple(x[11:])),
+            du_px_per_mm=212.59, dv_px_per_mm=212.59, scale_on=scale_on,
+        )  # fmt: skip
+        return np.array([getattr(camera, name) for name in CAMERA_PARAMETERS])
+
+    expected = np.empty((14, 14))
+    for j in range(14):
+        step = np.zeros(14)
+        step[j] = 1e-6 * max(abs(x14[j]), 1e-3)
+        expected[:, j] = (heikkila(x14 + step) - heikkila(x14 - step)) / (2 * step[j])
+    jacobian = _heikkila_from_opencv_jacobian(x14, du=212.59, dv=212.59, scale_on=scale_on)
+    # Both are central differences of smooth maps: agreement to ~1e-8 of each entry's scale.
+    np.testing.assert_allclose(jacobian, expected, rtol=1e-6, atol=1e-8 * np.max(np.abs(expected)))
