@@ -68,6 +68,7 @@ class JobContext:
     sessions: sessionmaker[Session]
     chunk_index: int | None = None
     files: dict[str, str] = field(default_factory=dict)  # name -> media type, of the files this run published
+    provenance: dict[str, Any] = field(default_factory=dict)  # added to the job's provenance when it succeeds
     _last_progress: float = field(default=0.0)
     _stage: str = field(default="")
 
@@ -416,6 +417,8 @@ def finish(
                 job = session.get(Job, job_id)
                 if job is not None:
                     job.progress_done = job.progress_total
+                    if context is not None and context.provenance:
+                        job.provenance = {**job.provenance, **context.provenance}
                 add_log(session, job_id, "succeeded" + (f": {', '.join(f['name'] for f in files)}" if files else ""))
             elif state == "failed":
                 add_log(session, job_id, f"failed: {error}", level="error")

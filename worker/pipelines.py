@@ -18,12 +18,13 @@ from typing import Any
 import h5py
 import numpy as np
 from celery import Task, shared_task
-from sqlalchemy import select
+from sqlalchemy import func, select
+from sqlalchemy.exc import IntegrityError
 
 from backend.jobs import as_utc
-from backend.models import Job, utcnow
+from backend.models import Calibration, Camera, Job, Recording, utcnow
 from backend.settings import Settings
-from worker.jobrunner import ChunkBody, Chunked, JobContext, MergeBody, run_chunk, run_job, run_merge
+from worker.jobrunner import ChunkBody, Chunked, JobCancelled, JobContext, MergeBody, run_chunk, run_job, run_merge
 from worker.runtime import sessions_of
 
 
@@ -131,6 +132,126 @@ def _remove_chunk_files(directory: Path) -> None:
         chunk_dir.rmdir()
 
 
+# ------------------------------------------------------------------------------------------ calibrations
+
+
+def _recording_input(context: JobContext) -> tuple[Recording, Camera, Path]:
+    with context.sessions() as session:
+        recording = session.get(Recording, context.spec["recording_id"])
+        if recording is None:
+            raise ValueError(f"recording {context.spec['recording_id']} was deleted; upload it again")
+        camera = recording.camera
+        session.expunge_all()
+    return recording, camera, context.settings.data_path / recording.path
+
+
+def record_calibration(
+    context: JobContext,
+    *,
+    kind: str,
+    camera_id: int,
+    recording_id: int,
+    name: str,
+    image_size_px: tuple[int, int],
+    summary: dict[str, Any],
+) -> Calibration:
+    """The versioned Calibration row of this job's file `name` (one per job: a second run finds the first).
+    Versions count per camera and kind; two jobs finishing at once retry on the unique version."""
+    path = context.directory / name
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    for _attempt in range(5):
+        with context.sessions() as session:
+            existing = session.scalar(select(Calibration).where(Calibration.job_id == context.job_id))
+            if existing is not None:
+                return existing
+            latest = session.scalar(
+                select(func.max(Calibration.version)).where(
+                    Calibration.camera_id == camera_id, Calibration.kind == kind
+                )
+            )
+            row = Calibration(
+                kind=kind,
+                camera_id=camera_id,
+                recording_id=recording_id,
+                job_id=context.job_id,
+                version=(latest or 0) + 1,
+                path=str(path.relative_to(context.settings.data_path)),
+                summary=summary,
+                image_width_px=image_size_px[0],
+                image_height_px=image_size_px[1],
+                sha256=digest,
+            )
+            session.add(row)
+            try:
+                session.commit()
+            except IntegrityError:  # another job took this version a moment ago
+                session.rollback()
+                continue
+            return row
+    raise RuntimeError(f"could not number the {kind} calibration of camera {camera_id}; retry the job")
+
+
+def camera_calibration_body(context: JobContext) -> dict[str, Any]:
+    from worker.measurement.calibration import CalibrationCancelled, calibrate_camera_recording
+    from worker.measurement.camera_files import write_camera_json
+    from worker.measurement.chessboard import Board
+    from worker.measurement.readers import open_recording
+
+    spec = context.spec
+    recording, camera, path = _recording_input(context)
+    board = None
+    if spec.get("board"):
+        b = spec["board"]
+        board = Board(b["cols"], b["rows"], b["square_mm"], origin=tuple(b["origin"]) if b.get("origin") else None)
+    pitch_um = camera.pixel_pitch_um
+    if not pitch_um > 0:
+        raise ValueError(f"camera {camera.name!r} has no pixel pitch; set it on the camera, then retry")
+    context.log(f"calibrating camera {camera.name!r} from recording {recording.id} ({spec['mode']})")
+    try:
+        calibration = calibrate_camera_recording(
+            open_recording(path),
+            board=board,
+            mode=spec["mode"],
+            du_px_per_mm=1000.0 / pitch_um,
+            dv_px_per_mm=1000.0 / pitch_um,
+            scale_on=spec["scale_on"],
+            reject_outliers=spec["reject_outliers"],
+            pixel_pitch_um=(pitch_um, pitch_um),
+            detector=spec["detector"],
+            subpix_half_window_px=spec.get("subpix_window_px"),
+            progress=context.progress,
+            should_cancel=context.should_cancel,
+        )
+    except CalibrationCancelled as error:
+        raise JobCancelled(str(error)) from None
+    with context.output("camera.json", media_type="application/json") as temporary:
+        write_camera_json(calibration, temporary)
+    for frame in calibration.frames:
+        if frame.status != "used":
+            context.log(f"frame {frame.frame} {frame.status}: {frame.reason}", level="warning")
+    used = sum(f.status == "used" for f in calibration.frames)
+    summary = {
+        "mode": calibration.mode,
+        "rms_px": calibration.rms_px,
+        "verdict": calibration.verdict.level,
+        "n_points": calibration.n_points,
+        "frames_used": used,
+        "frames_total": len(calibration.frames),
+        "f_mm": calibration.camera.f_mm,
+    }
+    size = (calibration.camera.image_width_px, calibration.camera.image_height_px)
+    row = record_calibration(
+        context, kind="camera", camera_id=camera.id, recording_id=recording.id, name="camera.json",
+        image_size_px=size, summary=summary,
+    )  # fmt: skip
+    context.provenance.update({"science": calibration.provenance})
+    context.log(
+        f"camera calibration version {row.version}: RMS {calibration.rms_px:.3f} px, "
+        f"verdict {calibration.verdict.level}"
+    )
+    return {"calibration_id": row.id, "version": row.version, **summary, "reasons": list(calibration.verdict.reasons)}
+
+
 # ------------------------------------------------------------------------------------------------ the tasks
 
 CHUNK_BODIES: dict[str, ChunkBody] = {"selftest": selftest_chunk}
@@ -145,6 +266,11 @@ def _kind(task: Task, job_id: str) -> str | None:
 @shared_task(bind=True, name="fringelab.selftest", ignore_result=True)
 def selftest(self: Task, job_id: str) -> dict[str, Any]:
     return run_job(self, job_id, selftest_entry)
+
+
+@shared_task(bind=True, name="fringelab.camera_calibration", ignore_result=True)
+def camera_calibration(self: Task, job_id: str) -> dict[str, Any]:
+    return run_job(self, job_id, camera_calibration_body)
 
 
 @shared_task(bind=True, name="fringelab.job_chunk", ignore_result=True)

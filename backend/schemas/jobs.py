@@ -44,12 +44,30 @@ class SelftestSpec(_Spec):
     )
 
 
+class BoardSpec(_Spec):
+    """The chessboard, when the recording has no `board.json` (or to override it)."""
+
+    cols: int = Field(ge=2, le=200, description="Inner corners along a row.")
+    rows: int = Field(ge=2, le=200, description="Inner corners along a column.")
+    square_mm: float = Field(gt=0, le=10_000, description="Side of a square, mm.")
+    origin: tuple[int, int] | None = Field(
+        None, description="Origin inner corner (i, j) along +X, +Y from the lower left; empty means the centre."
+    )
+
+
 class CameraCalibrationSpec(_Spec):
-    """Calibrate a camera from a ready camera-calibration recording (a chessboard moved along Z)."""
+    """Calibrate a camera (Heikkilä model, METHOD.md §3) from a ready camera-calibration recording: a chessboard
+    moved along Z (`zstack`, with z.csv) or free views of it (`poses`). Every frame is used; frames without the
+    board are skipped and listed. D_u, D_v come from the camera's pixel pitch."""
 
     kind: Literal["camera_calibration"]
     recording_id: int = Field(ge=1, description="A ready recording of kind camera_calibration.")
-    frames: FrameRange = Field(default_factory=FrameRange)
+    mode: Literal["zstack", "poses"] = Field("zstack", description="zstack (stage Z per frame) or poses (free).")
+    board: BoardSpec | None = Field(None, description="Empty means the recording's board.json.")
+    scale_on: Literal["u", "v"] = Field("u", description="Axis of the scale factor: u (Heikkilä) or v (the paper).")
+    reject_outliers: bool = Field(False, description="Drop frames whose RMS exceeds 3 × the median (and 0.2 px).")
+    detector: Literal["auto", "classic"] = Field("auto", description="Chessboard detector.")
+    subpix_window_px: int | None = Field(None, ge=1, le=50, description="cornerSubPix half-window; empty: auto.")
 
 
 class ProjectorCalibrationSpec(_Spec):
@@ -154,3 +172,19 @@ class ErrorOut(BaseModel):
     detail: str = Field(description="What is wrong and what to do.")
     code: str = Field(description="A stable machine-readable code, e.g. recording_not_ready.")
     field: str | None = Field(None, description="The spec field at fault, dotted (e.g. frames.last).")
+
+
+class CalibrationOut(BaseModel):
+    id: int
+    kind: Literal["camera", "projector"]
+    camera_id: int
+    recording_id: int | None
+    job_id: str | None
+    version: int = Field(description="1, 2, ... per camera and kind; topography jobs name the id they use.")
+    image_width_px: int
+    image_height_px: int
+    sha256: str
+    summary: dict[str, Any]
+    created_at: datetime
+    file_url: str
+    report_url: str
