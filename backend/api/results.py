@@ -1,24 +1,39 @@
-"""Results: calibrations (versioned per camera) with their reports and files; later topography results.
+"""Results: calibrations (versioned per camera) with their reports and files, and topography results cut to
+what the dashboard draws (frame list and time histories, a frame's grid within a display budget, profiles,
+point histories).
 
-Thin: files are read through `backend.results`; access follows the experiment of the calibration's camera.
+Thin: files are read through `backend.results`; access follows the experiment (of the calibration's camera, or
+of the job). Arrays come as JSON lists with null where there is no data, or, for a grid, as raw float32.
 """
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+import math
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Depends
+import numpy as np
+from fastapi import APIRouter, Depends, Query, Response
 from fastapi.responses import FileResponse
-from pydantic import BaseModel
+from pydantic import BaseModel, Field
 from sqlalchemy import select
 
 from backend.api.deps import CurrentUser, SessionDep, StateDep, experiment_for
-from backend.api.jobs import ERRORS
+from backend.api.jobs import ERRORS, JobDep
 from backend.auth import readable_experiments
 from backend.errors import NotFound
 from backend.jobs import JobError, as_utc
-from backend.models import Calibration, Camera, Experiment
-from backend.results import ResultUnavailable, camera_report, result_path
+from backend.models import Calibration, Camera, Experiment, Job
+from backend.results import (
+    GRID_BUDGET_NODES,
+    FrameNotInResult,
+    OutsideGrid,
+    ResultUnavailable,
+    TopographyReader,
+    camera_report,
+    result_path,
+)
 from backend.schemas.jobs import CalibrationOut
 
 router = APIRouter(tags=["results"])
@@ -107,3 +122,183 @@ def calibration_file(calibration: CalibrationDep, state: StateDep) -> FileRespon
     except ResultUnavailable as error:
         raise JobError(410, "result_missing", str(error)) from None
     return FileResponse(path, media_type="application/json", filename=f"calibration-{calibration.id}-{path.name}")
+
+
+# ---------------------------------------------------------------------------------------------- topography
+
+TOPOGRAPHY_FILE = "topography.h5"
+
+
+def _listed(values: np.ndarray, decimals: int = 4) -> list[Any]:
+    """JSON list of a float array, rounded, with null for NaN (nested for 2-D)."""
+    rounded = np.round(np.asarray(values, dtype=np.float64), decimals)
+    if rounded.ndim > 1:
+        return [_listed(row, decimals) for row in rounded]
+    return [None if not math.isfinite(v) else v for v in rounded.tolist()]
+
+
+@contextmanager
+def topography(job: Job, data_path: Any) -> Iterator[TopographyReader]:
+    """The result of a succeeded topography job, open; JobError 409/410/422 with what to do otherwise."""
+    if job.kind != "topography":
+        raise JobError(404, "not_topography", f"job {job.id} is a {job.kind} job, not a topography")
+    if job.state != "succeeded":
+        raise JobError(409, "job_not_succeeded", f"job {job.id} is {job.state}; its results come when it succeeds")
+    entry = next((f for f in job.files if f["name"] == TOPOGRAPHY_FILE), None)
+    if entry is None:
+        raise JobError(410, "result_missing", f"job {job.id} has no {TOPOGRAPHY_FILE}; retry the job")
+    try:
+        with TopographyReader(result_path(data_path, entry["path"])) as reader:
+            yield reader
+    except FrameNotInResult as error:
+        raise JobError(422, "frame_not_in_result", str(error), field="frame") from None
+    except OutsideGrid as error:
+        raise JobError(422, "outside_grid", str(error)) from None
+    except ResultUnavailable as error:
+        raise JobError(410, "result_missing", str(error)) from None
+
+
+class TopographyOverview(BaseModel):
+    job_id: str
+    frames: list[int]
+    time_s: list[float | None]
+    punch_displacement_mm: list[float | None]
+    force_kN: list[float | None]
+    peak_w_mm: list[float | None]
+    peak_x_mm: list[float | None]
+    peak_y_mm: list[float | None]
+    grid: dict[str, float | int]
+    summary: dict[str, Any]
+
+
+@router.get("/jobs/{job_id}/topography", response_model=TopographyOverview, responses=ERRORS)
+def topography_overview(job: JobDep, state: StateDep) -> TopographyOverview:
+    """The frames of a topography result with the test log and the peak deflection of each (for the frame
+    slider and the plots of peak deflection against time, punch displacement and force), the grid's extent and
+    the result's summary."""
+    with topography(job, state.settings.data_path) as reader:
+        x, y = reader.x_mm, reader.y_mm
+        return TopographyOverview(
+            job_id=job.id,
+            frames=reader.frames.astype(int).tolist(),
+            time_s=_listed(reader.column("frames/time_s"), 6),
+            punch_displacement_mm=_listed(reader.column("frames/punch_displacement_mm")),
+            force_kN=_listed(reader.column("frames/force_kN")),
+            peak_w_mm=_listed(reader.column("peak/w_mm")),
+            peak_x_mm=_listed(reader.column("peak/x_mm")),
+            peak_y_mm=_listed(reader.column("peak/y_mm")),
+            grid={
+                "x_min_mm": float(x[0]),
+                "x_max_mm": float(x[-1]),
+                "y_min_mm": float(y[0]),
+                "y_max_mm": float(y[-1]),
+                "nx": int(x.size),
+                "ny": int(y.size),
+                "step_mm": float(x[1] - x[0]) if x.size > 1 else 0.0,
+            },  # fmt: skip
+            summary=reader.summary(),
+        )
+
+
+class GridOut(BaseModel):
+    frame: int
+    step: int = Field(description="Grid nodes per returned node along each axis (1: full resolution).")
+    x_mm: list[float]
+    y_mm: list[float]
+    w_mm: list[list[float | None]] = Field(description="Deflection [iy][ix], mm; null where there is no data.")
+
+
+@router.get(
+    "/jobs/{job_id}/topography/grid",
+    response_model=GridOut,
+    responses={**ERRORS, 200: {"content": {"application/octet-stream": {}}, "description": "JSON, or float32"}},
+)
+def topography_grid(
+    job: JobDep,
+    state: StateDep,
+    frame: Annotated[int, Query(ge=0, description="Recording frame index.")],
+    budget: Annotated[int, Query(ge=8, le=2000, description="Largest number of nodes per side.")] = GRID_BUDGET_NODES,
+    x_min: float | None = None,
+    x_max: float | None = None,
+    y_min: float | None = None,
+    y_max: float | None = None,
+    format: Literal["json", "f32"] = "json",
+) -> Any:
+    """The deflection w of one frame on the grid, block-averaged to at most `budget` nodes per side; give all of
+    x_min, x_max, y_min, y_max (mm) for a zoom window, at full resolution when it fits the budget. format=f32
+    answers the float32 array itself (row-major [iy][ix], little-endian, NaN where no data), its shape and
+    coordinates in the headers X-Grid-Shape (ny,nx), X-Grid-X-mm and X-Grid-Y-mm (first,step)."""
+    bounds = (x_min, x_max, y_min, y_max)
+    if any(b is None for b in bounds) and not all(b is None for b in bounds):
+        raise JobError(422, "incomplete_window", "give all of x_min, x_max, y_min, y_max, or none", field="x_min")
+    window = None if x_min is None else tuple(float(b) for b in bounds)  # type: ignore[arg-type]
+    with topography(job, state.settings.data_path) as reader:
+        cut = reader.grid(frame, budget=budget, window_mm=window)  # type: ignore[arg-type]
+    if format == "f32":
+
+        def first_step(axis: np.ndarray) -> str:
+            return f"{axis[0]:.6g},{(axis[1] - axis[0]) if axis.size > 1 else 0:.6g}"
+
+        return Response(
+            content=np.ascontiguousarray(cut.w_mm, dtype="<f4").tobytes(),
+            media_type="application/octet-stream",
+            headers={
+                "X-Grid-Shape": f"{cut.w_mm.shape[0]},{cut.w_mm.shape[1]}",
+                "X-Grid-X-mm": first_step(cut.x_mm),
+                "X-Grid-Y-mm": first_step(cut.y_mm),
+                "X-Grid-Step": str(cut.step),
+            },  # fmt: skip
+        )
+    return GridOut(
+        frame=cut.frame, step=cut.step, x_mm=_listed(cut.x_mm), y_mm=_listed(cut.y_mm), w_mm=_listed(cut.w_mm)
+    )
+
+
+class ProfileOut(BaseModel):
+    s_mm: list[float]
+    x_mm: list[float]
+    y_mm: list[float]
+    profiles: list[dict[str, Any]] = Field(description="[{frame, w_mm: [...]}] in the order asked.")
+
+
+@router.get("/jobs/{job_id}/topography/profile", response_model=ProfileOut, responses=ERRORS)
+def topography_profile(
+    job: JobDep,
+    state: StateDep,
+    x0: float,
+    y0: float,
+    x1: float,
+    y1: float,
+    frames: Annotated[list[int], Query(min_length=1, max_length=50, description="Recording frame indices.")],
+    n_points: Annotated[int, Query(ge=2, le=5000)] = 200,
+) -> ProfileOut:
+    """Deflection profiles w(s) along the segment (x0, y0) → (x1, y1) in mm, for the frames asked."""
+    with topography(job, state.settings.data_path) as reader:
+        cut = reader.profile(frames, (x0, y0, x1, y1), n_points=n_points)
+    return ProfileOut(
+        s_mm=_listed(cut["s_mm"]),
+        x_mm=_listed(cut["x_mm"]),
+        y_mm=_listed(cut["y_mm"]),
+        profiles=[{"frame": p["frame"], "w_mm": _listed(p["w_mm"])} for p in cut["profiles"]],
+    )
+
+
+class HistoryOut(BaseModel):
+    x_mm: float
+    y_mm: float
+    frames: list[int]
+    time_s: list[float | None]
+    w_mm: list[float | None]
+
+
+@router.get("/jobs/{job_id}/topography/history", response_model=HistoryOut, responses=ERRORS)
+def topography_history(job: JobDep, state: StateDep, x_mm: float, y_mm: float) -> HistoryOut:
+    """The deflection w(t) at one point of the plate over every frame of the result."""
+    with topography(job, state.settings.data_path) as reader:
+        return HistoryOut(
+            x_mm=x_mm,
+            y_mm=y_mm,
+            frames=reader.frames.astype(int).tolist(),
+            time_s=_listed(reader.column("frames/time_s"), 6),
+            w_mm=_listed(reader.history(x_mm, y_mm)),
+        )
