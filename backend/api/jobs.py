@@ -216,11 +216,19 @@ def _log_lines(session: Session, job_id: str, *, after: int, limit: int = 1000) 
     ]  # type: ignore[arg-type]
 
 
+def _streamable_job_id(job_id: str, state: StateDep, principal: CurrentUser) -> str:
+    """The access check of the event stream, in a short session of its own: a request-long session would stay
+    open while the stream runs (and keep SQLite's write-ahead log from being checkpointed)."""
+    with state.sessions() as session:
+        return job_for(session, principal, job_id).id
+
+
 @router.get("/jobs/{job_id}/events", response_class=EventSourceResponse, responses=ERRORS)
-async def job_events(job: JobDep, state: StateDep) -> AsyncIterator[ServerSentEvent]:
+async def job_events(
+    job_id: Annotated[str, Depends(_streamable_job_id)], state: StateDep
+) -> AsyncIterator[ServerSentEvent]:
     """Live progress as Server-Sent Events: `job` (the job as `GET /jobs/{id}` shows it) whenever it changes,
     `log` for each new log line, and `end` once the job has ended; then the stream closes."""
-    job_id = job.id
     last_view: dict[str, Any] | None = None
     last_line = 0
     sequence = 0
