@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from contextlib import asynccontextmanager
 
+import anyio
 from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse
 
@@ -12,7 +13,7 @@ from backend.api import auth, health, jobs, results
 from backend.db import make_engine, make_sessionmaker
 from backend.errors import install_error_handlers
 from backend.frontend import mount_frontend
-from backend.jobs import JobError, reconcile_on_startup
+from backend.jobs import JobError, reconcile_periodically, reconcile_quietly
 from backend.limits import BodySizeLimit
 from backend.settings import Settings
 from backend.state import AppState
@@ -29,8 +30,12 @@ def create_app(settings: Settings) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(_app: FastAPI):  # type: ignore[no-untyped-def]
-        reconcile_on_startup(state.sessions, state.celery, redis_url=settings.redis_url)
-        yield
+        reconcile_quietly(state.sessions, state.celery, settings)  # jobs the queue lost while the API was down
+        async with anyio.create_task_group() as background:
+            if settings.reconcile_interval_s > 0:
+                background.start_soon(reconcile_periodically, state.sessions, state.celery, settings)
+            yield
+            background.cancel_scope.cancel()
         engine.dispose()
 
     app = FastAPI(

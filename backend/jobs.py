@@ -41,6 +41,7 @@ from sqlalchemy.orm import Session, sessionmaker
 from backend import __version__
 from backend.errors import ApiError
 from backend.models import Calibration, Camera, Job, JobChunk, JobLog, Recording, utcnow
+from backend.settings import Settings
 
 TASK_NAMES = {
     "ingest": "fringelab.ingest",
@@ -60,8 +61,6 @@ WORKER_SEND_RETRY = {"max_retries": 60, "interval_start": 0.5, "interval_step": 
 ACTIVE_STATES = ("queued", "running")
 FINAL_STATES = ("succeeded", "failed", "cancelled")
 
-HEARTBEAT_INTERVAL_S = 10.0  # a running task writes `heartbeat_at` this often, even inside one long frame
-STALE_AFTER_S = 60.0  # no heartbeat for this long and no message in the broker: the task is lost
 MAX_REQUEUES = 3  # a job lost more often than this is failed instead of re-queued again
 log = logging.getLogger(__name__)
 
@@ -422,69 +421,168 @@ def eta_seconds(job: Job, *, now: datetime | None = None) -> float | None:
 # ------------------------------------------------------------------------------------------ reconciliation
 
 
-def broker_task_ids(redis_url: str, queues: Iterable[str]) -> set[str]:
-    """Ids of the tasks the broker holds: waiting in a queue or delivered but not yet acknowledged.
+@dataclass(frozen=True)
+class Delivery:
+    """A message delivered to a worker and not yet acknowledged: kombu's delivery tag and when it was handed out."""
 
-    Reads kombu's Redis layout: one list per queue and priority (`name`, `name\\x06\\x16<p>`) and the `unacked`
-    hash of `[message, exchange, routing_key]`.
-    """
+    tag: str
+    delivered_at: datetime
+
+
+@dataclass(frozen=True)
+class BrokerTasks:
+    """What the broker holds, by task id: `waiting` in a queue, `delivered` to a worker and unacknowledged."""
+
+    waiting: set[str]
+    delivered: dict[str, Delivery]
+
+
+UNACKED, UNACKED_INDEX = "unacked", "unacked_index"  # kombu's Redis keys of delivered, unacknowledged messages
+
+
+def broker_tasks(redis_url: str, queues: Iterable[str]) -> BrokerTasks:
+    """Read kombu's Redis layout: one list per queue and priority (`name`, `name\x06\x16<p>`), the `unacked`
+    hash (tag -> `[message, exchange, routing_key]`) and the `unacked_index` sorted set (tag -> delivery time)."""
     client = redis.Redis.from_url(redis_url, socket_timeout=10, socket_connect_timeout=5)
     try:
-        payloads: list[bytes] = []
+        waiting: list[bytes] = []
         for queue in queues:
             for key in (queue, *(f"{queue}\x06\x16{p}" for p in (3, 6, 9))):
-                payloads.extend(client.lrange(key, 0, -1))  # type: ignore[arg-type]
-        unacked = [json.loads(raw)[0] for raw in client.hvals("unacked")]  # type: ignore[union-attr]
+                waiting.extend(client.lrange(key, 0, -1))  # type: ignore[arg-type]
+        unacked = client.hgetall(UNACKED)
+        index = dict(client.zrange(UNACKED_INDEX, 0, -1, withscores=True))  # type: ignore[arg-type]
     finally:
         client.close()
-    ids = set()
-    for message in [json.loads(raw) for raw in payloads] + unacked:
-        task_id = (message.get("headers") or {}).get("id")
-        if task_id:
-            ids.add(task_id)
-    return ids
+
+    def task_id(message: dict[str, Any]) -> str | None:
+        return (message.get("headers") or {}).get("id")
+
+    delivered = {}
+    for tag, raw in unacked.items():  # type: ignore[union-attr]
+        found = task_id(json.loads(raw)[0])
+        if found:
+            moment = datetime.fromtimestamp(index.get(tag, 0.0), UTC)
+            delivered[found] = Delivery(tag=tag.decode(), delivered_at=moment)
+    return BrokerTasks(waiting={t for raw in waiting if (t := task_id(json.loads(raw)))}, delivered=delivered)
+
+
+def forget_delivery(redis_url: str, delivery: Delivery) -> None:
+    """Drop a delivery whose worker is gone, so that kombu does not hand it out again after the visibility timeout
+    (the task is sent anew instead; were its worker alive after all, its acknowledgement finds nothing: harmless)."""
+    client = redis.Redis.from_url(redis_url, socket_timeout=10, socket_connect_timeout=5)
+    try:
+        client.pipeline().hdel(UNACKED, delivery.tag).zrem(UNACKED_INDEX, delivery.tag).execute()
+    finally:
+        client.close()
+
+
+def tasks_held_by_live_workers(celery: Celery, *, timeout_s: float) -> set[str]:
+    """Ids of the tasks live workers report as running or reserved (a bounded broadcast; none answer: empty)."""
+    inspector = celery.control.inspect(timeout=timeout_s)
+    held: set[str] = set()
+    for replies in (inspector.active(), inspector.reserved()):
+        for requests in (replies or {}).values():
+            held.update(request["id"] for request in requests)
+    return held
 
 
 @dataclass(frozen=True)
 class TaskToSend:
+    """A task an active job needs, with what the database knows of its run: `started` (a worker began it) and
+    `last_sign_s` (when the run, or the job if it has not started, last showed life)."""
+
     name: str
     args: list[Any]
     task_id: str
+    started: bool
+    last_sign: datetime | None
+
+
+def _latest(*moments: datetime | None) -> datetime | None:
+    known = [as_utc(m) for m in moments if m is not None]
+    return max(known) if known else None  # type: ignore[type-var]
 
 
 def tasks_in_flight(session: Session, job: Job) -> list[TaskToSend]:
     """The tasks that must exist somewhere for this active job to progress, from what the database records."""
     chunks = list(session.scalars(select(JobChunk).where(JobChunk.job_id == job.id).order_by(JobChunk.index)))
+    job_sign = _latest(job.heartbeat_at, job.created_at)
     if job.state == "queued" or not chunks:
-        return [TaskToSend(TASK_NAMES[job.kind], [job.id], job.id)]
+        running = job.state == "running"
+        sign = as_utc(job.heartbeat_at) if running else as_utc(job.created_at)
+        return [TaskToSend(TASK_NAMES[job.kind], [job.id], job.id, running, sign)]
     pending = [c for c in chunks if c.state != "done"]
     if pending:
-        return [TaskToSend(CHUNK_TASK, [job.id, c.index], chunk_task_id(job.id, c.index)) for c in pending]
-    return [TaskToSend(MERGE_TASK, [job.id], merge_task_id(job.id))]
+        return [
+            TaskToSend(
+                CHUNK_TASK,
+                [job.id, c.index],
+                chunk_task_id(job.id, c.index),
+                c.state == "running",
+                as_utc(c.heartbeat_at) if c.state == "running" else job_sign,
+            )
+            for c in pending
+        ]
+    queued_at, beat = as_utc(job.merge_queued_at), as_utc(job.heartbeat_at)
+    merging = queued_at is not None and beat is not None and beat >= queued_at  # run_merge beats as it starts
+    return [TaskToSend(MERGE_TASK, [job.id], merge_task_id(job.id), merging, job_sign)]
 
 
-def _recently_alive(session: Session, job: Job, now: datetime) -> bool:
+def is_lost(
+    task: TaskToSend, broker: BrokerTasks, *, now: datetime, lost_after_s: float, live: Callable[[], set[str]]
+) -> bool:
+    """Whether a task an active job needs exists nowhere any more. Waiting in a queue: not lost. Delivered but not
+    started: lost only if no live worker (`live()`, asked only then) holds it after `lost_after_s` (its worker
+    died with it reserved). Otherwise (started, or not in the broker): lost when its run, or the job, has shown
+    no sign of life for `lost_after_s` (a run whose message Redis lost still finishes, and a message passing
+    from the queue to a worker is briefly in neither place)."""
+    limit = now - timedelta(seconds=lost_after_s)
+    if task.task_id in broker.waiting:
+        return False
+    delivery = broker.delivered.get(task.task_id)
+    if delivery is not None and not task.started:
+        return delivery.delivered_at < limit and task.task_id not in live()
+    return task.last_sign is None or task.last_sign < limit
+
+
+def _recently_alive(session: Session, job: Job, now: datetime, lost_after_s: float) -> bool:
     beats = [as_utc(job.heartbeat_at)]
     beats += [as_utc(b) for b in session.scalars(select(JobChunk.heartbeat_at).where(JobChunk.job_id == job.id))]
-    limit = now - timedelta(seconds=STALE_AFTER_S)
+    limit = now - timedelta(seconds=lost_after_s)
     return any(b is not None and b > limit for b in beats)
 
 
-def reconcile(session: Session, celery: Celery, *, redis_url: str, queues: Iterable[str]) -> list[str]:
-    """Make the broker hold every job the database says is queued or running (run at API start-up).
+def reconcile(
+    session: Session,
+    celery: Celery,
+    *,
+    redis_url: str,
+    queues: Iterable[str],
+    lost_after_s: float,
+    inspect_timeout_s: float = 1.0,
+) -> list[str]:
+    """Make the broker hold every task the database says an active job needs (at API start-up and then every
+    FRINGELAB_RECONCILE_INTERVAL_S).
 
-    A job none of whose tasks the broker holds, and whose worker has not reported for STALE_AFTER_S, was lost
-    (Redis restarted without its append-only file, a worker vanished with the message): it is re-queued (every
-    task is idempotent), or failed with the reason after MAX_REQUEUES. A cancelled job whose worker never
-    confirmed is closed. Returns one line per action, also written to each job's log.
+    Lost tasks (`is_lost`: Redis restarted without its append-only file, a whole worker died with the message)
+    are sent again (every task is idempotent), or the job fails with the reason after MAX_REQUEUES. A cancelled
+    job whose worker never confirmed is closed. Returns one line per action, also written to each job's log.
     """
-    held = broker_task_ids(redis_url, queues)  # read the broker BEFORE the database: a task acked in between
+    broker = broker_tasks(redis_url, queues)  # read the broker BEFORE the database: a task acked in between
     now = utcnow()  # has already written its final state, so it is not mistaken for a lost one
     actions: list[str] = []
+    asked: list[set[str]] = []
+
+    def live() -> set[str]:
+        if not asked:
+            asked.append(tasks_held_by_live_workers(celery, timeout_s=inspect_timeout_s))
+        return asked[0]
+
     for job in session.scalars(select(Job).where(Job.state.in_(ACTIVE_STATES)).order_by(Job.created_at)).all():
         session.refresh(job)
         wanted = tasks_in_flight(session, job)
-        if any(t.task_id in held for t in wanted) or (job.state == "running" and _recently_alive(session, job, now)):
+        lost = [t for t in wanted if is_lost(t, broker, now=now, lost_after_s=lost_after_s, live=live)]
+        if not lost:
             continue
         if job.requeues >= MAX_REQUEUES:
             message = (
@@ -504,16 +602,18 @@ def reconcile(session: Session, celery: Celery, *, redis_url: str, queues: Itera
         job.requeues += 1
         message = (
             f"the job queue no longer held this {job.state} job (Redis restarted without its data, or its worker "
-            f"vanished); re-queued {len(wanted)} task(s) (re-queue {job.requeues} of {MAX_REQUEUES})"
+            f"vanished); re-queued {len(lost)} task(s) (re-queue {job.requeues} of {MAX_REQUEUES})"
         )
         add_log(session, job.id, message, level="warning")
         session.commit()
-        for task in wanted:
+        for task in lost:
+            if task.task_id in broker.delivered:
+                forget_delivery(redis_url, broker.delivered[task.task_id])
             celery.send_task(task.name, args=task.args, task_id=task.task_id, ignore_result=True)
         actions.append(f"{job.id}: {message}")
     stuck = select(Job).where(Job.state == "cancelled", Job.finished_at.is_(None))
     for job in session.scalars(stuck).all():
-        if not _recently_alive(session, job, now):
+        if not _recently_alive(session, job, now, lost_after_s):
             _revoke(celery, job_task_ids(session, job), terminate=True)
             job.finished_at = now
             add_log(session, job.id, "closed the cancelled job: its worker is gone")
@@ -522,17 +622,38 @@ def reconcile(session: Session, celery: Celery, *, redis_url: str, queues: Itera
     return actions
 
 
-def reconcile_on_startup(sessions: sessionmaker[Session], celery: Celery, *, redis_url: str) -> list[str]:
-    """`reconcile` for the API's start-up: a broker or database that is down is logged, not fatal (the health
-    endpoint reports it, and the next start-up reconciles)."""
+def reconcile_quietly(sessions: sessionmaker[Session], celery: Celery, settings: Settings) -> list[str]:
+    """`reconcile` as the API runs it: a broker or database that is down is logged, not fatal (the health
+    endpoint reports it, and the next round reconciles)."""
     from worker.celery_app import QUEUE
 
     try:
         with sessions() as session:
-            actions = reconcile(session, celery, redis_url=redis_url, queues=[QUEUE])
+            actions = reconcile(
+                session,
+                celery,
+                redis_url=settings.redis_url,
+                queues=[QUEUE],
+                lost_after_s=settings.worker_lost_after_s,
+                inspect_timeout_s=settings.health_worker_timeout_s,
+            )
     except (SQLAlchemyError, redis.RedisError, OperationalError, OSError) as error:
-        log.warning("jobs not reconciled with the queue at start-up: %s", error)
+        log.warning("jobs not reconciled with the queue: %s", error)
         return []
     for action in actions:
         log.warning("reconciled job %s", action)
     return actions
+
+
+def heartbeat_interval_s(settings: Settings) -> float:
+    """How often a running task reports: often enough that `worker_lost_after_s` means a dead worker."""
+    return min(10.0, settings.worker_lost_after_s / 6)
+
+
+async def reconcile_periodically(sessions: sessionmaker[Session], celery: Celery, settings: Settings) -> None:
+    """The API's sweep: `reconcile_quietly` every FRINGELAB_RECONCILE_INTERVAL_S, in a thread, until cancelled."""
+    import anyio
+
+    while True:
+        await anyio.sleep(settings.reconcile_interval_s)
+        await anyio.to_thread.run_sync(reconcile_quietly, sessions, celery, settings)

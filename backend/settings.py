@@ -42,6 +42,12 @@ class Settings(BaseSettings):
     cancel_grace_s: float = Field(
         10.0, ge=0, description="After a cancel, seconds a running task has to stop before its process is terminated."
     )
+    worker_lost_after_s: float = Field(
+        60.0, ge=2, description="A running task that has not reported for this long is lost with its worker."
+    )
+    reconcile_interval_s: float = Field(
+        30.0, ge=0, description="How often the API re-queues jobs the queue lost; 0 means only at start-up."
+    )
     auth_enabled: bool = Field(
         False, description="Require a login or API token; must be on to bind an address other than loopback."
     )

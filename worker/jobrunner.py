@@ -27,16 +27,17 @@ from typing import Any
 
 from celery import Task, group
 from sqlalchemy import func, select, update
+from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, sessionmaker
 
 from backend.jobs import (
     CHUNK_TASK,
     FINAL_STATES,
-    HEARTBEAT_INTERVAL_S,
     MERGE_TASK,
     WORKER_SEND_RETRY,
     add_log,
     chunk_task_id,
+    heartbeat_interval_s,
     merge_task_id,
 )
 from backend.models import Job, JobChunk, utcnow
@@ -151,13 +152,15 @@ def _worker_name(task: Task) -> str:
 
 
 @contextmanager
-def _heartbeat(sessions: sessionmaker[Session], job_id: str, chunk_index: int | None = None) -> Iterator[None]:
-    """Write `heartbeat_at` every HEARTBEAT_INTERVAL_S while the body runs, so reconciliation can tell a long
-    frame from a dead worker."""
+def _heartbeat(
+    sessions: sessionmaker[Session], job_id: str, chunk_index: int | None, *, interval_s: float
+) -> Iterator[None]:
+    """Write `heartbeat_at` every `interval_s` while the body runs, so reconciliation can tell a long frame from
+    a dead worker."""
     stop = threading.Event()
 
     def beat() -> None:
-        while not stop.wait(HEARTBEAT_INTERVAL_S):
+        while not stop.wait(interval_s):
             try:
                 with sessions() as session:
                     moment = utcnow()
@@ -181,12 +184,11 @@ def _heartbeat(sessions: sessionmaker[Session], job_id: str, chunk_index: int | 
         thread.join()
 
 
-def _run_guarded(
-    sessions: sessionmaker[Session], job_id: str, step: Callable[[], Any], chunk_index: int | None = None
-) -> tuple[bool, Any]:
+def _run_guarded(context: JobContext, step: Callable[[], Any]) -> tuple[bool, Any]:
     """Run one step of a job; turn its errors into the job's end. (True, value) when it returned normally."""
+    sessions, job_id = context.sessions, context.job_id
     try:
-        with _heartbeat(sessions, job_id, chunk_index):
+        with _heartbeat(sessions, job_id, context.chunk_index, interval_s=heartbeat_interval_s(context.settings)):
             return True, step()
     except JobCancelled:
         finish(sessions, job_id, state="cancelled")
@@ -227,7 +229,7 @@ def run_job(task: Task, job_id: str, body: JobBody) -> dict[str, Any]:
         add_log(session, job_id, f"{'restarted' if again else 'started'} on {worker}")
         session.commit()
     context = JobContext(job_id=job_id, spec=spec, settings=settings_of(task.app), sessions=sessions)
-    ok, outcome = _run_guarded(sessions, job_id, lambda: body(context))
+    ok, outcome = _run_guarded(context, lambda: body(context))
     if not ok:
         return {}
     if isinstance(outcome, Chunked):
@@ -240,7 +242,8 @@ def run_job(task: Task, job_id: str, body: JobBody) -> dict[str, Any]:
 def _dispatch_chunks(task: Task, sessions: sessionmaker[Session], job_id: str, plan: Chunked) -> None:
     """Store the chunk rows (once: a second run keeps the first plan) and send a task per unfinished chunk."""
     with sessions() as session:
-        chunks = list(session.scalars(select(JobChunk).where(JobChunk.job_id == job_id).order_by(JobChunk.index)))
+        query = select(JobChunk).where(JobChunk.job_id == job_id).order_by(JobChunk.index)
+        chunks = list(session.scalars(query))
         if not chunks:
             chunks = [
                 JobChunk(job_id=job_id, index=i, first_frame=first, stop_frame=stop)
@@ -252,9 +255,13 @@ def _dispatch_chunks(task: Task, sessions: sessionmaker[Session], job_id: str, p
             job.progress_done = 0
             job.progress_total = sum(stop - first for first, stop in plan.frame_ranges)
             job.stage, job.stage_started_at = plan.stage, utcnow()
-            add_log(session, job_id, f"split into {len(chunks)} chunk(s) of up to "
-                    f"{max(stop - first for first, stop in plan.frame_ranges)} frames")  # fmt: skip
-        session.commit()
+            longest = max(stop - first for first, stop in plan.frame_ranges)
+            add_log(session, job_id, f"split into {len(chunks)} chunk(s) of up to {longest} frames")
+            try:
+                session.commit()
+            except IntegrityError:  # a second delivery of this entry task planned them a moment ago: keep those
+                session.rollback()
+                chunks = list(session.scalars(query))
         pending = [c.index for c in chunks if c.state != "done"]
     signatures = [
         task.app.signature(CHUNK_TASK, args=[job_id, index]).set(task_id=chunk_task_id(job_id, index))
@@ -284,7 +291,7 @@ def run_chunk(task: Task, job_id: str, index: int, body: ChunkBody) -> None:
         first, stop, spec = chunk.first_frame, chunk.stop_frame, dict(job.spec)
         session.commit()
     context = JobContext(job_id=job_id, spec=spec, settings=settings_of(task.app), sessions=sessions, chunk_index=index)
-    ok, _ = _run_guarded(sessions, job_id, lambda: body(context, first, stop), chunk_index=index)
+    ok, _ = _run_guarded(context, lambda: body(context, first, stop))
     if not ok:
         return
     with sessions() as session:
@@ -351,9 +358,10 @@ def run_merge(task: Task, job_id: str, body: MergeBody) -> dict[str, Any]:
         ]
         spec = dict(job.spec)
         job.worker = _worker_name(task)
+        job.heartbeat_at = utcnow()  # after merge_queued_at: tells reconciliation that the merge has started
         session.commit()
     context = JobContext(job_id=job_id, spec=spec, settings=settings_of(task.app), sessions=sessions)
-    ok, result = _run_guarded(sessions, job_id, lambda: body(context, ranges))
+    ok, result = _run_guarded(context, lambda: body(context, ranges))
     if not ok:
         return {}
     finish(sessions, job_id, state="succeeded", result=result, context=context)

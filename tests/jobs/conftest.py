@@ -56,6 +56,7 @@ class PreforkWorker:
             "FRINGELAB_REDIS_URL": settings.redis_url,
             "FRINGELAB_WORKER_CONCURRENCY": str(concurrency),
             "FRINGELAB_CHUNK_FRAMES": str(settings.chunk_frames),
+            "FRINGELAB_WORKER_LOST_AFTER_S": str(settings.worker_lost_after_s),
             "FRINGELAB_LOG_LEVEL": "info",
         }
         self.settings = settings

@@ -4,6 +4,7 @@ complete result."""
 
 from __future__ import annotations
 
+import os
 import signal
 
 import h5py
@@ -57,6 +58,33 @@ def test_a_worker_process_killed_mid_chunk_is_replaced_and_the_job_ends_once_com
     rerun = next(c for c in job["chunks"] if c["index"] == victim["index"])  # type: ignore[index]
     assert pid_of(rerun["worker"]) != killed
     assert killed not in worker.pool_pids() and len(worker.pool_pids()) == 2
+
+
+def test_a_whole_worker_killed_mid_job_is_noticed_and_another_worker_finishes_the_job(
+    settings, start_prefork_worker, tmp_path
+):
+    """SIGKILL of the worker and its pool (a machine that dies): its delivered messages would only come back after
+    the visibility timeout (hours); the API's sweep notices the silence and re-queues what the job still needs."""
+    from fastapi.testclient import TestClient
+
+    from backend.app import create_app
+
+    quick = _settings(settings, worker_lost_after_s=3.0, reconcile_interval_s=1.0)
+    doomed = start_prefork_worker(quick, concurrency=1)
+    with TestClient(create_app(quick)) as client:
+        spec = {"kind": "selftest", "frames": 60, "frame_size_px": 1024, "chunk_frames": 20}
+        job_id = client.post("/api/v1/jobs", json=spec).json()["id"]
+
+        def a_running_chunk() -> bool:
+            return any(c["state"] == "running" for c in client.get(f"/api/v1/jobs/{job_id}").json()["chunks"])
+
+        wait_for(a_running_chunk, timeout_s=60, what="a chunk to run")
+        os.killpg(doomed.process.pid, signal.SIGKILL)
+        doomed.process.wait()
+        start_prefork_worker(quick, concurrency=1, flush=False)
+        job = wait_job(client, job_id, timeout_s=120)
+        assert_complete_selftest(client, job, tmp_path)
+        assert any("re-queued" in m for m in log_messages(client, job_id))
 
 
 def test_a_cancel_terminates_a_task_that_does_not_stop_on_its_own(settings, start_prefork_worker, tmp_path):

@@ -9,11 +9,12 @@ from fastapi.testclient import TestClient
 
 from backend.app import create_app
 from backend.db import make_engine, make_sessionmaker
-from backend.jobs import MAX_REQUEUES, STALE_AFTER_S
+from backend.jobs import MAX_REQUEUES, BrokerTasks, Delivery, TaskToSend, is_lost
 from backend.models import Job, JobChunk, utcnow
 from tests.jobs.conftest import log_messages, wait_job
 
 SELFTEST = {"kind": "selftest", "frames": 12, "frame_size_px": 32, "chunk_frames": 4}
+LOST_S = 65.0  # longer ago than FRINGELAB_WORKER_LOST_AFTER_S (60 s)
 
 
 @pytest.fixture
@@ -26,7 +27,8 @@ def insert_job(settings):
         with sessions() as session:
             beat = utcnow() - timedelta(seconds=heartbeat_age_s) if heartbeat_age_s is not None else None
             job = Job(id=f"lost-{state}-{heartbeat_age_s}-{chunks}", kind="selftest", spec=SELFTEST, state=state,
-                      heartbeat_at=beat, started_at=beat, **columns)  # fmt: skip
+                      heartbeat_at=beat, started_at=beat, created_at=utcnow() - timedelta(seconds=LOST_S),
+                      **columns)  # fmt: skip
             session.add(job)
             for index in range(chunks):
                 first = index * SELFTEST["chunk_frames"]
@@ -43,7 +45,7 @@ def insert_job(settings):
 @pytest.mark.integration
 @pytest.mark.parametrize(
     ("state", "heartbeat_age_s", "chunks"),
-    [("queued", None, 0), ("running", STALE_AFTER_S + 5, 0), ("running", STALE_AFTER_S + 5, 3)],
+    [("queued", None, 0), ("running", LOST_S, 0), ("running", LOST_S, 3)],
     ids=["queued", "running-entry", "running-chunks"],
 )
 def test_a_job_the_broker_lost_is_requeued_at_start_up_and_finishes(
@@ -61,7 +63,7 @@ def test_a_job_the_broker_lost_is_requeued_at_start_up_and_finishes(
 
 
 def test_a_job_lost_too_often_is_failed_with_the_reason(settings, insert_job):
-    job_id = insert_job(state="running", heartbeat_age_s=STALE_AFTER_S + 5, requeues=MAX_REQUEUES)
+    job_id = insert_job(state="running", heartbeat_age_s=LOST_S, requeues=MAX_REQUEUES)
     with TestClient(create_app(settings)) as client:
         job = client.get(f"/api/v1/jobs/{job_id}").json()
     assert job["state"] == "failed"
@@ -78,7 +80,7 @@ def test_a_running_job_whose_worker_reports_is_left_alone(settings, insert_job):
 
 
 def test_a_cancelled_job_whose_worker_vanished_is_closed(settings, insert_job):
-    job_id = insert_job(state="cancelled", heartbeat_age_s=STALE_AFTER_S + 5)
+    job_id = insert_job(state="cancelled", heartbeat_age_s=LOST_S)
     with TestClient(create_app(settings)) as client:
         job = client.get(f"/api/v1/jobs/{job_id}").json()
         assert job["state"] == "cancelled" and not job["stopping"]
@@ -98,3 +100,35 @@ def test_the_api_restarting_mid_job_changes_nothing(settings, celery_worker):
         messages = log_messages(client, job_id)
     assert not any("re-queued" in m for m in messages)
     assert sum(m.startswith(("started", "restarted")) for m in messages) == 1
+
+
+NOW = utcnow()
+
+
+def _ago(seconds: float):
+    return NOW - timedelta(seconds=seconds)
+
+
+@pytest.mark.parametrize(
+    ("where", "started", "last_sign_age_s", "held_by_a_live_worker", "lost"),
+    [
+        ("waiting", False, 1000, False, False),  # still in its queue, however old
+        ("delivered", False, 1000, True, False),  # reserved by a busy live worker
+        ("delivered", False, 1000, False, True),  # reserved by a worker that died
+        ("delivered-just-now", False, 1000, False, False),  # handed out a moment ago
+        ("delivered", True, 5, False, False),  # running, its worker reports
+        ("delivered", True, 100, True, True),  # running, its worker went silent
+        ("nowhere", True, 5, False, False),  # Redis lost it, the run goes on
+        ("nowhere", False, 100, False, True),  # Redis lost it before it started
+        ("nowhere", False, 5, False, False),  # just sent: between queue and worker
+    ],
+)
+def test_which_tasks_count_as_lost(where, started, last_sign_age_s, held_by_a_live_worker, lost):
+    task = TaskToSend("fringelab.selftest", ["j"], "j", started, _ago(last_sign_age_s))
+    delivered_at = _ago(1.0 if where == "delivered-just-now" else 1000)
+    broker = BrokerTasks(
+        waiting={"j"} if where == "waiting" else set(),
+        delivered={"j": Delivery("tag", delivered_at)} if where.startswith("delivered") else {},
+    )
+    live = {"j"} if held_by_a_live_worker else set()
+    assert is_lost(task, broker, now=NOW, lost_after_s=60, live=lambda: live) is lost
