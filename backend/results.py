@@ -229,3 +229,43 @@ def _plain(value: Any) -> Any:
     if isinstance(value, float) and not math.isfinite(value):
         return None
     return value
+
+
+# ---------------------------------------------------------------------------------------------- projector
+
+PROJECTOR_SCHEMA = "fringelab.projector-calibration"
+
+
+def projector_table(data_path: Path, relative: str, *, line: int | None, edges: list[int] | None) -> dict[str, Any]:
+    """Curves of a projector look-up table (`projector.h5`, schema fringelab.projector-calibration): the position
+    t (px, along scan line `line`, default the middle one) of each stripe edge against the plate's Z, with the
+    table's settings and QA. Reads one scan line of the table."""
+    path = result_path(data_path, relative)
+    try:
+        file = h5py.File(path, "r")
+    except OSError as error:
+        raise ResultUnavailable(f"{relative} is not readable ({error}); run the calibration again") from None
+    with file:
+        if file.attrs.get("schema") != PROJECTOR_SCHEMA:
+            raise ResultUnavailable(f"{relative} is not a projector calibration")
+        table = file["lut_t_px"]
+        n_edges, n_lines, _n_z = table.shape
+        line = n_lines // 2 if line is None else line
+        if not 0 <= line < n_lines:
+            raise OutsideGrid(f"line must be 0..{n_lines - 1}")
+        chosen = list(range(n_edges)) if edges is None else edges
+        if any(not 0 <= k < n_edges for k in chosen):
+            raise OutsideGrid(f"edges must be 0..{n_edges - 1}")
+        rows = table[:, line, :]  # one scan line of every edge
+        polarity = file["polarity"][()]
+        return {
+            "axis": _plain(file.attrs["axis"]),
+            "period_px": _plain(file.attrs["period_px"]),
+            "reference_z_mm": _plain(file.attrs["reference_z_mm"]),
+            "n_edges": int(n_edges),
+            "n_lines": int(n_lines),
+            "line": line,
+            "z_mm": file["z_mm"][()],
+            "curves": [{"edge": k, "polarity": int(polarity[k]), "t_px": rows[k]} for k in chosen],
+            "qa": json.loads(file.attrs["qa_json"]),
+        }

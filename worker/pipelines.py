@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import hashlib
 import os
+import shutil
 import socket
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -252,10 +254,215 @@ def camera_calibration_body(context: JobContext) -> dict[str, Any]:
     return {"calibration_id": row.id, "version": row.version, **summary, "reasons": list(calibration.verdict.reasons)}
 
 
+def _calibration_file(context: JobContext, calibration_id: int) -> Path:
+    with context.sessions() as session:
+        row = session.get(Calibration, calibration_id)
+        if row is None:
+            raise ValueError(f"calibration {calibration_id} was deleted; choose another one and start a new job")
+        path = context.settings.data_path / row.path
+    if not path.is_file():
+        raise ValueError(f"the file of calibration {calibration_id} is gone ({row.path}); run that calibration again")
+    return path
+
+
+def projector_calibration_body(context: JobContext) -> dict[str, Any]:
+    from worker.measurement.camera_files import read_camera_json
+    from worker.measurement.fringes import EdgeSettings
+    from worker.measurement.projector import CalibrationCancelled, ProjectorSettings, calibrate_projector_recording
+    from worker.measurement.readers import open_recording
+    from worker.measurement.topography_files import write_projector_calibration
+
+    spec = context.spec
+    recording, camera, path = _recording_input(context)
+    camera_model = read_camera_json(_calibration_file(context, spec["camera_calibration_id"]))
+    settings = ProjectorSettings(
+        edges=EdgeSettings(axis=spec["axis"]),
+        reference_z_mm=spec["reference_z_mm"],
+        poly_degree=spec["poly_degree"],
+        min_z_samples=max(6, spec["poly_degree"] + 2),
+    )
+    context.log(f"projector calibration of camera {camera.name!r} from recording {recording.id}")
+    try:
+        calibration = calibrate_projector_recording(
+            open_recording(path),
+            camera_model,
+            settings=settings,
+            progress=context.progress,
+            should_cancel=context.should_cancel,
+        )
+    except CalibrationCancelled as error:
+        raise JobCancelled(str(error)) from None
+    with context.output("projector.h5", media_type="application/x-hdf5") as temporary:
+        write_projector_calibration(calibration, temporary)
+    qa = calibration.qa
+    summary = {
+        "axis": calibration.axis,
+        "n_edges": qa.n_edges,
+        "n_lines": calibration.n_lines,
+        "z_range_mm": [float(v) for v in qa.z_range_mm],
+        "z_steps": len(calibration.z_mm),
+        "coverage": qa.coverage,
+        "sensitivity_px_per_mm": float(qa.sensitivity_px_per_mm[1]),
+        "fit_rms_mm": qa.fit_rms_mm,
+    }
+    height, width = calibration.image_shape
+    row = record_calibration(
+        context, kind="projector", camera_id=camera.id, recording_id=recording.id, name="projector.h5",
+        image_size_px=(width, height), summary=summary,
+    )  # fmt: skip
+    context.provenance.update({"science": calibration.provenance})
+    context.log(
+        f"projector calibration version {row.version}: {qa.n_edges} edges, coverage {qa.coverage:.1%}, "
+        f"fit RMS {qa.fit_rms_mm:.4f} mm"
+    )
+    return {"calibration_id": row.id, "version": row.version, **summary}
+
+
+# ------------------------------------------------------------------------------------------------ topography
+#
+# The split: locating the edges of a frame is the expensive part and depends on that frame alone, so chunks of
+# frames run it in parallel on every worker and store the edges (`chunks/edges-<first>.h5`). Identity is fixed
+# on frame 0 and carried frame to frame, so the merge runs the cheap tracking, Z, X-Y and gridding pass over the
+# stored edges in frame order: the same computation as one sequential run, whatever the chunking.
+
+
+def _topography_inputs(context: JobContext) -> tuple[Any, Any, Any, range, Any]:
+    """(frame source, camera model, projector table, frames to write, settings) of a topography job."""
+    from worker.measurement.camera_files import read_camera_json
+    from worker.measurement.readers import open_recording
+    from worker.measurement.topography import TopographySettings, frame_range
+    from worker.measurement.topography_files import read_projector_calibration
+
+    spec = context.spec
+    _recording, _camera, path = _recording_input(context)
+    source = open_recording(path)
+    camera_model = read_camera_json(_calibration_file(context, spec["camera_calibration_id"]))
+    projector = read_projector_calibration(_calibration_file(context, spec["projector_calibration_id"]))
+    frames = spec.get("frames") or {}
+    last = frames.get("last")
+    wanted = frame_range(range(frames.get("first", 0), len(source) if last is None else last + 1), len(source))
+    settings = TopographySettings(
+        grid_step_mm=spec["grid_step_mm"], temporal_smoothing_frames=spec["temporal_smoothing_frames"]
+    )
+    return source, camera_model, projector, wanted, settings
+
+
+def _edges_name(first: int) -> str:
+    return f"chunks/edges-{first:07d}.h5"
+
+
+def topography_entry(context: JobContext) -> Chunked:
+    from worker.measurement.topography import check_recording_against, check_stripes_against
+
+    source, camera_model, projector, wanted, settings = _topography_inputs(context)
+    first_frame = source[0]
+    check_recording_against(first_frame.shape[:2], projector, camera_model)
+    check_stripes_against(first_frame, projector)
+    # identity is fixed on frame 0: edges are needed from there to the last frame written (+ the smoothing window)
+    stop = min(wanted.stop + settings.temporal_smoothing_frames, len(source))
+    context.log(f"topography of frames {wanted.start}..{wanted.stop - 1} (edges of frames 0..{stop - 1})")
+    return Chunked(frame_ranges(stop, _chunk_frames(context.spec, context.settings)), stage="locating edges")
+
+
+def topography_chunk(context: JobContext, first: int, stop: int) -> None:
+    from worker.measurement.topography import locate_test_edges
+    from worker.measurement.topography_files import write_edges
+
+    source, _camera, projector, _wanted, _settings = _topography_inputs(context)
+    edges = []
+    for done, frame_edges in enumerate(locate_test_edges((source[i] for i in range(first, stop)), projector)):
+        edges.append(frame_edges)
+        context.progress(done + 1, stop - first, "locating edges")
+    with context.output(_edges_name(first), publish=False) as temporary:
+        write_edges(temporary, list(range(first, stop)), edges)
+
+
+def topography_merge(context: JobContext, ranges: list[tuple[int, int]]) -> dict[str, Any]:
+    from worker.measurement.topography import TopographyCancelled, topography_recording
+    from worker.measurement.topography_files import read_edges
+
+    source, camera_model, projector, wanted, settings = _topography_inputs(context)
+
+    def stored_edges() -> Any:
+        for first, stop in ranges:
+            path = context.directory / _edges_name(first)
+            if not path.is_file():
+                raise RuntimeError(f"the located edges of frames {first}..{stop - 1} are missing")
+            frames, edges = read_edges(path)
+            if list(frames) != list(range(first, stop)):
+                raise RuntimeError(f"{path.name} holds frames {frames[0]}..{frames[-1]}, not {first}..{stop - 1}")
+            yield from edges
+
+    try:
+        with context.output("topography.h5", media_type="application/x-hdf5") as temporary:
+            summary = topography_recording(
+                source, camera_model, projector, out_path=temporary, frames=wanted, settings=settings,
+                edges=stored_edges(), progress=lambda done, total, _stage: context.progress(done, total, "measuring"),
+                should_cancel=context.should_cancel,
+            )  # fmt: skip
+    except TopographyCancelled as error:
+        raise JobCancelled(str(error)) from None
+    _remove_chunk_files(context.directory)
+    result = {
+        "frames": [summary.frames.start, summary.frames.stop - 1],
+        "flat_rms_mm": summary.flat_rms_mm,
+        "max_peak_w_mm": summary.max_peak_w_mm,
+        "n_out_of_range_total": summary.n_out_of_range_total,
+        "punch_axis_xy_mm": list(summary.punch_axis_xy_mm),
+        "clamp_centre_xy_mm": list(summary.clamp_centre_xy_mm),
+        "clamp_radius_mm": summary.clamp_radius_mm,
+    }
+    context.log(
+        f"topography of {len(summary.frames)} frames: flat first frame RMS {summary.flat_rms_mm:.3f} mm, "
+        f"peak deflection {summary.max_peak_w_mm:.2f} mm"
+    )
+    return {key: (None if isinstance(v, float) and not np.isfinite(v) else v) for key, v in result.items()}
+
+
+def export_body(context: JobContext) -> dict[str, Any]:
+    from worker.measurement.topography_files import export_result
+
+    spec = context.spec
+    with context.sessions() as session:
+        source = session.get(Job, spec["job_id"])
+        entry = next((f for f in (source.files if source else []) if f["name"] == "topography.h5"), None)
+    if entry is None:
+        raise ValueError(f"topography job {spec['job_id']} has no result file any more; run it again")
+    result_path = context.settings.data_path / entry["path"]
+    line = tuple(spec["line"]) if spec.get("line") else None
+    context.progress(0, 1, "exporting")
+    fmt = spec["format"]
+    if fmt == "vtk":  # a .pvd time series of .vtu files: one download as a ZIP
+        work = context.directory / "vtk"
+        shutil.rmtree(work, ignore_errors=True)  # a previous run's leftovers
+        export_result(result_path, fmt, work / "topography.pvd")
+        name = "topography-vtk.zip"
+        with (
+            context.output(name, media_type="application/zip") as temporary,
+            zipfile.ZipFile(temporary, "w", compression=zipfile.ZIP_DEFLATED) as archive,
+        ):
+            for path in sorted(work.rglob("*")):
+                if path.is_file():
+                    archive.write(path, path.relative_to(work))
+        shutil.rmtree(work)
+    else:
+        suffix, media = {
+            "points-csv": (".csv", "text/csv"),
+            "profile-csv": ("-profile.csv", "text/csv"),
+            "grid-npz": (".npz", "application/octet-stream"),
+            "mat": (".mat", "application/x-matlab-data"),
+        }[fmt]
+        name = f"topography{suffix}"
+        with context.output(name, media_type=media) as temporary:
+            export_result(result_path, fmt, temporary, line=line)  # type: ignore[arg-type]
+    context.progress(1, 1, "exporting")
+    return {"format": fmt, "file": name, "source_job_id": spec["job_id"]}
+
+
 # ------------------------------------------------------------------------------------------------ the tasks
 
-CHUNK_BODIES: dict[str, ChunkBody] = {"selftest": selftest_chunk}
-MERGE_BODIES: dict[str, MergeBody] = {"selftest": selftest_merge}
+CHUNK_BODIES: dict[str, ChunkBody] = {"selftest": selftest_chunk, "topography": topography_chunk}
+MERGE_BODIES: dict[str, MergeBody] = {"selftest": selftest_merge, "topography": topography_merge}
 
 
 def _kind(task: Task, job_id: str) -> str | None:
@@ -271,6 +478,21 @@ def selftest(self: Task, job_id: str) -> dict[str, Any]:
 @shared_task(bind=True, name="fringelab.camera_calibration", ignore_result=True)
 def camera_calibration(self: Task, job_id: str) -> dict[str, Any]:
     return run_job(self, job_id, camera_calibration_body)
+
+
+@shared_task(bind=True, name="fringelab.projector_calibration", ignore_result=True)
+def projector_calibration(self: Task, job_id: str) -> dict[str, Any]:
+    return run_job(self, job_id, projector_calibration_body)
+
+
+@shared_task(bind=True, name="fringelab.topography", ignore_result=True)
+def topography(self: Task, job_id: str) -> dict[str, Any]:
+    return run_job(self, job_id, topography_entry)
+
+
+@shared_task(bind=True, name="fringelab.export", ignore_result=True)
+def export(self: Task, job_id: str) -> dict[str, Any]:
+    return run_job(self, job_id, export_body)
 
 
 @shared_task(bind=True, name="fringelab.job_chunk", ignore_result=True)

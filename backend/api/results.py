@@ -32,11 +32,20 @@ from backend.results import (
     ResultUnavailable,
     TopographyReader,
     camera_report,
+    projector_table,
     result_path,
 )
 from backend.schemas.jobs import CalibrationOut
 
 router = APIRouter(tags=["results"])
+
+
+def _listed(values: np.ndarray, decimals: int = 4) -> list[Any]:
+    """JSON list of a float array, rounded, with null for NaN (nested for 2-D)."""
+    rounded = np.round(np.asarray(values, dtype=np.float64), decimals)
+    if rounded.ndim > 1:
+        return [_listed(row, decimals) for row in rounded]
+    return [None if not math.isfinite(v) else v for v in rounded.tolist()]
 
 
 def calibration_out(row: Calibration) -> CalibrationOut:
@@ -114,27 +123,56 @@ def calibration_report(calibration: CalibrationDep, state: StateDep) -> Calibrat
     return CalibrationReport(calibration=calibration_out(calibration), report=report)
 
 
+class ProjectorTable(BaseModel):
+    calibration: CalibrationOut
+    axis: str
+    period_px: float | None
+    reference_z_mm: float | None
+    n_edges: int
+    n_lines: int
+    line: int
+    z_mm: list[float | None]
+    curves: list[dict[str, Any]] = Field(description="[{edge, polarity, t_px: [...] per z_mm, null: not seen}]")
+    qa: dict[str, Any]
+
+
+@router.get("/calibrations/{calibration_id}/table", response_model=ProjectorTable, responses=ERRORS)
+def projector_table_curves(
+    calibration: CalibrationDep,
+    state: StateDep,
+    line: Annotated[int | None, Query(ge=0, description="Scan line; empty: the middle one.")] = None,
+    edges: Annotated[list[int] | None, Query(description="Edge indices; empty: all.")] = None,
+) -> ProjectorTable:
+    """The curves of a projector calibration's look-up table: the position of each stripe edge along one scan
+    line against the plate's Z (METHOD.md §4), with the table's QA."""
+    if calibration.kind != "projector":
+        raise JobError(404, "no_table", f"calibration {calibration.id} is a {calibration.kind} calibration")
+    try:
+        table = projector_table(state.settings.data_path, calibration.path, line=line, edges=edges)
+    except OutsideGrid as error:
+        raise JobError(422, "outside_table", str(error)) from None
+    except ResultUnavailable as error:
+        raise JobError(410, "result_missing", str(error)) from None
+    table["z_mm"] = _listed(table["z_mm"])
+    for curve in table["curves"]:
+        curve["t_px"] = _listed(curve["t_px"])
+    return ProjectorTable(calibration=calibration_out(calibration), **table)
+
+
 @router.get("/calibrations/{calibration_id}/file", response_class=FileResponse, responses=ERRORS)
 def calibration_file(calibration: CalibrationDep, state: StateDep) -> FileResponse:
-    """The calibration file itself (camera.json), streamed."""
+    """The calibration file itself (camera.json or projector.h5), streamed."""
     try:
         path = result_path(state.settings.data_path, calibration.path)
     except ResultUnavailable as error:
         raise JobError(410, "result_missing", str(error)) from None
-    return FileResponse(path, media_type="application/json", filename=f"calibration-{calibration.id}-{path.name}")
+    media_type = "application/json" if path.suffix == ".json" else "application/x-hdf5"
+    return FileResponse(path, media_type=media_type, filename=f"calibration-{calibration.id}-{path.name}")
 
 
 # ---------------------------------------------------------------------------------------------- topography
 
 TOPOGRAPHY_FILE = "topography.h5"
-
-
-def _listed(values: np.ndarray, decimals: int = 4) -> list[Any]:
-    """JSON list of a float array, rounded, with null for NaN (nested for 2-D)."""
-    rounded = np.round(np.asarray(values, dtype=np.float64), decimals)
-    if rounded.ndim > 1:
-        return [_listed(row, decimals) for row in rounded]
-    return [None if not math.isfinite(v) else v for v in rounded.tolist()]
 
 
 @contextmanager

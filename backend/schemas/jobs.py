@@ -18,11 +18,10 @@ class _Spec(BaseModel):
 
 
 class FrameRange(_Spec):
-    """Frames `first`, `first + step`, ... up to `last` (inclusive), numbered from 0."""
+    """Frames `first` to `last` (inclusive), numbered from 0 as in the recording."""
 
     first: int = Field(0, ge=0, description="First frame (0-based).")
     last: int | None = Field(None, ge=0, description="Last frame, inclusive; empty means the recording's last.")
-    step: int = Field(1, ge=1, le=1000, description="Take every step-th frame.")
 
     @model_validator(mode="after")
     def _ordered(self) -> FrameRange:
@@ -71,34 +70,56 @@ class CameraCalibrationSpec(_Spec):
 
 
 class ProjectorCalibrationSpec(_Spec):
-    """Build the projector look-up table from a ready projector-calibration recording (a flat plate along Z)."""
+    """Build the projector look-up table (METHOD.md §4) from a ready projector-calibration recording: the flat
+    plate moved along Z (with z.csv), filmed by the camera of `camera_calibration_id`."""
 
     kind: Literal["projector_calibration"]
     recording_id: int = Field(ge=1, description="A ready recording of kind projector_calibration.")
     camera_calibration_id: int = Field(ge=1, description="A camera calibration of the same camera and image size.")
-    frames: FrameRange = Field(default_factory=FrameRange)
+    axis: Literal["auto", "rows", "cols"] = Field(
+        "auto", description="Scan along image rows (vertical stripes) or columns; auto detects it."
+    )
+    reference_z_mm: float = Field(0.0, ge=-1000, le=1000, description="Z of the test plate at rest.")
+    poly_degree: int = Field(3, ge=1, le=5, description="Degree of Z(t) per edge and scan line.")
 
 
 class TopographySpec(_Spec):
-    """Deflection of every frame of a ready test recording, from a camera and a projector calibration."""
+    """Deflection of every frame of a ready test recording, from a camera and a projector calibration. Edges are
+    located in parallel chunks on every worker; identity, Z and X, Y follow in one pass in frame order, so the
+    result does not depend on the chunking."""
 
     kind: Literal["topography"]
     recording_id: int = Field(ge=1, description="A ready recording of kind test.")
     camera_calibration_id: int = Field(ge=1, description="A camera calibration of the same camera and image size.")
     projector_calibration_id: int = Field(ge=1, description="A projector calibration of the same camera and size.")
-    frames: FrameRange = Field(default_factory=FrameRange)
+    frames: FrameRange = Field(
+        default_factory=FrameRange, description="Frames to write; tracking always starts at frame 0 (flat plate)."
+    )
+    grid_step_mm: float = Field(2.0, ge=0.1, le=50, description="Spacing of the deflection grid, mm.")
+    temporal_smoothing_frames: int = Field(0, ge=0, le=50, description="Half-width of the temporal filter; 0: off.")
     chunk_frames: int | None = Field(
         None, ge=1, description="Frames per parallel chunk; empty means FRINGELAB_CHUNK_FRAMES."
     )
 
 
 class ExportSpec(_Spec):
-    """Write the results of a finished job to a file for other programs."""
+    """Write a succeeded topography result in a format for other programs (a download when the job succeeds)."""
 
     kind: Literal["export"]
     job_id: str = Field(min_length=1, max_length=36, description="A succeeded topography job.")
-    format: Literal["csv", "hdf5", "mat", "vtk"] = Field(description="csv, hdf5, mat (MATLAB) or vtk (ParaView).")
-    frames: FrameRange = Field(default_factory=FrameRange)
+    format: Literal["points-csv", "grid-npz", "mat", "vtk", "profile-csv"] = Field(
+        description="points-csv, grid-npz (numpy), mat (MATLAB), vtk (ParaView time series, zipped) or "
+        "profile-csv (a section along `line`)."
+    )
+    line: tuple[float, float, float, float] | None = Field(
+        None, description="X0, Y0, X1, Y1 in mm, for profile-csv; empty: along X through the punch axis."
+    )
+
+    @model_validator(mode="after")
+    def _line_for_profiles(self) -> ExportSpec:
+        if self.line is not None and self.format != "profile-csv":
+            raise ValueError("line is only used by the profile-csv format")
+        return self
 
 
 JobSpec = Annotated[
