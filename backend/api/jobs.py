@@ -111,6 +111,8 @@ def job_out(session: Session, job: Job, *, now: datetime | None = None) -> JobOu
                 state=c.state,  # type: ignore[arg-type]
                 done=c.done,
                 worker=c.worker,
+                started_at=as_utc(c.started_at),
+                finished_at=as_utc(c.finished_at),
             )
             for c in chunks
         ],

@@ -152,6 +152,8 @@ class ChunkOut(BaseModel):
     state: Literal["pending", "running", "done"]
     done: int
     worker: str
+    started_at: datetime | None
+    finished_at: datetime | None
 
 
 class JobOut(BaseModel):

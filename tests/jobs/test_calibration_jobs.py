@@ -24,27 +24,32 @@ def zstack_frames():
     return camera, board, render_zstack_frames(camera, board, Z_MM, rng=np.random.default_rng(5))
 
 
-@pytest.fixture
-def recording(settings, zstack_frames) -> dict[str, int]:
-    """A ready camera-calibration recording (folder of PNGs with z.csv and board.json) of camera `left`."""
+def add_recording(settings, zstack_frames, *, name: str = "zstack") -> dict[str, int]:
+    """A ready camera-calibration recording (folder of PNGs with z.csv and board.json) of a camera `left` in an
+    experiment of its own."""
     camera, board, frames = zstack_frames
-    relative = Path("recordings") / "zstack"
+    relative = Path("recordings") / name
     board_json = f'{{"cols": {board.cols}, "rows": {board.rows}, "square_mm": {board.square_mm}}}'
     write_frame_folder(
         settings.data_path / relative, frames, sidecars={"z.csv": z_csv_text(Z_MM), "board.json": board_json}
     )
     engine = make_engine(settings.resolved_database_url)
     with make_sessionmaker(engine)() as session:
-        experiment = Experiment(name="plate 7")
+        experiment = Experiment(name=f"plate {name}")
         row = Camera(experiment=experiment, name="left", image_width_px=512, image_height_px=480,
                      pixel_pitch_um=1000.0 / camera.du_px_per_mm)  # fmt: skip
         recording = Recording(camera=row, kind="camera_calibration", state="ready", path=str(relative),
                               frame_count=len(frames), width_px=512, height_px=480, sha256="cd" * 32)  # fmt: skip
         session.add_all([experiment, row, recording])
         session.commit()
-        ids = {"recording": recording.id, "camera": row.id}
+        ids = {"recording": recording.id, "camera": row.id, "experiment": experiment.id}
     engine.dispose()
     return ids
+
+
+@pytest.fixture
+def recording(settings, zstack_frames) -> dict[str, int]:
+    return add_recording(settings, zstack_frames)
 
 
 def test_a_camera_calibration_job_makes_a_versioned_calibration_with_a_report(client, celery_worker, recording):
@@ -95,3 +100,21 @@ def test_a_calibration_that_cannot_be_done_fails_with_what_to_do(client, celery_
     job = wait_job(client, client.post("/api/v1/jobs", json=wrong_board).json()["id"], timeout_s=60)
     assert job["state"] == "failed"
     assert "chessboard" in job["error"]
+
+
+def test_jobs_of_several_experiments_at_once_each_end_with_their_own_results(
+    client, celery_worker, settings, zstack_frames
+):
+    experiments = [add_recording(settings, zstack_frames, name=f"stack-{i}") for i in range(3)]
+    specs = [{"kind": "camera_calibration", "recording_id": e["recording"], "scale_on": "v"} for e in experiments]
+    ids = [client.post("/api/v1/jobs", json=spec).json()["id"] for spec in specs]
+    selftest = client.post("/api/v1/jobs", json={"kind": "selftest", "frames": 30, "chunk_frames": 10}).json()["id"]
+    jobs = [wait_job(client, job_id, timeout_s=240) for job_id in ids]
+    assert wait_job(client, selftest, timeout_s=60)["state"] == "succeeded"
+    for experiment, job in zip(experiments, jobs, strict=True):
+        assert job["state"] == "succeeded", job["error"]
+        assert job["experiment_id"] == experiment["experiment"]
+        [calibration] = client.get("/api/v1/calibrations", params={"camera_id": experiment["camera"]}).json()
+        assert (calibration["job_id"], calibration["version"]) == (job["id"], 1)
+    listed = client.get("/api/v1/jobs", params={"experiment_id": experiments[1]["experiment"]}).json()
+    assert [j["id"] for j in listed["items"]] == [ids[1]]
