@@ -84,13 +84,18 @@ class TopographyReader:
             self.file = h5py.File(path, "r")
         except OSError as error:
             raise ResultUnavailable(f"{path.name} is not a readable result ({error}); run the job again") from None
-        if self.file.attrs.get("schema") != TOPOGRAPHY_SCHEMA:
+        try:
+            if self.file.attrs.get("schema") != TOPOGRAPHY_SCHEMA:
+                raise KeyError("schema")
+            self.frames = self.file["frames/index"][()]
+            self.x_mm = self.file["grid/x_mm"][()]
+            self.y_mm = self.file["grid/y_mm"][()]
+            self.z_flat_mm = float(self.file.attrs["z_flat_mm"])
+        except KeyError as error:
             self.file.close()
-            raise ResultUnavailable(f"{path.name} is not a topography result")
-        self.frames = self.file["frames/index"][()]
-        self.x_mm = self.file["grid/x_mm"][()]
-        self.y_mm = self.file["grid/y_mm"][()]
-        self.z_flat_mm = float(self.file.attrs["z_flat_mm"])
+            raise ResultUnavailable(
+                f"{path.name} is not a complete topography result ({error}); run it again"
+            ) from None
 
     def __enter__(self) -> TopographyReader:
         return self

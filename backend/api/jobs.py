@@ -36,6 +36,7 @@ from backend.jobs import (
 )
 from backend.models import Experiment, Job, JobChunk, JobLog, utcnow
 from backend.schemas.jobs import (
+    MAX_ID,
     ChunkOut,
     ErrorOut,
     JobFileOut,
@@ -171,7 +172,7 @@ def list_jobs(
     principal: CurrentUser,
     kind: str | None = None,
     state: JobState | None = None,
-    experiment_id: int | None = None,
+    experiment_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
     limit: Annotated[int, Query(ge=1, le=500)] = 50,
     offset: Annotated[int, Query(ge=0)] = 0,
 ) -> JobList:

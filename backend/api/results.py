@@ -14,7 +14,7 @@ from contextlib import contextmanager
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from fastapi import APIRouter, Depends, Query, Response
+from fastapi import APIRouter, Depends, Path, Query, Response
 from fastapi.responses import FileResponse
 from pydantic import BaseModel, Field
 from sqlalchemy import select
@@ -35,7 +35,7 @@ from backend.results import (
     projector_table,
     result_path,
 )
-from backend.schemas.jobs import CalibrationOut
+from backend.schemas.jobs import MAX_ID, CalibrationOut
 
 router = APIRouter(tags=["results"])
 
@@ -66,7 +66,9 @@ def calibration_out(row: Calibration) -> CalibrationOut:
     )
 
 
-def readable_calibration(calibration_id: int, session: SessionDep, principal: CurrentUser) -> Calibration:
+def readable_calibration(
+    calibration_id: Annotated[int, Path(ge=1, le=MAX_ID)], session: SessionDep, principal: CurrentUser
+) -> Calibration:
     missing = JobError(404, "calibration_not_found", f"there is no calibration {calibration_id}")
     row = session.get(Calibration, calibration_id)
     camera = session.get(Camera, row.camera_id) if row else None
@@ -84,7 +86,10 @@ CalibrationDep = Annotated[Calibration, Depends(readable_calibration)]
 
 @router.get("/calibrations", response_model=list[CalibrationOut])
 def list_calibrations(
-    session: SessionDep, principal: CurrentUser, camera_id: int | None = None, kind: str | None = None
+    session: SessionDep,
+    principal: CurrentUser,
+    camera_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
+    kind: Literal["camera", "projector"] | None = None,
 ) -> list[CalibrationOut]:
     """Calibrations, newest version first (per camera and kind)."""
     query = (
@@ -140,7 +145,7 @@ class ProjectorTable(BaseModel):
 def projector_table_curves(
     calibration: CalibrationDep,
     state: StateDep,
-    line: Annotated[int | None, Query(ge=0, description="Scan line; empty: the middle one.")] = None,
+    line: Annotated[int | None, Query(ge=0, le=MAX_ID, description="Scan line; empty: the middle one.")] = None,
     edges: Annotated[list[int] | None, Query(description="Edge indices; empty: all.")] = None,
 ) -> ProjectorTable:
     """The curves of a projector calibration's look-up table: the position of each stripe edge along one scan
@@ -254,7 +259,7 @@ class GridOut(BaseModel):
 def topography_grid(
     job: JobDep,
     state: StateDep,
-    frame: Annotated[int, Query(ge=0, description="Recording frame index.")],
+    frame: Annotated[int, Query(ge=0, le=MAX_ID, description="Recording frame index.")],
     budget: Annotated[int, Query(ge=8, le=2000, description="Largest number of nodes per side.")] = GRID_BUDGET_NODES,
     x_min: float | None = None,
     x_max: float | None = None,

@@ -12,6 +12,8 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+MAX_ID = 2**31 - 1  # ids and frame numbers are 32-bit integers in the database
+
 
 class _Spec(BaseModel):
     model_config = ConfigDict(extra="forbid")  # a misspelt parameter is a 422 naming it, not silently ignored
@@ -20,8 +22,10 @@ class _Spec(BaseModel):
 class FrameRange(_Spec):
     """Frames `first` to `last` (inclusive), numbered from 0 as in the recording."""
 
-    first: int = Field(0, ge=0, description="First frame (0-based).")
-    last: int | None = Field(None, ge=0, description="Last frame, inclusive; empty means the recording's last.")
+    first: int = Field(0, ge=0, le=MAX_ID, description="First frame (0-based).")
+    last: int | None = Field(
+        None, ge=0, le=MAX_ID, description="Last frame, inclusive; empty means the recording's last."
+    )
 
     @model_validator(mode="after")
     def _ordered(self) -> FrameRange:
@@ -39,7 +43,7 @@ class SelftestSpec(_Spec):
     frames: int = Field(200, ge=1, le=100_000, description="Synthetic frames to compute.")
     frame_size_px: int = Field(256, ge=16, le=4096, description="Side of each square frame; sets the work per frame.")
     chunk_frames: int | None = Field(
-        None, ge=1, description="Frames per parallel chunk; empty means FRINGELAB_CHUNK_FRAMES."
+        None, ge=1, le=100_000, description="Frames per parallel chunk; empty means FRINGELAB_CHUNK_FRAMES."
     )
 
 
@@ -60,7 +64,7 @@ class CameraCalibrationSpec(_Spec):
     board are skipped and listed. D_u, D_v come from the camera's pixel pitch."""
 
     kind: Literal["camera_calibration"]
-    recording_id: int = Field(ge=1, description="A ready recording of kind camera_calibration.")
+    recording_id: int = Field(ge=1, le=MAX_ID, description="A ready recording of kind camera_calibration.")
     mode: Literal["zstack", "poses"] = Field("zstack", description="zstack (stage Z per frame) or poses (free).")
     board: BoardSpec | None = Field(None, description="Empty means the recording's board.json.")
     scale_on: Literal["u", "v"] = Field("u", description="Axis of the scale factor: u (Heikkilä) or v (the paper).")
@@ -74,8 +78,10 @@ class ProjectorCalibrationSpec(_Spec):
     plate moved along Z (with z.csv), filmed by the camera of `camera_calibration_id`."""
 
     kind: Literal["projector_calibration"]
-    recording_id: int = Field(ge=1, description="A ready recording of kind projector_calibration.")
-    camera_calibration_id: int = Field(ge=1, description="A camera calibration of the same camera and image size.")
+    recording_id: int = Field(ge=1, le=MAX_ID, description="A ready recording of kind projector_calibration.")
+    camera_calibration_id: int = Field(
+        ge=1, le=MAX_ID, description="A camera calibration of the same camera and image size."
+    )
     axis: Literal["auto", "rows", "cols"] = Field(
         "auto", description="Scan along image rows (vertical stripes) or columns; auto detects it."
     )
@@ -89,16 +95,20 @@ class TopographySpec(_Spec):
     result does not depend on the chunking."""
 
     kind: Literal["topography"]
-    recording_id: int = Field(ge=1, description="A ready recording of kind test.")
-    camera_calibration_id: int = Field(ge=1, description="A camera calibration of the same camera and image size.")
-    projector_calibration_id: int = Field(ge=1, description="A projector calibration of the same camera and size.")
+    recording_id: int = Field(ge=1, le=MAX_ID, description="A ready recording of kind test.")
+    camera_calibration_id: int = Field(
+        ge=1, le=MAX_ID, description="A camera calibration of the same camera and image size."
+    )
+    projector_calibration_id: int = Field(
+        ge=1, le=MAX_ID, description="A projector calibration of the same camera and size."
+    )
     frames: FrameRange = Field(
         default_factory=FrameRange, description="Frames to write; tracking always starts at frame 0 (flat plate)."
     )
     grid_step_mm: float = Field(2.0, ge=0.1, le=50, description="Spacing of the deflection grid, mm.")
     temporal_smoothing_frames: int = Field(0, ge=0, le=50, description="Half-width of the temporal filter; 0: off.")
     chunk_frames: int | None = Field(
-        None, ge=1, description="Frames per parallel chunk; empty means FRINGELAB_CHUNK_FRAMES."
+        None, ge=1, le=100_000, description="Frames per parallel chunk; empty means FRINGELAB_CHUNK_FRAMES."
     )
 
 
