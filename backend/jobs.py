@@ -14,11 +14,12 @@ State machine (the `state` column):
 `finished_at` is set exactly once, by whoever ends the job (an atomic `UPDATE ... WHERE finished_at IS NULL`), so
 a task that runs twice (acks-late redelivery) cannot finish a job twice.
 
-Chunked jobs (topography, selftest) run as one entry task (id = job id) that splits the frames into `JobChunk`
-rows and sends one chunk task per row (id `<job>:<index>`, a Celery group over all workers); the chunk that
-completes the last row sends the merge task (id `<job>:merge`). The join is counted in the database, not in a
-Celery chord: a chord's counter in Redis counts task deliveries, so an acks-late redelivery would count a chunk
-twice and fire the merge early; a row that goes `pending -> done` once cannot.
+Chunked jobs (topography, selftest) run in phases. The entry task (id = job id) plans the first phase: frame
+ranges stored as `JobChunk` rows, one chunk task per row (id `<job>:<phase>:<index>`, a Celery group over every
+worker). The chunk that completes the phase's last row sends the phase's merge task (id `<job>:merge:<phase>`),
+which runs in frame order and either ends the job or plans the next phase. The join is counted in the
+database, not in a Celery chord: a chord's counter in Redis counts task deliveries, so an acks-late redelivery
+would count a chunk twice and fire the merge early; a row that goes `pending -> done` once cannot.
 """
 
 from __future__ import annotations
@@ -77,12 +78,12 @@ class JobError(ApiError):
         self.status_code, self.field = status, field
 
 
-def chunk_task_id(job_id: str, index: int) -> str:
-    return f"{job_id}:{index}"
+def chunk_task_id(job_id: str, phase: int, index: int) -> str:
+    return f"{job_id}:{phase}:{index}"
 
 
-def merge_task_id(job_id: str) -> str:
-    return f"{job_id}:merge"
+def merge_task_id(job_id: str, phase: int) -> str:
+    return f"{job_id}:merge:{phase}"
 
 
 def as_utc(moment: datetime | None) -> datetime | None:
@@ -320,8 +321,9 @@ def get_job(session: Session, job_id: str) -> Job:
 
 def job_task_ids(session: Session, job: Job) -> list[str]:
     """Every Celery task id this job may have in flight: its entry task, its chunks and its merge."""
-    indices = session.scalars(select(JobChunk.index).where(JobChunk.job_id == job.id))
-    return [job.id, *(chunk_task_id(job.id, i) for i in indices), merge_task_id(job.id)]
+    chunks = session.execute(select(JobChunk.phase, JobChunk.index).where(JobChunk.job_id == job.id)).all()
+    merges = [merge_task_id(job.id, phase) for phase in range(job.phase + 1)]
+    return [job.id, *(chunk_task_id(job.id, phase, index) for phase, index in chunks), *merges]
 
 
 def _revoke(celery: Celery, task_ids: list[str], *, terminate: bool) -> str:
@@ -505,7 +507,11 @@ def _latest(*moments: datetime | None) -> datetime | None:
 
 def tasks_in_flight(session: Session, job: Job) -> list[TaskToSend]:
     """The tasks that must exist somewhere for this active job to progress, from what the database records."""
-    chunks = list(session.scalars(select(JobChunk).where(JobChunk.job_id == job.id).order_by(JobChunk.index)))
+    chunks = list(
+        session.scalars(
+            select(JobChunk).where(JobChunk.job_id == job.id, JobChunk.phase == job.phase).order_by(JobChunk.index)
+        )
+    )
     job_sign = _latest(job.heartbeat_at, job.created_at)
     if job.state == "queued" or not chunks:
         running = job.state == "running"
@@ -516,8 +522,8 @@ def tasks_in_flight(session: Session, job: Job) -> list[TaskToSend]:
         return [
             TaskToSend(
                 CHUNK_TASK,
-                [job.id, c.index],
-                chunk_task_id(job.id, c.index),
+                [job.id, c.phase, c.index],
+                chunk_task_id(job.id, c.phase, c.index),
                 c.state == "running",
                 as_utc(c.heartbeat_at) if c.state == "running" else job_sign,
             )
@@ -525,7 +531,7 @@ def tasks_in_flight(session: Session, job: Job) -> list[TaskToSend]:
         ]
     queued_at, beat = as_utc(job.merge_queued_at), as_utc(job.heartbeat_at)
     merging = queued_at is not None and beat is not None and beat >= queued_at  # run_merge beats as it starts
-    return [TaskToSend(MERGE_TASK, [job.id], merge_task_id(job.id), merging, job_sign)]
+    return [TaskToSend(MERGE_TASK, [job.id, job.phase], merge_task_id(job.id, job.phase), merging, job_sign)]
 
 
 def is_lost(

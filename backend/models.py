@@ -130,16 +130,19 @@ class Job(Base):
     files: Mapped[list[Any]] = mapped_column(default=list)
     # Times the server re-sent this job's tasks because the broker had lost them (capped; see backend.jobs).
     requeues: Mapped[int] = mapped_column(Integer, default=0)
-    # A chunked job's merge task was sent (claimed once, so that two last chunks cannot both send it).
+    # A chunked job's current phase (0, 1, ...: chunks in parallel, then a merge that may start the next phase),
+    # and when that phase's merge task was sent (claimed once, so that two last chunks cannot both send it).
+    phase: Mapped[int] = mapped_column(Integer, default=0)
     merge_queued_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)
 
 
 class JobChunk(Base):
-    """One frame range of a chunked job, run as its own Celery task (id `<job id>:<index>`) on any worker."""
+    """One frame range of one phase of a chunked job, run as its own Celery task (id `<job>:<phase>:<index>`)."""
 
     __tablename__ = "job_chunks"
 
     job_id: Mapped[str] = mapped_column(ForeignKey("jobs.id", ondelete="CASCADE"), primary_key=True)
+    phase: Mapped[int] = mapped_column(Integer, primary_key=True, default=0)
     index: Mapped[int] = mapped_column(Integer, primary_key=True)
     first_frame: Mapped[int] = mapped_column(Integer)
     stop_frame: Mapped[int] = mapped_column(Integer)  # exclusive

@@ -1,11 +1,11 @@
 """Running a job inside a Celery task: state transitions, progress, heartbeats, cancel, errors and chunks.
 
 A task body receives a `JobContext` and returns either the job's result (a JSON-able dict: the job succeeds) or
-a `Chunked` plan (the job goes on as one chunk task per frame range on any worker, then a merge task; see
-`backend.jobs` for why the join is counted in the database). Everything a person must act on (ValueError,
-MeasurementError) becomes the job's error text; anything else is an internal error whose traceback goes to the
-worker log. Acks-late work can run twice: a job that already finished is not run again, and only one run can
-finish it (`UPDATE ... WHERE finished_at IS NULL`).
+a `Chunked` plan: the job goes on as one chunk task per frame range on any worker, then a merge task that ends
+the job or plans the next such phase (see `backend.jobs` for why the join is counted in the database).
+Everything a person must act on (ValueError, MeasurementError) becomes the job's error text; anything else is an
+internal error whose traceback goes to the worker log. Acks-late work can run twice: a job that already
+finished is not run again, and only one run can finish it (`UPDATE ... WHERE finished_at IS NULL`).
 
 What does not belong here: what a job computes (worker/pipelines.py) and how the API reports it.
 """
@@ -67,7 +67,7 @@ class JobContext:
     spec: dict[str, Any]
     settings: Settings
     sessions: sessionmaker[Session]
-    chunk_index: int | None = None
+    chunk: tuple[int, int] | None = None  # (phase, index) of the chunk this context runs, if any
     files: dict[str, str] = field(default_factory=dict)  # name -> media type, of the files this run published
     provenance: dict[str, Any] = field(default_factory=dict)  # added to the job's provenance when it succeeds
     _last_progress: float = field(default=0.0)
@@ -91,18 +91,17 @@ class JobContext:
             if job is None or job.state != "running":
                 raise JobCancelled("the job was cancelled" if job is None or job.state == "cancelled" else job.state)
             moment = utcnow()
-            if self.chunk_index is None:
+            if self.chunk is None:
                 job.progress_done, job.progress_total = done, total
             else:
+                phase, index = self.chunk
                 session.execute(
                     update(JobChunk)
-                    .where(JobChunk.job_id == self.job_id, JobChunk.index == self.chunk_index)
+                    .where(JobChunk.job_id == self.job_id, JobChunk.phase == phase, JobChunk.index == index)
                     .values(done=done, heartbeat_at=moment)
                 )
                 session.flush()
-                job.progress_done = int(
-                    session.scalar(select(func.sum(JobChunk.done)).where(JobChunk.job_id == self.job_id)) or 0
-                )
+                job.progress_done = _phase_done(session, self.job_id, phase)
             if new_stage and stage != job.stage:
                 job.stage, job.stage_started_at = stage, moment
             job.heartbeat_at = moment
@@ -144,7 +143,7 @@ class JobContext:
 
 JobBody = Callable[[JobContext], "dict[str, Any] | Chunked"]
 ChunkBody = Callable[[JobContext, int, int], None]
-MergeBody = Callable[[JobContext, list[tuple[int, int]]], dict[str, Any]]
+MergeBody = Callable[[JobContext, list[tuple[int, int]]], "dict[str, Any] | Chunked"]
 
 
 def _worker_name(task: Task) -> str:
@@ -153,7 +152,7 @@ def _worker_name(task: Task) -> str:
 
 @contextmanager
 def _heartbeat(
-    sessions: sessionmaker[Session], job_id: str, chunk_index: int | None, *, interval_s: float
+    sessions: sessionmaker[Session], job_id: str, chunk: tuple[int, int] | None, *, interval_s: float
 ) -> Iterator[None]:
     """Write `heartbeat_at` every `interval_s` while the body runs, so reconciliation can tell a long frame from
     a dead worker."""
@@ -165,10 +164,10 @@ def _heartbeat(
                 with sessions() as session:
                     moment = utcnow()
                     session.execute(update(Job).where(Job.id == job_id).values(heartbeat_at=moment))
-                    if chunk_index is not None:
+                    if chunk is not None:
                         session.execute(
                             update(JobChunk)
-                            .where(JobChunk.job_id == job_id, JobChunk.index == chunk_index)
+                            .where(JobChunk.job_id == job_id, JobChunk.phase == chunk[0], JobChunk.index == chunk[1])
                             .values(heartbeat_at=moment)
                         )
                     session.commit()
@@ -188,7 +187,7 @@ def _run_guarded(context: JobContext, step: Callable[[], Any]) -> tuple[bool, An
     """Run one step of a job; turn its errors into the job's end. (True, value) when it returned normally."""
     sessions, job_id = context.sessions, context.job_id
     try:
-        with _heartbeat(sessions, job_id, context.chunk_index, interval_s=heartbeat_interval_s(context.settings)):
+        with _heartbeat(sessions, job_id, context.chunk, interval_s=heartbeat_interval_s(context.settings)):
             return True, step()
     except JobCancelled:
         finish(sessions, job_id, state="cancelled")
@@ -233,96 +232,115 @@ def run_job(task: Task, job_id: str, body: JobBody) -> dict[str, Any]:
     if not ok:
         return {}
     if isinstance(outcome, Chunked):
-        _dispatch_chunks(task, sessions, job_id, outcome)
+        _start_phase(task, sessions, job_id, outcome, phase=0)
         return {}
     finish(sessions, job_id, state="succeeded", result=outcome, context=context)
     return dict(outcome)
 
 
-def _dispatch_chunks(task: Task, sessions: sessionmaker[Session], job_id: str, plan: Chunked) -> None:
-    """Store the chunk rows (once: a second run keeps the first plan) and send a task per unfinished chunk."""
+def _phase_chunks(session: Session, job_id: str, phase: int) -> list[JobChunk]:
+    query = select(JobChunk).where(JobChunk.job_id == job_id, JobChunk.phase == phase).order_by(JobChunk.index)
+    return list(session.scalars(query))
+
+
+def _start_phase(task: Task, sessions: sessionmaker[Session], job_id: str, plan: Chunked, *, phase: int) -> None:
+    """Store the phase's chunk rows and make it the job's phase (once: a second run keeps the first plan), then
+    send a task per unfinished chunk."""
+    if not plan.frame_ranges:
+        raise ValueError("a chunked phase needs at least one frame range")
     with sessions() as session:
-        query = select(JobChunk).where(JobChunk.job_id == job_id).order_by(JobChunk.index)
-        chunks = list(session.scalars(query))
-        if not chunks:
-            chunks = [
-                JobChunk(job_id=job_id, index=i, first_frame=first, stop_frame=stop)
+        if not _phase_chunks(session, job_id, phase):
+            session.add_all(
+                JobChunk(job_id=job_id, phase=phase, index=i, first_frame=first, stop_frame=stop)
                 for i, (first, stop) in enumerate(plan.frame_ranges)
-            ]
-            session.add_all(chunks)
+            )
             job = session.get(Job, job_id)
-            assert job is not None  # checked by run_job; the row is never deleted while its task runs
+            assert job is not None  # checked by the caller; the row is never deleted while its task runs
+            job.phase, job.merge_queued_at = phase, None
             job.progress_done = 0
             job.progress_total = sum(stop - first for first, stop in plan.frame_ranges)
             job.stage, job.stage_started_at = plan.stage, utcnow()
             longest = max(stop - first for first, stop in plan.frame_ranges)
-            add_log(session, job_id, f"split into {len(chunks)} chunk(s) of up to {longest} frames")
+            add_log(session, job_id, f"{plan.stage}: {len(plan.frame_ranges)} chunk(s) of up to {longest} frames")
             try:
                 session.commit()
-            except IntegrityError:  # a second delivery of this entry task planned them a moment ago: keep those
+            except IntegrityError:  # a second delivery of this task planned them a moment ago: keep those
                 session.rollback()
-                chunks = list(session.scalars(query))
-        pending = [c.index for c in chunks if c.state != "done"]
+    _send_pending(task, sessions, job_id, phase)
+
+
+def _send_pending(task: Task, sessions: sessionmaker[Session], job_id: str, phase: int) -> None:
+    """Send the tasks of the phase's unfinished chunks (a Celery group over every worker), or its merge."""
+    with sessions() as session:
+        pending = [c.index for c in _phase_chunks(session, job_id, phase) if c.state != "done"]
+    if not pending:
+        _send_merge_once(task, sessions, job_id, phase)
+        return
     signatures = [
-        task.app.signature(CHUNK_TASK, args=[job_id, index]).set(task_id=chunk_task_id(job_id, index))
+        task.app.signature(CHUNK_TASK, args=[job_id, phase, index]).set(task_id=chunk_task_id(job_id, phase, index))
         for index in pending
     ]
-    if signatures:
-        group(signatures).apply_async(retry=True, retry_policy=WORKER_SEND_RETRY)
-    else:
-        _send_merge_once(task, sessions, job_id)
+    group(signatures).apply_async(retry=True, retry_policy=WORKER_SEND_RETRY)
 
 
-def run_chunk(task: Task, job_id: str, index: int, body: ChunkBody) -> None:
-    """One chunk of a chunked job. Idempotent: a chunk already done is not run again."""
+def run_chunk(task: Task, job_id: str, phase: int, index: int, body: ChunkBody) -> None:
+    """One chunk of a phase of a chunked job. Idempotent: a chunk already done is not run again."""
     sessions = sessions_of(task.app)
     with sessions() as session:
         job = session.get(Job, job_id)
-        chunk = session.get(JobChunk, (job_id, index))
-        if job is None or chunk is None or job.state != "running":
+        chunk = session.get(JobChunk, (job_id, phase, index))
+        if job is None or chunk is None or job.state != "running" or job.phase != phase:
             _confirm_cancel(sessions, job)
             return
         if chunk.state == "done":  # redelivered after it finished: make sure the merge was sent, nothing else
             session.close()
-            _after_chunk(task, sessions, job_id)
+            _after_chunk(task, sessions, job_id, phase)
             return
         moment = utcnow()
         chunk.state, chunk.worker, chunk.started_at, chunk.heartbeat_at = "running", _worker_name(task), moment, moment
         first, stop, spec = chunk.first_frame, chunk.stop_frame, dict(job.spec)
         session.commit()
-    context = JobContext(job_id=job_id, spec=spec, settings=settings_of(task.app), sessions=sessions, chunk_index=index)
+    context = JobContext(
+        job_id=job_id, spec=spec, settings=settings_of(task.app), sessions=sessions, chunk=(phase, index)
+    )
     ok, _ = _run_guarded(context, lambda: body(context, first, stop))
     if not ok:
         return
     with sessions() as session:
         session.execute(
             update(JobChunk)
-            .where(JobChunk.job_id == job_id, JobChunk.index == index, JobChunk.state != "done")
+            .where(JobChunk.job_id == job_id, JobChunk.phase == phase, JobChunk.index == index)
+            .where(JobChunk.state != "done")
             .values(state="done", done=stop - first, finished_at=utcnow())
         )
         session.flush()
         job = session.get(Job, job_id)
         if job is not None:
-            job.progress_done = int(
-                session.scalar(select(func.sum(JobChunk.done)).where(JobChunk.job_id == job_id)) or 0
-            )
+            job.progress_done = _phase_done(session, job_id, phase)
         session.commit()
-    _after_chunk(task, sessions, job_id)
+    _after_chunk(task, sessions, job_id, phase)
 
 
-def _after_chunk(task: Task, sessions: sessionmaker[Session], job_id: str) -> None:
+def _phase_done(session: Session, job_id: str, phase: int) -> int:
+    done = select(func.sum(JobChunk.done)).where(JobChunk.job_id == job_id, JobChunk.phase == phase)
+    return int(session.scalar(done) or 0)
+
+
+def _after_chunk(task: Task, sessions: sessionmaker[Session], job_id: str, phase: int) -> None:
     with sessions() as session:
-        left = session.scalar(select(func.count()).where(JobChunk.job_id == job_id, JobChunk.state != "done"))
+        left = session.scalar(
+            select(func.count()).where(JobChunk.job_id == job_id, JobChunk.phase == phase, JobChunk.state != "done")
+        )
     if not left:
-        _send_merge_once(task, sessions, job_id)
+        _send_merge_once(task, sessions, job_id, phase)
 
 
-def _send_merge_once(task: Task, sessions: sessionmaker[Session], job_id: str) -> None:
-    """Send the merge task, once: the chunk that claims `merge_queued_at` sends it."""
+def _send_merge_once(task: Task, sessions: sessionmaker[Session], job_id: str, phase: int) -> None:
+    """Send the phase's merge task, once: the chunk that claims `merge_queued_at` sends it."""
     with sessions() as session:
         claimed = session.execute(
             update(Job)
-            .where(Job.id == job_id, Job.state == "running", Job.merge_queued_at.is_(None))
+            .where(Job.id == job_id, Job.state == "running", Job.phase == phase, Job.merge_queued_at.is_(None))
             .values(merge_queued_at=utcnow())
         ).rowcount  # type: ignore[attr-defined]
         session.commit()
@@ -331,41 +349,47 @@ def _send_merge_once(task: Task, sessions: sessionmaker[Session], job_id: str) -
     try:
         task.app.send_task(
             MERGE_TASK,
-            args=[job_id],
-            task_id=merge_task_id(job_id),
+            args=[job_id, phase],
+            task_id=merge_task_id(job_id, phase),
             ignore_result=True,
             retry=True,
             retry_policy=WORKER_SEND_RETRY,
         )
     except Exception:  # give the claim back, so that a redelivered chunk or the reconciliation sends it
         with sessions() as session:
-            session.execute(update(Job).where(Job.id == job_id).values(merge_queued_at=None))
+            session.execute(update(Job).where(Job.id == job_id, Job.phase == phase).values(merge_queued_at=None))
             session.commit()
         raise
 
 
-def run_merge(task: Task, job_id: str, body: MergeBody) -> dict[str, Any]:
-    """The last step of a chunked job: combine the chunks' files in frame order and end the job."""
+def run_merge(task: Task, job_id: str, phase: int, body: MergeBody) -> dict[str, Any]:
+    """The end of a phase: a pass in frame order over what its chunks stored, which ends the job (a result) or
+    starts the next phase (a `Chunked` plan)."""
     sessions = sessions_of(task.app)
     with sessions() as session:
         job = session.get(Job, job_id)
         if job is None or job.state != "running":
             _confirm_cancel(sessions, job)
             return dict(job.result) if job else {}
-        ranges = [
-            (c.first_frame, c.stop_frame)
-            for c in session.scalars(select(JobChunk).where(JobChunk.job_id == job_id).order_by(JobChunk.index))
-        ]
+        if job.phase != phase:  # redelivered after it started the next phase: make sure that one is under way
+            session.close()
+            if job.phase == phase + 1:
+                _send_pending(task, sessions, job_id, phase + 1)
+            return {}
+        ranges = [(c.first_frame, c.stop_frame) for c in _phase_chunks(session, job_id, phase)]
         spec = dict(job.spec)
         job.worker = _worker_name(task)
         job.heartbeat_at = utcnow()  # after merge_queued_at: tells reconciliation that the merge has started
         session.commit()
     context = JobContext(job_id=job_id, spec=spec, settings=settings_of(task.app), sessions=sessions)
-    ok, result = _run_guarded(context, lambda: body(context, ranges))
+    ok, outcome = _run_guarded(context, lambda: body(context, ranges))
     if not ok:
         return {}
-    finish(sessions, job_id, state="succeeded", result=result, context=context)
-    return dict(result)
+    if isinstance(outcome, Chunked):
+        _start_phase(task, sessions, job_id, outcome, phase=phase + 1)
+        return {}
+    finish(sessions, job_id, state="succeeded", result=outcome, context=context)
+    return dict(outcome)
 
 
 def _confirm_cancel(sessions: sessionmaker[Session], job: Job | None) -> None:

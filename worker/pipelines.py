@@ -41,10 +41,6 @@ def _chunk_frames(spec: dict[str, Any], settings: Settings) -> int:
     return int(spec.get("chunk_frames") or settings.chunk_frames)
 
 
-def _chunk_name(first: int) -> str:
-    return f"chunks/{first:07d}.npz"
-
-
 def _this_worker() -> str:
     return f"{socket.gethostname()}:{os.getpid()}"
 
@@ -66,7 +62,21 @@ def selftest_entry(context: JobContext) -> Chunked:
     return Chunked(frame_ranges(frames, _chunk_frames(context.spec, context.settings)), stage="computing frames")
 
 
-def selftest_chunk(context: JobContext, first: int, stop: int) -> None:
+def _save(context: JobContext, name: str, **arrays: np.ndarray) -> None:
+    with context.output(name, publish=False) as path, path.open("wb") as handle:
+        np.savez(handle, **arrays)
+
+
+def _load(context: JobContext, name: str) -> dict[str, np.ndarray]:
+    path = context.directory / name
+    if not path.is_file():
+        raise RuntimeError(f"the intermediate file {name} is missing")
+    with np.load(path) as data:
+        return {key: data[key] for key in data.files}
+
+
+def selftest_compute(context: JobContext, first: int, stop: int) -> None:
+    """Phase 0, any worker: compute frames [first, stop)."""
     size_px = int(context.spec["frame_size_px"])
     values, digests = [], []
     for done, frame in enumerate(range(first, stop)):
@@ -74,56 +84,80 @@ def selftest_chunk(context: JobContext, first: int, stop: int) -> None:
         values.append(value)
         digests.append(digest)
         context.progress(done + 1, stop - first, "computing frames")
-    with context.output(_chunk_name(first), publish=False) as path, path.open("wb") as handle:
-        np.savez(
-            handle,
-            frame=np.arange(first, stop, dtype=np.int64),
-            value=np.asarray(values),
-            digest=np.asarray(digests, dtype="S64"),
-            worker=np.asarray([_this_worker()], dtype="S200"),
-        )
+    _save(context, f"chunks/p0-{first:07d}.npz", frame=np.arange(first, stop), value=np.asarray(values),
+          digest=np.asarray(digests, dtype="S64"), worker=np.asarray([_this_worker()], dtype="S200"))  # fmt: skip
 
 
-def _read_chunks(context: JobContext, ranges: list[tuple[int, int]]) -> list[dict[str, np.ndarray]]:
-    chunks = []
-    for first, stop in ranges:
-        path = context.directory / _chunk_name(first)
-        if not path.is_file():
-            raise RuntimeError(f"chunk file {path.name} of frames {first}..{stop - 1} is missing")
-        with np.load(path) as data:
-            chunks.append({key: data[key] for key in data.files})
-    return chunks
-
-
-def selftest_merge(context: JobContext, ranges: list[tuple[int, int]]) -> dict[str, Any]:
-    context.progress(0, 1, "merging")
-    chunks = _read_chunks(context, ranges)
+def selftest_chain(context: JobContext, ranges: list[tuple[int, int]]) -> Chunked:
+    """Merge of phase 0, in frame order: check that every frame came back once, and chain the digests (each link
+    depends on all frames before it, as edge identity does in a topography), then verify in parallel."""
+    chunks = [_load(context, f"chunks/p0-{first:07d}.npz") for first, _stop in ranges]
     frame = np.concatenate([c["frame"] for c in chunks])
     expected = int(context.spec["frames"])
     if not np.array_equal(frame, np.arange(expected)):
         raise RuntimeError(f"the chunks hold {frame.size} frames, not each of 0..{expected - 1} once")
     digest = np.concatenate([c["digest"] for c in chunks])
-    workers: dict[str, int] = {}
-    for chunk in chunks:
-        name = chunk["worker"][0].decode()
-        workers[name] = workers.get(name, 0) + int(chunk["frame"].size)
+    chain, link = [], hashlib.sha256()
+    for done, value in enumerate(digest.tolist()):
+        link.update(value)
+        chain.append(link.hexdigest())
+        context.progress(done + 1, expected, "chaining")
+    computed_by = np.concatenate([np.repeat(c["worker"], c["frame"].size) for c in chunks])
+    _save(context, "chunks/sequence.npz", frame=frame, value=np.concatenate([c["value"] for c in chunks]),
+          digest=digest, chain=np.asarray(chain, dtype="S64"), computed_by=computed_by)  # fmt: skip
+    return Chunked(ranges, stage="verifying frames")
+
+
+def selftest_verify(context: JobContext, first: int, stop: int) -> None:
+    """Phase 1, any worker: compute frames [first, stop) again and compare with what phase 0 stored."""
+    size_px = int(context.spec["frame_size_px"])
+    stored = _load(context, "chunks/sequence.npz")["digest"][first:stop]
+    matches = []
+    for done, frame in enumerate(range(first, stop)):
+        matches.append(selftest_frame(frame, size_px=size_px)[1].encode() == stored[done])
+        context.progress(done + 1, stop - first, "verifying frames")
+    _save(context, f"chunks/p1-{first:07d}.npz", matches=np.asarray(matches),
+          worker=np.asarray([_this_worker()], dtype="S200"))  # fmt: skip
+
+
+def selftest_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict[str, Any]:
+    """Merge of phase 1: the result file, and a failure naming the workers if any frame came out differently."""
+    context.progress(0, 1, "writing")
+    sequence = _load(context, "chunks/sequence.npz")
+    checks = [_load(context, f"chunks/p1-{first:07d}.npz") for first, _stop in ranges]
+    matches = np.concatenate([c["matches"] for c in checks])
+    verified_by = np.concatenate([np.repeat(c["worker"], c["matches"].size) for c in checks])
+    differing = np.flatnonzero(~matches)
+    if differing.size:
+        pairs = sorted({(sequence["computed_by"][i].decode(), verified_by[i].decode()) for i in differing})
+        raise ValueError(
+            f"{differing.size} frames (first: {int(differing[0])}) came out differently on "
+            + "; ".join(f"{a} and {b}" for a, b in pairs)
+            + ": the workers do not compute alike; give every machine the same fringelab and numpy versions"
+        )
     with context.output("selftest.h5", media_type="application/x-hdf5") as path, h5py.File(path, "w") as out:
-        out["frame"] = frame
-        out["value"] = np.concatenate([c["value"] for c in chunks])
-        out["digest"] = digest
+        for name in ("frame", "value", "digest", "chain", "computed_by"):
+            out[name] = sequence[name]
+        out["verified_by"] = verified_by
         out.attrs["frame_size_px"] = int(context.spec["frame_size_px"])
     with context.sessions() as session:
         started = session.scalar(select(Job.started_at).where(Job.id == context.job_id))
-    elapsed_s = (utcnow() - as_utc(started)).total_seconds() if started is not None else None
+    elapsed_s = (utcnow() - as_utc(started)).total_seconds() if started is not None else None  # type: ignore[operator]
     _remove_chunk_files(context.directory)
+    frames = int(sequence["frame"].size)
     return {
-        "frames": expected,
+        "frames": frames,
         "chunks": len(ranges),
-        "workers": workers,
-        "digest": hashlib.sha256(b"".join(digest.tolist())).hexdigest(),
+        "workers": {"computing": _tally(sequence["computed_by"]), "verifying": _tally(verified_by)},
+        "digest": sequence["chain"][-1].decode(),
         "elapsed_s": elapsed_s,
-        "frames_per_s": expected / elapsed_s if elapsed_s else None,
+        "frames_per_s": frames / elapsed_s if elapsed_s else None,
     }
+
+
+def _tally(names: np.ndarray) -> dict[str, int]:
+    found, counts = np.unique(names, return_counts=True)
+    return {name.decode(): int(count) for name, count in zip(found, counts, strict=True)}
 
 
 def _remove_chunk_files(directory: Path) -> None:
@@ -461,8 +495,12 @@ def export_body(context: JobContext) -> dict[str, Any]:
 
 # ------------------------------------------------------------------------------------------------ the tasks
 
-CHUNK_BODIES: dict[str, ChunkBody] = {"selftest": selftest_chunk, "topography": topography_chunk}
-MERGE_BODIES: dict[str, MergeBody] = {"selftest": selftest_merge, "topography": topography_merge}
+# Per chunked kind, its phases in order: (chunk body, merge body). A merge that returns a `Chunked` plan starts the
+# next phase; the last one returns the result.
+PHASES: dict[str, list[tuple[ChunkBody, MergeBody]]] = {
+    "selftest": [(selftest_compute, selftest_chain), (selftest_verify, selftest_write)],
+    "topography": [(topography_chunk, topography_merge)],
+}
 
 
 def _kind(task: Task, job_id: str) -> str | None:
@@ -496,13 +534,13 @@ def export(self: Task, job_id: str) -> dict[str, Any]:
 
 
 @shared_task(bind=True, name="fringelab.job_chunk", ignore_result=True)
-def job_chunk(self: Task, job_id: str, index: int) -> None:
+def job_chunk(self: Task, job_id: str, phase: int, index: int) -> None:
     kind = _kind(self, job_id)
     if kind is not None:
-        run_chunk(self, job_id, index, CHUNK_BODIES[kind])
+        run_chunk(self, job_id, phase, index, PHASES[kind][phase][0])
 
 
 @shared_task(bind=True, name="fringelab.job_merge", ignore_result=True)
-def job_merge(self: Task, job_id: str) -> dict[str, Any]:
+def job_merge(self: Task, job_id: str, phase: int) -> dict[str, Any]:
     kind = _kind(self, job_id)
-    return run_merge(self, job_id, MERGE_BODIES[kind]) if kind is not None else {}
+    return run_merge(self, job_id, phase, PHASES[kind][phase][1]) if kind is not None else {}

@@ -70,7 +70,7 @@ def _seconds(start: datetime | None, end: datetime | None) -> float | None:
 
 def job_out(session: Session, job: Job, *, now: datetime | None = None) -> JobOut:
     now = now or utcnow()
-    chunks = session.scalars(select(JobChunk).where(JobChunk.job_id == job.id).order_by(JobChunk.index))
+    chunks = session.scalars(select(JobChunk).where(JobChunk.job_id == job.id).order_by(JobChunk.phase, JobChunk.index))
     retried_by = session.scalar(select(Job.id).where(Job.retry_of == job.id).order_by(Job.created_at.desc()))
     total = job.progress_total
     return JobOut(
@@ -106,6 +106,7 @@ def job_out(session: Session, job: Job, *, now: datetime | None = None) -> JobOu
         retried_by=retried_by,
         chunks=[
             ChunkOut(
+                phase=c.phase,
                 index=c.index,
                 first_frame=c.first_frame,
                 stop_frame=c.stop_frame,

@@ -156,6 +156,7 @@ class JobFileOut(BaseModel):
 
 
 class ChunkOut(BaseModel):
+    phase: int = Field(description="0, 1, ...: the fan-outs of the job, each joined by a pass in frame order.")
     index: int
     first_frame: int
     stop_frame: int = Field(description="Exclusive.")

@@ -24,19 +24,21 @@ def test_a_selftest_runs_in_chunks_and_its_file_holds_every_frame_once(client, c
     assert created.json()["state"] == "queued"
     job = wait_job(client, created.json()["id"])
     assert job["state"] == "succeeded", job["error"]
-    assert [(c["first_frame"], c["stop_frame"], c["state"]) for c in job["chunks"]] == [
-        (0, 5, "done"),
-        (5, 10, "done"),
-        (10, 12, "done"),
+    # two fan-outs (compute, then verify every frame again), each over the same three chunks
+    ranges = [(0, 5), (5, 10), (10, 12)]
+    assert [(c["phase"], c["first_frame"], c["stop_frame"], c["state"]) for c in job["chunks"]] == [
+        (phase, first, stop, "done") for phase in (0, 1) for first, stop in ranges
     ]
     assert job["progress"] | {"eta_s": None} == {
-        "stage": "merging",
+        "stage": "writing",
         "done": 1,
         "total": 1,
         "fraction": 1.0,
         "eta_s": None,
     }
-    assert job["result"]["frames"] == 12 and sum(job["result"]["workers"].values()) == 12
+    workers = job["result"]["workers"]
+    assert job["result"]["frames"] == 12
+    assert sum(workers["computing"].values()) == sum(workers["verifying"].values()) == 12
     assert job["provenance"]["spec"] == SELFTEST | {"kind": "selftest"}
     assert job["provenance"]["code_version"]
     assert job["duration_s"] > 0
@@ -49,11 +51,13 @@ def test_a_selftest_runs_in_chunks_and_its_file_holds_every_frame_once(client, c
         assert result["frame"][:].tolist() == list(range(12))
         expected = [selftest_frame(f, size_px=32)[1].encode() for f in range(12)]
         assert result["digest"][:].tolist() == expected
+        assert result["chain"][-1].decode() == job["result"]["digest"]
         np.testing.assert_allclose(result["value"][:], [selftest_frame(f, size_px=32)[0] for f in range(12)])
     messages = log_messages(client, job["id"])
     assert messages[0].startswith("queued (selftest, attempt 1)")
     assert any(m.startswith("started on ") for m in messages)
-    assert "split into 3 chunk(s) of up to 5 frames" in messages
+    assert "computing frames: 3 chunk(s) of up to 5 frames" in messages
+    assert "verifying frames: 3 chunk(s) of up to 5 frames" in messages
     assert messages[-1] == "succeeded: selftest.h5"
 
 
@@ -77,8 +81,12 @@ def test_the_event_stream_shows_the_job_in_order_and_ends(client, celery_worker)
     states = [v["state"] for v in views]
     assert states == sorted(states, key=["queued", "running", "succeeded"].index)
     assert states[-1] == "succeeded"
-    computing = [v["progress"]["done"] for v in views if v["progress"]["stage"] == "computing frames"]
-    assert computing == sorted(computing), "progress went backwards"
+    stages = [v["progress"]["stage"] for v in views if v["state"] == "running"]
+    order = ["", "computing frames", "chaining", "verifying frames", "writing"]
+    assert stages == sorted(stages, key=order.index), "stages out of order"
+    for stage in order:
+        done = [v["progress"]["done"] for v in views if v["progress"]["stage"] == stage and v["state"] == "running"]
+        assert done == sorted(done), f"progress went backwards in {stage}"
     logged = [data["message"] for kind, data in events if kind == "log"]
     assert logged == log_messages(client, job_id)
 

@@ -55,7 +55,7 @@ def test_a_worker_process_killed_mid_chunk_is_replaced_and_the_job_ends_once_com
 
     job = wait_job(client, job_id, timeout_s=120)
     assert_complete_selftest(client, job, tmp_path)
-    rerun = next(c for c in job["chunks"] if c["index"] == victim["index"])  # type: ignore[index]
+    rerun = next(c for c in job["chunks"] if (c["phase"], c["index"]) == (victim["phase"], victim["index"]))  # type: ignore[index]
     assert pid_of(rerun["worker"]) != killed
     assert killed not in worker.pool_pids() and len(worker.pool_pids()) == 2
 

@@ -32,7 +32,7 @@ def insert_job(settings):
             session.add(job)
             for index in range(chunks):
                 first = index * SELFTEST["chunk_frames"]
-                session.add(JobChunk(job_id=job.id, index=index, first_frame=first, stop_frame=first + 4))
+                session.add(JobChunk(job_id=job.id, phase=0, index=index, first_frame=first, stop_frame=first + 4))
             if chunks:
                 job.progress_total = SELFTEST["frames"]
             session.commit()

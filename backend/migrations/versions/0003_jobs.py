@@ -1,8 +1,8 @@
-"""jobs: chunks, log lines, heartbeats and result files of jobs; versioned calibrations with image size
+"""jobs: chunks (per phase), log lines, heartbeats and result files of jobs; versioned calibrations with image size
 
 Revision ID: 0003
 Revises: 0004
-Create Date: 2026-11-21 01:20:26.775862
+Create Date: 2026-11-21 02:14:44.325477
 """
 
 import sqlalchemy as sa
@@ -18,6 +18,7 @@ def upgrade() -> None:
     op.create_table(
         "job_chunks",
         sa.Column("job_id", sa.String(length=36), nullable=False),
+        sa.Column("phase", sa.Integer(), nullable=False),
         sa.Column("index", sa.Integer(), nullable=False),
         sa.Column("first_frame", sa.Integer(), nullable=False),
         sa.Column("stop_frame", sa.Integer(), nullable=False),
@@ -28,7 +29,7 @@ def upgrade() -> None:
         sa.Column("finished_at", sa.DateTime(timezone=True), nullable=True),
         sa.Column("heartbeat_at", sa.DateTime(timezone=True), nullable=True),
         sa.ForeignKeyConstraint(["job_id"], ["jobs.id"], name=op.f("fk_job_chunks_job_id_jobs"), ondelete="CASCADE"),
-        sa.PrimaryKeyConstraint("job_id", "index", name=op.f("pk_job_chunks")),
+        sa.PrimaryKeyConstraint("job_id", "phase", "index", name=op.f("pk_job_chunks")),
     )
     op.create_table(
         "job_logs",
@@ -54,12 +55,14 @@ def upgrade() -> None:
         batch_op.add_column(sa.Column("heartbeat_at", sa.DateTime(timezone=True), nullable=True))
         batch_op.add_column(sa.Column("files", sa.JSON(), nullable=False, server_default="[]"))
         batch_op.add_column(sa.Column("requeues", sa.Integer(), nullable=False, server_default="0"))
+        batch_op.add_column(sa.Column("phase", sa.Integer(), nullable=False, server_default="0"))
         batch_op.add_column(sa.Column("merge_queued_at", sa.DateTime(timezone=True), nullable=True))
 
 
 def downgrade() -> None:
     with op.batch_alter_table("jobs", schema=None) as batch_op:
         batch_op.drop_column("merge_queued_at")
+        batch_op.drop_column("phase")
         batch_op.drop_column("requeues")
         batch_op.drop_column("files")
         batch_op.drop_column("heartbeat_at")
