@@ -175,7 +175,7 @@ def list_jobs(
     state: JobState | None = None,
     experiment_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
     limit: Annotated[int, Query(ge=1, le=500)] = 50,
-    offset: Annotated[int, Query(ge=0)] = 0,
+    offset: Annotated[int, Query(ge=0, le=MAX_ID)] = 0,
 ) -> JobList:
     """Jobs, newest first."""
     query = select(Job)
@@ -204,7 +204,7 @@ def read_job(job: JobDep, session: SessionDep) -> JobOut:
 def read_log(
     job: JobDep,
     session: SessionDep,
-    after: Annotated[int, Query(ge=0, description="Only lines with a larger id.")] = 0,
+    after: Annotated[int, Query(ge=0, le=2**63 - 1, description="Only lines with a larger id.")] = 0,
     limit: Annotated[int, Query(ge=1, le=5000)] = 1000,
 ) -> list[LogLineOut]:
     """The job's log lines, oldest first."""

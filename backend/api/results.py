@@ -38,6 +38,7 @@ from backend.results import (
 from backend.schemas.jobs import MAX_ID, CalibrationOut
 
 router = APIRouter(tags=["results"])
+MM = Annotated[float, Query(allow_inf_nan=False, description="mm, in the object frame")]
 
 
 def _listed(values: np.ndarray, decimals: int = 4) -> list[Any]:
@@ -146,7 +147,9 @@ def projector_table_curves(
     calibration: CalibrationDep,
     state: StateDep,
     line: Annotated[int | None, Query(ge=0, le=MAX_ID, description="Scan line; empty: the middle one.")] = None,
-    edges: Annotated[list[int] | None, Query(description="Edge indices; empty: all.")] = None,
+    edges: Annotated[
+        list[Annotated[int, Field(ge=0, le=MAX_ID)]] | None, Query(description="Edge indices; empty: all.")
+    ] = None,
 ) -> ProjectorTable:
     """The curves of a projector calibration's look-up table: the position of each stripe edge along one scan
     line against the plate's Z (METHOD.md §4), with the table's QA."""
@@ -261,10 +264,10 @@ def topography_grid(
     state: StateDep,
     frame: Annotated[int, Query(ge=0, le=MAX_ID, description="Recording frame index.")],
     budget: Annotated[int, Query(ge=8, le=2000, description="Largest number of nodes per side.")] = GRID_BUDGET_NODES,
-    x_min: float | None = None,
-    x_max: float | None = None,
-    y_min: float | None = None,
-    y_max: float | None = None,
+    x_min: Annotated[float | None, Query(allow_inf_nan=False)] = None,
+    x_max: Annotated[float | None, Query(allow_inf_nan=False)] = None,
+    y_min: Annotated[float | None, Query(allow_inf_nan=False)] = None,
+    y_max: Annotated[float | None, Query(allow_inf_nan=False)] = None,
     format: Literal["json", "f32"] = "json",
 ) -> Any:
     """The deflection w of one frame on the grid, block-averaged to at most `budget` nodes per side; give all of
@@ -308,11 +311,14 @@ class ProfileOut(BaseModel):
 def topography_profile(
     job: JobDep,
     state: StateDep,
-    x0: float,
-    y0: float,
-    x1: float,
-    y1: float,
-    frames: Annotated[list[int], Query(min_length=1, max_length=50, description="Recording frame indices.")],
+    x0: MM,
+    y0: MM,
+    x1: MM,
+    y1: MM,
+    frames: Annotated[
+        list[Annotated[int, Field(ge=0, le=MAX_ID)]],
+        Query(min_length=1, max_length=50, description="Recording frame indices."),
+    ],
     n_points: Annotated[int, Query(ge=2, le=5000)] = 200,
 ) -> ProfileOut:
     """Deflection profiles w(s) along the segment (x0, y0) → (x1, y1) in mm, for the frames asked."""
@@ -335,7 +341,7 @@ class HistoryOut(BaseModel):
 
 
 @router.get("/jobs/{job_id}/topography/history", response_model=HistoryOut, responses=ERRORS)
-def topography_history(job: JobDep, state: StateDep, x_mm: float, y_mm: float) -> HistoryOut:
+def topography_history(job: JobDep, state: StateDep, x_mm: MM, y_mm: MM) -> HistoryOut:
     """The deflection w(t) at one point of the plate over every frame of the result."""
     with topography(job, state.settings.data_path) as reader:
         return HistoryOut(

@@ -23,7 +23,9 @@ def test_no_request_makes_a_500(settings):
             continue  # a stream that lasts as long as its job
 
         @given(case=operation.as_strategy())
-        @hypothesis_settings(max_examples=25, deadline=None, suppress_health_check=list(HealthCheck), database=None)
+        @hypothesis_settings(
+            max_examples=25, deadline=None, suppress_health_check=list(HealthCheck), database=None, derandomize=True
+        )
         def answers_without_a_500(case: schemathesis.Case) -> None:
             response = case.call()
             assert response.status_code != 500, (case.method, case.formatted_path, case.body, case.query, response.text)
