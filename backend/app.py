@@ -7,7 +7,8 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI
 
 from backend import __version__
-from backend.api import health
+from backend.api import experiments, health, recordings, uploads
+from backend.api.errors import install_error_handlers
 from backend.db import make_engine, make_sessionmaker
 from backend.frontend import mount_frontend
 from backend.settings import Settings
@@ -36,6 +37,10 @@ def create_app(settings: Settings) -> FastAPI:
         lifespan=lifespan,
     )
     app.state.fringelab = state
+    install_error_handlers(app)
     app.include_router(health.router, prefix="/api/v1")
+    app.include_router(experiments.router, prefix="/api/v1")
+    app.include_router(recordings.router, prefix="/api/v1")
+    app.include_router(uploads.create_router(state), prefix="/api/v1")
     mount_frontend(app)  # last: it serves every path the API does not
     return app

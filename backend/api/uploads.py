@@ -1,0 +1,128 @@
+"""Uploads of recordings: resumable (tus 1.0, for the browser and scripts) and a plain streamed PUT.
+
+tus: `POST /api/v1/uploads` with `Upload-Length` and `Upload-Metadata` (filename, filetype, camera_id, kind)
+creates an upload; `PATCH /api/v1/uploads/{id}` appends at `Upload-Offset`; `HEAD` tells the offset to resume
+from; `DELETE` abandons it. The last PATCH turns the file into a recording and answers with its id in
+`Fringelab-Recording-Id` (also findable later with `GET /api/v1/recordings?upload_id={id}`).
+
+PUT: `PUT /api/v1/cameras/{camera_id}/uploads/{filename}?kind=...` with the file as the body answers 201 with
+the recording. It does not resume: an interrupted PUT leaves nothing behind and is sent again.
+
+Either way the bytes go to the data volume as they arrive (bounded memory), within FRINGELAB_MAX_UPLOAD_BYTES
+and the free disk, checksummed (SHA-256); the recording is `ingesting` until its ingest job makes it `ready`
+or `invalid`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import uuid
+from typing import Annotated
+
+from fastapi import APIRouter, Query, Request
+from fastapi.responses import JSONResponse
+from starlette.concurrency import run_in_threadpool
+from starlette.requests import ClientDisconnect
+from tuspyserver import create_tus_router
+
+from backend.api.deps import StateDep
+from backend.api.errors import ApiError
+from backend.recordings import check_upload_request, register_upload
+from backend.schemas.common import error_responses
+from backend.schemas.recordings import RecordingKind, RecordingOut
+from backend.state import AppState
+from backend.storage import InsufficientStorage, StreamingWriter, UploadTooLarge, put_dir, tus_dir
+from backend.uploads import TusUploadStorage, make_complete_dep, make_pre_create_dep
+
+
+def create_router(state: AppState) -> APIRouter:
+    """The upload routes of one API process (the tus storage keeps per-upload checksums in memory)."""
+    settings = state.settings
+    storage = TusUploadStorage(settings)
+    router = APIRouter()
+    router.include_router(
+        create_tus_router(
+            prefix="uploads",
+            files_dir=str(tus_dir(settings.data_path)),
+            max_size=settings.max_upload_bytes,
+            days_to_keep=settings.upload_expiry_days,
+            pre_create_dep=make_pre_create_dep(storage),
+            upload_complete_dep=make_complete_dep(storage),
+            tags=["uploads"],
+            storage=storage,
+        )
+    )
+    router.add_api_route(
+        "/cameras/{camera_id}/uploads/{filename}",
+        put_recording,
+        methods=["PUT"],
+        status_code=201,
+        response_model=RecordingOut,
+        tags=["uploads"],
+        responses=error_responses(400, 404, 413, 415, 422),
+        openapi_extra={"requestBody": {"content": {"application/octet-stream": {}}, "required": True}},
+    )
+    return router
+
+
+async def put_recording(
+    camera_id: int,
+    filename: str,
+    request: Request,
+    state: StateDep,
+    kind: Annotated[RecordingKind, Query(description="camera_calibration, projector_calibration or test")],
+) -> JSONResponse:
+    """Upload a recording in one streamed request (e.g. `curl -T plate.zip URL?kind=test`)."""
+    settings = state.settings
+    header = request.headers.get("content-length")
+    length = int(header) if header and header.isdigit() else None
+    await run_in_threadpool(_check_request, state, camera_id, kind, filename, length)
+    staged = put_dir(settings.data_path) / f"{uuid.uuid4().hex}.part"
+    writer = StreamingWriter(
+        staged,
+        hasher=hashlib.sha256(),
+        limit_bytes=min(length or settings.max_upload_bytes, settings.max_upload_bytes),
+        reserve_bytes=settings.min_free_disk_bytes,
+    )
+    try:
+        try:
+            async for chunk in request.stream():
+                await writer.append(chunk)
+            await writer.flush()
+        except ClientDisconnect:
+            raise ApiError(
+                400, "upload_interrupted", "the connection closed before the upload ended; nothing was kept"
+            ) from None
+        except UploadTooLarge as error:
+            raise ApiError(413, "upload_too_large", str(error)) from None
+        except InsufficientStorage as error:
+            raise ApiError(413, "insufficient_storage", str(error)) from None
+        finally:
+            await writer.close()
+        if writer.size == 0:
+            raise ApiError(400, "empty_upload", "the upload is empty (0 bytes)")
+        if length is not None and writer.size != length:
+            raise ApiError(400, "upload_incomplete", f"received {writer.size} of {length} bytes")
+        recording = await run_in_threadpool(
+            register_upload,
+            state,
+            staged=staged,
+            camera_id=camera_id,
+            kind=kind,
+            filename=filename,
+            sha256=writer.hasher.hexdigest(),
+            size_bytes=writer.size,
+            upload_id=None,
+        )
+    finally:
+        staged.unlink(missing_ok=True)  # moved into its recording on success
+    return JSONResponse(
+        recording.model_dump(mode="json"),
+        status_code=201,
+        headers={"Location": f"/api/v1/recordings/{recording.id}"},
+    )
+
+
+def _check_request(state: AppState, camera_id: int, kind: str, filename: str, length: int | None) -> None:
+    with state.sessions() as session:
+        check_upload_request(session, state.settings, camera_id=camera_id, kind=kind, filename=filename, length=length)
