@@ -29,6 +29,7 @@ from backend.storage import (
     recording_file_name,
     remove_tree,
     replace_with_link,
+    sync_file,
 )
 from worker.measurement.containers import (
     UPLOAD_SUFFIXES,
@@ -297,6 +298,7 @@ def register_upload(
         if known is not None:
             return known
     format = inspect_upload(staged, filename=filename, settings=settings)
+    sync_file(staged)
     with state.sessions() as session:
         camera = get_or_404(session, Camera, camera_id)
         duplicate = session.scalars(

@@ -4,7 +4,8 @@ tuspyserver speaks the protocol (POST create, HEAD offset, PATCH append, DELETE)
 where the bytes go and keeps the invariants a resume relies on:
 
 - bytes are written as they arrive (`StreamingWriter`: bounded memory) and hashed on the way; the SHA-256 of a
-  finished upload is ready without reading it again (after a restart it is computed from the file once);
+  finished upload is ready without reading it again (after a restart it is computed from the file once); a
+  finished upload is made durable (fdatasync) before it becomes a recording;
 - the stored offset never runs ahead of the bytes on disk, and bytes beyond it (a PATCH cut short by a full
   disk or a crash) are cut off before the next PATCH appends: a resume can never corrupt the file;
 - a finished upload moves into its recording (a rename) and leaves its `.info` behind with the recording id,
@@ -25,7 +26,7 @@ from email.utils import parsedate_to_datetime
 from pathlib import Path
 from typing import Any
 
-from fastapi import HTTPException, Request, Response
+from fastapi import Request, Response
 from starlette.concurrency import run_in_threadpool
 from tuspyserver.lock import acquire_upload_lock
 from tuspyserver.storage import TusStorage
@@ -64,7 +65,7 @@ class TusUploadStorage(TusStorage):
     # --- paths ------------------------------------------------------------------------------------------
     def _path(self, uid: str) -> Path:
         if not UPLOAD_ID.fullmatch(uid):
-            raise HTTPException(status_code=404, detail="Upload not found")
+            raise ApiError(404, "upload_not_found", "Upload not found")
         return self.directory / uid
 
     def _info_path(self, uid: str) -> Path:
@@ -92,13 +93,13 @@ class TusUploadStorage(TusStorage):
     async def append(self, uid: str, chunk: bytes) -> None:
         writer = self._writers.get(uid)
         if writer is None:
-            raise HTTPException(status_code=409, detail="this upload is complete or was removed")
+            raise ApiError(409, "upload_complete", "this upload is complete or was removed")
         try:
             await writer.append(chunk)
         except UploadTooLarge as error:
-            raise HTTPException(status_code=413, detail=str(error)) from None
+            raise ApiError(413, "upload_too_large", str(error)) from None
         except InsufficientStorage as error:
-            raise HTTPException(status_code=413, detail=str(error)) from None
+            raise ApiError(413, "insufficient_storage", str(error)) from None
 
     async def flush(self, uid: str) -> None:
         writer = self._writers.get(uid)
@@ -107,7 +108,7 @@ class TusUploadStorage(TusStorage):
         try:
             await writer.flush()
         except InsufficientStorage as error:
-            raise HTTPException(status_code=413, detail=str(error)) from None
+            raise ApiError(413, "insufficient_storage", str(error)) from None
         self._hashers[uid] = (writer.hasher.copy(), writer.size)
 
     async def finalize(self, uid: str) -> None:
@@ -142,7 +143,7 @@ class TusUploadStorage(TusStorage):
         try:
             write_atomic(self._info_path(uid), json.dumps(data, default=str).encode())
         except OSError as error:  # a full disk: tell the client, keep the previous info
-            raise HTTPException(status_code=413, detail=f"cannot record the upload's progress: {error}") from None
+            raise ApiError(413, "insufficient_storage", f"cannot record the upload's progress: {error}") from None
 
     async def write_info(self, uid: str, data: dict[str, Any]) -> None:
         await asyncio.to_thread(self.write_info_now, uid, data)
@@ -172,8 +173,8 @@ class TusUploadStorage(TusStorage):
             return  # finished (moved into its recording) or removed: nothing may be appended
         offset = int(info.get("offset") or 0)
         size = path.stat().st_size
-        if size < offset:
-            raise HTTPException(status_code=410, detail="the bytes of this upload were lost; start it again")
+        if size < offset:  # only after a power cut: offsets are recorded before their bytes reach the disk
+            raise ApiError(410, "upload_lost", "the bytes of this upload were lost; start it again")
         if size > offset:
             truncate_file(path, offset)  # bytes of a PATCH that failed before its offset was recorded
         hasher, hashed = self._hashers.get(uid, (None, -1))

@@ -6,7 +6,7 @@ tuspyserver get a code from their status; validation errors keep FastAPI's list 
 
 from __future__ import annotations
 
-from fastapi import FastAPI, Request
+from fastapi import FastAPI, HTTPException, Request
 from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
@@ -28,15 +28,15 @@ CODE_OF_STATUS = {
 }
 
 
-class ApiError(Exception):
-    """A failure the client must act on; `code` is stable and machine-readable, `detail` is for people."""
+class ApiError(HTTPException):
+    """A failure the client must act on; `code` is stable and machine-readable, `detail` is for people.
+
+    An HTTPException, so that code written for those (tuspyserver's request handling) lets it through.
+    """
 
     def __init__(self, status_code: int, code: str, detail: str, *, headers: dict[str, str] | None = None):
-        super().__init__(detail)
-        self.status_code = status_code
+        super().__init__(status_code, detail, headers)
         self.code = code
-        self.detail = detail
-        self.headers = headers
 
 
 def error_response(status_code: int, code: str, detail: object, headers: dict[str, str] | None = None) -> JSONResponse:
@@ -46,7 +46,7 @@ def error_response(status_code: int, code: str, detail: object, headers: dict[st
 def install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(ApiError)
     async def api_error(_request: Request, error: ApiError) -> JSONResponse:
-        return error_response(error.status_code, error.code, error.detail, error.headers)
+        return error_response(error.status_code, error.code, str(error.detail), error.headers)
 
     @app.exception_handler(StarletteHTTPException)
     async def http_error(_request: Request, error: StarletteHTTPException) -> JSONResponse:

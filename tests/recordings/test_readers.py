@@ -221,3 +221,36 @@ def test_sidecar_frame_ids_must_match_the_frames():
     np.testing.assert_array_equal(frame_indices([1, 2, 3], 3, name="z.csv"), [0, 1, 2])  # 1-based
     with pytest.raises(ValueError, match="frame 7 matches no frame of the recording, which has 3 frames"):
         frame_indices([0, 1, 7], 3, name="z.csv")
+
+
+def test_an_image_declaring_a_huge_size_is_refused_before_decoding(tmp_path):
+    """A decompression bomb in one frame: a few kB of PNG declaring 40000 × 40000 px."""
+    import struct
+    import zlib
+
+    def chunk(tag: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data))
+
+    row = b"\x00" + bytes(40000)
+    compressor = zlib.compressobj(9)
+    idat = b"".join(compressor.compress(row) for _ in range(200)) + compressor.flush()
+    bomb = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", 40000, 40000, 8, 0, 0, 0, 0))
+            + chunk(b"IDAT", idat) + chunk(b"IEND", b""))  # fmt: skip
+    with zipfile.ZipFile(tmp_path / "r.zip", "w") as archive:
+        archive.writestr("f0.png", bomb)
+    with pytest.raises(ValueError, match="declares 40000 × 40000 px"):
+        open_recording(tmp_path / "r.zip")[0]
+
+
+def test_damaged_compressed_data_in_a_zip_names_the_frame(tmp_path):
+    path = write_zip(tmp_path / "r.zip", stripe_frames(2), compression=zipfile.ZIP_DEFLATED)
+    with zipfile.ZipFile(path) as archive:
+        second = archive.infolist()[1]
+    data = bytearray(path.read_bytes())
+    start = second.header_offset + 30 + len(second.filename)
+    data[start + 10 : start + 60] = bytes(50)  # scramble the deflate stream of frame1.png
+    path.write_bytes(bytes(data))
+    source = open_recording(path)
+    source[0]
+    with pytest.raises(ValueError, match="frame1.png"):
+        source[1]

@@ -329,7 +329,7 @@ def test_size_limit_and_free_disk_are_checked_before_and_while_uploading(setting
         assert tus_patch(client, location, 0, data[:half]).status_code == 204
         monkeypatch.setattr(storage, "free_disk_bytes", lambda _path: 1000)
         refused = tus_patch(client, location, half, data[half:])
-        assert (refused.status_code, refused.json()["code"]) == (413, "too_large")
+        assert (refused.status_code, refused.json()["code"]) == (413, "insufficient_storage")
         assert "not enough free space" in refused.json()["detail"]
         assert tus_offset(client, location) == half
         refused_put = put(api, camera_id, "r.zip", data)

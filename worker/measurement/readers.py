@@ -16,10 +16,13 @@ from __future__ import annotations
 import csv
 import io
 import json
+import lzma
 import math
 import os
+import struct
 import threading
 import zipfile
+import zlib
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -55,6 +58,7 @@ __all__ = [
 ]
 
 MAX_SIDECAR_BYTES = 16 << 20
+MAX_FRAME_PIXELS = 1 << 27  # 134 Mpx; a high-speed camera frame is a few Mpx
 
 
 def _as_grey(image: np.ndarray, *, name: str) -> tuple[np.ndarray, bool]:
@@ -83,9 +87,37 @@ def _looks_truncated(data: bytes, name: str) -> bool:
     return False
 
 
+def _declared_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) an image header declares, for PNG, BMP and JPEG; None when not found."""
+    if data.startswith(b"\x89PNG") and len(data) >= 24:
+        return struct.unpack(">II", data[16:24])
+    if data.startswith(b"BM") and len(data) >= 26:
+        width, height = struct.unpack("<ii", data[18:26])
+        return abs(width), abs(height)
+    if data.startswith(b"\xff\xd8"):
+        position = 2
+        while position + 9 <= len(data) and data[position] == 0xFF:
+            marker, length = data[position + 1], struct.unpack(">H", data[position + 2 : position + 4])[0]
+            if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):  # start of frame
+                height, width = struct.unpack(">HH", data[position + 5 : position + 9])
+                return width, height
+            position += 2 + length
+    return None
+
+
+def _check_pixels(width: int, height: int, *, name: str) -> None:
+    if width * height > MAX_FRAME_PIXELS:
+        raise ValueError(
+            f"{name}: declares {width} × {height} px, more than {MAX_FRAME_PIXELS} pixels a frame may have"
+        )
+
+
 def _decode(data: bytes, *, name: str) -> tuple[np.ndarray, bool]:
     if _looks_truncated(data, name):
         raise ValueError(f"{name}: the image is truncated")
+    declared = _declared_size(data)
+    if declared is not None:
+        _check_pixels(*declared, name=name)  # a small file can declare a huge image: refuse before decoding
     image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)
     if image is None:
         raise ValueError(f"{name}: not a readable image (corrupt, truncated or unsupported format)")
@@ -214,7 +246,7 @@ class ImageZip(FrameSource):
     def read_bytes(self, name: str) -> bytes:
         try:
             return self._open().read(name)
-        except (zipfile.BadZipFile, EOFError, OSError) as error:  # bad CRC, truncated data
+        except (zipfile.BadZipFile, EOFError, OSError, zlib.error, lzma.LZMAError) as error:  # bad CRC, damaged data
             raise ValueError(f"{name}: cannot be read from the ZIP ({error})") from None
 
     def _read(self, index: int) -> tuple[np.ndarray, bool]:
@@ -261,6 +293,9 @@ class TiffStack(FrameSource):
         name = f"{self.path.name} page {index}"
         try:
             page = self._tiff.pages[index]
+            shape: tuple[int, ...] = tuple(getattr(page, "shape", ()))
+            if len(shape) >= 2:
+                _check_pixels(int(shape[1]), int(shape[0]), name=name)
             image = page.asarray()
         except ValueError as error:
             if "imagecodecs" not in str(error):
