@@ -3,7 +3,7 @@
 It holds what the dashboard shows before any job has run, so that the API never decodes a recording (and
 never imports OpenCV): every frame at display size, thumbnails and the per-frame QA numbers. Layout:
 
-    /frames               uint8 (n, h, w), one chunk per frame (lzf): every frame, its longer side at most
+    /frames               uint8 (n, h, w), one chunk per frame: every frame, its longer side at most
                           FRINGELAB_PREVIEW_SIZE_PX, scaled so that the sensor's full scale is 255
     /thumbnails           uint8 (n, th, tw), one chunk per frame: longer side at most THUMBNAIL_PX
     /qa/mean_fraction     float32 (n,): mean grey level / full scale
@@ -43,9 +43,10 @@ class PreviewWriter:
     def _dataset(self, name: str, image: np.ndarray) -> h5py.Dataset:
         if name not in self._file:
             shape = (self.frame_count, *image.shape)
+            # No compression: fringe and speckle images barely compress, and lzf would cost 7× the write.
             self._file.create_dataset(
                 name, shape=shape, maxshape=(None, *image.shape), dtype=np.uint8, chunks=(1, *image.shape),
-                compression="lzf", fillvalue=0,
+                fillvalue=0,
             )  # fmt: skip
         return self._file[name]
 

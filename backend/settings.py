@@ -55,7 +55,7 @@ class Settings(BaseSettings):
         description="A ZIP entry over 1 MiB that expands more than this many times is refused as a ZIP bomb.",
     )
     preview_size_px: int = Field(
-        1024, ge=64, le=8192, description="Longer side of the frame previews an upload's ingest stores, in pixels."
+        800, ge=64, le=8192, description="Longer side of the frame previews an upload's ingest stores, in pixels."
     )
 
     @field_validator("log_level", mode="before")

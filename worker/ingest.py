@@ -291,11 +291,8 @@ def _check_frames(
             else:
                 stats[index] = frame_stats(frame)
                 frame_u8 = to_uint8(frame, full_scale_dn=scale_dn)
-                writer.write_frame(
-                    index,
-                    display=downscale(frame_u8, max_px=max_px),
-                    thumbnail=downscale(frame_u8, max_px=THUMBNAIL_PX),
-                )
+                display = downscale(frame_u8, max_px=max_px)
+                writer.write_frame(index, display=display, thumbnail=downscale(display, max_px=THUMBNAIL_PX))
                 if board is not None:
                     board_found[index] = board_visible(frame_u8, cols=board.cols, rows=board.rows)
         decoded = index + 1

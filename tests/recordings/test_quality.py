@@ -130,7 +130,7 @@ def test_previews_are_display_size_8_bit_with_thumbnails(settings, tmp_path):
     assert found.probe.bit_depth == 12
     store = tmp_path / PREVIEW_FILE
     display = read_preview(store, 2)
-    assert display.dtype == np.uint8 and display.shape == (154, 1024)  # 2000 → FRINGELAB_PREVIEW_SIZE_PX
+    assert display.dtype == np.uint8 and display.shape == (120, 800)  # 2000 → FRINGELAB_PREVIEW_SIZE_PX
     # Scaled so that 12-bit full scale is 255: the stripes' 15 % and 80 % levels.
     assert np.percentile(display, 10) == pytest.approx(0.15 * 255, abs=6)
     assert np.percentile(display, 90) == pytest.approx(0.8 * 255, abs=6)
