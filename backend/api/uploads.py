@@ -19,7 +19,7 @@ import hashlib
 import uuid
 from typing import Annotated
 
-from fastapi import APIRouter, Query, Request
+from fastapi import APIRouter, Query, Request, Response
 from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 from starlette.requests import ClientDisconnect
@@ -40,6 +40,9 @@ def create_router(state: AppState) -> APIRouter:
     settings = state.settings
     storage = TusUploadStorage(settings)
     router = APIRouter()
+    # Registered before tuspyserver's own OPTIONS, which advertises extensions this server refuses.
+    for path in ("/uploads", "/uploads/"):
+        router.add_api_route(path, tus_options, methods=["OPTIONS"], status_code=204, tags=["uploads"])
     router.include_router(
         create_tus_router(
             prefix="uploads",
@@ -63,6 +66,22 @@ def create_router(state: AppState) -> APIRouter:
         openapi_extra={"requestBody": {"content": {"application/octet-stream": {}}, "required": True}},
     )
     return router
+
+
+TUS_EXTENSIONS = "creation,creation-with-upload,expiration,termination"
+
+
+def tus_options(state: StateDep) -> Response:
+    """The tus capabilities of this server: no concatenation, no deferred length."""
+    return Response(
+        status_code=204,
+        headers={
+            "Tus-Resumable": "1.0.0",
+            "Tus-Version": "1.0.0",
+            "Tus-Extension": TUS_EXTENSIONS,
+            "Tus-Max-Size": str(state.settings.max_upload_bytes),
+        },
+    )
 
 
 async def put_recording(

@@ -292,6 +292,10 @@ def test_bad_upload_requests_are_refused_before_any_byte(api):
         (tus_patch(client, "/api/v1/uploads/0123456789abcdef0123456789abcdef", 0, b"x"), 404, "not_found"),
         (client.head("/api/v1/uploads/../../etc/passwd", headers=TUS), 404, None),
     ]  # fmt: skip
+    options = client.options("/api/v1/uploads")
+    assert options.status_code == 204 and options.headers["Tus-Version"] == "1.0.0"
+    assert "concatenation" not in options.headers["Tus-Extension"]
+    assert options.headers["Tus-Max-Size"] == str(api.settings.max_upload_bytes)
     for response, status, code in cases:
         assert response.status_code == status, (response.request.url, response.text)
         if code:
