@@ -208,8 +208,7 @@ def start_ingest(session: Session, state: AppState, recording: Recording) -> Rec
 
 
 def check_upload_request(
-    session: Session,
-    settings: Settings,
+    state: AppState,
     *,
     camera_id: int,
     kind: str,
@@ -230,9 +229,10 @@ def check_upload_request(
             f"{filename}: {suffix or 'no extension'} is not a recording format fringelab reads "
             f"(accepted: {', '.join(sorted(UPLOAD_SUFFIXES))}; zip a folder of frames)",
         )
-    get_or_404(session, Camera, camera_id)
+    with state.sessions() as session:
+        get_or_404(session, Camera, camera_id)
     if length is not None:
-        check_upload_size(settings, length, reserved_bytes=reserved_bytes)
+        check_upload_size(state.settings, length, reserved_bytes=reserved_bytes)
 
 
 def check_upload_size(settings: Settings, length: int, *, reserved_bytes: int = 0) -> None:

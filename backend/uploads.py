@@ -266,20 +266,15 @@ def make_pre_create_dep(storage: TusUploadStorage) -> Callable[..., Any]:
             await run_in_threadpool(storage.sweep)
             reserved = await run_in_threadpool(storage.reserved_bytes)
             await run_in_threadpool(
-                _check_request, state, camera_id, metadata["kind"], metadata["filename"], upload_info["size"], reserved
-            )
+                lambda: check_upload_request(
+                    state, camera_id=camera_id, kind=metadata["kind"], filename=metadata["filename"],
+                    length=upload_info["size"], reserved_bytes=reserved,
+                )
+            )  # fmt: skip
 
         return check
 
     return pre_create_dep
-
-
-def _check_request(state: AppState, camera_id: int, kind: str, filename: str, length: int, reserved: int) -> None:
-    with state.sessions() as session:
-        check_upload_request(
-            session, state.settings, camera_id=camera_id, kind=kind, filename=filename, length=length,
-            reserved_bytes=reserved,
-        )  # fmt: skip
 
 
 def make_complete_dep(storage: TusUploadStorage) -> Callable[..., Any]:

@@ -95,7 +95,9 @@ async def put_recording(
     settings = state.settings
     header = request.headers.get("content-length")
     length = int(header) if header and header.isdigit() else None
-    await run_in_threadpool(_check_request, state, camera_id, kind, filename, length)
+    await run_in_threadpool(
+        lambda: check_upload_request(state, camera_id=camera_id, kind=kind, filename=filename, length=length)
+    )
     staged = put_dir(settings.data_path) / f"{uuid.uuid4().hex}.part"
     writer = StreamingWriter(
         staged,
@@ -140,8 +142,3 @@ async def put_recording(
         status_code=201,
         headers={"Location": f"/api/v1/recordings/{recording.id}"},
     )
-
-
-def _check_request(state: AppState, camera_id: int, kind: str, filename: str, length: int | None) -> None:
-    with state.sessions() as session:
-        check_upload_request(session, state.settings, camera_id=camera_id, kind=kind, filename=filename, length=length)
