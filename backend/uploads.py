@@ -19,6 +19,7 @@ import asyncio
 import contextlib
 import json
 import re
+import threading
 import time
 from collections.abc import AsyncIterator, Callable
 from datetime import datetime
@@ -60,6 +61,8 @@ class TusUploadStorage(TusStorage):
         self.directory = tus_dir(settings.data_path)
         self._hashers: dict[str, tuple[Any, int]] = {}  # upload id -> (SHA-256 of the first n bytes, n)
         self._writers: dict[str, StreamingWriter] = {}
+        self._locks: dict[str, asyncio.Lock] = {}
+        self._info_lock = threading.Lock()
         self._last_sweep = 0.0
 
     # --- paths ------------------------------------------------------------------------------------------
@@ -103,8 +106,10 @@ class TusUploadStorage(TusStorage):
 
     async def flush(self, uid: str) -> None:
         writer = self._writers.get(uid)
-        if writer is None:
-            return
+        if writer is None:  # an empty PATCH of a finished upload (its answer was lost) is fine: nothing to write
+            if "recording_id" in ((await self.read_info(uid)) or {}).get("metadata", {}):
+                return
+            raise ApiError(409, "upload_complete", "this upload is complete or was removed")
         try:
             await writer.flush()
         except InsufficientStorage as error:
@@ -121,13 +126,16 @@ class TusUploadStorage(TusStorage):
         await asyncio.to_thread(self.delete_now, uid)
 
     def forget(self, uid: str) -> None:
-        """Drop the checksum state of a finished upload."""
+        """Drop the in-memory state of a finished or removed upload."""
         self._hashers.pop(uid, None)
+        lock = self._locks.get(uid)
+        if lock is not None and not lock.locked():
+            del self._locks[uid]
 
     def delete_now(self, uid: str) -> None:
         for path in (self._path(uid), self._info_path(uid), self.directory / ".locks" / f"{uid}.lock"):
             path.unlink(missing_ok=True)
-        self._hashers.pop(uid, None)
+        self.forget(uid)
 
     # --- info ---------------------------------------------------------------------------------------------
     def read_info_now(self, uid: str) -> dict[str, Any] | None:
@@ -140,10 +148,23 @@ class TusUploadStorage(TusStorage):
         return await asyncio.to_thread(self.read_info_now, uid)
 
     def write_info_now(self, uid: str, data: dict[str, Any]) -> None:
-        try:
-            write_atomic(self._info_path(uid), json.dumps(data, default=str).encode())
-        except OSError as error:  # a full disk: tell the client, keep the previous info
-            raise ApiError(413, "insufficient_storage", f"cannot record the upload's progress: {error}") from None
+        """Store an upload's info; the offset never goes back and the recording id, once set, stays.
+
+        tuspyserver saves the info again after a PATCH has released the upload's lock, from what it read
+        before: a PATCH cut off by a dropped connection can end after the client's next PATCH and would
+        otherwise put back its older offset.
+        """
+        with self._info_lock:
+            stored = self.read_info_now(uid) or {}
+            merged = dict(data)
+            merged["offset"] = max(int(data.get("offset") or 0), int(stored.get("offset") or 0))
+            recording_id = stored.get("metadata", {}).get("recording_id")
+            if recording_id is not None:
+                merged["metadata"] = {**data.get("metadata", {}), "recording_id": recording_id}
+            try:
+                write_atomic(self._info_path(uid), json.dumps(merged, default=str).encode())
+            except OSError as error:  # a full disk: tell the client, keep the previous info
+                raise ApiError(413, "insufficient_storage", f"cannot record the upload's progress: {error}") from None
 
     async def write_info(self, uid: str, data: dict[str, Any]) -> None:
         await asyncio.to_thread(self.write_info_now, uid, data)
@@ -151,19 +172,23 @@ class TusUploadStorage(TusStorage):
     async def list_uids(self) -> list[str]:
         return [p.name for p in self.directory.glob("*") if UPLOAD_ID.fullmatch(p.name)]
 
-    # --- one PATCH at a time per upload -------------------------------------------------------------------
+    # --- PATCH ---------------------------------------------------------------------------------------------
     @contextlib.asynccontextmanager
     async def lock(self, uid: str) -> AsyncIterator[None]:
-        held = acquire_upload_lock(str(self._path(uid)), locks_dir=str(self.directory / ".locks"), blocking=True)
-        await asyncio.to_thread(held.__enter__)
-        try:
-            await asyncio.to_thread(self._open_writer, uid)
-            yield
-        finally:
-            writer = self._writers.pop(uid, None)
-            if writer is not None:
-                await writer.close()
-            await asyncio.to_thread(held.__exit__, None, None, None)
+        """One PATCH at a time per upload: an asyncio lock in this process (tuspyserver's file lock, which
+        serves across processes, can let a third request in when its lock file is removed on release)."""
+        local = self._locks.setdefault(uid, asyncio.Lock())
+        async with local:
+            held = acquire_upload_lock(str(self._path(uid)), locks_dir=str(self.directory / ".locks"), blocking=True)
+            await asyncio.to_thread(held.__enter__)
+            try:
+                await asyncio.to_thread(self._open_writer, uid)
+                yield
+            finally:
+                writer = self._writers.pop(uid, None)
+                if writer is not None:
+                    await writer.close()
+                await asyncio.to_thread(held.__exit__, None, None, None)
 
     def _open_writer(self, uid: str) -> None:
         """Make the file agree with the stored offset, and the checksum with the file, before appending."""
