@@ -7,13 +7,16 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI
 
 from backend import __version__
-from backend.api import experiments, health, recordings, uploads
-from backend.api.errors import install_error_handlers
+from backend.api import auth, experiments, health, recordings, uploads
 from backend.db import make_engine, make_sessionmaker
+from backend.errors import install_error_handlers
 from backend.frontend import mount_frontend
+from backend.limits import BodySizeLimit
 from backend.settings import Settings
 from backend.state import AppState
 from worker.celery_app import create_celery
+
+UPLOAD_PREFIXES = ("/api/v1/uploads",)
 
 
 def create_app(settings: Settings) -> FastAPI:
@@ -38,7 +41,9 @@ def create_app(settings: Settings) -> FastAPI:
     )
     app.state.fringelab = state
     install_error_handlers(app)
+    app.add_middleware(BodySizeLimit, max_bytes=settings.max_json_bytes, exempt_prefixes=UPLOAD_PREFIXES)
     app.include_router(health.router, prefix="/api/v1")
+    app.include_router(auth.router, prefix="/api/v1")
     app.include_router(experiments.router, prefix="/api/v1")
     app.include_router(recordings.router, prefix="/api/v1")
     app.include_router(uploads.create_router(state), prefix="/api/v1")

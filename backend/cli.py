@@ -45,6 +45,7 @@ def cmd_api(_args: argparse.Namespace) -> int:
     from backend.services import check_port_free, check_redis
 
     settings = load_settings()
+    require_safe_binding(settings)
     _require_redis_url(settings)
     check_redis(settings.redis_url)
     check_port_free(settings.host, settings.port)
@@ -107,7 +108,77 @@ def cmd_health(args: argparse.Namespace) -> int:
 def cmd_up(_args: argparse.Namespace) -> int:
     from backend.supervisor import run_up
 
-    return run_up(load_settings())
+    settings = load_settings()
+    require_safe_binding(settings)
+    return run_up(settings)
+
+
+def require_safe_binding(settings: Settings) -> None:
+    from backend.services import ServiceError
+
+    if not settings.auth_enabled and not settings.binds_loopback_only:
+        raise ServiceError(
+            f"refusing to serve on {settings.host} with authentication off: anyone on the network could use it; "
+            "set FRINGELAB_AUTH_ENABLED=true (and create an admin with `fringelab user add NAME --admin`) "
+            "or bind FRINGELAB_HOST=127.0.0.1"
+        )
+
+
+def cmd_user(args: argparse.Namespace) -> int:
+    import getpass
+
+    from sqlalchemy import select
+
+    from backend.auth import create_user
+    from backend.db import make_engine, make_sessionmaker, upgrade_database
+    from backend.models import User
+
+    settings = load_settings()
+    upgrade_database(settings.resolved_database_url)
+    sessions = make_sessionmaker(make_engine(settings.resolved_database_url))
+    with sessions() as session:
+        if args.user_command == "add":
+            password = sys.stdin.readline().rstrip("\n") if args.password_stdin else getpass.getpass("Password: ")
+            try:
+                user = create_user(session, args.username, password, role="admin" if args.admin else "member")
+            except ValueError as error:
+                return _fail(str(error))
+            session.commit()
+            print(f"created {user.role} {user.username}")
+        elif args.user_command == "list":
+            for user in session.scalars(select(User).order_by(User.username)):
+                print(f"{user.username}\t{user.role}\t{'disabled' if user.disabled else 'active'}")
+        else:
+            user = session.scalar(select(User).where(User.username == args.username))
+            if user is None:
+                return _fail(f"no user {args.username!r}")
+            user.disabled = args.user_command == "disable"
+            session.commit()
+            print(f"{args.user_command}d {user.username}")
+    return 0
+
+
+def cmd_token_create(args: argparse.Namespace) -> int:
+    from datetime import timedelta
+
+    from sqlalchemy import select
+
+    from backend.auth import issue_token
+    from backend.db import make_engine, make_sessionmaker, upgrade_database
+    from backend.models import User
+
+    settings = load_settings()
+    upgrade_database(settings.resolved_database_url)
+    sessions = make_sessionmaker(make_engine(settings.resolved_database_url))
+    with sessions() as session:
+        user = session.scalar(select(User).where(User.username == args.username))
+        if user is None or user.disabled:
+            return _fail(f"no active user {args.username!r}; add one with `fringelab user add`")
+        ttl = timedelta(days=args.days) if args.days else None
+        _, secret = issue_token(session, user, name=args.name, kind="api", ttl=ttl)
+        session.commit()
+    print(secret)
+    return 0
 
 
 def _require_redis_url(settings: Settings) -> None:
@@ -138,6 +209,23 @@ def build_parser() -> argparse.ArgumentParser:
     db = commands.add_parser("db", help="database maintenance")
     db_commands = db.add_subparsers(dest="db_command", required=True, metavar="DB_COMMAND")
     db_commands.add_parser("upgrade", help="apply the migrations").set_defaults(handler=cmd_db_upgrade)
+    user = commands.add_parser("user", help="accounts (admin)")
+    user_commands = user.add_subparsers(dest="user_command", required=True, metavar="USER_COMMAND")
+    add = user_commands.add_parser("add", help="create an account (asks for the password)")
+    add.add_argument("username")
+    add.add_argument("--admin", action="store_true", help="give the admin role")
+    add.add_argument("--password-stdin", action="store_true", help="read the password from standard input")
+    user_commands.add_parser("list", help="list the accounts")
+    for verb in ("disable", "enable"):
+        user_commands.add_parser(verb, help=f"{verb} an account").add_argument("username")
+    user.set_defaults(handler=cmd_user)
+    token = commands.add_parser("token", help="API tokens for scripts")
+    token_commands = token.add_subparsers(dest="token_command", required=True, metavar="TOKEN_COMMAND")
+    create = token_commands.add_parser("create", help="create a token for a user and print it")
+    create.add_argument("username")
+    create.add_argument("--name", default="cli", help="what the token is for")
+    create.add_argument("--days", type=int, default=0, help="days until it expires (0: never)")
+    create.set_defaults(handler=cmd_token_create)
     health = commands.add_parser("health", help="check database, Redis and workers; exit 1 when one is down")
     health.add_argument("--url", help="ask a running web server instead (e.g. http://127.0.0.1:8000)")
     health.set_defaults(handler=cmd_health)

@@ -36,6 +36,13 @@ class Settings(BaseSettings):
         12 * 3600, ge=60, description="Redis redelivers an unacknowledged task after this; longer than any job."
     )
     health_worker_timeout_s: float = Field(1.0, gt=0, le=30, description="How long /health waits for workers.")
+    auth_enabled: bool = Field(
+        False, description="Require a login or API token; must be on to bind an address other than loopback."
+    )
+    session_ttl_h: float = Field(12.0, gt=0, description="Lifetime of a browser login session, in hours.")
+    login_max_failures: int = Field(10, ge=1, description="Failed logins per client address before a 429.")
+    login_window_s: int = Field(300, ge=1, description="Window in which failed logins are counted.")
+    max_json_bytes: int = Field(1_048_576, ge=1024, description="Largest accepted non-upload request body.")
     log_level: Literal["debug", "info", "warning", "error"] = Field("info", description="Log level.")
     max_upload_bytes: int = Field(64 * 2**30, ge=1, description="Largest recording one upload may be, in bytes.")
     min_free_disk_bytes: int = Field(
@@ -62,6 +69,10 @@ class Settings(BaseSettings):
     @classmethod
     def _lower(cls, value: object) -> object:
         return value.lower() if isinstance(value, str) else value
+
+    @property
+    def binds_loopback_only(self) -> bool:
+        return self.host in ("127.0.0.1", "::1", "localhost") or self.host.startswith("127.")
 
     @property
     def data_path(self) -> Path:

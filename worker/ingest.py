@@ -39,8 +39,8 @@ from worker.measurement.quality import (
     saturated_pct,
     to_uint8,
 )
+from worker.measurement.chessboard import Board
 from worker.measurement.readers import (
-    BoardSpec,
     FrameSource,
     frame_indices,
     open_recording,
@@ -207,10 +207,10 @@ def _probe(source: FrameSource, first: np.ndarray) -> Probe:
     return Probe(source.format, count, width, height, bit_depth, source.fps)
 
 
-def _check_sidecars(source: FrameSource, found: Inspection, *, kind: str) -> BoardSpec | None:
+def _check_sidecars(source: FrameSource, found: Inspection, *, kind: str) -> Board | None:
     """Validate z.csv, frames.csv and board.json against the frames; return the board to look for."""
     count = found.probe.frame_count
-    board: BoardSpec | None = None
+    board: Board | None = None
     for name in ("z.csv", "frames.csv", "board.json"):
         try:
             text = source.sidecar_text(name)
@@ -259,7 +259,7 @@ def _check_frames(
     found: Inspection,
     writer: PreviewWriter,
     *,
-    board: BoardSpec | None,
+    board: Board | None,
     max_px: int,
     progress: Callable[[int, int, str], None],
 ) -> dict[str, Any]:
@@ -306,7 +306,7 @@ def _check_frames(
 
 
 def _summarize(
-    found: Inspection, checked: dict[str, Any], *, kind: str, board: BoardSpec | None, writer: PreviewWriter
+    found: Inspection, checked: dict[str, Any], *, kind: str, board: Board | None, writer: PreviewWriter
 ) -> None:
     stats: list[FrameStats] = checked["stats"]
     probe = found.probe

@@ -30,6 +30,7 @@ def test_the_lab_stack_has_its_parts():
     assert SERVICES["api"]["volumes"] == SERVICES["worker"]["volumes"] == ["data:/data"]
     for name in SERVICES:
         assert "healthcheck" in SERVICES[name], f"{name} has no healthcheck"
+    assert SERVICES["api"]["environment"]["FRINGELAB_AUTH_ENABLED"] == "true"  # a shared server needs logins
     assert "ports" not in SERVICES["worker"]  # scalable with --scale worker=N
     assert "container_name" not in SERVICES["worker"]
 

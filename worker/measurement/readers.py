@@ -26,7 +26,7 @@ import zlib
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, overload
+from typing import TYPE_CHECKING, Any, overload
 
 import cv2
 import numpy as np
@@ -43,9 +43,11 @@ from .containers import (
     sniff_format,
 )
 
+if TYPE_CHECKING:
+    from .chessboard import Board
+
 __all__ = [
     "IMAGE_SUFFIXES",
-    "BoardSpec",
     "FrameSource",
     "FramesTable",
     "decode_grey",
@@ -55,6 +57,8 @@ __all__ = [
     "read_board_json",
     "read_frames_csv",
     "read_z_csv",
+    "write_frame_folder",
+    "z_csv_text",
 ]
 
 MAX_SIDECAR_BYTES = 16 << 20
@@ -430,11 +434,13 @@ def open_recording(path: str | Path, *, zip_limits: ZipLimits | None = None) -> 
 # ---------------------------------------------------------------------------------------------------- sidecars
 
 
-def _rows(text: str, *, name: str, required: set[str], allowed: set[str]) -> Iterator[tuple[int, dict[str, str]]]:
+def _rows(
+    text: str, *, name: str, required: tuple[str, ...], allowed: set[str]
+) -> Iterator[tuple[int, dict[str, str]]]:
     reader = csv.DictReader(io.StringIO(text))
     columns = [f.strip() for f in reader.fieldnames or []]
-    if not required <= set(columns):
-        raise ValueError(f"{name}: expected columns {', '.join(sorted(required))}, got {reader.fieldnames}")
+    if not set(required) <= set(columns):
+        raise ValueError(f"{name}: expected columns '{','.join(required)}', got {reader.fieldnames}")
     unknown = [c for c in columns if c not in allowed]
     if unknown:
         raise ValueError(f"{name}: unknown column {unknown[0]!r} (accepted: {', '.join(sorted(allowed))})")
@@ -464,7 +470,7 @@ def _frame_id(row: dict[str, str], *, name: str, line_no: int) -> int:
 def read_z_csv(text: str, *, name: str = "z.csv") -> dict[int, float]:
     """Parse `frame,z_mm` rows into {frame: z_mm}; errors name the line."""
     z_by_frame: dict[int, float] = {}
-    for line_no, row in _rows(text, name=name, required={"frame", "z_mm"}, allowed={"frame", "z_mm"}):
+    for line_no, row in _rows(text, name=name, required=("frame", "z_mm"), allowed={"frame", "z_mm"}):
         frame = _frame_id(row, name=name, line_no=line_no)
         z_mm = _number(row, "z_mm", name=name, line_no=line_no)
         if frame in z_by_frame:
@@ -500,7 +506,7 @@ def read_frames_csv(text: str, *, name: str = "frames.csv") -> FramesTable:
     Frame ids are unique integers; time_s, when given, increases strictly with the frame id.
     """
     allowed = {"frame", *FRAMES_CSV_COLUMNS}
-    rows = list(_rows(text, name=name, required={"frame"}, allowed=allowed))
+    rows = list(_rows(text, name=name, required=("frame",), allowed=allowed))
     present = [c for c in FRAMES_CSV_COLUMNS if rows and c in rows[0][1]]
     if not present:
         raise ValueError(f"{name}: needs at least one of {', '.join(FRAMES_CSV_COLUMNS)} besides frame")
@@ -531,21 +537,13 @@ def read_frames_csv(text: str, *, name: str = "frames.csv") -> FramesTable:
     )
 
 
-@dataclass(frozen=True)
-class BoardSpec:
-    """A chessboard as `board.json` describes it: inner corners per row (cols) and column (rows), square size."""
-
-    cols: int
-    rows: int
-    square_mm: float
-    origin: tuple[int, int] | None = None
-
-
-def read_board_json(text: str, *, name: str = "board.json") -> BoardSpec:
-    """Parse {"cols": 9, "rows": 6, "square_mm": 25.0, "origin": [i, j] or null}.
+def read_board_json(text: str, *, name: str = "board.json") -> Board:
+    """Parse a chessboard description: {"cols": 9, "rows": 6, "square_mm": 25.0, "origin": [4, 2] or null}.
 
     cols × rows count inner corners; `"inner_corners": [cols, rows]` may replace cols and rows.
     """
+    from .chessboard import Board
+
     try:
         data: Any = json.loads(text)
     except json.JSONDecodeError as error:
@@ -562,7 +560,7 @@ def read_board_json(text: str, *, name: str = "board.json") -> BoardSpec:
         raise ValueError(f"{name}: missing {', '.join(missing)} (expected cols, rows, square_mm, optional origin)")
     cols, rows, square_mm, origin = data["cols"], data["rows"], data["square_mm"], data.get("origin")
     if not (isinstance(cols, int) and isinstance(rows, int) and cols >= 2 and rows >= 2):
-        raise ValueError(f"{name}: cols and rows must be integers ≥ 2 (inner corners), got {cols!r} × {rows!r}")
+        raise ValueError(f"{name}: needs at least 2 × 2 inner corners (integers), got {cols!r} × {rows!r}")
     if isinstance(square_mm, bool) or not isinstance(square_mm, int | float) or not 0 < square_mm < math.inf:
         raise ValueError(f"{name}: square_mm must be a positive number, got {square_mm!r}")
     if origin is not None:
@@ -570,7 +568,7 @@ def read_board_json(text: str, *, name: str = "board.json") -> BoardSpec:
         if not valid:
             raise ValueError(f"{name}: origin must be [i, j] corner indices ≥ 0 or null, got {origin!r}")
         origin = (origin[0], origin[1])
-    return BoardSpec(cols=cols, rows=rows, square_mm=float(square_mm), origin=origin)
+    return Board(cols=cols, rows=rows, square_mm=float(square_mm), origin=origin)
 
 
 def frame_indices(frame_ids: Sequence[int] | np.ndarray, frame_count: int, *, name: str) -> np.ndarray:
@@ -590,3 +588,25 @@ def frame_indices(frame_ids: Sequence[int] | np.ndarray, frame_count: int, *, na
             f"(numbered 0–{frame_count - 1} or 1–{frame_count})"
         )
     return indices
+
+
+def write_frame_folder(
+    path: str | Path, frames: Sequence[np.ndarray], *, sidecars: dict[str, str] | None = None
+) -> Path:
+    """Write frames as frame0000.png, frame0001.png, ... and sidecar texts (e.g. {"z.csv": ...}) into a folder.
+
+    For synthetic recordings and tests; the folder is readable with `open_recording`.
+    """
+    path = Path(path)
+    path.mkdir(parents=True, exist_ok=True)
+    for index, frame in enumerate(frames):
+        if not cv2.imwrite(str(path / f"frame{index:04d}.png"), frame):
+            raise ValueError(f"{path}: could not write frame {index} (dtype {frame.dtype}, shape {frame.shape})")
+    for name, text in (sidecars or {}).items():
+        (path / name).write_text(text)
+    return path
+
+
+def z_csv_text(z_mm: Sequence[float], *, first_frame: int = 0) -> str:
+    """The text of a `z.csv` sidecar for frames numbered from `first_frame`."""
+    return "frame,z_mm\n" + "".join(f"{first_frame + i},{z!r}\n" for i, z in enumerate(map(float, z_mm)))

@@ -1,0 +1,81 @@
+"""API schemas of accounts, tokens, groups and the audit trail."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class LoginIn(BaseModel):
+    username: str = Field(max_length=64, examples=["ada"])
+    password: str = Field(max_length=256, examples=["correct horse battery"])
+
+
+class Me(BaseModel):
+    username: str
+    role: str
+    auth_enabled: bool
+
+
+class UserIn(BaseModel):
+    username: str = Field(min_length=2, max_length=64, examples=["ada"])
+    password: str = Field(min_length=8, max_length=256)
+    role: Literal["admin", "member"] = "member"
+
+
+class UserPatch(BaseModel):
+    role: Literal["admin", "member"] | None = None
+    disabled: bool | None = None
+
+
+class UserOut(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+    id: int
+    username: str
+    role: str
+    disabled: bool
+    created_at: datetime
+
+
+class TokenIn(BaseModel):
+    name: str = Field(max_length=100, examples=["nightly upload script"])
+    expires_in_days: int | None = Field(None, ge=1, le=3650, description="Omit for a token that does not expire.")
+
+
+class TokenOut(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+    id: int
+    name: str
+    prefix: str
+    created_at: datetime
+    expires_at: datetime | None
+    revoked_at: datetime | None
+    last_used_at: datetime | None
+
+
+class TokenCreated(TokenOut):
+    token: str = Field(description="The secret; shown once, store it now.")
+
+
+class GroupIn(BaseModel):
+    name: str = Field(min_length=2, max_length=64, examples=["impact-lab"])
+    members: list[str] = Field(default_factory=list, description="Usernames.")
+
+
+class GroupOut(BaseModel):
+    id: int
+    name: str
+    members: list[str]
+
+
+class AuditOut(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+    id: int
+    at: datetime
+    username: str
+    action: str
+    object_type: str
+    object_id: str
+    detail: dict[str, Any]
