@@ -1,21 +1,31 @@
 """Experiments, cameras and recordings as the API changes them.
 
-What belongs here: when a delete is refused (a job still uses the files) and what it removes, how a finished
-upload is checked and becomes a recording with its ingest job, and the outward shape of a recording. Routes
-call these and stay thin; everything a client must act on is an `ApiError`.
+What belongs here: who may see or change a camera or recording (it follows its experiment, `backend.auth`),
+when a delete is refused (a job still uses the files) and what it removes, how a finished upload is checked and
+becomes a recording with its ingest job, and the outward shape of a recording. Routes call these and stay thin;
+everything a client must act on is an `ApiError` (`backend.errors`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from backend.api.errors import ApiError
+from backend.auth import Principal, audit, can_access
+from backend.errors import (
+    ApiError,
+    Conflict,
+    NotFound,
+    PayloadTooLarge,
+    ServiceUnavailable,
+    UnprocessableContent,
+    UnsupportedMediaType,
+)
 from backend.jobs import ACTIVE_STATES, QueueUnavailable, submit_job
 from backend.models import Camera, Experiment, Job, Recording
 from backend.schemas.recordings import RecordingOut
@@ -43,15 +53,22 @@ from worker.measurement.containers import (
 )
 
 KINDS = ("camera_calibration", "projector_calibration", "test")
-T = TypeVar("T")
 
 
-def get_or_404(session: Session, model: type[T], object_id: int | str) -> T:
-    found = session.get(model, object_id)
-    if found is None:
-        name = model.__name__.lower()
-        raise ApiError(404, f"{name}_not_found", f"{name} {object_id} does not exist")
-    return found
+def camera_for(session: Session, principal: Principal, camera_id: int, *, write: bool = False) -> Camera:
+    """The camera if `principal` may read (or write) its experiment; otherwise a 404, as if it did not exist."""
+    camera = session.get(Camera, camera_id)
+    if camera is None or not can_access(session, principal, camera.experiment, write=write):
+        raise NotFound(f"camera {camera_id} not found")
+    return camera
+
+
+def recording_for(session: Session, principal: Principal, recording_id: int, *, write: bool = False) -> Recording:
+    """The recording if `principal` may read (or write) its experiment; otherwise a 404."""
+    recording = session.get(Recording, recording_id)
+    if recording is None or not can_access(session, principal, recording.camera.experiment, write=write):
+        raise NotFound(f"recording {recording_id} not found")
+    return recording
 
 
 def recording_out(recording: Recording) -> RecordingOut:
@@ -129,7 +146,7 @@ def refuse_if_in_use(session: Session, what: str, **inputs: Any) -> None:
     jobs = active_jobs_using(session, **inputs)
     if jobs:
         listed = ", ".join(f"{job.kind} job {job.id} ({job.state})" for job in jobs[:5])
-        raise ApiError(409, "in_use", f"{what} is in use by {listed}; cancel the job or wait until it ends")
+        raise Conflict(f"{what} is in use by {listed}; cancel the job or wait until it ends", code="in_use")
 
 
 # ---------------------------------------------------------------------------------------------- deletes
@@ -140,7 +157,7 @@ def _remove_recording_files(data_path: Path, recordings: Iterable[Recording]) ->
         remove_tree(data_path, recording_dir(data_path, recording.id))
 
 
-def delete_experiment(session: Session, settings: Settings, experiment: Experiment) -> None:
+def delete_experiment(session: Session, settings: Settings, principal: Principal, experiment: Experiment) -> None:
     recordings = [r for camera in experiment.cameras for r in camera.recordings]
     refuse_if_in_use(
         session,
@@ -150,21 +167,24 @@ def delete_experiment(session: Session, settings: Settings, experiment: Experime
         experiment_id=experiment.id,
     )
     session.delete(experiment)
+    audit(session, principal, "delete", "experiment", experiment.id, name=experiment.name)
     session.commit()
     _remove_recording_files(settings.data_path, recordings)
 
 
-def delete_camera(session: Session, settings: Settings, camera: Camera) -> None:
+def delete_camera(session: Session, settings: Settings, principal: Principal, camera: Camera) -> None:
     recordings = list(camera.recordings)
     refuse_if_in_use(session, f"camera {camera.id}", recording_ids=[r.id for r in recordings], camera_ids=[camera.id])
     session.delete(camera)
+    audit(session, principal, "delete", "camera", camera.id, name=camera.name)
     session.commit()
     _remove_recording_files(settings.data_path, recordings)
 
 
-def delete_recording(session: Session, settings: Settings, recording: Recording) -> None:
+def delete_recording(session: Session, settings: Settings, principal: Principal, recording: Recording) -> None:
     refuse_if_in_use(session, f"recording {recording.id}", recording_ids=[recording.id])
     session.delete(recording)
+    audit(session, principal, "delete", "recording", recording.id, filename=recording.filename)
     session.commit()
     _remove_recording_files(settings.data_path, [recording])
 
@@ -200,7 +220,7 @@ def start_ingest(session: Session, state: AppState, recording: Recording) -> Rec
     refuse_if_in_use(session, f"recording {recording.id}", recording_ids=[recording.id])
     submit_ingest(session, state, recording)
     if recording.state == "invalid" and recording.error.startswith("the ingest could not be queued"):
-        raise ApiError(503, "queue_unavailable", recording.error)
+        raise ServiceUnavailable(recording.error, code="queue_unavailable")
     return recording
 
 
@@ -209,6 +229,7 @@ def start_ingest(session: Session, state: AppState, recording: Recording) -> Rec
 
 def check_upload_request(
     state: AppState,
+    principal: Principal,
     *,
     camera_id: int,
     kind: str,
@@ -218,36 +239,34 @@ def check_upload_request(
 ) -> None:
     """Refuse an upload before any byte is sent: unknown camera or kind, unsupported name, size or disk space."""
     if kind not in KINDS:
-        raise ApiError(422, "invalid_kind", f"kind must be one of {', '.join(KINDS)}, got {kind!r}")
+        raise UnprocessableContent(f"kind must be one of {', '.join(KINDS)}, got {kind!r}", code="invalid_kind")
     if not filename or len(filename) > 255 or "/" in filename or "\\" in filename:
-        raise ApiError(422, "invalid_filename", "filename must be a plain file name of 1 to 255 characters")
+        raise UnprocessableContent("filename must be a plain file name of 1 to 255 characters", code="invalid_filename")
     suffix = Path(filename).suffix.lower()
     if suffix not in UPLOAD_SUFFIXES:
-        raise ApiError(
-            415,
-            "unsupported_format",
+        raise UnsupportedMediaType(
             f"{filename}: {suffix or 'no extension'} is not a recording format fringelab reads "
             f"(accepted: {', '.join(sorted(UPLOAD_SUFFIXES))}; zip a folder of frames)",
+            code="unsupported_format",
         )
     with state.sessions() as session:
-        get_or_404(session, Camera, camera_id)
+        camera_for(session, principal, camera_id, write=True)
     if length is not None:
         check_upload_size(state.settings, length, reserved_bytes=reserved_bytes)
 
 
 def check_upload_size(settings: Settings, length: int, *, reserved_bytes: int = 0) -> None:
     if length == 0:
-        raise ApiError(400, "empty_upload", "the upload is empty (0 bytes)")
+        raise ApiError("the upload is empty (0 bytes)", code="empty_upload")
     if length > settings.max_upload_bytes:
-        raise ApiError(
-            413,
-            "upload_too_large",
+        raise PayloadTooLarge(
             f"{length} bytes is more than the {settings.max_upload_bytes}-byte limit (FRINGELAB_MAX_UPLOAD_BYTES)",
+            code="upload_too_large",
         )
     try:
         check_room(settings.data_path, length + reserved_bytes, reserve_bytes=settings.min_free_disk_bytes)
     except InsufficientStorage as error:
-        raise ApiError(413, "insufficient_storage", str(error)) from None
+        raise PayloadTooLarge(str(error), code="insufficient_storage") from None
 
 
 def inspect_upload(path: Path, *, filename: str, settings: Settings) -> str:
@@ -262,11 +281,11 @@ def inspect_upload(path: Path, *, filename: str, settings: Settings) -> str:
         elif format == "folder":
             raise UnsupportedRecording(f"{filename}: a folder cannot be uploaded; zip it")
     except UnsupportedRecording as error:
-        raise ApiError(415, "unsupported_format", _named(error, path, filename)) from None
+        raise UnsupportedMediaType(_named(error, path, filename), code="unsupported_format") from None
     except UnsafeArchive as error:
-        raise ApiError(422, "unsafe_archive", _named(error, path, filename)) from None
+        raise UnprocessableContent(_named(error, path, filename), code="unsafe_archive") from None
     except CorruptRecording as error:
-        raise ApiError(422, "corrupt_recording", _named(error, path, filename)) from None
+        raise UnprocessableContent(_named(error, path, filename), code="corrupt_recording") from None
     return format
 
 
@@ -277,6 +296,7 @@ def _named(error: Exception, path: Path, filename: str) -> str:
 
 def register_upload(
     state: AppState,
+    principal: Principal,
     *,
     staged: Path,
     camera_id: int,
@@ -300,7 +320,7 @@ def register_upload(
     format = inspect_upload(staged, filename=filename, settings=settings)
     sync_file(staged)
     with state.sessions() as session:
-        camera = get_or_404(session, Camera, camera_id)
+        camera = camera_for(session, principal, camera_id, write=True)
         duplicate = session.scalars(
             select(Recording)
             .where(Recording.sha256 == sha256, Recording.size_bytes == size_bytes, Recording.path != "")
@@ -331,6 +351,8 @@ def register_upload(
         place_file(staged, target)
         try:
             recording.path = str(target.relative_to(settings.data_path))
+            audit(session, principal, "upload", "recording", recording.id, filename=filename, size_bytes=size_bytes,
+                  sha256=sha256, camera_id=camera.id)  # fmt: skip
             session.commit()
         except BaseException:
             session.rollback()

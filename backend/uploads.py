@@ -10,7 +10,9 @@ where the bytes go and keeps the invariants a resume relies on:
   disk or a crash) are cut off before the next PATCH appends: a resume can never corrupt the file;
 - a finished upload moves into its recording (a rename) and leaves its `.info` behind with the recording id,
   so that a HEAD still answers "complete" and a repeated last PATCH finds the same recording;
-- unfinished uploads expire after FRINGELAB_UPLOAD_EXPIRY_DAYS; their bytes count against the free disk.
+- unfinished uploads expire after FRINGELAB_UPLOAD_EXPIRY_DAYS; their bytes count against the free disk;
+- an upload belongs to the user who created it (kept in its `.info`, out of the client's reach): anyone else
+  gets a 404 for it, checked before tuspyserver reads a PATCH body.
 """
 
 from __future__ import annotations
@@ -22,17 +24,20 @@ import re
 import threading
 import time
 from collections.abc import AsyncIterator, Callable
+from contextvars import ContextVar
 from datetime import datetime
 from email.utils import parsedate_to_datetime
 from pathlib import Path
 from typing import Any
 
-from fastapi import Request, Response
+from fastapi import HTTPException, Request, Response
 from starlette.concurrency import run_in_threadpool
 from tuspyserver.lock import acquire_upload_lock
 from tuspyserver.storage import TusStorage
 
-from backend.api.errors import ApiError
+from backend.api.deps import CurrentUser
+from backend.auth import Principal
+from backend.errors import ApiError, Conflict, Gone, NotFound, PayloadTooLarge, UnprocessableContent
 from backend.recordings import check_upload_request, recording_of_upload, register_upload
 from backend.schemas.recordings import RecordingOut
 from backend.settings import Settings
@@ -51,6 +56,17 @@ from backend.storage import (
 UPLOAD_ID = re.compile(r"[0-9a-f]{32}")
 MAX_CREATION_BODY_BYTES = 4 << 20
 SWEEP_INTERVAL_S = 600.0
+# Who is making the current upload request; set by the access dependency, read when an upload is created.
+_uploader: ContextVar[Principal | None] = ContextVar("uploader", default=None)
+
+
+class UploadRefused(ApiError, HTTPException):
+    """An ApiError raised from the storage while tuspyserver handles a PATCH, which only lets HTTPExceptions
+    through (anything else would be swallowed and the PATCH answered 204)."""
+
+    def __init__(self, error: ApiError) -> None:
+        HTTPException.__init__(self, status_code=error.status_code, detail=error.detail, headers=error.headers)
+        self.code = error.code
 
 
 class TusUploadStorage(TusStorage):
@@ -68,7 +84,7 @@ class TusUploadStorage(TusStorage):
     # --- paths ------------------------------------------------------------------------------------------
     def _path(self, uid: str) -> Path:
         if not UPLOAD_ID.fullmatch(uid):
-            raise ApiError(404, "upload_not_found", "Upload not found")
+            raise UploadRefused(NotFound("upload not found", code="upload_not_found"))
         return self.directory / uid
 
     def _info_path(self, uid: str) -> Path:
@@ -96,24 +112,24 @@ class TusUploadStorage(TusStorage):
     async def append(self, uid: str, chunk: bytes) -> None:
         writer = self._writers.get(uid)
         if writer is None:
-            raise ApiError(409, "upload_complete", "this upload is complete or was removed")
+            raise UploadRefused(Conflict("this upload is complete or was removed", code="upload_complete"))
         try:
             await writer.append(chunk)
         except UploadTooLarge as error:
-            raise ApiError(413, "upload_too_large", str(error)) from None
+            raise UploadRefused(PayloadTooLarge(str(error), code="upload_too_large")) from None
         except InsufficientStorage as error:
-            raise ApiError(413, "insufficient_storage", str(error)) from None
+            raise UploadRefused(PayloadTooLarge(str(error), code="insufficient_storage")) from None
 
     async def flush(self, uid: str) -> None:
         writer = self._writers.get(uid)
         if writer is None:  # an empty PATCH of a finished upload (its answer was lost) is fine: nothing to write
             if "recording_id" in ((await self.read_info(uid)) or {}).get("metadata", {}):
                 return
-            raise ApiError(409, "upload_complete", "this upload is complete or was removed")
+            raise UploadRefused(Conflict("this upload is complete or was removed", code="upload_complete"))
         try:
             await writer.flush()
         except InsufficientStorage as error:
-            raise ApiError(413, "insufficient_storage", str(error)) from None
+            raise UploadRefused(PayloadTooLarge(str(error), code="insufficient_storage")) from None
         self._hashers[uid] = (writer.hasher.copy(), writer.size)
 
     async def finalize(self, uid: str) -> None:
@@ -147,8 +163,8 @@ class TusUploadStorage(TusStorage):
     async def read_info(self, uid: str) -> dict[str, Any] | None:
         return await asyncio.to_thread(self.read_info_now, uid)
 
-    def write_info_now(self, uid: str, data: dict[str, Any]) -> None:
-        """Store an upload's info; the offset never goes back and the recording id, once set, stays.
+    def write_info_now(self, uid: str, data: dict[str, Any], *, owner: Principal | None = None) -> None:
+        """Store an upload's info; the offset never goes back; its owner and recording id, once set, stay.
 
         tuspyserver saves the info again after a PATCH has released the upload's lock, from what it read
         before: a PATCH cut off by a dropped connection can end after the client's next PATCH and would
@@ -157,6 +173,10 @@ class TusUploadStorage(TusStorage):
         with self._info_lock:
             stored = self.read_info_now(uid) or {}
             merged = dict(data)
+            if "owner" in stored:
+                merged["owner"] = stored["owner"]
+            elif owner is not None:
+                merged["owner"] = owner.user_id
             merged["offset"] = max(int(data.get("offset") or 0), int(stored.get("offset") or 0))
             recording_id = stored.get("metadata", {}).get("recording_id")
             if recording_id is not None:
@@ -164,10 +184,11 @@ class TusUploadStorage(TusStorage):
             try:
                 write_atomic(self._info_path(uid), json.dumps(merged, default=str).encode())
             except OSError as error:  # a full disk: tell the client, keep the previous info
-                raise ApiError(413, "insufficient_storage", f"cannot record the upload's progress: {error}") from None
+                refused = PayloadTooLarge(f"cannot record the upload's progress: {error}", code="insufficient_storage")
+                raise UploadRefused(refused) from None
 
     async def write_info(self, uid: str, data: dict[str, Any]) -> None:
-        await asyncio.to_thread(self.write_info_now, uid, data)
+        await asyncio.to_thread(self.write_info_now, uid, data, owner=_uploader.get())
 
     async def list_uids(self) -> list[str]:
         return [p.name for p in self.directory.glob("*") if UPLOAD_ID.fullmatch(p.name)]
@@ -199,7 +220,7 @@ class TusUploadStorage(TusStorage):
         offset = int(info.get("offset") or 0)
         size = path.stat().st_size
         if size < offset:  # only after a power cut: offsets are recorded before their bytes reach the disk
-            raise ApiError(410, "upload_lost", "the bytes of this upload were lost; start it again")
+            raise UploadRefused(Gone("the bytes of this upload were lost; start it again", code="upload_lost"))
         if size > offset:
             truncate_file(path, offset)  # bytes of a PATCH that failed before its offset was recorded
         hasher, hashed = self._hashers.get(uid, (None, -1))
@@ -263,36 +284,51 @@ def _state(request: Request) -> AppState:
     return request.app.state.fringelab  # type: ignore[no-any-return]
 
 
+def make_access_dep(storage: TusUploadStorage) -> Callable[..., Any]:
+    """A dependency of every tus route: who asks, and (for one upload) whether it is theirs."""
+
+    async def upload_access(request: Request, principal: CurrentUser) -> None:
+        _uploader.set(principal)
+        uid = request.path_params.get("uuid")
+        if uid is not None:
+            info = await storage.read_info(uid) if UPLOAD_ID.fullmatch(uid) else None
+            if info is not None and not (principal.is_admin or info.get("owner") == principal.user_id):
+                raise NotFound("upload not found", code="upload_not_found")
+
+    return upload_access
+
+
 def make_pre_create_dep(storage: TusUploadStorage) -> Callable[..., Any]:
     """tuspyserver's pre-create dependency: refuse an upload before it is created, with the reason."""
 
-    async def pre_create_dep(request: Request) -> Callable[[dict[str, str], dict[str, Any]], Any]:
+    async def pre_create_dep(
+        request: Request, principal: CurrentUser
+    ) -> Callable[[dict[str, str], dict[str, Any]], Any]:
         state = _state(request)
 
         async def check(metadata: dict[str, str], upload_info: dict[str, Any]) -> None:
             if request.headers.get("upload-concat"):
-                raise ApiError(400, "unsupported_extension", "tus concatenation is not supported; send one upload")
+                raise ApiError("tus concatenation is not supported; send one upload", code="unsupported_extension")
             body_length = int(request.headers.get("content-length") or 0)
             if body_length > MAX_CREATION_BODY_BYTES:
-                raise ApiError(413, "creation_body_too_large", "send the bytes with PATCH requests")
+                raise PayloadTooLarge("send the bytes with PATCH requests", code="creation_body_too_large")
             missing = [key for key in ("filename", "filetype", "camera_id", "kind") if not metadata.get(key)]
             if missing:
                 raise ApiError(
-                    400,
-                    "missing_metadata",
                     f"Upload-Metadata lacks {', '.join(missing)} (send filename, filetype, camera_id and kind)",
+                    code="missing_metadata",
                 )
             if upload_info.get("size") is None:
-                raise ApiError(400, "length_required", "send Upload-Length (a deferred length is not supported)")
+                raise ApiError("send Upload-Length (a deferred length is not supported)", code="length_required")
             try:
                 camera_id = int(metadata["camera_id"])
             except ValueError:
-                raise ApiError(422, "invalid_metadata", "camera_id must be an integer") from None
+                raise UnprocessableContent("camera_id must be an integer", code="invalid_metadata") from None
             await run_in_threadpool(storage.sweep)
             reserved = await run_in_threadpool(storage.reserved_bytes)
             await run_in_threadpool(
                 lambda: check_upload_request(
-                    state, camera_id=camera_id, kind=metadata["kind"], filename=metadata["filename"],
+                    state, principal, camera_id=camera_id, kind=metadata["kind"], filename=metadata["filename"],
                     length=upload_info["size"], reserved_bytes=reserved,
                 )
             )  # fmt: skip
@@ -309,11 +345,13 @@ def make_complete_dep(storage: TusUploadStorage) -> Callable[..., Any]:
     file (not a recording, unsafe ZIP, camera deleted meanwhile) is removed and the PATCH answers 4xx.
     """
 
-    async def complete_dep(request: Request, response: Response) -> Callable[[str, dict[str, Any]], Any]:
+    async def complete_dep(
+        request: Request, response: Response, principal: CurrentUser
+    ) -> Callable[[str, dict[str, Any]], Any]:
         state = _state(request)
 
         async def on_complete(file_path: str, _metadata: dict[str, Any]) -> None:
-            recording = await run_in_threadpool(complete_upload, state, storage, Path(file_path).name)
+            recording = await run_in_threadpool(complete_upload, state, storage, Path(file_path).name, principal)
             response.headers["Fringelab-Recording-Id"] = str(recording.id)
             response.headers["Content-Location"] = f"/api/v1/recordings/{recording.id}"
 
@@ -322,20 +360,21 @@ def make_complete_dep(storage: TusUploadStorage) -> Callable[..., Any]:
     return complete_dep
 
 
-def complete_upload(state: AppState, storage: TusUploadStorage, uid: str) -> RecordingOut:
+def complete_upload(state: AppState, storage: TusUploadStorage, uid: str, principal: Principal) -> RecordingOut:
     info = storage.read_info_now(uid)
     if info is None:
-        raise ApiError(404, "upload_not_found", f"upload {uid} does not exist")
+        raise NotFound(f"upload {uid} does not exist", code="upload_not_found")
     metadata = info.get("metadata", {})
     if "recording_id" in metadata:  # the last PATCH again (its answer was lost): the same recording
         known = recording_of_upload(state, uid)
         if known is None:
-            raise ApiError(410, "recording_deleted", f"the recording of upload {uid} has been deleted")
+            raise Gone(f"the recording of upload {uid} has been deleted", code="recording_deleted")
         return known
     size = int(info.get("size") or 0)
     try:
         recording = register_upload(
             state,
+            principal,
             staged=Path(storage.location(uid)),
             camera_id=int(metadata["camera_id"]),
             kind=metadata["kind"],

@@ -144,7 +144,7 @@ def tus_upload(client: httpx.Client, path: Path, camera_id: int, chunk: int) -> 
 def put_upload(client: httpx.Client, path: Path, camera_id: int) -> str:
     size = path.stat().st_size
     response = client.put(
-        f"/api/v1/cameras/{camera_id}/uploads/bench.cine",
+        f"/api/v1/uploads/cameras/{camera_id}/bench.cine",
         params={"kind": "test"},
         headers={"Content-Length": str(size)},
         content=read_blocks(path, 0, size),

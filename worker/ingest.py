@@ -25,6 +25,7 @@ from backend.settings import Settings
 from backend.storage import recording_dir
 from worker.jobrunner import JobCancelled, JobContext, run_job
 from worker.measurement import MeasurementError
+from worker.measurement.chessboard import Board
 from worker.measurement.containers import ZipLimits
 from worker.measurement.quality import (
     FrameStats,
@@ -39,7 +40,6 @@ from worker.measurement.quality import (
     saturated_pct,
     to_uint8,
 )
-from worker.measurement.chessboard import Board
 from worker.measurement.readers import (
     FrameSource,
     frame_indices,

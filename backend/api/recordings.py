@@ -12,19 +12,20 @@ from fastapi.responses import FileResponse
 from sqlalchemy import select
 from starlette.concurrency import run_in_threadpool
 
-from backend.api.deps import SessionDep, StateDep
-from backend.api.errors import ApiError
-from backend.models import Camera, Recording
+from backend.api.deps import CurrentUser, SessionDep, StateDep
+from backend.auth import Principal, audit, readable_experiments
+from backend.errors import Conflict, NotFound, UnprocessableContent, error_responses
+from backend.models import Camera, Experiment, Recording
 from backend.previews import PREVIEW_FILE, encode_png, read_preview, read_qa
 from backend.recordings import (
+    camera_for,
     delete_recording,
-    get_or_404,
+    recording_for,
     recording_out,
     refuse_if_in_use,
     start_ingest,
     submit_ingest,
 )
-from backend.schemas.common import error_responses
 from backend.schemas.recordings import (
     FrameQa,
     RecordingKind,
@@ -37,12 +38,12 @@ from backend.schemas.recordings import (
 from backend.storage import recording_dir, write_atomic
 
 router = APIRouter(tags=["recordings"])
-MAX_SIDECAR_BYTES = 16 << 20
 
 
-@router.get("/recordings", response_model=list[RecordingOut])
+@router.get("/recordings", response_model=list[RecordingOut], responses=error_responses(401))
 def list_recordings(
     session: SessionDep,
+    principal: CurrentUser,
     experiment_id: int | None = None,
     camera_id: int | None = None,
     kind: RecordingKind | None = None,
@@ -51,7 +52,9 @@ def list_recordings(
     limit: int = Query(500, ge=1, le=5000),
     offset: int = Query(0, ge=0),
 ) -> list[RecordingOut]:
-    query = select(Recording).join(Camera).order_by(Recording.id)
+    """The recordings the caller may read, oldest first, filtered by any of the parameters."""
+    query = select(Recording).join(Camera).join(Experiment).where(readable_experiments(session, principal))
+    query = query.order_by(Recording.id)
     for column, value in (
         (Camera.experiment_id, experiment_id),
         (Recording.camera_id, camera_id),
@@ -64,21 +67,23 @@ def list_recordings(
     return [recording_out(r) for r in session.scalars(query.limit(limit).offset(offset))]
 
 
-@router.get("/cameras/{camera_id}/recordings", response_model=list[RecordingOut], responses=error_responses(404))
-def list_camera_recordings(camera_id: int, session: SessionDep) -> list[RecordingOut]:
-    camera = get_or_404(session, Camera, camera_id)
+@router.get("/cameras/{camera_id}/recordings", response_model=list[RecordingOut], responses=error_responses(401, 404))
+def list_camera_recordings(camera_id: int, session: SessionDep, principal: CurrentUser) -> list[RecordingOut]:
+    camera = camera_for(session, principal, camera_id)
     return [recording_out(r) for r in sorted(camera.recordings, key=lambda r: r.id)]
 
 
-@router.get("/recordings/{recording_id}", response_model=RecordingOut, responses=error_responses(404))
-def read_recording(recording_id: int, session: SessionDep) -> RecordingOut:
-    return recording_out(get_or_404(session, Recording, recording_id))
+@router.get("/recordings/{recording_id}", response_model=RecordingOut, responses=error_responses(401, 404))
+def read_recording(recording_id: int, session: SessionDep, principal: CurrentUser) -> RecordingOut:
+    return recording_out(recording_for(session, principal, recording_id))
 
 
-@router.patch("/recordings/{recording_id}", response_model=RecordingOut, responses=error_responses(404, 409, 422))
-def update_recording(recording_id: int, body: RecordingUpdate, session: SessionDep, state: StateDep) -> RecordingOut:
+@router.patch("/recordings/{recording_id}", response_model=RecordingOut, responses=error_responses(401, 404, 409, 422))
+def update_recording(
+    recording_id: int, body: RecordingUpdate, session: SessionDep, state: StateDep, principal: CurrentUser
+) -> RecordingOut:
     """A new kind re-runs the ingest (board detection, Z checks depend on it); refused while a job uses it."""
-    recording = get_or_404(session, Recording, recording_id)
+    recording = recording_for(session, principal, recording_id, write=True)
     if body.filename is not None:
         recording.filename = body.filename
     if body.kind is not None and body.kind != recording.kind:
@@ -89,10 +94,11 @@ def update_recording(recording_id: int, body: RecordingUpdate, session: SessionD
     return recording_out(recording)
 
 
-@router.delete("/recordings/{recording_id}", status_code=204, responses=error_responses(404, 409))
-def remove_recording(recording_id: int, session: SessionDep, state: StateDep) -> Response:
+@router.delete("/recordings/{recording_id}", status_code=204, responses=error_responses(401, 404, 409))
+def remove_recording(recording_id: int, session: SessionDep, state: StateDep, principal: CurrentUser) -> Response:
     """Deletes the recording and its files; 409 while a job (its ingest too) uses it."""
-    delete_recording(session, state.settings, get_or_404(session, Recording, recording_id))
+    recording = recording_for(session, principal, recording_id, write=True)
+    delete_recording(session, state.settings, principal, recording)
     return Response(status_code=204)
 
 
@@ -100,86 +106,89 @@ def remove_recording(recording_id: int, session: SessionDep, state: StateDep) ->
     "/recordings/{recording_id}/ingest",
     status_code=202,
     response_model=RecordingOut,
-    responses=error_responses(404, 409, 503),
+    responses=error_responses(401, 404, 409, 503),
 )
-def reingest_recording(recording_id: int, session: SessionDep, state: StateDep) -> RecordingOut:
+def reingest_recording(recording_id: int, session: SessionDep, state: StateDep, principal: CurrentUser) -> RecordingOut:
     """Checks the recording again (new job; `ingest_job_id` names it)."""
-    return recording_out(start_ingest(session, state, get_or_404(session, Recording, recording_id)))
+    return recording_out(start_ingest(session, state, recording_for(session, principal, recording_id, write=True)))
 
 
 @router.put(
     "/recordings/{recording_id}/sidecars/{name}",
     status_code=202,
     response_model=RecordingOut,
-    responses=error_responses(404, 409, 413, 503),
+    responses=error_responses(401, 404, 409, 413, 422, 503),
     openapi_extra={"requestBody": {"content": {"text/plain": {"schema": {"type": "string"}}}, "required": True}},
 )
-async def put_sidecar(recording_id: int, name: SidecarName, request: Request, state: StateDep) -> RecordingOut:
-    """Adds or replaces `z.csv`, `frames.csv` or `board.json` (the body, UTF-8 text) and re-runs the ingest,
-    which validates it against the frames. A sidecar added this way wins over one inside a ZIP."""
-    body = bytearray()
-    async for chunk in request.stream():
-        body += chunk
-        if len(body) > MAX_SIDECAR_BYTES:
-            raise ApiError(413, "sidecar_too_large", f"a sidecar may have at most {MAX_SIDECAR_BYTES} bytes")
-    return await run_in_threadpool(_store_sidecar, state, recording_id, name, bytes(body))
+async def put_sidecar(
+    recording_id: int, name: SidecarName, request: Request, state: StateDep, principal: CurrentUser
+) -> RecordingOut:
+    """Adds or replaces `z.csv`, `frames.csv` or `board.json` (the body, UTF-8 text, at most
+    FRINGELAB_MAX_JSON_BYTES) and re-runs the ingest, which validates it against the frames. A sidecar added
+    this way wins over one inside a ZIP."""
+    body = await request.body()
+    return await run_in_threadpool(_store_sidecar, state, principal, recording_id, name, body)
 
 
-def _store_sidecar(state: StateDep, recording_id: int, name: str, data: bytes) -> RecordingOut:
+def _store_sidecar(state: StateDep, principal: Principal, recording_id: int, name: str, data: bytes) -> RecordingOut:
     try:
         data.decode("utf-8")
     except UnicodeDecodeError:
-        raise ApiError(422, "invalid_sidecar", f"{name}: not UTF-8 text") from None
+        raise UnprocessableContent(f"{name}: not UTF-8 text", code="invalid_sidecar") from None
     with state.sessions() as session:
-        recording = get_or_404(session, Recording, recording_id)
+        recording = recording_for(session, principal, recording_id, write=True)
         refuse_if_in_use(session, f"recording {recording.id}", recording_ids=[recording.id])
         write_atomic(recording_dir(state.settings.data_path, recording.id) / name, data)
+        audit(session, principal, "upload", "sidecar", recording.id, name=name, size_bytes=len(data))
         return recording_out(submit_ingest(session, state, recording))
 
 
 @router.get(
     "/recordings/{recording_id}/frames/{index}",
     response_class=Response,
-    responses={200: {"content": {"image/png": {}}}, **error_responses(404, 409)},
+    responses={200: {"content": {"image/png": {}}}, **error_responses(401, 404, 409)},
 )
 async def frame_png(
     recording_id: int,
     index: int,
     state: StateDep,
+    principal: CurrentUser,
     max_px: int | None = Query(None, ge=16, le=8192, description="Longer side at most this (default: stored)."),
 ) -> Response:
     """Frame `index` (0-based) as a grey 8-bit PNG, from the previews the ingest stored."""
-    png, tag = await run_in_threadpool(_frame_png, state, recording_id, index, max_px)
+    png, tag = await run_in_threadpool(_frame_png, state, principal, recording_id, index, max_px)
     return Response(png, media_type="image/png", headers={"Cache-Control": "private, max-age=3600", "ETag": tag})
 
 
-def _frame_png(state: StateDep, recording_id: int, index: int, max_px: int | None) -> tuple[bytes, str]:
+def _frame_png(
+    state: StateDep, principal: Principal, recording_id: int, index: int, max_px: int | None
+) -> tuple[bytes, str]:
     with state.sessions() as session:
-        recording = get_or_404(session, Recording, recording_id)
+        recording = recording_for(session, principal, recording_id)
         if recording.state != "ready":
-            raise ApiError(409, "not_ready", f"recording {recording_id} is {recording.state}; previews come with ready")
+            raise Conflict(f"recording {recording_id} is {recording.state}; previews come with ready", code="not_ready")
         tag = f'"{recording.ingest_job_id}-{index}-{max_px}"'
     path = recording_dir(state.settings.data_path, recording_id) / PREVIEW_FILE
     try:
         image = read_preview(path, index, max_px=max_px)
     except IndexError as error:
-        raise ApiError(404, "frame_not_found", str(error)) from None
+        raise NotFound(str(error), code="frame_not_found") from None
     except (FileNotFoundError, KeyError, OSError):
-        raise ApiError(409, "not_ready", f"recording {recording_id} has no previews; run its ingest again") from None
+        raise Conflict(f"recording {recording_id} has no previews; run its ingest again", code="not_ready") from None
     return encode_png(image), tag
 
 
-@router.get("/recordings/{recording_id}/qa", response_model=RecordingQa, responses=error_responses(404, 409))
-def recording_qa(recording_id: int, session: SessionDep, state: StateDep) -> RecordingQa:
+@router.get("/recordings/{recording_id}/qa", response_model=RecordingQa, responses=error_responses(401, 404, 409))
+def recording_qa(recording_id: int, session: SessionDep, state: StateDep, principal: CurrentUser) -> RecordingQa:
     """The QA summary (warnings, notes) and the per-frame numbers behind it."""
-    recording = get_or_404(session, Recording, recording_id)
+    recording = recording_for(session, principal, recording_id)
     if recording.state != "ready":
         reason = f": {recording.error}" if recording.error else ""
-        raise ApiError(409, "not_ready", f"recording {recording_id} is {recording.state}{reason}")
+        raise Conflict(f"recording {recording_id} is {recording.state}{reason}", code="not_ready")
     try:
         arrays, attrs = read_qa(recording_dir(state.settings.data_path, recording_id) / PREVIEW_FILE)
     except (FileNotFoundError, KeyError, OSError):
-        raise ApiError(409, "not_ready", f"recording {recording_id} has no QA; run its ingest again") from None
+        raise Conflict(f"recording {recording_id} has no QA; run its ingest again", code="not_ready") from None
     out = recording_out(recording)
     return RecordingQa(
         recording_id=recording.id,
@@ -200,12 +209,12 @@ def recording_qa(recording_id: int, session: SessionDep, state: StateDep) -> Rec
 @router.get(
     "/recordings/{recording_id}/file",
     response_class=FileResponse,
-    responses={200: {"content": {"application/octet-stream": {}}}, **error_responses(404)},
+    responses={200: {"content": {"application/octet-stream": {}}}, **error_responses(401, 404)},
 )
-def download_recording(recording_id: int, session: SessionDep, state: StateDep) -> FileResponse:
+def download_recording(recording_id: int, session: SessionDep, state: StateDep, principal: CurrentUser) -> FileResponse:
     """The uploaded file as it was sent (full resolution and bit depth), streamed."""
-    recording = get_or_404(session, Recording, recording_id)
+    recording = recording_for(session, principal, recording_id)
     path = state.settings.data_path / recording.path
     if not recording.path or not path.is_file():
-        raise ApiError(404, "file_not_found", f"recording {recording_id} has no stored file")
+        raise NotFound(f"recording {recording_id} has no stored file", code="file_not_found")
     return FileResponse(path, filename=recording.filename, media_type="application/octet-stream")

@@ -5,8 +5,11 @@ creates an upload; `PATCH /api/v1/uploads/{id}` appends at `Upload-Offset`; `HEA
 from; `DELETE` abandons it. The last PATCH turns the file into a recording and answers with its id in
 `Fringelab-Recording-Id` (also findable later with `GET /api/v1/recordings?upload_id={id}`).
 
-PUT: `PUT /api/v1/cameras/{camera_id}/uploads/{filename}?kind=...` with the file as the body answers 201 with
+PUT: `PUT /api/v1/uploads/cameras/{camera_id}/{filename}?kind=...` with the file as the body answers 201 with
 the recording. It does not resume: an interrupted PUT leaves nothing behind and is sent again.
+
+Both need write access to the camera's experiment; a tus upload belongs to whoever created it (anyone else
+gets a 404 for it, before any byte of theirs is written).
 
 Either way the bytes go to the data volume as they arrive (bounded memory), within FRINGELAB_MAX_UPLOAD_BYTES
 and the free disk, checksummed (SHA-256); the recording is `ingesting` until its ingest job makes it `ready`
@@ -19,20 +22,19 @@ import hashlib
 import uuid
 from typing import Annotated
 
-from fastapi import APIRouter, Query, Request, Response
+from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 from starlette.requests import ClientDisconnect
 from tuspyserver import create_tus_router
 
-from backend.api.deps import StateDep
-from backend.api.errors import ApiError
+from backend.api.deps import CurrentUser, StateDep
+from backend.errors import ApiError, PayloadTooLarge, error_responses
 from backend.recordings import check_upload_request, register_upload
-from backend.schemas.common import error_responses
 from backend.schemas.recordings import RecordingKind, RecordingOut
 from backend.state import AppState
 from backend.storage import InsufficientStorage, StreamingWriter, UploadTooLarge, put_dir, tus_dir
-from backend.uploads import TusUploadStorage, make_complete_dep, make_pre_create_dep
+from backend.uploads import TusUploadStorage, make_access_dep, make_complete_dep, make_pre_create_dep
 
 
 def create_router(state: AppState) -> APIRouter:
@@ -53,16 +55,18 @@ def create_router(state: AppState) -> APIRouter:
             upload_complete_dep=make_complete_dep(storage),
             tags=["uploads"],
             storage=storage,
-        )
+        ),
+        # Before tuspyserver's own dependencies: a PATCH body is written before its `auth` dependency runs.
+        dependencies=[Depends(make_access_dep(storage))],
     )
     router.add_api_route(
-        "/cameras/{camera_id}/uploads/{filename}",
+        "/uploads/cameras/{camera_id}/{filename}",
         put_recording,
         methods=["PUT"],
         status_code=201,
         response_model=RecordingOut,
         tags=["uploads"],
-        responses=error_responses(400, 404, 413, 415, 422),
+        responses=error_responses(400, 401, 404, 413, 415, 422),
         openapi_extra={"requestBody": {"content": {"application/octet-stream": {}}, "required": True}},
     )
     return router
@@ -89,14 +93,15 @@ async def put_recording(
     filename: str,
     request: Request,
     state: StateDep,
+    principal: CurrentUser,
     kind: Annotated[RecordingKind, Query(description="camera_calibration, projector_calibration or test")],
 ) -> JSONResponse:
-    """Upload a recording in one streamed request (e.g. `curl -T plate.zip URL?kind=test`)."""
+    """Upload a recording in one streamed request (e.g. `curl -T plate.cine URL?kind=test`)."""
     settings = state.settings
     header = request.headers.get("content-length")
     length = int(header) if header and header.isdigit() else None
     await run_in_threadpool(
-        lambda: check_upload_request(state, camera_id=camera_id, kind=kind, filename=filename, length=length)
+        lambda: check_upload_request(state, principal, camera_id=camera_id, kind=kind, filename=filename, length=length)
     )
     staged = put_dir(settings.data_path) / f"{uuid.uuid4().hex}.part"
     writer = StreamingWriter(
@@ -112,21 +117,22 @@ async def put_recording(
             await writer.flush()
         except ClientDisconnect:
             raise ApiError(
-                400, "upload_interrupted", "the connection closed before the upload ended; nothing was kept"
+                "the connection closed before the upload ended; nothing was kept", code="upload_interrupted"
             ) from None
         except UploadTooLarge as error:
-            raise ApiError(413, "upload_too_large", str(error)) from None
+            raise PayloadTooLarge(str(error), code="upload_too_large") from None
         except InsufficientStorage as error:
-            raise ApiError(413, "insufficient_storage", str(error)) from None
+            raise PayloadTooLarge(str(error), code="insufficient_storage") from None
         finally:
             await writer.close()
         if writer.size == 0:
-            raise ApiError(400, "empty_upload", "the upload is empty (0 bytes)")
+            raise ApiError("the upload is empty (0 bytes)", code="empty_upload")
         if length is not None and writer.size != length:
-            raise ApiError(400, "upload_incomplete", f"received {writer.size} of {length} bytes")
+            raise ApiError(f"received {writer.size} of {length} bytes", code="upload_incomplete")
         recording = await run_in_threadpool(
             register_upload,
             state,
+            principal,
             staged=staged,
             camera_id=camera_id,
             kind=kind,

@@ -43,7 +43,7 @@ def test_experiment_and_camera_lifecycle(client):
     assert client.delete(f"/api/v1/experiments/{eid}").status_code == 204
     missing = client.get(f"/api/v1/experiments/{eid}")
     assert missing.status_code == 404
-    assert missing.json() == {"detail": f"experiment {eid} does not exist", "code": "experiment_not_found"}
+    assert missing.json() == {"detail": f"experiment {eid} not found", "code": "not_found"}
 
 
 @pytest.mark.parametrize(
@@ -57,7 +57,7 @@ def test_experiment_and_camera_lifecycle(client):
 def test_bad_experiment_fields_are_422_with_a_code(client, body):
     response = client.post("/api/v1/experiments", json=body)
     assert response.status_code == 422
-    assert response.json()["code"] == "invalid_request"
+    assert response.json()["code"] == "invalid_input"
 
 
 def test_bad_camera_fields_are_422(client):
@@ -70,7 +70,7 @@ def test_bad_camera_fields_are_422(client):
         assert client.post(f"/api/v1/experiments/{eid}/cameras", json=body).status_code == 422
     assert client.post("/api/v1/experiments/999/cameras", json={}).status_code == 422  # body checked first
     good = {"name": "left", "image_width_px": 1, "image_height_px": 1, "pixel_pitch_um": 1}
-    assert client.post("/api/v1/experiments/999/cameras", json=good).json()["code"] == "experiment_not_found"
+    assert client.post("/api/v1/experiments/999/cameras", json=good).json()["code"] == "not_found"
 
 
 def _stored_recording(client, settings) -> tuple[int, int, int]:
@@ -139,6 +139,6 @@ def test_the_openapi_schema_documents_every_route(client):
         "/api/v1/recordings/{recording_id}/qa",
         "/api/v1/uploads",
         "/api/v1/uploads/{uuid}",
-        "/api/v1/cameras/{camera_id}/uploads/{filename}",
+        "/api/v1/uploads/cameras/{camera_id}/{filename}",
     ):
         assert path in paths, path

@@ -171,7 +171,7 @@ def httpx_client(api):  # type: ignore[no-untyped-def]
 
 
 def put(api, camera_id: int, filename: str, data: bytes, kind: str = "test"):  # type: ignore[no-untyped-def]
-    return api.client.put(f"/api/v1/cameras/{camera_id}/uploads/{filename}", params={"kind": kind}, content=data)
+    return api.client.put(f"/api/v1/uploads/cameras/{camera_id}/{filename}", params={"kind": kind}, content=data)
 
 
 @pytest.mark.integration
@@ -287,7 +287,7 @@ def test_bad_upload_requests_are_refused_before_any_byte(api):
     client = api.client
     cases = [
         (tus_create(client, 0, filename="a.zip", filetype="x", camera_id=camera_id, kind="test"), 400, "empty_upload"),
-        (tus_create(client, 10, filename="a.zip", filetype="x", camera_id=999, kind="test"), 404, "camera_not_found"),
+        (tus_create(client, 10, filename="a.zip", filetype="x", camera_id=999, kind="test"), 404, "not_found"),
         (tus_create(client, 10, filename="a.zip", filetype="x", camera_id=camera_id, kind="movie"), 422,
          "invalid_kind"),
         (tus_create(client, 10, filename="a.zip", camera_id=camera_id, kind="test"), 400, "missing_metadata"),
@@ -296,8 +296,8 @@ def test_bad_upload_requests_are_refused_before_any_byte(api):
         (client.post("/api/v1/uploads", headers={**TUS, "Upload-Defer-Length": "1", "Upload-Metadata": ""}), 400,
          "missing_metadata"),
         (put(api, camera_id, "a.zip", b""), 400, "empty_upload"),
-        (put(api, 999, "a.zip", b"PK"), 404, "camera_not_found"),
-        (put(api, camera_id, "a.zip", b"PK", kind="movie"), 422, "invalid_request"),
+        (put(api, 999, "a.zip", b"PK"), 404, "not_found"),
+        (put(api, camera_id, "a.zip", b"PK", kind="movie"), 422, "invalid_input"),
         (put(api, camera_id, "a.rar", b"Rar!"), 415, "unsupported_format"),
         (tus_patch(client, "/api/v1/uploads/0123456789abcdef0123456789abcdef", 0, b"x"), 404, "not_found"),
         (client.head("/api/v1/uploads/../../etc/passwd", headers=TUS), 404, None),
@@ -364,7 +364,7 @@ def httpx_client_at(base_url: str):  # type: ignore[no-untyped-def]
 def test_an_interrupted_put_leaves_nothing_behind(api, tmp_path):
     camera_id = api.camera()
     data = write_zip(tmp_path / "r.zip", stripe_frames(10)).read_bytes()
-    head = (f"PUT /api/v1/cameras/{camera_id}/uploads/r.zip?kind=test HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+    head = (f"PUT /api/v1/uploads/cameras/{camera_id}/r.zip?kind=test HTTP/1.1\r\nHost: 127.0.0.1\r\n"
             f"Content-Length: {len(data)}\r\n\r\n")  # fmt: skip
     staged = put_dir(api.settings.data_path)
     raw_request(api.base_url, head, data[: len(data) // 2], before_close=lambda: staged.exists())
