@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-from datetime import datetime
 from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints
+
+from backend.schemas.common import UtcDatetime
 
 CameraName = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=100)]
 Pixels = Annotated[int, Field(gt=0, le=100_000)]
@@ -41,4 +42,4 @@ class CameraOut(BaseModel):
     image_width_px: int
     image_height_px: int
     pixel_pitch_um: float
-    created_at: datetime
+    created_at: UtcDatetime

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-from datetime import datetime
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints
+
+from backend.schemas.common import UtcDatetime
 
 RecordingKind = Literal["camera_calibration", "projector_calibration", "test"]
 RecordingState = Literal["uploading", "ingesting", "ready", "invalid"]
@@ -45,7 +46,7 @@ class RecordingOut(BaseModel):
     duplicate_of: int | None = Field(description="An earlier recording with identical bytes, stored once.")
     ingest_job_id: str | None
     upload_id: str | None
-    created_at: datetime
+    created_at: UtcDatetime
 
 
 class RecordingUpdate(BaseModel):

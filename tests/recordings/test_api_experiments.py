@@ -119,6 +119,7 @@ def test_recording_reads_lists_and_not_ready_previews(client, settings):
     _eid, cid, rid = _stored_recording(client, settings)
     body = client.get(f"/api/v1/recordings/{rid}").json()
     assert body["camera_id"] == cid and body["warnings"] == [] and body["state"] == "ready"
+    assert body["created_at"].endswith("Z")  # UTC, though SQLite stores it without a zone
     assert [r["id"] for r in client.get(f"/api/v1/recordings?camera_id={cid}").json()] == [rid]
     assert client.get("/api/v1/recordings?state=invalid").json() == []
     renamed = client.patch(f"/api/v1/recordings/{rid}", json={"filename": "plate3-test.zip"})
