@@ -16,7 +16,7 @@ from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from backend.auth import Principal, audit, can_access
+from backend.auth import Principal, audit, can_access, readable_experiments
 from backend.errors import (
     ApiError,
     Conflict,
@@ -309,7 +309,7 @@ def register_upload(
     """Turn a fully received file into a recording and queue its ingest.
 
     The file is checked (format, container), moved into `recordings/<id>/` (a rename) and, when a recording
-    with the same bytes exists, replaced by a hard link to it. On any refusal the staged file stays where it
+    the user may read has the same bytes, replaced by a hard link to it. On any refusal the staged file stays where it
     is for the caller to remove. Idempotent per upload id.
     """
     settings = state.settings
@@ -321,9 +321,13 @@ def register_upload(
     sync_file(staged)
     with state.sessions() as session:
         camera = camera_for(session, principal, camera_id, write=True)
+        # Among the recordings this user may read: another user's file is neither named nor linked to.
         duplicate = session.scalars(
             select(Recording)
+            .join(Camera)
+            .join(Experiment)
             .where(Recording.sha256 == sha256, Recording.size_bytes == size_bytes, Recording.path != "")
+            .where(readable_experiments(session, principal))
             .order_by(Recording.id)
             .limit(1)
         ).first()
