@@ -256,6 +256,8 @@ def check_upload_request(
 
 
 def check_upload_size(settings: Settings, length: int, *, reserved_bytes: int = 0) -> None:
+    if length < 0:
+        raise ApiError(f"an upload cannot have {length} bytes", code="invalid_length")
     if length == 0:
         raise ApiError("the upload is empty (0 bytes)", code="empty_upload")
     if length > settings.max_upload_bytes:

@@ -53,6 +53,7 @@ from backend.storage import (
     write_atomic,
 )
 
+TUS_VERSION = "1.0.0"
 UPLOAD_ID = re.compile(r"[0-9a-f]{32}")
 MAX_CREATION_BODY_BYTES = 4 << 20
 SWEEP_INTERVAL_S = 600.0
@@ -289,6 +290,9 @@ def make_access_dep(storage: TusUploadStorage) -> Callable[..., Any]:
 
     async def upload_access(request: Request, principal: CurrentUser) -> None:
         _uploader.set(principal)
+        if request.method != "OPTIONS" and request.headers.get("tus-resumable") != TUS_VERSION:
+            # tuspyserver checks this only after a PATCH body has been written
+            raise HTTPException(412, f"send Tus-Resumable: {TUS_VERSION}", headers={"Tus-Version": TUS_VERSION})
         uid = request.path_params.get("uuid")
         if uid is not None:
             info = await storage.read_info(uid) if UPLOAD_ID.fullmatch(uid) else None

@@ -287,6 +287,12 @@ def test_bad_upload_requests_are_refused_before_any_byte(api):
     client = api.client
     cases = [
         (tus_create(client, 0, filename="a.zip", filetype="x", camera_id=camera_id, kind="test"), 400, "empty_upload"),
+        (tus_create(client, -5, filename="a.zip", filetype="x", camera_id=camera_id, kind="test"), 400,
+         "invalid_length"),
+        (client.patch(tus_create(client, 10, filename="a.zip", filetype="x", camera_id=camera_id, kind="test")
+                      .headers["Location"], content=b"x",
+                      headers={"Upload-Offset": "0", "Content-Type": "application/offset+octet-stream"}), 412,
+         "precondition_failed"),  # no Tus-Resumable: refused before the body is read
         (tus_create(client, 10, filename="a.zip", filetype="x", camera_id=999, kind="test"), 404, "not_found"),
         (tus_create(client, 10, filename="a.zip", filetype="x", camera_id=camera_id, kind="movie"), 422,
          "invalid_kind"),
@@ -311,6 +317,7 @@ def test_bad_upload_requests_are_refused_before_any_byte(api):
         if code:
             assert response.json()["code"] == code, response.text
     assert_nothing_kept(api)
+    assert all(p.stat().st_size == 0 for p in tus_dir(api.settings.data_path).glob("[0-9a-f]" * 32))
 
 
 def test_size_limit_and_free_disk_are_checked_before_and_while_uploading(settings, tmp_path, monkeypatch):
