@@ -22,6 +22,8 @@ from typing import Literal
 import cv2
 import numpy as np
 from scipy import ndimage, special
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
 
 from . import MeasurementError
 
@@ -312,7 +314,7 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     crossing[:, -1] = False
     line, left = np.nonzero(crossing)
     line = line.astype(np.int32)
-    t_raw = _subpixel_crossings(scan, min_smooth, max_smooth, line, left)
+    t_raw = _subpixel_crossings(diff, contrast, line, left)
     polarity = np.where(diff[line, left + 1] > diff[line, left], 1, -1).astype(np.int8)
 
     keep = _without_glitches(line, t_raw, min_gap_px=0.25 * 0.5 * period_px)
@@ -346,24 +348,22 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     )
 
 
-def _subpixel_crossings(
-    scan: np.ndarray, low: np.ndarray, high: np.ndarray, line: np.ndarray, left: np.ndarray
-) -> np.ndarray:
+def _subpixel_crossings(diff: np.ndarray, contrast: np.ndarray, line: np.ndarray, left: np.ndarray) -> np.ndarray:
     """Mid-level crossing between samples `left` and `left + 1` of each line, shape (N,) float64.
 
-    Probit chord: the two straddling samples, normalised by the local envelope to y = (I − I_min)/(I_max − I_min),
-    become z = Φ⁻¹(y), which is a straight line in position for a Gaussian-blurred step, and the crossing is where
-    the chord through them meets z = 0 (y = 1/2). The plain chord between the intensities bends with the
-    S-shaped edge and leaves a bias that depends on the sub-pixel phase (pixel locking, ≈ 0.04 px at blur
-    σ = 0.5 px); the probit chord leaves < 0.002 px for σ ≥ 0.5 px at the same noise.
+    Probit chord: the two straddling samples, normalised by their local envelope to
+    y = (I − I_min)/(I_max − I_min) = 1/2 + (I − mid)/contrast, become z = Φ⁻¹(y), which is a straight line in
+    position for a Gaussian-blurred step; the crossing is where the chord through them meets z = 0 (y = 1/2).
+    The plain chord between the intensities bends with the S-shaped edge and leaves a bias that depends on the
+    sub-pixel phase (pixel locking, ≈ 0.04 px at blur σ = 0.5 px); the probit chord leaves < 0.002 px for
+    σ ≥ 0.5 px at the same noise. Each sample is normalised by its own envelope, so the two are on either side of
+    1/2 exactly when the crossing test found them to be.
     """
-    n_samples = scan.shape[1]
+    n_samples = diff.shape[1]
     flat = line.astype(np.int64) * n_samples + left
-    lo = low.ravel()[flat]
-    span = np.maximum(high.ravel()[flat] - lo, 1e-6)
-    values = scan.ravel()
-    y0 = np.clip((values[flat] - lo) / span, 0.005, 0.995)
-    y1 = np.clip((values[flat + 1] - lo) / span, 0.005, 0.995)
+    d, c = diff.ravel(), contrast.ravel()
+    y0 = np.clip(0.5 + d[flat] / c[flat], 0.005, 0.995)
+    y1 = np.clip(0.5 + d[flat + 1] / c[flat + 1], 0.005, 0.995)
     z0 = special.ndtri(y0.astype(np.float64))
     z1 = special.ndtri(y1.astype(np.float64))
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -477,3 +477,87 @@ def _smooth_along_chains(line: np.ndarray, t_px: np.ndarray, chain: np.ndarray, 
     smoothed = np.empty(n)
     smoothed[order] = smoothed_sorted
     return smoothed
+
+
+@dataclass(frozen=True, eq=False)
+class EdgeOrder:
+    """Relative order of the edge curves of one frame.
+
+    index: shape (n_chains,) int64, the position of each curve in the stripe sequence, counted along +t from 0
+        within its component (the components' offsets to each other are unknown); −1 for curves left out.
+    component: shape (n_chains,) int64, the connected group each curve belongs to (−1 left out); the largest
+        group is 0.
+    conflicts: number of neighbour pairs whose order disagrees with the assignment (0 for a clean frame).
+    """
+
+    index: np.ndarray
+    component: np.ndarray
+    conflicts: int
+
+    def crossing_index(self, edges: FrameEdges) -> np.ndarray:
+        """Index of every edge point, shape (N,) (−1 where its curve was left out)."""
+        return self.index[edges.chain] if len(edges) else np.zeros(0, np.int64)
+
+
+def order_edges(edges: FrameEdges, *, max_gap_periods: float = 0.8) -> EdgeOrder:
+    """Put the edge curves of a frame in stripe order (METHOD.md §5: the basis of edge identity).
+
+    Two edge points that follow each other on a scan line with opposite polarities, less than max_gap_periods
+    stripe periods apart (a stripe is half a period wide, so a gap of more than ~0.8 period means a missed
+    edge), say that the second curve comes one place after the first. Those statements, counted over all lines,
+    link the curves into groups; a maximum-support spanning tree of each group gives every curve its place, and
+    curves whose statements mostly disagree with that are left out.
+    """
+    n_chains = int(edges.chain.max()) + 1 if len(edges) else 0
+    index = np.full(n_chains, -1, np.int64)
+    component = np.full(n_chains, -1, np.int64)
+    if n_chains == 0:
+        return EdgeOrder(index=index, component=component, conflicts=0)
+    same_line = edges.line[1:] == edges.line[:-1]
+    alternating = edges.polarity[1:] != edges.polarity[:-1]
+    close = np.diff(edges.t_px) < max_gap_periods * edges.period_px
+    pair = same_line & alternating & close
+    first = edges.chain[:-1][pair].astype(np.int64)
+    second = edges.chain[1:][pair].astype(np.int64)
+    different = first != second
+    codes, support = np.unique(first[different] * n_chains + second[different], return_counts=True)
+    before, after = codes // n_chains, codes % n_chains
+    # Undirected graph with cost 1/support, so the spanning tree keeps the best-supported statements.
+    graph = coo_matrix(
+        (np.r_[1.0 / support, 1.0 / support], (np.r_[before, after], np.r_[after, before])), shape=(n_chains, n_chains)
+    ).tocsr()
+    tree = minimum_spanning_tree(graph)
+    tree = tree + tree.T
+    step = coo_matrix(
+        (np.r_[np.ones(len(before)), -np.ones(len(before))], (np.r_[before, after], np.r_[after, before])),
+        shape=(n_chains, n_chains),
+    ).tocsr()
+    n_groups, labels = connected_components(tree, directed=False)
+    sizes = np.bincount(labels, weights=np.bincount(edges.chain, minlength=n_chains), minlength=n_groups)
+    rank = np.empty(n_groups, np.int64)
+    rank[np.argsort(-sizes, kind="stable")] = np.arange(n_groups)
+    for group in range(n_groups):
+        members = np.flatnonzero(labels == group)
+        root = members[0]
+        order, predecessors = breadth_first_order(tree, root, directed=False, return_predecessors=True)
+        index[root] = 0
+        for node in order[1:]:
+            parent = predecessors[node]
+            index[node] = index[parent] + int(round(step[parent, node]))
+        component[members] = rank[group]
+    # Check every statement against the assignment; leave out curves that are mostly contradicted.
+    agrees = index[after] - index[before] == 1
+    bad = np.bincount(np.r_[before[~agrees], after[~agrees]], weights=np.r_[support[~agrees], support[~agrees]],
+                      minlength=n_chains)  # fmt: skip
+    good = np.bincount(np.r_[before[agrees], after[agrees]], weights=np.r_[support[agrees], support[agrees]],
+                       minlength=n_chains)  # fmt: skip
+    left_out = bad > good
+    index[left_out] = -1
+    component[left_out] = -1
+    # Count each group from 0 at its first curve along +t.
+    kept = component >= 0
+    if np.any(kept):
+        lowest = np.full(n_groups, np.iinfo(np.int64).max)
+        np.minimum.at(lowest, component[kept], index[kept])
+        index[kept] -= lowest[component[kept]]
+    return EdgeOrder(index=index, component=component, conflicts=int(np.count_nonzero(~agrees)))

@@ -9,8 +9,13 @@ Not here: the camera model (`camera.py`) and the chessboard renderer (`synthetic
 
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
+
 import cv2
 import numpy as np
+
+from .camera import Camera, backproject_to_z, fit_inverse_model, project_points
+from .synthetic import reference_camera
 
 
 def square_wave_box_mean(x: np.ndarray, width: np.ndarray | float, period: float) -> np.ndarray:
@@ -73,3 +78,291 @@ def render_straight_stripes(
     image = image.reshape(height, ss, width, ss).mean(axis=(1, 3))
     image += rng.normal(0.0, noise_grey, shape)
     return np.clip(np.round(image), 0, 255).astype(np.uint8)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# The scene: a clamped plate pushed at its centre, a pinhole projector, a camera.
+
+
+@dataclass(frozen=True)
+class Projector:
+    """A pinhole slide projector with a binary stripe slide (a Ronchi ruling), possibly with lens distortion.
+
+    Slide coordinates (x_s, y_s) in mm: x_s = f·x/z, y_s = f·y/z of a point in the projector frame
+    (points_proj = rotation · (points_obj − centre_obj_mm)), then radial distortion x_s·(1 + k1·r²). The slide
+    is bright where (x_s − phase_mm) mod period_mm < period_mm / 2, so the stripes are lines of constant x_s and
+    the light sheets are planes through the projector centre.
+    """
+
+    centre_obj_mm: tuple[float, float, float]
+    rotation: tuple[tuple[float, float, float], ...]
+    f_mm: float
+    period_mm: float
+    phase_mm: float = 0.0
+    k1_per_mm2: float = 0.0
+
+    def slide_mm(self, x_mm: np.ndarray, y_mm: np.ndarray, z_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Slide coordinates (x_s, y_s) in mm of object points given by their coordinate arrays."""
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = self.rotation
+        dx, dy, dz = x_mm - self.centre_obj_mm[0], y_mm - self.centre_obj_mm[1], z_mm - self.centre_obj_mm[2]
+        scale = self.f_mm / (r20 * dx + r21 * dy + r22 * dz)
+        xs = (r00 * dx + r01 * dy + r02 * dz) * scale
+        ys = (r10 * dx + r11 * dy + r12 * dz) * scale
+        if self.k1_per_mm2:
+            factor = 1.0 + self.k1_per_mm2 * (xs * xs + ys * ys)
+            xs, ys = xs * factor, ys * factor
+        return xs, ys
+
+
+def projector_looking_at(
+    centre_obj_mm: tuple[float, float, float],
+    target_obj_mm: tuple[float, float, float],
+    *,
+    stripe_normal_obj: tuple[float, float, float],
+    f_mm: float,
+    period_mm: float,
+    phase_mm: float = 0.0,
+    k1_per_mm2: float = 0.0,
+) -> Projector:
+    """A projector at `centre_obj_mm` aimed at `target_obj_mm`, its slide x axis as close as possible to
+    `stripe_normal_obj` (so the stripes on a plate facing it run across that direction)."""
+    centre = np.asarray(centre_obj_mm, dtype=np.float64)
+    axis = np.asarray(target_obj_mm, dtype=np.float64) - centre
+    axis /= np.linalg.norm(axis)
+    x_axis = np.asarray(stripe_normal_obj, dtype=np.float64)
+    x_axis = x_axis - axis * (x_axis @ axis)
+    x_axis /= np.linalg.norm(x_axis)
+    y_axis = np.cross(axis, x_axis)
+    rotation = tuple((float(row[0]), float(row[1]), float(row[2])) for row in (x_axis, y_axis, axis))
+    return Projector(
+        centre_obj_mm=(float(centre[0]), float(centre[1]), float(centre[2])),
+        rotation=rotation,
+        f_mm=f_mm,
+        period_mm=period_mm,
+        phase_mm=phase_mm,
+        k1_per_mm2=k1_per_mm2,
+    )
+
+
+@dataclass(frozen=True)
+class PlateScene:
+    """The test rig as the camera sees it: a plate clamped over a circle, a dark clamp ring, dark background.
+
+    The plate deflects toward the camera (+Z) with a smoothed membrane profile
+    w(r) = w0 · ln(ρ_R/ρ) / ln(ρ_R/b), ρ = √(r² + b²), ρ_R = √(R² + b²), b the punch radius, r from the punch
+    axis, R the clamp radius: flat-topped under the punch, zero at the clamp, logarithmic between (the shape of a
+    membrane under a central load). After perforation a hole of radius hole_radius_mm opens on the punch axis.
+    """
+
+    centre_xy_mm: tuple[float, float] = (8.0, -5.0)
+    clamp_radius_mm: float = 250.0
+    clamp_outer_radius_mm: float = 330.0
+    punch_radius_mm: float = 10.0
+    plate_albedo: float = 0.85
+    clamp_albedo: float = 0.06
+    background_albedo: float = 0.02
+    texture_amplitude: float = 0.02
+
+    def deflection_mm(self, x_mm: np.ndarray, y_mm: np.ndarray, w0_mm: float) -> tuple[np.ndarray, ...]:
+        """w and its slopes ∂w/∂X, ∂w/∂Y at object points (zero outside the clamp circle)."""
+        dx = x_mm - self.centre_xy_mm[0]
+        dy = y_mm - self.centre_xy_mm[1]
+        r2 = dx * dx + dy * dy
+        b2 = self.punch_radius_mm**2
+        rho_r2 = self.clamp_radius_mm**2 + b2
+        scale = w0_mm / np.log(np.sqrt(rho_r2 / b2))
+        inside = r2 < self.clamp_radius_mm**2
+        w = np.where(inside, scale * 0.5 * np.log(rho_r2 / (r2 + b2)), 0.0)
+        dw_dr2 = np.where(inside, -0.5 * scale / (r2 + b2), 0.0)
+        return w, 2.0 * dx * dw_dr2, 2.0 * dy * dw_dr2
+
+    def radius_mm(self, x_mm: np.ndarray, y_mm: np.ndarray) -> np.ndarray:
+        return np.hypot(x_mm - self.centre_xy_mm[0], y_mm - self.centre_xy_mm[1])
+
+
+@dataclass(frozen=True)
+class PlateState:
+    """One instant of the test: central deflection w0 and the radius of the hole (0 before perforation)."""
+
+    w0_mm: float
+    hole_radius_mm: float = 0.0
+
+
+@dataclass(frozen=True)
+class Imaging:
+    """Grey levels and optics of the rendered frames (8-bit output)."""
+
+    supersample: int = 2
+    blur_px: float = 0.7
+    gain_grey: float = 230.0
+    dark_stripe_fraction: float = 0.15
+    ambient_grey: float = 6.0
+    vignetting: float = 0.25
+    noise_grey: float = 2.0
+
+
+@dataclass(frozen=True)
+class Preset:
+    """A whole virtual set-up: camera, projector, scene and imaging."""
+
+    name: str
+    camera: Camera
+    projector: Projector
+    scene: PlateScene
+    imaging: Imaging
+    max_deflection_mm: float = 60.0
+    calibration_z_mm: tuple[float, ...] = tuple(np.arange(0.0, 80.0 + 1e-9, 2.0))
+
+
+class FringeRenderer:
+    """Renders the stripes of a preset's projector on the plate through its camera.
+
+    For every sub-pixel (supersample² per pixel) the camera ray is found once (X, Y at Z = 0 and the ray's slope
+    dX/dZ, dY/dZ); each frame then intersects the rays with the plate surface (Newton on Z − w(X(Z), Y(Z))),
+    projects the surface points into the projector, and takes the slide's value there, box-averaged over the
+    sub-pixel's footprint on the slide so that it moves continuously with the edge. Lambertian shading,
+    projector vignetting and 1/d² fall-off make the illumination uneven; the optical blur acts on the supersampled
+    image before pixel integration; then noise and rounding to 8 bits.
+    """
+
+    _BLOCK_ROWS = 64
+
+    def __init__(self, preset: Preset) -> None:
+        self.preset = preset
+        camera = preset.camera
+        ss = preset.imaging.supersample
+        height, width = camera.image_height_px * ss, camera.image_width_px * ss
+        inverse = fit_inverse_model(camera)
+        sub_u = (np.arange(width) + 0.5) / ss - 0.5
+        self._x0 = np.empty((height, width), np.float32)
+        self._y0 = np.empty((height, width), np.float32)
+        self._sx = np.empty((height, width), np.float32)
+        self._sy = np.empty((height, width), np.float32)
+        for start in range(0, height, 256):
+            rows = np.arange(start, min(start + 256, height))
+            grid_u, grid_v = np.meshgrid(sub_u, (rows + 0.5) / ss - 0.5)
+            q_px = np.column_stack([grid_u.ravel(), grid_v.ravel()])
+            at_0 = backproject_to_z(camera, q_px, 0.0, inverse=inverse)
+            at_100 = backproject_to_z(camera, q_px, 100.0, inverse=inverse)
+            shape = (len(rows), width)
+            self._x0[rows] = at_0[:, 0].reshape(shape)
+            self._y0[rows] = at_0[:, 1].reshape(shape)
+            self._sx[rows] = ((at_100[:, 0] - at_0[:, 0]) / 100.0).reshape(shape)
+            self._sy[rows] = ((at_100[:, 1] - at_0[:, 1]) / 100.0).reshape(shape)
+        centre = np.asarray(preset.projector.centre_obj_mm)
+        self._nominal_distance_mm = float(np.linalg.norm(centre - np.r_[preset.scene.centre_xy_mm, 0.0]))
+
+    def render_flat(self, z_mm: float, *, rng: np.random.Generator) -> np.ndarray:
+        """A projector-calibration frame: a flat matte plate filling the view at height z_mm."""
+        return self._render(rng=rng, flat_z_mm=float(z_mm), state=None)
+
+    def render_test(self, state: PlateState, *, rng: np.random.Generator) -> np.ndarray:
+        """A test frame: the clamped plate deflected to state.w0_mm, with its hole if perforated."""
+        return self._render(rng=rng, flat_z_mm=None, state=state)
+
+    def _render(self, *, rng: np.random.Generator, flat_z_mm: float | None, state: PlateState | None) -> np.ndarray:
+        imaging = self.preset.imaging
+        ss = imaging.supersample
+        grey: np.ndarray = np.empty(self._x0.shape, np.float32)
+        step = self._BLOCK_ROWS * ss
+        for start in range(0, grey.shape[0], step):
+            rows = slice(start, min(start + step, grey.shape[0]))
+            grey[rows] = self._radiance_block(rows, flat_z_mm=flat_z_mm, state=state)
+        if imaging.blur_px > 0:
+            grey = cv2.GaussianBlur(grey, (0, 0), imaging.blur_px * ss, borderType=cv2.BORDER_REPLICATE)
+        camera = self.preset.camera
+        image = grey.reshape(camera.image_height_px, ss, camera.image_width_px, ss).mean(axis=(1, 3))
+        image = image + rng.normal(0.0, imaging.noise_grey, image.shape)
+        return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+
+    def surface_block(
+        self, rows: slice, *, flat_z_mm: float | None, state: PlateState | None
+    ) -> tuple[np.ndarray, ...]:
+        """Where the sub-pixel rays of `rows` meet the surface: X, Y, Z, ∂w/∂X, ∂w/∂Y (float32 arrays)."""
+        x0, y0, sx, sy = self._x0[rows], self._y0[rows], self._sx[rows], self._sy[rows]
+        if flat_z_mm is not None:
+            z = np.full_like(x0, flat_z_mm)
+            zero = np.zeros_like(x0)
+            return x0 + sx * z, y0 + sy * z, z, zero, zero
+        assert state is not None
+        scene = self.preset.scene
+        z, _, _ = scene.deflection_mm(x0, y0, state.w0_mm)
+        for _ in range(8):
+            x, y = x0 + sx * z, y0 + sy * z
+            w, wx, wy = scene.deflection_mm(x, y, state.w0_mm)
+            residual = z - w
+            z = z - residual / (1.0 - wx * sx - wy * sy)
+            if float(np.max(np.abs(residual))) < 1e-4:
+                break
+        x, y = x0 + sx * z, y0 + sy * z
+        _, wx, wy = scene.deflection_mm(x, y, state.w0_mm)
+        return x, y, z, wx, wy
+
+    def _radiance_block(self, rows: slice, *, flat_z_mm: float | None, state: PlateState | None) -> np.ndarray:
+        preset = self.preset
+        scene, projector, imaging = preset.scene, preset.projector, preset.imaging
+        x, y, z, wx, wy = self.surface_block(rows, flat_z_mm=flat_z_mm, state=state)
+        xs, ys = projector.slide_mm(x, y, z)
+        # Footprint of a sub-pixel on the slide along x_s (symmetric, so it does not move the edge).
+        footprint = np.abs(np.gradient(xs, axis=0)) + np.abs(np.gradient(xs, axis=1))
+        stripes = square_wave_box_mean(xs - projector.phase_mm, footprint, projector.period_mm)
+        lx, ly, lz = (projector.centre_obj_mm[0] - x, projector.centre_obj_mm[1] - y, projector.centre_obj_mm[2] - z)
+        distance2 = lx * lx + ly * ly + lz * lz
+        cos_incidence = (lz - wx * lx - wy * ly) / np.sqrt(distance2 * (1.0 + wx * wx + wy * wy))
+        vignette = 1.0 - imaging.vignetting * (xs * xs + ys * ys) / (0.2 * projector.f_mm) ** 2
+        falloff = self._nominal_distance_mm**2 / distance2
+        if state is None:
+            albedo = scene.plate_albedo * (1.0 + scene.texture_amplitude * np.sin(x / 29.0) * np.cos(y / 41.0))
+        else:
+            r = scene.radius_mm(x, y)
+            texture = 1.0 + scene.texture_amplitude * np.sin(x / 37.0 + 1.0) * np.sin(y / 53.0)
+            albedo = np.where(r < scene.clamp_radius_mm, scene.plate_albedo * texture, scene.clamp_albedo)
+            albedo = np.where(r < scene.clamp_outer_radius_mm, albedo, scene.background_albedo)
+            albedo = np.where(r < state.hole_radius_mm, scene.background_albedo, albedo)
+        light = np.maximum(cos_incidence, 0.0) * np.maximum(vignette, 0.0) * falloff
+        pattern = imaging.dark_stripe_fraction + (1.0 - imaging.dark_stripe_fraction) * stripes
+        return (imaging.ambient_grey + imaging.gain_grey * albedo * light * pattern).astype(np.float32)
+
+
+PRESETS = ("kodak", "phantom")
+# Stripe period in the image near the plate centre, as in METHOD.md §7 ("stripes ~10 px per period").
+TARGET_PERIOD_PX = 10.0
+# The paper's projector: an 85 mm Kodak Retinar lens about 2 m from the plate.
+PROJECTOR_F_MM = 85.0
+PROJECTOR_DISTANCE_MM = 2000.0
+
+
+def _stripe_period_for(camera: Camera, projector: Projector, scene: PlateScene, scan_axis: str) -> float:
+    """Slide period (mm) that gives TARGET_PERIOD_PX along the scan axis at the image point of the plate centre."""
+    centre = np.array([[scene.centre_xy_mm[0], scene.centre_xy_mm[1], 0.0]])
+    q0 = project_points(camera, centre)[0]
+    step = np.array([1.0, 0.0]) if scan_axis == "rows" else np.array([0.0, 1.0])
+    points = backproject_to_z(camera, np.array([q0 - step, q0 + step]), 0.0)
+    xs, _ = projector.slide_mm(points[:, 0], points[:, 1], points[:, 2])
+    return float(TARGET_PERIOD_PX * abs(xs[1] - xs[0]) / 2.0)
+
+
+def preset(name: str, *, imaging: Imaging | None = None) -> Preset:
+    """The virtual set-up of one of the paper's cameras, about 2 m from the plate.
+
+    "kodak": 512 × 480 px (the Kodak MotionCorder's size), stripes roughly vertical in the image, the projector
+    30° off the plate normal on the −X side. "phantom": 1024 × 1024 px (the Phantom v5.0's size), stripes roughly
+    horizontal, the projector 15° off the normal on the +Y side. Both use the paper's reference cameras
+    (Table 1 distortion) with a shorter focal length so the whole Ø500 mm plate and part of the clamp are in view.
+    """
+    scene = PlateScene()
+    target = (scene.centre_xy_mm[0], scene.centre_xy_mm[1], 0.0)
+    if name == "kodak":
+        camera = replace(reference_camera("512x480"), f_mm=17.0)
+        angle, direction, normal, scan_axis = np.deg2rad(30.0), np.array([-1.0, 0.0]), (1.0, 0.0, 0.0), "rows"
+    elif name == "phantom":
+        camera = replace(reference_camera("1024x1024"), f_mm=16.0)
+        angle, direction, normal, scan_axis = np.deg2rad(15.0), np.array([0.0, 1.0]), (0.0, 1.0, 0.0), "cols"
+    else:
+        raise ValueError(f"preset: expected one of {PRESETS}, got {name!r}")
+    offset = PROJECTOR_DISTANCE_MM * np.sin(angle) * direction
+    centre = (target[0] + offset[0], target[1] + offset[1], PROJECTOR_DISTANCE_MM * np.cos(angle))
+    provisional = projector_looking_at(centre, target, stripe_normal_obj=normal, f_mm=PROJECTOR_F_MM, period_mm=1.0)
+    period_mm = _stripe_period_for(camera, provisional, scene, scan_axis)
+    projector = replace(provisional, period_mm=period_mm, phase_mm=0.3 * period_mm, k1_per_mm2=5e-5)
+    return Preset(name=name, camera=camera, projector=projector, scene=scene, imaging=imaging or Imaging())

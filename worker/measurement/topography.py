@@ -1,0 +1,488 @@
+"""Topography: edge identity through a test, Z from the projector table, X and Y by back-projection (METHOD.md §5–6).
+
+Belongs here: identifying the edges of the first (flat) test frame against the projector calibration, tracking
+every (edge, scan line) point frame to frame and ending tracks that break, optional temporal smoothing, and
+turning tracked positions into 3-D points. The pipeline is split so that test recordings can be processed in
+parallel chunks with results identical to one run:
+
+1. `locate_test_edges` / `fringes.locate_edges`: the expensive part, a pure function of one frame. Chunks of
+   frames can run on different workers; their `FrameEdges` can be stored (`topography_files.write_edges`).
+2. `track_and_measure`: a cheap sequential pass over the located edges in frame order, always from the first
+   frame (identity is fixed there), yielding one `FrameMeasurement` per frame. Temporal smoothing, if on, is a
+   centred window inside this pass, so it sees the same neighbours whatever the chunking.
+3. Gridding (`fields.grid_edge_points`), a pure function of one measurement.
+
+`topography_recording` runs all three over a recording and streams the result into an HDF5 file. Not here: the
+edge locator (`fringes.py`), the table (`projector.py`), grids and profiles (`fields.py`), files
+(`topography_files.py`).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from . import MeasurementError
+from .camera import backproject_to_z
+from .fields import Grid, grid_covering, grid_edge_points, typical_edge_gap_mm
+from .fringes import FrameEdges, detect_stripes, locate_edges
+from .projector import (
+    CalibrationMismatchError,
+    CameraModel,
+    ProjectorCalibration,
+    camera_fingerprint,
+    match_to_reference,
+)
+
+ProgressCallback = Callable[[int, int, str], None]
+
+
+class FirstFrameNotFlatError(MeasurementError):
+    """The first test frame does not show the flat, undeformed plate the edge identity is fixed on."""
+
+
+class TopographyError(MeasurementError):
+    """The topography cannot be computed from this recording (too few edges identified, ...)."""
+
+
+class TopographyCancelled(Exception):
+    """Raised when the caller's `should_cancel()` returned True; not a failure of the measurement."""
+
+
+@dataclass(frozen=True)
+class TopographySettings:
+    """Settings of the topography.
+
+    max_jump_fraction: a tracked edge may move at most this fraction of the stripe period from where its last
+        motion predicts it, or its track ends (never guessed across a gap); 0.3 period is well under the half
+        period at which it could take its neighbour's place.
+    temporal_smoothing_frames: half-width h of a centred quadratic (Savitzky–Golay) filter of each tracked edge
+        position over 2h + 1 frames; 0 = off. Near the ends of a track the window shrinks symmetrically.
+    flat_tolerance_mm: the first frame is taken as flat when 90 % of its points lie within this of the
+        calibration's reference Z.
+    grid_step_mm: spacing of the deflection grid.
+    grid_max_edge_mm: longest triangle side of the gridding mesh; None = 3 × the median gap between neighbouring
+        edges in the first frame (a missing edge between two measured ones is still bridged, a hole is not).
+    grid_margin_mm: margin of the grid around the first frame's points.
+    """
+
+    max_jump_fraction: float = 0.3
+    temporal_smoothing_frames: int = 0
+    flat_tolerance_mm: float = 2.0
+    grid_step_mm: float = 2.0
+    grid_max_edge_mm: float | None = None
+    grid_margin_mm: float = 4.0
+
+    def __post_init__(self) -> None:
+        if not 0 < self.max_jump_fraction < 0.5:
+            raise ValueError(f"max_jump_fraction: expected 0 < f < 0.5, got {self.max_jump_fraction}")
+        if self.temporal_smoothing_frames < 0:
+            raise ValueError(f"temporal_smoothing_frames: expected ≥ 0, got {self.temporal_smoothing_frames}")
+        if not self.grid_step_mm > 0:
+            raise ValueError(f"grid_step_mm: expected > 0, got {self.grid_step_mm}")
+        if self.grid_max_edge_mm is not None and not self.grid_max_edge_mm > 0:
+            raise ValueError(f"grid_max_edge_mm: expected > 0 or None, got {self.grid_max_edge_mm}")
+
+
+@dataclass(frozen=True, eq=False)
+class FrameMeasurement:
+    """The 3-D points of one frame and how many of the tracked points made it.
+
+    frame: index of the frame in the recording. k, line: (N,) edge index and scan line of each point;
+    points_obj_mm: (N, 3). n_tracks: tracked (edge, line) points in this frame (with or without Z); n_ended:
+    tracks that ended at this frame; n_out_of_range: tracked points outside the calibrated Z range of their
+    table entry (masked, never extrapolated); n_unmatched: edge points of the frame that belong to no track;
+    edge_noise_px: the frame's edge-location noise estimate.
+    """
+
+    frame: int
+    k: np.ndarray
+    line: np.ndarray
+    points_obj_mm: np.ndarray
+    n_tracks: int
+    n_ended: int
+    n_out_of_range: int
+    n_unmatched: int
+    edge_noise_px: float
+
+    def dense(self, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """X, Y, Z as (K, S) arrays over (edge, line), NaN where not measured."""
+        out = [np.full(shape, np.nan) for _ in range(3)]
+        for axis in range(3):
+            out[axis][self.k, self.line] = self.points_obj_mm[:, axis]
+        return out[0], out[1], out[2]
+
+
+def check_recording_against(
+    image_shape: tuple[int, int], projector: ProjectorCalibration, camera_model: CameraModel
+) -> None:
+    """Raise CalibrationMismatchError when a recording's frames, the camera and the projector table disagree."""
+    camera = camera_model.camera
+    camera_shape = (camera.image_height_px, camera.image_width_px)
+    if tuple(image_shape) != tuple(projector.image_shape):
+        raise CalibrationMismatchError(
+            f"the test frames are {image_shape[1]} × {image_shape[0]} px but the projector calibration is for "
+            f"{projector.image_shape[1]} × {projector.image_shape[0]} px: use the calibrations of this camera"
+        )
+    if camera_shape != tuple(projector.image_shape):
+        raise CalibrationMismatchError(
+            f"the camera calibration is for {camera_shape[1]} × {camera_shape[0]} px but the projector calibration "
+            f"for {projector.image_shape[1]} × {projector.image_shape[0]} px: they come from different cameras"
+        )
+    if camera_fingerprint(camera) != projector.camera_fingerprint:
+        raise CalibrationMismatchError(
+            "the projector calibration was made with another camera calibration (fingerprint "
+            f"{projector.camera_fingerprint}, this one {camera_fingerprint(camera)}): use the camera calibration it "
+            "was made with, or calibrate the projector again with this one"
+        )
+
+
+def check_stripes_against(first_frame: np.ndarray, projector: ProjectorCalibration) -> None:
+    """Raise CalibrationMismatchError when the test's stripes run another way than the calibration's."""
+    geometry = detect_stripes(first_frame, axis="auto")
+    if geometry.axis != projector.axis:
+        direction = {"rows": "roughly vertical", "cols": "roughly horizontal"}
+        raise CalibrationMismatchError(
+            f"the stripes of the test run {direction[geometry.axis]} ({geometry.angle_deg:.0f}°) but those of the "
+            f"projector calibration {direction[projector.axis]}: the projector or the camera moved between them"
+        )
+
+
+def locate_test_edges(frames: Iterable[np.ndarray], projector: ProjectorCalibration) -> Iterator[FrameEdges]:
+    """`fringes.locate_edges` with the projector calibration's edge settings, frame by frame (lazy)."""
+    for image in frames:
+        if tuple(np.shape(image)[:2]) != tuple(projector.image_shape):
+            shape = np.shape(image)
+            raise CalibrationMismatchError(
+                f"a test frame is {shape[1]} × {shape[0]} px but the projector calibration is for "
+                f"{projector.image_shape[1]} × {projector.image_shape[0]} px"
+            )
+        yield locate_edges(image, projector.edges)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Identity and tracking
+
+
+def identify_first_frame(edges: FrameEdges, projector: ProjectorCalibration, *, flat_tolerance_mm: float) -> np.ndarray:
+    """Positions (K, S) of the projector's edges in the first (flat) test frame, NaN where not seen.
+
+    Each edge point is matched to the nearest table edge of the same polarity at the reference Z on its line;
+    an edge curve takes the index most of its points agree on (≥ 80 %, else it is left out). Raises
+    FirstFrameNotFlatError when the identified points do not lie at the reference Z, TopographyError when too
+    few are identified.
+    """
+    k_near, distance = match_to_reference(
+        edges.line, edges.t_px, edges.polarity, projector.reference_t_px, projector.polarity,
+        n_samples=edges.image_shape[1] if edges.axis == "rows" else edges.image_shape[0],
+    )  # fmt: skip
+    near = (k_near >= 0) & (np.abs(distance) <= 0.5 * projector.period_px)
+    n_chains = int(edges.chain.max()) + 1 if len(edges) else 0
+    k = np.full(len(edges), -1, np.int64)
+    if n_chains:
+        codes, counts = np.unique(edges.chain[near].astype(np.int64) * (projector.n_edges + 1) + k_near[near],
+                                  return_counts=True)  # fmt: skip
+        chain_of, k_of = codes // (projector.n_edges + 1), codes % (projector.n_edges + 1)
+        best = np.zeros(n_chains, np.int64)
+        best_k = np.full(n_chains, -1, np.int64)
+        order = np.argsort(counts, kind="stable")  # ascending, so the largest count per chain is written last
+        best[chain_of[order]] = counts[order]
+        best_k[chain_of[order]] = k_of[order]
+        length = np.bincount(edges.chain, minlength=n_chains)
+        chain_ok = best >= 0.8 * length
+        k = np.where(chain_ok[edges.chain], best_k[edges.chain], -1)
+    identified = k >= 0
+    if np.count_nonzero(identified) < max(50, 0.3 * len(edges)):
+        raise TopographyError(
+            f"only {np.count_nonzero(identified)} of {len(edges)} edge points of the first test frame match the "
+            "projector calibration's edges: the projector, the camera or the plate moved since the calibration"
+        )
+    z, status = projector.z_from_t(k[identified], edges.line[identified], edges.t_px[identified])
+    offset = np.abs(z[status == 0] - projector.reference_z_mm)
+    if len(offset) == 0 or np.percentile(offset, 90) > flat_tolerance_mm:
+        p90 = float(np.percentile(offset, 90)) if len(offset) else float("nan")
+        raise FirstFrameNotFlatError(
+            f"the first test frame is not the flat plate at Z = {projector.reference_z_mm:g} mm: 10 % of its edge "
+            f"points are more than {p90:.1f} mm from it (tolerance {flat_tolerance_mm:g} mm); the topography "
+            "fixes edge identity on an undeformed first frame, so start the recording before the punch touches"
+        )
+    positions = np.full((projector.n_edges, projector.n_lines), np.nan)
+    kk, ll = k[identified], edges.line[identified].astype(np.int64)
+    flat = kk * projector.n_lines + ll
+    counts = np.bincount(flat, minlength=positions.size)
+    single = counts[flat] == 1
+    positions.ravel()[flat[single]] = edges.t_px[identified][single]
+    # Without a table entry a track can never give Z.
+    positions[~projector.valid] = np.nan
+    return positions
+
+
+@dataclass
+class EdgeTracker:
+    """Tracks every (edge k, scan line s) point from frame to frame (METHOD.md §5).
+
+    positions: (K, S) current positions (NaN = no track); velocity: (K, S) last motion per frame.
+    A track follows the nearest edge point of its polarity on its line, within max_jump px of where its last
+    motion predicts it, provided that point's nearest track is this one (mutual), and the order of edges along
+    the line is kept; otherwise it ends for good.
+    """
+
+    positions: np.ndarray
+    polarity: np.ndarray
+    max_jump_px: float
+    velocity: np.ndarray = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.velocity = np.zeros_like(self.positions)
+
+    def step(self, edges: FrameEdges) -> tuple[np.ndarray, int, int]:
+        """Advance to the next frame. Returns the new positions (K, S), the number of tracks ended and the number
+        of edge points of the frame that no track took."""
+        alive = np.isfinite(self.positions)
+        predicted = np.where(alive, self.positions + self.velocity, np.nan)
+        n_samples = edges.image_shape[1] if edges.axis == "rows" else edges.image_shape[0]
+        # Nearest track of each edge point, and nearest edge point of each track: keep mutual pairs.
+        k_near, distance = match_to_reference(
+            edges.line, edges.t_px, edges.polarity, predicted, self.polarity, n_samples=n_samples
+        )
+        point_ok = (k_near >= 0) & (np.abs(distance) <= self.max_jump_px)
+        kk, ss = k_near[point_ok], edges.line[point_ok].astype(np.int64)
+        t_new = edges.t_px[point_ok].astype(np.float64)
+        d_new = np.abs(distance[point_ok])
+        # Of several points claiming one track, only the nearest may be mutual; drop the track if tied.
+        flat = kk * self.positions.shape[1] + ss
+        order = np.lexsort((d_new, flat))
+        flat, t_new, d_new = flat[order], t_new[order], d_new[order]
+        first = np.r_[True, flat[1:] != flat[:-1]]
+        tie = np.r_[~first[1:] & (d_new[1:] == d_new[:-1]), False]
+        winners = first & ~tie
+        positions = np.full_like(self.positions, np.nan)
+        positions.ravel()[flat[winners]] = t_new[winners]
+        # Mutual: the winning point must also be the nearest point to the track's prediction.
+        positions = self._mutual(positions, predicted, edges)
+        positions = self._keep_order(positions)
+        ended = alive & ~np.isfinite(positions)
+        moved = np.isfinite(positions)
+        self.velocity = np.where(moved, positions - np.where(alive, self.positions, positions), 0.0)
+        self.positions = positions
+        n_taken = int(np.count_nonzero(moved))
+        return positions, int(np.count_nonzero(ended)), len(edges) - n_taken
+
+    def _mutual(self, positions: np.ndarray, predicted: np.ndarray, edges: FrameEdges) -> np.ndarray:
+        taken = np.isfinite(positions)
+        kk, ss = np.nonzero(taken)
+        if len(kk) == 0:
+            return positions
+        n_samples = edges.image_shape[1] if edges.axis == "rows" else edges.image_shape[0]
+        stride = float(n_samples + 1000.0)
+        pol = self.polarity[kk]
+        pred = predicted[kk, ss]
+        keep = np.zeros(len(kk), bool)
+        for sign in (1, -1):
+            members = np.flatnonzero(edges.polarity == sign)
+            tracks = np.flatnonzero(pol == sign)
+            if len(members) == 0 or len(tracks) == 0:
+                continue
+            keys = edges.line[members].astype(np.float64) * stride + edges.t_px[members]
+            query = ss[tracks].astype(np.float64) * stride + pred[tracks]
+            pos = np.searchsorted(keys, query)
+            lo = np.clip(pos - 1, 0, len(keys) - 1)
+            hi = np.minimum(pos, len(keys) - 1)
+            nearest = np.where(np.abs(keys[lo] - query) <= np.abs(keys[hi] - query), lo, hi)
+            nearest_t = edges.t_px[members][nearest].astype(np.float64)
+            keep[tracks] = nearest_t == positions[kk[tracks], ss[tracks]]
+        out = np.full_like(positions, np.nan)
+        out[kk[keep], ss[keep]] = positions[kk[keep], ss[keep]]
+        return out
+
+    @staticmethod
+    def _keep_order(positions: np.ndarray) -> np.ndarray:
+        """End both tracks of any pair of consecutive tracked edges on a line that swapped order."""
+        kk, ss = np.nonzero(np.isfinite(positions.T))  # sorted by line, then edge
+        if len(kk) < 2:
+            return positions
+        line, edge = kk, ss
+        t = positions[edge, line]
+        swapped = (line[1:] == line[:-1]) & (t[1:] <= t[:-1])
+        bad = np.zeros(len(t), bool)
+        bad[:-1] |= swapped
+        bad[1:] |= swapped
+        out = positions.copy()
+        out[edge[bad], line[bad]] = np.nan
+        return out
+
+
+def savitzky_golay_centre_weights(half_width: int) -> np.ndarray:
+    """Weights (2h + 1,) of a centred quadratic least-squares fit evaluated at its centre."""
+    offsets = np.arange(-half_width, half_width + 1, dtype=np.float64)
+    design = np.vander(offsets, 3, increasing=True)
+    return np.linalg.pinv(design)[0]
+
+
+class _TemporalSmoother:
+    """Centred quadratic smoothing of tracked positions over 2h + 1 frames, streaming with a delay of h frames.
+
+    A (k, s) position is smoothed over the widest symmetric window, up to h frames either way, in which it was
+    tracked in every frame; at the first and last frames of a run the window shrinks symmetrically. Only the
+    last 2h + 1 frames are held.
+    """
+
+    def __init__(self, half_width: int) -> None:
+        self.half_width = half_width
+        self.weights = [savitzky_golay_centre_weights(h) for h in range(half_width + 1)]
+        self.buffer: deque[tuple[Any, np.ndarray]] = deque()
+        self.next = 0  # buffer index of the next frame to emit
+
+    def push(self, item: Any, positions: np.ndarray) -> Iterator[tuple[Any, np.ndarray]]:
+        self.buffer.append((item, positions))
+        while self.next + self.half_width < len(self.buffer):
+            yield self._emit_next(after=self.half_width)
+
+    def flush(self) -> Iterator[tuple[Any, np.ndarray]]:
+        while self.next < len(self.buffer):
+            yield self._emit_next(after=len(self.buffer) - 1 - self.next)
+
+    def _emit_next(self, *, after: int) -> tuple[Any, np.ndarray]:
+        centre = self.next
+        item, positions = self.buffer[centre]
+        reach = min(centre, after, self.half_width)
+        out = positions
+        if reach > 0:
+            stack = np.stack([self.buffer[i][1] for i in range(centre - reach, centre + reach + 1)])
+            out = positions.copy()
+            tracked = np.isfinite(positions)
+            for h in range(1, reach + 1):
+                window = stack[reach - h : reach + h + 1]
+                tracked = tracked & np.isfinite(window[0]) & np.isfinite(window[-1])
+                if not np.any(tracked):
+                    break
+                smoothed = np.tensordot(self.weights[h], np.nan_to_num(window), axes=1)
+                out = np.where(tracked, smoothed, out)
+        self.next += 1
+        while self.next > self.half_width:
+            self.buffer.popleft()
+            self.next -= 1
+        return item, out
+
+
+def track_and_measure(
+    edges: Iterable[FrameEdges],
+    projector: ProjectorCalibration,
+    camera_model: CameraModel,
+    *,
+    settings: TopographySettings | None = None,
+    first_frame: int = 0,
+) -> Iterator[FrameMeasurement]:
+    """The sequential pass: identity, tracking, Z from the table, X and Y by back-projection (METHOD.md §5–6).
+
+    edges: the located edges of consecutive frames in frame order, starting with the flat first frame of the
+    test (`first_frame` is its index in the recording). Yields one FrameMeasurement per frame, in order (with
+    temporal smoothing, h frames after their edges came in). Cheap next to edge location: it can be rerun over
+    stored edges, and a chunked run that feeds it the same edges gives identical results.
+    """
+    settings = TopographySettings() if settings is None else settings
+    iterator = iter(edges)
+    try:
+        first = next(iterator)
+    except StopIteration:
+        return
+    positions = identify_first_frame(first, projector, flat_tolerance_mm=settings.flat_tolerance_mm)
+    tracker = EdgeTracker(
+        positions=positions, polarity=projector.polarity, max_jump_px=settings.max_jump_fraction * projector.period_px
+    )
+    smoother = _TemporalSmoother(settings.temporal_smoothing_frames)
+    n_first_unmatched = len(first) - int(np.count_nonzero(np.isfinite(positions)))
+    pending = ((first_frame, 0, n_first_unmatched, first.noise_px), positions)
+    for emitted in smoother.push(*pending):
+        yield _measure(emitted, projector, camera_model)
+    for offset, frame_edges in enumerate(iterator, start=1):
+        positions, n_ended, n_unmatched = tracker.step(frame_edges)
+        for emitted in smoother.push((first_frame + offset, n_ended, n_unmatched, frame_edges.noise_px), positions):
+            yield _measure(emitted, projector, camera_model)
+    for emitted in smoother.flush():
+        yield _measure(emitted, projector, camera_model)
+
+
+def _measure(
+    emitted: tuple[Any, np.ndarray], projector: ProjectorCalibration, camera_model: CameraModel
+) -> FrameMeasurement:
+    (frame, n_ended, n_unmatched, noise_px), positions = emitted
+    kk, ll = np.nonzero(np.isfinite(positions))
+    t = positions[kk, ll]
+    z, status = projector.z_from_t(kk, ll, t)
+    ok = status == 0
+    kk, ll, t, z = kk[ok], ll[ok], t[ok], z[ok]
+    q_px = np.column_stack([t, ll] if projector.axis == "rows" else [ll, t]).astype(np.float64)
+    points = backproject_to_z(camera_model.camera, q_px, z, inverse=camera_model.inverse)
+    return FrameMeasurement(
+        frame=int(frame),
+        k=kk.astype(np.int32),
+        line=ll.astype(np.int32),
+        points_obj_mm=points,
+        n_tracks=int(len(status)),
+        n_ended=int(n_ended),
+        n_out_of_range=int(np.count_nonzero(status == 1)),
+        n_unmatched=int(n_unmatched),
+        edge_noise_px=float(noise_px),
+    )
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Gridding helpers used by the recording pipeline
+
+
+def grid_for_first_frame(
+    measurement: FrameMeasurement, projector: ProjectorCalibration, settings: TopographySettings
+) -> tuple[Grid, float]:
+    """The grid of a test (from its first frame's points) and the mesh's longest triangle side (mm)."""
+    grid = grid_covering(
+        measurement.points_obj_mm[:, :2], step_mm=settings.grid_step_mm, margin_mm=settings.grid_margin_mm
+    )
+    if settings.grid_max_edge_mm is not None:
+        return grid, settings.grid_max_edge_mm
+    x, y, _ = measurement.dense((projector.n_edges, projector.n_lines))
+    return grid, 3.0 * typical_edge_gap_mm(x, y)
+
+
+def grid_measurement(
+    measurement: FrameMeasurement, projector: ProjectorCalibration, grid: Grid, *, max_edge_mm: float
+) -> np.ndarray:
+    """The gridded Z (ny, nx) of one frame's points, NaN outside the data."""
+    x, y, z = measurement.dense((projector.n_edges, projector.n_lines))
+    return grid_edge_points(x, y, z, grid, max_edge_mm=max_edge_mm)
+
+
+@dataclass(frozen=True)
+class FrameTable:
+    """The test log (frames.csv): per-frame time, punch displacement and force, NaN where not given."""
+
+    frame: np.ndarray
+    time_s: np.ndarray
+    punch_displacement_mm: np.ndarray
+    force_kN: np.ndarray
+
+    def row(self, frame: int) -> tuple[float, float, float]:
+        hit = np.flatnonzero(self.frame == frame)
+        if len(hit) == 0:
+            return float("nan"), float("nan"), float("nan")
+        i = int(hit[0])
+        return float(self.time_s[i]), float(self.punch_displacement_mm[i]), float(self.force_kN[i])
+
+
+def frame_range(frames: Sequence[int] | range | None, n_frames: int) -> range:
+    """The frames to output as a range within 0..n_frames; ValueError for an empty or out-of-bounds one."""
+    if frames is None:
+        return range(n_frames)
+    chosen = range(n_frames)[frames.start : frames.stop : frames.step] if isinstance(frames, range) else None
+    if chosen is None:
+        values = sorted(set(int(f) for f in frames))
+        if not values or values != list(range(values[0], values[-1] + 1)):
+            raise ValueError(f"frames: expected a contiguous range, got {frames}")
+        chosen = range(values[0], values[-1] + 1)
+    if len(chosen) == 0 or chosen.step != 1 or chosen.start < 0 or chosen.stop > n_frames:
+        raise ValueError(f"frames: expected a non-empty contiguous range within 0..{n_frames - 1}, got {frames}")
+    return chosen
