@@ -666,3 +666,58 @@ def _fit_table(
         camera_fingerprint=camera_fingerprint(camera_model.camera),
         provenance=provenance,
     )
+
+
+def calibrate_projector_recording(
+    source: Any,
+    camera_model: CameraModel,
+    *,
+    settings: ProjectorSettings | None = None,
+    progress: ProgressCallback | None = None,
+    should_cancel: Callable[[], bool] | None = None,
+) -> ProjectorCalibration:
+    """Calibrate the projector from a recording of the flat plate moved along Z: what the CLI and tasks call.
+
+    source: a frame source from `readers.open_recording` (a sequence of grey frames with `sidecar_text`), with
+    `z.csv` (frame,z_mm). camera_model: the camera calibration (`camera_files.read_camera_json` gives one) of
+    the camera that took the frames. progress(done, total, stage) is called after each frame ("edges") and at
+    the end ("done"); should_cancel() is polled between frames (CalibrationCancelled).
+
+    Raises ValueError for malformed input (z.csv), CalibrationMismatchError for frames of another size than the
+    camera's, NoStripesError, ProjectorCalibrationError for a table that cannot be built.
+    """
+    from .calibration import code_versions, zstack_heights_mm
+    from .readers import read_z_csv
+
+    where = str(getattr(source, "path", "recording"))
+    z_text = source.sidecar_text("z.csv")
+    if z_text is None:
+        raise ValueError(f"{where}: z.csv missing; the projector calibration needs the stage Z of every frame")
+    z_mm = zstack_heights_mm(read_z_csv(z_text), len(source))
+    digest = hashlib.sha256(z_text.encode())
+
+    class _Hashed(Sequence[np.ndarray]):
+        """The recording's frames, hashed as they are read (for provenance)."""
+
+        def __len__(self) -> int:
+            return len(source)
+
+        def __getitem__(self, index):
+            image = source[index]
+            digest.update(np.ascontiguousarray(image).data)
+            return image
+
+    settings = ProjectorSettings() if settings is None else settings
+    calibration = build_projector_calibration(
+        _Hashed(), z_mm, camera_model, settings=settings, progress=progress, should_cancel=should_cancel
+    )
+    provenance = {
+        "input": where,
+        "input_sha256": digest.hexdigest(),
+        "n_frames": len(source),
+        "camera_fingerprint": calibration.camera_fingerprint,
+        "camera_provenance": dict(getattr(camera_model, "provenance", {}) or {}),
+        "settings": {**asdict(settings), "edges": asdict(calibration.edges)},
+        **code_versions(),
+    }
+    return replace(calibration, provenance=provenance)

@@ -9,7 +9,11 @@ Not here: the camera model (`camera.py`) and the chessboard renderer (`synthetic
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+import json
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -366,3 +370,204 @@ def preset(name: str, *, imaging: Imaging | None = None) -> Preset:
     period_mm = _stripe_period_for(camera, provisional, scene, scan_axis)
     projector = replace(provisional, period_mm=period_mm, phase_mm=0.3 * period_mm, k1_per_mm2=5e-5)
     return Preset(name=name, camera=camera, projector=projector, scene=scene, imaging=imaging or Imaging())
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# The whole virtual experiment
+
+
+@dataclass(frozen=True, eq=False)
+class TestTimeline:
+    """What happens in each frame of the virtual test, and the log it writes (frames.csv).
+
+    states: (n,) plate states; time_s, punch_displacement_mm, force_kN: (n,); perforation_frame: the first frame
+    with a hole.
+    """
+
+    states: tuple[PlateState, ...]
+    time_s: np.ndarray
+    punch_displacement_mm: np.ndarray
+    force_kN: np.ndarray
+    perforation_frame: int
+
+
+def test_timeline(
+    n_frames: int = 40,
+    *,
+    max_deflection_mm: float = 60.0,
+    punch_radius_mm: float = 10.0,
+    perforation_fraction: float = 0.75,
+    frame_interval_s: float = 0.5,
+) -> TestTimeline:
+    """A quasi-static punch test in n_frames: flat in frame 0, the centre deflected to max_deflection_mm at the
+    frame perforation_fraction of the way through, then a hole opening from half to 1.2 times the punch radius.
+
+    The deflection grows as (t/t_peak)^1.25: slowly at first, as the punch beds in, so even a short recording
+    moves the edges little from frame to frame at the start, where the tracking has no motion to predict from.
+    """
+    if n_frames < 4:
+        raise ValueError(f"n_frames: expected ≥ 4, got {n_frames}")
+    peak = max(1, int(round(perforation_fraction * (n_frames - 1))))
+    if peak >= n_frames - 1:
+        peak = n_frames - 2
+    states = []
+    for i in range(n_frames):
+        if i <= peak:
+            states.append(PlateState(max_deflection_mm * (i / peak) ** 1.25))
+        else:
+            progress = (i - peak) / max(n_frames - 1 - peak, 1)
+            radius = punch_radius_mm * (0.5 + 0.7 * progress)
+            states.append(PlateState(max_deflection_mm * (1.0 + 0.02 * progress), hole_radius_mm=radius))
+    w0 = np.array([s.w0_mm for s in states])
+    index = np.arange(n_frames)
+    # The punch indents the plate a little (2 % of the deflection), and after perforation pushes on through.
+    punch = np.where(index <= peak, 1.02 * w0, 1.02 * max_deflection_mm + 3.0 * (index - peak))
+    force = np.where(index <= peak, 120.0 * (w0 / max_deflection_mm) ** 1.5, 120.0 * 0.25 ** (index - peak))
+    return TestTimeline(
+        states=tuple(states),
+        time_s=index * frame_interval_s,
+        punch_displacement_mm=punch,
+        force_kN=force,
+        perforation_frame=peak + 1,
+    )
+
+
+def true_deflection_mm(scene: PlateScene, state: PlateState, x_mm: np.ndarray, y_mm: np.ndarray) -> np.ndarray:
+    """The true w at object points (NaN inside the hole)."""
+    w, _, _ = scene.deflection_mm(np.asarray(x_mm, np.float64), np.asarray(y_mm, np.float64), state.w0_mm)
+    return np.where(scene.radius_mm(x_mm, y_mm) < state.hole_radius_mm, np.nan, w)
+
+
+def true_camera_calibration(camera: Camera) -> Any:
+    """A camera calibration document object for the exact camera (for ground truth and demos).
+
+    Made by the calibration solver on noise-free corners of a 3-D grid, then pinned to the exact parameters, so
+    it carries every field a calibration file has.
+    """
+    from .calibration import CornerView, calibrate_from_views
+
+    grid_x, grid_y = np.meshgrid(np.linspace(-200, 200, 9), np.linspace(-160, 160, 7))
+    views = []
+    for z in (-20.0, 40.0, 100.0):
+        points = np.column_stack([grid_x.ravel(), grid_y.ravel(), np.full(grid_x.size, z)])
+        views.append(CornerView(f"z={z:g}", points, project_points(camera, points), z))
+    calibration = calibrate_from_views(
+        views,
+        image_size_px=(camera.image_width_px, camera.image_height_px),
+        mode="zstack",
+        du_px_per_mm=camera.du_px_per_mm,
+        dv_px_per_mm=camera.dv_px_per_mm,
+        scale_on=camera.scale_on,
+        provenance={"input": "virtual experiment (exact camera)"},
+    )
+    return replace(calibration, camera=camera, inverse=fit_inverse_model(camera))
+
+
+@dataclass(frozen=True)
+class VirtualExperiment:
+    """Paths of a written virtual experiment."""
+
+    root: Path
+    camera_calibration: Path
+    projector_calibration: Path
+    test: Path
+    camera_json: Path
+    truth_json: Path
+
+
+ProgressCallback = Callable[[int, int, str], None]
+
+
+def simulate_experiment(
+    out_dir: str | Path,
+    preset_name: str,
+    *,
+    n_test_frames: int = 40,
+    calibration_z_mm: Sequence[float] | None = None,
+    camera_z_mm: Sequence[float] = tuple(np.linspace(-20.0, 100.0, 13)),
+    as_zip: bool = False,
+    seed: int = 0,
+    imaging: Imaging | None = None,
+    progress: ProgressCallback | None = None,
+) -> VirtualExperiment:
+    """Write a whole virtual experiment for one camera in the recording formats, with ground truth beside it.
+
+    out_dir/camera_calibration  chessboard Z-stack (frames, z.csv, board.json)
+    out_dir/projector_calibration  flat plate at calibration_z_mm (default 0 … 80 mm in 2 mm steps; z.csv)
+    out_dir/test  the punch test in n_test_frames (frames.csv: frame,time_s,punch_displacement_mm,force_kN)
+    out_dir/truth/camera.json  the exact camera as a camera-calibration file
+    out_dir/truth/experiment.json  camera, projector, scene, imaging, calibration heights and per-frame states
+    (folders, or .zip files with as_zip). Frames are rendered and written one at a time.
+    """
+    from .chessboard import Board
+    from .readers import z_csv_text
+    from .synthetic import ChessboardRenderer, board_pose_at_z, zstack_board
+    from .topography_files import FrameTable, frames_csv_text, write_json, write_recording
+
+    setup = preset(preset_name, imaging=imaging)
+    z_cal = np.asarray(setup.calibration_z_mm if calibration_z_mm is None else calibration_z_mm, np.float64)
+    timeline = test_timeline(n_test_frames, max_deflection_mm=setup.max_deflection_mm,
+                             punch_radius_mm=setup.scene.punch_radius_mm)  # fmt: skip
+    root = Path(out_dir)
+    root.mkdir(parents=True, exist_ok=True)
+    suffix = ".zip" if as_zip else ""
+    rng = np.random.default_rng(seed)
+    total = len(camera_z_mm) + len(z_cal) + n_test_frames
+    done = 0
+
+    def counted(frames: Iterator[np.ndarray], stage: str) -> Iterator[np.ndarray]:
+        nonlocal done
+        for frame in frames:
+            yield frame
+            done += 1
+            if progress is not None:
+                progress(done, total, stage)
+
+    board: Board = zstack_board(setup.camera)
+    chessboard = ChessboardRenderer(setup.camera, board)
+    board_json = json.dumps({"cols": board.cols, "rows": board.rows, "square_mm": board.square_mm}) + "\n"
+    camera_path = write_recording(
+        root / f"camera_calibration{suffix}",
+        counted((chessboard.render(board_pose_at_z(z), rng=rng) for z in camera_z_mm), "camera calibration"),
+        sidecars={"z.csv": z_csv_text(list(camera_z_mm)), "board.json": board_json},
+        as_zip=as_zip,
+    )
+    renderer = FringeRenderer(setup)
+    projector_path = write_recording(
+        root / f"projector_calibration{suffix}",
+        counted((renderer.render_flat(z, rng=rng) for z in z_cal), "projector calibration"),
+        sidecars={"z.csv": z_csv_text(z_cal.tolist())},
+        as_zip=as_zip,
+    )
+    table = FrameTable(
+        frame=np.arange(n_test_frames), time_s=timeline.time_s,
+        punch_displacement_mm=timeline.punch_displacement_mm, force_kN=timeline.force_kN,
+    )  # fmt: skip
+    test_path = write_recording(
+        root / f"test{suffix}",
+        counted((renderer.render_test(state, rng=rng) for state in timeline.states), "test"),
+        sidecars={"frames.csv": frames_csv_text(table)},
+        as_zip=as_zip,
+    )
+    from .camera_files import write_camera_json
+
+    camera_json = write_camera_json(true_camera_calibration(setup.camera), root / "truth" / "camera.json")
+    truth = {
+        "preset": setup.name,
+        "camera": asdict(setup.camera),
+        "projector": asdict(setup.projector),
+        "scene": asdict(setup.scene),
+        "imaging": asdict(setup.imaging),
+        "board": {"cols": board.cols, "rows": board.rows, "square_mm": board.square_mm},
+        "camera_calibration_z_mm": list(map(float, camera_z_mm)),
+        "projector_calibration_z_mm": z_cal.tolist(),
+        "perforation_frame": timeline.perforation_frame,
+        "frames": [
+            {"frame": i, "w0_mm": s.w0_mm, "hole_radius_mm": s.hole_radius_mm} for i, s in enumerate(timeline.states)
+        ],
+        "deflection": "w(r) = w0 ln(rho_R/rho)/ln(rho_R/b), rho = sqrt(r^2 + b^2), rho_R = sqrt(R^2 + b^2), "
+        "b = punch_radius_mm, R = clamp_radius_mm, r from scene.centre_xy_mm; no surface for r < hole_radius_mm",
+        "seed": seed,
+    }
+    truth_json = write_json(root / "truth" / "experiment.json", truth)
+    return VirtualExperiment(root, camera_path, projector_path, test_path, camera_json, truth_json)

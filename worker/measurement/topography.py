@@ -21,7 +21,8 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -456,23 +457,6 @@ def grid_measurement(
     return grid_edge_points(x, y, z, grid, max_edge_mm=max_edge_mm)
 
 
-@dataclass(frozen=True)
-class FrameTable:
-    """The test log (frames.csv): per-frame time, punch displacement and force, NaN where not given."""
-
-    frame: np.ndarray
-    time_s: np.ndarray
-    punch_displacement_mm: np.ndarray
-    force_kN: np.ndarray
-
-    def row(self, frame: int) -> tuple[float, float, float]:
-        hit = np.flatnonzero(self.frame == frame)
-        if len(hit) == 0:
-            return float("nan"), float("nan"), float("nan")
-        i = int(hit[0])
-        return float(self.time_s[i]), float(self.punch_displacement_mm[i]), float(self.force_kN[i])
-
-
 def frame_range(frames: Sequence[int] | range | None, n_frames: int) -> range:
     """The frames to output as a range within 0..n_frames; ValueError for an empty or out-of-bounds one."""
     if frames is None:
@@ -486,3 +470,205 @@ def frame_range(frames: Sequence[int] | range | None, n_frames: int) -> range:
     if len(chosen) == 0 or chosen.step != 1 or chosen.start < 0 or chosen.stop > n_frames:
         raise ValueError(f"frames: expected a non-empty contiguous range within 0..{n_frames - 1}, got {frames}")
     return chosen
+
+
+def clamp_circle(points_xy_mm: np.ndarray, *, n_sectors: int = 72) -> tuple[float, float, float]:
+    """Centre (x, y) and radius (mm) of the circle through the outermost points of the flat first frame.
+
+    The points end where the clamp ring hides the plate; the outermost point of each angular sector around
+    their centroid lies on that circle (a little inside it: edges within half a stripe of the ring are
+    rejected), so a least-squares (Kåsa) circle through them, refitted once without points more than 3 mm off,
+    gives the plate centre from the clamp (METHOD.md §2).
+    """
+    xy = points_xy_mm[np.all(np.isfinite(points_xy_mm), axis=1)]
+    if len(xy) < 3 * n_sectors:
+        return float("nan"), float("nan"), float("nan")
+    centroid = xy.mean(axis=0)
+    rel = xy - centroid
+    angle = np.arctan2(rel[:, 1], rel[:, 0])
+    radius = np.hypot(rel[:, 0], rel[:, 1])
+    sector = np.minimum(((angle + np.pi) / (2 * np.pi) * n_sectors).astype(np.int64), n_sectors - 1)
+    order = np.lexsort((radius, sector))
+    last = np.r_[sector[order][1:] != sector[order][:-1], True]
+    rim = xy[order[last]]
+    keep = np.ones(len(rim), bool)
+    cx = cy = r = float("nan")
+    for _ in range(2):
+        x, y = rim[keep, 0], rim[keep, 1]
+        design = np.column_stack([2 * x, 2 * y, np.ones(len(x))])
+        (cx, cy, c), *_ = np.linalg.lstsq(design, x * x + y * y, rcond=None)
+        r = float(np.sqrt(c + cx * cx + cy * cy))
+        keep = np.abs(np.hypot(rim[:, 0] - cx, rim[:, 1] - cy) - r) < 3.0
+        if np.count_nonzero(keep) < 8:
+            break
+    return float(cx), float(cy), r
+
+
+@dataclass(frozen=True)
+class TopographySummary:
+    """What a topography run produced: the result file and its headline numbers (also in /summary)."""
+
+    path: Path
+    frames: range
+    flat_rms_mm: float
+    max_peak_w_mm: float
+    n_out_of_range_total: int
+    clamp_centre_xy_mm: tuple[float, float]
+    clamp_radius_mm: float
+    punch_axis_xy_mm: tuple[float, float]
+
+
+def topography_recording(
+    source: Any,
+    camera_model: CameraModel,
+    projector: ProjectorCalibration,
+    *,
+    out_path: str | Path,
+    frames: range | Sequence[int] | None = None,
+    settings: TopographySettings | None = None,
+    edges: Iterable[FrameEdges] | None = None,
+    progress: ProgressCallback | None = None,
+    should_cancel: Callable[[], bool] | None = None,
+) -> TopographySummary:
+    """Topography of a test recording into an HDF5 result file (layout in `topography_files`): what the CLI and
+    the tasks call.
+
+    source: a frame source from `readers.open_recording` (frames.csv beside the frames, if any, is stored with
+    the result). frames: the frames to write (a contiguous range); identity is always fixed on frame 0, so the
+    sequential pass runs from frame 0 to the last frame written (plus the temporal smoothing half-width), and
+    the frames written are identical to those of a run over the whole recording. edges: already located edges
+    of frames 0, 1, ... (e.g. from chunks run in parallel, see `topography_files.read_edges`); None locates
+    them here. progress(done, total, stage) after every frame ("frames"), should_cancel() polled between frames
+    (TopographyCancelled; the partial file is removed).
+
+    Memory does not grow with the number of frames: frames are read, located, tracked, gridded and written one
+    at a time.
+    """
+    from .calibration import code_versions
+    from .fields import field_peak
+    from .topography_files import TopographyWriter, _json, read_frames_csv
+
+    settings = TopographySettings() if settings is None else settings
+    n_frames = len(source)
+    wanted = frame_range(frames, n_frames)
+    stop = min(wanted.stop + settings.temporal_smoothing_frames, n_frames)
+    first_image = source[0]
+    check_recording_against(np.shape(first_image)[:2], projector, camera_model)
+    if edges is None:
+        check_stripes_against(first_image, projector)
+    frames_text = source.sidecar_text("frames.csv") if hasattr(source, "sidecar_text") else None
+    table = read_frames_csv(frames_text) if frames_text is not None else None
+    log = table.rows(list(range(n_frames))) if table is not None else None
+
+    def located() -> Iterator[FrameEdges]:
+        supplied = iter(edges) if edges is not None else None
+        for index in range(stop):
+            if should_cancel is not None and should_cancel():
+                raise TopographyCancelled(f"cancelled after {index} of {stop} frames")
+            if supplied is not None:
+                try:
+                    frame_edges = next(supplied)
+                except StopIteration:
+                    raise ValueError(f"edges: {index} located frames given, {stop} needed") from None
+            else:
+                image = first_image if index == 0 else source[index]
+                frame_edges = next(locate_test_edges([image], projector))
+            yield frame_edges
+            if progress is not None:
+                progress(index + 1, stop, "frames")
+
+    where = str(getattr(source, "path", "recording"))
+    writer: TopographyWriter | None = None
+    grid: Grid | None = None
+    max_edge_mm = float("nan")
+    z_flat = float("nan")
+    flat_rms = float("nan")
+    clamp = (float("nan"),) * 3
+    n_first_tracks = 0
+    centres: list[tuple[float, float]] = []
+    peaks: list[float] = []
+    n_out_of_range = 0
+    try:
+        for measurement in track_and_measure(located(), projector, camera_model, settings=settings):
+            if measurement.frame == 0:
+                grid, max_edge_mm = grid_for_first_frame(measurement, projector, settings)
+                z = measurement.points_obj_mm[:, 2]
+                z_flat = float(np.median(z))
+                flat_rms = float(np.sqrt(np.mean((z - z_flat) ** 2)))
+                clamp = clamp_circle(measurement.points_obj_mm[:, :2])
+                n_first_tracks = measurement.n_tracks
+                writer = TopographyWriter(
+                    out_path,
+                    grid=grid,
+                    max_edge_mm=max_edge_mm,
+                    z_flat_mm=z_flat,
+                    axis=projector.axis,
+                    attrs={
+                        "settings_json": _json(asdict(settings)),
+                        "edge_settings_json": _json(asdict(projector.edges)),
+                        "provenance_json": _json({"input": where, "n_frames_in_recording": n_frames,
+                                                  "frames_written": [wanted.start, wanted.stop], **code_versions()}),
+                    },
+                    calibration_attrs=_calibration_attrs(camera_model, projector),
+                )  # fmt: skip
+            if measurement.frame not in wanted:
+                continue
+            assert writer is not None and grid is not None
+            z_grid = grid_measurement(measurement, projector, grid, max_edge_mm=max_edge_mm)
+            peak = field_peak(z_grid - z_flat, grid)
+            row = (
+                (float(log["time_s"][measurement.frame]), float(log["punch_displacement_mm"][measurement.frame]),
+                 float(log["force_kN"][measurement.frame]))
+                if log is not None else (float("nan"),) * 3
+            )  # fmt: skip
+            writer.append(measurement, z_grid, peak, log=row)
+            peaks.append(peak.w_mm)
+            if np.isfinite(peak.centre_x_mm) and peak.w_mm >= 5.0:
+                centres.append((peak.centre_x_mm, peak.centre_y_mm))
+            n_out_of_range += measurement.n_out_of_range
+        if writer is None:
+            raise TopographyError(f"{where}: the recording has no frames")
+        axis_xy = tuple(np.median(np.array(centres), axis=0)) if centres else (float("nan"), float("nan"))
+        summary = {
+            "flat_rms_mm": flat_rms, "n_tracks_first_frame": n_first_tracks, "clamp_centre_x_mm": clamp[0],
+            "clamp_centre_y_mm": clamp[1], "clamp_radius_mm": clamp[2], "punch_axis_x_mm": axis_xy[0],
+            "punch_axis_y_mm": axis_xy[1], "n_out_of_range_total": n_out_of_range,
+        }  # fmt: skip
+        path = writer.close(summary)
+    except BaseException:
+        if writer is not None:
+            writer.abort()
+        raise
+    return TopographySummary(
+        path=path,
+        frames=wanted,
+        flat_rms_mm=flat_rms,
+        max_peak_w_mm=float(np.nanmax(peaks)) if peaks and np.any(np.isfinite(peaks)) else float("nan"),
+        n_out_of_range_total=n_out_of_range,
+        clamp_centre_xy_mm=(clamp[0], clamp[1]),
+        clamp_radius_mm=clamp[2],
+        punch_axis_xy_mm=(float(axis_xy[0]), float(axis_xy[1])),
+    )
+
+
+def _calibration_attrs(camera_model: CameraModel, projector: ProjectorCalibration) -> dict[str, Any]:
+    """What the result records of the calibrations it used (provenance)."""
+    from .calibration import CameraCalibration
+    from .camera_files import calibration_as_dict
+    from .topography_files import _json
+
+    if isinstance(camera_model, CameraCalibration):
+        camera_json = _json(calibration_as_dict(camera_model))
+    else:
+        camera_json = _json(asdict(camera_model.camera))
+    projector_doc = {
+        "image_shape": list(projector.image_shape), "axis": projector.axis, "period_px": projector.period_px,
+        "reference_z_mm": projector.reference_z_mm, "z_mm": projector.z_mm, "n_edges": projector.n_edges,
+        "edges": asdict(projector.edges), "qa": asdict(projector.qa), "provenance": projector.provenance,
+    }  # fmt: skip
+    return {
+        "camera_json": camera_json,
+        "camera_fingerprint": camera_fingerprint(camera_model.camera),
+        "projector_json": _json(projector_doc),
+        "projector_camera_fingerprint": projector.camera_fingerprint,
+    }
