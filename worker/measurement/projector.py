@@ -19,12 +19,12 @@ from __future__ import annotations
 import hashlib
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass, field, replace
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from . import MeasurementError
-from .camera import Camera, InverseModel, backproject_to_z
+from .camera import Camera, InverseModel, backproject_to_z, fit_inverse_model
 from .fringes import EdgeSettings, FrameEdges, detect_stripes, locate_edges, order_edges
 
 ProgressCallback = Callable[[int, int, str], None]
@@ -43,15 +43,31 @@ class CalibrationCancelled(Exception):
     """Raised when the caller's `should_cancel()` returned True; not a failure of the measurement."""
 
 
-@dataclass(frozen=True)
-class CameraModel:
+class CameraModel(Protocol):
     """What the topography needs of a camera calibration: the camera and its inverse model.
 
-    A `calibration.CameraCalibration` has both attributes and can be passed wherever this is expected.
+    A `calibration.CameraCalibration` (from `camera_files.read_camera_json`) is one; `exact_camera_model` makes
+    one from a bare `Camera`.
     """
+
+    @property
+    def camera(self) -> Camera: ...
+
+    @property
+    def inverse(self) -> InverseModel: ...
+
+
+@dataclass(frozen=True)
+class ExactCamera:
+    """A `CameraModel` of a known camera (synthetic data, tests)."""
 
     camera: Camera
     inverse: InverseModel
+
+
+def exact_camera_model(camera: Camera) -> ExactCamera:
+    """The camera with its fitted inverse model, usable wherever a camera calibration is expected."""
+    return ExactCamera(camera=camera, inverse=fit_inverse_model(camera))
 
 
 def camera_fingerprint(camera: Camera) -> str:

@@ -483,7 +483,7 @@ def simulate_experiment(
     preset_name: str,
     *,
     n_test_frames: int = 40,
-    calibration_z_mm: Sequence[float] | None = None,
+    calibration_z_mm: Sequence[float] | np.ndarray | None = None,
     camera_z_mm: Sequence[float] = tuple(np.linspace(-20.0, 100.0, 13)),
     as_zip: bool = False,
     seed: int = 0,
