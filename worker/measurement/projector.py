@@ -555,8 +555,9 @@ def _fit_block(lut_block: np.ndarray, z_sorted: np.ndarray, settings: ProjectorS
     valid = sensitive & monotonic
 
     # Z as a polynomial of τ = (t − centre)/scale per entry, by weighted least squares (batched normal equations).
-    centre = np.where(valid, 0.5 * (t_min + t_max), 0.0)
-    scale = np.where(valid, np.maximum(0.5 * (t_max - t_min), 1e-3), 1.0)
+    with np.errstate(invalid="ignore"):  # inf − inf where a row has no run
+        centre = np.where(valid, 0.5 * (t_min + t_max), 0.0)
+        scale = np.where(valid, np.maximum(0.5 * (t_max - t_min), 1e-3), 1.0)
     tau = (t_filled - centre[..., None]) / scale[..., None]
     degree = settings.poly_degree
     powers = tau[..., None] ** np.arange(degree + 1)  # (k, S, J, D+1)

@@ -290,17 +290,26 @@ class FringeRenderer:
             return x0 + sx * z, y0 + sy * z, z, zero, zero
         assert state is not None
         scene = self.preset.scene
-        z, _, _ = scene.deflection_mm(x0, y0, state.w0_mm)
+        # Only rays that pass within the clamp circle below the highest point can meet the deflected plate;
+        # elsewhere the surface is the plane Z = 0 (the clamp ring and what lies beyond).
+        reach = max(state.w0_mm, 0.0) * float(max(np.abs(sx).max(), np.abs(sy).max()))
+        candidates = np.flatnonzero(scene.radius_mm(x0, y0).ravel() < scene.clamp_radius_mm + reach + 1.0)
+        x0c, y0c = x0.ravel()[candidates], y0.ravel()[candidates]
+        sxc, syc = sx.ravel()[candidates], sy.ravel()[candidates]
+        zc, wx, wy = scene.deflection_mm(x0c, y0c, state.w0_mm)
         for _ in range(8):
-            x, y = x0 + sx * z, y0 + sy * z
-            w, wx, wy = scene.deflection_mm(x, y, state.w0_mm)
-            residual = z - w
-            z = z - residual / (1.0 - wx * sx - wy * sy)
-            if float(np.max(np.abs(residual))) < 1e-4:
+            w, wx, wy = scene.deflection_mm(x0c + sxc * zc, y0c + syc * zc, state.w0_mm)
+            residual = zc - w
+            zc = zc - residual / (1.0 - wx * sxc - wy * syc)
+            if float(np.max(np.abs(residual), initial=0.0)) < 1e-4:
                 break
-        x, y = x0 + sx * z, y0 + sy * z
-        _, wx, wy = scene.deflection_mm(x, y, state.w0_mm)
-        return x, y, z, wx, wy
+        z = np.zeros(x0.size, np.float32)
+        slope_x = np.zeros(x0.size, np.float32)
+        slope_y = np.zeros(x0.size, np.float32)
+        # The slopes of the last iteration are those at the final point to within 1e-4 mm of Z.
+        z[candidates], slope_x[candidates], slope_y[candidates] = zc, wx, wy
+        z, slope_x, slope_y = z.reshape(x0.shape), slope_x.reshape(x0.shape), slope_y.reshape(x0.shape)
+        return x0 + sx * z, y0 + sy * z, z, slope_x, slope_y
 
     def _radiance_block(self, rows: slice, *, flat_z_mm: float | None, state: PlateState | None) -> np.ndarray:
         preset = self.preset
