@@ -281,13 +281,15 @@ def match_to_reference(
 
 
 def _assign_by_votes(
-    edges: FrameEdges, predicted_t_px: np.ndarray, polarity: np.ndarray, *, max_distance_px: float
+    edges: FrameEdges, predicted_t_px: np.ndarray, polarity: np.ndarray
 ) -> tuple[np.ndarray, float, float]:
     """Edge index of every point of a frame from its stripe order and the predicted positions of the table's
-    edges: each component of the frame's order gets the offset most of its points vote for.
+    edges: every point votes for the nearest predicted edge of its polarity, and each component of the frame's
+    order takes the offset most of its points vote for.
 
-    Returns k (N,) (−1 unassigned), the fraction of matched points that agree with their component's offset,
-    and the median |distance| to the predicted positions (px).
+    Returns k (N,) (−1 unassigned), the fraction of voting points that agree with their component's offset
+    (a split vote means the stripes moved about half a period: ambiguous), and the median |t − prediction| of
+    the assigned points (px).
     """
     order = order_edges(edges)
     relative = order.crossing_index(edges)
@@ -295,7 +297,7 @@ def _assign_by_votes(
     k_near, distance = match_to_reference(
         edges.line, edges.t_px, edges.polarity, predicted_t_px, polarity, n_samples=_n_samples(edges)
     )
-    votes_ok = (k_near >= 0) & (relative >= 0) & (np.abs(distance) <= max_distance_px)
+    votes_ok = (k_near >= 0) & (relative >= 0)
     k = np.full(len(edges), -1, np.int64)
     agreeing = 0
     voting = 0
@@ -431,15 +433,19 @@ def build_projector_calibration(
                 )
                 moved = predicted + rate * (z_sorted[j] - z_sorted[previous])
                 predicted = np.where(np.isfinite(moved), moved, predicted)
-            k, agreement, median_distance = _assign_by_votes(
-                edges, predicted, polarity, max_distance_px=settings.max_step_fraction * period
-            )
-            step_shifts.append(median_distance / period if np.isfinite(median_distance) else 0.0)
-            if agreement < 0.8 or np.count_nonzero(k >= 0) < 0.5 * len(edges):
+            k, agreement, median_distance = _assign_by_votes(edges, predicted, polarity)
+            shift = median_distance / period if np.isfinite(median_distance) else float("nan")
+            step_shifts.append(shift)
+            if (
+                agreement < 0.9
+                or not shift <= settings.max_step_fraction
+                or np.count_nonzero(k >= 0) < 0.5 * len(edges)
+            ):
                 raise ProjectorCalibrationError(
-                    f"edge identity could not be carried from Z = {z_sorted[previous]:g} mm to Z = {z_sorted[j]:g} mm "
-                    f"({agreement:.0%} of the edge points agree): the stripes moved too far between the steps; "
-                    f"record the projector calibration with finer Z steps"
+                    f"edge identity could not be carried from Z = {z_sorted[previous]:g} mm to Z = {z_sorted[j]:g} mm: "
+                    f"the edges moved {shift:.2f} stripe periods from where they were expected ({agreement:.0%} of "
+                    f"the edge points agree on which edge is which; at most {settings.max_step_fraction:g} periods "
+                    "can be followed safely); record the projector calibration with finer Z steps"
                 )
             # Edges that came into view outside the reference frame's range get indices beyond it: grow the table.
             lowest, highest = int(k[k >= 0].min()), int(k.max())

@@ -17,6 +17,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from scipy import special
 
 from .camera import Camera, backproject_to_z, fit_inverse_model, project_points
 from .synthetic import reference_camera
@@ -40,6 +41,20 @@ def square_wave_box_mean(x: np.ndarray, width: np.ndarray | float, period: float
     with np.errstate(divide="ignore", invalid="ignore"):
         mean = (antiderivative(x + 0.5 * w) - antiderivative(x - 0.5 * w)) / w
     return np.where(w > 1e-9, mean, point)
+
+
+def square_wave_blurred(x: np.ndarray, sigma: np.ndarray | float, period: float) -> np.ndarray:
+    """A 50 % square wave (1 on [0, P/2), 0 on [P/2, P), period P) convolved with a Gaussian of width sigma.
+
+    Exact sums of normal CDFs over the nearest bright stripes (valid for sigma < P/6, where farther stripes add
+    less than 1e-9). Used by the renderer for the optical blur of the projected stripes, which is then exact
+    however the stripes are sampled.
+    """
+    u = np.mod(np.asarray(x), period)
+    inv = 1.0 / np.asarray(sigma)
+    half = 0.5 * period
+    ndtr = special.ndtr
+    return 1.0 - ndtr((u + half) * inv) + ndtr(u * inv) - ndtr((u - half) * inv) + ndtr((u - period) * inv)
 
 
 def render_straight_stripes(
@@ -267,13 +282,18 @@ class FringeRenderer:
     def _render(self, *, rng: np.random.Generator, flat_z_mm: float | None, state: PlateState | None) -> np.ndarray:
         imaging = self.preset.imaging
         ss = imaging.supersample
-        grey: np.ndarray = np.empty(self._x0.shape, np.float32)
+        reflected = np.empty(self._x0.shape, np.float32)
+        pattern = np.empty(self._x0.shape, np.float32)
         step = self._BLOCK_ROWS * ss
-        for start in range(0, grey.shape[0], step):
-            rows = slice(start, min(start + step, grey.shape[0]))
-            grey[rows] = self._radiance_block(rows, flat_z_mm=flat_z_mm, state=state)
+        for start in range(0, reflected.shape[0], step):
+            rows = slice(start, min(start + step, reflected.shape[0]))
+            reflected[rows], pattern[rows] = self._radiance_block(rows, flat_z_mm=flat_z_mm, state=state)
+        # The stripes come blurred already; the optics blur the rest of the scene (the clamp ring, the hole)
+        # here. Blurring the product would be exact; the two factors vary on very different scales, so this
+        # differs only within a blur width of the clamp and the hole, which no measurement uses.
         if imaging.blur_px > 0:
-            grey = cv2.GaussianBlur(grey, (0, 0), imaging.blur_px * ss, borderType=cv2.BORDER_REPLICATE)
+            reflected = cv2.GaussianBlur(reflected, (0, 0), imaging.blur_px * ss, borderType=cv2.BORDER_REPLICATE)
+        grey = imaging.ambient_grey + imaging.gain_grey * reflected * pattern
         camera = self.preset.camera
         image = grey.reshape(camera.image_height_px, ss, camera.image_width_px, ss).mean(axis=(1, 3))
         image = image + rng.normal(0.0, imaging.noise_grey, image.shape)
@@ -311,14 +331,22 @@ class FringeRenderer:
         z, slope_x, slope_y = z.reshape(x0.shape), slope_x.reshape(x0.shape), slope_y.reshape(x0.shape)
         return x0 + sx * z, y0 + sy * z, z, slope_x, slope_y
 
-    def _radiance_block(self, rows: slice, *, flat_z_mm: float | None, state: PlateState | None) -> np.ndarray:
+    def _radiance_block(
+        self, rows: slice, *, flat_z_mm: float | None, state: PlateState | None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Reflectance × illumination, and the projected pattern (blurred), of the sub-pixels of `rows`."""
         preset = self.preset
         scene, projector, imaging = preset.scene, preset.projector, preset.imaging
         x, y, z, wx, wy = self.surface_block(rows, flat_z_mm=flat_z_mm, state=state)
         xs, ys = projector.slide_mm(x, y, z)
-        # Footprint of a sub-pixel on the slide along x_s (symmetric, so it does not move the edge).
-        footprint = np.abs(np.gradient(xs, axis=0)) + np.abs(np.gradient(xs, axis=1))
-        stripes = square_wave_box_mean(xs - projector.phase_mm, footprint, projector.period_mm)
+        # The optical blur (Gaussian, blur_px) and the sub-pixel's own box (width 1/ss px, variance 1/(12 ss²))
+        # act on the stripes through the local scale of the slide: x_s changes by |∇x_s| per px. A Gaussian of
+        # the combined width is exact for the blur and a close, symmetric stand-in for the box, so the edges stay
+        # where they are; it needs no fine sampling, and the supersampling then integrates the pixel.
+        ss = imaging.supersample
+        slide_per_px = ss * np.hypot(np.gradient(xs, axis=0), np.gradient(xs, axis=1))
+        sigma = slide_per_px * np.sqrt(imaging.blur_px**2 + 1.0 / (12.0 * ss * ss))
+        stripes = square_wave_blurred(xs - projector.phase_mm, np.maximum(sigma, 1e-6), projector.period_mm)
         lx, ly, lz = (projector.centre_obj_mm[0] - x, projector.centre_obj_mm[1] - y, projector.centre_obj_mm[2] - z)
         distance2 = lx * lx + ly * ly + lz * lz
         cos_incidence = (lz - wx * lx - wy * ly) / np.sqrt(distance2 * (1.0 + wx * wx + wy * wy))
@@ -334,7 +362,7 @@ class FringeRenderer:
             albedo = np.where(r < state.hole_radius_mm, scene.background_albedo, albedo)
         light = np.maximum(cos_incidence, 0.0) * np.maximum(vignette, 0.0) * falloff
         pattern = imaging.dark_stripe_fraction + (1.0 - imaging.dark_stripe_fraction) * stripes
-        return (imaging.ambient_grey + imaging.gain_grey * albedo * light * pattern).astype(np.float32)
+        return (albedo * light).astype(np.float32), pattern.astype(np.float32)
 
 
 PRESETS = ("kodak", "phantom")
@@ -359,9 +387,11 @@ def preset(name: str, *, imaging: Imaging | None = None) -> Preset:
     """The virtual set-up of one of the paper's cameras, about 2 m from the plate.
 
     "kodak": 512 × 480 px (the Kodak MotionCorder's size), stripes roughly vertical in the image, the projector
-    30° off the plate normal on the −X side. "phantom": 1024 × 1024 px (the Phantom v5.0's size), stripes roughly
-    horizontal, the projector 15° off the normal on the +Y side. Both use the paper's reference cameras
-    (Table 1 distortion) with a shorter focal length so the whole Ø500 mm plate and part of the clamp are in view.
+    30° off the plate normal on the −X side (edges move ~0.6 px per mm of Z). "phantom": 1024 × 1024 px (the
+    Phantom v5.0's size), stripes roughly horizontal, the projector 15° off the normal on the +Y side, opposite the
+    camera's 27° tilt (edges move ~1.2 px per mm of Z, so calibration steps must stay at about 2 mm). Both use
+    the paper's reference cameras (Table 1 distortion) with a shorter focal length so the whole Ø500 mm plate
+    and part of the clamp are in view.
     """
     scene = PlateScene()
     target = (scene.centre_xy_mm[0], scene.centre_xy_mm[1], 0.0)
@@ -386,7 +416,7 @@ def preset(name: str, *, imaging: Imaging | None = None) -> Preset:
 
 
 @dataclass(frozen=True, eq=False)
-class TestTimeline:
+class PunchTimeline:
     """What happens in each frame of the virtual test, and the log it writes (frames.csv).
 
     states: (n,) plate states; time_s, punch_displacement_mm, force_kN: (n,); perforation_frame: the first frame
@@ -400,14 +430,14 @@ class TestTimeline:
     perforation_frame: int
 
 
-def test_timeline(
+def punch_timeline(
     n_frames: int = 40,
     *,
     max_deflection_mm: float = 60.0,
     punch_radius_mm: float = 10.0,
     perforation_fraction: float = 0.75,
     frame_interval_s: float = 0.5,
-) -> TestTimeline:
+) -> PunchTimeline:
     """A quasi-static punch test in n_frames: flat in frame 0, the centre deflected to max_deflection_mm at the
     frame perforation_fraction of the way through, then a hole opening from half to 1.2 times the punch radius.
 
@@ -432,7 +462,7 @@ def test_timeline(
     # The punch indents the plate a little (2 % of the deflection), and after perforation pushes on through.
     punch = np.where(index <= peak, 1.02 * w0, 1.02 * max_deflection_mm + 3.0 * (index - peak))
     force = np.where(index <= peak, 120.0 * (w0 / max_deflection_mm) ** 1.5, 120.0 * 0.25 ** (index - peak))
-    return TestTimeline(
+    return PunchTimeline(
         states=tuple(states),
         time_s=index * frame_interval_s,
         punch_displacement_mm=punch,
@@ -515,7 +545,7 @@ def simulate_experiment(
 
     setup = preset(preset_name, imaging=imaging)
     z_cal = np.asarray(setup.calibration_z_mm if calibration_z_mm is None else calibration_z_mm, np.float64)
-    timeline = test_timeline(n_test_frames, max_deflection_mm=setup.max_deflection_mm,
+    timeline = punch_timeline(n_test_frames, max_deflection_mm=setup.max_deflection_mm,
                              punch_radius_mm=setup.scene.punch_radius_mm)  # fmt: skip
     root = Path(out_dir)
     root.mkdir(parents=True, exist_ok=True)

@@ -228,13 +228,15 @@ class EdgeTracker:
 
     positions: (K, S) current positions (NaN = no track); velocity: (K, S) last motion per frame.
     A track follows the nearest edge point of its polarity on its line, within max_jump px of where its last
-    motion predicts it, provided that point's nearest track is this one (mutual), and the order of edges along
-    the line is kept; otherwise it ends for good.
+    motion predicts it, provided that point's nearest track is this one (mutual), the next point of that
+    polarity is at least 1/ambiguity_ratio times farther (unambiguous), and the order of edges along the line is
+    kept; otherwise it ends for good.
     """
 
     positions: np.ndarray
     polarity: np.ndarray
     max_jump_px: float
+    ambiguity_ratio: float = 0.5
     velocity: np.ndarray = field(init=False)
 
     def __post_init__(self) -> None:
@@ -254,17 +256,21 @@ class EdgeTracker:
         kk, ss = k_near[point_ok], edges.line[point_ok].astype(np.int64)
         t_new = edges.t_px[point_ok].astype(np.float64)
         d_new = np.abs(distance[point_ok])
+        chain_new = edges.chain[point_ok]
         # Of several points claiming one track, only the nearest may be mutual; drop the track if tied.
         flat = kk * self.positions.shape[1] + ss
         order = np.lexsort((d_new, flat))
-        flat, t_new, d_new = flat[order], t_new[order], d_new[order]
+        flat, t_new, d_new, chain_new = flat[order], t_new[order], d_new[order], chain_new[order]
         first = np.r_[True, flat[1:] != flat[:-1]]
         tie = np.r_[~first[1:] & (d_new[1:] == d_new[:-1]), False]
         winners = first & ~tie
         positions = np.full_like(self.positions, np.nan)
         positions.ravel()[flat[winners]] = t_new[winners]
+        chains = np.full(self.positions.shape, -1, np.int64)
+        chains.ravel()[flat[winners]] = chain_new[winners]
         # Mutual: the winning point must also be the nearest point to the track's prediction.
         positions = self._mutual(positions, predicted, edges)
+        positions = self._one_edge_per_curve(positions, chains)
         positions = self._keep_order(positions)
         ended = alive & ~np.isfinite(positions)
         moved = np.isfinite(positions)
@@ -274,6 +280,12 @@ class EdgeTracker:
         return positions, int(np.count_nonzero(ended)), len(edges) - n_taken
 
     def _mutual(self, positions: np.ndarray, predicted: np.ndarray, edges: FrameEdges) -> np.ndarray:
+        """Keep a track's point only if it is also the track's nearest point and clearly so: at most
+        `ambiguity_ratio` times as far from the prediction as the next point of the same polarity on the line.
+
+        When the motion changes abruptly (the plate stops at perforation, springs back) the prediction can land
+        midway between two edges; such a track is ended rather than handed to the neighbouring edge.
+        """
         taken = np.isfinite(positions)
         kk, ss = np.nonzero(taken)
         if len(kk) == 0:
@@ -291,13 +303,49 @@ class EdgeTracker:
             keys = edges.line[members].astype(np.float64) * stride + edges.t_px[members]
             query = ss[tracks].astype(np.float64) * stride + pred[tracks]
             pos = np.searchsorted(keys, query)
-            lo = np.clip(pos - 1, 0, len(keys) - 1)
-            hi = np.minimum(pos, len(keys) - 1)
-            nearest = np.where(np.abs(keys[lo] - query) <= np.abs(keys[hi] - query), lo, hi)
+            # The two nearest points lie among the two on either side of the prediction.
+            around = np.clip(pos[:, None] + np.arange(-2, 2)[None, :], 0, len(keys) - 1)
+            distance = np.abs(keys[around] - query[:, None])
+            distance[np.diff(around, axis=1, prepend=-1) == 0] = np.inf  # clipped duplicates
+            order = np.argsort(distance, axis=1)
+            nearest = around[np.arange(len(tracks)), order[:, 0]]
+            d1 = distance[np.arange(len(tracks)), order[:, 0]]
+            d2 = distance[np.arange(len(tracks)), order[:, 1]]
             nearest_t = edges.t_px[members][nearest].astype(np.float64)
-            keep[tracks] = nearest_t == positions[kk[tracks], ss[tracks]]
+            clear = d1 <= self.ambiguity_ratio * d2
+            keep[tracks] = (nearest_t == positions[kk[tracks], ss[tracks]]) & clear
         out = np.full_like(positions, np.nan)
         out[kk[keep], ss[keep]] = positions[kk[keep], ss[keep]]
+        return out
+
+    @staticmethod
+    def _one_edge_per_curve(positions: np.ndarray, chains: np.ndarray) -> np.ndarray:
+        """An edge curve of the frame is one stripe edge: where tracks of different edges took points of the same
+        curve, only the edge that took clearly most of them keeps its points there (a tie keeps none).
+
+        This catches a track that, its own edge gone (at a new hole), took up a neighbouring edge that other
+        tracks follow elsewhere along its length.
+        """
+        kk, ss = np.nonzero(np.isfinite(positions))
+        if len(kk) == 0:
+            return positions
+        n_k = positions.shape[0]
+        codes, inverse, counts = np.unique(chains[kk, ss] * n_k + kk, return_inverse=True, return_counts=True)
+        code_chain = codes // n_k
+        order = np.lexsort((-counts, code_chain))  # by curve, then most points first
+        sorted_chain = code_chain[order]
+        best = np.flatnonzero(np.r_[True, sorted_chain[1:] != sorted_chain[:-1]])
+        best_count = counts[order][best]
+        second_count = np.zeros(len(best), np.int64)
+        follows = best + 1 < len(order)
+        follows[follows] = sorted_chain[best[follows] + 1] == sorted_chain[best[follows]]
+        second_count[follows] = counts[order][best[follows] + 1]
+        winner = np.zeros(len(codes), bool)
+        clear = best_count > second_count
+        winner[order[best[clear]]] = True
+        disowned = ~winner[inverse]
+        out = positions.copy()
+        out[kk[disowned], ss[disowned]] = np.nan
         return out
 
     @staticmethod
