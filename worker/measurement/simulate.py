@@ -46,15 +46,15 @@ def square_wave_box_mean(x: np.ndarray, width: np.ndarray | float, period: float
 def square_wave_blurred(x: np.ndarray, sigma: np.ndarray | float, period: float) -> np.ndarray:
     """A 50 % square wave (1 on [0, P/2), 0 on [P/2, P), period P) convolved with a Gaussian of width sigma.
 
-    Exact sums of normal CDFs over the nearest bright stripes (valid for sigma < P/6, where farther stripes add
-    less than 1e-9). Used by the renderer for the optical blur of the projected stripes, which is then exact
-    however the stripes are sampled.
+    Each sample takes the normal CDF of its signed distance to the nearest edge. The next edge is at least P/4
+    away: for sigma ≤ P/14 (10 px stripes under 0.7 px of blur) what that leaves out is below 2e-4 of the
+    contrast mid-stripe and below 1e-6 within two sigma of an edge, so the edges stay where the wave has them.
     """
     u = np.mod(np.asarray(x), period)
-    inv = 1.0 / np.asarray(sigma)
-    half = 0.5 * period
-    ndtr = special.ndtr
-    return 1.0 - ndtr((u + half) * inv) + ndtr(u * inv) - ndtr((u - half) * inv) + ndtr((u - period) * inv)
+    quarter = 0.25 * period
+    # Nearest edge: 0 (rising) for u < P/4, P/2 (falling) for P/4 ≤ u < 3P/4, P (rising) beyond.
+    signed = np.where(u < quarter, u, np.where(u < 3.0 * quarter, 2.0 * quarter - u, u - 4.0 * quarter))
+    return special.ndtr(signed / sigma)
 
 
 def render_straight_stripes(

@@ -506,15 +506,17 @@ def grid_measurement(
 
 
 def frame_range(frames: Sequence[int] | range | None, n_frames: int) -> range:
-    """The frames to output as a range within 0..n_frames; ValueError for an empty or out-of-bounds one."""
+    """The frames to output as a range within 0..n_frames − 1; ValueError for an empty, gapped or out-of-bounds
+    selection."""
     if frames is None:
         return range(n_frames)
-    chosen = range(n_frames)[frames.start : frames.stop : frames.step] if isinstance(frames, range) else None
-    if chosen is None:
-        values = sorted(set(int(f) for f in frames))
-        if not values or values != list(range(values[0], values[-1] + 1)):
+    if isinstance(frames, range):
+        chosen = frames
+    else:
+        values = sorted({int(f) for f in frames})
+        if values and values != list(range(values[0], values[-1] + 1)):
             raise ValueError(f"frames: expected a contiguous range, got {frames}")
-        chosen = range(values[0], values[-1] + 1)
+        chosen = range(values[0], values[-1] + 1) if values else range(0)
     if len(chosen) == 0 or chosen.step != 1 or chosen.start < 0 or chosen.stop > n_frames:
         raise ValueError(f"frames: expected a non-empty contiguous range within 0..{n_frames - 1}, got {frames}")
     return chosen
