@@ -350,7 +350,10 @@ def build_projector_calibration(
 
     Identity: the frame nearest to reference_z_mm is put in stripe order (edges counted k = 0, 1, ... along
     +t); every further frame, in order of Z away from it, is put in order on its own and its offset found by the
-    majority vote of its points against the positions predicted from the previous two steps. Raises
+    majority vote of its points against the positions predicted from the previous two steps. The Z steps must
+    move the edges by less than settings.max_step_fraction of a stripe period (QA: max_step_shift_periods);
+    steps of more than about 0.6 period alias (each edge looks like its neighbour moving the other way, the same
+    for all of them), which no image reveals, so choose the steps for the stripe period and sensitivity. Raises
     ProjectorCalibrationError when identity cannot be carried (steps too coarse), when the stripes do not move
     with Z, or when too little of the field gets a table entry; CalibrationMismatchError when the frames are not
     of the camera's size.
