@@ -93,7 +93,8 @@ def register(subparsers: Any) -> None:
         "--line",
         type=_line,
         metavar="X0,Y0,X1,Y1",
-        help="profile line in mm (profile-csv; default: along X through the punch axis)",
+        help="profile line in mm (profile-csv; default: along X through the punch axis); "
+        "write --line=X0,... when X0 is negative",
     )
     export.set_defaults(handler=export_command)
 

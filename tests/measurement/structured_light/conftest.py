@@ -27,6 +27,7 @@ from worker.measurement.projector import (
 )
 from worker.measurement.simulate import FringeRenderer, Imaging, Preset, PunchTimeline, preset, punch_timeline
 from worker.measurement.topography import locate_test_edges
+from worker.measurement.topography_files import FrameTable, frames_csv_text
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,6 +64,35 @@ def render_experiment(
         projector=projector,
         test_edges=list(locate_test_edges(test_frames, projector)),
     )
+
+
+@dataclass(frozen=True)
+class MemorySource:
+    """A recording held in memory, with the interface of `readers.open_recording`'s FrameSource."""
+
+    frames: list[np.ndarray]
+    sidecars: dict[str, str]
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def __getitem__(self, index: int) -> np.ndarray:
+        return self.frames[index]
+
+    def sidecar_text(self, name: str) -> str | None:
+        return self.sidecars.get(name)
+
+
+def recorded_test(experiment: RenderedExperiment, n_frames: int) -> MemorySource:
+    """The first n_frames of an experiment's test, with its frames.csv."""
+    timeline = experiment.timeline
+    table = FrameTable(
+        frame=np.arange(n_frames),
+        time_s=timeline.time_s[:n_frames],
+        punch_displacement_mm=timeline.punch_displacement_mm[:n_frames],
+        force_kN=timeline.force_kN[:n_frames],
+    )
+    return MemorySource(list(experiment.test_frames[:n_frames]), {"frames.csv": frames_csv_text(table)})
 
 
 @pytest.fixture(scope="session")

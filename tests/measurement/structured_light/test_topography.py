@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -20,45 +20,15 @@ from worker.measurement.topography import (
     topography_recording,
     track_and_measure,
 )
-from worker.measurement.topography_files import (
-    FrameTable,
-    TopographyResult,
-    frames_csv_text,
-    read_edges,
-    write_edges,
-)
+from worker.measurement.topography_files import TopographyResult, read_edges, write_edges
 
-from .conftest import RenderedExperiment
+from .conftest import MemorySource, RenderedExperiment, recorded_test
 
 N_FRAMES = 16  # the first 16 frames of the kodak test: flat, then up to ~25 mm of deflection
 
 
-@dataclass(frozen=True)
-class MemorySource:
-    """A recording held in memory, with the interface of `readers.open_recording`'s FrameSource."""
-
-    frames: list[np.ndarray]
-    sidecars: dict[str, str]
-
-    def __len__(self) -> int:
-        return len(self.frames)
-
-    def __getitem__(self, index: int) -> np.ndarray:
-        return self.frames[index]
-
-    def sidecar_text(self, name: str) -> str | None:
-        return self.sidecars.get(name)
-
-
 def source_of(experiment: RenderedExperiment, n: int = N_FRAMES) -> MemorySource:
-    timeline = experiment.timeline
-    table = FrameTable(
-        frame=np.arange(n),
-        time_s=timeline.time_s[:n],
-        punch_displacement_mm=timeline.punch_displacement_mm[:n],
-        force_kN=timeline.force_kN[:n],
-    )
-    return MemorySource(list(experiment.test_frames[:n]), {"frames.csv": frames_csv_text(table)})
+    return recorded_test(experiment, n)
 
 
 def read_all(path: Path) -> dict[str, np.ndarray]:
