@@ -282,8 +282,8 @@ class FringeRenderer:
     def _render(self, *, rng: np.random.Generator, flat_z_mm: float | None, state: PlateState | None) -> np.ndarray:
         imaging = self.preset.imaging
         ss = imaging.supersample
-        reflected = np.empty(self._x0.shape, np.float32)
-        pattern = np.empty(self._x0.shape, np.float32)
+        reflected: np.ndarray = np.empty(self._x0.shape, np.float32)
+        pattern: np.ndarray = np.empty(self._x0.shape, np.float32)
         step = self._BLOCK_ROWS * ss
         for start in range(0, reflected.shape[0], step):
             rows = slice(start, min(start + step, reflected.shape[0]))
@@ -328,8 +328,9 @@ class FringeRenderer:
         slope_y = np.zeros(x0.size, np.float32)
         # The slopes of the last iteration are those at the final point to within 1e-4 mm of Z.
         z[candidates], slope_x[candidates], slope_y[candidates] = zc, wx, wy
-        z, slope_x, slope_y = z.reshape(x0.shape), slope_x.reshape(x0.shape), slope_y.reshape(x0.shape)
-        return x0 + sx * z, y0 + sy * z, z, slope_x, slope_y
+        shape = x0.shape
+        z_mm = z.reshape(shape)
+        return x0 + sx * z_mm, y0 + sy * z_mm, z_mm, slope_x.reshape(shape), slope_y.reshape(shape)
 
     def _radiance_block(
         self, rows: slice, *, flat_z_mm: float | None, state: PlateState | None
