@@ -212,17 +212,16 @@ class ProjectorCalibration:
         t = np.asarray(t_px, np.float64)
         z = np.full(len(t), np.nan)
         status = np.full(len(t), 2, np.int8)
-        known = (k >= 0) & (k < self.n_edges) & (line >= 0) & (line < self.n_lines)
-        kk, ll = k[known], line[known]
-        lo, hi = self.t_lo_px[kk, ll], self.t_hi_px[kk, ll]
+        known = np.flatnonzero((k >= 0) & (k < self.n_edges) & (line >= 0) & (line < self.n_lines))
+        flat = k[known] * self.n_lines + line[known]
+        t_known = t[known]
+        lo, hi = self.t_lo_px.ravel().take(flat), self.t_hi_px.ravel().take(flat)
         has_entry = np.isfinite(lo)
-        in_range = has_entry & (t[known] >= lo) & (t[known] <= hi)
-        status_known = np.where(in_range, 0, np.where(has_entry, 1, 2)).astype(np.int8)
-        status[known] = status_known
-        idx = np.flatnonzero(known)[in_range]
-        kk, ll = kk[in_range], ll[in_range]
-        tau = (t[idx] - self.t_centre_px[kk, ll]) / self.t_scale_px[kk, ll]
-        coefficients = self.coefficients[kk, ll]
+        in_range = has_entry & (t_known >= lo) & (t_known <= hi)
+        status[known] = np.where(in_range, 0, np.where(has_entry, 1, 2))
+        idx, flat = known[in_range], flat[in_range]
+        tau = (t[idx] - self.t_centre_px.ravel().take(flat)) / self.t_scale_px.ravel().take(flat)
+        coefficients = self.coefficients.reshape(-1, self.coefficients.shape[-1])[flat]
         value = coefficients[:, -1].copy()
         for i in range(coefficients.shape[1] - 2, -1, -1):
             value = value * tau + coefficients[:, i]
@@ -263,7 +262,9 @@ def match_to_reference(
         ref = reference_t_px[ks]  # (Ks, S)
         kk, ss = np.nonzero(np.isfinite(ref))
         keys = _key(ss, ref[kk, ss], stride)
-        order = np.argsort(keys)
+        # Runs of increasing keys per edge (tracks keep their order along a line): the stable sort (timsort)
+        # merges them in N log K.
+        order = np.argsort(keys, kind="stable")
         keys, kk = keys[order], ks[kk[order]]
         members = np.flatnonzero(polarity == sign)
         if len(members) == 0 or len(keys) == 0:

@@ -227,10 +227,11 @@ class EdgeTracker:
     """Tracks every (edge k, scan line s) point from frame to frame (METHOD.md §5).
 
     positions: (K, S) current positions (NaN = no track); velocity: (K, S) last motion per frame.
-    A track follows the nearest edge point of its polarity on its line, within max_jump px of where its last
-    motion predicts it, provided that point's nearest track is this one (mutual), the next point of that
-    polarity is at least 1/ambiguity_ratio times farther (unambiguous), and the order of edges along the line is
-    kept; otherwise it ends for good.
+    A track follows the nearest edge point of its polarity on its line to where its last motion predicts it,
+    if that point is within max_jump_px, if the next point of that polarity is at least 1/ambiguity_ratio times
+    farther (unambiguous), and if the point's own nearest track is this one (mutual). Then an edge curve of the
+    frame may serve one edge only, and the order of the edges along each line must be kept. A track that fails
+    any of this ends for good: it is never guessed.
     """
 
     positions: np.ndarray
@@ -245,123 +246,92 @@ class EdgeTracker:
     def step(self, edges: FrameEdges) -> tuple[np.ndarray, int, int]:
         """Advance to the next frame. Returns the new positions (K, S), the number of tracks ended and the number
         of edge points of the frame that no track took."""
-        alive = np.isfinite(self.positions)
-        predicted = np.where(alive, self.positions + self.velocity, np.nan)
+        kk, ss = np.nonzero(np.isfinite(self.positions))
+        predicted = self.positions[kk, ss] + self.velocity[kk, ss]
+        predicted_table = np.full_like(self.positions, np.nan)
+        predicted_table[kk, ss] = predicted
         n_samples = edges.image_shape[1] if edges.axis == "rows" else edges.image_shape[0]
-        # Nearest track of each edge point, and nearest edge point of each track: keep mutual pairs.
-        k_near, distance = match_to_reference(
-            edges.line, edges.t_px, edges.polarity, predicted, self.polarity, n_samples=n_samples
+        # Each edge point's nearest track (for the mutual check).
+        k_near, _ = match_to_reference(
+            edges.line, edges.t_px, edges.polarity, predicted_table, self.polarity, n_samples=n_samples
         )
-        point_ok = (k_near >= 0) & (np.abs(distance) <= self.max_jump_px)
-        kk, ss = k_near[point_ok], edges.line[point_ok].astype(np.int64)
-        t_new = edges.t_px[point_ok].astype(np.float64)
-        d_new = np.abs(distance[point_ok])
-        chain_new = edges.chain[point_ok]
-        # Of several points claiming one track, only the nearest may be mutual; drop the track if tied.
-        flat = kk * self.positions.shape[1] + ss
-        order = np.lexsort((d_new, flat))
-        flat, t_new, d_new, chain_new = flat[order], t_new[order], d_new[order], chain_new[order]
-        first = np.r_[True, flat[1:] != flat[:-1]]
-        tie = np.r_[~first[1:] & (d_new[1:] == d_new[:-1]), False]
-        winners = first & ~tie
-        positions = np.full_like(self.positions, np.nan)
-        positions.ravel()[flat[winners]] = t_new[winners]
-        chains = np.full(self.positions.shape, -1, np.int64)
-        chains.ravel()[flat[winners]] = chain_new[winners]
-        # Mutual: the winning point must also be the nearest point to the track's prediction.
-        positions = self._mutual(positions, predicted, edges)
-        positions = self._one_edge_per_curve(positions, chains)
-        positions = self._keep_order(positions)
-        ended = alive & ~np.isfinite(positions)
-        moved = np.isfinite(positions)
-        self.velocity = np.where(moved, positions - np.where(alive, self.positions, positions), 0.0)
-        self.positions = positions
-        n_taken = int(np.count_nonzero(moved))
-        return positions, int(np.count_nonzero(ended)), len(edges) - n_taken
-
-    def _mutual(self, positions: np.ndarray, predicted: np.ndarray, edges: FrameEdges) -> np.ndarray:
-        """Keep a track's point only if it is also the track's nearest point and clearly so: at most
-        `ambiguity_ratio` times as far from the prediction as the next point of the same polarity on the line.
-
-        When the motion changes abruptly (the plate stops at perforation, springs back) the prediction can land
-        midway between two edges; such a track is ended rather than handed to the neighbouring edge.
-        """
-        taken = np.isfinite(positions)
-        kk, ss = np.nonzero(taken)
-        if len(kk) == 0:
-            return positions
-        n_samples = edges.image_shape[1] if edges.axis == "rows" else edges.image_shape[0]
+        # Each track's nearest and second-nearest edge point of its polarity on its line.
         stride = float(n_samples + 1000.0)
-        pol = self.polarity[kk]
-        pred = predicted[kk, ss]
-        keep = np.zeros(len(kk), bool)
+        taken = np.full(len(kk), -1, np.int64)
         for sign in (1, -1):
             members = np.flatnonzero(edges.polarity == sign)
-            tracks = np.flatnonzero(pol == sign)
-            if len(members) == 0 or len(tracks) == 0:
+            tracks = np.flatnonzero(self.polarity[kk] == sign)
+            if len(members) < 2 or len(tracks) == 0:
                 continue
             keys = edges.line[members].astype(np.float64) * stride + edges.t_px[members]
-            query = ss[tracks].astype(np.float64) * stride + pred[tracks]
+            query = ss[tracks].astype(np.float64) * stride + predicted[tracks]
             pos = np.searchsorted(keys, query)
-            # The two nearest points lie among the two on either side of the prediction.
-            around = np.clip(pos[:, None] + np.arange(-2, 2)[None, :], 0, len(keys) - 1)
-            distance = np.abs(keys[around] - query[:, None])
-            distance[np.diff(around, axis=1, prepend=-1) == 0] = np.inf  # clipped duplicates
-            order = np.argsort(distance, axis=1)
-            nearest = around[np.arange(len(tracks)), order[:, 0]]
-            d1 = distance[np.arange(len(tracks)), order[:, 0]]
-            d2 = distance[np.arange(len(tracks)), order[:, 1]]
-            nearest_t = edges.t_px[members][nearest].astype(np.float64)
-            clear = d1 <= self.ambiguity_ratio * d2
-            keep[tracks] = (nearest_t == positions[kk[tracks], ss[tracks]]) & clear
-        out = np.full_like(positions, np.nan)
-        out[kk[keep], ss[keep]] = positions[kk[keep], ss[keep]]
-        return out
+            last = len(keys) - 1
+            lo, hi = np.clip(pos - 1, 0, last), np.minimum(pos, last)
+            d_lo, d_hi = np.abs(query - keys[lo]), np.abs(keys[hi] - query)
+            lower_nearer = d_lo <= d_hi
+            nearest = np.where(lower_nearer, lo, hi)
+            d1 = np.minimum(d_lo, d_hi)
+            # The runner-up is the other of the pair, or the next one out on the nearer side.
+            outer = np.where(lower_nearer, np.maximum(lo - 1, 0), np.minimum(hi + 1, last))
+            d_outer = np.abs(keys[outer] - query)
+            d_outer[outer == nearest] = np.inf
+            d_other = np.where(lower_nearer, d_hi, d_lo)
+            d_other[(lo == hi)] = np.inf
+            d2 = np.minimum(d_other, d_outer)
+            point = members[nearest]
+            ok = (d1 <= self.max_jump_px) & (d1 <= self.ambiguity_ratio * d2) & (k_near[point] == kk[tracks])
+            taken[tracks[ok]] = point[ok]
+        keep = taken >= 0
+        kk_t, ss_t, point_t = kk[keep], ss[keep], taken[keep]
+        keep_curve = self._one_edge_per_curve(kk_t, edges.chain[point_t], self.positions.shape[0])
+        kk_t, ss_t, point_t = kk_t[keep_curve], ss_t[keep_curve], point_t[keep_curve]
+        positions = np.full_like(self.positions, np.nan)
+        positions[kk_t, ss_t] = edges.t_px[point_t]
+        positions = self._keep_order(positions)
+        moved = np.isfinite(positions)
+        n_alive_before = len(kk)
+        self.velocity = np.where(moved, positions - self.positions, 0.0)
+        self.positions = positions
+        n_taken = int(np.count_nonzero(moved))
+        return positions, n_alive_before - n_taken, len(edges) - n_taken
 
     @staticmethod
-    def _one_edge_per_curve(positions: np.ndarray, chains: np.ndarray) -> np.ndarray:
-        """An edge curve of the frame is one stripe edge: where tracks of different edges took points of the same
-        curve, only the edge that took clearly most of them keeps its points there (a tie keeps none).
-
-        This catches a track that, its own edge gone (at a new hole), took up a neighbouring edge that other
-        tracks follow elsewhere along its length.
-        """
-        kk, ss = np.nonzero(np.isfinite(positions))
-        if len(kk) == 0:
-            return positions
-        n_k = positions.shape[0]
-        codes, inverse, counts = np.unique(chains[kk, ss] * n_k + kk, return_inverse=True, return_counts=True)
-        code_chain = codes // n_k
-        order = np.lexsort((-counts, code_chain))  # by curve, then most points first
-        sorted_chain = code_chain[order]
-        best = np.flatnonzero(np.r_[True, sorted_chain[1:] != sorted_chain[:-1]])
-        best_count = counts[order][best]
-        second_count = np.zeros(len(best), np.int64)
-        follows = best + 1 < len(order)
-        follows[follows] = sorted_chain[best[follows] + 1] == sorted_chain[best[follows]]
-        second_count[follows] = counts[order][best[follows] + 1]
-        winner = np.zeros(len(codes), bool)
-        clear = best_count > second_count
-        winner[order[best[clear]]] = True
-        disowned = ~winner[inverse]
-        out = positions.copy()
-        out[kk[disowned], ss[disowned]] = np.nan
-        return out
+    def _one_edge_per_curve(k: np.ndarray, chain: np.ndarray, n_edges: int) -> np.ndarray:
+        """Mask (N,) of the points to keep: an edge curve of the frame is one stripe edge, so where tracks of
+        different edges took points of the same curve, only the edge that took clearly most of them keeps its
+        points there (a tie keeps none). This catches a track that, its own edge gone (at a new hole), took up a
+        neighbouring edge that other tracks follow elsewhere along its length."""
+        if len(k) == 0:
+            return np.zeros(0, bool)
+        n_chains = int(chain.max()) + 1
+        counts = np.bincount(chain.astype(np.int64) * n_edges + k, minlength=n_chains * n_edges).reshape(
+            n_chains, n_edges
+        )
+        best = np.argmax(counts, axis=1)
+        best_count = counts[np.arange(n_chains), best]
+        counts[np.arange(n_chains), best] = 0
+        clear = best_count > counts.max(axis=1)
+        owner = np.where(clear, best, -1)
+        return owner[chain] == k
 
     @staticmethod
     def _keep_order(positions: np.ndarray) -> np.ndarray:
         """End both tracks of any pair of consecutive tracked edges on a line that swapped order."""
-        kk, ss = np.nonzero(np.isfinite(positions.T))  # sorted by line, then edge
-        if len(kk) < 2:
+        valid = np.isfinite(positions)
+        index = np.where(valid, np.arange(positions.shape[0])[:, None], -1)
+        # The previous tracked edge on the same line, for every (k, s).
+        previous = np.maximum.accumulate(index, axis=0)
+        previous = np.vstack([np.full((1, positions.shape[1]), -1), previous[:-1]])
+        has_previous = valid & (previous >= 0)
+        kk, ss = np.nonzero(has_previous)
+        pk = previous[kk, ss]
+        swapped = positions[kk, ss] <= positions[pk, ss]
+        if not np.any(swapped):
             return positions
-        line, edge = kk, ss
-        t = positions[edge, line]
-        swapped = (line[1:] == line[:-1]) & (t[1:] <= t[:-1])
-        bad = np.zeros(len(t), bool)
-        bad[:-1] |= swapped
-        bad[1:] |= swapped
         out = positions.copy()
-        out[edge[bad], line[bad]] = np.nan
+        out[kk[swapped], ss[swapped]] = np.nan
+        out[pk[swapped], ss[swapped]] = np.nan
         return out
 
 
