@@ -185,3 +185,48 @@ def test_z_csv_rows_are_validated(rows, n_frames, message):
 
 def test_z_heights_in_frame_order():
     assert zstack_heights_mm({1: 3.0, 2: 2.0, 3: -1.0}, 3) == [3.0, 2.0, -1.0]
+
+
+def test_levenberg_marquardt_reaches_scipys_minimum():
+    # Our LM on the block-sparse normal equations against scipy's MINPACK on the dense Jacobian, same start.
+    from scipy.optimize import least_squares
+
+    from worker.measurement.calibration import _build_problem, _initial_candidates, _levenberg_marquardt
+
+    camera = reference_camera("512x480")
+    views = pose_views(camera, rng=np.random.default_rng(26), sigma_px=SIGMA_PX, n_views=6)
+    (_, start), *_ = _initial_candidates(views, (512, 480), mode="poses", du=96.0, dv=96.0, scale_on="v")
+    problem = _build_problem(views, mode="poses")
+    ours, converged = _levenberg_marquardt(problem, start)
+    reference = least_squares(problem.residual, start, jac=problem.jacobian, method="lm", x_scale="jac",
+                              xtol=1e-12, ftol=1e-12, gtol=1e-12)  # fmt: skip
+    assert converged and reference.status > 0
+    cost_ours, cost_scipy = (float(np.sum(problem.residual(x) ** 2)) for x in (ours, reference.x))
+    assert cost_ours <= cost_scipy * (1 + 1e-9)  # the same minimum, to round-off in the cost
+    np.testing.assert_allclose(ours[:4], reference.x[:4], rtol=1e-6)  # fx, fy, cx, cy
+
+
+@pytest.mark.parametrize("scale_on", ["u", "v"])
+def test_covariance_conversion_jacobian(scale_on):
+    # The block-diagonal Jacobian used to carry the covariance over, against differences of the whole conversion.
+    from worker.measurement.calibration import CAMERA_PARAMETERS, _heikkila_from_opencv_jacobian
+    from worker.measurement.camera import OpenCVCamera, camera_from_opencv
+
+    o = camera_as_opencv(dataclasses.replace(reference_camera("1024x1024"), scale_on=scale_on))
+    x14 = np.array([o.fx_px, o.fy_px, o.cx_px, o.cy_px, o.k1, o.k2, o.p1, o.p2, *o.rvec_rad, *o.tvec_mm])
+
+    def heikkila(x):
+        camera = camera_from_opencv(
+            OpenCVCamera(1024, 1024, *x[:8], rvec_rad=tuple(x[8:11]), tvec_mm=tuple(x[11:])),
+            du_px_per_mm=212.59, dv_px_per_mm=212.59, scale_on=scale_on,
+        )  # fmt: skip
+        return np.array([getattr(camera, name) for name in CAMERA_PARAMETERS])
+
+    expected = np.empty((14, 14))
+    for j in range(14):
+        step = np.zeros(14)
+        step[j] = 1e-6 * max(abs(x14[j]), 1e-3)
+        expected[:, j] = (heikkila(x14 + step) - heikkila(x14 - step)) / (2 * step[j])
+    jacobian = _heikkila_from_opencv_jacobian(x14, du=212.59, dv=212.59, scale_on=scale_on)
+    # Both are central differences of smooth maps: agreement to ~1e-8 of each entry's scale.
+    np.testing.assert_allclose(jacobian, expected, rtol=1e-6, atol=1e-8 * np.max(np.abs(expected)))

@@ -5,23 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from worker.measurement.calibration import CAMERA_PARAMETERS, calibrate_camera_recording
+from worker.measurement.calibration import CAMERA_PARAMETERS
 from worker.measurement.camera import backproject_to_z, project_points
-from worker.measurement.readers import open_recording
 
 SIZES = ("512x480", "1024x1024")
-
-
-@pytest.fixture(scope="module")
-def calibrations(zstack_recordings):
-    results = {}
-    for size, recording in zstack_recordings.items():
-        camera = recording.camera
-        results[size] = calibrate_camera_recording(
-            open_recording(recording.path), board=recording.board, mode="zstack", du_px_per_mm=camera.du_px_per_mm,
-            dv_px_per_mm=camera.dv_px_per_mm, scale_on=camera.scale_on,
-        )  # fmt: skip
-    return results
 
 
 @pytest.mark.parametrize("size", SIZES)

@@ -94,6 +94,8 @@ def _fail(error: Exception) -> int:
 
 def _sensor_constants(args: argparse.Namespace) -> tuple[float, float, tuple[float, float] | None]:
     if args.pixel_pitch_um is not None:
+        if args.dv is not None:
+            raise ValueError("give either --pixel-pitch-um or --du/--dv, not both")
         pitch_u, pitch_v = args.pixel_pitch_um
         return 1000.0 / pitch_u, 1000.0 / pitch_v, (pitch_u, pitch_v)
     if (args.du is None) != (args.dv is None):

@@ -31,7 +31,15 @@ SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 40, 1e-4)
 
 
 class BoardNotFoundError(MeasurementError):
-    """The chessboard was not found in a frame (or in any frame), or not with the declared size."""
+    """The chessboard was not found in a frame (or in any frame), or not with the declared size.
+
+    found_size: (cols, rows) of a board of another size seen in the image, as a lower bound (the detector may
+    not grow it to its full extent), or None.
+    """
+
+    def __init__(self, message: str, *, found_size: tuple[int, int] | None = None) -> None:
+        super().__init__(message)
+        self.found_size = found_size
 
 
 @dataclass(frozen=True)
@@ -147,18 +155,18 @@ def find_board_corners(
         raise ValueError(f"detector: expected one of {DETECTORS}, got {detector!r}")
     image_u8 = _as_uint8(image)
     grid, used = _detect_grid(image_u8, (board.cols, board.rows), detector)
-    if grid is None:
-        found = _found_size(image_u8)
-        if found is not None and sorted(found) != sorted((board.cols, board.rows)):
-            raise BoardNotFoundError(
-                f"{frame}: found a board of {found[0]} × {found[1]} inner corners, declared {board.cols} × {board.rows}"
-            )
-        raise BoardNotFoundError(f"{frame}: no {board.cols} × {board.rows} chessboard found")
-    if sorted(grid.shape[:2]) != sorted((board.cols, board.rows)):
+    found = _found_size(image_u8) if grid is None else (grid.shape[1], grid.shape[0])
+    if found is not None and sorted(found) != sorted((board.cols, board.rows)):
+        # Name the found size in the declared orientation (larger count first if declared so).
+        big, small = max(found), min(found)
+        found_cols, found_rows = (big, small) if board.cols >= board.rows else (small, big)
         raise BoardNotFoundError(
-            f"{frame}: found a board of {grid.shape[1]} × {grid.shape[0]} inner corners, "
-            f"declared {board.cols} × {board.rows}"
+            f"{frame}: found a board of at least {found_cols} × {found_rows} inner corners, "
+            f"declared {board.cols} × {board.rows}",
+            found_size=(found_cols, found_rows),
         )
+    if grid is None:
+        raise BoardNotFoundError(f"{frame}: no {board.cols} × {board.rows} chessboard found")
     return _refine_subpixel(image_u8, grid, subpix_half_window_px), used
 
 

@@ -59,7 +59,7 @@ class ImagingConditions:
     noise_sigma_grey: float = 2.0
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class BoardPose:
     """Board frame → object frame: points_obj = rotation · [X_b, Y_b, 0] + translation_mm."""
 
@@ -171,6 +171,19 @@ class ChessboardRenderer:
         grey = (c.black_grey + (c.white_grey - c.black_grey) * image) * self._illumination
         grey = grey + rng.normal(0.0, c.noise_sigma_grey, grey.shape)
         return np.clip(np.rint(grey), 0, 255).astype(np.uint8)
+
+
+def render_zstack_frames(
+    camera: Camera,
+    board: Board,
+    z_mm: np.ndarray,
+    *,
+    rng: np.random.Generator,
+    conditions: ImagingConditions | None = None,
+) -> list[np.ndarray]:
+    """8-bit frames, each shape (H, W), of `board` lying at each height of z_mm, shape (F,): a Z-stack recording."""
+    renderer = ChessboardRenderer(camera, board, conditions=conditions)
+    return [renderer.render(board_pose_at_z(float(z)), rng=rng) for z in np.asarray(z_mm, dtype=np.float64)]
 
 
 def zstack_board(camera: Camera, *, square_mm: float = 25.0) -> Board:
