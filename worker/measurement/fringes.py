@@ -149,6 +149,11 @@ class FrameEdges:
         """Number of scan lines (image rows for "rows", columns for "cols")."""
         return self.image_shape[0] if self.axis == "rows" else self.image_shape[1]
 
+    @property
+    def n_samples(self) -> int:
+        """Length of a scan line (px)."""
+        return self.image_shape[1] if self.axis == "rows" else self.image_shape[0]
+
     def q_px(self) -> np.ndarray:
         """Edge points as pixels (u, v), shape (N, 2)."""
         t = self.t_px.astype(np.float64)

@@ -24,10 +24,9 @@ from typing import Any, Protocol
 import numpy as np
 
 from . import MeasurementError
+from .calibration import CalibrationCancelled, ProgressCallback
 from .camera import Camera, InverseModel, backproject_to_z, fit_inverse_model
 from .fringes import EdgeSettings, FrameEdges, detect_stripes, locate_edges, order_edges
-
-ProgressCallback = Callable[[int, int, str], None]
 
 
 class ProjectorCalibrationError(MeasurementError):
@@ -37,10 +36,6 @@ class ProjectorCalibrationError(MeasurementError):
 
 class CalibrationMismatchError(MeasurementError):
     """Recordings and calibrations do not belong together (image size, camera, stripe direction)."""
-
-
-class CalibrationCancelled(Exception):
-    """Raised when the caller's `should_cancel()` returned True; not a failure of the measurement."""
 
 
 class CameraModel(Protocol):
@@ -296,7 +291,7 @@ def _assign_by_votes(
     relative = order.crossing_index(edges)
     component = order.component[edges.chain] if len(edges) else np.zeros(0, np.int64)
     k_near, distance = match_to_reference(
-        edges.line, edges.t_px, edges.polarity, predicted_t_px, polarity, n_samples=_n_samples(edges)
+        edges.line, edges.t_px, edges.polarity, predicted_t_px, polarity, n_samples=edges.n_samples
     )
     votes_ok = (k_near >= 0) & (relative >= 0)
     k = np.full(len(edges), -1, np.int64)
@@ -316,10 +311,6 @@ def _assign_by_votes(
     matched = (k >= 0) & (k == k_near)
     median_distance = float(np.median(np.abs(distance[matched]))) if np.any(matched) else float("nan")
     return k, agreement, median_distance
-
-
-def _n_samples(edges: FrameEdges) -> int:
-    return edges.image_shape[1] if edges.axis == "rows" else edges.image_shape[0]
 
 
 def _scatter(k: np.ndarray, line: np.ndarray, t_px: np.ndarray, shape: tuple[int, int]) -> np.ndarray:

@@ -515,9 +515,6 @@ class VirtualExperiment:
     truth_json: Path
 
 
-ProgressCallback = Callable[[int, int, str], None]
-
-
 def simulate_experiment(
     out_dir: str | Path,
     preset_name: str,
@@ -528,7 +525,7 @@ def simulate_experiment(
     as_zip: bool = False,
     seed: int = 0,
     imaging: Imaging | None = None,
-    progress: ProgressCallback | None = None,
+    progress: Callable[[int, int, str], None] | None = None,
 ) -> VirtualExperiment:
     """Write a whole virtual experiment for one camera in the recording formats, with ground truth beside it.
 

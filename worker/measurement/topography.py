@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from . import MeasurementError
+from .calibration import ProgressCallback
 from .camera import backproject_to_z
 from .fields import Grid, grid_covering, grid_edge_points, typical_edge_gap_mm
 from .fringes import FrameEdges, detect_stripes, locate_edges
@@ -38,8 +39,6 @@ from .projector import (
     camera_fingerprint,
     match_to_reference,
 )
-
-ProgressCallback = Callable[[int, int, str], None]
 
 
 class FirstFrameNotFlatError(MeasurementError):
@@ -179,7 +178,7 @@ def identify_first_frame(edges: FrameEdges, projector: ProjectorCalibration, *, 
     """
     k_near, distance = match_to_reference(
         edges.line, edges.t_px, edges.polarity, projector.reference_t_px, projector.polarity,
-        n_samples=edges.image_shape[1] if edges.axis == "rows" else edges.image_shape[0],
+        n_samples=edges.n_samples,
     )  # fmt: skip
     near = (k_near >= 0) & (np.abs(distance) <= 0.5 * projector.period_px)
     n_chains = int(edges.chain.max()) + 1 if len(edges) else 0
@@ -250,7 +249,7 @@ class EdgeTracker:
         predicted = self.positions[kk, ss] + self.velocity[kk, ss]
         predicted_table = np.full_like(self.positions, np.nan)
         predicted_table[kk, ss] = predicted
-        n_samples = edges.image_shape[1] if edges.axis == "rows" else edges.image_shape[0]
+        n_samples = edges.n_samples
         # Each edge point's nearest track (for the mutual check).
         k_near, _ = match_to_reference(
             edges.line, edges.t_px, edges.polarity, predicted_table, self.polarity, n_samples=n_samples
