@@ -565,7 +565,7 @@ def topography_recording(
     """
     from .calibration import code_versions
     from .fields import field_peak
-    from .topography_files import TopographyWriter, _json, read_frames_csv
+    from .topography_files import FrameTable, TopographyWriter, _json, read_frames_csv
 
     settings = TopographySettings() if settings is None else settings
     n_frames = len(source)
@@ -576,8 +576,9 @@ def topography_recording(
     if edges is None:
         check_stripes_against(first_image, projector)
     frames_text = source.sidecar_text("frames.csv") if hasattr(source, "sidecar_text") else None
-    table = read_frames_csv(frames_text) if frames_text is not None else None
-    log = table.rows(list(range(n_frames))) if table is not None else None
+    # Frames the log does not list (or no log at all) get NaN.
+    table = read_frames_csv(frames_text) if frames_text is not None else FrameTable.empty()
+    log = table.rows(list(range(n_frames)))
 
     def located() -> Iterator[FrameEdges]:
         supplied = iter(edges) if edges is not None else None
@@ -635,12 +636,8 @@ def topography_recording(
             assert writer is not None and grid is not None
             z_grid = grid_measurement(measurement, projector, grid, max_edge_mm=max_edge_mm)
             peak = field_peak(z_grid - z_flat, grid)
-            row = (
-                (float(log["time_s"][measurement.frame]), float(log["punch_displacement_mm"][measurement.frame]),
-                 float(log["force_kN"][measurement.frame]))
-                if log is not None else (float("nan"),) * 3
-            )  # fmt: skip
-            writer.append(measurement, z_grid, peak, log=row)
+            time_s, punch_mm, force_kn = (float(log[name][measurement.frame]) for name in FrameTable.COLUMNS)
+            writer.append(measurement, z_grid, peak, log=(time_s, punch_mm, force_kn))
             peaks.append(peak.w_mm)
             if np.isfinite(peak.centre_x_mm) and peak.w_mm >= 5.0:
                 centres.append((peak.centre_x_mm, peak.centre_y_mm))

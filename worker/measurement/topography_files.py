@@ -222,6 +222,12 @@ class FrameTable:
 
     COLUMNS = ("time_s", "punch_displacement_mm", "force_kN")
 
+    @classmethod
+    def empty(cls) -> FrameTable:
+        """A log with no rows (every frame gets NaN)."""
+        nothing = np.zeros(0)
+        return cls(frame=np.zeros(0, np.int64), time_s=nothing, punch_displacement_mm=nothing, force_kN=nothing)
+
     def rows(self, frames: Sequence[int]) -> dict[str, np.ndarray]:
         """The columns for the given frame indices (NaN for frames not in the log)."""
         out = {name: np.full(len(frames), np.nan) for name in self.COLUMNS}
