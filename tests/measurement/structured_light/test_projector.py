@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -19,22 +19,7 @@ from worker.measurement.projector import (
 from worker.measurement.readers import z_csv_text
 from worker.measurement.topography_files import read_projector_calibration, write_projector_calibration
 
-from .conftest import RenderedExperiment
-
-
-@dataclass(frozen=True)
-class MemoryRecording:
-    frames: list[np.ndarray]
-    sidecars: dict[str, str]
-
-    def __len__(self) -> int:
-        return len(self.frames)
-
-    def __getitem__(self, index: int) -> np.ndarray:
-        return self.frames[index]
-
-    def sidecar_text(self, name: str) -> str | None:
-        return self.sidecars.get(name)
+from .conftest import MemorySource, RenderedExperiment
 
 
 def test_table_quality_numbers(kodak: RenderedExperiment) -> None:
@@ -100,17 +85,17 @@ def test_recording_entry_point_reads_z_csv_reports_progress_and_provenance(kodak
     z = kodak.calibration_z_mm[:8]
     seen = []
     table = calibrate_projector_recording(
-        MemoryRecording(frames, {"z.csv": z_csv_text(z)}), kodak.camera,
+        MemorySource(frames, {"z.csv": z_csv_text(z)}), kodak.camera,
         progress=lambda done, total, stage: seen.append((done, stage)),
     )  # fmt: skip
     assert seen[-1] == (9, "done") and [d for d, _ in seen[:-1]] == list(range(1, 9))
     assert table.qa.z_range_mm == (0.0, 14.0)
     assert len(table.provenance["input_sha256"]) == 64
     with pytest.raises(ValueError, match="z.csv missing"):
-        calibrate_projector_recording(MemoryRecording(frames, {}), kodak.camera)
+        calibrate_projector_recording(MemorySource(frames, {}), kodak.camera)
     with pytest.raises(CalibrationCancelled):
         calibrate_projector_recording(
-            MemoryRecording(frames, {"z.csv": z_csv_text(z)}), kodak.camera, should_cancel=lambda: True
+            MemorySource(frames, {"z.csv": z_csv_text(z)}), kodak.camera, should_cancel=lambda: True
         )
 
 
