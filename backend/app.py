@@ -9,7 +9,7 @@ from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse
 
 from backend import __version__
-from backend.api import auth, health, jobs, results
+from backend.api import auth, experiments, health, jobs, recordings, results, uploads
 from backend.db import make_engine, make_sessionmaker
 from backend.errors import install_error_handlers
 from backend.frontend import mount_frontend
@@ -52,6 +52,9 @@ def create_app(settings: Settings) -> FastAPI:
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_json_bytes, exempt_prefixes=UPLOAD_PREFIXES)
     app.include_router(health.router, prefix="/api/v1")
     app.include_router(auth.router, prefix="/api/v1")
+    app.include_router(experiments.router, prefix="/api/v1")
+    app.include_router(recordings.router, prefix="/api/v1")
+    app.include_router(uploads.create_router(state), prefix="/api/v1")
     app.include_router(jobs.router, prefix="/api/v1")
     app.include_router(results.router, prefix="/api/v1")
 
