@@ -156,10 +156,10 @@ def add_virtual_recordings(bench: Bench, frames: int) -> dict[str, Any]:
     import json
 
     import numpy as np
-    from worker.measurement.simulate import simulate_experiment
 
     from backend.db import make_engine, make_sessionmaker
     from backend.models import Camera, Experiment, Recording
+    from worker.measurement.simulate import simulate_experiment
 
     virtual = simulate_experiment(
         bench.root / "virtual", "kodak", n_test_frames=frames, calibration_z_mm=np.arange(0.0, 80.0 + 1e-9, 4.0)

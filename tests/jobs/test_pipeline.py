@@ -18,7 +18,6 @@ from backend.models import Camera, Experiment, Recording
 from tests.jobs.conftest import wait_job
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
-pytest.importorskip("worker.measurement.topography", reason="the topography science (branch topo) is not merged yet")
 TEST_FRAMES = 12  # the punch reaches ~60 mm and perforates (frame 9) within them
 
 
@@ -81,11 +80,10 @@ def _datasets(path: Path) -> dict[str, np.ndarray]:
 
 def _sequential_run(settings, camera_job: dict, projector_job: dict, out_path: Path) -> Path:
     """`fringelab topography` on the same inputs: one pass, edges located inline, no chunks, no job."""
-    from worker.measurement.topography import topography_recording
-    from worker.measurement.topography_files import read_projector_calibration
-
     from worker.measurement.camera_files import read_camera_json
     from worker.measurement.readers import open_recording
+    from worker.measurement.topography import topography_recording
+    from worker.measurement.topography_files import read_projector_calibration
 
     def result(job: dict, name: str) -> Path:
         return settings.data_path / "results" / "jobs" / job["id"] / name
@@ -113,10 +111,12 @@ def test_the_whole_measurement_through_the_api(client, celery_worker, recordings
     spec = {"kind": "topography", "recording_id": recordings["test"], "camera_calibration_id": camera_id,
             "projector_calibration_id": projector_id}  # fmt: skip
     chunked = _succeeded(client, spec | {"chunk_frames": 5})
-    assert [(c["first_frame"], c["stop_frame"]) for c in chunked["chunks"]] == [(0, 5), (5, 10), (10, 12)]
+    # edges located, then grids made, each in three chunks on any worker; tracking and writing in frame order
+    chunks = [(c["phase"], c["first_frame"], c["stop_frame"]) for c in chunked["chunks"]]
+    assert chunks == [(phase, a, b) for phase in (0, 1) for a, b in ((0, 5), (5, 10), (10, 12))]
     assert [c["id"] for c in chunked["provenance"]["calibrations"]] == [camera_id, projector_id]
     whole = _succeeded(client, spec | {"chunk_frames": 1000})
-    assert len(whole["chunks"]) == 1
+    assert len(whole["chunks"]) == 2  # one per phase
 
     # the chunked run, the one-chunk run and one sequential pass without any job wrote the same numbers, to the bit
     paths = [settings.data_path / "results" / "jobs" / job["id"] / "topography.h5" for job in (chunked, whole)]
@@ -127,6 +127,15 @@ def test_the_whole_measurement_through_the_api(client, celery_worker, recordings
         assert other.keys() == first.keys()
         for name in first:
             np.testing.assert_array_equal(first[name], other[name], err_msg=name)
+
+    # a part of the recording: the same frames as the whole run (identity still starts at frame 0)
+    part = _succeeded(client, spec | {"chunk_frames": 4, "frames": {"first": 4, "last": 9}})
+    assert [(c["phase"], c["first_frame"], c["stop_frame"]) for c in part["chunks"] if c["phase"] == 1] == [
+        (1, 4, 8), (1, 8, 10)
+    ]  # fmt: skip
+    some = _datasets(settings.data_path / "results" / "jobs" / part["id"] / "topography.h5")
+    assert some["frames/index"].tolist() == list(range(4, 10))
+    np.testing.assert_array_equal(some["grid/z_mm"], first["grid/z_mm"][4:10])
 
     # results as the dashboard reads them
     overview = client.get(f"/api/v1/jobs/{chunked['id']}/topography").json()
