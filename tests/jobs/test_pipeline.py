@@ -1,6 +1,6 @@
-"""The whole measurement through the API on a virtual experiment (`fringelab simulate`): camera calibration,
-projector calibration, topography in chunks, results and exports; and the same topography in one chunk and in
-many gives identical files."""
+"""The whole measurement through the API on a virtual experiment (`fringelab simulate`): uploads and their ingest,
+camera calibration, projector calibration, topography in chunks, results and exports; and the same topography in
+one chunk, in many, and in one sequential pass without any job gives identical files."""
 
 from __future__ import annotations
 
@@ -8,14 +8,14 @@ import io
 import json
 import zipfile
 from pathlib import Path
+from typing import Any
 
 import h5py
 import numpy as np
 import pytest
 
-from backend.db import make_engine, make_sessionmaker
-from backend.models import Camera, Experiment, Recording
 from tests.jobs.conftest import wait_job
+from tests.support import wait_for
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 TEST_FRAMES = 12  # the punch reaches ~60 mm and perforates (frame 9) within them
@@ -28,39 +28,39 @@ def virtual_experiment(tmp_path_factory):
     # 4 mm projector steps over 0..80 mm: half the default's frames, still ~20 samples per table entry
     return simulate_experiment(
         tmp_path_factory.mktemp("virtual") / "kodak", "kodak", n_test_frames=TEST_FRAMES,
-        calibration_z_mm=np.arange(0.0, 80.0 + 1e-9, 4.0), seed=3,
+        calibration_z_mm=np.arange(0.0, 80.0 + 1e-9, 4.0), as_zip=True, seed=3,
     )  # fmt: skip
 
 
-@pytest.fixture
-def recordings(settings, virtual_experiment) -> dict[str, int]:
-    """The three recordings of the virtual camera, ready (as after their ingest), inside the data directory."""
-    truth = json.loads(virtual_experiment.truth_json.read_text())
-    engine = make_engine(settings.resolved_database_url)
-    ids = {}
-    with make_sessionmaker(engine)() as session:
-        experiment = Experiment(name="virtual kodak")
-        camera = Camera(experiment=experiment, name="kodak", image_width_px=512, image_height_px=480,
-                        pixel_pitch_um=1000.0 / truth["camera"]["du_px_per_mm"])  # fmt: skip
-        session.add_all([experiment, camera])
-        for kind, source in (
-            ("camera_calibration", virtual_experiment.camera_calibration),
-            ("projector_calibration", virtual_experiment.projector_calibration),
-            ("test", virtual_experiment.test),
-        ):
-            relative = Path("recordings") / kind
-            (settings.data_path / "recordings").mkdir(parents=True, exist_ok=True)
-            (settings.data_path / relative).symlink_to(source)
-            count = len(list(Path(source).glob("*.png")))
-            row = Recording(camera=camera, kind=kind, state="ready", path=str(relative), frame_count=count,
-                            width_px=512, height_px=480, sha256=kind[:2] * 32)  # fmt: skip
-            session.add(row)
-            session.flush()
-            ids[kind] = row.id
-        session.commit()
-    engine.dispose()
-    ids["scale_on"] = truth["camera"]["scale_on"]  # type: ignore[assignment]
+def upload_virtual_experiment(client, virtual) -> dict[str, Any]:
+    """Experiment, camera and the three recordings through the API, as a user uploads them; waits for the ingest
+    of each. Returns the recording ids by kind, and the camera's scale axis."""
+    truth = json.loads(virtual.truth_json.read_text())
+    experiment = client.post("/api/v1/experiments", json={"name": "virtual kodak"}).json()
+    camera = client.post(f"/api/v1/experiments/{experiment['id']}/cameras", json={
+        "name": "kodak", "image_width_px": 512, "image_height_px": 480,
+        "pixel_pitch_um": 1000.0 / truth["camera"]["du_px_per_mm"]}).json()  # fmt: skip
+    ids: dict[str, Any] = {"scale_on": truth["camera"]["scale_on"]}
+    for kind in ("camera_calibration", "projector_calibration", "test"):
+        path = getattr(virtual, kind)
+        uploaded = client.put(f"/api/v1/uploads/cameras/{camera['id']}/{path.name}", params={"kind": kind},
+                              content=path.read_bytes())  # fmt: skip
+        assert uploaded.status_code == 201, uploaded.text
+        ids[kind] = uploaded.json()["id"]
+    for kind in ("camera_calibration", "projector_calibration", "test"):
+
+        def ingested(recording_id: int = ids[kind]) -> dict | None:
+            recording = client.get(f"/api/v1/recordings/{recording_id}").json()
+            return recording if recording["state"] in ("ready", "invalid") else None
+
+        recording = wait_for(ingested, timeout_s=300, what=f"the ingest of the {kind} recording", interval_s=0.2)
+        assert recording["state"] == "ready", recording  # type: ignore[index]
     return ids
+
+
+@pytest.fixture
+def recordings(client, celery_worker, virtual_experiment) -> dict[str, Any]:
+    return upload_virtual_experiment(client, virtual_experiment)
 
 
 def _succeeded(client, spec: dict, *, timeout_s: float = 300) -> dict:
@@ -78,7 +78,7 @@ def _datasets(path: Path) -> dict[str, np.ndarray]:
     return found
 
 
-def _sequential_run(settings, camera_job: dict, projector_job: dict, out_path: Path) -> Path:
+def _sequential_run(settings, recording_path: Path, camera_job: dict, projector_job: dict, out_path: Path) -> Path:
     """`fringelab topography` on the same inputs: one pass, edges located inline, no chunks, no job."""
     from worker.measurement.camera_files import read_camera_json
     from worker.measurement.readers import open_recording
@@ -89,7 +89,7 @@ def _sequential_run(settings, camera_job: dict, projector_job: dict, out_path: P
         return settings.data_path / "results" / "jobs" / job["id"] / name
 
     topography_recording(
-        open_recording(settings.data_path / "recordings" / "test"),
+        open_recording(recording_path),
         read_camera_json(result(camera_job, "camera.json")),
         read_projector_calibration(result(projector_job, "projector.h5")),
         out_path=out_path,
@@ -97,7 +97,9 @@ def _sequential_run(settings, camera_job: dict, projector_job: dict, out_path: P
     return out_path
 
 
-def test_the_whole_measurement_through_the_api(client, celery_worker, recordings, settings, tmp_path):
+def test_the_whole_measurement_through_the_api(
+    client, celery_worker, recordings, settings, tmp_path, virtual_experiment
+):
     camera_job = _succeeded(client, {"kind": "camera_calibration", "recording_id": recordings["camera_calibration"],
                                      "scale_on": recordings["scale_on"]})  # fmt: skip
     camera_id = camera_job["result"]["calibration_id"]
@@ -115,12 +117,16 @@ def test_the_whole_measurement_through_the_api(client, celery_worker, recordings
     chunks = [(c["phase"], c["first_frame"], c["stop_frame"]) for c in chunked["chunks"]]
     assert chunks == [(phase, a, b) for phase in (0, 1) for a, b in ((0, 5), (5, 10), (10, 12))]
     assert [c["id"] for c in chunked["provenance"]["calibrations"]] == [camera_id, projector_id]
+    test_recording = client.get(f"/api/v1/recordings/{recordings['test']}").json()
+    assert chunked["provenance"]["inputs"] == [
+        {"recording_id": test_recording["id"], "sha256": test_recording["sha256"], "frames": TEST_FRAMES}
+    ]
     whole = _succeeded(client, spec | {"chunk_frames": 1000})
     assert len(whole["chunks"]) == 2  # one per phase
 
     # the chunked run, the one-chunk run and one sequential pass without any job wrote the same numbers, to the bit
     paths = [settings.data_path / "results" / "jobs" / job["id"] / "topography.h5" for job in (chunked, whole)]
-    paths.append(_sequential_run(settings, camera_job, projector_job, tmp_path / "sequential.h5"))
+    paths.append(_sequential_run(settings, virtual_experiment.test, camera_job, projector_job, tmp_path / "seq.h5"))
     first, *others = (_datasets(path) for path in paths)
     assert "grid/z_mm" in first and "points/z_mm" in first
     for other in others:
