@@ -1,24 +1,24 @@
 """Benchmark of the job system: topography throughput with 1 and 2 worker processes on the same recording (scaling
-efficiency), and the end-to-end time from ready recordings to the last frame's result.
+efficiency), and the end-to-end time from the first upload to the last frame's result.
 
 Run from the repository root:  .venv/bin/python bench/bench_jobs.py [--kind topography|selftest] [--frames 40]
 
 It starts what a lab machine runs, on a scratch data directory: its own redis-server, a migrated SQLite
 database, the API (in this process) and `fringelab worker` subprocesses (prefork, as users run them, one BLAS
-thread each). For each worker count it submits the same job through the API, waits for the end, and prints
+thread each). With --kind topography it writes the virtual experiment (`fringelab simulate`, kodak preset,
+512 x 480 px, as ZIPs; not timed), then times, with the most worker processes asked for: creating the experiment
+and camera, uploading the three recordings and their ingest, the camera and projector calibrations, and the
+topography (end to end). Then, for each worker count, it runs the same topography again and prints
 
-  workers   worker processes (one `fringelab worker --concurrency N`)
-  frames    frames of the job, in chunks of --chunk-frames
-  run s     from the job's start to its end (job record: started_at .. finished_at)
-  frames/s  frames / run s
-  chunks s  of which the parallel part (edge location in chunks, until the merge starts)
-  merge s   and the sequential pass in frame order (tracking, Z, X-Y, grid, file)
-  spread    frames computed per worker process (from the chunks' records)
+  workers     worker processes (one `fringelab worker --concurrency N`)
+  frames      frames of the job, in chunks of --chunk-frames
+  run s       from the job's start to its end (job record: started_at .. finished_at)
+  frames/s    frames / run s
+  parallel s  of which the fan-outs ran (edge location, then gridding, in chunks on every process)
+  in order s  and the passes in frame order (tracking and Z; writing the file)
+  spread      frames whose edges each worker process located
 
-then the scaling efficiency, (frames/s with N) / (N × frames/s with 1), and for --kind topography the end-to-end
-time of camera calibration + projector calibration + topography on the virtual experiment (`fringelab
-simulate`, kodak preset, 512 × 480 px), from recordings that are ready to the last frame's result. The upload
-and ingest in front of that are measured by bench/bench_upload.py. --kind selftest measures the job system
+and the scaling efficiency, (frames/s with N) / (N x frames/s with 1). --kind selftest measures the job system
 alone (synthetic frames, an FFT each; --frame-size-px sets the work per frame). On a machine whose cores are
 shared with other work the efficiency says so: `os.cpu_count()` and the load average are printed.
 """
@@ -141,51 +141,52 @@ def _moment(text: str | None) -> datetime:
 
 
 def timings(job: dict[str, Any]) -> tuple[float, float, float]:
-    """(run, parallel chunks, sequential merge) seconds of a finished chunked job."""
+    """(run, parallel, in frame order) seconds of a finished chunked job: the phases' chunks from the first start
+    to the last end are the parallel parts, the gaps between them (the merges) the parts in frame order."""
     started, finished = _moment(job["started_at"]), _moment(job["finished_at"])
-    chunks_done = max(_moment(c["finished_at"]) for c in job["chunks"])
-    return (
-        (finished - started).total_seconds(),
-        (chunks_done - started).total_seconds(),
-        (finished - chunks_done).total_seconds(),
-    )
+    parallel = 0.0
+    for phase in sorted({c["phase"] for c in job["chunks"]}):
+        chunks = [c for c in job["chunks"] if c["phase"] == phase]
+        begin = started if phase == 0 else min(_moment(c["started_at"]) for c in chunks)
+        parallel += (max(_moment(c["finished_at"]) for c in chunks) - begin).total_seconds()
+    run = (finished - started).total_seconds()
+    return run, parallel, run - parallel
 
 
-def add_virtual_recordings(bench: Bench, frames: int) -> dict[str, Any]:
-    """A virtual experiment (`fringelab simulate`, kodak) as three ready recordings of one camera."""
+def upload_virtual_experiment(bench: Bench, frames: int) -> dict[str, Any]:
+    """A virtual experiment (`fringelab simulate`, kodak, as ZIPs; not timed), then timed: experiment, camera and
+    the three uploads through the API, until each recording is ready (ingested)."""
     import json
 
     import numpy as np
 
-    from backend.db import make_engine, make_sessionmaker
-    from backend.models import Camera, Experiment, Recording
     from worker.measurement.simulate import simulate_experiment
 
     virtual = simulate_experiment(
-        bench.root / "virtual", "kodak", n_test_frames=frames, calibration_z_mm=np.arange(0.0, 80.0 + 1e-9, 4.0)
-    )
+        bench.root / "virtual", "kodak", n_test_frames=frames, calibration_z_mm=np.arange(0.0, 80.0 + 1e-9, 4.0),
+        as_zip=True,
+    )  # fmt: skip
     truth = json.loads(virtual.truth_json.read_text())
-    engine = make_engine(bench.settings.resolved_database_url)
+    client = bench.client
+    start = time.perf_counter()
+    experiment = client.post("/api/v1/experiments", json={"name": "bench"}).json()
+    camera = client.post(f"/api/v1/experiments/{experiment['id']}/cameras", json={
+        "name": "kodak", "image_width_px": 512, "image_height_px": 480,
+        "pixel_pitch_um": 1000.0 / truth["camera"]["du_px_per_mm"]}).json()  # fmt: skip
     ids: dict[str, Any] = {"scale_on": truth["camera"]["scale_on"]}
-    with make_sessionmaker(engine)() as session:
-        experiment = Experiment(name="bench")
-        camera = Camera(experiment=experiment, name="kodak", image_width_px=512, image_height_px=480,
-                        pixel_pitch_um=1000.0 / truth["camera"]["du_px_per_mm"])  # fmt: skip
-        session.add_all([experiment, camera])
-        (bench.settings.data_path / "recordings").mkdir(parents=True, exist_ok=True)
-        for kind, source in (
-            ("camera_calibration", virtual.camera_calibration),
-            ("projector_calibration", virtual.projector_calibration),
-            ("test", virtual.test),
-        ):
-            (bench.settings.data_path / "recordings" / kind).symlink_to(source)
-            row = Recording(camera=camera, kind=kind, state="ready", path=f"recordings/{kind}",
-                            frame_count=len(list(Path(source).glob("*.png"))), width_px=512, height_px=480)  # fmt: skip
-            session.add(row)
-            session.flush()
-            ids[kind] = row.id
-        session.commit()
-    engine.dispose()
+    for kind in ("camera_calibration", "projector_calibration", "test"):
+        path = getattr(virtual, kind)
+        with path.open("rb") as body:
+            uploaded = client.put(f"/api/v1/uploads/cameras/{camera['id']}/{path.name}", params={"kind": kind},
+                                  content=body.read())  # fmt: skip
+        uploaded.raise_for_status()
+        ids[kind] = uploaded.json()["id"]
+    for kind in ("camera_calibration", "projector_calibration", "test"):
+        recording = wait(lambda i=ids[kind]: (r := client.get(f"/api/v1/recordings/{i}").json())["state"] in
+                         ("ready", "invalid") and r, timeout_s=1800, what=f"the {kind} ingest")  # fmt: skip
+        if recording["state"] != "ready":
+            raise RuntimeError(f"the {kind} recording is {recording['state']}: {recording['error']}")
+    ids["upload_s"] = time.perf_counter() - start
     return ids
 
 
@@ -220,22 +221,25 @@ def main() -> int:
     print(f"machine: {os.cpu_count()} CPU cores, load average {os.getloadavg()[0]:.2f}; scratch {root}")
     try:
         if topography:
-            ids = add_virtual_recordings(bench, frames)
             print(f"job: topography of the virtual kodak experiment, {frames} frames of 512 x 480 px, "
                   f"chunks of {chunk_frames} frames")  # fmt: skip
             worker = bench.start_worker(max(args.workers))
             try:
+                ids = upload_virtual_experiment(bench, frames)
                 spec, calibration_s = calibrate(bench, ids)
                 job, topography_s = bench.run(spec, timeout_s=3600)
             finally:
                 bench.stop_worker(worker)
-            print(f"end to end with {max(args.workers)} processes, from ready recordings to the last frame's "
-                  f"result: {calibration_s + topography_s:.1f} s (calibrations {calibration_s:.1f} s, topography "
-                  f"{topography_s:.1f} s)\n")  # fmt: skip
+            total_s = ids["upload_s"] + calibration_s + topography_s
+            print(f"end to end with {max(args.workers)} processes, from the first upload to the last frame's result: "
+                  f"{total_s:.1f} s (uploads and ingest {ids['upload_s']:.1f} s, calibrations {calibration_s:.1f} s, "
+                  f"topography {topography_s:.1f} s)\n")  # fmt: skip
         else:
             spec = {"kind": "selftest", "frames": frames, "frame_size_px": args.frame_size_px}
             print(f"job: selftest, {frames} frames of {args.frame_size_px} px, chunks of {chunk_frames} frames\n")
-        print(f"{'workers':>7} {'frames':>7} {'run s':>8} {'frames/s':>9} {'chunks s':>9} {'merge s':>8}  spread")
+        print(
+            f"{'workers':>7} {'frames':>7} {'run s':>8} {'frames/s':>9} {'parallel s':>10} {'in order s':>10}  spread"
+        )
         rates: dict[int, float] = {}
         for processes in args.workers:
             worker = bench.start_worker(processes)
@@ -244,14 +248,14 @@ def main() -> int:
                 job, _ = bench.run(spec, timeout_s=3600)
             finally:
                 bench.stop_worker(worker)
-            run_s, chunks_s, merge_s = timings(job)
+            run_s, parallel_s, in_order_s = timings(job)
             rates[processes] = frames / run_s
             spread: dict[str, int] = {}
-            for chunk in job["chunks"]:
+            for chunk in (c for c in job["chunks"] if c["phase"] == 0):
                 spread[chunk["worker"]] = spread.get(chunk["worker"], 0) + chunk["stop_frame"] - chunk["first_frame"]
             shares = " ".join(str(n) for n in sorted(spread.values(), reverse=True))
-            print(f"{processes:>7} {frames:>7} {run_s:>8.2f} {rates[processes]:>9.2f} {chunks_s:>9.2f} "
-                  f"{merge_s:>8.2f}  {shares}")  # fmt: skip
+            print(f"{processes:>7} {frames:>7} {run_s:>8.2f} {rates[processes]:>9.2f} {parallel_s:>10.2f} "
+                  f"{in_order_s:>10.2f}  {shares}")  # fmt: skip
     finally:
         bench.close()
         if not args.keep:
