@@ -35,9 +35,10 @@ class FrameRange(_Spec):
 
 
 class SelftestSpec(_Spec):
-    """A diagnostic of the job system itself: every worker that takes a chunk computes synthetic frames (an FFT of
-    a seeded random image each), writes them to the shared data directory, and the merge checks that every frame
-    came back exactly once. It measures frames/s and shows which workers took part, without any upload."""
+    """A diagnostic of the job system itself, in the two fan-outs a topography uses: workers compute synthetic
+    frames (an FFT of a seeded random image each) into the shared data directory, a pass in frame order checks
+    that each came back once and chains them, other workers compute them again and compare, and the result file
+    is written. It measures frames/s and names the workers that took part (or that compute differently)."""
 
     kind: Literal["selftest"]
     frames: int = Field(200, ge=1, le=100_000, description="Synthetic frames to compute.")
