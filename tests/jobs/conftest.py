@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -10,6 +11,8 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+import h5py
+import numpy as np
 import psutil
 import pytest
 import redis
@@ -151,3 +154,73 @@ def add_rows(settings: Settings) -> Callable[..., dict[str, int]]:
         return ids
 
     return add
+
+
+# ------------------------------------------------------------------------------------------ virtual experiment
+
+TEST_FRAMES = 12  # the virtual punch reaches ~60 mm and perforates (frame 9) within them
+
+
+@pytest.fixture(scope="session")
+def virtual_experiment(tmp_path_factory):
+    from worker.measurement.simulate import simulate_experiment
+
+    # 4 mm projector steps over 0..80 mm: half the default's frames, still ~20 samples per table entry
+    return simulate_experiment(
+        tmp_path_factory.mktemp("virtual") / "kodak", "kodak", n_test_frames=TEST_FRAMES,
+        calibration_z_mm=np.arange(0.0, 80.0 + 1e-9, 4.0), as_zip=True, seed=3,
+    )  # fmt: skip
+
+
+def upload_virtual_experiment(client, virtual) -> dict[str, Any]:
+    """Experiment, camera and the three recordings through the API, as a user uploads them; waits for the ingest
+    of each. Returns the recording ids by kind, and the camera's scale axis."""
+    truth = json.loads(virtual.truth_json.read_text())
+    experiment = client.post("/api/v1/experiments", json={"name": "virtual kodak"}).json()
+    camera = client.post(f"/api/v1/experiments/{experiment['id']}/cameras", json={
+        "name": "kodak", "image_width_px": 512, "image_height_px": 480,
+        "pixel_pitch_um": 1000.0 / truth["camera"]["du_px_per_mm"]}).json()  # fmt: skip
+    ids: dict[str, Any] = {"scale_on": truth["camera"]["scale_on"]}
+    for kind in ("camera_calibration", "projector_calibration", "test"):
+        path = getattr(virtual, kind)
+        uploaded = client.put(f"/api/v1/uploads/cameras/{camera['id']}/{path.name}", params={"kind": kind},
+                              content=path.read_bytes())  # fmt: skip
+        assert uploaded.status_code == 201, uploaded.text
+        ids[kind] = uploaded.json()["id"]
+    for kind in ("camera_calibration", "projector_calibration", "test"):
+
+        def ingested(recording_id: int = ids[kind]) -> dict | None:
+            recording = client.get(f"/api/v1/recordings/{recording_id}").json()
+            return recording if recording["state"] in ("ready", "invalid") else None
+
+        recording = wait_for(ingested, timeout_s=300, what=f"the ingest of the {kind} recording", interval_s=0.2)
+        assert recording["state"] == "ready", recording  # type: ignore[index]
+    return ids
+
+
+def datasets(path: Path) -> dict[str, np.ndarray]:
+    found: dict[str, np.ndarray] = {}
+    with h5py.File(path) as file:
+        file.visititems(lambda name, item: found.update({name: item[()]}) if isinstance(item, h5py.Dataset) else None)
+    return found
+
+
+def sequential_topography(
+    settings, recording_path: Path, camera_job: dict, projector_job: dict, out_path: Path
+) -> Path:
+    """`fringelab topography` on the same inputs: one pass, edges located inline, no chunks, no job."""
+    from worker.measurement.camera_files import read_camera_json
+    from worker.measurement.readers import open_recording
+    from worker.measurement.topography import topography_recording
+    from worker.measurement.topography_files import read_projector_calibration
+
+    def result(job: dict, name: str) -> Path:
+        return settings.data_path / "results" / "jobs" / job["id"] / name
+
+    topography_recording(
+        open_recording(recording_path),
+        read_camera_json(result(camera_job, "camera.json")),
+        read_projector_calibration(result(projector_job, "projector.h5")),
+        out_path=out_path,
+    )
+    return out_path

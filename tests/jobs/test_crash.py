@@ -8,11 +8,19 @@ import os
 import signal
 
 import h5py
+import numpy as np
 import psutil
 import pytest
 
 from backend.settings import Settings
-from tests.jobs.conftest import log_messages, pid_of, wait_job
+from tests.jobs.conftest import (
+    datasets,
+    log_messages,
+    pid_of,
+    sequential_topography,
+    upload_virtual_experiment,
+    wait_job,
+)
 from tests.support import RedisServer, wait_for
 from worker.pipelines import selftest_frame
 
@@ -58,6 +66,47 @@ def test_a_worker_process_killed_mid_chunk_is_replaced_and_the_job_ends_once_com
     rerun = next(c for c in job["chunks"] if (c["phase"], c["index"]) == (victim["phase"], victim["index"]))  # type: ignore[index]
     assert pid_of(rerun["worker"]) != killed
     assert killed not in worker.pool_pids() and len(worker.pool_pids()) == 2
+
+
+def test_a_topography_whose_worker_process_is_killed_while_gridding_ends_identical_to_a_sequential_run(
+    settings, client, start_prefork_worker, virtual_experiment, tmp_path
+):
+    worker = start_prefork_worker(settings, concurrency=2)
+    ids = upload_virtual_experiment(client, virtual_experiment)
+
+    def succeeded(spec: dict) -> dict:
+        job = wait_job(client, client.post("/api/v1/jobs", json=spec).json()["id"], timeout_s=300)
+        assert job["state"] == "succeeded", job["error"]
+        return job
+
+    camera = succeeded({"kind": "camera_calibration", "recording_id": ids["camera_calibration"],
+                        "scale_on": ids["scale_on"]})  # fmt: skip
+    projector = succeeded({"kind": "projector_calibration", "recording_id": ids["projector_calibration"],
+                           "camera_calibration_id": camera["result"]["calibration_id"]})  # fmt: skip
+    spec = {"kind": "topography", "recording_id": ids["test"], "chunk_frames": 2,
+            "camera_calibration_id": camera["result"]["calibration_id"],
+            "projector_calibration_id": projector["result"]["calibration_id"]}  # fmt: skip
+    job_id = client.post("/api/v1/jobs", json=spec).json()["id"]
+
+    def a_gridding_chunk() -> dict | None:
+        chunks = client.get(f"/api/v1/jobs/{job_id}").json()["chunks"]
+        return next((c for c in chunks if c["phase"] == 1 and c["state"] == "running" and c["worker"]), None)
+
+    victim = wait_for(a_gridding_chunk, timeout_s=180, what="a gridding chunk to run", interval_s=0.02)
+    killed = pid_of(victim["worker"])  # type: ignore[index]
+    psutil.Process(killed).send_signal(signal.SIGKILL)
+
+    job = wait_job(client, job_id, timeout_s=300)
+    assert job["state"] == "succeeded", job["error"]
+    assert sum(m.startswith("succeeded") for m in log_messages(client, job_id)) == 1
+    assert killed not in worker.pool_pids()
+    result = datasets(settings.data_path / "results" / "jobs" / job_id / "topography.h5")
+    reference = datasets(
+        sequential_topography(settings, virtual_experiment.test, camera, projector, tmp_path / "sequential.h5")
+    )
+    assert result.keys() == reference.keys()
+    for name in result:
+        np.testing.assert_array_equal(result[name], reference[name], err_msg=name)
 
 
 def test_a_whole_worker_killed_mid_job_is_noticed_and_another_worker_finishes_the_job(

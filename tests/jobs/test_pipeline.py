@@ -5,57 +5,15 @@ one chunk, in many, and in one sequential pass without any job gives identical f
 from __future__ import annotations
 
 import io
-import json
 import zipfile
-from pathlib import Path
 from typing import Any
 
-import h5py
 import numpy as np
 import pytest
 
-from tests.jobs.conftest import wait_job
-from tests.support import wait_for
+from tests.jobs.conftest import TEST_FRAMES, datasets, sequential_topography, upload_virtual_experiment, wait_job
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
-TEST_FRAMES = 12  # the punch reaches ~60 mm and perforates (frame 9) within them
-
-
-@pytest.fixture(scope="module")
-def virtual_experiment(tmp_path_factory):
-    from worker.measurement.simulate import simulate_experiment
-
-    # 4 mm projector steps over 0..80 mm: half the default's frames, still ~20 samples per table entry
-    return simulate_experiment(
-        tmp_path_factory.mktemp("virtual") / "kodak", "kodak", n_test_frames=TEST_FRAMES,
-        calibration_z_mm=np.arange(0.0, 80.0 + 1e-9, 4.0), as_zip=True, seed=3,
-    )  # fmt: skip
-
-
-def upload_virtual_experiment(client, virtual) -> dict[str, Any]:
-    """Experiment, camera and the three recordings through the API, as a user uploads them; waits for the ingest
-    of each. Returns the recording ids by kind, and the camera's scale axis."""
-    truth = json.loads(virtual.truth_json.read_text())
-    experiment = client.post("/api/v1/experiments", json={"name": "virtual kodak"}).json()
-    camera = client.post(f"/api/v1/experiments/{experiment['id']}/cameras", json={
-        "name": "kodak", "image_width_px": 512, "image_height_px": 480,
-        "pixel_pitch_um": 1000.0 / truth["camera"]["du_px_per_mm"]}).json()  # fmt: skip
-    ids: dict[str, Any] = {"scale_on": truth["camera"]["scale_on"]}
-    for kind in ("camera_calibration", "projector_calibration", "test"):
-        path = getattr(virtual, kind)
-        uploaded = client.put(f"/api/v1/uploads/cameras/{camera['id']}/{path.name}", params={"kind": kind},
-                              content=path.read_bytes())  # fmt: skip
-        assert uploaded.status_code == 201, uploaded.text
-        ids[kind] = uploaded.json()["id"]
-    for kind in ("camera_calibration", "projector_calibration", "test"):
-
-        def ingested(recording_id: int = ids[kind]) -> dict | None:
-            recording = client.get(f"/api/v1/recordings/{recording_id}").json()
-            return recording if recording["state"] in ("ready", "invalid") else None
-
-        recording = wait_for(ingested, timeout_s=300, what=f"the ingest of the {kind} recording", interval_s=0.2)
-        assert recording["state"] == "ready", recording  # type: ignore[index]
-    return ids
 
 
 @pytest.fixture
@@ -69,32 +27,6 @@ def _succeeded(client, spec: dict, *, timeout_s: float = 300) -> dict:
     job = wait_job(client, created.json()["id"], timeout_s=timeout_s)
     assert job["state"] == "succeeded", job["error"]
     return job
-
-
-def _datasets(path: Path) -> dict[str, np.ndarray]:
-    found: dict[str, np.ndarray] = {}
-    with h5py.File(path) as file:
-        file.visititems(lambda name, item: found.update({name: item[()]}) if isinstance(item, h5py.Dataset) else None)
-    return found
-
-
-def _sequential_run(settings, recording_path: Path, camera_job: dict, projector_job: dict, out_path: Path) -> Path:
-    """`fringelab topography` on the same inputs: one pass, edges located inline, no chunks, no job."""
-    from worker.measurement.camera_files import read_camera_json
-    from worker.measurement.readers import open_recording
-    from worker.measurement.topography import topography_recording
-    from worker.measurement.topography_files import read_projector_calibration
-
-    def result(job: dict, name: str) -> Path:
-        return settings.data_path / "results" / "jobs" / job["id"] / name
-
-    topography_recording(
-        open_recording(recording_path),
-        read_camera_json(result(camera_job, "camera.json")),
-        read_projector_calibration(result(projector_job, "projector.h5")),
-        out_path=out_path,
-    )
-    return out_path
 
 
 def test_the_whole_measurement_through_the_api(
@@ -126,8 +58,10 @@ def test_the_whole_measurement_through_the_api(
 
     # the chunked run, the one-chunk run and one sequential pass without any job wrote the same numbers, to the bit
     paths = [settings.data_path / "results" / "jobs" / job["id"] / "topography.h5" for job in (chunked, whole)]
-    paths.append(_sequential_run(settings, virtual_experiment.test, camera_job, projector_job, tmp_path / "seq.h5"))
-    first, *others = (_datasets(path) for path in paths)
+    paths.append(
+        sequential_topography(settings, virtual_experiment.test, camera_job, projector_job, tmp_path / "seq.h5")
+    )
+    first, *others = (datasets(path) for path in paths)
     assert "grid/z_mm" in first and "points/z_mm" in first
     for other in others:
         assert other.keys() == first.keys()
@@ -139,7 +73,7 @@ def test_the_whole_measurement_through_the_api(
     assert [(c["phase"], c["first_frame"], c["stop_frame"]) for c in part["chunks"] if c["phase"] == 1] == [
         (1, 4, 8), (1, 8, 10)
     ]  # fmt: skip
-    some = _datasets(settings.data_path / "results" / "jobs" / part["id"] / "topography.h5")
+    some = datasets(settings.data_path / "results" / "jobs" / part["id"] / "topography.h5")
     assert some["frames/index"].tolist() == list(range(4, 10))
     np.testing.assert_array_equal(some["grid/z_mm"], first["grid/z_mm"][4:10])
 
