@@ -9,7 +9,7 @@ import sqlalchemy as sa
 from alembic import op
 
 revision = "0003"
-down_revision = "0004"  # the head when jobs branched off main; re-chain if another lands first
+down_revision = "0004"
 branch_labels = None
 depends_on = None
 
