@@ -49,3 +49,15 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(uploads.create_router(state), prefix="/api/v1")
     mount_frontend(app)  # last: it serves every path the API does not
     return app
+
+
+def uvicorn_options(settings: Settings) -> dict[str, object]:
+    """How `fringelab api` serves the app. Behind a reverse proxy at a sub-path (FRINGELAB_ROOT_PATH, the proxy
+    strips the prefix), the server's root path makes the docs, the OpenAPI `servers` and every URL the API
+    builds (tus `Location`) carry the prefix."""
+    return {
+        "host": settings.host,
+        "port": settings.port,
+        "log_level": settings.log_level,
+        "root_path": settings.root_path,
+    }

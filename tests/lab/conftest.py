@@ -2,16 +2,22 @@
 
 from __future__ import annotations
 
+import contextlib
+import threading
 from collections.abc import Iterator
+from typing import Any
 
 import pytest
 import redis
+import uvicorn
 from fastapi.testclient import TestClient
 
 from backend.app import create_app
 from backend.auth import create_user, issue_token
 from backend.db import make_engine, make_sessionmaker
+from backend.services import free_port
 from backend.settings import Settings
+from tests.support import wait_for
 
 PEOPLE = (("admin", "admin"), ("ada", "member"), ("bob", "member"), ("cy", "member"))
 
@@ -43,3 +49,17 @@ def lab_client(lab_settings: Settings) -> Iterator[TestClient]:
 
 def bearer(token: str) -> dict[str, str]:
     return {"Authorization": f"Bearer {token}"}
+
+
+@contextlib.contextmanager
+def serve_app(app: Any, **options: Any) -> Iterator[str]:
+    """An ASGI app on a uvicorn server in a thread of this process, on a free loopback port; yields its URL."""
+    port = free_port()
+    config = uvicorn.Config(app, **{"log_level": "warning", **options, "host": "127.0.0.1", "port": port})
+    server = uvicorn.Server(config)
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    wait_for(lambda: server.started, timeout_s=20, what="the server to start")
+    yield f"http://127.0.0.1:{port}"
+    server.should_exit = True
+    thread.join(timeout=20)
