@@ -12,6 +12,7 @@ from backend.db import make_engine, make_sessionmaker
 from backend.errors import install_error_handlers
 from backend.frontend import mount_frontend
 from backend.limits import BodySizeLimit
+from backend.openapi import install_openapi
 from backend.settings import Settings
 from backend.state import AppState
 from worker.celery_app import create_celery
@@ -47,6 +48,7 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(experiments.router, prefix="/api/v1")
     app.include_router(recordings.router, prefix="/api/v1")
     app.include_router(uploads.create_router(state), prefix="/api/v1")
+    install_openapi(app)
     mount_frontend(app)  # last: it serves every path the API does not
     return app
 

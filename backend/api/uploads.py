@@ -67,7 +67,12 @@ def create_router(state: AppState) -> APIRouter:
         response_model=RecordingOut,
         tags=["uploads"],
         responses=error_responses(400, 401, 403, 404, 413, 415, 422),
-        openapi_extra={"requestBody": {"content": {"application/octet-stream": {}}, "required": True}},
+        openapi_extra={
+            "requestBody": {
+                "content": {"application/octet-stream": {"schema": {"type": "string", "format": "binary"}}},
+                "required": True,
+            }
+        },
     )
     return router
 

@@ -9,6 +9,10 @@ from pydantic import BaseModel, ConfigDict, Field
 
 
 class LoginIn(BaseModel):
+    model_config = ConfigDict(
+        json_schema_extra={"examples": [{"username": "ada", "password": "correct horse battery"}]}
+    )
+
     username: str = Field(max_length=64, examples=["ada"])
     password: str = Field(max_length=256, examples=["correct horse battery"])
 
@@ -20,12 +24,18 @@ class Me(BaseModel):
 
 
 class UserIn(BaseModel):
+    model_config = ConfigDict(
+        json_schema_extra={"examples": [{"username": "ada", "password": "correct horse battery", "role": "member"}]}
+    )
+
     username: str = Field(min_length=2, max_length=64, examples=["ada"])
     password: str = Field(min_length=8, max_length=256)
     role: Literal["admin", "member"] = "member"
 
 
 class UserPatch(BaseModel):
+    model_config = ConfigDict(json_schema_extra={"examples": [{"disabled": True}]})
+
     role: Literal["admin", "member"] | None = None
     disabled: bool | None = None
 
@@ -40,6 +50,10 @@ class UserOut(BaseModel):
 
 
 class TokenIn(BaseModel):
+    model_config = ConfigDict(
+        json_schema_extra={"examples": [{"name": "nightly upload script", "expires_in_days": 90}]}
+    )
+
     name: str = Field(max_length=100, examples=["nightly upload script"])
     expires_in_days: int | None = Field(None, ge=1, le=3650, description="Omit for a token that does not expire.")
 
@@ -60,6 +74,8 @@ class TokenCreated(TokenOut):
 
 
 class GroupIn(BaseModel):
+    model_config = ConfigDict(json_schema_extra={"examples": [{"name": "impact-lab", "members": ["ada", "bob"]}]})
+
     name: str = Field(min_length=2, max_length=64, examples=["impact-lab"])
     members: list[str] = Field(default_factory=list, description="Usernames.")
 
