@@ -30,11 +30,14 @@ METHODS = ("get", "put", "post", "delete", "options", "head", "patch", "trace")
 
 
 class ValidationErrorBody(BaseModel):
-    """A request that does not match the schema: `detail` lists the problems for people, `errors` for programs."""
+    """A request the server cannot process: it does not match the schema (`invalid_input`, with `errors` for
+    programs), or a value is not acceptable (another `code`, e.g. `unknown_group`)."""
 
-    detail: str = Field(description="Each problem as `field: message`, separated by `; `.")
-    code: str = Field(description="`invalid_input`.")
-    errors: list[dict[str, Any]] = Field(description="Pydantic's errors: `loc`, `msg`, `type`, ...")
+    detail: str = Field(description="What is wrong, naming the field(s).")
+    code: str = Field(description="`invalid_input` for a schema mismatch, or the specific problem.")
+    errors: list[dict[str, Any]] | None = Field(
+        None, description="With `invalid_input`: pydantic's errors (`loc`, `msg`, `type`, ...)."
+    )
 
 
 DESCRIPTIONS = {

@@ -51,17 +51,17 @@ from backend.storage import recording_dir, write_atomic
 router = APIRouter(tags=["recordings"])
 
 
-@router.get("/recordings", response_model=list[RecordingOut], responses=error_responses(401))
+@router.get("/recordings", response_model=list[RecordingOut], responses=error_responses(401, 422))
 def list_recordings(
     session: SessionDep,
     principal: CurrentUser,
-    experiment_id: int | None = None,
-    camera_id: int | None = None,
+    experiment_id: int | None = Query(None, ge=1, le=MAX_ID),
+    camera_id: int | None = Query(None, ge=1, le=MAX_ID),
     kind: RecordingKind | None = None,
     state: RecordingState | None = None,
     upload_id: str | None = Query(None, description="The tus upload a recording came from."),
     limit: int = Query(500, ge=1, le=5000),
-    offset: int = Query(0, ge=0),
+    offset: int = Query(0, ge=0, le=MAX_ID),
 ) -> list[RecordingOut]:
     """The recordings the caller may read, oldest first, filtered by any of the parameters."""
     query = select(Recording).join(Camera).join(Experiment).where(readable_experiments(session, principal))

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-from datetime import datetime
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
+
+from backend.schemas.common import UtcDatetime
 
 
 class LoginIn(BaseModel):
@@ -46,7 +47,7 @@ class UserOut(BaseModel):
     username: str
     role: str
     disabled: bool
-    created_at: datetime
+    created_at: UtcDatetime
 
 
 class TokenIn(BaseModel):
@@ -63,10 +64,10 @@ class TokenOut(BaseModel):
     id: int
     name: str
     prefix: str
-    created_at: datetime
-    expires_at: datetime | None
-    revoked_at: datetime | None
-    last_used_at: datetime | None
+    created_at: UtcDatetime
+    expires_at: UtcDatetime | None
+    revoked_at: UtcDatetime | None
+    last_used_at: UtcDatetime | None
 
 
 class TokenCreated(TokenOut):
@@ -89,7 +90,7 @@ class GroupOut(BaseModel):
 class AuditOut(BaseModel):
     model_config = ConfigDict(from_attributes=True)
     id: int
-    at: datetime
+    at: UtcDatetime
     username: str
     action: str
     object_type: str
