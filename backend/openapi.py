@@ -90,7 +90,9 @@ def _complete_error(status: int, response: dict[str, Any]) -> None:
     if status == 422:
         response["content"] = {"application/json": {"schema": {"$ref": "#/components/schemas/ValidationErrorBody"}}}
     else:
-        response.setdefault("content", {"application/json": {"schema": ERROR_REF}})
+        # errors are JSON even on routes that answer files or event streams (FastAPI gives them the route's type)
+        declared = next((media.get("schema") for media in response.get("content", {}).values()), None)
+        response["content"] = {"application/json": {"schema": declared or ERROR_REF}}
     if not response.get("description") or response["description"] in ("Validation Error", "Additional Response"):
         response["description"] = DESCRIPTIONS.get(status) or HTTPStatus(status).phrase
 
