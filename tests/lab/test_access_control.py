@@ -14,7 +14,10 @@ A path parameter the table cannot fill fails the test by name: a new route canno
 from __future__ import annotations
 
 import base64
+import hashlib
+import json
 import shutil
+import uuid
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,6 +31,7 @@ from fastapi.testclient import TestClient
 from backend.app import create_app
 from backend.auth import create_user, issue_token
 from backend.db import make_engine, make_sessionmaker, upgrade_database
+from backend.models import Calibration, Job, JobLog, utcnow
 from backend.settings import Settings
 from tests.lab.conftest import bearer
 from tests.recordings.formats import stripe_frames, write_zip
@@ -45,8 +49,11 @@ ADMIN = {
     ("POST", "/api/v1/groups"),
     ("GET", "/api/v1/audit"),
 }
-# Operations whose object travels in the body or a header rather than the path: what bob sends names ada's.
-BODY_REFERENCED = {("POST", "/api/v1/uploads")}
+# Operations whose object travels in the body or a header rather than the path: bob names ada's object there, and
+# must get exactly the answer an id that does not exist gets (a second request names one).
+BODY_REFERENCED = {("POST", "/api/v1/uploads"), ("POST", "/api/v1/jobs")}
+NOBODY_ID = 2**31 - 1
+NOBODY_JOB = "00000000-0000-0000-0000-000000000000"
 # 404 codes that mean "no such object" (for the owner, never about her own object).
 MISSING = {"not_found", "upload_not_found", "job_not_found", "calibration_not_found", "recording_not_found"}
 TUS = {"Tus-Resumable": "1.0.0"}
@@ -110,6 +117,12 @@ def _request(world: World, method: str, path: str) -> dict[str, Any]:
                 f"kind {_b64('test')}",
             }
         },
+        ("POST", "/api/v1/jobs"): {"json": {"kind": "export", "job_id": world.ids["job"], "format": "grid-npz"}},
+        ("GET", "/api/v1/jobs/{job_id}/topography/grid"): {"params": {"frame": 0}},
+        ("GET", "/api/v1/jobs/{job_id}/topography/profile"): {
+            "params": {"x0": 0, "y0": 0, "x1": 10, "y1": 0, "frames": [0]}
+        },
+        ("GET", "/api/v1/jobs/{job_id}/topography/history"): {"params": {"x_mm": 0, "y_mm": 0}},
         ("HEAD", "/api/v1/uploads/{uuid}"): {"headers": TUS},
         ("DELETE", "/api/v1/uploads/{uuid}"): {"headers": TUS},
         ("PATCH", "/api/v1/uploads/{uuid}"): {
@@ -180,7 +193,54 @@ def template(tmp_path_factory: pytest.TempPathFactory, redis_server) -> Iterator
             upload=created.headers["Location"].rsplit("/", 1)[1],
             token=client.get("/api/v1/auth/tokens", headers=ada).json()[0]["id"],
         )
+    ids.update(_finished_job_and_calibration(settings, ids))
     yield World(data_dir, settings, tokens, ids)
+
+
+def _finished_job_and_calibration(settings: Settings, ids: dict[str, Any]) -> dict[str, Any]:
+    """A succeeded job of ada's experiment with a result file, and a calibration of her camera (rows as the workers
+    write them; the science behind them is not what this test is about)."""
+    job_id = str(uuid.uuid4())
+    result = settings.data_path / "results" / "jobs" / job_id / "result.txt"
+    result.parent.mkdir(parents=True)
+    result.write_text(f"{MARKER} result\n")
+    calibration_file = settings.data_path / "results" / "jobs" / job_id / "camera.json"
+    calibration_file.write_text("{}\n")
+    engine = make_engine(settings.resolved_database_url)
+    with make_sessionmaker(engine)() as session:
+        job = Job(
+            id=job_id,
+            kind="topography",
+            state="succeeded",
+            experiment_id=ids["experiment"],
+            spec={"kind": "topography", "recording_id": ids["recording"]},
+            finished_at=utcnow(),
+            files=[
+                {
+                    "name": "result.txt",
+                    "path": str(result.relative_to(settings.data_path)),
+                    "size_bytes": result.stat().st_size,
+                    "sha256": hashlib.sha256(result.read_bytes()).hexdigest(),
+                    "media_type": "text/plain",
+                }
+            ],
+        )
+        session.add(job)
+        session.flush()  # the job first: the log line and the calibration refer to it
+        session.add(JobLog(job_id=job_id, message=f"{MARKER} done"))
+        calibration = Calibration(
+            kind="camera",
+            camera_id=ids["camera"],
+            job_id=job_id,
+            path=str(calibration_file.relative_to(settings.data_path)),
+            image_width_px=64,
+            image_height_px=48,
+        )
+        session.add(calibration)
+        session.commit()
+        made = {"job": job_id, "job_file": "result.txt", "calibration": calibration.id}
+    engine.dispose()
+    return made
 
 
 def _request_headers_for_upload(camera_id: int, data: bytes) -> dict[str, str]:
@@ -208,6 +268,19 @@ def _url(world: World, method: str, path: str) -> str:
             )
         url = url.replace(f"{{{name}}}", str(PATH_VALUES[name](world, path)))
     return url
+
+
+def _naming_nobody(world: World, request: dict[str, Any]) -> dict[str, Any]:
+    """The same request with ada's ids in the body or headers replaced by ids that nobody has."""
+    changed = dict(request)
+    if "json" in request:
+        text = json.dumps(request["json"]).replace(world.ids["job"], NOBODY_JOB)
+        changed["json"] = json.loads(text)
+    headers = dict(request.get("headers", {}))
+    if "Upload-Metadata" in headers:
+        headers["Upload-Metadata"] = headers["Upload-Metadata"].replace(_b64(world.ids["camera"]), _b64(NOBODY_ID))
+    changed["headers"] = headers
+    return changed
 
 
 def _path_parameters(path: str) -> list[str]:
@@ -245,7 +318,11 @@ def test_access_to_every_operation(world: World, method: str, path: str) -> None
         other = _send(client, method, url, world.tokens["bob"], request)
         if (method, path) in ADMIN:
             assert other.status_code == 403, f"bob on an admin operation: {other.status_code} {other.text}"
-        elif _path_parameters(path) or (method, path) in BODY_REFERENCED:
+        elif (method, path) in BODY_REFERENCED:
+            nobody = _send(client, method, url, world.tokens["bob"], _naming_nobody(world, request))
+            assert (other.status_code, _code(other)) == (nobody.status_code, _code(nobody)), (other.text, nobody.text)
+            assert other.status_code in (404, 422) and _code(other) in MISSING, other.text
+        elif _path_parameters(path):
             assert other.status_code == 404, f"bob on ada's object: {other.status_code} {other.text}"
             assert method == "HEAD" or _code(other) in MISSING, other.text  # a HEAD answer has no body
             assert MARKER not in other.text
