@@ -9,6 +9,14 @@ from backend.db import make_engine, make_sessionmaker
 from backend.models import AuditEvent
 from tests.lab.conftest import bearer
 
+
+def tus_creation(camera_id: int, *, size: int) -> dict[str, str]:
+    from tests.recordings.conftest import tus_metadata
+
+    metadata = tus_metadata(filename="r.zip", filetype="application/zip", camera_id=camera_id, kind="test")
+    return {"Tus-Resumable": "1.0.0", "Upload-Length": str(size), "Upload-Metadata": metadata}
+
+
 CAMERA = {"name": "left", "image_width_px": 512, "image_height_px": 480, "pixel_pitch_um": 9.0}
 
 
@@ -49,6 +57,7 @@ def test_a_read_share_lets_group_members_read_but_not_write(lab_client, tokens):
         lab_client.delete(f"/api/v1/cameras/{camera['id']}", headers=bob),
         lab_client.put(f"/api/v1/uploads/cameras/{camera['id']}/r.zip", params={"kind": "test"}, content=b"PK",
                        headers=bob),
+        lab_client.post("/api/v1/uploads", headers={**bob, **tus_creation(camera["id"], size=100)}),
     ):  # fmt: skip
         assert response.status_code == 403, response.text
         assert response.json()["code"] == "read_only"
