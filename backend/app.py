@@ -15,6 +15,7 @@ from backend.errors import install_error_handlers
 from backend.frontend import mount_frontend
 from backend.jobs import JobError, reconcile_periodically, reconcile_quietly
 from backend.limits import BodySizeLimit
+from backend.openapi import install_openapi
 from backend.settings import Settings
 from backend.state import AppState
 from worker.celery_app import create_celery
@@ -62,5 +63,18 @@ def create_app(settings: Settings) -> FastAPI:
     async def _job_error(_request: Request, error: JobError) -> JSONResponse:  # an ApiError that names the field
         return JSONResponse({"detail": error.detail, "code": error.code, "field": error.field}, error.status_code)
 
+    install_openapi(app)
     mount_frontend(app)  # last: it serves every path the API does not
     return app
+
+
+def uvicorn_options(settings: Settings) -> dict[str, object]:
+    """How `fringelab api` serves the app. Behind a reverse proxy at a sub-path (FRINGELAB_ROOT_PATH, the proxy
+    strips the prefix), the server's root path makes the docs, the OpenAPI `servers` and every URL the API
+    builds (tus `Location`) carry the prefix."""
+    return {
+        "host": settings.host,
+        "port": settings.port,
+        "log_level": settings.log_level,
+        "root_path": settings.root_path,
+    }

@@ -14,13 +14,14 @@ import re
 import secrets
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
-from typing import Any
+from typing import Any, Literal
 
 from argon2 import PasswordHasher
 from argon2.exceptions import InvalidHashError, VerificationError
 from sqlalchemy import ColumnElement, or_, select, true
 from sqlalchemy.orm import Session
 
+from backend.errors import Forbidden, NotFound
 from backend.models import ApiToken, AuditEvent, Experiment, GroupMember, User, utcnow
 
 TOKEN_PREFIX = "flb_"
@@ -127,13 +128,38 @@ def readable_experiments(session: Session, principal: Principal) -> ColumnElemen
     return or_(Experiment.owner_id == principal.user_id, Experiment.group_id.in_(groups))
 
 
+Access = Literal["admin", "owner", "write", "read"]
+
+
+def access_level(session: Session, principal: Principal, experiment: Experiment) -> Access | None:
+    """What `principal` may do with `experiment`: everything (admin, owner), write or read (its group), or nothing."""
+    if principal.is_admin:
+        return "admin"
+    if experiment.owner_id is not None and experiment.owner_id == principal.user_id:
+        return "owner"
+    if experiment.group_id is None or session.get(GroupMember, (experiment.group_id, principal.user_id)) is None:
+        return None
+    return "write" if experiment.group_access == "write" else "read"
+
+
 def can_access(session: Session, principal: Principal, experiment: Experiment, *, write: bool) -> bool:
-    if principal.is_admin or experiment.owner_id == principal.user_id:
-        return True
-    if experiment.group_id is None or (write and experiment.group_access != "write"):
-        return False
-    member = session.get(GroupMember, (experiment.group_id, principal.user_id))
-    return member is not None
+    level = access_level(session, principal, experiment)
+    return level is not None and (level != "read" or not write)
+
+
+def require_access(session: Session, principal: Principal, experiment: Experiment, *, write: bool, what: str) -> None:
+    """Pass when `principal` may read `experiment` (or write it). Someone without access learns nothing: a 404
+    naming `what` (the object asked for), exactly as for an id that does not exist. A group member with read
+    access who tries to change something gets a 403 instead: they can see it, so hiding it would only confuse."""
+    level = access_level(session, principal, experiment)
+    if level is None:
+        raise NotFound(f"{what} not found")
+    if write and level == "read":
+        raise Forbidden(
+            f"read-only access: experiment {experiment.id} is shared with your group for reading; "
+            "ask its owner for write access",
+            code="read_only",
+        )
 
 
 def audit(

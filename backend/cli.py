@@ -40,7 +40,7 @@ def cmd_db_upgrade(_args: argparse.Namespace) -> int:
 def cmd_api(_args: argparse.Namespace) -> int:
     import uvicorn
 
-    from backend.app import create_app
+    from backend.app import create_app, uvicorn_options
     from backend.db import upgrade_database
     from backend.services import check_port_free, check_redis
 
@@ -50,7 +50,7 @@ def cmd_api(_args: argparse.Namespace) -> int:
     check_redis(settings.redis_url)
     check_port_free(settings.host, settings.port)
     upgrade_database(settings.resolved_database_url)
-    uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level=settings.log_level)
+    uvicorn.run(create_app(settings), **uvicorn_options(settings))  # type: ignore[arg-type]
     return 0
 
 

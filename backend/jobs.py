@@ -153,15 +153,24 @@ class Prepared:
 Authorize = Callable[[int | None], None]  # raises JobError when the caller may not start jobs of that experiment
 
 
+class NotVisible(Exception):
+    """What an Authorize raises when the caller may not even read the experiment: its objects are then refused
+    exactly as ids that do not exist, so that guessing ids teaches nothing about other users' experiments."""
+
+
 def _nobody_checks(_experiment_id: int | None) -> None:
     return None
 
 
 def _recording(session: Session, recording_id: int, *, kind: str, field_name: str, authorize: Authorize) -> Recording:
     recording = session.get(Recording, recording_id)
+    missing = JobError(422, "recording_not_found", f"there is no recording {recording_id}", field=field_name)
     if recording is None:
-        raise JobError(422, "recording_not_found", f"there is no recording {recording_id}", field=field_name)
-    authorize(recording.camera.experiment_id)
+        raise missing
+    try:
+        authorize(recording.camera.experiment_id)
+    except NotVisible:
+        raise missing from None
     if recording.kind != kind:
         raise JobError(
             422,
@@ -191,6 +200,15 @@ def _calibration(
         )
     if calibration.camera_id != recording.camera_id:
         other = session.get(Camera, calibration.camera_id)
+        if other is None or other.experiment_id != recording.camera.experiment_id:
+            # of another experiment, perhaps someone else's: said no more about than an id that does not exist
+            raise JobError(
+                422,
+                "calibration_not_found",
+                f"there is no {kind} calibration {calibration_id} of camera {recording.camera_id} (the recording's); "
+                f"see GET /api/v1/calibrations?camera_id={recording.camera_id}",
+                field=field_name,
+            )
         raise JobError(
             422,
             "calibration_mismatch",
@@ -247,9 +265,13 @@ def prepare_job(session: Session, spec: dict[str, Any], *, authorize: Authorize 
         return Prepared()
     if kind == "export":
         source = session.get(Job, spec["job_id"])
+        missing = JobError(422, "job_not_found", f"there is no topography job {spec['job_id']}", field="job_id")
         if source is None or source.kind != "topography":
-            raise JobError(422, "job_not_found", f"there is no topography job {spec['job_id']}", field="job_id")
-        authorize(source.experiment_id)
+            raise missing
+        try:
+            authorize(source.experiment_id)
+        except NotVisible:
+            raise missing from None
         if source.state != "succeeded":
             raise JobError(
                 409, "job_not_succeeded", f"topography job {source.id} is {source.state}; export a succeeded one"

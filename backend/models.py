@@ -59,6 +59,8 @@ class Experiment(Base):
     updated_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow, onupdate=utcnow)
 
     cameras: Mapped[list[Camera]] = relationship(back_populates="experiment", cascade="all, delete-orphan")
+    owner: Mapped[User | None] = relationship()
+    group: Mapped[Group | None] = relationship()
 
 
 class Camera(Base):

@@ -16,10 +16,11 @@ from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from backend.auth import Principal, audit, can_access, readable_experiments
+from backend.auth import Principal, access_level, audit, readable_experiments, require_access
 from backend.errors import (
     ApiError,
     Conflict,
+    Forbidden,
     NotFound,
     PayloadTooLarge,
     ServiceUnavailable,
@@ -27,7 +28,8 @@ from backend.errors import (
     UnsupportedMediaType,
 )
 from backend.jobs import ACTIVE_STATES, QueueUnavailable, submit_job
-from backend.models import Camera, Experiment, Job, Recording
+from backend.models import Camera, Experiment, Group, Job, Recording
+from backend.schemas.experiments import ExperimentOut
 from backend.schemas.recordings import RecordingOut
 from backend.settings import Settings
 from backend.state import AppState
@@ -56,19 +58,69 @@ KINDS = ("camera_calibration", "projector_calibration", "test")
 
 
 def camera_for(session: Session, principal: Principal, camera_id: int, *, write: bool = False) -> Camera:
-    """The camera if `principal` may read (or write) its experiment; otherwise a 404, as if it did not exist."""
+    """The camera if `principal` may read (or write) its experiment; otherwise a 404, as if it did not exist
+    (a 403 for a read-only group member asking to write, `backend.auth.require_access`)."""
     camera = session.get(Camera, camera_id)
-    if camera is None or not can_access(session, principal, camera.experiment, write=write):
+    if camera is None:
         raise NotFound(f"camera {camera_id} not found")
+    require_access(session, principal, camera.experiment, write=write, what=f"camera {camera_id}")
     return camera
 
 
 def recording_for(session: Session, principal: Principal, recording_id: int, *, write: bool = False) -> Recording:
-    """The recording if `principal` may read (or write) its experiment; otherwise a 404."""
+    """The recording if `principal` may read (or write) its experiment; otherwise a 404 (403: read-only)."""
     recording = session.get(Recording, recording_id)
-    if recording is None or not can_access(session, principal, recording.camera.experiment, write=write):
+    if recording is None:
         raise NotFound(f"recording {recording_id} not found")
+    require_access(session, principal, recording.camera.experiment, write=write, what=f"recording {recording_id}")
     return recording
+
+
+def experiment_out(session: Session, principal: Principal, experiment: Experiment) -> ExperimentOut:
+    """The API's view of an experiment, with what the caller may do with it (call inside its session)."""
+    return ExperimentOut(
+        id=experiment.id,
+        name=experiment.name,
+        plate=experiment.plate,
+        punch=experiment.punch,
+        test_date=experiment.test_date,
+        notes=experiment.notes,
+        owner_id=experiment.owner_id,
+        owner=experiment.owner.username if experiment.owner else None,
+        group_id=experiment.group_id,
+        group=experiment.group.name if experiment.group else None,
+        group_access="write" if experiment.group_access == "write" else "read",
+        access=access_level(session, principal, experiment) or "read",
+        created_at=experiment.created_at,
+        updated_at=experiment.updated_at,
+    )
+
+
+SHARING_FIELDS = ("group_id", "group_access")
+
+
+def update_experiment(session: Session, principal: Principal, experiment: Experiment, changes: dict[str, Any]) -> None:
+    """Apply the fields of an ExperimentCreate/ExperimentUpdate (not committed). Sharing (group_id, group_access)
+    is the owner's or an admin's decision: a group member with write access may edit the rest, not re-share it."""
+    new = experiment.id is None
+    resharing = {
+        name: changes[name] for name in SHARING_FIELDS if name in changes and getattr(experiment, name) != changes[name]
+    }
+    if resharing and not new and access_level(session, principal, experiment) not in ("owner", "admin"):
+        raise Forbidden(
+            f"only the owner of experiment {experiment.id} or an admin may change whom it is shared with",
+            code="not_owner",
+        )
+    group_id = resharing.get("group_id")
+    if group_id is not None and session.get(Group, group_id) is None:
+        raise UnprocessableContent(
+            f"group_id: there is no group {group_id}; see GET /api/v1/groups", code="unknown_group"
+        )
+    for name, value in changes.items():
+        setattr(experiment, name, value)
+    if resharing and not new:
+        audit(session, principal, "share", "experiment", experiment.id,
+              group_id=experiment.group_id, group_access=experiment.group_access)  # fmt: skip
 
 
 def recording_out(recording: Recording) -> RecordingOut:

@@ -30,6 +30,10 @@ class Settings(BaseSettings):
     )
     host: str = Field("127.0.0.1", description="Address the web server binds.")
     port: int = Field(8000, ge=1, le=65535, description="Port of the web server.")
+    root_path: str = Field(
+        "",
+        description="Path prefix under which a reverse proxy serves the API (e.g. `/fringelab`); empty: at the root.",
+    )
     worker_concurrency: int = Field(0, ge=0, description="Worker processes; 0 means one per CPU core.")
     job_time_limit_s: int = Field(6 * 3600, ge=10, description="Hard time limit of one task.")
     visibility_timeout_s: int = Field(
@@ -81,6 +85,14 @@ class Settings(BaseSettings):
     @classmethod
     def _lower(cls, value: object) -> object:
         return value.lower() if isinstance(value, str) else value
+
+    @field_validator("root_path")
+    @classmethod
+    def _root_path(cls, value: str) -> str:
+        value = value.rstrip("/")
+        if value and (not value.startswith("/") or "//" in value or any(c in value for c in "?#% ")):
+            raise ValueError("expected a path such as /fringelab (a leading /, no query, no spaces)")
+        return value
 
     @property
     def binds_loopback_only(self) -> bool:

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 from datetime import timedelta
+from typing import Annotated
 
 import redis
-from fastapi import APIRouter, Request, Response
+from fastapi import APIRouter, Path, Query, Request, Response
 from sqlalchemy import select
 
 from backend.api.deps import SESSION_COOKIE, AdminUser, CurrentUser, SessionDep, StateDep
@@ -25,6 +26,7 @@ from backend.schemas.auth import (
     UserOut,
     UserPatch,
 )
+from backend.schemas.common import MAX_ID
 
 router = APIRouter(tags=["accounts"])
 
@@ -125,7 +127,7 @@ def create_token(body: TokenIn, session: SessionDep, principal: CurrentUser) -> 
 
 
 @router.delete("/auth/tokens/{token_id}", status_code=204, responses=error_responses(401, 404))
-def revoke_token(token_id: int, session: SessionDep, principal: CurrentUser) -> None:
+def revoke_token(token_id: Annotated[int, Path(ge=1, le=MAX_ID)], session: SessionDep, principal: CurrentUser) -> None:
     """Revoke one of your tokens; scripts using it get 401 from now on."""
     row = session.get(ApiToken, token_id)
     if row is None or (row.user_id != principal.user_id and not principal.is_admin):
@@ -155,7 +157,9 @@ def add_user(body: UserIn, session: SessionDep, admin: AdminUser) -> User:
 
 
 @router.patch("/users/{user_id}", response_model=UserOut, responses=error_responses(401, 403, 404))
-def update_user(user_id: int, body: UserPatch, session: SessionDep, admin: AdminUser) -> User:
+def update_user(
+    user_id: Annotated[int, Path(ge=1, le=MAX_ID)], body: UserPatch, session: SessionDep, admin: AdminUser
+) -> User:
     """Change an account's role or disable it (admin); a disabled account's tokens stop working at once."""
     user = session.get(User, user_id)
     if user is None:
@@ -199,7 +203,8 @@ def add_group(body: GroupIn, session: SessionDep, admin: AdminUser) -> GroupOut:
 
 
 @router.get("/audit", response_model=list[AuditOut], responses=error_responses(401, 403))
-def audit_trail(session: SessionDep, _admin: AdminUser, limit: int = 200) -> list[AuditEvent]:
+def audit_trail(
+    session: SessionDep, _admin: AdminUser, limit: Annotated[int, Query(ge=1, le=5000)] = 200
+) -> list[AuditEvent]:
     """Who uploaded, started, cancelled or deleted what, newest first (admin)."""
-    limit = max(1, min(limit, 5000))
     return list(session.scalars(select(AuditEvent).order_by(AuditEvent.id.desc()).limit(limit)))

@@ -1,17 +1,25 @@
-"""Typed dependencies shared by the routers: state, database session, the principal and access checks."""
+"""Typed dependencies shared by the routers: state, database session, the principal and access checks.
+
+The access checks are dependencies on the path parameters (`ReadableExperiment`, `WritableCamera`, ...): FastAPI
+solves dependencies before it validates a request body, so someone without access gets a 404 (or 401) whatever
+they send, and never learns from a 422 that a route exists for that id. (A body that is not JSON at all is
+refused with a 422 before any dependency runs; that says nothing about the object either.)
+"""
 
 from __future__ import annotations
 
 from collections.abc import Iterator
 from typing import Annotated
 
-from fastapi import Depends, Request
+from fastapi import Depends, Path, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
 
-from backend.auth import LOCAL_ADMIN, AuthError, Principal, can_access, resolve_token
+from backend.auth import LOCAL_ADMIN, AuthError, Principal, require_access, resolve_token
 from backend.errors import Forbidden, NotFound, Unauthorized
-from backend.models import Experiment
+from backend.models import Camera, Experiment, Recording
+from backend.recordings import camera_for, recording_for
+from backend.schemas.common import MAX_ID
 from backend.state import AppState
 
 SESSION_COOKIE = "fringelab_session"
@@ -66,6 +74,65 @@ AdminUser = Annotated[Principal, Depends(get_admin)]
 def experiment_for(session: Session, principal: Principal, experiment_id: int, *, write: bool = False) -> Experiment:
     """The experiment if `principal` may read it (or write it); otherwise a 404, as if it did not exist."""
     experiment = session.get(Experiment, experiment_id)
-    if experiment is None or not can_access(session, principal, experiment, write=write):
+    if experiment is None:
         raise NotFound(f"experiment {experiment_id} not found")
+    require_access(session, principal, experiment, write=write, what=f"experiment {experiment_id}")
     return experiment
+
+
+# Ids are 32-bit integers in the database; a larger one is a 422, not an overflow deep in the driver.
+ExperimentId = Annotated[int, Path(ge=1, le=MAX_ID, description="An experiment id.")]
+CameraId = Annotated[int, Path(ge=1, le=MAX_ID, description="A camera id.")]
+RecordingId = Annotated[int, Path(ge=1, le=MAX_ID, description="A recording id.")]
+
+
+def readable_experiment(experiment_id: ExperimentId, session: SessionDep, principal: CurrentUser) -> Experiment:
+    return experiment_for(session, principal, experiment_id)
+
+
+def writable_experiment(experiment_id: ExperimentId, session: SessionDep, principal: CurrentUser) -> Experiment:
+    return experiment_for(session, principal, experiment_id, write=True)
+
+
+def readable_camera(camera_id: CameraId, session: SessionDep, principal: CurrentUser) -> Camera:
+    return camera_for(session, principal, camera_id)
+
+
+def writable_camera(camera_id: CameraId, session: SessionDep, principal: CurrentUser) -> Camera:
+    return camera_for(session, principal, camera_id, write=True)
+
+
+def readable_recording(recording_id: RecordingId, session: SessionDep, principal: CurrentUser) -> Recording:
+    return recording_for(session, principal, recording_id)
+
+
+def writable_recording(recording_id: RecordingId, session: SessionDep, principal: CurrentUser) -> Recording:
+    return recording_for(session, principal, recording_id, write=True)
+
+
+def readable_recording_id(recording_id: RecordingId, state: StateDep, principal: CurrentUser) -> int:
+    """The access check of a streaming route, in a short session of its own: a request-long session would stay
+    open while the body or the response streams."""
+    with state.sessions() as session:
+        return recording_for(session, principal, recording_id).id
+
+
+def writable_recording_id(recording_id: RecordingId, state: StateDep, principal: CurrentUser) -> int:
+    with state.sessions() as session:
+        return recording_for(session, principal, recording_id, write=True).id
+
+
+def writable_camera_id(camera_id: CameraId, state: StateDep, principal: CurrentUser) -> int:
+    with state.sessions() as session:
+        return camera_for(session, principal, camera_id, write=True).id
+
+
+ReadableExperiment = Annotated[Experiment, Depends(readable_experiment)]
+WritableExperiment = Annotated[Experiment, Depends(writable_experiment)]
+ReadableCamera = Annotated[Camera, Depends(readable_camera)]
+WritableCamera = Annotated[Camera, Depends(writable_camera)]
+ReadableRecording = Annotated[Recording, Depends(readable_recording)]
+WritableRecording = Annotated[Recording, Depends(writable_recording)]
+ReadableRecordingId = Annotated[int, Depends(readable_recording_id)]
+WritableRecordingId = Annotated[int, Depends(writable_recording_id)]
+WritableCameraId = Annotated[int, Depends(writable_camera_id)]

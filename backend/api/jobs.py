@@ -22,9 +22,10 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from backend.api.deps import CurrentUser, SessionDep, StateDep
-from backend.auth import Principal, audit, can_access, readable_experiments
+from backend.auth import Principal, access_level, audit, can_access, readable_experiments
 from backend.jobs import (
     JobError,
+    NotVisible,
     QueueUnavailable,
     as_utc,
     cancel_job,
@@ -138,7 +139,11 @@ def job_for(session: Session, principal: Principal, job_id: str, *, write: bool 
     if not _allowed(session, principal, job.experiment_id, write=False):
         raise JobError(404, "job_not_found", f"there is no job {job_id}")
     if write and not _allowed(session, principal, job.experiment_id, write=True):
-        raise JobError(403, "forbidden", f"you may read job {job_id} but not change it; ask the experiment's owner")
+        raise JobError(
+            403,
+            "read_only",
+            f"read-only access: you may read job {job_id} but not change it; ask the experiment's owner",
+        )
     return job
 
 
@@ -146,17 +151,38 @@ def readable_job(job_id: str, session: SessionDep, principal: CurrentUser) -> Jo
     return job_for(session, principal, job_id)
 
 
+def writable_job(job_id: str, session: SessionDep, principal: CurrentUser) -> Job:
+    return job_for(session, principal, job_id, write=True)
+
+
 JobDep = Annotated[Job, Depends(readable_job)]
+WritableJobDep = Annotated[Job, Depends(writable_job)]
+WRITE_ERRORS: dict[int | str, dict[str, Any]] = {
+    **ERRORS,
+    403: {"model": ErrorOut, "description": "Read-only access to the experiment (or a selftest without admin)."},
+}
 
 
-@router.post("/jobs", status_code=201, response_model=JobOut, responses=ERRORS)
+@router.post("/jobs", status_code=201, response_model=JobOut, responses=WRITE_ERRORS)
 def start_job(spec: Annotated[JobSpec, Body()], session: SessionDep, state: StateDep, principal: CurrentUser) -> JobOut:
     """Check the spec against the recordings and calibrations it names, then queue the job."""
 
     def may_start(experiment_id: int | None) -> None:
-        if not _allowed(session, principal, experiment_id, write=True):
-            what = f"experiment {experiment_id}" if experiment_id is not None else "a job outside any experiment"
-            raise JobError(403, "forbidden", f"starting jobs of {what} needs write access (or an admin account)")
+        if experiment_id is None:
+            if not principal.is_admin:
+                raise JobError(403, "forbidden", "jobs outside any experiment (selftest) need an admin account")
+            return
+        experiment = session.get(Experiment, experiment_id)
+        level = access_level(session, principal, experiment) if experiment is not None else None
+        if level is None:
+            raise NotVisible  # the spec's ids are answered as if they did not exist
+        if level == "read":
+            raise JobError(
+                403,
+                "read_only",
+                f"read-only access: experiment {experiment_id} is shared with your group for reading; "
+                "ask its owner for write access to start jobs",
+            )
 
     try:
         job = create_job(session, state.celery, spec.model_dump(mode="json"), authorize=may_start)
@@ -262,12 +288,11 @@ def _snapshot(state: AppState, job_id: str, after: int) -> tuple[JobOut | None, 
         return job_out(session, job), _log_lines(session, job_id, after=after)
 
 
-@router.post("/jobs/{job_id}/cancel", response_model=JobOut, responses=ERRORS)
-def cancel(job_id: str, session: SessionDep, state: StateDep, principal: CurrentUser) -> JobOut:
+@router.post("/jobs/{job_id}/cancel", response_model=JobOut, responses=WRITE_ERRORS)
+def cancel(writable: WritableJobDep, session: SessionDep, state: StateDep, principal: CurrentUser) -> JobOut:
     """Cancel a queued or running job. A running task stops after its current frame; one that has not stopped
     after FRINGELAB_CANCEL_GRACE_S has its worker process terminated (prefork workers)."""
-    job_for(session, principal, job_id, write=True)
-    job = cancel_job(session, state.celery, job_id)
+    job = cancel_job(session, state.celery, writable.id)
     audit(session, principal, "cancel", "job", job.id)
     session.commit()
     if job.finished_at is None:
@@ -290,20 +315,27 @@ def _terminate_later(state: AppState, job_id: str) -> None:
     timer.start()
 
 
-@router.post("/jobs/{job_id}/retry", status_code=201, response_model=JobOut, responses=ERRORS)
-def retry(job_id: str, session: SessionDep, state: StateDep, principal: CurrentUser) -> JobOut:
+@router.post("/jobs/{job_id}/retry", status_code=201, response_model=JobOut, responses=WRITE_ERRORS)
+def retry(writable: WritableJobDep, session: SessionDep, state: StateDep, principal: CurrentUser) -> JobOut:
     """A new attempt of a failed or cancelled job with the same spec (checked again), linked by `retry_of`."""
-    job_for(session, principal, job_id, write=True)
     try:
-        job = retry_job(session, state.celery, job_id)
+        job = retry_job(session, state.celery, writable.id)
     except QueueUnavailable as error:
         raise JobError(503, "queue_unavailable", str(error)) from None
-    audit(session, principal, "retry", "job", job.id, retry_of=job_id)
+    audit(session, principal, "retry", "job", job.id, retry_of=writable.id)
     session.commit()
     return job_out(session, job)
 
 
-@router.get("/jobs/{job_id}/files/{name:path}", response_class=FileResponse, responses=ERRORS)
+@router.get(
+    "/jobs/{job_id}/files/{name:path}",
+    response_class=FileResponse,
+    responses={
+        **ERRORS,
+        200: {"content": {"application/octet-stream": {"schema": {"type": "string", "format": "binary"}}}},
+        410: {"model": ErrorOut, "description": "The file is no longer on disk; retry the job."},
+    },
+)
 def download(job: JobDep, name: str, state: StateDep) -> FileResponse:
     """A result file of the job, streamed."""
     entry = next((f for f in job.files if f["name"] == name), None)

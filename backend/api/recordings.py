@@ -7,18 +7,28 @@ frames at full resolution and bit depth, is downloaded whole from `/recordings/{
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Query, Request, Response
+from typing import Annotated
+
+from fastapi import APIRouter, Path, Query, Request, Response
 from fastapi.responses import FileResponse
 from sqlalchemy import select
 from starlette.concurrency import run_in_threadpool
 
-from backend.api.deps import CurrentUser, SessionDep, StateDep
+from backend.api.deps import (
+    CurrentUser,
+    ReadableCamera,
+    ReadableRecording,
+    ReadableRecordingId,
+    SessionDep,
+    StateDep,
+    WritableRecording,
+    WritableRecordingId,
+)
 from backend.auth import Principal, audit, readable_experiments
 from backend.errors import Conflict, NotFound, UnprocessableContent, error_responses
 from backend.models import Camera, Experiment, Recording
 from backend.previews import PREVIEW_FILE, encode_png, read_preview, read_qa
 from backend.recordings import (
-    camera_for,
     delete_recording,
     recording_for,
     recording_out,
@@ -26,6 +36,7 @@ from backend.recordings import (
     start_ingest,
     submit_ingest,
 )
+from backend.schemas.common import MAX_ID
 from backend.schemas.recordings import (
     FrameQa,
     RecordingKind,
@@ -40,17 +51,17 @@ from backend.storage import recording_dir, write_atomic
 router = APIRouter(tags=["recordings"])
 
 
-@router.get("/recordings", response_model=list[RecordingOut], responses=error_responses(401))
+@router.get("/recordings", response_model=list[RecordingOut], responses=error_responses(401, 422))
 def list_recordings(
     session: SessionDep,
     principal: CurrentUser,
-    experiment_id: int | None = None,
-    camera_id: int | None = None,
+    experiment_id: int | None = Query(None, ge=1, le=MAX_ID),
+    camera_id: int | None = Query(None, ge=1, le=MAX_ID),
     kind: RecordingKind | None = None,
     state: RecordingState | None = None,
     upload_id: str | None = Query(None, description="The tus upload a recording came from."),
     limit: int = Query(500, ge=1, le=5000),
-    offset: int = Query(0, ge=0),
+    offset: int = Query(0, ge=0, le=MAX_ID),
 ) -> list[RecordingOut]:
     """The recordings the caller may read, oldest first, filtered by any of the parameters."""
     query = select(Recording).join(Camera).join(Experiment).where(readable_experiments(session, principal))
@@ -67,23 +78,25 @@ def list_recordings(
     return [recording_out(r) for r in session.scalars(query.limit(limit).offset(offset))]
 
 
-@router.get("/cameras/{camera_id}/recordings", response_model=list[RecordingOut], responses=error_responses(401, 404))
-def list_camera_recordings(camera_id: int, session: SessionDep, principal: CurrentUser) -> list[RecordingOut]:
-    camera = camera_for(session, principal, camera_id)
+@router.get(
+    "/cameras/{camera_id}/recordings", response_model=list[RecordingOut], responses=error_responses(401, 404, 422)
+)
+def list_camera_recordings(camera: ReadableCamera) -> list[RecordingOut]:
     return [recording_out(r) for r in sorted(camera.recordings, key=lambda r: r.id)]
 
 
-@router.get("/recordings/{recording_id}", response_model=RecordingOut, responses=error_responses(401, 404))
-def read_recording(recording_id: int, session: SessionDep, principal: CurrentUser) -> RecordingOut:
-    return recording_out(recording_for(session, principal, recording_id))
+@router.get("/recordings/{recording_id}", response_model=RecordingOut, responses=error_responses(401, 404, 422))
+def read_recording(recording: ReadableRecording) -> RecordingOut:
+    return recording_out(recording)
 
 
-@router.patch("/recordings/{recording_id}", response_model=RecordingOut, responses=error_responses(401, 404, 409, 422))
+@router.patch(
+    "/recordings/{recording_id}", response_model=RecordingOut, responses=error_responses(401, 403, 404, 409, 422)
+)
 def update_recording(
-    recording_id: int, body: RecordingUpdate, session: SessionDep, state: StateDep, principal: CurrentUser
+    recording: WritableRecording, body: RecordingUpdate, session: SessionDep, state: StateDep
 ) -> RecordingOut:
     """A new kind re-runs the ingest (board detection, Z checks depend on it); refused while a job uses it."""
-    recording = recording_for(session, principal, recording_id, write=True)
     if body.filename is not None:
         recording.filename = body.filename
     if body.kind is not None and body.kind != recording.kind:
@@ -94,10 +107,11 @@ def update_recording(
     return recording_out(recording)
 
 
-@router.delete("/recordings/{recording_id}", status_code=204, responses=error_responses(401, 404, 409))
-def remove_recording(recording_id: int, session: SessionDep, state: StateDep, principal: CurrentUser) -> Response:
+@router.delete("/recordings/{recording_id}", status_code=204, responses=error_responses(401, 403, 404, 409, 422))
+def remove_recording(
+    recording: WritableRecording, session: SessionDep, state: StateDep, principal: CurrentUser
+) -> Response:
     """Deletes the recording and its files; 409 while a job (its ingest too) uses it."""
-    recording = recording_for(session, principal, recording_id, write=True)
     delete_recording(session, state.settings, principal, recording)
     return Response(status_code=204)
 
@@ -106,22 +120,27 @@ def remove_recording(recording_id: int, session: SessionDep, state: StateDep, pr
     "/recordings/{recording_id}/ingest",
     status_code=202,
     response_model=RecordingOut,
-    responses=error_responses(401, 404, 409, 503),
+    responses=error_responses(401, 403, 404, 409, 422, 503),
 )
-def reingest_recording(recording_id: int, session: SessionDep, state: StateDep, principal: CurrentUser) -> RecordingOut:
+def reingest_recording(recording: WritableRecording, session: SessionDep, state: StateDep) -> RecordingOut:
     """Checks the recording again (new job; `ingest_job_id` names it)."""
-    return recording_out(start_ingest(session, state, recording_for(session, principal, recording_id, write=True)))
+    return recording_out(start_ingest(session, state, recording))
 
 
 @router.put(
     "/recordings/{recording_id}/sidecars/{name}",
     status_code=202,
     response_model=RecordingOut,
-    responses=error_responses(401, 404, 409, 413, 422, 503),
-    openapi_extra={"requestBody": {"content": {"text/plain": {"schema": {"type": "string"}}}, "required": True}},
+    responses=error_responses(401, 403, 404, 409, 413, 422, 503),
+    openapi_extra={
+        "requestBody": {
+            "content": {"text/plain": {"schema": {"type": "string"}, "example": "frame,z_mm\n0,0.0\n1,2.0\n2,4.0\n"}},
+            "required": True,
+        }
+    },
 )
 async def put_sidecar(
-    recording_id: int, name: SidecarName, request: Request, state: StateDep, principal: CurrentUser
+    recording_id: WritableRecordingId, name: SidecarName, request: Request, state: StateDep, principal: CurrentUser
 ) -> RecordingOut:
     """Adds or replaces `z.csv`, `frames.csv` or `board.json` (the body, UTF-8 text, at most
     FRINGELAB_MAX_JSON_BYTES) and re-runs the ingest, which validates it against the frames. A sidecar added
@@ -146,11 +165,11 @@ def _store_sidecar(state: StateDep, principal: Principal, recording_id: int, nam
 @router.get(
     "/recordings/{recording_id}/frames/{index}",
     response_class=Response,
-    responses={200: {"content": {"image/png": {}}}, **error_responses(401, 404, 409)},
+    responses={200: {"content": {"image/png": {}}}, **error_responses(401, 404, 409, 422)},
 )
 async def frame_png(
-    recording_id: int,
-    index: int,
+    recording_id: ReadableRecordingId,
+    index: Annotated[int, Path(ge=0, le=MAX_ID, description="Frame number, 0-based.")],
     state: StateDep,
     principal: CurrentUser,
     max_px: int | None = Query(None, ge=16, le=8192, description="Longer side at most this (default: stored)."),
@@ -178,10 +197,10 @@ def _frame_png(
     return encode_png(image), tag
 
 
-@router.get("/recordings/{recording_id}/qa", response_model=RecordingQa, responses=error_responses(401, 404, 409))
-def recording_qa(recording_id: int, session: SessionDep, state: StateDep, principal: CurrentUser) -> RecordingQa:
+@router.get("/recordings/{recording_id}/qa", response_model=RecordingQa, responses=error_responses(401, 404, 409, 422))
+def recording_qa(recording: ReadableRecording, state: StateDep) -> RecordingQa:
     """The QA summary (warnings, notes) and the per-frame numbers behind it."""
-    recording = recording_for(session, principal, recording_id)
+    recording_id = recording.id
     if recording.state != "ready":
         reason = f": {recording.error}" if recording.error else ""
         raise Conflict(f"recording {recording_id} is {recording.state}{reason}", code="not_ready")
@@ -209,11 +228,11 @@ def recording_qa(recording_id: int, session: SessionDep, state: StateDep, princi
 @router.get(
     "/recordings/{recording_id}/file",
     response_class=FileResponse,
-    responses={200: {"content": {"application/octet-stream": {}}}, **error_responses(401, 404)},
+    responses={200: {"content": {"application/octet-stream": {}}}, **error_responses(401, 404, 422)},
 )
-def download_recording(recording_id: int, session: SessionDep, state: StateDep, principal: CurrentUser) -> FileResponse:
+def download_recording(recording: ReadableRecording, state: StateDep) -> FileResponse:
     """The uploaded file as it was sent (full resolution and bit depth), streamed."""
-    recording = recording_for(session, principal, recording_id)
+    recording_id = recording.id
     path = state.settings.data_path / recording.path
     if not recording.path or not path.is_file():
         raise NotFound(f"recording {recording_id} has no stored file", code="file_not_found")

@@ -35,9 +35,13 @@ from backend.results import (
     projector_table,
     result_path,
 )
-from backend.schemas.jobs import MAX_ID, CalibrationOut
+from backend.schemas.jobs import MAX_ID, CalibrationOut, ErrorOut
 
 router = APIRouter(tags=["results"])
+RESULT_ERRORS: dict[int | str, dict[str, Any]] = {
+    **ERRORS,
+    410: {"model": ErrorOut, "description": "The result file is no longer on disk (or unreadable); retry the job."},
+}
 MM = Annotated[float, Query(allow_inf_nan=False, description="mm, in the object frame")]
 
 
@@ -116,7 +120,7 @@ class CalibrationReport(BaseModel):
     report: dict[str, Any]
 
 
-@router.get("/calibrations/{calibration_id}/report", response_model=CalibrationReport, responses=ERRORS)
+@router.get("/calibrations/{calibration_id}/report", response_model=CalibrationReport, responses=RESULT_ERRORS)
 def calibration_report(calibration: CalibrationDep, state: StateDep) -> CalibrationReport:
     """A camera calibration's report: parameters ± standard errors, per-frame RMS, residual vectors over the
     image, the residual map and the verdict (the fields of `camera.json`, units in every name)."""
@@ -142,7 +146,7 @@ class ProjectorTable(BaseModel):
     qa: dict[str, Any]
 
 
-@router.get("/calibrations/{calibration_id}/table", response_model=ProjectorTable, responses=ERRORS)
+@router.get("/calibrations/{calibration_id}/table", response_model=ProjectorTable, responses=RESULT_ERRORS)
 def projector_table_curves(
     calibration: CalibrationDep,
     state: StateDep,
@@ -167,7 +171,20 @@ def projector_table_curves(
     return ProjectorTable(calibration=calibration_out(calibration), **table)
 
 
-@router.get("/calibrations/{calibration_id}/file", response_class=FileResponse, responses=ERRORS)
+@router.get(
+    "/calibrations/{calibration_id}/file",
+    response_class=FileResponse,
+    responses={
+        **RESULT_ERRORS,
+        200: {
+            "description": "camera.json (application/json) or projector.h5 (application/x-hdf5)",
+            "content": {
+                "application/json": {"schema": {"type": "object"}},
+                "application/x-hdf5": {"schema": {"type": "string", "format": "binary"}},
+            },
+        },
+    },
+)
 def calibration_file(calibration: CalibrationDep, state: StateDep) -> FileResponse:
     """The calibration file itself (camera.json or projector.h5), streamed."""
     try:
@@ -217,7 +234,7 @@ class TopographyOverview(BaseModel):
     summary: dict[str, Any]
 
 
-@router.get("/jobs/{job_id}/topography", response_model=TopographyOverview, responses=ERRORS)
+@router.get("/jobs/{job_id}/topography", response_model=TopographyOverview, responses=RESULT_ERRORS)
 def topography_overview(job: JobDep, state: StateDep) -> TopographyOverview:
     """The frames of a topography result with the test log and the peak deflection of each (for the frame
     slider and the plots of peak deflection against time, punch displacement and force), the grid's extent and
@@ -257,7 +274,13 @@ class GridOut(BaseModel):
 @router.get(
     "/jobs/{job_id}/topography/grid",
     response_model=GridOut,
-    responses={**ERRORS, 200: {"content": {"application/octet-stream": {}}, "description": "JSON, or float32"}},
+    responses={
+        **RESULT_ERRORS,
+        200: {
+            "content": {"application/octet-stream": {"schema": {"type": "string", "format": "binary"}}},
+            "description": "JSON, or float32",
+        },
+    },
 )
 def topography_grid(
     job: JobDep,
@@ -307,7 +330,7 @@ class ProfileOut(BaseModel):
     profiles: list[dict[str, Any]] = Field(description="[{frame, w_mm: [...]}] in the order asked.")
 
 
-@router.get("/jobs/{job_id}/topography/profile", response_model=ProfileOut, responses=ERRORS)
+@router.get("/jobs/{job_id}/topography/profile", response_model=ProfileOut, responses=RESULT_ERRORS)
 def topography_profile(
     job: JobDep,
     state: StateDep,
@@ -340,7 +363,7 @@ class HistoryOut(BaseModel):
     w_mm: list[float | None]
 
 
-@router.get("/jobs/{job_id}/topography/history", response_model=HistoryOut, responses=ERRORS)
+@router.get("/jobs/{job_id}/topography/history", response_model=HistoryOut, responses=RESULT_ERRORS)
 def topography_history(job: JobDep, state: StateDep, x_mm: MM, y_mm: MM) -> HistoryOut:
     """The deflection w(t) at one point of the plate over every frame of the result."""
     with topography(job, state.settings.data_path) as reader:

@@ -28,7 +28,7 @@ from starlette.concurrency import run_in_threadpool
 from starlette.requests import ClientDisconnect
 from tuspyserver import create_tus_router
 
-from backend.api.deps import CurrentUser, StateDep
+from backend.api.deps import CurrentUser, StateDep, WritableCameraId
 from backend.errors import ApiError, PayloadTooLarge, error_responses
 from backend.recordings import check_upload_request, register_upload
 from backend.schemas.recordings import RecordingKind, RecordingOut
@@ -66,8 +66,13 @@ def create_router(state: AppState) -> APIRouter:
         status_code=201,
         response_model=RecordingOut,
         tags=["uploads"],
-        responses=error_responses(400, 401, 404, 413, 415, 422),
-        openapi_extra={"requestBody": {"content": {"application/octet-stream": {}}, "required": True}},
+        responses=error_responses(400, 401, 403, 404, 413, 415, 422),
+        openapi_extra={
+            "requestBody": {
+                "content": {"application/octet-stream": {"schema": {"type": "string", "format": "binary"}}},
+                "required": True,
+            }
+        },
     )
     return router
 
@@ -89,7 +94,7 @@ def tus_options(state: StateDep) -> Response:
 
 
 async def put_recording(
-    camera_id: int,
+    camera_id: WritableCameraId,
     filename: str,
     request: Request,
     state: StateDep,

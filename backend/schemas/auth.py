@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
-from datetime import datetime
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from backend.schemas.common import UtcDatetime
+
 
 class LoginIn(BaseModel):
+    model_config = ConfigDict(
+        json_schema_extra={"examples": [{"username": "ada", "password": "correct horse battery"}]}
+    )
+
     username: str = Field(max_length=64, examples=["ada"])
     password: str = Field(max_length=256, examples=["correct horse battery"])
 
@@ -20,12 +25,18 @@ class Me(BaseModel):
 
 
 class UserIn(BaseModel):
+    model_config = ConfigDict(
+        json_schema_extra={"examples": [{"username": "ada", "password": "correct horse battery", "role": "member"}]}
+    )
+
     username: str = Field(min_length=2, max_length=64, examples=["ada"])
     password: str = Field(min_length=8, max_length=256)
     role: Literal["admin", "member"] = "member"
 
 
 class UserPatch(BaseModel):
+    model_config = ConfigDict(json_schema_extra={"examples": [{"disabled": True}]})
+
     role: Literal["admin", "member"] | None = None
     disabled: bool | None = None
 
@@ -36,10 +47,14 @@ class UserOut(BaseModel):
     username: str
     role: str
     disabled: bool
-    created_at: datetime
+    created_at: UtcDatetime
 
 
 class TokenIn(BaseModel):
+    model_config = ConfigDict(
+        json_schema_extra={"examples": [{"name": "nightly upload script", "expires_in_days": 90}]}
+    )
+
     name: str = Field(max_length=100, examples=["nightly upload script"])
     expires_in_days: int | None = Field(None, ge=1, le=3650, description="Omit for a token that does not expire.")
 
@@ -49,10 +64,10 @@ class TokenOut(BaseModel):
     id: int
     name: str
     prefix: str
-    created_at: datetime
-    expires_at: datetime | None
-    revoked_at: datetime | None
-    last_used_at: datetime | None
+    created_at: UtcDatetime
+    expires_at: UtcDatetime | None
+    revoked_at: UtcDatetime | None
+    last_used_at: UtcDatetime | None
 
 
 class TokenCreated(TokenOut):
@@ -60,6 +75,8 @@ class TokenCreated(TokenOut):
 
 
 class GroupIn(BaseModel):
+    model_config = ConfigDict(json_schema_extra={"examples": [{"name": "impact-lab", "members": ["ada", "bob"]}]})
+
     name: str = Field(min_length=2, max_length=64, examples=["impact-lab"])
     members: list[str] = Field(default_factory=list, description="Usernames.")
 
@@ -73,7 +90,7 @@ class GroupOut(BaseModel):
 class AuditOut(BaseModel):
     model_config = ConfigDict(from_attributes=True)
     id: int
-    at: datetime
+    at: UtcDatetime
     username: str
     action: str
     object_type: str

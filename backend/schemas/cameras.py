@@ -14,7 +14,12 @@ PitchUm = Annotated[float, Field(gt=0, le=1000, description="Pixel pitch in micr
 
 
 class CameraCreate(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [{"name": "left", "image_width_px": 1280, "image_height_px": 800, "pixel_pitch_um": 20.0}]
+        },
+    )
 
     name: CameraName
     image_width_px: Pixels
@@ -25,7 +30,7 @@ class CameraCreate(BaseModel):
 class CameraUpdate(BaseModel):
     """Fields to change; those left out keep their value."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [{"pixel_pitch_um": 28.0}]})
 
     name: CameraName | None = None
     image_width_px: Pixels | None = None

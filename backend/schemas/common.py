@@ -12,5 +12,8 @@ def _as_utc(moment: datetime) -> datetime:
     return moment if moment.tzinfo else moment.replace(tzinfo=UTC)  # SQLite gives back naive datetimes
 
 
+MAX_ID = 2**31 - 1
+"""Ids and frame numbers are 32-bit integers in the database (PostgreSQL `integer`); larger ones are a 422."""
+
 UtcDatetime = Annotated[datetime, AfterValidator(_as_utc)]
 """A moment in UTC, marked as such even when the database gave it back without a time zone."""

@@ -40,6 +40,10 @@ class SelftestSpec(_Spec):
     that each came back once and chains them, other workers compute them again and compare, and the result file
     is written. It measures frames/s and names the workers that took part (or that compute differently)."""
 
+    model_config = ConfigDict(
+        extra="forbid", json_schema_extra={"examples": [{"kind": "selftest", "frames": 200, "frame_size_px": 256}]}
+    )
+
     kind: Literal["selftest"]
     frames: int = Field(200, ge=1, le=100_000, description="Synthetic frames to compute.")
     frame_size_px: int = Field(256, ge=16, le=4096, description="Side of each square frame; sets the work per frame.")
@@ -64,6 +68,13 @@ class CameraCalibrationSpec(_Spec):
     moved along Z (`zstack`, with z.csv) or free views of it (`poses`). Every frame is used; frames without the
     board are skipped and listed. D_u, D_v come from the camera's pixel pitch."""
 
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [{"kind": "camera_calibration", "recording_id": 1, "mode": "zstack", "scale_on": "u"}]
+        },
+    )
+
     kind: Literal["camera_calibration"]
     recording_id: int = Field(ge=1, le=MAX_ID, description="A ready recording of kind camera_calibration.")
     mode: Literal["zstack", "poses"] = Field("zstack", description="zstack (stage Z per frame) or poses (free).")
@@ -77,6 +88,13 @@ class CameraCalibrationSpec(_Spec):
 class ProjectorCalibrationSpec(_Spec):
     """Build the projector look-up table (METHOD.md §4) from a ready projector-calibration recording: the flat
     plate moved along Z (with z.csv), filmed by the camera of `camera_calibration_id`."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [{"kind": "projector_calibration", "recording_id": 2, "camera_calibration_id": 1}]
+        },
+    )
 
     kind: Literal["projector_calibration"]
     recording_id: int = Field(ge=1, le=MAX_ID, description="A ready recording of kind projector_calibration.")
@@ -94,6 +112,22 @@ class TopographySpec(_Spec):
     """Deflection of every frame of a ready test recording, from a camera and a projector calibration. Edges are
     located in parallel chunks on every worker; identity, Z and X, Y follow in one pass in frame order, so the
     result does not depend on the chunking."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [
+                {
+                    "kind": "topography",
+                    "recording_id": 3,
+                    "camera_calibration_id": 1,
+                    "projector_calibration_id": 2,
+                    "frames": {"first": 0, "last": 99},
+                    "grid_step_mm": 2.0,
+                }
+            ]
+        },
+    )
 
     kind: Literal["topography"]
     recording_id: int = Field(ge=1, le=MAX_ID, description="A ready recording of kind test.")
@@ -115,6 +149,13 @@ class TopographySpec(_Spec):
 
 class ExportSpec(_Spec):
     """Write a succeeded topography result in a format for other programs (a download when the job succeeds)."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [{"kind": "export", "job_id": "6f1c2b8e-2d4a-4f6e-9a51-3c7d0e9b2f10", "format": "grid-npz"}]
+        },
+    )
 
     kind: Literal["export"]
     job_id: str = Field(min_length=1, max_length=36, description="A succeeded topography job.")

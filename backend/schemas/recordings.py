@@ -52,7 +52,9 @@ class RecordingOut(BaseModel):
 class RecordingUpdate(BaseModel):
     """Fields to change. A new kind re-runs the ingest (its checks depend on the kind)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(
+        extra="forbid", json_schema_extra={"examples": [{"filename": "plate3-test.cine", "kind": "test"}]}
+    )
 
     filename: FileName | None = None
     kind: RecordingKind | None = None

@@ -52,8 +52,12 @@ def test_jobs_follow_the_access_to_their_experiment(auth_client, tokens, setting
         "camera_calibration_id": ids["camera_cal"],
         "projector_calibration_id": ids["projector_cal"],
     }
-    # bob may not even learn that the recording is still ingesting; ada, its owner, is told
-    assert auth_client.post("/api/v1/jobs", json=topography, headers=tokens["bob"]).json()["code"] == "forbidden"
+    # bob may not even learn that the recording exists (the same answer as for an id nobody has); ada is told
+    refused = auth_client.post("/api/v1/jobs", json=topography, headers=tokens["bob"]).json()
+    nobody = auth_client.post("/api/v1/jobs", json={**topography, "recording_id": 99999}, headers=tokens["bob"]).json()
+    assert refused["code"] == "recording_not_found" and refused["detail"].replace(str(ids["test"]), "N") == nobody[
+        "detail"
+    ].replace("99999", "N")
     assert auth_client.post("/api/v1/jobs", json=topography, headers=tokens["ada"]).json()["code"] == (
         "recording_not_ready"
     )

@@ -68,7 +68,8 @@ def test_bad_camera_fields_are_422(client):
         {"name": "left", "image_width_px": 1280, "image_height_px": 800},
     ):
         assert client.post(f"/api/v1/experiments/{eid}/cameras", json=body).status_code == 422
-    assert client.post("/api/v1/experiments/999/cameras", json={}).status_code == 422  # body checked first
+    # access (here: existence) is checked before the body: an unknown experiment is a 404 whatever is sent
+    assert client.post("/api/v1/experiments/999/cameras", json={}).json()["code"] == "not_found"
     good = {"name": "left", "image_width_px": 1, "image_height_px": 1, "pixel_pitch_um": 1}
     assert client.post("/api/v1/experiments/999/cameras", json=good).json()["code"] == "not_found"
 
