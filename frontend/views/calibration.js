@@ -1,12 +1,205 @@
-// The calibration report of a calibration job (parameters ± standard errors, verdict, per-frame RMS, residual
-// vectors, the projector table): drawn from the job's results.
+// The calibration report of a calibration job. Camera: the verdict with its reasons, the parameters with
+// ± standard errors and units, per-frame RMS bars and the residual vectors drawn over the image area, from the
+// job's camera-calibration document (schema "fringelab.camera-calibration"). Projector: the look-up table's
+// curves and its sensitivity map.
 import { getJSON } from "../api.js";
-import { attempt, h, page } from "../ui.js";
-import { jobName } from "./jobs.js";
+import { Figure, axis, barTraces, imageLayout, layout, lineLayout, lineTraces, vectorTraces } from "../plots.js";
+import { attempt, field, fill, h, num, page, showError, table } from "../ui.js";
+import { describeInput, jobName } from "./jobs.js";
+
+const CAMERA_SCHEMA = "fringelab.camera-calibration";
+const PARAMETER_NAMES = {
+  su: "scale factor s_u",
+  f_mm: "focal length f",
+  u0_px: "principal point u₀",
+  v0_px: "principal point v₀",
+  k1_per_mm2: "radial distortion k₁",
+  k2_per_mm4: "radial distortion k₂",
+  p1_per_mm: "tangential distortion p₁",
+  p2_per_mm: "tangential distortion p₂",
+  x0_mm: "camera centre X₀",
+  y0_mm: "camera centre Y₀",
+  z0_mm: "camera centre Z₀",
+  omega_deg: "rotation ω",
+  phi_deg: "rotation φ",
+  kappa_deg: "rotation κ",
+};
+const FRAME_COLORS = { used: "#1f77b4", rejected: "#d62728", skipped: "#9aa4b1" };
+
+/** A value and its standard error with digits that suit the error: 12.3456 ± 0.0012. */
+export function plusMinus(value, error) {
+  if (value === null || value === undefined) return "–";
+  if (error === null || error === undefined || !Number.isFinite(error) || error <= 0) return num(value, 6);
+  const digits = Math.min(10, Math.max(0, 1 - Math.floor(Math.log10(error))));
+  const small = Math.abs(value) < 1e-3 && value !== 0;
+  if (small) return `${value.toExponential(2)} ± ${error.toExponential(1)}`;
+  return `${value.toFixed(digits)} ± ${error.toFixed(digits)}`;
+}
+
+function verdictBox(verdict) {
+  return h(
+    "section",
+    { class: `card verdict verdict-${verdict.level}`, "aria-label": "Verdict" },
+    h("h2", {}, `Verdict: ${verdict.level}`),
+    h("ul", {}, verdict.reasons.map((reason) => h("li", {}, reason))),
+    table(
+      "Verdict checks",
+      [
+        { title: "Check", value: (c) => c.name },
+        { title: "Value", value: (c) => `${num(c.value, 3)} ${c.unit}`, class: "num" },
+        { title: "Good if", value: (c) => `${c.higher_is_better ? "≥" : "≤"} ${c.good_limit} ${c.unit}`, class: "num" },
+        { title: "Bad if", value: (c) => `${c.higher_is_better ? "<" : ">"} ${c.bad_limit} ${c.unit}`, class: "num" },
+        { title: "Level", value: (c) => h("span", { class: `level-${c.level}` }, c.level) },
+        { title: "Meaning", value: (c) => c.message },
+      ],
+      verdict.checks,
+    ),
+  );
+}
+
+function parametersTable(document) {
+  const rows = Object.entries(document.parameters).map(([name, p]) => ({ name, ...p }));
+  return table(
+    "Camera parameters",
+    [
+      { title: "Parameter", value: (p) => PARAMETER_NAMES[p.name] || p.name },
+      { title: "Value ± standard error", value: (p) => plusMinus(p.value, p.standard_error), class: "num" },
+      { title: "Unit", value: (p) => (p.unit === "1" ? "–" : p.unit) },
+    ],
+    rows,
+  );
+}
+
+function summary(document, job) {
+  const size = document.image_size_px;
+  const sensor = document.sensor;
+  return h(
+    "dl",
+    { class: "facts" },
+    [
+      ["Input", describeInput(job)],
+      ["Mode", document.mode === "zstack" ? "board moved along Z (Z-stack)" : "free board poses"],
+      ["Image", `${size.width} × ${size.height} px`],
+      ["Sensor", `D_u ${num(sensor.du_px_per_mm, 3)} px/mm, D_v ${num(sensor.dv_px_per_mm, 3)} px/mm`],
+      ["RMS reprojection error", `${num(document.rms_px, 4)} px over ${document.n_points} corners`],
+      ["Residual standard deviation", `${num(document.residual_std_px, 4)} px per coordinate`],
+      ["Systematic residual", `${num(document.residual_map.systematic_px, 4)} px (image coverage ${num(100 * document.residual_map.coverage, 0)} %)`],
+      ["Converged", document.converged ? "yes" : "NO"],
+    ].map(([term, value]) => [h("dt", {}, term), h("dd", {}, value)]),
+  );
+}
+
+/** Per-frame RMS bars, coloured by what the solver did with the frame. */
+function frameFigure(document, name) {
+  const frames = document.frames;
+  const figure = new Figure({
+    name: "Per-frame RMS",
+    filename: `${name}-frame-rms`,
+    height: 320,
+    csv: () => ({
+      columns: ["frame", "status", "z_mm", "n_corners", "rms_px", "max_px", "reason"],
+      rows: frames.map((f) => [f.frame, f.status, f.z_mm, f.n_corners, f.rms_px, f.max_px, f.reason]),
+    }),
+  });
+  const traces = Object.keys(FRAME_COLORS)
+    .map((status) => {
+      const chosen = frames.filter((f) => f.status === status);
+      if (!chosen.length) return null;
+      return {
+        ...barTraces({ x: chosen.map((f) => f.frame), y: chosen.map((f) => f.rms_px ?? 0), name: status, color: FRAME_COLORS[status] })[0],
+        customdata: chosen.map((f) => [f.z_mm ?? "", f.reason || ""]),
+        hovertemplate: "%{x}<br>RMS %{y:.3f} px<br>Z %{customdata[0]} mm<br>%{customdata[1]}<extra></extra>",
+      };
+    })
+    .filter(Boolean);
+  const draw = () =>
+    figure.react(traces, {
+      ...layout({ xaxis: { ...axis("frame", "file name"), type: "category" }, yaxis: axis("RMS reprojection error", "px"), barmode: "group" }),
+    });
+  return { figure, draw };
+}
+
+/** Residual vectors over the image area, magnified by a chosen factor. */
+function residualFigure(document, name) {
+  const r = document.residuals;
+  const size = document.image_size_px;
+  const lengths = r.du_px.map((du, i) => Math.hypot(du, r.dv_px[i])).sort((a, b) => a - b);
+  const median = lengths.length ? lengths[Math.floor(lengths.length / 2)] : 0;
+  // Magnify so that a median residual is drawn about 1 % of the image width long.
+  const auto = median > 0 ? Math.max(1, Math.round((0.01 * size.width) / median)) : 100;
+  const scale = field("Residual magnification (×)", h("input", { type: "number", min: 1, step: 1, value: auto }));
+  const figure = new Figure({
+    name: "Residual vectors over the image",
+    filename: `${name}-residuals`,
+    height: 520,
+    csv: () => ({
+      columns: ["frame_index", "x_mm", "y_mm", "z_mm", "u_px", "v_px", "du_px", "dv_px"],
+      rows: r.u_px.map((u, i) => [r.frame_index[i], r.x_mm[i], r.y_mm[i], r.z_mm[i], u, r.v_px[i], r.du_px[i], r.dv_px[i]]),
+    }),
+  });
+  const draw = () =>
+    figure.react(
+      vectorTraces({ u: r.u_px, v: r.v_px, du: r.du_px, dv: r.dv_px, scale: Number(scale.input.value) || auto }),
+      imageLayout({ widthPx: size.width, heightPx: size.height }),
+    );
+  scale.input.addEventListener("change", draw);
+  return { figure, draw, control: scale.wrap };
+}
+
+async function cameraReport(container, job, context) {
+  const file = job.files.find((f) => f.name.endsWith(".json"));
+  if (!file) {
+    showError(`${jobName(job)} has no calibration document among its files`, "show the calibration report");
+    return;
+  }
+  const document = await attempt("read the calibration document", () => getJSON(file.url));
+  if (!document || !context.current()) return;
+  if (document.schema !== CAMERA_SCHEMA) {
+    showError(`${file.name} is not a camera calibration (schema ${document.schema})`, "show the calibration report");
+    return;
+  }
+  const name = `camera-calibration-${job.id.slice(0, 8)}`;
+  const frames = frameFigure(document, name);
+  const residuals = residualFigure(document, name);
+  page(
+    container,
+    `Camera calibration report`,
+    h("p", {}, h("a", { href: `#/jobs/${job.id}` }, jobName(job)), " · ", h("a", { href: file.url, download: file.name }, `Download ${file.name}`)),
+    verdictBox(document.verdict),
+    h(
+      "div",
+      { class: "two-columns" },
+      h("section", { "aria-labelledby": "params-title" }, h("h2", { id: "params-title" }, "Parameters"), parametersTable(document)),
+      h("section", { "aria-labelledby": "summary-title" }, h("h2", { id: "summary-title" }, "Summary"), summary(document, job)),
+    ),
+    frames.figure.element,
+    h("div", { class: "plot-controls" }, residuals.control),
+    residuals.figure.element,
+  );
+  context.onLeave(() => {
+    frames.figure.purge();
+    residuals.figure.purge();
+  });
+  await frames.draw();
+  await residuals.draw();
+}
 
 export async function renderCalibration(container, { id }, context) {
   const job = await attempt("open the job", () => getJSON(`jobs/${id}`));
   if (!job || !context.current()) return;
-  page(container, `Calibration report: ${jobName(job)}`, h("p", {}, h("a", { href: `#/jobs/${job.id}` }, "The job")),
-    h("pre", {}, JSON.stringify(job.result, null, 2)));
+  if (job.state !== "succeeded") {
+    page(container, "Calibration report", h("p", {}, h("a", { href: `#/jobs/${job.id}` }, jobName(job)), ` is ${job.state}; its report comes when it has succeeded.`));
+    return;
+  }
+  if (job.kind === "camera_calibration") return cameraReport(container, job, context);
+  if (job.kind === "projector_calibration") return projectorReport(container, job, context);
+  page(container, "Calibration report", h("p", {}, `${jobName(job)} is not a calibration.`));
+}
+
+async function projectorReport(container, job, context) {
+  page(container, "Projector calibration report", h("p", {}, h("a", { href: `#/jobs/${job.id}` }, jobName(job))), h("pre", {}, JSON.stringify(job.result, null, 2)));
+  fill(container.querySelector("pre"), JSON.stringify(job.result, null, 2));
+  void context;
+  void lineTraces;
+  void lineLayout;
 }
