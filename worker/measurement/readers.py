@@ -9,14 +9,19 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import re
 import zipfile
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
+
+if TYPE_CHECKING:
+    from .chessboard import Board
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".bmp", ".jpg", ".jpeg")
 
@@ -111,3 +116,55 @@ def read_z_csv(text: str, *, name: str = "z.csv") -> dict[int, float]:
     if not z_by_frame:
         raise ValueError(f"{name}: no rows")
     return z_by_frame
+
+
+def read_board_json(text: str, *, name: str = "board.json") -> Board:
+    """Parse a chessboard description: {"cols": 9, "rows": 6, "square_mm": 25.0, "origin": [4, 2] or null}.
+
+    cols × rows count inner corners; `"inner_corners": [cols, rows]` may replace cols and rows.
+    """
+    from .chessboard import Board
+
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as error:
+        raise ValueError(f"{name}: not valid JSON ({error})") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{name}: expected a JSON object, got {type(data).__name__}")
+    if "inner_corners" in data:
+        data = {**data, "cols": data["inner_corners"][0], "rows": data["inner_corners"][1]}
+    missing = [key for key in ("cols", "rows", "square_mm") if key not in data]
+    if missing:
+        raise ValueError(f"{name}: missing {', '.join(missing)} (expected cols, rows, square_mm, optional origin)")
+    try:
+        origin = data.get("origin")
+        return Board(
+            cols=int(data["cols"]),
+            rows=int(data["rows"]),
+            square_mm=float(data["square_mm"]),
+            origin=None if origin is None else (int(origin[0]), int(origin[1])),
+        )
+    except (TypeError, ValueError, IndexError) as error:
+        raise ValueError(f"{name}: {error}") from None
+
+
+def write_frame_folder(
+    path: str | Path, frames: Sequence[np.ndarray], *, sidecars: dict[str, str] | None = None
+) -> Path:
+    """Write frames as frame0000.png, frame0001.png, ... and sidecar texts (e.g. {"z.csv": ...}) into a folder.
+
+    For synthetic recordings and tests; the folder is readable with `open_recording`.
+    """
+    path = Path(path)
+    path.mkdir(parents=True, exist_ok=True)
+    for index, frame in enumerate(frames):
+        if not cv2.imwrite(str(path / f"frame{index:04d}.png"), frame):
+            raise ValueError(f"{path}: could not write frame {index} (dtype {frame.dtype}, shape {frame.shape})")
+    for name, text in (sidecars or {}).items():
+        (path / name).write_text(text)
+    return path
+
+
+def z_csv_text(z_mm: Sequence[float], *, first_frame: int = 0) -> str:
+    """The text of a `z.csv` sidecar for frames numbered from `first_frame`."""
+    return "frame,z_mm\n" + "".join(f"{first_frame + i},{z!r}\n" for i, z in enumerate(map(float, z_mm)))
