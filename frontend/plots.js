@@ -7,6 +7,8 @@ import { h, newId } from "./ui.js";
 const Plotly = window.Plotly;
 
 export const COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#17becf", "#8c564b", "#e377c2"];
+// Drawn over the red-white-blue map: dark or saturated colours that neither blend into it nor each other.
+export const MARK_COLORS = ["#111111", "#e6a100", "#2ca02c", "#c2185b", "#6a3d9a", "#00838f", "#8c564b"];
 export const DEFLECTION_SCALE = "RdBu"; // diverging, red up and blue down; white is zero when the range is symmetric
 const CONFIG = {
   responsive: true,
@@ -30,7 +32,7 @@ export function layout(extra = {}) {
     uirevision: "keep",
     paper_bgcolor: "#fff",
     plot_bgcolor: "#fff",
-    legend: { orientation: "h", y: -0.2 },
+    legend: { orientation: "h", x: 0, y: 1.0, yanchor: "bottom" },
     ...extra,
   };
 }
@@ -66,8 +68,9 @@ export function saveText(filename, text, type = "text/csv") {
  * `filename` (no extension) names the downloads; `csv()` returns { columns, rows } of the data shown now.
  */
 export class Figure {
-  constructor({ name, filename, csv, height = 420, className = "" }) {
+  constructor({ name, filename, csv, height = 420, className = "", config = {} }) {
     this.name = name;
+    this.config = { ...CONFIG, ...config };
     this.filename = filename;
     this.csv = csv;
     const titleId = newId("plot-title");
@@ -97,7 +100,7 @@ export class Figure {
   }
 
   async react(traces, plotLayout) {
-    await Plotly.react(this.plot, traces, plotLayout, CONFIG);
+    await Plotly.react(this.plot, traces, plotLayout, this.config);
     this.drawn = true;
   }
 
@@ -198,7 +201,8 @@ export function mapTraces(field, { range = null, points = [], valueName = "w", u
       y: points.map((p) => p.y),
       text: points.map((p) => p.label),
       textposition: "top right",
-      marker: { size: 10, symbol: "x", color: points.map((p) => p.color), line: { width: 1, color: "#fff" } },
+      marker: { size: 12, symbol: "x", color: points.map((p) => p.color), line: { width: 1.5, color: "#fff" } },
+      textfont: { color: points.map((p) => p.color), size: 13 },
       hoverinfo: "text",
       showlegend: false,
     });
@@ -222,7 +226,7 @@ export function mapLayout({ lines = [] } = {}) {
       x1: line.x1,
       y1: line.y1,
       editable: false,
-      line: { color: line.color, width: 3 },
+      line: { color: line.color, width: 3, dash: "solid" }, // every property set: react would keep the drawn dash
       label: { text: line.label, textposition: "end", font: { color: line.color, size: 14 } },
     })),
   });
@@ -311,7 +315,7 @@ export function lineTraces(series, { mode = "lines" } = {}) {
 export function lineLayout({ xAxis, yAxis, y2Axis = null, shapes = [] }) {
   const out = layout({ xaxis: xAxis, yaxis: yAxis, shapes, hovermode: "x unified" });
   if (y2Axis) {
-    out.yaxis2 = { ...y2Axis, overlaying: "y", side: "right", showgrid: false };
+    out.yaxis2 = { ...y2Axis, overlaying: "y", side: "right", showgrid: false, tickmode: "auto" };
     out.margin = { ...out.margin, r: 70 };
   }
   return out;

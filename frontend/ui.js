@@ -135,7 +135,8 @@ export function formatTime(iso) {
 /** A number with a fixed count of significant decimals, or "–". */
 export function num(value, digits = 3) {
   if (value === null || value === undefined || !Number.isFinite(Number(value))) return "–";
-  return Number(value).toFixed(digits);
+  const text = Number(value).toFixed(digits);
+  return /^-0\.?0*$/.test(text) ? text.slice(1) : text; // no "-0.0"
 }
 
 /** A heading and a body for a view, with the document title following the heading. */

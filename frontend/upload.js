@@ -219,6 +219,7 @@ class RecordingUpload {
       this.setButton("Resume");
     } else if ((this.state === "paused" || this.state === "failed") && this.upload) {
       this.error.hidden = true;
+      this.row.classList.remove("failed");
       this.state = "uploading";
       this.setButton("Pause");
       this.upload.start();
@@ -235,10 +236,15 @@ class RecordingUpload {
     const text = tusErrorText(error);
     this.error.textContent = text;
     this.error.hidden = false;
+    this.row.classList.add("failed");
     this.info.textContent = "failed";
+    // The server refused the file (wrong format, too large, unknown camera): sending it again cannot help.
+    // Lost connections and busy servers (409, 423, 429, 5xx) are worth a resume.
+    const status = error && error.originalResponse ? error.originalResponse.getStatus() : 0;
+    const refused = status >= 400 && status < 500 && ![409, 423, 429].includes(status);
     this.setButton("Resume");
-    if (!this.upload) this.button.hidden = true; // failed before it began (packing): nothing to resume
-    showError(`${this.name}: ${text}`, "upload");
+    this.button.hidden = refused || !this.upload;
+    showError(text.startsWith(this.name) ? text : `${this.name}: ${text}`, "upload");
   }
 }
 

@@ -128,17 +128,13 @@ export class JobList {
     this.streams = new Map(); // job id -> close()
     this.tbody = h("tbody");
     this.empty = h("p", { class: "empty" }, "No jobs yet.");
-    this.element = h(
-      "div",
-      {},
-      this.empty,
-      h(
-        "table",
-        { "aria-label": label, class: "jobs" },
-        h("thead", {}, h("tr", {}, ["Job", "Input", "Progress", "Started", "Results"].map((t) => h("th", { scope: "col" }, t)))),
-        this.tbody,
-      ),
+    this.table = h(
+      "table",
+      { "aria-label": label, class: "jobs", hidden: true },
+      h("thead", {}, h("tr", {}, ["Job", "Input", "Progress", "Started", "Results"].map((t) => h("th", { scope: "col" }, t)))),
+      this.tbody,
     );
+    this.element = h("div", {}, this.empty, this.table);
     this.timer = null;
     context.onLeave(() => this.stop());
   }
@@ -160,6 +156,7 @@ export class JobList {
 
   show(jobs) {
     this.empty.hidden = jobs.length > 0;
+    this.table.hidden = jobs.length === 0;
     const ordered = [];
     for (const job of jobs) {
       let entry = this.rows.get(job.id);

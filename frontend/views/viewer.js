@@ -1,11 +1,555 @@
 // The topography viewer of a topography job: the deflection field of a frame as a 2-D map and a 3-D surface,
-// section profiles, point histories, peak deflection against punch displacement and force, camera against camera.
+// a frame slider with play/pause, section lines drawn on the map with their profiles for the chosen frames,
+// time histories of clicked points, peak deflection against punch displacement (force on a second axis), and
+// one camera against another. Every plot downloads its data (CSV) and its image (PNG).
 import { getJSON } from "../api.js";
-import { attempt, h, page } from "../ui.js";
+import {
+  COLORS,
+  Figure,
+  MARK_COLORS,
+  axis,
+  fieldRows,
+  lineLayout,
+  lineTraces,
+  listenToMap,
+  mapLayout,
+  mapTraces,
+  surfaceLayout,
+  surfaceTraces,
+  verticalMarker,
+} from "../plots.js";
+import { attempt, field, fill, h, num, page, say, showError } from "../ui.js";
+import { TopographySource } from "./topography-source.js";
 import { jobName } from "./jobs.js";
+
+const LINE_LABELS = "ABCDEFGHIJKLMNOPQRSTUVWXYZ";
+const DASHES = ["solid", "dash", "dot", "dashdot", "longdash", "longdashdot"];
+const FRAME_CACHE = 64; // fields kept in memory for quick back-and-forth (each ≤ 250 × 250 float32 = 250 kB)
+const SPEEDS = [2, 5, 10, 25];
+
+/** Diagnostics for the browser tests and curious users: how long each frame switch took, in ms. */
+window.fringelab = window.fringelab || {};
+window.fringelab.frameSwitchMs = [];
+
+function timeLabel(meta, frame) {
+  const i = meta.frames.index.indexOf(frame);
+  const t = i >= 0 ? meta.frames.time_s[i] : NaN;
+  return Number.isFinite(t) ? `t = ${num(t * 1000, 3)} ms` : `frame ${frame}`;
+}
 
 export async function renderViewer(container, { id }, context) {
   const job = await attempt("open the job", () => getJSON(`jobs/${id}`));
   if (!job || !context.current()) return;
-  page(container, `Topography: ${jobName(job)}`, h("p", {}, h("a", { href: `#/jobs/${job.id}` }, "The job")));
+  if (job.kind !== "topography" || job.state !== "succeeded") {
+    page(container, "Topography viewer", h("p", {}, h("a", { href: `#/jobs/${job.id}` }, jobName(job)),
+      job.kind !== "topography" ? " is not a topography job." : ` is ${job.state}; its results come when it has succeeded.`));
+    return;
+  }
+  const source = new TopographySource(job);
+  const meta = await attempt("read the topography result", () => source.meta());
+  if (!meta || !context.current()) return;
+  const viewer = new Viewer(job, source, meta, context);
+  page(container, `Topography: ${jobName(job)}`, viewer.element);
+  context.onLeave(() => viewer.dispose());
+  await viewer.start();
+}
+
+class Viewer {
+  constructor(job, source, meta, context) {
+    this.job = job;
+    this.source = source;
+    this.meta = meta;
+    this.context = context;
+    this.frames = meta.frames.index; // recording frame numbers, in order
+    this.position = 0; // index into this.frames
+    this.cache = new Map();
+    this.lines = [];
+    this.points = [];
+    this.pinned = new Set();
+    this.fieldView = "map";
+    this.playing = false;
+    this.timer = null;
+    this.fullResolution = false;
+    // Symmetric about zero, so that white is a flat plate and red and blue read as up and down.
+    const reach = Math.max(Math.abs(meta.w_range_mm[0]), Math.abs(meta.w_range_mm[1])) || 1;
+    this.colorRange = [-reach, reach];
+    this.drawing = Promise.resolve();
+    this.pending = null;
+    this.build();
+  }
+
+  get frame() {
+    return this.frames[this.position];
+  }
+
+  // ---- layout ----------------------------------------------------------------------------------------------
+
+  build() {
+    const last = this.frames.length - 1;
+    this.slider = h("input", { type: "range", min: 0, max: last, step: 1, value: 0, "aria-label": "Frame", class: "scrubber" });
+    this.slider.addEventListener("input", () => this.goTo(Number(this.slider.value)));
+    this.frameNumber = h("input", { type: "number", min: this.frames[0], max: this.frames[last], step: 1, value: this.frames[0], "aria-label": "Frame number" });
+    this.frameNumber.addEventListener("change", () => {
+      const wanted = Number(this.frameNumber.value);
+      const nearest = this.frames.reduce((best, f, i) => (Math.abs(f - wanted) < Math.abs(this.frames[best] - wanted) ? i : best), 0);
+      this.goTo(nearest);
+    });
+    this.playButton = h("button", { type: "button", class: "primary play", "aria-label": "Play", onclick: () => this.togglePlay() }, "▶ Play");
+    this.speed = field("Playback speed (frames/s)", h("select", {}, SPEEDS.map((s) => h("option", { value: s, selected: s === 10 }, String(s)))));
+    this.frameFacts = h("output", { class: "frame-facts", "aria-live": "off", "aria-label": "Current frame" });
+
+    // Field: a tab for the map, a tab for the surface.
+    this.mapFigure = new Figure({
+      name: "Deflection map",
+      filename: `topography-${this.job.id.slice(0, 8)}-map`,
+      height: 470,
+      csv: () => this.fieldCSV(),
+      config: { modeBarButtonsToAdd: ["drawline"] },
+    });
+    this.surfaceFigure = new Figure({
+      name: "Deflection surface",
+      filename: `topography-${this.job.id.slice(0, 8)}-surface`,
+      height: 470,
+      csv: () => this.fieldCSV(),
+    });
+    this.surfaceFigure.element.hidden = true;
+    const tab = (name, view) =>
+      h("button", { type: "button", role: "tab", "aria-selected": view === "map" ? "true" : "false", "aria-controls": `field-${view}`, onclick: () => this.showFieldView(view) }, name);
+    this.tabs = { map: tab("2-D map", "map"), surface: tab("3-D surface", "surface") };
+    this.mapFigure.element.id = "field-map";
+    this.surfaceFigure.element.id = "field-surface";
+    this.mapFigure.element.setAttribute("role", "tabpanel");
+    this.surfaceFigure.element.setAttribute("role", "tabpanel");
+    this.fullRes = h("input", { type: "checkbox", id: "full-resolution" });
+    this.fullRes.addEventListener("change", () => {
+      this.fullResolution = this.fullRes.checked;
+      this.cache.clear();
+      this.redraw();
+    });
+
+    // Profiles.
+    this.profileFigure = new Figure({ name: "Section profiles", filename: `topography-${this.job.id.slice(0, 8)}-profiles`, height: 360, csv: () => this.profileCSV() });
+    this.lineList = h("ul", { class: "chips", "aria-label": "Section lines" });
+    this.pinList = h("ul", { class: "chips", "aria-label": "Pinned frames" });
+    const lineInputs = ["x₀", "y₀", "x₁", "y₁"].map((name) => field(`Line ${name} (mm)`, h("input", { type: "number", step: "any", required: true })));
+    this.lineForm = h(
+      "form",
+      {
+        class: "inline-form",
+        "aria-label": "Add a section line",
+        onsubmit: (event) => {
+          event.preventDefault();
+          const [x0, y0, x1, y1] = lineInputs.map((f) => Number(f.input.value));
+          if (x0 === x1 && y0 === y1) return showError("the two ends of a line must differ", "add the section line");
+          this.addLine({ x0, y0, x1, y1 });
+        },
+      },
+      lineInputs.map((f) => f.wrap),
+      h("button", { type: "submit", class: "small" }, "Add line"),
+    );
+
+    // Histories.
+    this.historyFigure = new Figure({ name: "Point histories", filename: `topography-${this.job.id.slice(0, 8)}-histories`, height: 340, csv: () => this.historyCSV() });
+    this.pointList = h("ul", { class: "chips", "aria-label": "Points" });
+    const pointInputs = ["x", "y"].map((name) => field(`Point ${name} (mm)`, h("input", { type: "number", step: "any", required: true })));
+    this.pointForm = h(
+      "form",
+      {
+        class: "inline-form",
+        "aria-label": "Add a point",
+        onsubmit: (event) => {
+          event.preventDefault();
+          const [x, y] = pointInputs.map((f) => Number(f.input.value));
+          this.addPoint({ x, y });
+        },
+      },
+      pointInputs.map((f) => f.wrap),
+      h("button", { type: "submit", class: "small" }, "Add point"),
+    );
+
+    // Peak against punch displacement and force; camera against camera.
+    this.peakFigure = new Figure({ name: "Peak deflection and force", filename: `topography-${this.job.id.slice(0, 8)}-peak`, height: 340, csv: () => this.peakCSV() });
+    this.compareSelect = h("select", { id: "compare-with" }, h("option", { value: "" }, "no other camera"));
+    this.compareSelect.addEventListener("change", () => this.loadComparison());
+    this.compareFigure = new Figure({ name: "Camera against camera", filename: `topography-${this.job.id.slice(0, 8)}-cameras`, height: 340, csv: () => this.compareCSV() });
+
+    const m = this.meta;
+    this.element = h(
+      "div",
+      { class: "viewer" },
+      h("p", { class: "facts" },
+        h("a", { href: `#/jobs/${this.job.id}` }, jobName(this.job)), " · ",
+        `${this.frames.length} frames · grid ${m.grid.nx} × ${m.grid.ny} (${num(m.grid.step_mm, 2)} mm) · `,
+        `w from ${num(m.w_range_mm[0], 2)} to ${num(m.w_range_mm[1], 2)} mm`),
+      h("div", { class: "player", role: "group", "aria-label": "Frames" },
+        this.playButton,
+        h("button", { type: "button", class: "small", "aria-label": "Previous frame", onclick: () => this.goTo(this.position - 1) }, "◀"),
+        this.slider,
+        h("button", { type: "button", class: "small", "aria-label": "Next frame", onclick: () => this.goTo(this.position + 1) }, "▶"),
+        this.frameNumber,
+        this.speed.wrap),
+      this.frameFacts,
+      h("div", { class: "plot-grid" },
+        h("div", {},
+          h("div", { class: "tabs", role: "tablist", "aria-label": "Field view" }, this.tabs.map, this.tabs.surface,
+            h("label", { class: "check" }, this.fullRes, " Full resolution for the zoomed region")),
+          this.mapFigure.element,
+          this.surfaceFigure.element,
+          h("p", { class: "hint" }, "Drag on the map to draw a section line; click a point to add its time history.")),
+        h("div", {},
+          this.profileFigure.element,
+          h("div", { class: "chip-row" }, h("span", {}, "Lines: "), this.lineList),
+          h("div", { class: "chip-row" }, h("span", {}, "Profiles of: the current frame, and "),
+            this.pinList,
+            h("button", { type: "button", class: "small", onclick: () => this.pinFrame() }, "Pin this frame")),
+          h("details", {}, h("summary", {}, "Type a section line"), this.lineForm))),
+      h("div", { class: "plot-grid" },
+        h("div", {}, this.historyFigure.element, h("div", { class: "chip-row" }, h("span", {}, "Points: "), this.pointList),
+          h("details", {}, h("summary", {}, "Type a point"), this.pointForm)),
+        h("div", {}, this.peakFigure.element)),
+      (this.compareSection = h("section", { "aria-label": "Camera against camera", hidden: true },
+        h("h2", {}, "Camera against camera"),
+        h("div", { class: "field inline" }, h("label", { for: "compare-with" }, "Compare with the topography of"), this.compareSelect),
+        this.compareFigure.element)),
+    );
+  }
+
+  async start() {
+    this.slider.addEventListener("keydown", (event) => {
+      if (event.key === " ") {
+        event.preventDefault();
+        this.togglePlay();
+      }
+    });
+    await this.showFrame(0);
+    // Plotly adds its event methods to the plot once it has drawn it.
+    listenToMap(this.mapFigure, { onLine: (line) => this.addLine(line), onPoint: (point) => this.addPoint(point) });
+    await this.drawPeak();
+    this.findOtherCameras();
+  }
+
+  dispose() {
+    this.playing = false;
+    clearTimeout(this.timer);
+    for (const figure of [this.mapFigure, this.surfaceFigure, this.profileFigure, this.historyFigure, this.peakFigure, this.compareFigure]) figure.purge();
+  }
+
+  // ---- frames ----------------------------------------------------------------------------------------------
+
+  async field(frame) {
+    const region = this.fullResolution ? this.zoomRegion() : null;
+    const key = `${frame}:${region ? Object.values(region).join(",") : "all"}`;
+    if (this.cache.has(key)) {
+      const hit = this.cache.get(key);
+      this.cache.delete(key); // most recent last
+      this.cache.set(key, hit);
+      return hit;
+    }
+    const loaded = await this.source.field(frame, region);
+    this.cache.set(key, loaded);
+    if (this.cache.size > FRAME_CACHE) this.cache.delete(this.cache.keys().next().value);
+    return loaded;
+  }
+
+  zoomRegion() {
+    const { xaxis, yaxis } = this.mapFigure.plot.layout || {};
+    if (!xaxis || !yaxis || !xaxis.range || !yaxis.range) return null;
+    const [x0, x1] = xaxis.range.map(Number).sort((a, b) => a - b);
+    const [y0, y1] = yaxis.range.map(Number).sort((a, b) => a - b);
+    return { x0, x1, y0, y1 };
+  }
+
+  /** Go to the frame at `position`; quick moves of the slider collapse into the latest one. */
+  goTo(position) {
+    const clamped = Math.max(0, Math.min(this.frames.length - 1, position));
+    this.slider.value = clamped;
+    this.frameNumber.value = this.frames[clamped];
+    this.pending = clamped;
+    this.drawing = this.drawing.then(async () => {
+      if (this.pending === null) return;
+      const next = this.pending;
+      this.pending = null;
+      await this.showFrame(next);
+    });
+    return this.drawing;
+  }
+
+  async showFrame(position) {
+    const started = performance.now();
+    this.position = position;
+    const frame = this.frame;
+    try {
+      const current = await this.field(frame);
+      if (!this.context.current()) return;
+      this.current = current;
+      await this.drawField();
+      await this.drawProfiles();
+      window.fringelab.frameSwitchMs.push(performance.now() - started);
+      await Promise.all([this.drawHistories(), this.peakFigure.drawn ? this.drawPeak() : null]);
+    } catch (error) {
+      showError(error, `show frame ${frame}`);
+      this.stop();
+    }
+    const i = this.position;
+    const m = this.meta.frames;
+    const facts = [`frame ${frame}`, timeLabel(this.meta, frame)];
+    if (Number.isFinite(m.punch_displacement_mm[i])) facts.push(`punch ${num(m.punch_displacement_mm[i], 2)} mm`);
+    if (Number.isFinite(m.force_kN[i])) facts.push(`force ${num(m.force_kN[i], 2)} kN`);
+    if (Number.isFinite(m.peak_w_mm[i])) facts.push(`peak w ${num(m.peak_w_mm[i], 3)} mm`);
+    this.frameFacts.textContent = facts.join(" · ");
+  }
+
+  redraw() {
+    return this.goTo(this.position);
+  }
+
+  togglePlay() {
+    if (this.playing) this.stop();
+    else this.play();
+  }
+
+  play() {
+    this.playing = true;
+    this.playButton.textContent = "❚❚ Pause";
+    this.playButton.setAttribute("aria-label", "Pause");
+    const tick = async () => {
+      if (!this.playing || !this.context.current()) return;
+      const began = performance.now();
+      await this.goTo((this.position + 1) % this.frames.length);
+      const wait = Math.max(0, 1000 / Number(this.speed.input.value) - (performance.now() - began));
+      this.timer = setTimeout(tick, wait);
+    };
+    tick();
+  }
+
+  stop() {
+    this.playing = false;
+    clearTimeout(this.timer);
+    this.playButton.textContent = "▶ Play";
+    this.playButton.setAttribute("aria-label", "Play");
+  }
+
+  // ---- the field -----------------------------------------------------------------------------------------
+
+  showFieldView(view) {
+    this.fieldView = view;
+    for (const [name, button] of Object.entries(this.tabs)) button.setAttribute("aria-selected", String(name === view));
+    this.mapFigure.element.hidden = view !== "map";
+    this.surfaceFigure.element.hidden = view !== "surface";
+    return this.drawField();
+  }
+
+  /** Only the visible view is drawn on a frame switch; the other catches up when its tab is chosen. */
+  drawField() {
+    if (!this.current) return null;
+    const range = this.colorRange;
+    if (this.fieldView === "surface") {
+      return this.surfaceFigure.react(surfaceTraces(this.current, { range }), surfaceLayout({ zRange: this.meta.w_range_mm }));
+    }
+    const lines = this.lines.map((line) => ({ ...line }));
+    return this.mapFigure.react(mapTraces(this.current, { range, points: this.points }), mapLayout({ lines }));
+  }
+
+  fieldCSV() {
+    return { columns: ["frame", "x_mm", "y_mm", "w_mm"], rows: fieldRows(this.current).map((row) => [this.frame, ...row]) };
+  }
+
+  // ---- section lines and their profiles --------------------------------------------------------------------
+
+  addLine(line) {
+    const index = this.lines.length;
+    const label = LINE_LABELS[index % LINE_LABELS.length] + (index >= LINE_LABELS.length ? String(Math.floor(index / LINE_LABELS.length)) : "");
+    this.lines.push({ ...line, label, color: MARK_COLORS[index % MARK_COLORS.length] });
+    this.drawChips();
+    say(`Section line ${label} from (${num(line.x0, 1)}, ${num(line.y0, 1)}) to (${num(line.x1, 1)}, ${num(line.y1, 1)}) mm.`);
+    return Promise.all([this.drawField(), this.drawProfiles()]);
+  }
+
+  removeLine(label) {
+    this.lines = this.lines.filter((line) => line.label !== label);
+    this.drawChips();
+    return Promise.all([this.drawField(), this.drawProfiles()]);
+  }
+
+  pinFrame() {
+    this.pinned.add(this.frame);
+    this.drawChips();
+    return this.drawProfiles();
+  }
+
+  drawChips() {
+    const chip = (text, color, remove, name) =>
+      h("li", {}, h("span", { class: "swatch", style: `background:${color}` }), text,
+        h("button", { type: "button", class: "link", "aria-label": `Remove ${name}`, onclick: remove }, "×"));
+    fill(this.lineList, this.lines.length ? this.lines.map((line) => chip(line.label, line.color, () => this.removeLine(line.label), `line ${line.label}`)) : h("li", { class: "empty" }, "none yet"));
+    fill(this.pinList, [...this.pinned].sort((a, b) => a - b).map((frame) => chip(`frame ${frame}`, "#888", () => {
+      this.pinned.delete(frame);
+      this.drawChips();
+      this.drawProfiles();
+    }, `pinned frame ${frame}`)));
+    fill(this.pointList, this.points.length ? this.points.map((point) => chip(point.label, point.color, () => this.removePoint(point.label), `point ${point.label}`)) : h("li", { class: "empty" }, "none yet"));
+  }
+
+  /** Profiles of every line for the current frame and the pinned ones: [{ line, frame, profile }]. */
+  async profiles() {
+    const frames = [this.frame, ...[...this.pinned].filter((f) => f !== this.frame).sort((a, b) => a - b)];
+    const out = [];
+    for (const line of this.lines) {
+      for (const frame of frames) {
+        const fieldOfFrame = frame === this.frame ? this.current : await this.field(frame);
+        out.push({ line, frame, profile: await this.source.profile(frame, line, fieldOfFrame) });
+      }
+    }
+    return out;
+  }
+
+  async drawProfiles() {
+    this.shownProfiles = await this.profiles();
+    const frames = [...new Set(this.shownProfiles.map((p) => p.frame))];
+    const series = this.shownProfiles.map(({ line, frame, profile }) => ({
+      name: `${line.label}, ${timeLabel(this.meta, frame)}`,
+      x: profile.s,
+      y: profile.w,
+      color: line.color,
+      dash: DASHES[frames.indexOf(frame) % DASHES.length],
+    }));
+    return this.profileFigure.react(lineTraces(series), lineLayout({
+      xAxis: axis("distance along the line", "mm"),
+      yAxis: axis("deflection w", "mm", { range: this.meta.w_range_mm }),
+    }));
+  }
+
+  profileCSV() {
+    const rows = [];
+    for (const { line, frame, profile } of this.shownProfiles || []) {
+      for (let i = 0; i < profile.s.length; i += 1) rows.push([line.label, frame, profile.s[i], profile.x[i], profile.y[i], profile.w[i]]);
+    }
+    return { columns: ["line", "frame", "s_mm", "x_mm", "y_mm", "w_mm"], rows };
+  }
+
+  // ---- points and their histories -------------------------------------------------------------------------
+
+  async addPoint(point) {
+    const index = this.points.length;
+    const entry = { ...point, label: `P${index + 1}`, color: MARK_COLORS[(index + 1) % MARK_COLORS.length], history: null };
+    this.points.push(entry);
+    this.drawChips();
+    say(`Point ${entry.label} at (${num(point.x, 1)}, ${num(point.y, 1)}) mm.`);
+    try {
+      entry.history = await this.source.history(point);
+    } catch (error) {
+      showError(error, `read the history of ${entry.label}`);
+    }
+    await Promise.all([this.drawField(), this.drawHistories()]);
+  }
+
+  removePoint(label) {
+    this.points = this.points.filter((p) => p.label !== label);
+    this.drawChips();
+    return Promise.all([this.drawField(), this.drawHistories()]);
+  }
+
+  timeAxis() {
+    const t = this.meta.frames.time_s;
+    return t.every(Number.isFinite) ? { key: "time", title: axis("time", "ms"), values: t.map((v) => v * 1000) } : { key: "frame", title: axis("frame", "index"), values: this.frames };
+  }
+
+  drawHistories() {
+    const time = this.timeAxis();
+    const series = this.points.filter((p) => p.history).map((p) => ({
+      name: `${p.label} (${num(p.x, 1)}, ${num(p.y, 1)}) mm`,
+      x: p.history.frame.map((f) => time.values[this.frames.indexOf(f)]),
+      y: p.history.w,
+      color: p.color,
+      mode: "lines+markers",
+    }));
+    return this.historyFigure.react(lineTraces(series), lineLayout({
+      xAxis: time.title,
+      yAxis: axis("deflection w", "mm"),
+      shapes: [verticalMarker(time.values[this.position])],
+    }));
+  }
+
+  historyCSV() {
+    const rows = [];
+    for (const p of this.points.filter((q) => q.history)) {
+      p.history.frame.forEach((frame, i) => rows.push([p.label, p.x, p.y, frame, p.history.time_s[i], p.history.w[i]]));
+    }
+    return { columns: ["point", "x_mm", "y_mm", "frame", "time_s", "w_mm"], rows };
+  }
+
+  // ---- peak against punch and force; cameras --------------------------------------------------------------
+
+  drawPeak() {
+    const m = this.meta.frames;
+    const i = this.position;
+    const haveForce = m.force_kN.some(Number.isFinite);
+    const havePunch = m.punch_displacement_mm.some(Number.isFinite);
+    const xs = havePunch ? m.punch_displacement_mm : this.timeAxis().values;
+    const xAxis = havePunch ? axis("punch displacement", "mm") : this.timeAxis().title;
+    const series = [{ name: "peak deflection", x: xs, y: m.peak_w_mm, color: COLORS[0], mode: "lines+markers" }];
+    if (haveForce) series.push({ name: "force", x: xs, y: m.force_kN, color: COLORS[1], yaxis: "y2", dash: "dot" });
+    const traces = lineTraces(series);
+    traces.push({ type: "scatter", mode: "markers", name: "this frame", x: [xs[i]], y: [m.peak_w_mm[i]], marker: { size: 12, color: "#111", symbol: "circle-open", line: { width: 2 } } });
+    return this.peakFigure.react(traces, lineLayout({
+      xAxis,
+      yAxis: axis("peak deflection w", "mm"),
+      y2Axis: haveForce ? axis("force", "kN") : null,
+    }));
+  }
+
+  peakCSV() {
+    const m = this.meta.frames;
+    return {
+      columns: ["frame", "time_s", "punch_displacement_mm", "force_kN", "peak_w_mm"],
+      rows: this.frames.map((frame, i) => [frame, m.time_s[i], m.punch_displacement_mm[i], m.force_kN[i], m.peak_w_mm[i]]),
+    };
+  }
+
+  async findOtherCameras() {
+    const others = await attempt("find the other cameras' topography", () => this.source.otherTopographies());
+    if (!others || !this.context.current()) return;
+    fill(this.compareSelect, h("option", { value: "" }, others.length ? "choose…" : "no other camera"),
+      others.map((o) => h("option", { value: o.job.id }, o.label)));
+    this.others = others;
+    this.compareSection.hidden = false;
+    if (others.length) {
+      this.compareSelect.value = others[0].job.id;
+      await this.loadComparison();
+    } else {
+      fill(this.compareSection, h("h2", {}, "Camera against camera"),
+        h("p", { class: "empty" }, "No other camera of this experiment has a topography result yet."));
+    }
+  }
+
+  async loadComparison() {
+    const chosen = (this.others || []).find((o) => o.job.id === this.compareSelect.value);
+    this.comparison = chosen ? { label: chosen.label, meta: await attempt("read the other camera's result", () => chosen.source.meta()) } : null;
+    return this.drawComparison();
+  }
+
+  /** Peak deflection of both cameras against time (or frame). */
+  drawComparison() {
+    const time = this.timeAxis();
+    const series = [{ name: `this camera (${this.meta.camera_name || "?"})`, x: time.values, y: this.meta.frames.peak_w_mm, color: COLORS[0], mode: "lines+markers" }];
+    if (this.comparison && this.comparison.meta) {
+      const other = this.comparison.meta;
+      const t = other.frames.time_s;
+      series.push({
+        name: this.comparison.label,
+        x: time.key === "time" && t.every(Number.isFinite) ? t.map((v) => v * 1000) : other.frames.index,
+        y: other.frames.peak_w_mm,
+        color: COLORS[1],
+        mode: "lines+markers",
+      });
+    }
+    this.comparedSeries = series;
+    return this.compareFigure.react(lineTraces(series), lineLayout({ xAxis: time.title, yAxis: axis("peak deflection w", "mm") }));
+  }
+
+  compareCSV() {
+    const rows = [];
+    for (const s of this.comparedSeries || []) s.x.forEach((x, i) => rows.push([s.name, x, s.y[i]]));
+    return { columns: ["camera", this.timeAxis().key === "time" ? "time_ms" : "frame", "peak_w_mm"], rows };
+  }
 }
