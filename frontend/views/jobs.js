@@ -229,6 +229,7 @@ export function jobForm({ recordings, calibrations, onStarted }) {
     h("select", {}, Object.keys(RECORDING_KIND_OF_JOB).map((value) => h("option", { value }, JOB_KIND_NAMES[value]))),
   );
   const recording = field("Recording", h("select", { required: true }));
+  recording.wrap.classList.add("wide");
   const cameraCal = field("Camera calibration", h("select", {}));
   const projectorCal = field("Projector calibration", h("select", {}));
   const first = field("First frame", h("input", { type: "number", min: 0, step: 1, value: 0 }), "0-based");

@@ -61,7 +61,8 @@ export async function renderTokens(container, _params, context) {
   const form = h(
     "form",
     {
-      class: "card inline",
+      class: "card grid-form",
+      "aria-label": "New API token",
       onsubmit: async (event) => {
         event.preventDefault();
         try {
