@@ -79,7 +79,7 @@ export class JobProgress {
     this.error.textContent = job.error || "";
     this.error.hidden = !job.error;
     this.cancelButton.hidden = !ACTIVE.includes(job.state) || job.stopping;
-    this.retryButton.hidden = !["failed", "cancelled"].includes(job.state) || Boolean(job.retried_by);
+    this.retryButton.hidden = !["failed", "cancelled"].includes(job.state) || job.stopping || Boolean(job.retried_by);
     this.onChange(job);
   }
 
@@ -368,6 +368,8 @@ export async function renderJob(container, { id }, context) {
   const facts = h("dl", { class: "facts" });
   const files = h("div");
   const links = h("p");
+  const resultBox = h("div");
+  const chunksBox = h("div");
   const logBox = h("div", { class: "log", role: "log", "aria-label": "Job log", tabindex: 0 });
   const drawFacts = (current) => {
     fill(
@@ -375,7 +377,7 @@ export async function renderJob(container, { id }, context) {
       [
         ["Kind", JOB_KIND_NAMES[current.kind] || current.kind],
         ["State", current.stopping ? "stopping" : current.state],
-        ["Input", describeInput(current)],
+        ["Input", current.spec && current.spec.recording_id ? describeInput(current) : null],
         ["Attempt", current.retry_of ? [`${current.attempt}, retry of `, h("a", { href: `#/jobs/${current.retry_of}` }, shortId(current.retry_of))] : String(current.attempt)],
         ["Retried as", current.retried_by ? h("a", { href: `#/jobs/${current.retried_by}` }, shortId(current.retried_by)) : null],
         ["Worker", current.worker || "–"],
@@ -401,6 +403,29 @@ export async function renderJob(container, { id }, context) {
       ),
     );
     fill(links, resultLink(current));
+    const scalars = Object.entries(current.result || {}).filter(([, v]) => v === null || ["number", "string", "boolean"].includes(typeof v));
+    fill(
+      resultBox,
+      scalars.length
+        ? table("Result", [{ title: "Quantity", value: (r) => r[0] }, { title: "Value", value: (r) => (typeof r[1] === "number" ? String(Number(r[1].toPrecision(6))) : String(r[1])) }], scalars)
+        : null,
+    );
+    fill(
+      chunksBox,
+      current.chunks.length
+        ? table(
+            "Chunks",
+            [
+              { title: "Chunk", value: (c) => String(c.index) },
+              { title: "Frames", value: (c) => `${c.first_frame}–${c.stop_frame - 1}` },
+              { title: "State", value: (c) => c.state },
+              { title: "Done", value: (c) => `${c.done}/${c.stop_frame - c.first_frame}` },
+              { title: "Worker", value: (c) => c.worker || "–" },
+            ],
+            current.chunks,
+          )
+        : null,
+    );
   };
   const progress = new JobProgress(job, {
     onRetried: (retried) => {
@@ -414,6 +439,8 @@ export async function renderJob(container, { id }, context) {
     progress.element,
     links,
     facts,
+    resultBox,
+    chunksBox,
     h("details", { class: "spec-box" }, h("summary", {}, "Spec and provenance"), h("pre", {}, JSON.stringify({ spec: job.spec, provenance: job.provenance }, null, 2))),
     h("h2", {}, "Files"),
     files,

@@ -1,6 +1,7 @@
 // "System": is every part of the server up (database, Redis, workers), and the version.
-import { getHealth } from "../api.js";
-import { h, page, showError, table } from "../ui.js";
+import { getHealth, postJSON } from "../api.js";
+import { field, h, page, say, showError, table } from "../ui.js";
+import { JobProgress, followJob, jobName } from "./jobs.js";
 
 function part(ok, detail) {
   return ok ? "up" : `down: ${detail}`;
@@ -15,7 +16,7 @@ export function healthSummary(health) {
 
 export async function renderSystem(container, _params, context) {
   const body = h("div", {}, h("p", {}, "Checking…"));
-  page(container, "System health", body, h("p", {}, h("a", { href: "/api/docs" }, "API documentation (OpenAPI)")));
+  page(container, "System health", body, h("p", {}, h("a", { href: "/api/docs" }, "API documentation (OpenAPI)")), selftestForm(context));
   const refresh = async () => {
     try {
       const health = await getHealth();
@@ -43,4 +44,40 @@ export async function renderSystem(container, _params, context) {
   await refresh();
   const timer = setInterval(refresh, 5000);
   context.onLeave(() => clearInterval(timer));
+}
+
+/** Run the job system's self-test (synthetic frames on every worker) and watch it live. */
+function selftestForm(context) {
+  const frames = field("Synthetic frames", h("input", { type: "number", min: 1, max: 100000, step: 1, value: 200 }));
+  const size = field("Frame size (px)", h("input", { type: "number", min: 16, max: 4096, step: 1, value: 256 }));
+  const progressBox = h("div", { class: "selftest-progress" });
+  const watch = (job) => {
+    const link = h("a", { href: `#/jobs/${job.id}` }, jobName(job));
+    const progress = new JobProgress(job, { onRetried: watch });
+    progressBox.replaceChildren(h("p", {}, link), progress.element);
+    context.onLeave(followJob(job.id, { onJob: (current) => progress.update(current) }));
+  };
+  return h(
+    "form",
+    {
+      class: "card grid-form",
+      "aria-label": "Self-test of the workers",
+      onsubmit: async (event) => {
+        event.preventDefault();
+        try {
+          const job = await postJSON("jobs", { kind: "selftest", frames: Number(frames.input.value), frame_size_px: Number(size.input.value) });
+          say(`${jobName(job)} started.`);
+          watch(job);
+        } catch (error) {
+          showError(error, "start the self-test");
+        }
+      },
+    },
+    h("h2", {}, "Self-test of the workers"),
+    h("p", { class: "hint wide-row" }, "Every worker computes synthetic frames and writes them to the shared data directory; the job checks that each came back once, and measures frames per second."),
+    frames.wrap,
+    size.wrap,
+    h("div", { class: "actions" }, h("button", { type: "submit" }, "Run the self-test")),
+    h("div", { class: "wide-row" }, progressBox),
+  );
 }
