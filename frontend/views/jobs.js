@@ -358,6 +358,33 @@ export async function renderJobs(container, _params, context) {
   await list.refresh();
 }
 
+const MAX_CHUNK_ROWS = 40;
+
+/** A chunked job's parts: a table when there are few, else how many are in each state and which workers. */
+function chunksView(chunks) {
+  if (!chunks.length) return null;
+  const count = (state) => chunks.filter((c) => c.state === state).length;
+  const workers = [...new Set(chunks.map((c) => c.worker).filter(Boolean))];
+  const line = h("p", { class: "facts" },
+    `${chunks.length} chunks: ${count("done")} done, ${count("running")} running, ${count("pending")} pending`,
+    workers.length ? ` · workers: ${workers.join(", ")}` : "");
+  if (chunks.length > MAX_CHUNK_ROWS) return line;
+  return [
+    line,
+    table(
+      "Chunks",
+      [
+        { title: "Chunk", value: (c) => String(c.index) },
+        { title: "Frames", value: (c) => `${c.first_frame}–${c.stop_frame - 1}` },
+        { title: "State", value: (c) => c.state },
+        { title: "Done", value: (c) => `${c.done}/${c.stop_frame - c.first_frame}` },
+        { title: "Worker", value: (c) => c.worker || "–" },
+      ],
+      chunks,
+    ),
+  ];
+}
+
 function logLine(line) {
   return h("div", { class: `log-${line.level}` }, `${formatTime(line.at)}  ${line.level.padEnd(7)} ${line.message}`);
 }
@@ -410,22 +437,7 @@ export async function renderJob(container, { id }, context) {
         ? table("Result", [{ title: "Quantity", value: (r) => r[0] }, { title: "Value", value: (r) => (typeof r[1] === "number" ? String(Number(r[1].toPrecision(6))) : String(r[1])) }], scalars)
         : null,
     );
-    fill(
-      chunksBox,
-      current.chunks.length
-        ? table(
-            "Chunks",
-            [
-              { title: "Chunk", value: (c) => String(c.index) },
-              { title: "Frames", value: (c) => `${c.first_frame}–${c.stop_frame - 1}` },
-              { title: "State", value: (c) => c.state },
-              { title: "Done", value: (c) => `${c.done}/${c.stop_frame - c.first_frame}` },
-              { title: "Worker", value: (c) => c.worker || "–" },
-            ],
-            current.chunks,
-          )
-        : null,
-    );
+    fill(chunksBox, chunksView(current.chunks));
   };
   const progress = new JobProgress(job, {
     onRetried: (retried) => {
