@@ -1,13 +1,12 @@
 // The calibration report of a calibration job. Camera: the verdict with its reasons, the parameters with
-// ± standard errors and units, per-frame RMS bars and the residual vectors drawn over the image area, from the
-// job's camera-calibration document (schema "fringelab.camera-calibration"). Projector: the look-up table's
-// curves and its sensitivity map.
+// ± standard errors and units, per-frame RMS bars and the residual vectors drawn over the image area, from
+// GET /calibrations/{id}/report (the fields of the camera-calibration document, units in every name).
+// Projector: the look-up table's curves and its sensitivity map.
 import { getJSON } from "../api.js";
 import { Figure, axis, barTraces, imageLayout, layout, lineLayout, lineTraces, vectorTraces } from "../plots.js";
 import { attempt, field, fill, h, num, page, showError, table } from "../ui.js";
 import { describeInput, jobName } from "./jobs.js";
 
-const CAMERA_SCHEMA = "fringelab.camera-calibration";
 const PARAMETER_NAMES = {
   su: "scale factor s_u",
   f_mm: "focal length f",
@@ -147,23 +146,21 @@ function residualFigure(document, name) {
 }
 
 async function cameraReport(container, job, context) {
-  const file = job.files.find((f) => f.name.endsWith(".json"));
-  if (!file) {
-    showError(`${jobName(job)} has no calibration document among its files`, "show the calibration report");
+  const calibrationId = job.result && job.result.calibration_id;
+  if (!calibrationId) {
+    showError(`${jobName(job)} names no calibration in its result`, "show the calibration report");
     return;
   }
-  const document = await attempt("read the calibration document", () => getJSON(file.url));
-  if (!document || !context.current()) return;
-  if (document.schema !== CAMERA_SCHEMA) {
-    showError(`${file.name} is not a camera calibration (schema ${document.schema})`, "show the calibration report");
-    return;
-  }
+  const answer = await attempt("read the calibration report", () => getJSON(`calibrations/${calibrationId}/report`));
+  if (!answer || !context.current()) return;
+  const { calibration, report: document } = answer;
+  const file = { url: calibration.file_url, name: `camera-calibration-${calibration.id}.json` };
   const name = `camera-calibration-${job.id.slice(0, 8)}`;
   const frames = frameFigure(document, name);
   const residuals = residualFigure(document, name);
   page(
     container,
-    `Camera calibration report`,
+    `Camera calibration ${calibration.id} (version ${calibration.version})`,
     h("p", {}, h("a", { href: `#/jobs/${job.id}` }, jobName(job)), " · ", h("a", { href: file.url, download: file.name }, `Download ${file.name}`)),
     verdictBox(document.verdict),
     h(

@@ -120,8 +120,9 @@ export function followJob(jobId, { onJob, onLog = () => {}, onEnd = () => {} }) 
  * and jobs started elsewhere, are picked up by a slower poll of the list).
  */
 export class JobList {
-  constructor({ experimentId = null, context, label = "Jobs" }) {
+  constructor({ experimentId = null, context, label = "Jobs", onRefresh = () => {} }) {
     this.experimentId = experimentId;
+    this.onRefresh = onRefresh;
     this.context = context;
     this.label = label;
     this.rows = new Map(); // job id -> { progress: JobProgress, row: <tr> }
@@ -149,7 +150,10 @@ export class JobList {
     clearTimeout(this.timer);
     const jobs = await attempt("list the jobs", () => getJSON(`jobs${query({ experiment_id: this.experimentId, limit: 200 })}`));
     if (!this.context.current()) return;
-    if (jobs) this.show(jobs.items.filter((job) => job.kind !== "ingest" || isActive(job)));
+    if (jobs) {
+      this.show(jobs.items.filter((job) => job.kind !== "ingest" || isActive(job)));
+      this.onRefresh(jobs.items);
+    }
     const anyActive = jobs && jobs.items.some(isActive);
     this.timer = setTimeout(() => this.refresh(), anyActive ? 2000 : 10000);
   }
@@ -331,13 +335,29 @@ async function calibrationsOf(experimentId, cameraId, kind) {
   const found = await attempt(`list the ${kind} calibrations`, () =>
     getJSON(`calibrations${query({ camera_id: cameraId, kind })}`),
   );
-  return (found || []).map((c) => ({ id: c.id, label: `#${c.id} v${c.version} (${formatTime(c.created_at)})` }));
+  return (found || []).map((c) => {
+    const verdict = c.summary && c.summary.verdict ? `, ${c.summary.verdict}` : "";
+    const rms = c.summary && Number.isFinite(c.summary.rms_px) ? `, RMS ${c.summary.rms_px.toFixed(3)} px` : "";
+    return { id: c.id, label: `#${c.id} version ${c.version}${rms}${verdict} (${formatTime(c.created_at)})` };
+  });
 }
 
 /** The jobs section of an experiment page: the live list and the form. */
 export function jobsPanel({ experimentId, context, recordings }) {
-  const list = new JobList({ experimentId, context, label: "Jobs of this experiment" });
-  const form = jobForm({
+  let form = null;
+  let succeeded = -1;
+  const list = new JobList({
+    experimentId,
+    context,
+    label: "Jobs of this experiment",
+    // A calibration that has just succeeded becomes a choice of the form.
+    onRefresh: (jobs) => {
+      const now = jobs.filter((job) => job.state === "succeeded").length;
+      if (now !== succeeded && form) form.refresh();
+      succeeded = now;
+    },
+  });
+  form = jobForm({
     recordings,
     calibrations: (cameraId, kind) => calibrationsOf(experimentId, cameraId, kind),
     onStarted: () => list.refresh(),

@@ -179,8 +179,8 @@ class Viewer {
       { class: "viewer" },
       h("p", { class: "facts" },
         h("a", { href: `#/jobs/${this.job.id}` }, jobName(this.job)), " · ",
-        `${this.frames.length} frames · grid ${m.grid.nx} × ${m.grid.ny} (${num(m.grid.step_mm, 2)} mm) · `,
-        `w from ${num(m.w_range_mm[0], 2)} to ${num(m.w_range_mm[1], 2)} mm`),
+        `${this.frames.length} frames · grid ${m.grid.nx} × ${m.grid.ny} nodes, ${num(m.grid.step_mm, 2)} mm apart · `,
+        `peak deflection up to ${num(m.w_range_mm[1], 2)} mm`),
       h("div", { class: "player", role: "group", "aria-label": "Frames" },
         this.playButton,
         h("button", { type: "button", class: "small", "aria-label": "Previous frame", onclick: () => this.goTo(this.position - 1) }, "◀"),
@@ -390,17 +390,12 @@ class Viewer {
     fill(this.pointList, this.points.length ? this.points.map((point) => chip(point.label, point.color, () => this.removePoint(point.label), `point ${point.label}`)) : h("li", { class: "empty" }, "none yet"));
   }
 
-  /** Profiles of every line for the current frame and the pinned ones: [{ line, frame, profile }]. */
+  /** Profiles of every line for the current frame and the pinned ones: [{ line, frame, profile }], one request
+   * per line (the server samples the full-resolution grid). */
   async profiles() {
     const frames = [this.frame, ...[...this.pinned].filter((f) => f !== this.frame).sort((a, b) => a - b)];
-    const out = [];
-    for (const line of this.lines) {
-      for (const frame of frames) {
-        const fieldOfFrame = frame === this.frame ? this.current : await this.field(frame);
-        out.push({ line, frame, profile: await this.source.profile(frame, line, fieldOfFrame) });
-      }
-    }
-    return out;
+    const perLine = await Promise.all(this.lines.map((line) => this.source.profiles(frames, line)));
+    return this.lines.flatMap((line, i) => perLine[i].map((profile) => ({ line, frame: profile.frame, profile })));
   }
 
   async drawProfiles() {
@@ -507,6 +502,7 @@ class Viewer {
   }
 
   async findOtherCameras() {
+    this.label = await attempt("name the camera of this result", () => this.source.label());
     const others = await attempt("find the other cameras' topography", () => this.source.otherTopographies());
     if (!others || !this.context.current()) return;
     fill(this.compareSelect, h("option", { value: "" }, others.length ? "choose…" : "no other camera"),
@@ -531,7 +527,7 @@ class Viewer {
   /** Peak deflection of both cameras against time (or frame). */
   drawComparison() {
     const time = this.timeAxis();
-    const series = [{ name: `this camera (${this.meta.camera_name || "?"})`, x: time.values, y: this.meta.frames.peak_w_mm, color: COLORS[0], mode: "lines+markers" }];
+    const series = [{ name: this.label || "this camera", x: time.values, y: this.meta.frames.peak_w_mm, color: COLORS[0], mode: "lines+markers" }];
     if (this.comparison && this.comparison.meta) {
       const other = this.comparison.meta;
       const t = other.frames.time_s;
