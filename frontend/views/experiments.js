@@ -172,13 +172,20 @@ function cameraSection(camera, context, onRecordingsChanged) {
     h("select", {}, Object.entries(KIND_NAMES).map(([value, text]) => h("option", { value }, text))),
   );
   let timer = null;
+  let shown = null;
   const refresh = async () => {
     clearTimeout(timer);
     const recordings = await attempt(`list the recordings of ${camera.name}`, () => getJSON(`cameras/${camera.id}/recordings`));
     if (!recordings || !context.current()) return;
-    fill(recordingsBox, recordingsTable(camera, recordings));
-    onRecordingsChanged(camera, recordings);
-    if (recordings.some((r) => BUSY_STATES.includes(r.state))) timer = setTimeout(refresh, 1500);
+    const signature = JSON.stringify(recordings.map((r) => [r.id, r.state, r.frame_count, r.warnings.length, r.filename]));
+    if (signature !== shown) {
+      shown = signature;
+      fill(recordingsBox, recordingsTable(camera, recordings));
+      onRecordingsChanged(camera, recordings);
+    }
+    // Quickly while a recording is being checked; slowly otherwise, so that recordings uploaded by scripts or
+    // made by the demo appear too.
+    timer = setTimeout(refresh, recordings.some((r) => BUSY_STATES.includes(r.state)) ? 1500 : 5000);
   };
   context.onLeave(() => clearTimeout(timer));
   const uploader = new Uploader({
