@@ -3,8 +3,8 @@
 // GET /calibrations/{id}/report (the fields of the camera-calibration document, units in every name).
 // Projector: the look-up table's curves and its sensitivity map.
 import { getJSON } from "../api.js";
-import { Figure, axis, barTraces, imageLayout, layout, lineLayout, lineTraces, vectorTraces } from "../plots.js";
-import { attempt, field, fill, h, num, page, showError, table } from "../ui.js";
+import { Figure, axis, barTraces, imageLayout, layout, vectorTraces } from "../plots.js";
+import { attempt, field, h, num, page, showError, table } from "../ui.js";
 import { describeInput, jobName } from "./jobs.js";
 
 const PARAMETER_NAMES = {
@@ -193,10 +193,21 @@ export async function renderCalibration(container, { id }, context) {
   page(container, "Calibration report", h("p", {}, `${jobName(job)} is not a calibration.`));
 }
 
+/** The projector calibration: what the job reported. */
 async function projectorReport(container, job, context) {
-  page(container, "Projector calibration report", h("p", {}, h("a", { href: `#/jobs/${job.id}` }, jobName(job))), h("pre", {}, JSON.stringify(job.result, null, 2)));
-  fill(container.querySelector("pre"), JSON.stringify(job.result, null, 2));
-  void context;
-  void lineTraces;
-  void lineLayout;
+  const calibrationId = job.result && job.result.calibration_id;
+  const calibration = calibrationId ? await attempt("read the calibration", () => getJSON(`calibrations/${calibrationId}`)) : null;
+  if (!context.current()) return;
+  const scalars = Object.entries({ ...(calibration ? calibration.summary : {}), ...job.result }).filter(
+    ([, v]) => v === null || ["number", "string", "boolean"].includes(typeof v),
+  );
+  page(
+    container,
+    calibration ? `Projector calibration ${calibration.id} (version ${calibration.version})` : "Projector calibration",
+    h("p", {}, h("a", { href: `#/jobs/${job.id}` }, jobName(job)), calibration ? [" · ", h("a", { href: calibration.file_url }, "Download the table")] : null),
+    table("Projector calibration summary", [
+      { title: "Quantity", value: (r) => r[0] },
+      { title: "Value", value: (r) => (typeof r[1] === "number" ? String(Number(r[1].toPrecision(6))) : String(r[1])) },
+    ], scalars),
+  );
 }
