@@ -27,9 +27,9 @@ const DASHES = ["solid", "dash", "dot", "dashdot", "longdash", "longdashdot"];
 const FRAME_CACHE = 64; // fields kept in memory for quick back-and-forth (each ≤ 250 × 250 float32 = 250 kB)
 const SPEEDS = [2, 5, 10, 25];
 
-/** Diagnostics for the browser tests and curious users: how long each frame switch took, in ms. */
-window.fringelab = window.fringelab || {};
-window.fringelab.frameSwitchMs = [];
+/** Diagnostics for the browser tests and curious users (devtools): the viewer shown, and how long each frame
+ * switch took (fetch, decode and Plotly.react of the field and the profiles), in ms. */
+window.fringelab = { frameSwitchMs: [], viewer: null };
 
 function timeLabel(meta, frame) {
   const i = meta.frames.index.indexOf(frame);
@@ -49,8 +49,12 @@ export async function renderViewer(container, { id }, context) {
   const meta = await attempt("read the topography result", () => source.meta());
   if (!meta || !context.current()) return;
   const viewer = new Viewer(job, source, meta, context);
+  window.fringelab = { frameSwitchMs: [], viewer };
   page(container, `Topography: ${jobName(job)}`, viewer.element);
-  context.onLeave(() => viewer.dispose());
+  context.onLeave(() => {
+    viewer.dispose();
+    window.fringelab.viewer = null;
+  });
   await viewer.start();
 }
 
