@@ -118,7 +118,21 @@ class Viewer {
     });
     this.surfaceFigure.element.hidden = true;
     const tab = (name, view) =>
-      h("button", { type: "button", role: "tab", "aria-selected": view === "map" ? "true" : "false", "aria-controls": `field-${view}`, onclick: () => this.showFieldView(view) }, name);
+      h("button", {
+        type: "button",
+        role: "tab",
+        "aria-selected": view === "map" ? "true" : "false",
+        "aria-controls": `field-${view}`,
+        tabindex: view === "map" ? 0 : -1,
+        onclick: () => this.showFieldView(view),
+        onkeydown: (event) => {
+          // Arrow keys move between the two tabs, as screen-reader users expect of a tab list.
+          if (event.key !== "ArrowLeft" && event.key !== "ArrowRight") return;
+          const next = view === "map" ? "surface" : "map";
+          this.tabs[next].focus();
+          this.showFieldView(next);
+        },
+      }, name);
     this.tabs = { map: tab("2-D map", "map"), surface: tab("3-D surface", "surface") };
     this.mapFigure.element.id = "field-map";
     this.surfaceFigure.element.id = "field-surface";
@@ -228,6 +242,10 @@ class Viewer {
     await this.showFrame(0);
     // Plotly adds its event methods to the plot once it has drawn it.
     listenToMap(this.mapFigure, { onLine: (line) => this.addLine(line), onPoint: (point) => this.addPoint(point) });
+    this.mapFigure.plot.on("plotly_relayout", (update) => {
+      const zoomed = Object.keys(update).some((key) => key.startsWith("xaxis.") || key.startsWith("yaxis."));
+      if (zoomed && this.fullResolution) this.redraw(); // fetch the new window at full resolution
+    });
     await this.drawPeak();
     this.findOtherCameras();
   }
@@ -337,7 +355,10 @@ class Viewer {
 
   showFieldView(view) {
     this.fieldView = view;
-    for (const [name, button] of Object.entries(this.tabs)) button.setAttribute("aria-selected", String(name === view));
+    for (const [name, button] of Object.entries(this.tabs)) {
+      button.setAttribute("aria-selected", String(name === view));
+      button.tabIndex = name === view ? 0 : -1;
+    }
     this.mapFigure.element.hidden = view !== "map";
     this.surfaceFigure.element.hidden = view !== "surface";
     return this.drawField();
