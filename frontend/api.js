@@ -72,18 +72,14 @@ async function send(method, path, { json, text, as = "json", headers = {} } = {}
     throw error;
   }
   if (response.status === 204) return null;
-  if (as === "json") return response.json();
-  if (as === "text") return response.text();
   if (as === "buffer") return { buffer: await response.arrayBuffer(), headers: response.headers };
-  return response.blob();
+  return response.json();
 }
 
 /** `path` is either absolute ("/api/v1/...") or relative to /api/v1 ("experiments/3"). */
 export const getJSON = (path) => send("GET", path);
-export const getText = (path) => send("GET", path, { as: "text" });
 export const getBuffer = (path) => send("GET", path, { as: "buffer" });
 export const postJSON = (path, json = {}) => send("POST", path, { json });
-export const patchJSON = (path, json) => send("PATCH", path, { json });
 export const deleteJSON = (path) => send("DELETE", path);
 export const putText = (path, text) => send("PUT", path, { text });
 

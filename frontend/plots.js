@@ -127,13 +127,8 @@ export class Figure {
 
 // ---- fields (a 2-D array of deflection on a regular x, y grid) --------------------------------------------------
 
-/**
- * A field is { x: number[nx] (mm), y: number[ny] (mm), z: Float32Array[ny] rows (mm, NaN where unmeasured) }.
- * Heatmap and surface take the rows as they are; NaN leaves a hole.
- */
-function zRows(field) {
-  return field.z;
-}
+// A field is { x: number[nx] (mm), y: number[ny] (mm), z: Float32Array[ny] rows (mm, NaN where unmeasured) }.
+// Heatmap and surface take the rows as they are; NaN leaves a hole.
 
 /** Long-format CSV rows (x, y, value) of a field, row by row; unmeasured points have an empty value. */
 export function fieldRows(field) {
@@ -151,7 +146,7 @@ export function surfaceTraces(field, { range = null, valueName = "w", unit = "mm
       type: "surface",
       x: field.x,
       y: field.y,
-      z: zRows(field),
+      z: field.z,
       colorscale: DEFLECTION_SCALE,
       cmin: range ? range[0] : undefined,
       cmax: range ? range[1] : undefined,
@@ -183,7 +178,7 @@ export function mapTraces(field, { range = null, points = [], valueName = "w", u
       type: "heatmap",
       x: field.x,
       y: field.y,
-      z: zRows(field),
+      z: field.z,
       colorscale: DEFLECTION_SCALE,
       zmin: range ? range[0] : undefined,
       zmax: range ? range[1] : undefined,
@@ -319,13 +314,6 @@ export function lineLayout({ xAxis, yAxis, y2Axis = null, shapes = [] }) {
     out.margin = { ...out.margin, r: 70 };
   }
   return out;
-}
-
-/** CSV of line series sharing nothing: long format, one row per point (series name, x, y). */
-export function seriesRows(series) {
-  const rows = [];
-  for (const s of series) for (let i = 0; i < s.x.length; i += 1) rows.push([s.name, s.x[i], s.y[i]]);
-  return rows;
 }
 
 /** A vertical marker line at x on a line plot (the current frame's time on a history plot). */

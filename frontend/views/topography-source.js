@@ -2,7 +2,9 @@
 // .../grid, .../profile, .../history). One place to change when that API changes; the viewer only sees fields
 // ({ x, y, z rows }), profiles ({ s, x, y, w }) and histories ({ frame, time_s, w }).
 import { getBuffer, getJSON, query } from "../api.js";
-import { numbers } from "../fields.js";
+
+/** NaN for JSON nulls: the API's arrays carry null where there is no number. */
+const numbers = (values) => Array.from(values || [], (v) => (v === null || v === undefined ? NaN : Number(v)));
 
 export const DISPLAY_BUDGET = 250; // nodes per side of a frame's field (the server block-averages down to it)
 const PROFILE_POINTS = 300;
