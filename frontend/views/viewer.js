@@ -301,11 +301,11 @@ class Viewer {
     this.position = position;
     const frame = this.frame;
     try {
-      const current = await this.field(frame);
+      // The field and the profiles come from two requests: ask for both at once.
+      const [current, profiles] = await Promise.all([this.field(frame), this.profiles()]);
       if (!this.context.current()) return;
       this.current = current;
-      await this.drawField();
-      await this.drawProfiles();
+      await Promise.all([this.drawField(), this.drawProfiles(profiles)]);
       window.fringelab.frameSwitchMs.push(performance.now() - started);
       await Promise.all([this.drawHistories(), this.peakFigure.drawn ? this.drawPeak() : null]);
     } catch (error) {
@@ -423,8 +423,8 @@ class Viewer {
     return this.lines.flatMap((line, i) => perLine[i].map((profile) => ({ line, frame: profile.frame, profile })));
   }
 
-  async drawProfiles() {
-    this.shownProfiles = await this.profiles();
+  async drawProfiles(profiles = null) {
+    this.shownProfiles = profiles || (await this.profiles());
     const frames = [...new Set(this.shownProfiles.map((p) => p.frame))];
     const series = this.shownProfiles.map(({ line, frame, profile }) => ({
       name: `${line.label}, ${timeLabel(this.meta, frame)}`,
