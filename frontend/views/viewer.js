@@ -189,6 +189,10 @@ class Viewer {
     this.peakFigure = new Figure({ name: "Peak deflection and force", filename: `topography-${this.job.id.slice(0, 8)}-peak`, height: 340, csv: () => this.peakCSV() });
     this.compareSelect = h("select", { id: "compare-with" }, h("option", { value: "" }, "no other camera"));
     this.compareSelect.addEventListener("change", () => this.loadComparison());
+    this.compareWhat = h("select", { id: "compare-what" },
+      h("option", { value: "peak" }, "peak deflection over time"),
+      h("option", { value: "profile" }, "profile along the first section line, this frame"));
+    this.compareWhat.addEventListener("change", () => this.drawComparison());
     this.compareFigure = new Figure({ name: "Camera against camera", filename: `topography-${this.job.id.slice(0, 8)}-cameras`, height: 340, csv: () => this.compareCSV() });
 
     const m = this.meta;
@@ -227,7 +231,9 @@ class Viewer {
         h("div", {}, this.peakFigure.element)),
       (this.compareSection = h("section", { "aria-label": "Camera against camera", hidden: true },
         h("h2", {}, "Camera against camera"),
-        h("div", { class: "field inline" }, h("label", { for: "compare-with" }, "Compare with the topography of"), this.compareSelect),
+        h("div", { class: "compare-controls" },
+          h("div", { class: "field inline" }, h("label", { for: "compare-with" }, "Compare with the topography of"), this.compareSelect),
+          h("div", { class: "field inline" }, h("label", { for: "compare-what" }, "Compare"), this.compareWhat)),
         this.compareFigure.element)),
     );
   }
@@ -307,7 +313,11 @@ class Viewer {
       this.current = current;
       await Promise.all([this.drawField(), this.drawProfiles(profiles)]);
       window.fringelab.frameSwitchMs.push(performance.now() - started);
-      await Promise.all([this.drawHistories(), this.peakFigure.drawn ? this.drawPeak() : null]);
+      await Promise.all([
+        this.drawHistories(),
+        this.peakFigure.drawn ? this.drawPeak() : null,
+        this.compareFigure.drawn ? this.drawComparison() : null,
+      ]);
     } catch (error) {
       showError(error, `show frame ${frame}`);
       this.stop();
@@ -387,7 +397,7 @@ class Viewer {
     this.lines.push({ ...line, label, color: MARK_COLORS[index % MARK_COLORS.length] });
     this.drawChips();
     say(`Section line ${label} from (${num(line.x0, 1)}, ${num(line.y0, 1)}) to (${num(line.x1, 1)}, ${num(line.y1, 1)}) mm.`);
-    return Promise.all([this.drawField(), this.drawProfiles()]);
+    return Promise.all([this.drawField(), this.drawProfiles(), this.compareFigure.drawn ? this.drawComparison() : null]);
   }
 
   removeLine(label) {
@@ -545,32 +555,60 @@ class Viewer {
 
   async loadComparison() {
     const chosen = (this.others || []).find((o) => o.job.id === this.compareSelect.value);
-    this.comparison = chosen ? { label: chosen.label, meta: await attempt("read the other camera's result", () => chosen.source.meta()) } : null;
+    this.comparison = chosen
+      ? { label: chosen.label, source: chosen.source, meta: await attempt("read the other camera's result", () => chosen.source.meta()) }
+      : null;
     return this.drawComparison();
   }
 
-  /** Peak deflection of both cameras against time (or frame). */
-  drawComparison() {
+  /** The other camera's frame nearest in time to this one's current frame (the same index without times). */
+  otherFrame(other) {
+    const t = this.meta.frames.time_s[this.position];
+    const times = other.frames.time_s;
+    if (!Number.isFinite(t) || !times.every(Number.isFinite)) return other.frames.index.includes(this.frame) ? this.frame : null;
+    let best = 0;
+    times.forEach((v, i) => {
+      if (Math.abs(v - t) < Math.abs(times[best] - t)) best = i;
+    });
+    return other.frames.index[best];
+  }
+
+  /** Both cameras: peak deflection against time (or frame), or the first line's profile at this instant. */
+  async drawComparison() {
+    const other = this.comparison && this.comparison.meta ? this.comparison : null;
+    if (this.compareWhat.value === "profile" && this.lines.length) {
+      const line = this.lines[0];
+      const [mine] = await this.source.profiles([this.frame], line);
+      const series = [{ name: `${this.label || "this camera"}, frame ${this.frame}`, x: mine.s, y: mine.w, color: COLORS[0] }];
+      const frame = other ? this.otherFrame(other.meta) : null;
+      if (frame !== null) {
+        const [theirs] = await other.source.profiles([frame], line);
+        series.push({ name: `${other.label}, frame ${frame}`, x: theirs.s, y: theirs.w, color: COLORS[1] });
+      }
+      this.comparedSeries = { columns: ["camera", "s_mm", "w_mm"], series };
+      return this.compareFigure.react(lineTraces(series), lineLayout({ xAxis: axis(`distance along line ${line.label}`, "mm"), yAxis: axis("deflection w", "mm") }));
+    }
     const time = this.timeAxis();
     const series = [{ name: this.label || "this camera", x: time.values, y: this.meta.frames.peak_w_mm, color: COLORS[0], mode: "lines+markers" }];
-    if (this.comparison && this.comparison.meta) {
-      const other = this.comparison.meta;
-      const t = other.frames.time_s;
+    if (other) {
+      const t = other.meta.frames.time_s;
       series.push({
-        name: this.comparison.label,
-        x: time.key === "time" && t.every(Number.isFinite) ? t.map((v) => v * 1000) : other.frames.index,
-        y: other.frames.peak_w_mm,
+        name: other.label,
+        x: time.key === "time" && t.every(Number.isFinite) ? t.map((v) => v * 1000) : other.meta.frames.index,
+        y: other.meta.frames.peak_w_mm,
         color: COLORS[1],
         mode: "lines+markers",
       });
     }
-    this.comparedSeries = series;
-    return this.compareFigure.react(lineTraces(series), lineLayout({ xAxis: time.title, yAxis: axis("peak deflection w", "mm") }));
+    this.comparedSeries = { columns: ["camera", time.key === "time" ? "time_ms" : "frame", "peak_w_mm"], series };
+    const traces = lineTraces(series);
+    return this.compareFigure.react(traces, lineLayout({ xAxis: time.title, yAxis: axis("peak deflection w", "mm"), shapes: [verticalMarker(time.values[this.position])] }));
   }
 
   compareCSV() {
+    const { columns, series } = this.comparedSeries || { columns: ["camera", "x", "y"], series: [] };
     const rows = [];
-    for (const s of this.comparedSeries || []) s.x.forEach((x, i) => rows.push([s.name, x, s.y[i]]));
-    return { columns: ["camera", this.timeAxis().key === "time" ? "time_ms" : "frame", "peak_w_mm"], rows };
+    for (const one of series) one.x.forEach((x, i) => rows.push([one.name, x, one.y[i]]));
+    return { columns, rows };
   }
 }
