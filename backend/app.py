@@ -7,7 +7,7 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI
 
 from backend import __version__
-from backend.api import auth, health
+from backend.api import auth, experiments, health, recordings, uploads
 from backend.db import make_engine, make_sessionmaker
 from backend.errors import install_error_handlers
 from backend.frontend import mount_frontend
@@ -44,5 +44,8 @@ def create_app(settings: Settings) -> FastAPI:
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_json_bytes, exempt_prefixes=UPLOAD_PREFIXES)
     app.include_router(health.router, prefix="/api/v1")
     app.include_router(auth.router, prefix="/api/v1")
+    app.include_router(experiments.router, prefix="/api/v1")
+    app.include_router(recordings.router, prefix="/api/v1")
+    app.include_router(uploads.create_router(state), prefix="/api/v1")
     mount_frontend(app)  # last: it serves every path the API does not
     return app

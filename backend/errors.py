@@ -45,8 +45,20 @@ class Forbidden(ApiError):
     status_code, code = 403, "forbidden"
 
 
+class Gone(ApiError):
+    status_code, code = 410, "gone"
+
+
 class PayloadTooLarge(ApiError):
     status_code, code = 413, "payload_too_large"
+
+
+class UnsupportedMediaType(ApiError):
+    status_code, code = 415, "unsupported_media_type"
+
+
+class UnprocessableContent(ApiError):
+    status_code, code = 422, "unprocessable"
 
 
 class TooManyRequests(ApiError):
@@ -55,6 +67,20 @@ class TooManyRequests(ApiError):
 
 class ServiceUnavailable(ApiError):
     status_code, code = 503, "service_unavailable"
+
+
+# Codes of HTTPExceptions raised by FastAPI, Starlette and tuspyserver (tus protocol errors).
+HTTP_ERROR_CODES = {
+    400: "bad_request",
+    404: "not_found",
+    405: "method_not_allowed",
+    409: "conflict",
+    410: "gone",
+    412: "precondition_failed",
+    413: "payload_too_large",
+    415: "unsupported_media_type",
+    503: "service_unavailable",
+}
 
 
 def error_responses(*codes: int) -> dict[int | str, dict[str, object]]:
@@ -71,7 +97,7 @@ def install_error_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(HTTPException)
     async def _http_error(_request: Request, error: HTTPException) -> JSONResponse:
-        code = {404: "not_found", 405: "method_not_allowed", 413: "payload_too_large"}.get(error.status_code, "error")
+        code = HTTP_ERROR_CODES.get(error.status_code, "error")
         return JSONResponse(
             {"detail": str(error.detail), "code": code}, status_code=error.status_code, headers=error.headers
         )

@@ -1,4 +1,4 @@
-"""Database tables (SQLAlchemy 2 declarative). API schemas live apart from these, in `backend/schemas.py`.
+"""Database tables (SQLAlchemy 2 declarative). API schemas live apart from these, in `backend/schemas/`.
 
 The job row is the source of truth for a job's state; Celery only carries it out.
 """
@@ -85,6 +85,11 @@ class Recording(Base):
     qa: Mapped[dict[str, Any]] = mapped_column(default=dict)
     error: Mapped[str] = mapped_column(Text, default="")
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+    # The tus upload it came from (None for a plain PUT): a client that lost the last response finds it by this.
+    upload_id: Mapped[str | None] = mapped_column(String(64), nullable=True, unique=True, index=True)
+    # An earlier recording with the same bytes (same SHA-256); the file is stored once, hard-linked.
+    duplicate_of: Mapped[int | None] = mapped_column(ForeignKey("recordings.id", ondelete="SET NULL"), nullable=True)
+    ingest_job_id: Mapped[str | None] = mapped_column(ForeignKey("jobs.id", ondelete="SET NULL"), nullable=True)
 
     camera: Mapped[Camera] = relationship(back_populates="recordings")
 

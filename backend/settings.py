@@ -44,6 +44,26 @@ class Settings(BaseSettings):
     login_window_s: int = Field(300, ge=1, description="Window in which failed logins are counted.")
     max_json_bytes: int = Field(1_048_576, ge=1024, description="Largest accepted non-upload request body.")
     log_level: Literal["debug", "info", "warning", "error"] = Field("info", description="Log level.")
+    max_upload_bytes: int = Field(64 * 2**30, ge=1, description="Largest recording one upload may be, in bytes.")
+    min_free_disk_bytes: int = Field(
+        2**30,
+        ge=0,
+        description="Uploads are refused when they would leave less free space than this on the data volume.",
+    )
+    upload_expiry_days: int = Field(
+        5, ge=1, description="An unfinished resumable upload is deleted after this many days."
+    )
+    zip_max_uncompressed_bytes: int = Field(
+        256 * 2**30, ge=1, description="A ZIP whose entries expand to more than this in total is refused."
+    )
+    zip_max_ratio: float = Field(
+        200.0,
+        gt=1,
+        description="A ZIP entry over 1 MiB that expands more than this many times is refused as a ZIP bomb.",
+    )
+    preview_size_px: int = Field(
+        800, ge=64, le=8192, description="Longer side of the frame previews an upload's ingest stores, in pixels."
+    )
 
     @field_validator("log_level", mode="before")
     @classmethod

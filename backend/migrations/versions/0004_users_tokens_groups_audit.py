@@ -1,7 +1,7 @@
 """users, tokens, groups, audit
 
 Revision ID: 0004
-Revises: 0001
+Revises: 0002
 Create Date: 2026-11-21 01:05:03.346946
 """
 
@@ -9,7 +9,7 @@ import sqlalchemy as sa
 from alembic import op
 
 revision = "0004"
-down_revision = "0001"  # re-chained after 0002 and 0003 when those land
+down_revision = "0002"  # re-chained after 0003 when it lands
 branch_labels = None
 depends_on = None
 

@@ -1,0 +1,220 @@
+"""Recordings: list, read, update, delete; re-run the ingest; add a sidecar; frame previews, QA and the file.
+
+Uploads (tus and PUT) are in `backend.api.uploads`. Frames are served from the preview store the ingest wrote
+(`backend.previews`): display size at most FRINGELAB_PREVIEW_SIZE_PX, 8-bit; the original file, with its
+frames at full resolution and bit depth, is downloaded whole from `/recordings/{id}/file`.
+"""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Query, Request, Response
+from fastapi.responses import FileResponse
+from sqlalchemy import select
+from starlette.concurrency import run_in_threadpool
+
+from backend.api.deps import CurrentUser, SessionDep, StateDep
+from backend.auth import Principal, audit, readable_experiments
+from backend.errors import Conflict, NotFound, UnprocessableContent, error_responses
+from backend.models import Camera, Experiment, Recording
+from backend.previews import PREVIEW_FILE, encode_png, read_preview, read_qa
+from backend.recordings import (
+    camera_for,
+    delete_recording,
+    recording_for,
+    recording_out,
+    refuse_if_in_use,
+    start_ingest,
+    submit_ingest,
+)
+from backend.schemas.recordings import (
+    FrameQa,
+    RecordingKind,
+    RecordingOut,
+    RecordingQa,
+    RecordingState,
+    RecordingUpdate,
+    SidecarName,
+)
+from backend.storage import recording_dir, write_atomic
+
+router = APIRouter(tags=["recordings"])
+
+
+@router.get("/recordings", response_model=list[RecordingOut], responses=error_responses(401))
+def list_recordings(
+    session: SessionDep,
+    principal: CurrentUser,
+    experiment_id: int | None = None,
+    camera_id: int | None = None,
+    kind: RecordingKind | None = None,
+    state: RecordingState | None = None,
+    upload_id: str | None = Query(None, description="The tus upload a recording came from."),
+    limit: int = Query(500, ge=1, le=5000),
+    offset: int = Query(0, ge=0),
+) -> list[RecordingOut]:
+    """The recordings the caller may read, oldest first, filtered by any of the parameters."""
+    query = select(Recording).join(Camera).join(Experiment).where(readable_experiments(session, principal))
+    query = query.order_by(Recording.id)
+    for column, value in (
+        (Camera.experiment_id, experiment_id),
+        (Recording.camera_id, camera_id),
+        (Recording.kind, kind),
+        (Recording.state, state),
+        (Recording.upload_id, upload_id),
+    ):
+        if value is not None:
+            query = query.where(column == value)
+    return [recording_out(r) for r in session.scalars(query.limit(limit).offset(offset))]
+
+
+@router.get("/cameras/{camera_id}/recordings", response_model=list[RecordingOut], responses=error_responses(401, 404))
+def list_camera_recordings(camera_id: int, session: SessionDep, principal: CurrentUser) -> list[RecordingOut]:
+    camera = camera_for(session, principal, camera_id)
+    return [recording_out(r) for r in sorted(camera.recordings, key=lambda r: r.id)]
+
+
+@router.get("/recordings/{recording_id}", response_model=RecordingOut, responses=error_responses(401, 404))
+def read_recording(recording_id: int, session: SessionDep, principal: CurrentUser) -> RecordingOut:
+    return recording_out(recording_for(session, principal, recording_id))
+
+
+@router.patch("/recordings/{recording_id}", response_model=RecordingOut, responses=error_responses(401, 404, 409, 422))
+def update_recording(
+    recording_id: int, body: RecordingUpdate, session: SessionDep, state: StateDep, principal: CurrentUser
+) -> RecordingOut:
+    """A new kind re-runs the ingest (board detection, Z checks depend on it); refused while a job uses it."""
+    recording = recording_for(session, principal, recording_id, write=True)
+    if body.filename is not None:
+        recording.filename = body.filename
+    if body.kind is not None and body.kind != recording.kind:
+        refuse_if_in_use(session, f"recording {recording.id}", recording_ids=[recording.id])
+        recording.kind = body.kind
+        submit_ingest(session, state, recording)
+    session.commit()
+    return recording_out(recording)
+
+
+@router.delete("/recordings/{recording_id}", status_code=204, responses=error_responses(401, 404, 409))
+def remove_recording(recording_id: int, session: SessionDep, state: StateDep, principal: CurrentUser) -> Response:
+    """Deletes the recording and its files; 409 while a job (its ingest too) uses it."""
+    recording = recording_for(session, principal, recording_id, write=True)
+    delete_recording(session, state.settings, principal, recording)
+    return Response(status_code=204)
+
+
+@router.post(
+    "/recordings/{recording_id}/ingest",
+    status_code=202,
+    response_model=RecordingOut,
+    responses=error_responses(401, 404, 409, 503),
+)
+def reingest_recording(recording_id: int, session: SessionDep, state: StateDep, principal: CurrentUser) -> RecordingOut:
+    """Checks the recording again (new job; `ingest_job_id` names it)."""
+    return recording_out(start_ingest(session, state, recording_for(session, principal, recording_id, write=True)))
+
+
+@router.put(
+    "/recordings/{recording_id}/sidecars/{name}",
+    status_code=202,
+    response_model=RecordingOut,
+    responses=error_responses(401, 404, 409, 413, 422, 503),
+    openapi_extra={"requestBody": {"content": {"text/plain": {"schema": {"type": "string"}}}, "required": True}},
+)
+async def put_sidecar(
+    recording_id: int, name: SidecarName, request: Request, state: StateDep, principal: CurrentUser
+) -> RecordingOut:
+    """Adds or replaces `z.csv`, `frames.csv` or `board.json` (the body, UTF-8 text, at most
+    FRINGELAB_MAX_JSON_BYTES) and re-runs the ingest, which validates it against the frames. A sidecar added
+    this way wins over one inside a ZIP."""
+    body = await request.body()
+    return await run_in_threadpool(_store_sidecar, state, principal, recording_id, name, body)
+
+
+def _store_sidecar(state: StateDep, principal: Principal, recording_id: int, name: str, data: bytes) -> RecordingOut:
+    try:
+        data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise UnprocessableContent(f"{name}: not UTF-8 text", code="invalid_sidecar") from None
+    with state.sessions() as session:
+        recording = recording_for(session, principal, recording_id, write=True)
+        refuse_if_in_use(session, f"recording {recording.id}", recording_ids=[recording.id])
+        write_atomic(recording_dir(state.settings.data_path, recording.id) / name, data)
+        audit(session, principal, "upload", "sidecar", recording.id, name=name, size_bytes=len(data))
+        return recording_out(submit_ingest(session, state, recording))
+
+
+@router.get(
+    "/recordings/{recording_id}/frames/{index}",
+    response_class=Response,
+    responses={200: {"content": {"image/png": {}}}, **error_responses(401, 404, 409)},
+)
+async def frame_png(
+    recording_id: int,
+    index: int,
+    state: StateDep,
+    principal: CurrentUser,
+    max_px: int | None = Query(None, ge=16, le=8192, description="Longer side at most this (default: stored)."),
+) -> Response:
+    """Frame `index` (0-based) as a grey 8-bit PNG, from the previews the ingest stored."""
+    png, tag = await run_in_threadpool(_frame_png, state, principal, recording_id, index, max_px)
+    return Response(png, media_type="image/png", headers={"Cache-Control": "private, max-age=3600", "ETag": tag})
+
+
+def _frame_png(
+    state: StateDep, principal: Principal, recording_id: int, index: int, max_px: int | None
+) -> tuple[bytes, str]:
+    with state.sessions() as session:
+        recording = recording_for(session, principal, recording_id)
+        if recording.state != "ready":
+            raise Conflict(f"recording {recording_id} is {recording.state}; previews come with ready", code="not_ready")
+        tag = f'"{recording.ingest_job_id}-{index}-{max_px}"'
+    path = recording_dir(state.settings.data_path, recording_id) / PREVIEW_FILE
+    try:
+        image = read_preview(path, index, max_px=max_px)
+    except IndexError as error:
+        raise NotFound(str(error), code="frame_not_found") from None
+    except (FileNotFoundError, KeyError, OSError):
+        raise Conflict(f"recording {recording_id} has no previews; run its ingest again", code="not_ready") from None
+    return encode_png(image), tag
+
+
+@router.get("/recordings/{recording_id}/qa", response_model=RecordingQa, responses=error_responses(401, 404, 409))
+def recording_qa(recording_id: int, session: SessionDep, state: StateDep, principal: CurrentUser) -> RecordingQa:
+    """The QA summary (warnings, notes) and the per-frame numbers behind it."""
+    recording = recording_for(session, principal, recording_id)
+    if recording.state != "ready":
+        reason = f": {recording.error}" if recording.error else ""
+        raise Conflict(f"recording {recording_id} is {recording.state}{reason}", code="not_ready")
+    try:
+        arrays, attrs = read_qa(recording_dir(state.settings.data_path, recording_id) / PREVIEW_FILE)
+    except (FileNotFoundError, KeyError, OSError):
+        raise Conflict(f"recording {recording_id} has no QA; run its ingest again", code="not_ready") from None
+    out = recording_out(recording)
+    return RecordingQa(
+        recording_id=recording.id,
+        state=out.state,
+        full_scale_dn=attrs.get("full_scale_dn", 0),
+        warnings=out.warnings,
+        notes=out.notes,
+        error=recording.error,
+        frames=FrameQa(
+            mean_fraction=[round(float(v), 5) for v in arrays["mean_fraction"]],
+            saturation_pct=[round(float(v), 4) for v in arrays["saturation_pct"]],
+            contrast=[round(float(v), 4) for v in arrays["contrast"]],
+            board_found=[None if v < 0 else bool(v) for v in arrays["board_found"]],
+        ),
+    )
+
+
+@router.get(
+    "/recordings/{recording_id}/file",
+    response_class=FileResponse,
+    responses={200: {"content": {"application/octet-stream": {}}}, **error_responses(401, 404)},
+)
+def download_recording(recording_id: int, session: SessionDep, state: StateDep, principal: CurrentUser) -> FileResponse:
+    """The uploaded file as it was sent (full resolution and bit depth), streamed."""
+    recording = recording_for(session, principal, recording_id)
+    path = state.settings.data_path / recording.path
+    if not recording.path or not path.is_file():
+        raise NotFound(f"recording {recording_id} has no stored file", code="file_not_found")
+    return FileResponse(path, filename=recording.filename, media_type="application/octet-stream")
