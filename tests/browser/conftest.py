@@ -59,24 +59,40 @@ def api_paths(live_server: UpProcess) -> set[str]:
 
 @pytest.fixture
 def expected_console_errors() -> list[str]:
-    """Regular expressions of console errors a test provokes on purpose (Chromium logs every HTTP 4xx/5xx
-    answer as "Failed to load resource: ... status of 404"); any other console error fails the test."""
+    """Regular expressions of the errors a test provokes on purpose. Each failed HTTP answer is listed as
+    "STATUS METHOD URL" (e.g. "404 GET http://.../api/v1/jobs/x"; Chromium's console only says "Failed to load
+    resource"), each other console error by its text; anything not matched fails the test."""
     return []
 
 
 @pytest.fixture
 def page(browser, live_server: UpProcess, expected_console_errors: list[str]) -> Iterator[object]:
-    context = browser.new_context(
+    context = browser.new_context(  # type: ignore[attr-defined]
         viewport={"width": 1280, "height": 800}, base_url=live_server.base_url, accept_downloads=True
-    )  # type: ignore[attr-defined]
+    )
     opened = context.new_page()
-    console_errors: list[str] = []
-    opened.on("console", lambda message: console_errors.append(message.text) if message.type == "error" else None)
-    opened.on("pageerror", lambda error: console_errors.append(str(error)))
+    errors: list[str] = []
+    opened.on(
+        "console",
+        lambda message: (
+            errors.append(message.text)
+            if message.type == "error" and not message.text.startswith("Failed to load resource")
+            else None
+        ),
+    )
+    opened.on("pageerror", lambda error: errors.append(str(error)))
+    opened.on(
+        "response",
+        lambda response: (
+            errors.append(f"{response.status} {response.request.method} {response.url}")
+            if response.status >= 400
+            else None
+        ),
+    )
     yield opened
     context.close()
-    unexpected = [e for e in console_errors if not any(re.search(p, e) for p in expected_console_errors)]
-    assert unexpected == [], f"errors in the browser console: {unexpected}"
+    unexpected = [e for e in errors if not any(re.search(p, e) for p in expected_console_errors)]
+    assert unexpected == [], f"errors in the browser: {unexpected}"
 
 
 def screenshot(page, name: str) -> Path:  # type: ignore[no-untyped-def]

@@ -31,7 +31,7 @@ def test_system_page_shows_every_part_up_without_internet(page, live_server):
 
 
 def test_an_api_error_is_shown_in_the_alert_region(page, expected_console_errors):
-    expected_console_errors.append(r"status of 404")
+    expected_console_errors.append(r"^404 GET .*/api/v1/jobs/no-such-job$")
     page.goto("/#/jobs/no-such-job")
     expect(page.get_by_role("alert")).to_contain_text("Could not open the job")
     page.get_by_role("button", name="Dismiss the error").click()
