@@ -75,7 +75,7 @@ export async function renderRecording(container, { id }, context) {
       ? [
           { name: "mean grey level", x: frames, y: qaFrames.mean_fraction.map((v) => 100 * v) },
           { name: "saturated pixels", x: frames, y: qaFrames.saturation_pct },
-          { name: "contrast", x: frames, y: qaFrames.contrast.map((v) => 100 * v) },
+          { name: "contrast × 100", x: frames, y: qaFrames.contrast.map((v) => 100 * v) },
         ]
       : [];
   const qaTraces = () => {
