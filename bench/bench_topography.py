@@ -1,0 +1,153 @@
+"""Benchmark of the structured-light topography, single-threaded: frames per second per core, and peak memory.
+
+    python bench/bench_topography.py [--frames 40] [--memory-frames 20,40,80]
+
+Reports, for the virtual experiment at 512 × 480 (kodak) and 1024 × 1024 (phantom):
+- edges: `fringes.locate_edges` per frame (the part that runs in parallel chunks);
+- track+Z+XY: the sequential pass `topography.track_and_measure` (identity, tracking, table lookup,
+  back-projection) per frame;
+- edges+track+Z+XY: both, the figure the targets are about (≥ 25 frames/s/core at 512 × 480, ≥ 8 at 1024 × 1024);
+- gridding: `topography.grid_measurement` per frame (2 mm grid);
+- peak memory (tracemalloc, all numpy buffers included) of `topography_recording` over PNG recordings of
+  increasing length, read lazily: it must not grow with the frame count;
+- edge location bias and noise on straight stripes with known sub-pixel edges (σ = 2 grey levels).
+Frames are rendered with one sample per pixel (analytic blur) to keep the set-up short; rendering is not timed.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS"):
+    os.environ[_name] = "1"
+
+import argparse  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+import tracemalloc  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+from worker.measurement.fringes import EdgeSettings, locate_edges  # noqa: E402
+from worker.measurement.projector import build_projector_calibration, exact_camera_model  # noqa: E402
+from worker.measurement.readers import open_recording  # noqa: E402
+from worker.measurement.simulate import (  # noqa: E402
+    FringeRenderer,
+    Imaging,
+    preset,
+    punch_timeline,
+    render_straight_stripes,
+)
+from worker.measurement.topography import (  # noqa: E402
+    TopographySettings,
+    grid_for_first_frame,
+    grid_measurement,
+    topography_recording,
+    track_and_measure,
+)
+from worker.measurement.topography_files import write_recording  # noqa: E402
+
+cv2.setNumThreads(1)
+
+
+def best_of(repeats: int, function):  # type: ignore[no-untyped-def]
+    """The shortest of `repeats` runs (seconds) and the last result: the least disturbed by other load."""
+    best, result = float("inf"), None
+    for _ in range(repeats):
+        start = time.perf_counter()
+        result = function()
+        best = min(best, time.perf_counter() - start)
+    return best, result
+
+
+def speed(name: str, n_frames: int) -> dict[str, float]:
+    setup = preset(name, imaging=Imaging(supersample=1))
+    renderer = FringeRenderer(setup)
+    rng = np.random.default_rng(1)
+    z_mm = np.arange(0.0, 80.0 + 1e-9, 2.0)
+    camera = exact_camera_model(setup.camera)
+    projector = build_projector_calibration([renderer.render_flat(z, rng=rng) for z in z_mm], z_mm, camera)
+    frames = [renderer.render_test(state, rng=rng) for state in punch_timeline(n_frames).states]
+
+    edge_time, edges = best_of(3, lambda: [locate_edges(f, projector.edges) for f in frames])
+    track_time, measurements = best_of(3, lambda: list(track_and_measure(edges, projector, camera)))
+    grid, max_edge_mm = grid_for_first_frame(measurements[0], projector, TopographySettings())
+    grid_time, _ = best_of(
+        3, lambda: [grid_measurement(m, projector, grid, max_edge_mm=max_edge_mm) for m in measurements]
+    )
+    n_points = np.mean([len(m.k) for m in measurements])
+    return {
+        "edges": n_frames / edge_time,
+        "track+Z+XY": n_frames / track_time,
+        "edges+track+Z+XY": n_frames / (edge_time + track_time),
+        "gridding": n_frames / grid_time,
+        "points per frame": float(n_points),
+        "grid nodes": float(grid.shape[0] * grid.shape[1]),
+    }
+
+
+def peak_memory(name: str, frame_counts: list[int]) -> dict[int, float]:
+    setup = preset(name, imaging=Imaging(supersample=1))
+    renderer = FringeRenderer(setup)
+    rng = np.random.default_rng(2)
+    z_mm = np.arange(0.0, 80.0 + 1e-9, 2.0)
+    camera = exact_camera_model(setup.camera)
+    projector = build_projector_calibration([renderer.render_flat(z, rng=rng) for z in z_mm], z_mm, camera)
+    peaks = {}
+    with tempfile.TemporaryDirectory() as folder:
+        for n in frame_counts:
+            states = punch_timeline(n).states
+            recording = write_recording(Path(folder) / f"test{n}", (renderer.render_test(s, rng=rng) for s in states))
+            tracemalloc.start()
+            topography_recording(open_recording(recording), camera, projector, out_path=Path(folder) / f"r{n}.h5")
+            _, peak = tracemalloc.get_traced_memory()
+            tracemalloc.stop()
+            peaks[n] = peak / 2**20
+    return peaks
+
+
+def edge_bias_and_noise() -> dict[str, float]:
+    rng = np.random.default_rng(3)
+    errors_raw, errors = [], []
+    for angle in (0.0, 7.0, 20.0):
+        for phase in np.linspace(0.0, 1.0, 5, endpoint=False):
+            image = render_straight_stripes((240, 256), period_px=10.0, angle_deg=angle, phase_px=phase, rng=rng)
+            theta = np.deg2rad(angle)
+            normal = np.array([np.cos(theta), np.sin(theta)])
+            for smoothing, sink in ((0.0, errors_raw), (3.0, errors)):
+                edges = locate_edges(image, EdgeSettings(axis="rows", period_px=10.0 / np.cos(theta),
+                                                         edge_smoothing_px=smoothing))  # fmt: skip
+                x = edges.q_px() @ normal - phase
+                sink.append(((x / 5.0 - np.round(x / 5.0)) * 5.0) / normal[0])
+    raw, smooth = np.concatenate(errors_raw), np.concatenate(errors)
+    return {
+        "bias raw px": float(np.mean(raw)),
+        "noise raw px": float(np.std(raw)),
+        "bias smoothed px": float(np.mean(smooth)),
+        "noise smoothed px": float(np.std(smooth)),
+        "max |error| smoothed px": float(np.max(np.abs(smooth))),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=40)
+    parser.add_argument("--memory-frames", default="20,40,80")
+    args = parser.parse_args()
+    print("single-threaded (OMP/OPENBLAS/MKL = 1, cv2.setNumThreads(1)); frames per second per core")
+    for name, size in (("kodak", "512 x 480"), ("phantom", "1024 x 1024")):
+        figures = speed(name, args.frames)
+        print(f"{size}: " + "; ".join(f"{k} {v:.1f}" for k, v in figures.items()))
+    counts = [int(n) for n in args.memory_frames.split(",")]
+    for name, size in (("kodak", "512 x 480"), ("phantom", "1024 x 1024")):
+        peaks = peak_memory(name, counts)
+        print(f"{size}: peak traced memory of topography_recording: " + ", ".join(
+            f"{n} frames {mb:.0f} MiB" for n, mb in peaks.items()))  # fmt: skip
+    print("edge location on known stripes (period 10 px, σ = 2 grey, blur 0.7 px): " + "; ".join(
+        f"{k} {v:+.4f}" if "bias" in k else f"{k} {v:.4f}" for k, v in edge_bias_and_noise().items()))  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
