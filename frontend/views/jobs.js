@@ -2,7 +2,8 @@
 // defaults), live progress bars (Server-Sent Events), cancel and retry, the error text of a failed job, its log,
 // its files and links to its report or viewer.
 import { getJSON, postJSON, query, subscribe } from "../api.js";
-import { attempt, field, fill, formatBytes, formatDuration, formatTime, h, newId, page, say, showError, table } from "../ui.js";
+import { specInputs } from "../specform.js";
+import { attempt, field, fill, formatBytes, formatDuration, formatTime, h, page, say, showError, table } from "../ui.js";
 
 export const JOB_KIND_NAMES = {
   ingest: "Ingest",
@@ -223,89 +224,80 @@ const RECORDING_KIND_OF_JOB = {
 };
 
 /**
- * The form that starts a calibration or topography job. `recordings()` returns the experiment's recordings
- * (with `camera_name`), `calibrations(cameraId, kind)` resolves to [{ id, label }] of succeeded calibrations.
- * The JSON it sends is shown under the form: the same spec a script sends to POST /api/v1/jobs.
+ * The form that starts a calibration or topography job, its inputs made from the API's schema of each kind's
+ * spec (specform.js): the same parameters and defaults a script sends to POST /api/v1/jobs, shown as JSON under
+ * the form. `recordings()` returns the experiment's recordings (with `camera_name`); `calibrations(cameraId,
+ * kind)` resolves to [{ id, label }] of its calibrations, newest first.
  */
 export function jobForm({ recordings, calibrations, onStarted }) {
   const kind = field(
     "Job kind",
     h("select", {}, Object.keys(RECORDING_KIND_OF_JOB).map((value) => h("option", { value }, JOB_KIND_NAMES[value]))),
   );
-  const recording = field("Recording", h("select", { required: true }));
-  recording.wrap.classList.add("wide");
-  const cameraCal = field("Camera calibration", h("select", {}));
-  const projectorCal = field("Projector calibration", h("select", {}));
-  const first = field("First frame", h("input", { type: "number", min: 0, step: 1, value: 0 }), "0-based");
-  const last = field("Last frame", h("input", { type: "number", min: 0, step: 1, placeholder: "last" }), "inclusive; empty: the recording's last");
-  const step = field("Frame step", h("input", { type: "number", min: 1, max: 1000, step: 1, value: 1 }), "every n-th frame");
-  const chunk = field("Frames per chunk", h("input", { type: "number", min: 1, step: 1, placeholder: "server default" }), "parallel work units; empty: FRINGELAB_CHUNK_FRAMES");
+  const pickers = {
+    recording_id: { label: "Recording", select: h("select", { required: true }) },
+    camera_calibration_id: { label: "Camera calibration", select: h("select", { required: true }) },
+    projector_calibration_id: { label: "Projector calibration", select: h("select", { required: true }) },
+  };
+  const inputs = h("div", { class: "spec-inputs grid-form" });
+  const about = h("p", { class: "hint wide-row" });
   const specView = h("pre", { class: "spec", "aria-label": "Job spec (JSON)" });
   const submit = h("button", { type: "submit", class: "primary" }, "Start job");
+  let current = null;
 
-  const spec = () => {
-    const out = { kind: kind.input.value, recording_id: Number(recording.input.value) || null };
-    if (out.kind !== "camera_calibration") out.camera_calibration_id = Number(cameraCal.input.value) || null;
-    if (out.kind === "topography") out.projector_calibration_id = Number(projectorCal.input.value) || null;
-    out.frames = { first: Number(first.input.value || 0), last: last.input.value === "" ? null : Number(last.input.value), step: Number(step.input.value || 1) };
-    if (out.kind === "topography" && chunk.input.value !== "") out.chunk_frames = Number(chunk.input.value);
-    return out;
-  };
   const showSpec = () => {
-    specView.textContent = JSON.stringify(spec(), null, 2);
+    specView.textContent = current ? JSON.stringify(current.spec(), null, 2) : "";
   };
-
   const options = (select, items, emptyText) => {
     const previous = select.value;
     fill(select, items.length ? items.map((item) => h("option", { value: item.id }, item.label)) : h("option", { value: "" }, emptyText));
     if (items.some((item) => String(item.id) === previous)) select.value = previous;
   };
-
   const refreshCalibrations = async () => {
-    const chosen = recordings().find((r) => String(r.id) === recording.input.value);
-    const needCamera = kind.input.value !== "camera_calibration";
-    const needProjector = kind.input.value === "topography";
-    cameraCal.wrap.hidden = !needCamera;
-    projectorCal.wrap.hidden = !needProjector;
-    chunk.wrap.hidden = !needProjector;
-    if (chosen && needCamera) {
-      options(cameraCal.input, await calibrations(chosen.camera_id, "camera"), "no camera calibration yet");
-    }
-    if (chosen && needProjector) {
-      options(projectorCal.input, await calibrations(chosen.camera_id, "projector"), "no projector calibration yet");
+    const chosen = recordings().find((r) => String(r.id) === pickers.recording_id.select.value);
+    if (chosen) {
+      const [cameraCals, projectorCals] = await Promise.all([calibrations(chosen.camera_id, "camera"), calibrations(chosen.camera_id, "projector")]);
+      options(pickers.camera_calibration_id.select, cameraCals, "no camera calibration yet");
+      options(pickers.projector_calibration_id.select, projectorCals, "no projector calibration yet");
     }
     showSpec();
   };
-
   const refreshRecordings = () => {
     const wanted = RECORDING_KIND_OF_JOB[kind.input.value];
     const ready = recordings().filter((r) => r.kind === wanted && r.state === "ready");
     options(
-      recording.input,
+      pickers.recording_id.select,
       ready.map((r) => ({ id: r.id, label: `#${r.id} ${r.filename} (${r.camera_name}, ${r.frame_count} frames)` })),
       "no ready recording of this kind",
     );
     return refreshCalibrations();
   };
+  const changeKind = async () => {
+    try {
+      current = await specInputs(kind.input.value, pickers);
+      about.textContent = current.description;
+      inputs.replaceChildren(...current.elements);
+      pickers.recording_id.select.closest(".field").classList.add("wide");
+      await refreshRecordings();
+    } catch (error) {
+      showError(error, "read the job parameters from the server");
+    }
+  };
 
-  kind.input.addEventListener("change", refreshRecordings);
-  recording.input.addEventListener("change", refreshCalibrations);
-  for (const input of [cameraCal.input, projectorCal.input, first.input, last.input, step.input, chunk.input]) {
-    input.addEventListener("input", showSpec);
-    input.addEventListener("change", showSpec);
-  }
-  const specId = newId("spec");
-  specView.id = specId;
+  kind.input.addEventListener("change", changeKind);
+  pickers.recording_id.select.addEventListener("change", refreshCalibrations);
   const form = h(
     "form",
     {
-      class: "card grid-form",
+      class: "card",
       "aria-label": "Start a job",
+      oninput: showSpec,
+      onchange: showSpec,
       onsubmit: async (event) => {
         event.preventDefault();
         submit.disabled = true;
         try {
-          const job = await postJSON("jobs", spec());
+          const job = await postJSON("jobs", current.spec());
           say(`${jobName(job)} started.`);
           onStarted(job);
         } catch (error) {
@@ -316,18 +308,13 @@ export function jobForm({ recordings, calibrations, onStarted }) {
       },
     },
     h("h3", {}, "Start a job"),
-    kind.wrap,
-    recording.wrap,
-    cameraCal.wrap,
-    projectorCal.wrap,
-    first.wrap,
-    last.wrap,
-    step.wrap,
-    chunk.wrap,
+    h("div", { class: "grid-form" }, kind.wrap, about),
+    inputs,
     h("div", { class: "actions" }, submit),
     h("details", { class: "spec-box" }, h("summary", {}, "The spec sent to POST /api/v1/jobs"), specView),
   );
-  return { element: form, refresh: refreshRecordings };
+  const ready = changeKind();
+  return { element: form, refresh: () => ready.then(refreshRecordings) };
 }
 
 /** The calibrations of a camera, from its succeeded calibration jobs. */

@@ -1,6 +1,7 @@
 // "System": is every part of the server up (database, Redis, workers), and the version.
 import { getHealth, postJSON } from "../api.js";
-import { field, h, page, say, showError, table } from "../ui.js";
+import { specInputs } from "../specform.js";
+import { h, page, say, showError, table } from "../ui.js";
 import { JobProgress, followJob, jobName } from "./jobs.js";
 
 function part(ok, detail) {
@@ -46,16 +47,25 @@ export async function renderSystem(container, _params, context) {
   context.onLeave(() => clearInterval(timer));
 }
 
-/** Run the job system's self-test (synthetic frames on every worker) and watch it live. */
+/** Run the job system's self-test (synthetic frames on every worker) and watch it live; its parameters come
+ * from the API's schema of the selftest spec. */
 function selftestForm(context) {
-  const frames = field("Synthetic frames", h("input", { type: "number", min: 1, max: 100000, step: 1, value: 200 }));
-  const size = field("Frame size (px)", h("input", { type: "number", min: 16, max: 4096, step: 1, value: 256 }));
+  const inputs = h("div", { class: "grid-form wide-row" });
+  const about = h("p", { class: "hint wide-row" });
   const progressBox = h("div", { class: "selftest-progress" });
+  let current = null;
+  specInputs("selftest")
+    .then((made) => {
+      current = made;
+      about.textContent = made.description;
+      inputs.replaceChildren(...made.elements);
+    })
+    .catch((error) => showError(error, "read the self-test's parameters from the server"));
   const watch = (job) => {
     const link = h("a", { href: `#/jobs/${job.id}` }, jobName(job));
     const progress = new JobProgress(job, { onRetried: watch });
     progressBox.replaceChildren(h("p", {}, link), progress.element);
-    context.onLeave(followJob(job.id, { onJob: (current) => progress.update(current) }));
+    context.onLeave(followJob(job.id, { onJob: (latest) => progress.update(latest) }));
   };
   return h(
     "form",
@@ -65,7 +75,7 @@ function selftestForm(context) {
       onsubmit: async (event) => {
         event.preventDefault();
         try {
-          const job = await postJSON("jobs", { kind: "selftest", frames: Number(frames.input.value), frame_size_px: Number(size.input.value) });
+          const job = await postJSON("jobs", current.spec());
           say(`${jobName(job)} started.`);
           watch(job);
         } catch (error) {
@@ -74,9 +84,8 @@ function selftestForm(context) {
       },
     },
     h("h2", {}, "Self-test of the workers"),
-    h("p", { class: "hint wide-row" }, "Every worker computes synthetic frames and writes them to the shared data directory; the job checks that each came back once, and measures frames per second."),
-    frames.wrap,
-    size.wrap,
+    about,
+    inputs,
     h("div", { class: "actions" }, h("button", { type: "submit" }, "Run the self-test")),
     h("div", { class: "wide-row" }, progressBox),
   );

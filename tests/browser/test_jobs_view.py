@@ -22,7 +22,7 @@ def _jobs_api(api_paths):
 def run_selftest(page, *, frames: int, size_px: int) -> None:
     page.goto("/#/system")
     form = page.get_by_role("form", name="Self-test of the workers")
-    form.get_by_label("Synthetic frames").fill(str(frames))
+    form.get_by_label("Frames", exact=True).fill(str(frames))
     form.get_by_label("Frame size (px)").fill(str(size_px))
     form.get_by_role("button", name="Run the self-test").click()
 
