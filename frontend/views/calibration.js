@@ -193,21 +193,122 @@ export async function renderCalibration(container, { id }, context) {
   page(container, "Calibration report", h("p", {}, `${jobName(job)} is not a calibration.`));
 }
 
-/** The projector calibration: what the job reported. */
+const MAP_LINES = 16; // scan lines sampled for the sensitivity map (one request each)
+
+/** Least-squares slope of t against z over the finite samples (px/mm), or NaN with fewer than 2. */
+function slope(z, t) {
+  const pairs = z.map((zi, i) => [zi, t[i]]).filter(([zi, ti]) => Number.isFinite(zi) && Number.isFinite(ti));
+  if (pairs.length < 2) return NaN;
+  const mz = pairs.reduce((a, p) => a + p[0], 0) / pairs.length;
+  const mt = pairs.reduce((a, p) => a + p[1], 0) / pairs.length;
+  const szz = pairs.reduce((a, p) => a + (p[0] - mz) ** 2, 0);
+  return szz > 0 ? pairs.reduce((a, p) => a + (p[0] - mz) * (p[1] - mt), 0) / szz : NaN;
+}
+
+const numbersOf = (values) => values.map((v) => (v === null ? NaN : v));
+
+/** The edge's position at the reference height (the sample nearest to it), px. */
+function tAtReference(lut, curve) {
+  const i = lut.z_mm.reduce((best, z, j) => (Math.abs(z - lut.reference_z_mm) < Math.abs(lut.z_mm[best] - lut.reference_z_mm) ? j : best), 0);
+  return curve.t_px[i];
+}
+
+/** The projector calibration: its settings and QA, the table's curves along a scan line, and its sensitivity. */
 async function projectorReport(container, job, context) {
   const calibrationId = job.result && job.result.calibration_id;
-  const calibration = calibrationId ? await attempt("read the calibration", () => getJSON(`calibrations/${calibrationId}`)) : null;
-  if (!context.current()) return;
-  const scalars = Object.entries({ ...(calibration ? calibration.summary : {}), ...job.result }).filter(
-    ([, v]) => v === null || ["number", "string", "boolean"].includes(typeof v),
-  );
+  if (!calibrationId) {
+    showError(`${jobName(job)} names no calibration in its result`, "show the calibration report");
+    return;
+  }
+  const first = await attempt("read the projector table", () => getJSON(`calibrations/${calibrationId}/table`));
+  if (!first || !context.current()) return;
+  const calibration = first.calibration;
+  const name = `projector-calibration-${calibration.id}`;
+  const lineInput = field("Scan line", h("input", { type: "number", min: 0, max: first.n_lines - 1, step: 1, value: first.line }),
+    `0 … ${first.n_lines - 1}; scan lines are image ${first.axis === "rows" ? "rows" : "columns"}`);
+  let lut = first;
+  const curves = new Figure({
+    name: "Look-up table curves",
+    filename: `${name}-curves`,
+    height: 420,
+    csv: () => ({
+      columns: ["line", "edge", "z_mm", "t_px"],
+      rows: lut.curves.flatMap((c) => lut.z_mm.map((z, j) => [lut.line, c.edge, z, c.t_px[j]])),
+    }),
+  });
+  const drawCurves = () =>
+    curves.react(
+      lut.curves.map((c) => ({
+        type: "scatter",
+        mode: "lines",
+        x: numbersOf(lut.z_mm),
+        y: numbersOf(c.t_px),
+        name: `edge ${c.edge}`,
+        line: { width: 1, color: c.polarity > 0 ? "#1f77b4" : "#d62728" },
+        hovertemplate: `edge ${c.edge}<br>Z %{x:.2f} mm<br>t %{y:.2f} px<extra></extra>`,
+      })),
+      { ...layout({ xaxis: axis("plate height Z", "mm"), yaxis: axis(`edge position t along line ${lut.line}`, "px"), showlegend: false }) },
+    );
+  lineInput.input.addEventListener("change", async () => {
+    const answer = await attempt("read the projector table", () => getJSON(`calibrations/${calibrationId}/table?line=${Number(lineInput.input.value)}`));
+    if (!answer || !context.current()) return;
+    lut = answer;
+    await drawCurves();
+  });
+
+  // Sensitivity dt/dZ of every edge on MAP_LINES scan lines spread over the image: a map of how far an edge
+  // moves per mm of height (higher is more sensitive).
+  const map = new Figure({
+    name: "Sensitivity map",
+    filename: `${name}-sensitivity`,
+    height: 420,
+    csv: () => ({ columns: ["line", "edge", "t_px", "sensitivity_px_per_mm"], rows: mapRows }),
+  });
+  let mapRows = [];
+  const drawMap = async () => {
+    const lines = Array.from({ length: MAP_LINES }, (_, i) => Math.round(((i + 0.5) * first.n_lines) / MAP_LINES));
+    const tables = await Promise.all(lines.map((line) => getJSON(`calibrations/${calibrationId}/table?line=${line}`)));
+    if (!context.current()) return;
+    mapRows = tables.flatMap((t) => t.curves.map((c) => [t.line, c.edge, tAtReference(t, c), slope(numbersOf(t.z_mm), numbersOf(c.t_px))]));
+    const shown = mapRows.filter((r) => Number.isFinite(r[2]) && Number.isFinite(r[3]));
+    const [u, v] = first.axis === "rows" ? [(r) => r[2], (r) => r[0]] : [(r) => r[0], (r) => r[2]];
+    await map.react(
+      [{
+        type: "scatter",
+        mode: "markers",
+        x: shown.map(u),
+        y: shown.map(v),
+        marker: { size: 6, color: shown.map((r) => Math.abs(r[3])), colorscale: "Viridis", colorbar: { title: { text: "|dt/dZ| (px/mm)" } } },
+        customdata: shown.map((r) => [r[1], r[3]]),
+        hovertemplate: "edge %{customdata[0]}<br>u %{x:.0f} px, v %{y:.0f} px<br>dt/dZ %{customdata[1]:.3f} px/mm<extra></extra>",
+      }],
+      layout({ xaxis: axis("u", "px"), yaxis: axis("v", "px", { autorange: "reversed", scaleanchor: "x" }) }),
+    );
+  };
+
+  const qa = Object.entries(first.qa || {}).filter(([, v]) => v === null || ["number", "string", "boolean"].includes(typeof v));
   page(
     container,
-    calibration ? `Projector calibration ${calibration.id} (version ${calibration.version})` : "Projector calibration",
-    h("p", {}, h("a", { href: `#/jobs/${job.id}` }, jobName(job)), calibration ? [" · ", h("a", { href: calibration.file_url }, "Download the table")] : null),
-    table("Projector calibration summary", [
-      { title: "Quantity", value: (r) => r[0] },
-      { title: "Value", value: (r) => (typeof r[1] === "number" ? String(Number(r[1].toPrecision(6))) : String(r[1])) },
-    ], scalars),
+    `Projector calibration ${calibration.id} (version ${calibration.version})`,
+    h("p", {}, h("a", { href: `#/jobs/${job.id}` }, jobName(job)), " · ", h("a", { href: calibration.file_url }, "Download the table (HDF5)")),
+    h("div", { class: "two-columns" },
+      h("dl", { class: "facts" }, [
+        ["Scan", first.axis === "rows" ? "along image rows (vertical stripes)" : "along image columns (horizontal stripes)"],
+        ["Stripe period", `${num(first.period_px, 2)} px`],
+        ["Reference height", `${num(first.reference_z_mm, 2)} mm`],
+        ["Table", `${first.n_edges} edges × ${first.n_lines} scan lines × ${first.z_mm.length} heights (${num(first.z_mm[0], 1)} … ${num(first.z_mm[first.z_mm.length - 1], 1)} mm)`],
+      ].map(([term, value]) => [h("dt", {}, term), h("dd", {}, value)])),
+      table("Projector table QA", [
+        { title: "Check", value: (r) => r[0] },
+        { title: "Value", value: (r) => (typeof r[1] === "number" ? String(Number(r[1].toPrecision(6))) : String(r[1])) },
+      ], qa)),
+    h("div", { class: "plot-controls" }, lineInput.wrap),
+    h("div", { class: "plot-grid" }, curves.element, map.element),
   );
+  context.onLeave(() => {
+    curves.purge();
+    map.purge();
+  });
+  await drawCurves();
+  await attempt("draw the sensitivity map", drawMap);
 }
