@@ -116,6 +116,8 @@ function control(name, property, required, root, prefix, pickers) {
     const id = newId("give");
     const give = h("input", { type: "checkbox", id });
     const toggle = () => {
+      // Disabled, its inputs are neither validated nor sent (the checkbox in the legend stays usable).
+      set.disabled = !give.checked;
       for (const el of inner.elements) el.hidden = !give.checked;
     };
     give.addEventListener("change", toggle);

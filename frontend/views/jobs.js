@@ -272,20 +272,30 @@ export function jobForm({ recordings, calibrations, onStarted }) {
     );
     return refreshCalibrations();
   };
-  const changeKind = async () => {
+  // The button waits while the choices are being fetched, so that nothing stale is sent.
+  const busy = async (action) => {
+    submit.disabled = true;
     try {
-      current = await specInputs(kind.input.value, pickers);
-      about.textContent = current.description;
-      inputs.replaceChildren(...current.elements);
-      pickers.recording_id.select.closest(".field").classList.add("wide");
-      await refreshRecordings();
-    } catch (error) {
-      showError(error, "read the job parameters from the server");
+      await action();
+    } finally {
+      submit.disabled = false;
     }
   };
+  const changeKind = () =>
+    busy(async () => {
+      try {
+        current = await specInputs(kind.input.value, pickers);
+        about.textContent = current.description;
+        inputs.replaceChildren(...current.elements);
+        for (const picker of Object.values(pickers)) picker.select.closest(".field")?.classList.add("wide");
+        await refreshRecordings();
+      } catch (error) {
+        showError(error, "read the job parameters from the server");
+      }
+    });
 
   kind.input.addEventListener("change", changeKind);
-  pickers.recording_id.select.addEventListener("change", refreshCalibrations);
+  pickers.recording_id.select.addEventListener("change", () => busy(refreshCalibrations));
   const form = h(
     "form",
     {
@@ -314,7 +324,7 @@ export function jobForm({ recordings, calibrations, onStarted }) {
     h("details", { class: "spec-box" }, h("summary", {}, "The spec sent to POST /api/v1/jobs"), specView),
   );
   const ready = changeKind();
-  return { element: form, refresh: () => ready.then(refreshRecordings) };
+  return { element: form, refresh: () => ready.then(() => busy(refreshRecordings)) };
 }
 
 /** The calibrations of a camera, from its succeeded calibration jobs. */
@@ -323,9 +333,9 @@ async function calibrationsOf(experimentId, cameraId, kind) {
     getJSON(`calibrations${query({ camera_id: cameraId, kind })}`),
   );
   return (found || []).map((c) => {
-    const verdict = c.summary && c.summary.verdict ? `, ${c.summary.verdict}` : "";
-    const rms = c.summary && Number.isFinite(c.summary.rms_px) ? `, RMS ${c.summary.rms_px.toFixed(3)} px` : "";
-    return { id: c.id, label: `#${c.id} version ${c.version}${rms}${verdict} (${formatTime(c.created_at)})` };
+    const verdict = c.summary && c.summary.verdict ? ` · ${c.summary.verdict}` : "";
+    const rms = c.summary && Number.isFinite(c.summary.rms_px) ? ` · RMS ${c.summary.rms_px.toFixed(3)} px` : "";
+    return { id: c.id, label: `#${c.id} v${c.version}${rms}${verdict} · ${formatTime(c.created_at)}` };
   });
 }
 

@@ -31,10 +31,18 @@ const SPEEDS = [2, 5, 10, 25];
  * switch took (fetch, decode and Plotly.react of the field and the profiles), in ms. */
 window.fringelab = { frameSwitchMs: [], viewer: null };
 
+/** The unit the test's times read best in: ms for a high-speed test, s for a quasi-static one. */
+function timeUnit(meta) {
+  const finite = meta.frames.time_s.filter(Number.isFinite);
+  const span = finite.length ? Math.max(...finite.map(Math.abs)) : 0;
+  return span >= 1 ? { unit: "s", scale: 1 } : { unit: "ms", scale: 1000 };
+}
+
 function timeLabel(meta, frame) {
   const i = meta.frames.index.indexOf(frame);
   const t = i >= 0 ? meta.frames.time_s[i] : NaN;
-  return Number.isFinite(t) ? `t = ${num(t * 1000, 3)} ms` : `frame ${frame}`;
+  const { unit, scale } = timeUnit(meta);
+  return Number.isFinite(t) ? `t = ${num(t * scale, 3)} ${unit}` : `frame ${frame}`;
 }
 
 export async function renderViewer(container, { id }, context) {
@@ -481,7 +489,10 @@ class Viewer {
 
   timeAxis() {
     const t = this.meta.frames.time_s;
-    return t.every(Number.isFinite) ? { key: "time", title: axis("time", "ms"), values: t.map((v) => v * 1000) } : { key: "frame", title: axis("frame", "index"), values: this.frames };
+    const { unit, scale } = timeUnit(this.meta);
+    return t.every(Number.isFinite)
+      ? { key: "time", unit, scale, title: axis("time", unit), values: t.map((v) => v * scale) }
+      : { key: "frame", title: axis("frame", "index"), values: this.frames };
   }
 
   drawHistories() {
@@ -594,13 +605,13 @@ class Viewer {
       const t = other.meta.frames.time_s;
       series.push({
         name: other.label,
-        x: time.key === "time" && t.every(Number.isFinite) ? t.map((v) => v * 1000) : other.meta.frames.index,
+        x: time.key === "time" && t.every(Number.isFinite) ? t.map((v) => v * time.scale) : other.meta.frames.index,
         y: other.meta.frames.peak_w_mm,
         color: COLORS[1],
         mode: "lines+markers",
       });
     }
-    this.comparedSeries = { columns: ["camera", time.key === "time" ? "time_ms" : "frame", "peak_w_mm"], series };
+    this.comparedSeries = { columns: ["camera", time.key === "time" ? `time_${time.unit}` : "frame", "peak_w_mm"], series };
     const traces = lineTraces(series);
     return this.compareFigure.react(traces, lineLayout({ xAxis: time.title, yAxis: axis("peak deflection w", "mm"), shapes: [verticalMarker(time.values[this.position])] }));
   }

@@ -49,8 +49,10 @@ def start_job(page, kind_label: str) -> str:
     """Start a job from the experiment page's form with its defaults; wait until its bar shows 100 %."""
     form = page.get_by_role("form", name="Start a job")
     form.get_by_label("Job kind").select_option(label=kind_label)
-    recording = form.get_by_label("Recording")
-    expect(recording.locator("option").first).not_to_have_attribute("value", "")
+    pickers = {"Camera calibration": ["Recording"], "Projector calibration": ["Recording", "Camera calibration"]}
+    for label in pickers.get(kind_label, ["Recording", "Camera calibration", "Projector calibration"]):
+        expect(form.get_by_label(label, exact=True)).not_to_have_value("")  # its choices have come
+    expect(form.get_by_role("button", name="Start job")).to_be_enabled()
     with page.expect_response(lambda r: r.url.endswith("/api/v1/jobs") and r.request.method == "POST") as answer:
         form.get_by_role("button", name="Start job").click()
     job = answer.value.json()
@@ -106,14 +108,17 @@ def test_upload_calibrate_measure_and_explore(page, live_server, virtual_test, c
     slider.press("End")
     expect(page.get_by_role("spinbutton", name="Frame number")).to_have_value(str(last))
 
-    # Draw a section line across the plate centre on the map, from (-30, 0) to (30, 0) mm.
+    # Draw a section line across the middle of the measured area, over 80 % of its width.
+    grid = httpx.get(f"{live_server.base_url}/api/v1/jobs/{topography_job}/topography", timeout=30).json()["grid"]
+    x_mid, y_mid = (grid["x_min_mm"] + grid["x_max_mm"]) / 2, (grid["y_min_mm"] + grid["y_max_mm"]) / 2
+    half = 0.4 * (grid["x_max_mm"] - grid["x_min_mm"])
     to_screen = """async ([x, y]) => {
         const plots = await import("/plots.js");
         return plots.screenPoint(document.querySelector("#field-map .plot-area"), x, y);
     }"""
     page.get_by_role("img", name="Deflection map").scroll_into_view_if_needed()
-    start = page.evaluate(to_screen, [-30, 0])
-    end = page.evaluate(to_screen, [30, 0])
+    start = page.evaluate(to_screen, [x_mid - half, y_mid])
+    end = page.evaluate(to_screen, [x_mid + half, y_mid])
     page.mouse.move(start["x"], start["y"])
     page.mouse.down()
     page.mouse.move(end["x"], end["y"], steps=6)
@@ -122,6 +127,7 @@ def test_upload_calibrate_measure_and_explore(page, live_server, virtual_test, c
     profiles = page.get_by_role("img", name="Section profiles")
     expect(profiles.locator(".scatterlayer .trace")).to_have_count(1)
 
+    screenshot(page, "viewer")
     with page.expect_download() as download:
         page.get_by_role("button", name="Download Section profiles CSV").click()
     rows = list(csv.DictReader(io.StringIO(download.value.path().read_text())))
@@ -147,8 +153,7 @@ def test_upload_calibrate_measure_and_explore(page, live_server, virtual_test, c
             assert row["w_mm"] in ("", "NaN")
         else:
             assert float(row["w_mm"]) == pytest.approx(w_mm, abs=1e-9)  # the same numbers, not a resampling
-    assert any(w is not None and w > 1.0 for w in api_w), "the last frame's profile shows the punch's dome"
-    screenshot(page, "viewer")
+    assert any(w is not None and w > 1.0 for w in api_w), f"the last frame's profile shows the punch's dome: {api_w}"
 
     # Frame switches: fetch + decode + Plotly.react of the field and the profile, over SWITCHES moves.
     page.evaluate("() => { window.fringelab.frameSwitchMs = []; }")
