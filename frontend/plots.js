@@ -307,8 +307,12 @@ export function lineTraces(series, { mode = "lines" } = {}) {
   }));
 }
 
-export function lineLayout({ xAxis, yAxis, y2Axis = null, shapes = [] }) {
+export function lineLayout({ xAxis, yAxis, y2Axis = null, shapes = [], note = null }) {
   const out = layout({ xaxis: xAxis, yaxis: yAxis, shapes, hovermode: "x unified" });
+  if (note) {
+    // An empty plot says how to fill it.
+    out.annotations = [{ text: note, xref: "paper", yref: "paper", x: 0.5, y: 0.5, showarrow: false, font: { size: 14, color: "#5b6472" } }];
+  }
   if (y2Axis) {
     out.yaxis2 = { ...y2Axis, overlaying: "y", side: "right", showgrid: false, tickmode: "auto" };
     out.margin = { ...out.margin, r: 70 };

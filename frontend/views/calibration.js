@@ -63,7 +63,7 @@ function parametersTable(document) {
     [
       { title: "Parameter", value: (p) => PARAMETER_NAMES[p.name] || p.name },
       { title: "Value ± standard error", value: (p) => plusMinus(p.value, p.standard_error), class: "num" },
-      { title: "Unit", value: (p) => (p.unit === "1" ? "–" : p.unit) },
+      { title: "Unit", value: (p) => (p.unit === "1" ? "–" : p.unit.replace(/\^-(\d)/, (_, d) => `⁻${"⁰¹²³⁴⁵⁶⁷⁸⁹"[d]}`)) },
     ],
     rows,
   );

@@ -452,6 +452,7 @@ class Viewer {
       dash: DASHES[frames.indexOf(frame) % DASHES.length],
     }));
     return this.profileFigure.react(lineTraces(series), lineLayout({
+      note: series.length ? null : "Drag on the map to draw a section line",
       xAxis: axis("distance along the line", "mm"),
       yAxis: axis("deflection w", "mm", { range: this.meta.w_range_mm }),
     }));
@@ -505,6 +506,7 @@ class Viewer {
       mode: "lines+markers",
     }));
     return this.historyFigure.react(lineTraces(series), lineLayout({
+      note: series.length ? null : "Click a point on the map to see its deflection over time",
       xAxis: time.title,
       yAxis: axis("deflection w", "mm"),
       shapes: [verticalMarker(time.values[this.position])],
