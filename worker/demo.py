@@ -28,7 +28,7 @@ from backend.auth import LOCAL_ADMIN, Principal
 from backend.jobs import JobError, QueueUnavailable, create_job
 from backend.models import Camera, Experiment, Job, Recording, User
 from backend.recordings import register_upload
-from backend.schemas.jobs import JobSpec
+from backend.schemas import jobs as job_schemas
 from backend.state import AppState
 from backend.storage import put_dir, sha256_of_file
 from worker.runtime import sessions_of, settings_of
@@ -37,7 +37,7 @@ log = logging.getLogger(__name__)
 ADVANCE_EVERY_S = 2.0
 GIVE_UP_AFTER_S = 3600.0  # a demo whose jobs have not all started after an hour is left as it is
 RECORDING_KINDS = ("camera_calibration", "projector_calibration", "test")
-_specs: TypeAdapter[Any] = TypeAdapter(JobSpec)
+_specs: TypeAdapter[Any] = TypeAdapter(job_schemas.JobSpec)
 
 
 def _state(task: Task) -> AppState:

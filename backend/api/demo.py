@@ -9,7 +9,7 @@ experiment as they are made, and follow the same rules as uploaded ones.
 from __future__ import annotations
 
 from datetime import date
-from typing import Literal
+from typing import Annotated, Literal
 
 from fastapi import APIRouter, Body
 from kombu.exceptions import OperationalError
@@ -43,7 +43,7 @@ class DemoOut(BaseModel):
 
 @router.post("/demo", status_code=202, response_model=DemoOut, responses=error_responses(401, 422, 503))
 def make_demo(
-    session: SessionDep, state: StateDep, principal: CurrentUser, body: DemoIn | None = Body(None)
+    session: SessionDep, state: StateDep, principal: CurrentUser, body: Annotated[DemoIn | None, Body()] = None
 ) -> DemoOut:
     """Make a virtual experiment and measure it: simulated recordings, calibrations and topography."""
     body = body or DemoIn()
