@@ -47,8 +47,7 @@ def make_demo(
 ) -> DemoOut:
     """Make a virtual experiment and measure it: simulated recordings, calibrations and topography."""
     body = body or DemoIn()
-    if len(set(body.cameras)) != len(body.cameras):
-        body = DemoIn(cameras=list(dict.fromkeys(body.cameras)), test_frames=body.test_frames)
+    cameras = list(dict.fromkeys(body.cameras))  # each camera once, in the order asked
     today = date.today().isoformat()
     experiment = Experiment(
         name=f"Demo: virtual punch test ({today})",
@@ -56,7 +55,7 @@ def make_demo(
         punch="hemispherical (simulated)",
         test_date=today,
         notes="Made by the dashboard's Load demo experiment button: the recordings of "
-        f"{', '.join(body.cameras)} are simulated (fringelab simulate), then checked, calibrated and measured by "
+        f"{', '.join(cameras)} are simulated (fringelab simulate), then checked, calibrated and measured by "
         "the workers like uploaded ones.",
         owner_id=principal.user_id,
     )
@@ -65,7 +64,7 @@ def make_demo(
     audit(session, principal, "create", "experiment", experiment.id, demo=True)
     session.commit()
     try:
-        state.celery.send_task(DEMO_TASK, args=[experiment.id, body.cameras, body.test_frames])
+        state.celery.send_task(DEMO_TASK, args=[experiment.id, cameras, body.test_frames])
     except OperationalError as error:
         raise ServiceUnavailable(f"the job queue (Redis) is unreachable: {error}; try again when it is back") from None
     return DemoOut(experiment_id=experiment.id)

@@ -51,6 +51,12 @@ export async function renderExperiments(container, _params, context) {
     notes.wrap,
     h("div", { class: "actions" }, h("button", { type: "submit", class: "primary" }, "Create experiment")),
   );
+  const demoCameras = field(
+    "Virtual cameras",
+    h("select", {},
+      h("option", { value: "kodak,phantom" }, "Kodak and Phantom (about 2 minutes)"),
+      h("option", { value: "kodak" }, "Kodak only (under a minute)")),
+  );
   const demo = h(
     "button",
     {
@@ -60,7 +66,7 @@ export async function renderExperiments(container, _params, context) {
         demo.disabled = true;
         say("Making the demo experiment: simulating recordings…");
         try {
-          const made = await postJSON("demo", {});
+          const made = await postJSON("demo", { cameras: demoCameras.input.value.split(",") });
           say(`Demo experiment ${made.experiment_id} made; its jobs are running.`);
           window.location.hash = `#/experiments/${made.experiment_id}`;
         } catch (error) {
@@ -78,7 +84,8 @@ export async function renderExperiments(container, _params, context) {
       "div",
       { class: "card demo" },
       demo,
-      h("span", { class: "hint" }, " A virtual test (simulated recordings of two cameras) with its calibrations and topography, computed by the workers."),
+      demoCameras.wrap,
+      h("span", { class: "hint" }, "A virtual punch test: its recordings are simulated, then checked, calibrated and measured by the workers like uploaded ones."),
     ),
     list,
     form,
@@ -223,21 +230,29 @@ export async function renderExperiment(container, { id }, context) {
   const camerasBox = h("div", { class: "cameras" });
   const recordingsByCamera = new Map();
   const jobs = jobsPanel({ experimentId: experiment.id, context, recordings: () => [...recordingsByCamera.values()].flat() });
+  // Cameras made elsewhere (a script, the demo's worker) appear too: new ones are added, shown ones (and their
+  // uploads in progress) stay as they are.
+  const sections = new Map();
+  let camerasTimer = null;
   const loadCameras = async () => {
+    clearTimeout(camerasTimer);
     const cameras = await attempt("list the cameras", () => getJSON(`experiments/${experiment.id}/cameras`));
     if (!cameras || !context.current()) return;
-    fill(
-      camerasBox,
-      cameras.length ? null : h("p", { class: "empty" }, "No cameras yet: add one to upload its recordings."),
-      cameras.map((camera) =>
-        cameraSection(camera, context, (cam, recordings) => {
-          recordingsByCamera.set(cam.id, recordings.map((r) => ({ ...r, camera_name: cam.name })));
-          jobs.recordingsChanged();
-        }),
-      ),
-    );
-    jobs.camerasChanged(cameras);
+    if (!cameras.length && !sections.size) {
+      fill(camerasBox, h("p", { class: "empty" }, "No cameras yet: add one to upload its recordings."));
+    }
+    for (const camera of cameras.filter((c) => !sections.has(c.id))) {
+      if (!sections.size) camerasBox.replaceChildren();
+      const section = cameraSection(camera, context, (cam, recordings) => {
+        recordingsByCamera.set(cam.id, recordings.map((r) => ({ ...r, camera_name: cam.name })));
+        jobs.recordingsChanged();
+      });
+      sections.set(camera.id, section);
+      camerasBox.append(section);
+    }
+    camerasTimer = setTimeout(loadCameras, 5000);
   };
+  context.onLeave(() => clearTimeout(camerasTimer));
   page(
     container,
     experiment.name,

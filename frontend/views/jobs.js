@@ -363,7 +363,6 @@ export function jobsPanel({ experimentId, context, recordings }) {
   return {
     element: h("section", { "aria-labelledby": "jobs-title" }, h("h2", { id: "jobs-title" }, "Jobs and results"), list.element, form.element),
     recordingsChanged: () => form.refresh(),
-    camerasChanged: () => {},
   };
 }
 
