@@ -213,7 +213,7 @@ function cameraSection(camera, context, onRecordingsChanged) {
     h(
       "p",
       { class: "facts" },
-      `${camera.image_width_px} × ${camera.image_height_px} px, pixel pitch ${camera.pixel_pitch_um} µm`,
+      `${camera.image_width_px} × ${camera.image_height_px} px, pixel pitch ${Number(camera.pixel_pitch_um.toPrecision(6))} µm`,
     ),
     recordingsBox,
     h("div", { class: "upload-kind" }, kind.wrap),
