@@ -390,11 +390,13 @@ function chunksView(chunks) {
     table(
       "Chunks",
       [
+        { title: "Phase", value: (c) => (c.phase === undefined ? "–" : String(c.phase)) },
         { title: "Chunk", value: (c) => String(c.index) },
         { title: "Frames", value: (c) => `${c.first_frame}–${c.stop_frame - 1}` },
         { title: "State", value: (c) => c.state },
         { title: "Done", value: (c) => `${c.done}/${c.stop_frame - c.first_frame}` },
         { title: "Worker", value: (c) => c.worker || "–" },
+        { title: "Took", value: (c) => (c.started_at && c.finished_at ? formatDuration((new Date(c.finished_at) - new Date(c.started_at)) / 1000) : "–") },
       ],
       chunks,
     ),
