@@ -253,7 +253,13 @@ class Viewer {
         this.togglePlay();
       }
     });
-    await this.showFrame(0);
+    // Open on the frame of the largest deflection: the first thing worth seeing.
+    const peaks = this.meta.frames.peak_w_mm;
+    const start = peaks.reduce((best, w, i) => (Number.isFinite(w) && !(w <= peaks[best]) ? i : best), 0);
+    this.slider.value = start;
+    this.frameNumber.value = this.frames[start];
+    this.drawChips();
+    await this.showFrame(start);
     // Plotly adds its event methods to the plot once it has drawn it.
     listenToMap(this.mapFigure, { onLine: (line) => this.addLine(line), onPoint: (point) => this.addPoint(point) });
     this.mapFigure.plot.on("plotly_relayout", (update) => {
