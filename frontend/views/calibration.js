@@ -194,6 +194,7 @@ export async function renderCalibration(container, { id }, context) {
 }
 
 const MAP_LINES = 16; // scan lines sampled for the sensitivity map (one request each)
+const CURVES = 24; // edges drawn on the curves plot
 
 /** Least-squares slope of t against z over the finite samples (px/mm), or NaN with fewer than 2. */
 function slope(z, t) {
@@ -207,10 +208,16 @@ function slope(z, t) {
 
 const numbersOf = (values) => values.map((v) => (v === null ? NaN : v));
 
-/** The edge's position at the reference height (the sample nearest to it), px. */
+/** The edge's position at the reference height, px: from its nearest sample there, carried along its slope
+ * when the edge was not seen at that height (NaN when it was seen at fewer than two heights). */
 function tAtReference(lut, curve) {
-  const i = lut.z_mm.reduce((best, z, j) => (Math.abs(z - lut.reference_z_mm) < Math.abs(lut.z_mm[best] - lut.reference_z_mm) ? j : best), 0);
-  return curve.t_px[i];
+  const z = numbersOf(lut.z_mm);
+  const t = numbersOf(curve.t_px);
+  const seen = z.map((_, j) => j).filter((j) => Number.isFinite(t[j]));
+  if (!seen.length) return NaN;
+  const near = seen.reduce((best, j) => (Math.abs(z[j] - lut.reference_z_mm) < Math.abs(z[best] - lut.reference_z_mm) ? j : best));
+  const offset = lut.reference_z_mm - z[near];
+  return offset === 0 ? t[near] : t[near] + slope(z, t) * offset;
 }
 
 /** The projector calibration: its settings and QA, the table's curves along a scan line, and its sensitivity. */
@@ -236,19 +243,32 @@ async function projectorReport(container, job, context) {
       rows: lut.curves.flatMap((c) => lut.z_mm.map((z, j) => [lut.line, c.edge, z, c.t_px[j]])),
     }),
   });
-  const drawCurves = () =>
-    curves.react(
-      lut.curves.map((c) => ({
-        type: "scatter",
-        mode: "lines",
-        x: numbersOf(lut.z_mm),
-        y: numbersOf(c.t_px),
-        name: `edge ${c.edge}`,
-        line: { width: 1, color: c.polarity > 0 ? "#1f77b4" : "#d62728" },
-        hovertemplate: `edge ${c.edge}<br>Z %{x:.2f} mm<br>t %{y:.2f} px<extra></extra>`,
-      })),
-      { ...layout({ xaxis: axis("plate height Z", "mm"), yaxis: axis(`edge position t along line ${lut.line}`, "px"), showlegend: false }) },
+  // Every edge's curve t(Z) drawn as its shift from the reference height, for about CURVES edges spread over
+  // the line: the slopes (the sensitivity) and any bend read at a glance; the CSV has every edge.
+  const drawCurves = () => {
+    const every = Math.max(1, Math.ceil(lut.curves.length / CURVES));
+    const shown = lut.curves.filter((_, i) => i % every === 0);
+    return curves.react(
+      shown.map((c, i) => {
+        const reference = tAtReference(lut, c);
+        return {
+          type: "scatter",
+          mode: "lines",
+          x: numbersOf(lut.z_mm),
+          y: numbersOf(c.t_px).map((t) => t - reference),
+          name: `edge ${c.edge}`,
+          line: { width: 1.5, color: `hsl(${Math.round((260 * i) / Math.max(1, shown.length - 1))}, 70%, 45%)` },
+          hovertemplate: `edge ${c.edge}<br>Z %{x:.2f} mm<br>shift %{y:.2f} px<extra></extra>`,
+        };
+      }),
+      layout({
+        xaxis: axis("plate height Z", "mm"),
+        yaxis: axis(`edge shift t − t(Z_ref) on line ${lut.line}`, "px"),
+        showlegend: false,
+        annotations: [{ text: `${shown.length} of ${lut.curves.length} edges`, xref: "paper", yref: "paper", x: 0, y: 1.08, showarrow: false, font: { color: "#5b6472" } }],
+      }),
     );
+  };
   lineInput.input.addEventListener("change", async () => {
     const answer = await attempt("read the projector table", () => getJSON(`calibrations/${calibrationId}/table?line=${Number(lineInput.input.value)}`));
     if (!answer || !context.current()) return;
@@ -265,6 +285,7 @@ async function projectorReport(container, job, context) {
     csv: () => ({ columns: ["line", "edge", "t_px", "sensitivity_px_per_mm"], rows: mapRows }),
   });
   let mapRows = [];
+  const mapNote = h("p", { class: "hint" }, `Reading ${MAP_LINES} scan lines of the table for the map…`);
   const drawMap = async () => {
     const lines = Array.from({ length: MAP_LINES }, (_, i) => Math.round(((i + 0.5) * first.n_lines) / MAP_LINES));
     const tables = await Promise.all(lines.map((line) => getJSON(`calibrations/${calibrationId}/table?line=${line}`)));
@@ -284,6 +305,7 @@ async function projectorReport(container, job, context) {
       }],
       layout({ xaxis: axis("u", "px"), yaxis: axis("v", "px", { autorange: "reversed", scaleanchor: "x" }) }),
     );
+    mapNote.textContent = `|dt/dZ| of every edge on ${MAP_LINES} scan lines spread over the image (a straight-line fit over Z).`;
   };
 
   const qa = Object.entries(first.qa || {}).filter(([, v]) => v === null || ["number", "string", "boolean"].includes(typeof v));
@@ -303,7 +325,7 @@ async function projectorReport(container, job, context) {
         { title: "Value", value: (r) => (typeof r[1] === "number" ? String(Number(r[1].toPrecision(6))) : String(r[1])) },
       ], qa)),
     h("div", { class: "plot-controls" }, lineInput.wrap),
-    h("div", { class: "plot-grid" }, curves.element, map.element),
+    h("div", { class: "plot-grid" }, curves.element, h("div", {}, map.element, mapNote)),
   );
   context.onLeave(() => {
     curves.purge();
