@@ -94,6 +94,26 @@ def test_upload_through_the_page_then_scrub_the_recording(page, tmp_path, expect
     screenshot(page, "recording")
 
 
+def test_a_folder_of_frames_is_packed_in_the_browser_and_becomes_a_recording(page, tmp_path):
+    """The folder chooser (as a drop of a folder): the page packs the frames into a ZIP (zip.js, CRC-32 and all)
+    that the server's own reader accepts, frames in natural order and the sidecar inside."""
+    packed = stripe_zip(tmp_path / "packed.zip", n_frames=6)
+    folder = tmp_path / "run_7"
+    folder.mkdir()
+    with zipfile.ZipFile(packed) as archive:
+        archive.extractall(folder)
+    new_experiment_with_camera(page, "Folder upload")
+    camera = page.get_by_role("region", name="Camera left")
+    camera.get_by_label("Kind of the recordings to upload to left").select_option(label="Test")
+    camera.get_by_label("Choose a folder").set_input_files(folder)
+    expect(camera.get_by_role("progressbar", name="Upload progress of run_7.zip")).to_have_js_property(
+        "value", 100, timeout=30_000
+    )
+    row = camera.get_by_role("table", name="Recordings of left").get_by_role("row").filter(has_text="run_7.zip")
+    expect(row).to_contain_text("ready", timeout=60_000)
+    expect(row).to_contain_text("6 × 160×120 px")
+
+
 def test_pause_and_resume_an_upload(page, tmp_path, expected_console_errors):
     """With the upload throttled to 2 MB/s, pause part-way, see the bar hold, resume, and finish."""
     # The first PATCH after a resume may meet the server still writing the aborted one's last bytes: it answers
