@@ -4,13 +4,16 @@ from __future__ import annotations
 
 from contextlib import asynccontextmanager
 
-from fastapi import FastAPI
+import anyio
+from fastapi import FastAPI, Request
+from fastapi.responses import JSONResponse
 
 from backend import __version__
-from backend.api import auth, experiments, health, recordings, uploads
+from backend.api import auth, experiments, health, jobs, recordings, results, uploads
 from backend.db import make_engine, make_sessionmaker
 from backend.errors import install_error_handlers
 from backend.frontend import mount_frontend
+from backend.jobs import JobError, reconcile_periodically, reconcile_quietly
 from backend.limits import BodySizeLimit
 from backend.settings import Settings
 from backend.state import AppState
@@ -27,7 +30,12 @@ def create_app(settings: Settings) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(_app: FastAPI):  # type: ignore[no-untyped-def]
-        yield
+        reconcile_quietly(state.sessions, state.celery, settings)  # jobs the queue lost while the API was down
+        async with anyio.create_task_group() as background:
+            if settings.reconcile_interval_s > 0:
+                background.start_soon(reconcile_periodically, state.sessions, state.celery, settings)
+            yield
+            background.cancel_scope.cancel()
         engine.dispose()
 
     app = FastAPI(
@@ -47,5 +55,12 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(experiments.router, prefix="/api/v1")
     app.include_router(recordings.router, prefix="/api/v1")
     app.include_router(uploads.create_router(state), prefix="/api/v1")
+    app.include_router(jobs.router, prefix="/api/v1")
+    app.include_router(results.router, prefix="/api/v1")
+
+    @app.exception_handler(JobError)
+    async def _job_error(_request: Request, error: JobError) -> JSONResponse:  # an ApiError that names the field
+        return JSONResponse({"detail": error.detail, "code": error.code, "field": error.field}, error.status_code)
+
     mount_frontend(app)  # last: it serves every path the API does not
     return app

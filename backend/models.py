@@ -8,7 +8,19 @@ from __future__ import annotations
 from datetime import UTC, datetime
 from typing import Any
 
-from sqlalchemy import JSON, BigInteger, Boolean, DateTime, Float, ForeignKey, Integer, MetaData, String, Text
+from sqlalchemy import (
+    JSON,
+    BigInteger,
+    Boolean,
+    DateTime,
+    Float,
+    ForeignKey,
+    Integer,
+    MetaData,
+    String,
+    Text,
+    UniqueConstraint,
+)
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
 
@@ -116,12 +128,55 @@ class Job(Base):
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
     started_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)
     finished_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)
+    # When the current stage began (for the ETA) and when a worker last said it is alive (for reconciliation).
+    stage_started_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)
+    heartbeat_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)
+    # Result files: [{"name", "path" (relative to the data directory), "size_bytes", "sha256", "media_type"}].
+    files: Mapped[list[Any]] = mapped_column(default=list)
+    # Times the server re-sent this job's tasks because the broker had lost them (capped; see backend.jobs).
+    requeues: Mapped[int] = mapped_column(Integer, default=0)
+    # A chunked job's current phase (0, 1, ...: chunks in parallel, then a merge that may start the next phase),
+    # and when that phase's merge task was sent (claimed once, so that two last chunks cannot both send it).
+    phase: Mapped[int] = mapped_column(Integer, default=0)
+    merge_queued_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)
+
+
+class JobChunk(Base):
+    """One frame range of one phase of a chunked job, run as its own Celery task (id `<job>:<phase>:<index>`)."""
+
+    __tablename__ = "job_chunks"
+
+    job_id: Mapped[str] = mapped_column(ForeignKey("jobs.id", ondelete="CASCADE"), primary_key=True)
+    phase: Mapped[int] = mapped_column(Integer, primary_key=True, default=0)
+    index: Mapped[int] = mapped_column(Integer, primary_key=True)
+    first_frame: Mapped[int] = mapped_column(Integer)
+    stop_frame: Mapped[int] = mapped_column(Integer)  # exclusive
+    state: Mapped[str] = mapped_column(String(16), default="pending")  # pending | running | done
+    done: Mapped[int] = mapped_column(Integer, default=0)
+    worker: Mapped[str] = mapped_column(String(200), default="")
+    started_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)
+    finished_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)
+    heartbeat_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)
+
+
+class JobLog(Base):
+    """A line of a job's log, for people: what it did, what went wrong and what to do."""
+
+    __tablename__ = "job_logs"
+
+    id: Mapped[int] = mapped_column(primary_key=True, autoincrement=True)
+    job_id: Mapped[str] = mapped_column(ForeignKey("jobs.id", ondelete="CASCADE"), index=True)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+    level: Mapped[str] = mapped_column(String(8), default="info")  # info | warning | error
+    message: Mapped[str] = mapped_column(Text)
 
 
 class Calibration(Base):
     """A versioned calibration result (camera or projector) of one camera."""
 
     __tablename__ = "calibrations"
+    # Versions count per camera and kind; the constraint makes two jobs finishing at once take different ones.
+    __table_args__ = (UniqueConstraint("camera_id", "kind", "version", name="uq_calibrations_camera_kind_version"),)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     kind: Mapped[str] = mapped_column(String(32))  # camera | projector
@@ -131,6 +186,10 @@ class Calibration(Base):
     version: Mapped[int] = mapped_column(Integer, default=1)
     path: Mapped[str] = mapped_column(String(500))  # relative to the data directory
     summary: Mapped[dict[str, Any]] = mapped_column(default=dict)
+    # The image size it was made for: a topography job refuses a calibration of another size.
+    image_width_px: Mapped[int] = mapped_column(Integer, default=0)
+    image_height_px: Mapped[int] = mapped_column(Integer, default=0)
+    sha256: Mapped[str] = mapped_column(String(64), default="")  # of the file at `path`, for provenance
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
 
 

@@ -36,6 +36,18 @@ class Settings(BaseSettings):
         12 * 3600, ge=60, description="Redis redelivers an unacknowledged task after this; longer than any job."
     )
     health_worker_timeout_s: float = Field(1.0, gt=0, le=30, description="How long /health waits for workers.")
+    chunk_frames: int = Field(
+        100, ge=1, description="Frames per parallel chunk of a topography (or selftest) job; smaller spreads wider."
+    )
+    cancel_grace_s: float = Field(
+        10.0, ge=0, description="After a cancel, seconds a running task has to stop before its process is terminated."
+    )
+    worker_lost_after_s: float = Field(
+        60.0, ge=2, description="A running task that has not reported for this long is lost with its worker."
+    )
+    reconcile_interval_s: float = Field(
+        30.0, ge=0, description="How often the API re-queues jobs the queue lost; 0 means only at start-up."
+    )
     auth_enabled: bool = Field(
         False, description="Require a login or API token; must be on to bind an address other than loopback."
     )

@@ -9,7 +9,7 @@ from celery import Celery
 
 from backend.settings import Settings
 
-TASK_MODULES = ("worker.tasks", "worker.ingest")
+TASK_MODULES = ("worker.tasks", "worker.ingest", "worker.pipelines")
 QUEUE = "fringelab"
 
 
@@ -36,6 +36,9 @@ def create_celery(settings: Settings) -> Celery:
         task_track_started=True,
         task_time_limit=settings.job_time_limit_s,
         worker_prefetch_multiplier=1,
+        # On a broker connection loss a running task finishes its work (its job row records the end); its message,
+        # unacknowledgeable now, comes back after the visibility timeout and finds the job ended (see jobrunner).
+        worker_cancel_long_running_tasks_on_connection_loss=False,
         broker_transport_options=transport_options,
         result_backend_transport_options=transport_options,
         broker_connection_retry_on_startup=True,

@@ -1,8 +1,10 @@
-"""Per-process resources of a worker: the database sessions, made once per process (after the prefork fork)."""
+"""Per-process resources of a worker: the database sessions, made once per process (after the prefork fork), and
+where a job keeps its files."""
 
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 from celery import Celery
 from sqlalchemy.orm import Session, sessionmaker
@@ -24,3 +26,8 @@ def sessions_of(app: Celery) -> sessionmaker[Session]:
     if key not in _sessions:
         _sessions[key] = make_sessionmaker(make_engine(url))
     return _sessions[key]
+
+
+def job_dir(settings: Settings, job_id: str) -> Path:
+    """`DATA_DIR/results/jobs/<job id>`: each job (and each retry, which is a new job) writes only here."""
+    return settings.data_path / "results" / "jobs" / job_id

@@ -1,0 +1,315 @@
+"""`/api/v1/jobs`: start, list, watch (JSON and Server-Sent Events), read the log of, cancel, retry and download
+the files of jobs. Thin: the rules live in `backend.jobs`; errors are `backend.jobs.JobError` (4xx with
+`{"detail", "code", "field"}`).
+
+Access follows the job's experiment (`backend.auth`): reading needs read access, starting, cancelling and
+retrying need write access; a job of an experiment one may not read is a 404. Jobs outside any experiment
+(selftest) are for admins."""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import AsyncIterator
+from datetime import datetime
+from typing import Annotated, Any
+
+import anyio
+from fastapi import APIRouter, Body, Depends, Query
+from fastapi.responses import FileResponse
+from fastapi.sse import EventSourceResponse, ServerSentEvent
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session
+
+from backend.api.deps import CurrentUser, SessionDep, StateDep
+from backend.auth import Principal, audit, can_access, readable_experiments
+from backend.jobs import (
+    JobError,
+    QueueUnavailable,
+    as_utc,
+    cancel_job,
+    create_job,
+    eta_seconds,
+    get_job,
+    retry_job,
+    terminate_unstopped,
+)
+from backend.models import Experiment, Job, JobChunk, JobLog, utcnow
+from backend.schemas.jobs import (
+    MAX_ID,
+    ChunkOut,
+    ErrorOut,
+    JobFileOut,
+    JobList,
+    JobOut,
+    JobSpec,
+    JobState,
+    LogLineOut,
+    Progress,
+)
+from backend.state import AppState
+
+router = APIRouter(tags=["jobs"])
+log = logging.getLogger(__name__)
+EVENTS_POLL_S = 0.25
+ERRORS: dict[int | str, dict[str, Any]] = {
+    status: {"model": ErrorOut, "description": description}
+    for status, description in (
+        (404, "No such job."),
+        (409, "Not possible in the job's state, or its inputs are not ready."),
+        (422, "The spec is invalid; `field` names the part at fault."),
+        (503, "The job queue (Redis) is unreachable."),
+    )
+}
+
+
+def _seconds(start: datetime | None, end: datetime | None) -> float | None:
+    start, end = as_utc(start), as_utc(end)
+    return (end - start).total_seconds() if start and end else None
+
+
+def job_out(session: Session, job: Job, *, now: datetime | None = None) -> JobOut:
+    now = now or utcnow()
+    chunks = session.scalars(select(JobChunk).where(JobChunk.job_id == job.id).order_by(JobChunk.phase, JobChunk.index))
+    retried_by = session.scalar(select(Job.id).where(Job.retry_of == job.id).order_by(Job.created_at.desc()))
+    total = job.progress_total
+    return JobOut(
+        id=job.id,
+        kind=job.kind,
+        state=job.state,  # type: ignore[arg-type]
+        stopping=job.state == "cancelled" and job.finished_at is None,
+        spec=job.spec,
+        experiment_id=job.experiment_id,
+        progress=Progress(
+            stage=job.stage,
+            done=job.progress_done,
+            total=total,
+            fraction=job.progress_done / total if total else None,
+            eta_s=eta_seconds(job, now=now),
+        ),
+        error=job.error,
+        worker=job.worker,
+        files=[
+            JobFileOut(
+                name=f["name"],
+                size_bytes=f["size_bytes"],
+                sha256=f["sha256"],
+                media_type=f["media_type"],
+                url=f"/api/v1/jobs/{job.id}/files/{f['name']}",
+            )
+            for f in job.files
+        ],
+        result=job.result,
+        provenance=job.provenance,
+        attempt=job.attempt,
+        retry_of=job.retry_of,
+        retried_by=retried_by,
+        chunks=[
+            ChunkOut(
+                phase=c.phase,
+                index=c.index,
+                first_frame=c.first_frame,
+                stop_frame=c.stop_frame,
+                state=c.state,  # type: ignore[arg-type]
+                done=c.done,
+                worker=c.worker,
+                started_at=as_utc(c.started_at),
+                finished_at=as_utc(c.finished_at),
+            )
+            for c in chunks
+        ],
+        created_at=as_utc(job.created_at),  # type: ignore[arg-type]
+        started_at=as_utc(job.started_at),
+        finished_at=as_utc(job.finished_at),
+        duration_s=_seconds(job.started_at, job.finished_at or now),
+    )
+
+
+def _allowed(session: Session, principal: Principal, experiment_id: int | None, *, write: bool) -> bool:
+    if experiment_id is None:
+        return principal.is_admin
+    experiment = session.get(Experiment, experiment_id)
+    return experiment is not None and can_access(session, principal, experiment, write=write)
+
+
+def job_for(session: Session, principal: Principal, job_id: str, *, write: bool = False) -> Job:
+    """The job if `principal` may see it (or change it); otherwise a 404, as if it did not exist."""
+    job = get_job(session, job_id)
+    if not _allowed(session, principal, job.experiment_id, write=False):
+        raise JobError(404, "job_not_found", f"there is no job {job_id}")
+    if write and not _allowed(session, principal, job.experiment_id, write=True):
+        raise JobError(403, "forbidden", f"you may read job {job_id} but not change it; ask the experiment's owner")
+    return job
+
+
+def readable_job(job_id: str, session: SessionDep, principal: CurrentUser) -> Job:
+    return job_for(session, principal, job_id)
+
+
+JobDep = Annotated[Job, Depends(readable_job)]
+
+
+@router.post("/jobs", status_code=201, response_model=JobOut, responses=ERRORS)
+def start_job(spec: Annotated[JobSpec, Body()], session: SessionDep, state: StateDep, principal: CurrentUser) -> JobOut:
+    """Check the spec against the recordings and calibrations it names, then queue the job."""
+
+    def may_start(experiment_id: int | None) -> None:
+        if not _allowed(session, principal, experiment_id, write=True):
+            what = f"experiment {experiment_id}" if experiment_id is not None else "a job outside any experiment"
+            raise JobError(403, "forbidden", f"starting jobs of {what} needs write access (or an admin account)")
+
+    try:
+        job = create_job(session, state.celery, spec.model_dump(mode="json"), authorize=may_start)
+    except QueueUnavailable as error:
+        raise JobError(503, "queue_unavailable", str(error)) from None
+    audit(session, principal, "start", "job", job.id, kind=job.kind)
+    session.commit()
+    return job_out(session, job)
+
+
+@router.get("/jobs", response_model=JobList)
+def list_jobs(
+    session: SessionDep,
+    principal: CurrentUser,
+    kind: str | None = None,
+    state: JobState | None = None,
+    experiment_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
+    limit: Annotated[int, Query(ge=1, le=500)] = 50,
+    offset: Annotated[int, Query(ge=0, le=MAX_ID)] = 0,
+) -> JobList:
+    """Jobs, newest first."""
+    query = select(Job)
+    if not principal.is_admin:
+        query = query.where(
+            Job.experiment_id.in_(select(Experiment.id).where(readable_experiments(session, principal)))
+        )
+    if kind is not None:
+        query = query.where(Job.kind == kind)
+    if state is not None:
+        query = query.where(Job.state == state)
+    if experiment_id is not None:
+        query = query.where(Job.experiment_id == experiment_id)
+    total = session.scalar(select(func.count()).select_from(query.subquery())) or 0
+    jobs = session.scalars(query.order_by(Job.created_at.desc(), Job.id).limit(limit).offset(offset)).all()
+    now = utcnow()
+    return JobList(items=[job_out(session, job, now=now) for job in jobs], total=total)
+
+
+@router.get("/jobs/{job_id}", response_model=JobOut, responses=ERRORS)
+def read_job(job: JobDep, session: SessionDep) -> JobOut:
+    return job_out(session, job)
+
+
+@router.get("/jobs/{job_id}/log", response_model=list[LogLineOut], responses=ERRORS)
+def read_log(
+    job: JobDep,
+    session: SessionDep,
+    after: Annotated[int, Query(ge=0, le=2**63 - 1, description="Only lines with a larger id.")] = 0,
+    limit: Annotated[int, Query(ge=1, le=5000)] = 1000,
+) -> list[LogLineOut]:
+    """The job's log lines, oldest first."""
+    return _log_lines(session, job.id, after=after, limit=limit)
+
+
+def _log_lines(session: Session, job_id: str, *, after: int, limit: int = 1000) -> list[LogLineOut]:
+    lines = session.scalars(
+        select(JobLog).where(JobLog.job_id == job_id, JobLog.id > after).order_by(JobLog.id).limit(limit)
+    )
+    return [
+        LogLineOut(id=line.id, at=as_utc(line.created_at), level=line.level, message=line.message) for line in lines
+    ]  # type: ignore[arg-type]
+
+
+def _streamable_job_id(job_id: str, state: StateDep, principal: CurrentUser) -> str:
+    """The access check of the event stream, in a short session of its own: a request-long session would stay
+    open while the stream runs (and keep SQLite's write-ahead log from being checkpointed)."""
+    with state.sessions() as session:
+        return job_for(session, principal, job_id).id
+
+
+@router.get("/jobs/{job_id}/events", response_class=EventSourceResponse, responses=ERRORS)
+async def job_events(
+    job_id: Annotated[str, Depends(_streamable_job_id)], state: StateDep
+) -> AsyncIterator[ServerSentEvent]:
+    """Live progress as Server-Sent Events: `job` (the job as `GET /jobs/{id}` shows it) whenever it changes,
+    `log` for each new log line, and `end` once the job has ended; then the stream closes."""
+    last_view: dict[str, Any] | None = None
+    last_line = 0
+    sequence = 0
+    while True:
+        view, lines = await anyio.to_thread.run_sync(_snapshot, state, job_id, last_line)
+        if view is None:
+            return
+        for line in lines:
+            last_line = line.id
+            yield ServerSentEvent(event="log", data=line, id=f"log-{line.id}")
+        comparable = view.model_dump(exclude={"progress": {"eta_s"}, "duration_s": True})
+        if comparable != last_view:
+            last_view = comparable
+            sequence += 1
+            yield ServerSentEvent(event="job", data=view, id=str(sequence), retry=2000)
+        if view.state not in ("queued", "running") and not view.stopping:
+            yield ServerSentEvent(event="end", data={"state": view.state, "error": view.error})
+            return
+        await anyio.sleep(EVENTS_POLL_S)
+
+
+def _snapshot(state: AppState, job_id: str, after: int) -> tuple[JobOut | None, list[LogLineOut]]:
+    with state.sessions() as session:
+        job = session.get(Job, job_id)
+        if job is None:
+            return None, []
+        return job_out(session, job), _log_lines(session, job_id, after=after)
+
+
+@router.post("/jobs/{job_id}/cancel", response_model=JobOut, responses=ERRORS)
+def cancel(job_id: str, session: SessionDep, state: StateDep, principal: CurrentUser) -> JobOut:
+    """Cancel a queued or running job. A running task stops after its current frame; one that has not stopped
+    after FRINGELAB_CANCEL_GRACE_S has its worker process terminated (prefork workers)."""
+    job_for(session, principal, job_id, write=True)
+    job = cancel_job(session, state.celery, job_id)
+    audit(session, principal, "cancel", "job", job.id)
+    session.commit()
+    if job.finished_at is None:
+        _terminate_later(state, job.id)
+    return job_out(session, job)
+
+
+def _terminate_later(state: AppState, job_id: str) -> None:
+    grace_s = state.settings.cancel_grace_s
+
+    def terminate() -> None:
+        try:
+            with state.sessions() as session:
+                terminate_unstopped(session, state.celery, job_id, grace_s=grace_s)
+        except Exception:  # the next API start-up closes the job instead (backend.jobs.reconcile)
+            log.exception("could not terminate the task of cancelled job %s", job_id)
+
+    timer = threading.Timer(grace_s, terminate)
+    timer.daemon = True
+    timer.start()
+
+
+@router.post("/jobs/{job_id}/retry", status_code=201, response_model=JobOut, responses=ERRORS)
+def retry(job_id: str, session: SessionDep, state: StateDep, principal: CurrentUser) -> JobOut:
+    """A new attempt of a failed or cancelled job with the same spec (checked again), linked by `retry_of`."""
+    job_for(session, principal, job_id, write=True)
+    try:
+        job = retry_job(session, state.celery, job_id)
+    except QueueUnavailable as error:
+        raise JobError(503, "queue_unavailable", str(error)) from None
+    audit(session, principal, "retry", "job", job.id, retry_of=job_id)
+    session.commit()
+    return job_out(session, job)
+
+
+@router.get("/jobs/{job_id}/files/{name:path}", response_class=FileResponse, responses=ERRORS)
+def download(job: JobDep, name: str, state: StateDep) -> FileResponse:
+    """A result file of the job, streamed."""
+    entry = next((f for f in job.files if f["name"] == name), None)
+    if entry is None:
+        raise JobError(404, "file_not_found", f"job {job.id} has no file {name!r}; see its `files`")
+    path = state.settings.data_path / entry["path"]
+    if not path.is_file():
+        raise JobError(410, "file_missing", f"{name} of job {job.id} is no longer on disk; retry the job")
+    return FileResponse(path, media_type=entry["media_type"], filename=path.name)

@@ -1,0 +1,353 @@
+"""Results: calibrations (versioned per camera) with their reports and files, and topography results cut to
+what the dashboard draws (frame list and time histories, a frame's grid within a display budget, profiles,
+point histories).
+
+Thin: files are read through `backend.results`; access follows the experiment (of the calibration's camera, or
+of the job). Arrays come as JSON lists with null where there is no data, or, for a grid, as raw float32.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from fastapi import APIRouter, Depends, Path, Query, Response
+from fastapi.responses import FileResponse
+from pydantic import BaseModel, Field
+from sqlalchemy import select
+
+from backend.api.deps import CurrentUser, SessionDep, StateDep, experiment_for
+from backend.api.jobs import ERRORS, JobDep
+from backend.auth import readable_experiments
+from backend.errors import NotFound
+from backend.jobs import JobError, as_utc
+from backend.models import Calibration, Camera, Experiment, Job
+from backend.results import (
+    GRID_BUDGET_NODES,
+    FrameNotInResult,
+    OutsideGrid,
+    ResultUnavailable,
+    TopographyReader,
+    camera_report,
+    projector_table,
+    result_path,
+)
+from backend.schemas.jobs import MAX_ID, CalibrationOut
+
+router = APIRouter(tags=["results"])
+MM = Annotated[float, Query(allow_inf_nan=False, description="mm, in the object frame")]
+
+
+def _listed(values: np.ndarray, decimals: int = 4) -> list[Any]:
+    """JSON list of a float array, rounded, with null for NaN (nested for 2-D)."""
+    rounded = np.round(np.asarray(values, dtype=np.float64), decimals)
+    if rounded.ndim > 1:
+        return [_listed(row, decimals) for row in rounded]
+    return [None if not math.isfinite(v) else v for v in rounded.tolist()]
+
+
+def calibration_out(row: Calibration) -> CalibrationOut:
+    return CalibrationOut(
+        id=row.id,
+        kind=row.kind,  # type: ignore[arg-type]
+        camera_id=row.camera_id,
+        recording_id=row.recording_id,
+        job_id=row.job_id,
+        version=row.version,
+        image_width_px=row.image_width_px,
+        image_height_px=row.image_height_px,
+        sha256=row.sha256,
+        summary=row.summary,
+        created_at=as_utc(row.created_at),  # type: ignore[arg-type]
+        file_url=f"/api/v1/calibrations/{row.id}/file",
+        report_url=f"/api/v1/calibrations/{row.id}/report",
+    )
+
+
+def readable_calibration(
+    calibration_id: Annotated[int, Path(ge=1, le=MAX_ID)], session: SessionDep, principal: CurrentUser
+) -> Calibration:
+    missing = JobError(404, "calibration_not_found", f"there is no calibration {calibration_id}")
+    row = session.get(Calibration, calibration_id)
+    camera = session.get(Camera, row.camera_id) if row else None
+    if row is None or camera is None:
+        raise missing
+    try:
+        experiment_for(session, principal, camera.experiment_id)
+    except NotFound:
+        raise missing from None
+    return row
+
+
+CalibrationDep = Annotated[Calibration, Depends(readable_calibration)]
+
+
+@router.get("/calibrations", response_model=list[CalibrationOut])
+def list_calibrations(
+    session: SessionDep,
+    principal: CurrentUser,
+    camera_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
+    kind: Literal["camera", "projector"] | None = None,
+) -> list[CalibrationOut]:
+    """Calibrations, newest version first (per camera and kind)."""
+    query = (
+        select(Calibration)
+        .join(Camera, Camera.id == Calibration.camera_id)
+        .where(Camera.experiment_id.in_(select(Experiment.id).where(readable_experiments(session, principal))))
+    )
+    if camera_id is not None:
+        query = query.where(Calibration.camera_id == camera_id)
+    if kind is not None:
+        query = query.where(Calibration.kind == kind)
+    rows = session.scalars(query.order_by(Calibration.camera_id, Calibration.kind, Calibration.version.desc()))
+    return [calibration_out(row) for row in rows]
+
+
+@router.get("/calibrations/{calibration_id}", response_model=CalibrationOut, responses=ERRORS)
+def read_calibration(calibration: CalibrationDep) -> CalibrationOut:
+    return calibration_out(calibration)
+
+
+class CalibrationReport(BaseModel):
+    calibration: CalibrationOut
+    report: dict[str, Any]
+
+
+@router.get("/calibrations/{calibration_id}/report", response_model=CalibrationReport, responses=ERRORS)
+def calibration_report(calibration: CalibrationDep, state: StateDep) -> CalibrationReport:
+    """A camera calibration's report: parameters ± standard errors, per-frame RMS, residual vectors over the
+    image, the residual map and the verdict (the fields of `camera.json`, units in every name)."""
+    if calibration.kind != "camera":
+        raise JobError(404, "no_report", f"calibration {calibration.id} is a {calibration.kind} calibration")
+    try:
+        report = camera_report(state.settings.data_path, calibration.path)
+    except ResultUnavailable as error:
+        raise JobError(410, "result_missing", str(error)) from None
+    return CalibrationReport(calibration=calibration_out(calibration), report=report)
+
+
+class ProjectorTable(BaseModel):
+    calibration: CalibrationOut
+    axis: str
+    period_px: float | None
+    reference_z_mm: float | None
+    n_edges: int
+    n_lines: int
+    line: int
+    z_mm: list[float | None]
+    curves: list[dict[str, Any]] = Field(description="[{edge, polarity, t_px: [...] per z_mm, null: not seen}]")
+    qa: dict[str, Any]
+
+
+@router.get("/calibrations/{calibration_id}/table", response_model=ProjectorTable, responses=ERRORS)
+def projector_table_curves(
+    calibration: CalibrationDep,
+    state: StateDep,
+    line: Annotated[int | None, Query(ge=0, le=MAX_ID, description="Scan line; empty: the middle one.")] = None,
+    edges: Annotated[
+        list[Annotated[int, Field(ge=0, le=MAX_ID)]] | None, Query(description="Edge indices; empty: all.")
+    ] = None,
+) -> ProjectorTable:
+    """The curves of a projector calibration's look-up table: the position of each stripe edge along one scan
+    line against the plate's Z (METHOD.md §4), with the table's QA."""
+    if calibration.kind != "projector":
+        raise JobError(404, "no_table", f"calibration {calibration.id} is a {calibration.kind} calibration")
+    try:
+        table = projector_table(state.settings.data_path, calibration.path, line=line, edges=edges)
+    except OutsideGrid as error:
+        raise JobError(422, "outside_table", str(error)) from None
+    except ResultUnavailable as error:
+        raise JobError(410, "result_missing", str(error)) from None
+    table["z_mm"] = _listed(table["z_mm"])
+    for curve in table["curves"]:
+        curve["t_px"] = _listed(curve["t_px"])
+    return ProjectorTable(calibration=calibration_out(calibration), **table)
+
+
+@router.get("/calibrations/{calibration_id}/file", response_class=FileResponse, responses=ERRORS)
+def calibration_file(calibration: CalibrationDep, state: StateDep) -> FileResponse:
+    """The calibration file itself (camera.json or projector.h5), streamed."""
+    try:
+        path = result_path(state.settings.data_path, calibration.path)
+    except ResultUnavailable as error:
+        raise JobError(410, "result_missing", str(error)) from None
+    media_type = "application/json" if path.suffix == ".json" else "application/x-hdf5"
+    return FileResponse(path, media_type=media_type, filename=f"calibration-{calibration.id}-{path.name}")
+
+
+# ---------------------------------------------------------------------------------------------- topography
+
+TOPOGRAPHY_FILE = "topography.h5"
+
+
+@contextmanager
+def topography(job: Job, data_path: Any) -> Iterator[TopographyReader]:
+    """The result of a succeeded topography job, open; JobError 409/410/422 with what to do otherwise."""
+    if job.kind != "topography":
+        raise JobError(404, "not_topography", f"job {job.id} is a {job.kind} job, not a topography")
+    if job.state != "succeeded":
+        raise JobError(409, "job_not_succeeded", f"job {job.id} is {job.state}; its results come when it succeeds")
+    entry = next((f for f in job.files if f["name"] == TOPOGRAPHY_FILE), None)
+    if entry is None:
+        raise JobError(410, "result_missing", f"job {job.id} has no {TOPOGRAPHY_FILE}; retry the job")
+    try:
+        with TopographyReader(result_path(data_path, entry["path"])) as reader:
+            yield reader
+    except FrameNotInResult as error:
+        raise JobError(422, "frame_not_in_result", str(error), field="frame") from None
+    except OutsideGrid as error:
+        raise JobError(422, "outside_grid", str(error)) from None
+    except ResultUnavailable as error:
+        raise JobError(410, "result_missing", str(error)) from None
+
+
+class TopographyOverview(BaseModel):
+    job_id: str
+    frames: list[int]
+    time_s: list[float | None]
+    punch_displacement_mm: list[float | None]
+    force_kN: list[float | None]
+    peak_w_mm: list[float | None]
+    peak_x_mm: list[float | None]
+    peak_y_mm: list[float | None]
+    grid: dict[str, float | int]
+    summary: dict[str, Any]
+
+
+@router.get("/jobs/{job_id}/topography", response_model=TopographyOverview, responses=ERRORS)
+def topography_overview(job: JobDep, state: StateDep) -> TopographyOverview:
+    """The frames of a topography result with the test log and the peak deflection of each (for the frame
+    slider and the plots of peak deflection against time, punch displacement and force), the grid's extent and
+    the result's summary."""
+    with topography(job, state.settings.data_path) as reader:
+        x, y = reader.x_mm, reader.y_mm
+        return TopographyOverview(
+            job_id=job.id,
+            frames=reader.frames.astype(int).tolist(),
+            time_s=_listed(reader.column("frames/time_s"), 6),
+            punch_displacement_mm=_listed(reader.column("frames/punch_displacement_mm")),
+            force_kN=_listed(reader.column("frames/force_kN")),
+            peak_w_mm=_listed(reader.column("peak/w_mm")),
+            peak_x_mm=_listed(reader.column("peak/x_mm")),
+            peak_y_mm=_listed(reader.column("peak/y_mm")),
+            grid={
+                "x_min_mm": float(x[0]),
+                "x_max_mm": float(x[-1]),
+                "y_min_mm": float(y[0]),
+                "y_max_mm": float(y[-1]),
+                "nx": int(x.size),
+                "ny": int(y.size),
+                "step_mm": float(x[1] - x[0]) if x.size > 1 else 0.0,
+            },  # fmt: skip
+            summary=reader.summary(),
+        )
+
+
+class GridOut(BaseModel):
+    frame: int
+    step: int = Field(description="Grid nodes per returned node along each axis (1: full resolution).")
+    x_mm: list[float]
+    y_mm: list[float]
+    w_mm: list[list[float | None]] = Field(description="Deflection [iy][ix], mm; null where there is no data.")
+
+
+@router.get(
+    "/jobs/{job_id}/topography/grid",
+    response_model=GridOut,
+    responses={**ERRORS, 200: {"content": {"application/octet-stream": {}}, "description": "JSON, or float32"}},
+)
+def topography_grid(
+    job: JobDep,
+    state: StateDep,
+    frame: Annotated[int, Query(ge=0, le=MAX_ID, description="Recording frame index.")],
+    budget: Annotated[int, Query(ge=8, le=2000, description="Largest number of nodes per side.")] = GRID_BUDGET_NODES,
+    x_min: Annotated[float | None, Query(allow_inf_nan=False)] = None,
+    x_max: Annotated[float | None, Query(allow_inf_nan=False)] = None,
+    y_min: Annotated[float | None, Query(allow_inf_nan=False)] = None,
+    y_max: Annotated[float | None, Query(allow_inf_nan=False)] = None,
+    format: Literal["json", "f32"] = "json",
+) -> Any:
+    """The deflection w of one frame on the grid, block-averaged to at most `budget` nodes per side; give all of
+    x_min, x_max, y_min, y_max (mm) for a zoom window, at full resolution when it fits the budget. format=f32
+    answers the float32 array itself (row-major [iy][ix], little-endian, NaN where no data), its shape and
+    coordinates in the headers X-Grid-Shape (ny,nx), X-Grid-X-mm and X-Grid-Y-mm (first,step)."""
+    bounds = (x_min, x_max, y_min, y_max)
+    if any(b is None for b in bounds) and not all(b is None for b in bounds):
+        raise JobError(422, "incomplete_window", "give all of x_min, x_max, y_min, y_max, or none", field="x_min")
+    window = None if x_min is None else tuple(float(b) for b in bounds)  # type: ignore[arg-type]
+    with topography(job, state.settings.data_path) as reader:
+        cut = reader.grid(frame, budget=budget, window_mm=window)  # type: ignore[arg-type]
+    if format == "f32":
+
+        def first_step(axis: np.ndarray) -> str:
+            return f"{axis[0]:.6g},{(axis[1] - axis[0]) if axis.size > 1 else 0:.6g}"
+
+        return Response(
+            content=np.ascontiguousarray(cut.w_mm, dtype="<f4").tobytes(),
+            media_type="application/octet-stream",
+            headers={
+                "X-Grid-Shape": f"{cut.w_mm.shape[0]},{cut.w_mm.shape[1]}",
+                "X-Grid-X-mm": first_step(cut.x_mm),
+                "X-Grid-Y-mm": first_step(cut.y_mm),
+                "X-Grid-Step": str(cut.step),
+            },  # fmt: skip
+        )
+    return GridOut(
+        frame=cut.frame, step=cut.step, x_mm=_listed(cut.x_mm), y_mm=_listed(cut.y_mm), w_mm=_listed(cut.w_mm)
+    )
+
+
+class ProfileOut(BaseModel):
+    s_mm: list[float]
+    x_mm: list[float]
+    y_mm: list[float]
+    profiles: list[dict[str, Any]] = Field(description="[{frame, w_mm: [...]}] in the order asked.")
+
+
+@router.get("/jobs/{job_id}/topography/profile", response_model=ProfileOut, responses=ERRORS)
+def topography_profile(
+    job: JobDep,
+    state: StateDep,
+    x0: MM,
+    y0: MM,
+    x1: MM,
+    y1: MM,
+    frames: Annotated[
+        list[Annotated[int, Field(ge=0, le=MAX_ID)]],
+        Query(min_length=1, max_length=50, description="Recording frame indices."),
+    ],
+    n_points: Annotated[int, Query(ge=2, le=5000)] = 200,
+) -> ProfileOut:
+    """Deflection profiles w(s) along the segment (x0, y0) → (x1, y1) in mm, for the frames asked."""
+    with topography(job, state.settings.data_path) as reader:
+        cut = reader.profile(frames, (x0, y0, x1, y1), n_points=n_points)
+    return ProfileOut(
+        s_mm=_listed(cut["s_mm"]),
+        x_mm=_listed(cut["x_mm"]),
+        y_mm=_listed(cut["y_mm"]),
+        profiles=[{"frame": p["frame"], "w_mm": _listed(p["w_mm"])} for p in cut["profiles"]],
+    )
+
+
+class HistoryOut(BaseModel):
+    x_mm: float
+    y_mm: float
+    frames: list[int]
+    time_s: list[float | None]
+    w_mm: list[float | None]
+
+
+@router.get("/jobs/{job_id}/topography/history", response_model=HistoryOut, responses=ERRORS)
+def topography_history(job: JobDep, state: StateDep, x_mm: MM, y_mm: MM) -> HistoryOut:
+    """The deflection w(t) at one point of the plate over every frame of the result."""
+    with topography(job, state.settings.data_path) as reader:
+        return HistoryOut(
+            x_mm=x_mm,
+            y_mm=y_mm,
+            frames=reader.frames.astype(int).tolist(),
+            time_s=_listed(reader.column("frames/time_s"), 6),
+            w_mm=_listed(reader.history(x_mm, y_mm)),
+        )

@@ -1,0 +1,266 @@
+"""Benchmark of the job system: topography throughput with 1 and 2 worker processes on the same recording (scaling
+efficiency), and the end-to-end time from ready recordings to the last frame's result.
+
+Run from the repository root:  .venv/bin/python bench/bench_jobs.py [--kind topography|selftest] [--frames 40]
+
+It starts what a lab machine runs, on a scratch data directory: its own redis-server, a migrated SQLite
+database, the API (in this process) and `fringelab worker` subprocesses (prefork, as users run them, one BLAS
+thread each). For each worker count it submits the same job through the API, waits for the end, and prints
+
+  workers   worker processes (one `fringelab worker --concurrency N`)
+  frames    frames of the job, in chunks of --chunk-frames
+  run s     from the job's start to its end (job record: started_at .. finished_at)
+  frames/s  frames / run s
+  chunks s  of which the parallel part (edge location in chunks, until the merge starts)
+  merge s   and the sequential pass in frame order (tracking, Z, X-Y, grid, file)
+  spread    frames computed per worker process (from the chunks' records)
+
+then the scaling efficiency, (frames/s with N) / (N × frames/s with 1), and for --kind topography the end-to-end
+time of camera calibration + projector calibration + topography on the virtual experiment (`fringelab
+simulate`, kodak preset, 512 × 480 px), from recordings that are ready to the last frame's result. The upload
+and ingest in front of that are measured by bench/bench_upload.py. --kind selftest measures the job system
+alone (synthetic frames, an FFT each; --frame-size-px sets the work per frame). On a machine whose cores are
+shared with other work the efficiency says so: `os.cpu_count()` and the load average are printed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import redis  # noqa: E402
+from fastapi.testclient import TestClient  # noqa: E402
+
+from backend.app import create_app  # noqa: E402
+from backend.db import upgrade_database  # noqa: E402
+from backend.jobs import as_utc  # noqa: E402
+from backend.services import free_port  # noqa: E402
+from backend.settings import Settings  # noqa: E402
+from backend.supervisor import redis_server_binary  # noqa: E402
+from worker.celery_app import create_celery  # noqa: E402
+
+
+def wait(predicate: Any, *, timeout_s: float, what: str) -> Any:
+    deadline = time.monotonic() + timeout_s
+    while not (value := predicate()):
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"timed out after {timeout_s} s waiting for {what}")
+        time.sleep(0.05)
+    return value
+
+
+class Bench:
+    """A scratch fringelab: Redis, database, API client; workers started and stopped per measurement."""
+
+    def __init__(self, root: Path, *, chunk_frames: int) -> None:
+        self.root = root
+        port = free_port()
+        self.redis = subprocess.Popen(
+            [redis_server_binary(), "--port", str(port), "--bind", "127.0.0.1", "--save", "", "--appendonly", "no",
+             "--dir", str(root)],
+            stdout=subprocess.DEVNULL,
+        )  # fmt: skip
+        self.settings = Settings(  # type: ignore[call-arg]
+            _env_file=None, data_dir=root / "var", redis_url=f"redis://127.0.0.1:{port}/0", chunk_frames=chunk_frames
+        )
+        wait(self._redis_up, timeout_s=10, what="redis-server")
+        upgrade_database(self.settings.resolved_database_url)
+        self.client = TestClient(create_app(self.settings))
+        self.client.__enter__()
+
+    def _redis_up(self) -> bool:
+        try:
+            return bool(redis.Redis.from_url(self.settings.redis_url).ping())
+        except redis.ConnectionError:
+            return False
+
+    def start_worker(self, processes: int) -> subprocess.Popen[bytes]:
+        clean = {k: v for k, v in os.environ.items() if not k.startswith("FRINGELAB_")}
+        env = {
+            **clean,
+            "FRINGELAB_DATA_DIR": str(self.settings.data_path),
+            "FRINGELAB_REDIS_URL": self.settings.redis_url,
+            "FRINGELAB_WORKER_CONCURRENCY": str(processes),
+            "FRINGELAB_CHUNK_FRAMES": str(self.settings.chunk_frames),  # the worker that starts a job splits it
+            "FRINGELAB_LOG_LEVEL": os.environ.get("BENCH_LOG_LEVEL", "warning"),
+            "OMP_NUM_THREADS": "1",
+            "OPENBLAS_NUM_THREADS": "1",
+        }
+        log = (self.root / f"worker-{processes}.log").open("ab")
+        worker = subprocess.Popen(
+            [sys.executable, "-m", "backend.cli", "worker"], env=env, stdout=log, stderr=subprocess.STDOUT,
+            start_new_session=True, cwd=ROOT,
+        )  # fmt: skip
+        celery = create_celery(self.settings)
+        wait(lambda: any(str(worker.pid) in n for r in celery.control.ping(timeout=0.5) or [] for n in r),
+             timeout_s=60, what="the worker")  # fmt: skip
+        return worker
+
+    @staticmethod
+    def stop_worker(worker: subprocess.Popen[bytes]) -> None:
+        os.killpg(worker.pid, signal.SIGTERM)
+        worker.wait(timeout=60)
+
+    def run(self, spec: dict[str, Any], *, timeout_s: float) -> tuple[dict[str, Any], float]:
+        start = time.perf_counter()
+        created = self.client.post("/api/v1/jobs", json=spec)
+        created.raise_for_status()
+        job_id = created.json()["id"]
+
+        def ended() -> dict[str, Any] | None:
+            job = self.client.get(f"/api/v1/jobs/{job_id}").json()
+            return job if job["state"] in ("succeeded", "failed", "cancelled") else None
+
+        job = wait(ended, timeout_s=timeout_s, what=f"job {job_id}")
+        elapsed = time.perf_counter() - start
+        if job["state"] != "succeeded":
+            raise RuntimeError(f"job {job_id} {job['state']}: {job['error']}")
+        return job, elapsed
+
+    def close(self) -> None:
+        self.client.__exit__(None, None, None)
+        self.redis.terminate()
+        self.redis.wait(timeout=10)
+
+
+def _moment(text: str | None) -> datetime:
+    assert text is not None
+    return as_utc(datetime.fromisoformat(text))  # type: ignore[return-value]
+
+
+def timings(job: dict[str, Any]) -> tuple[float, float, float]:
+    """(run, parallel chunks, sequential merge) seconds of a finished chunked job."""
+    started, finished = _moment(job["started_at"]), _moment(job["finished_at"])
+    chunks_done = max(_moment(c["finished_at"]) for c in job["chunks"])
+    return (
+        (finished - started).total_seconds(),
+        (chunks_done - started).total_seconds(),
+        (finished - chunks_done).total_seconds(),
+    )
+
+
+def add_virtual_recordings(bench: Bench, frames: int) -> dict[str, Any]:
+    """A virtual experiment (`fringelab simulate`, kodak) as three ready recordings of one camera."""
+    import json
+
+    import numpy as np
+
+    from backend.db import make_engine, make_sessionmaker
+    from backend.models import Camera, Experiment, Recording
+    from worker.measurement.simulate import simulate_experiment
+
+    virtual = simulate_experiment(
+        bench.root / "virtual", "kodak", n_test_frames=frames, calibration_z_mm=np.arange(0.0, 80.0 + 1e-9, 4.0)
+    )
+    truth = json.loads(virtual.truth_json.read_text())
+    engine = make_engine(bench.settings.resolved_database_url)
+    ids: dict[str, Any] = {"scale_on": truth["camera"]["scale_on"]}
+    with make_sessionmaker(engine)() as session:
+        experiment = Experiment(name="bench")
+        camera = Camera(experiment=experiment, name="kodak", image_width_px=512, image_height_px=480,
+                        pixel_pitch_um=1000.0 / truth["camera"]["du_px_per_mm"])  # fmt: skip
+        session.add_all([experiment, camera])
+        (bench.settings.data_path / "recordings").mkdir(parents=True, exist_ok=True)
+        for kind, source in (
+            ("camera_calibration", virtual.camera_calibration),
+            ("projector_calibration", virtual.projector_calibration),
+            ("test", virtual.test),
+        ):
+            (bench.settings.data_path / "recordings" / kind).symlink_to(source)
+            row = Recording(camera=camera, kind=kind, state="ready", path=f"recordings/{kind}",
+                            frame_count=len(list(Path(source).glob("*.png"))), width_px=512, height_px=480)  # fmt: skip
+            session.add(row)
+            session.flush()
+            ids[kind] = row.id
+        session.commit()
+    engine.dispose()
+    return ids
+
+
+def calibrate(bench: Bench, ids: dict[str, Any]) -> tuple[dict[str, Any], float]:
+    """Camera then projector calibration; the topography spec that uses them, and the seconds they took."""
+    start = time.perf_counter()
+    camera, _ = bench.run({"kind": "camera_calibration", "recording_id": ids["camera_calibration"],
+                           "scale_on": ids["scale_on"]}, timeout_s=1800)  # fmt: skip
+    projector, _ = bench.run({"kind": "projector_calibration", "recording_id": ids["projector_calibration"],
+                              "camera_calibration_id": camera["result"]["calibration_id"]}, timeout_s=1800)  # fmt: skip
+    spec = {"kind": "topography", "recording_id": ids["test"],
+            "camera_calibration_id": camera["result"]["calibration_id"],
+            "projector_calibration_id": projector["result"]["calibration_id"]}  # fmt: skip
+    return spec, time.perf_counter() - start
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--kind", choices=("topography", "selftest"), default="topography")
+    parser.add_argument("--frames", type=int, default=None, help="frames of the job (topography 40, selftest 400)")
+    parser.add_argument("--frame-size-px", type=int, default=512, help="selftest work per frame (512: ~10 ms)")
+    parser.add_argument("--chunk-frames", type=int, default=None, help="frames per chunk (topography 5, selftest 25)")
+    parser.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="worker process counts to measure")
+    parser.add_argument("--keep", action="store_true", help="keep the scratch directory")
+    args = parser.parse_args()
+    topography = args.kind == "topography"
+    frames = args.frames or (40 if topography else 400)
+    chunk_frames = args.chunk_frames or (5 if topography else 25)
+
+    root = Path(tempfile.mkdtemp(prefix="fringelab-bench-jobs-"))
+    bench = Bench(root, chunk_frames=chunk_frames)
+    print(f"machine: {os.cpu_count()} CPU cores, load average {os.getloadavg()[0]:.2f}; scratch {root}")
+    try:
+        if topography:
+            ids = add_virtual_recordings(bench, frames)
+            print(f"job: topography of the virtual kodak experiment, {frames} frames of 512 x 480 px, "
+                  f"chunks of {chunk_frames} frames")  # fmt: skip
+            worker = bench.start_worker(max(args.workers))
+            try:
+                spec, calibration_s = calibrate(bench, ids)
+                job, topography_s = bench.run(spec, timeout_s=3600)
+            finally:
+                bench.stop_worker(worker)
+            print(f"end to end with {max(args.workers)} processes, from ready recordings to the last frame's "
+                  f"result: {calibration_s + topography_s:.1f} s (calibrations {calibration_s:.1f} s, topography "
+                  f"{topography_s:.1f} s)\n")  # fmt: skip
+        else:
+            spec = {"kind": "selftest", "frames": frames, "frame_size_px": args.frame_size_px}
+            print(f"job: selftest, {frames} frames of {args.frame_size_px} px, chunks of {chunk_frames} frames\n")
+        print(f"{'workers':>7} {'frames':>7} {'run s':>8} {'frames/s':>9} {'chunks s':>9} {'merge s':>8}  spread")
+        rates: dict[int, float] = {}
+        for processes in args.workers:
+            worker = bench.start_worker(processes)
+            try:  # a small job first, so every pool process has imported the science before the timing
+                bench.run({"kind": "selftest", "frames": 4 * processes, "chunk_frames": 1}, timeout_s=600)
+                job, _ = bench.run(spec, timeout_s=3600)
+            finally:
+                bench.stop_worker(worker)
+            run_s, chunks_s, merge_s = timings(job)
+            rates[processes] = frames / run_s
+            spread: dict[str, int] = {}
+            for chunk in job["chunks"]:
+                spread[chunk["worker"]] = spread.get(chunk["worker"], 0) + chunk["stop_frame"] - chunk["first_frame"]
+            shares = " ".join(str(n) for n in sorted(spread.values(), reverse=True))
+            print(f"{processes:>7} {frames:>7} {run_s:>8.2f} {rates[processes]:>9.2f} {chunks_s:>9.2f} "
+                  f"{merge_s:>8.2f}  {shares}")  # fmt: skip
+    finally:
+        bench.close()
+        if not args.keep:
+            shutil.rmtree(root, ignore_errors=True)
+    for processes, rate in rates.items():
+        if processes > 1 and 1 in rates:
+            print(f"\nscaling efficiency with {processes} processes: {rate / (processes * rates[1]):.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
