@@ -9,7 +9,7 @@ from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse
 
 from backend import __version__
-from backend.api import auth, experiments, health, jobs, recordings, results, uploads
+from backend.api import auth, demo, experiments, health, jobs, recordings, results, uploads
 from backend.db import make_engine, make_sessionmaker
 from backend.errors import install_error_handlers
 from backend.frontend import mount_frontend
@@ -58,6 +58,7 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(uploads.create_router(state), prefix="/api/v1")
     app.include_router(jobs.router, prefix="/api/v1")
     app.include_router(results.router, prefix="/api/v1")
+    app.include_router(demo.router, prefix="/api/v1")
 
     @app.exception_handler(JobError)
     async def _job_error(_request: Request, error: JobError) -> JSONResponse:  # an ApiError that names the field

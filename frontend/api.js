@@ -1,6 +1,146 @@
-// The one module that talks to the server.
-export async function getJSON(path) {
-  const response = await fetch(path, { headers: { Accept: "application/json" } });
-  const body = await response.json().catch(() => ({}));
-  return { ok: response.ok, status: response.status, body };
+// The one module that talks to the server: every fetch and every EventSource of the dashboard lives here.
+// Error bodies of the API are `{"detail", "code"}` (sometimes with `field`); they become ApiError objects whose
+// message a person can read. Views never look at HTTP responses themselves.
+
+export const API = "/api/v1";
+
+export class ApiError extends Error {
+  constructor(status, code, detail, field = null) {
+    super(field && !detail.includes(field) ? `${field}: ${detail}` : detail);
+    this.name = "ApiError";
+    this.status = status;
+    this.code = code;
+    this.detail = detail;
+    this.field = field;
+  }
+}
+
+let onUnauthorized = () => {};
+
+/** Called with the ApiError of any 401 (auth is on and there is no valid session): the app shows its login. */
+export function setUnauthorizedHandler(handler) {
+  onUnauthorized = handler;
+}
+
+function describeStatus(status) {
+  return {
+    400: "the server refused the request",
+    401: "log in to continue",
+    403: "your account may not do this",
+    404: "not found",
+    409: "not possible in the current state",
+    413: "the request is too large",
+    422: "the input is invalid",
+    429: "too many requests; wait a moment",
+    500: "the server failed; its log has the details",
+    502: "the server is unreachable (bad gateway)",
+    503: "a part of the server is down",
+  }[status] || `the server answered HTTP ${status}`;
+}
+
+/** The ApiError for a response that is not ok, read from its `{"detail", "code"}` body when it has one. */
+async function errorOf(response) {
+  let body = null;
+  try {
+    body = await response.json();
+  } catch {
+    body = null;
+  }
+  const detail = body && typeof body.detail === "string" ? body.detail : describeStatus(response.status);
+  const code = (body && body.code) || `http_${response.status}`;
+  return new ApiError(response.status, code, detail, (body && body.field) || null);
+}
+
+async function send(method, path, { json, text, as = "json", headers = {} } = {}) {
+  const init = { method, headers: { Accept: as === "json" ? "application/json" : "*/*", ...headers } };
+  if (json !== undefined) {
+    init.headers["Content-Type"] = "application/json";
+    init.body = JSON.stringify(json);
+  } else if (text !== undefined) {
+    init.headers["Content-Type"] = "text/plain; charset=utf-8";
+    init.body = text;
+  }
+  let response;
+  try {
+    response = await fetch(path.startsWith("/") ? path : `${API}/${path}`, init);
+  } catch (error) {
+    throw new ApiError(0, "network", `cannot reach the server (${error.message}); is fringelab still running?`);
+  }
+  if (!response.ok) {
+    const error = await errorOf(response);
+    if (response.status === 401) onUnauthorized(error);
+    throw error;
+  }
+  if (response.status === 204) return null;
+  if (as === "buffer") return { buffer: await response.arrayBuffer(), headers: response.headers };
+  return response.json();
+}
+
+/** `path` is either absolute ("/api/v1/...") or relative to /api/v1 ("experiments/3"). */
+export const getJSON = (path) => send("GET", path);
+export const getBuffer = (path) => send("GET", path, { as: "buffer" });
+export const postJSON = (path, json = {}) => send("POST", path, { json });
+export const deleteJSON = (path) => send("DELETE", path);
+export const putText = (path, text) => send("PUT", path, { text });
+
+/** The health report, also when a part is down (the server then answers 503 with the same body). */
+export async function getHealth() {
+  let response;
+  try {
+    response = await fetch(`${API}/health`, { headers: { Accept: "application/json" } });
+  } catch (error) {
+    throw new ApiError(0, "network", `cannot reach the server (${error.message}); is fringelab still running?`);
+  }
+  if (response.ok || response.status === 503) return response.json();
+  throw await errorOf(response);
+}
+
+/** Query string from an object, leaving out null/undefined values. */
+export function query(params) {
+  const search = new URLSearchParams();
+  for (const [key, value] of Object.entries(params)) {
+    if (value !== null && value !== undefined && value !== "") search.set(key, String(value));
+  }
+  const text = search.toString();
+  return text ? `?${text}` : "";
+}
+
+/**
+ * Server-Sent Events from `path`: `handlers` maps event names to functions of the parsed JSON data. The stream
+ * is closed after an `end` event (the server closes it too; without this the browser would reconnect).
+ * `onError(message)` hears about a lost connection. Returns a function that closes the stream.
+ */
+export function subscribe(path, handlers, { onError = () => {} } = {}) {
+  const source = new EventSource(path.startsWith("/") ? path : `${API}/${path}`);
+  let ended = false;
+  for (const [name, handle] of Object.entries(handlers)) {
+    source.addEventListener(name, (event) => {
+      let data = null;
+      try {
+        data = JSON.parse(event.data);
+      } catch {
+        data = event.data;
+      }
+      if (name === "end") {
+        ended = true;
+        source.close();
+      }
+      handle(data);
+    });
+  }
+  source.onerror = () => {
+    if (ended) return;
+    if (source.readyState === EventSource.CLOSED) {
+      onError("the live progress stream closed; reload the page to reconnect");
+    }
+  };
+  return () => {
+    ended = true;
+    source.close();
+  };
+}
+
+/** Absolute URL of an API path, for links, <img> sources and the tus endpoint. */
+export function apiUrl(path) {
+  return new URL(path.startsWith("/") ? path : `${API}/${path}`, window.location.origin).href;
 }

@@ -9,7 +9,7 @@ from celery import Celery
 
 from backend.settings import Settings
 
-TASK_MODULES = ("worker.tasks", "worker.ingest", "worker.pipelines")
+TASK_MODULES = ("worker.tasks", "worker.ingest", "worker.pipelines", "worker.demo")
 QUEUE = "fringelab"
 
 

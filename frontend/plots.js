@@ -1,0 +1,366 @@
+// Plotly helpers of the dashboard: every plot is a Figure (a titled box with "Download CSV" and "Download PNG"
+// buttons for the data and the image behind it), updated with Plotly.react; every axis title carries its unit
+// (use `axis(name, unit)`). The 2-D map turns click-and-drag into section lines and plain clicks into points.
+// No network code here: views fetch the data (api.js) and hand arrays to these functions.
+import { h, newId } from "./ui.js";
+
+const Plotly = window.Plotly;
+
+export const COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#17becf", "#8c564b", "#e377c2"];
+// Drawn over the red-white-blue map: dark or saturated colours that neither blend into it nor each other.
+export const MARK_COLORS = ["#111111", "#e6a100", "#2ca02c", "#c2185b", "#6a3d9a", "#00838f", "#8c564b"];
+export const DEFLECTION_SCALE = "RdBu"; // diverging, red up and blue down; white is zero when the range is symmetric
+const CONFIG = {
+  responsive: true,
+  displaylogo: false,
+  // Our own buttons download the image and the data; the mode bar keeps zoom, pan and reset.
+  modeBarButtonsToRemove: ["toImage", "sendDataToCloud", "lasso2d", "select2d"],
+};
+const FONT = { family: "system-ui, sans-serif", size: 12, color: "#1d2430" };
+
+/** An axis title that names its unit: axis("x", "mm") → { title: { text: "x (mm)" } }. */
+export function axis(name, unit, extra = {}) {
+  if (!unit) throw new Error(`axis "${name}" needs a unit`);
+  return { title: { text: `${name} (${unit})` }, automargin: true, zeroline: false, ...extra };
+}
+
+/** Layout with the dashboard's defaults; uirevision keeps the user's zoom and camera across Plotly.react. */
+export function layout(extra = {}) {
+  return {
+    font: FONT,
+    margin: { l: 60, r: 20, t: 30, b: 50 },
+    uirevision: "keep",
+    paper_bgcolor: "#fff",
+    plot_bgcolor: "#fff",
+    legend: { orientation: "h", x: 0, y: 1.0, yanchor: "bottom" },
+    ...extra,
+  };
+}
+
+// ---- CSV ------------------------------------------------------------------------------------------------------
+
+/** CSV text: a header of column names (with units, e.g. "x_mm") and one line per row; numbers in full. */
+export function toCSV(columns, rows) {
+  const cell = (value) => {
+    if (value === null || value === undefined || (typeof value === "number" && Number.isNaN(value))) return "";
+    const text = String(value);
+    return /[",\n]/.test(text) ? `"${text.replace(/"/g, '""')}"` : text;
+  };
+  const lines = [columns.map(cell).join(",")];
+  for (const row of rows) lines.push(row.map(cell).join(","));
+  return `${lines.join("\n")}\n`;
+}
+
+/** Let the browser save `text` as a file named `filename`. */
+export function saveText(filename, text, type = "text/csv") {
+  const url = URL.createObjectURL(new Blob([text], { type }));
+  const link = h("a", { href: url, download: filename, hidden: true });
+  document.body.append(link);
+  link.click();
+  link.remove();
+  setTimeout(() => URL.revokeObjectURL(url), 10_000);
+}
+
+// ---- a plot with its downloads -------------------------------------------------------------------------------------
+
+/**
+ * A titled plot. `name` is its accessible name and the base of its buttons' labels ("Download <name> CSV");
+ * `filename` (no extension) names the downloads; `csv()` returns { columns, rows } of the data shown now.
+ */
+export class Figure {
+  constructor({ name, filename, csv, height = 420, className = "", config = {} }) {
+    this.name = name;
+    this.config = { ...CONFIG, ...config };
+    this.filename = filename;
+    this.csv = csv;
+    const titleId = newId("plot-title");
+    this.plot = h("div", { class: "plot-area", role: "img", "aria-label": name, style: `height:${height}px` });
+    this.csvButton = h(
+      "button",
+      { type: "button", class: "small", "aria-label": `Download ${name} CSV`, onclick: () => this.downloadCSV() },
+      "CSV",
+    );
+    this.pngButton = h(
+      "button",
+      { type: "button", class: "small", "aria-label": `Download ${name} PNG`, onclick: () => this.downloadPNG() },
+      "PNG",
+    );
+    this.element = h(
+      "figure",
+      { class: `plot ${className}`, "aria-labelledby": titleId },
+      h(
+        "figcaption",
+        {},
+        h("span", { id: titleId }, name),
+        h("span", { class: "downloads" }, "Download ", this.csvButton, " ", this.pngButton),
+      ),
+      this.plot,
+    );
+    this.drawn = false;
+  }
+
+  async react(traces, plotLayout) {
+    await Plotly.react(this.plot, traces, plotLayout, this.config);
+    this.drawn = true;
+  }
+
+  downloadCSV() {
+    const { columns, rows } = this.csv();
+    saveText(`${this.filename}.csv`, toCSV(columns, rows));
+  }
+
+  downloadPNG() {
+    const { width, height } = this.plot.getBoundingClientRect();
+    return Plotly.downloadImage(this.plot, {
+      format: "png",
+      filename: this.filename,
+      width: Math.max(600, Math.round(width)),
+      height: Math.max(400, Math.round(height)),
+    });
+  }
+
+  purge() {
+    if (this.drawn) Plotly.purge(this.plot);
+    this.drawn = false;
+  }
+}
+
+// ---- fields (a 2-D array of deflection on a regular x, y grid) --------------------------------------------------
+
+// A field is { x: number[nx] (mm), y: number[ny] (mm), z: Float32Array[ny] rows (mm, NaN where unmeasured) }.
+// Heatmap and surface take the rows as they are; NaN leaves a hole.
+
+/** Long-format CSV rows (x, y, value) of a field, row by row; unmeasured points have an empty value. */
+export function fieldRows(field) {
+  const rows = [];
+  field.z.forEach((row, j) => {
+    for (let i = 0; i < row.length; i += 1) rows.push([field.x[i], field.y[j], row[i]]);
+  });
+  return rows;
+}
+
+/** The 3-D surface of a field. `range` = [min, max] fixes the colours across frames. */
+export function surfaceTraces(field, { range = null, valueName = "w", unit = "mm" } = {}) {
+  return [
+    {
+      type: "surface",
+      x: field.x,
+      y: field.y,
+      z: field.z,
+      colorscale: DEFLECTION_SCALE,
+      cmin: range ? range[0] : undefined,
+      cmax: range ? range[1] : undefined,
+      cmid: range ? undefined : 0,
+      colorbar: { title: { text: `${valueName} (${unit})` }, len: 0.8 },
+      hovertemplate: `x %{x:.2f} mm<br>y %{y:.2f} mm<br>${valueName} %{z:.3f} ${unit}<extra></extra>`,
+    },
+  ];
+}
+
+export function surfaceLayout({ zName = "deflection w", unit = "mm", zRange = null } = {}) {
+  return layout({
+    margin: { l: 0, r: 0, t: 10, b: 0 },
+    scene: {
+      xaxis: axis("x", "mm"),
+      yaxis: axis("y", "mm"),
+      zaxis: axis(zName, unit, zRange ? { range: zRange } : {}),
+      aspectmode: "manual",
+      aspectratio: { x: 1, y: 1, z: 0.4 },
+      camera: { eye: { x: -1.3, y: -1.5, z: 1.1 } },
+    },
+  });
+}
+
+/** The 2-D map of a field, with section lines (labelled A, B, ...) and points (P1, P2, ...) drawn over it. */
+export function mapTraces(field, { range = null, points = [], valueName = "w", unit = "mm" } = {}) {
+  const traces = [
+    {
+      type: "heatmap",
+      x: field.x,
+      y: field.y,
+      z: field.z,
+      colorscale: DEFLECTION_SCALE,
+      zmin: range ? range[0] : undefined,
+      zmax: range ? range[1] : undefined,
+      zmid: range ? undefined : 0,
+      zsmooth: false,
+      colorbar: { title: { text: `${valueName} (${unit})` } },
+      hovertemplate: `x %{x:.2f} mm<br>y %{y:.2f} mm<br>${valueName} %{z:.3f} ${unit}<extra></extra>`,
+    },
+  ];
+  if (points.length) {
+    traces.push({
+      type: "scatter",
+      mode: "markers+text",
+      x: points.map((p) => p.x),
+      y: points.map((p) => p.y),
+      text: points.map((p) => p.label),
+      textposition: "top right",
+      marker: { size: 12, symbol: "x", color: points.map((p) => p.color), line: { width: 1.5, color: "#fff" } },
+      textfont: { color: points.map((p) => p.color), size: 13 },
+      hoverinfo: "text",
+      showlegend: false,
+    });
+  }
+  return traces;
+}
+
+export function mapLayout({ lines = [] } = {}) {
+  return layout({
+    margin: { l: 60, r: 10, t: 10, b: 50 },
+    xaxis: axis("x", "mm", { constrain: "domain" }),
+    yaxis: axis("y", "mm", { scaleanchor: "x", constrain: "domain" }),
+    dragmode: "drawline",
+    newshape: { line: { color: "#111", width: 2, dash: "dot" } },
+    shapes: lines.map((line) => ({
+      type: "line",
+      xref: "x",
+      yref: "y",
+      x0: line.x0,
+      y0: line.y0,
+      x1: line.x1,
+      y1: line.y1,
+      editable: false,
+      line: { color: line.color, width: 3, dash: "solid" }, // every property set: react would keep the drawn dash
+      label: { text: line.label, textposition: "end", font: { color: line.color, size: 14 } },
+    })),
+  });
+}
+
+/**
+ * Listen to a map Figure: a drag draws a section line (`onLine({x0, y0, x1, y1})`, in mm), a click without
+ * moving picks a point (`onPoint({x, y})`, in mm). Plotly's drawline mode draws the line while dragging and
+ * reports it through plotly_relayout; plain clicks are not reported in that mode, so they are read here from
+ * the mouse position over the plot area and the axes' ranges. Returns a function that stops listening.
+ */
+export function listenToMap(figure, { onLine, onPoint }) {
+  const gd = figure.plot;
+  gd.on("plotly_relayout", (update) => {
+    const shapes = update.shapes;
+    if (!Array.isArray(shapes) || !shapes.length) return;
+    const drawn = shapes[shapes.length - 1];
+    if (drawn.editable === false) return; // ours, not a new one
+    const line = { x0: drawn.x0, y0: drawn.y0, x1: drawn.x1, y1: drawn.y1 };
+    if (Math.hypot(line.x1 - line.x0, line.y1 - line.y0) > 0) onLine(line);
+  });
+  // Plotly's drag handling stops the mousedown from bubbling and puts a cover over the page until mouseup:
+  // listen in the capture phase, and for the mouseup on the window.
+  let down = null;
+  gd.addEventListener(
+    "mousedown",
+    (event) => {
+      down = event.button === 0 ? { x: event.clientX, y: event.clientY } : null;
+    },
+    true,
+  );
+  const up = (event) => {
+    if (!down) return;
+    const moved = Math.hypot(event.clientX - down.x, event.clientY - down.y);
+    down = null;
+    if (moved > 3) return;
+    const point = dataPoint(gd, event.clientX, event.clientY);
+    if (point) onPoint(point);
+  };
+  window.addEventListener("mouseup", up, true);
+  return () => window.removeEventListener("mouseup", up, true);
+}
+
+/** Data coordinates (mm) of a mouse position over the plot area of a 2-D plot, or null outside it. */
+export function dataPoint(gd, clientX, clientY) {
+  const area = gd.querySelector(".nsewdrag");
+  const { xaxis, yaxis } = gd.layout;
+  if (!area || !xaxis || !yaxis || !xaxis.range || !yaxis.range) return null;
+  const box = area.getBoundingClientRect();
+  const fx = (clientX - box.left) / box.width;
+  const fy = (clientY - box.top) / box.height;
+  if (fx < 0 || fx > 1 || fy < 0 || fy > 1) return null;
+  const [x0, x1] = xaxis.range.map(Number);
+  const [y0, y1] = yaxis.range.map(Number);
+  return { x: x0 + fx * (x1 - x0), y: y0 + (1 - fy) * (y1 - y0) };
+}
+
+/** Screen position (client pixels) of a data point on a 2-D plot: the inverse of dataPoint, for tests. */
+export function screenPoint(gd, x, y) {
+  const box = gd.querySelector(".nsewdrag").getBoundingClientRect();
+  const [x0, x1] = gd.layout.xaxis.range.map(Number);
+  const [y0, y1] = gd.layout.yaxis.range.map(Number);
+  return { x: box.left + ((x - x0) / (x1 - x0)) * box.width, y: box.top + (1 - (y - y0) / (y1 - y0)) * box.height };
+}
+
+// ---- line plots -----------------------------------------------------------------------------------------------
+
+/**
+ * Curves of y against x: `series` = [{ name, x: number[], y: number[], color?, dash?, yaxis? }].
+ * `xAxis`, `yAxis` (and `y2Axis` for a second axis on the right) come from axis(name, unit).
+ */
+export function lineTraces(series, { mode = "lines" } = {}) {
+  return series.map((s, i) => ({
+    type: "scatter",
+    mode: s.mode || mode,
+    name: s.name,
+    x: s.x,
+    y: s.y,
+    yaxis: s.yaxis || "y",
+    line: { color: s.color || COLORS[i % COLORS.length], width: 2, dash: s.dash || "solid" },
+    marker: { size: 5 },
+    connectgaps: false,
+  }));
+}
+
+export function lineLayout({ xAxis, yAxis, y2Axis = null, shapes = [], note = null }) {
+  const out = layout({ xaxis: xAxis, yaxis: yAxis, shapes, hovermode: "x unified" });
+  if (note) {
+    // An empty plot says how to fill it.
+    out.annotations = [{ text: note, xref: "paper", yref: "paper", x: 0.5, y: 0.5, showarrow: false, font: { size: 14, color: "#5b6472" } }];
+  }
+  if (y2Axis) {
+    out.yaxis2 = { ...y2Axis, overlaying: "y", side: "right", showgrid: false, tickmode: "auto" };
+    out.margin = { ...out.margin, r: 70 };
+  }
+  return out;
+}
+
+/** A vertical marker line at x on a line plot (the current frame's time on a history plot). */
+export function verticalMarker(x) {
+  return { type: "line", xref: "x", yref: "paper", x0: x, x1: x, y0: 0, y1: 1, line: { color: "#888", width: 1, dash: "dash" } };
+}
+
+// ---- bars and vectors -------------------------------------------------------------------------------------------
+
+export function barTraces({ x, y, name, color = COLORS[0], text = null }) {
+  return [{ type: "bar", x, y, name, marker: { color }, text, hovertemplate: "%{x}: %{y:.3f}<extra></extra>" }];
+}
+
+/**
+ * Residual vectors drawn over the image area: arrows from each point (u, v) in pixels along its residual
+ * (du, dv) × `scale`, as one line trace with gaps, plus the points. Image convention: v grows downwards.
+ */
+export function vectorTraces({ u, v, du, dv, scale, color = COLORS[1] }) {
+  const xs = [];
+  const ys = [];
+  for (let i = 0; i < u.length; i += 1) {
+    xs.push(u[i], u[i] + du[i] * scale, null);
+    ys.push(v[i], v[i] + dv[i] * scale, null);
+  }
+  return [
+    { type: "scatter", mode: "lines", x: xs, y: ys, line: { color, width: 1.5 }, name: `residual × ${scale}`, hoverinfo: "skip" },
+    {
+      type: "scatter",
+      mode: "markers",
+      x: u,
+      y: v,
+      marker: { size: 3, color: "#1d2430" },
+      name: "corner",
+      customdata: du.map((d, i) => [d, dv[i]]),
+      hovertemplate: "u %{x:.1f} px, v %{y:.1f} px<br>residual (%{customdata[0]:.3f}, %{customdata[1]:.3f}) px<extra></extra>",
+    },
+  ];
+}
+
+export function imageLayout({ widthPx, heightPx }) {
+  return layout({
+    xaxis: axis("u", "px", { range: [0, widthPx], constrain: "domain" }),
+    yaxis: axis("v", "px", { range: [heightPx, 0], scaleanchor: "x", constrain: "domain" }),
+    shapes: [{ type: "rect", x0: 0, y0: 0, x1: widthPx, y1: heightPx, line: { color: "#999", width: 1 } }],
+  });
+}

@@ -1,0 +1,336 @@
+// The calibration report of a calibration job. Camera: the verdict with its reasons, the parameters with
+// ± standard errors and units, per-frame RMS bars and the residual vectors drawn over the image area, from
+// GET /calibrations/{id}/report (the fields of the camera-calibration document, units in every name).
+// Projector: the look-up table's curves and its sensitivity map.
+import { getJSON } from "../api.js";
+import { Figure, axis, barTraces, imageLayout, layout, vectorTraces } from "../plots.js";
+import { attempt, field, h, num, page, showError, table } from "../ui.js";
+import { describeInput, jobName } from "./jobs.js";
+
+const PARAMETER_NAMES = {
+  su: "scale factor s_u",
+  f_mm: "focal length f",
+  u0_px: "principal point u₀",
+  v0_px: "principal point v₀",
+  k1_per_mm2: "radial distortion k₁",
+  k2_per_mm4: "radial distortion k₂",
+  p1_per_mm: "tangential distortion p₁",
+  p2_per_mm: "tangential distortion p₂",
+  x0_mm: "camera centre X₀",
+  y0_mm: "camera centre Y₀",
+  z0_mm: "camera centre Z₀",
+  omega_deg: "rotation ω",
+  phi_deg: "rotation φ",
+  kappa_deg: "rotation κ",
+};
+const FRAME_COLORS = { used: "#1f77b4", rejected: "#d62728", skipped: "#9aa4b1" };
+
+/** A value and its standard error with digits that suit the error: 12.3456 ± 0.0012. */
+export function plusMinus(value, error) {
+  if (value === null || value === undefined) return "–";
+  if (error === null || error === undefined || !Number.isFinite(error) || error <= 0) return num(value, 6);
+  const digits = Math.min(10, Math.max(0, 1 - Math.floor(Math.log10(error))));
+  const small = Math.abs(value) < 1e-3 && value !== 0;
+  if (small) return `${value.toExponential(2)} ± ${error.toExponential(1)}`;
+  return `${value.toFixed(digits)} ± ${error.toFixed(digits)}`;
+}
+
+function verdictBox(verdict) {
+  return h(
+    "section",
+    { class: `card verdict verdict-${verdict.level}`, "aria-label": "Verdict" },
+    h("h2", {}, `Verdict: ${verdict.level}`),
+    h("ul", {}, verdict.reasons.map((reason) => h("li", {}, reason))),
+    table(
+      "Verdict checks",
+      [
+        { title: "Check", value: (c) => c.name },
+        { title: "Value", value: (c) => `${num(c.value, 3)} ${c.unit}`, class: "num" },
+        { title: "Good if", value: (c) => `${c.higher_is_better ? "≥" : "≤"} ${c.good_limit} ${c.unit}`, class: "num" },
+        { title: "Bad if", value: (c) => `${c.higher_is_better ? "<" : ">"} ${c.bad_limit} ${c.unit}`, class: "num" },
+        { title: "Level", value: (c) => h("span", { class: `level-${c.level}` }, c.level) },
+        { title: "Meaning", value: (c) => c.message },
+      ],
+      verdict.checks,
+    ),
+  );
+}
+
+function parametersTable(document) {
+  const rows = Object.entries(document.parameters).map(([name, p]) => ({ name, ...p }));
+  return table(
+    "Camera parameters",
+    [
+      { title: "Parameter", value: (p) => PARAMETER_NAMES[p.name] || p.name },
+      { title: "Value ± standard error", value: (p) => plusMinus(p.value, p.standard_error), class: "num" },
+      { title: "Unit", value: (p) => (p.unit === "1" ? "–" : p.unit.replace(/\^-(\d)/, (_, d) => `⁻${"⁰¹²³⁴⁵⁶⁷⁸⁹"[d]}`)) },
+    ],
+    rows,
+  );
+}
+
+function summary(document, job) {
+  const size = document.image_size_px;
+  const sensor = document.sensor;
+  return h(
+    "dl",
+    { class: "facts" },
+    [
+      ["Input", describeInput(job)],
+      ["Mode", document.mode === "zstack" ? "board moved along Z (Z-stack)" : "free board poses"],
+      ["Image", `${size.width} × ${size.height} px`],
+      ["Sensor", `D_u ${num(sensor.du_px_per_mm, 3)} px/mm, D_v ${num(sensor.dv_px_per_mm, 3)} px/mm`],
+      ["RMS reprojection error", `${num(document.rms_px, 4)} px over ${document.n_points} corners`],
+      ["Residual standard deviation", `${num(document.residual_std_px, 4)} px per coordinate`],
+      ["Systematic residual", `${num(document.residual_map.systematic_px, 4)} px (image coverage ${num(100 * document.residual_map.coverage, 0)} %)`],
+      ["Converged", document.converged ? "yes" : "NO"],
+    ].map(([term, value]) => [h("dt", {}, term), h("dd", {}, value)]),
+  );
+}
+
+/** Per-frame RMS bars, coloured by what the solver did with the frame. */
+function frameFigure(document, name) {
+  const frames = document.frames;
+  const figure = new Figure({
+    name: "Per-frame RMS",
+    filename: `${name}-frame-rms`,
+    height: 320,
+    csv: () => ({
+      columns: ["frame", "status", "z_mm", "n_corners", "rms_px", "max_px", "reason"],
+      rows: frames.map((f) => [f.frame, f.status, f.z_mm, f.n_corners, f.rms_px, f.max_px, f.reason]),
+    }),
+  });
+  const traces = Object.keys(FRAME_COLORS)
+    .map((status) => {
+      const chosen = frames.filter((f) => f.status === status);
+      if (!chosen.length) return null;
+      return {
+        ...barTraces({ x: chosen.map((f) => f.frame), y: chosen.map((f) => f.rms_px ?? 0), name: status, color: FRAME_COLORS[status] })[0],
+        customdata: chosen.map((f) => [f.z_mm ?? "", f.reason || ""]),
+        hovertemplate: "%{x}<br>RMS %{y:.3f} px<br>Z %{customdata[0]} mm<br>%{customdata[1]}<extra></extra>",
+      };
+    })
+    .filter(Boolean);
+  const draw = () =>
+    figure.react(traces, {
+      ...layout({ xaxis: { ...axis("frame", "file name"), type: "category" }, yaxis: axis("RMS reprojection error", "px"), barmode: "group" }),
+    });
+  return { figure, draw };
+}
+
+/** Residual vectors over the image area, magnified by a chosen factor. */
+function residualFigure(document, name) {
+  const r = document.residuals;
+  const size = document.image_size_px;
+  const lengths = r.du_px.map((du, i) => Math.hypot(du, r.dv_px[i])).sort((a, b) => a - b);
+  const median = lengths.length ? lengths[Math.floor(lengths.length / 2)] : 0;
+  // Magnify so that a median residual is drawn about 1 % of the image width long.
+  const auto = median > 0 ? Math.max(1, Math.round((0.01 * size.width) / median)) : 100;
+  const scale = field("Residual magnification (×)", h("input", { type: "number", min: 1, step: 1, value: auto }));
+  const figure = new Figure({
+    name: "Residual vectors over the image",
+    filename: `${name}-residuals`,
+    height: 520,
+    csv: () => ({
+      columns: ["frame_index", "x_mm", "y_mm", "z_mm", "u_px", "v_px", "du_px", "dv_px"],
+      rows: r.u_px.map((u, i) => [r.frame_index[i], r.x_mm[i], r.y_mm[i], r.z_mm[i], u, r.v_px[i], r.du_px[i], r.dv_px[i]]),
+    }),
+  });
+  const draw = () =>
+    figure.react(
+      vectorTraces({ u: r.u_px, v: r.v_px, du: r.du_px, dv: r.dv_px, scale: Number(scale.input.value) || auto }),
+      imageLayout({ widthPx: size.width, heightPx: size.height }),
+    );
+  scale.input.addEventListener("change", draw);
+  return { figure, draw, control: scale.wrap };
+}
+
+async function cameraReport(container, job, context) {
+  const calibrationId = job.result && job.result.calibration_id;
+  if (!calibrationId) {
+    showError(`${jobName(job)} names no calibration in its result`, "show the calibration report");
+    return;
+  }
+  const answer = await attempt("read the calibration report", () => getJSON(`calibrations/${calibrationId}/report`));
+  if (!answer || !context.current()) return;
+  const { calibration, report: document } = answer;
+  const file = { url: calibration.file_url, name: `camera-calibration-${calibration.id}.json` };
+  const name = `camera-calibration-${job.id.slice(0, 8)}`;
+  const frames = frameFigure(document, name);
+  const residuals = residualFigure(document, name);
+  page(
+    container,
+    `Camera calibration ${calibration.id} (version ${calibration.version})`,
+    h("p", {}, h("a", { href: `#/jobs/${job.id}` }, jobName(job)), " · ", h("a", { href: file.url, download: file.name }, `Download ${file.name}`)),
+    verdictBox(document.verdict),
+    h(
+      "div",
+      { class: "two-columns" },
+      h("section", { "aria-labelledby": "params-title" }, h("h2", { id: "params-title" }, "Parameters"), parametersTable(document)),
+      h("section", { "aria-labelledby": "summary-title" }, h("h2", { id: "summary-title" }, "Summary"), summary(document, job)),
+    ),
+    frames.figure.element,
+    h("div", { class: "plot-controls" }, residuals.control),
+    residuals.figure.element,
+  );
+  context.onLeave(() => {
+    frames.figure.purge();
+    residuals.figure.purge();
+  });
+  await frames.draw();
+  await residuals.draw();
+}
+
+export async function renderCalibration(container, { id }, context) {
+  const job = await attempt("open the job", () => getJSON(`jobs/${id}`));
+  if (!job || !context.current()) return;
+  if (job.state !== "succeeded") {
+    page(container, "Calibration report", h("p", {}, h("a", { href: `#/jobs/${job.id}` }, jobName(job)), ` is ${job.state}; its report comes when it has succeeded.`));
+    return;
+  }
+  if (job.kind === "camera_calibration") return cameraReport(container, job, context);
+  if (job.kind === "projector_calibration") return projectorReport(container, job, context);
+  page(container, "Calibration report", h("p", {}, `${jobName(job)} is not a calibration.`));
+}
+
+const MAP_LINES = 16; // scan lines sampled for the sensitivity map (one request each)
+const CURVES = 24; // edges drawn on the curves plot
+
+/** Least-squares slope of t against z over the finite samples (px/mm), or NaN with fewer than 2. */
+function slope(z, t) {
+  const pairs = z.map((zi, i) => [zi, t[i]]).filter(([zi, ti]) => Number.isFinite(zi) && Number.isFinite(ti));
+  if (pairs.length < 2) return NaN;
+  const mz = pairs.reduce((a, p) => a + p[0], 0) / pairs.length;
+  const mt = pairs.reduce((a, p) => a + p[1], 0) / pairs.length;
+  const szz = pairs.reduce((a, p) => a + (p[0] - mz) ** 2, 0);
+  return szz > 0 ? pairs.reduce((a, p) => a + (p[0] - mz) * (p[1] - mt), 0) / szz : NaN;
+}
+
+const numbersOf = (values) => values.map((v) => (v === null ? NaN : v));
+
+/** The edge's position at the reference height, px: from its nearest sample there, carried along its slope
+ * when the edge was not seen at that height (NaN when it was seen at fewer than two heights). */
+function tAtReference(lut, curve) {
+  const z = numbersOf(lut.z_mm);
+  const t = numbersOf(curve.t_px);
+  const seen = z.map((_, j) => j).filter((j) => Number.isFinite(t[j]));
+  if (!seen.length) return NaN;
+  const near = seen.reduce((best, j) => (Math.abs(z[j] - lut.reference_z_mm) < Math.abs(z[best] - lut.reference_z_mm) ? j : best));
+  const offset = lut.reference_z_mm - z[near];
+  return offset === 0 ? t[near] : t[near] + slope(z, t) * offset;
+}
+
+/** The projector calibration: its settings and QA, the table's curves along a scan line, and its sensitivity. */
+async function projectorReport(container, job, context) {
+  const calibrationId = job.result && job.result.calibration_id;
+  if (!calibrationId) {
+    showError(`${jobName(job)} names no calibration in its result`, "show the calibration report");
+    return;
+  }
+  const first = await attempt("read the projector table", () => getJSON(`calibrations/${calibrationId}/table`));
+  if (!first || !context.current()) return;
+  const calibration = first.calibration;
+  const name = `projector-calibration-${calibration.id}`;
+  const lineInput = field("Scan line", h("input", { type: "number", min: 0, max: first.n_lines - 1, step: 1, value: first.line }),
+    `0 … ${first.n_lines - 1}; scan lines are image ${first.axis === "rows" ? "rows" : "columns"}`);
+  let lut = first;
+  const curves = new Figure({
+    name: "Look-up table curves",
+    filename: `${name}-curves`,
+    height: 420,
+    csv: () => ({
+      columns: ["line", "edge", "z_mm", "t_px"],
+      rows: lut.curves.flatMap((c) => lut.z_mm.map((z, j) => [lut.line, c.edge, z, c.t_px[j]])),
+    }),
+  });
+  // Every edge's curve t(Z) drawn as its shift from the reference height, for about CURVES edges spread over
+  // the line: the slopes (the sensitivity) and any bend read at a glance; the CSV has every edge.
+  const drawCurves = () => {
+    const every = Math.max(1, Math.ceil(lut.curves.length / CURVES));
+    const shown = lut.curves.filter((_, i) => i % every === 0);
+    return curves.react(
+      shown.map((c, i) => {
+        const reference = tAtReference(lut, c);
+        return {
+          type: "scatter",
+          mode: "lines",
+          x: numbersOf(lut.z_mm),
+          y: numbersOf(c.t_px).map((t) => t - reference),
+          name: `edge ${c.edge}`,
+          line: { width: 1.5, color: `hsl(${Math.round((260 * i) / Math.max(1, shown.length - 1))}, 70%, 45%)` },
+          hovertemplate: `edge ${c.edge}<br>Z %{x:.2f} mm<br>shift %{y:.2f} px<extra></extra>`,
+        };
+      }),
+      layout({
+        xaxis: axis("plate height Z", "mm"),
+        yaxis: axis(`edge shift t − t(Z_ref) on line ${lut.line}`, "px"),
+        showlegend: false,
+        annotations: [{ text: `${shown.length} of ${lut.curves.length} edges`, xref: "paper", yref: "paper", x: 0, y: 1.08, showarrow: false, font: { color: "#5b6472" } }],
+      }),
+    );
+  };
+  lineInput.input.addEventListener("change", async () => {
+    const answer = await attempt("read the projector table", () => getJSON(`calibrations/${calibrationId}/table?line=${Number(lineInput.input.value)}`));
+    if (!answer || !context.current()) return;
+    lut = answer;
+    await drawCurves();
+  });
+
+  // Sensitivity dt/dZ of every edge on MAP_LINES scan lines spread over the image: a map of how far an edge
+  // moves per mm of height (higher is more sensitive).
+  const map = new Figure({
+    name: "Sensitivity map",
+    filename: `${name}-sensitivity`,
+    height: 420,
+    csv: () => ({ columns: ["line", "edge", "t_px", "sensitivity_px_per_mm"], rows: mapRows }),
+  });
+  let mapRows = [];
+  const mapNote = h("p", { class: "hint" }, `Reading ${MAP_LINES} scan lines of the table for the map…`);
+  const drawMap = async () => {
+    const lines = Array.from({ length: MAP_LINES }, (_, i) => Math.round(((i + 0.5) * first.n_lines) / MAP_LINES));
+    const tables = await Promise.all(lines.map((line) => getJSON(`calibrations/${calibrationId}/table?line=${line}`)));
+    if (!context.current()) return;
+    mapRows = tables.flatMap((t) => t.curves.map((c) => [t.line, c.edge, tAtReference(t, c), slope(numbersOf(t.z_mm), numbersOf(c.t_px))]));
+    const shown = mapRows.filter((r) => Number.isFinite(r[2]) && Number.isFinite(r[3]));
+    const [u, v] = first.axis === "rows" ? [(r) => r[2], (r) => r[0]] : [(r) => r[0], (r) => r[2]];
+    await map.react(
+      [{
+        type: "scatter",
+        mode: "markers",
+        x: shown.map(u),
+        y: shown.map(v),
+        marker: { size: 6, color: shown.map((r) => Math.abs(r[3])), colorscale: "Viridis", colorbar: { title: { text: "|dt/dZ| (px/mm)" } } },
+        customdata: shown.map((r) => [r[1], r[3]]),
+        hovertemplate: "edge %{customdata[0]}<br>u %{x:.0f} px, v %{y:.0f} px<br>dt/dZ %{customdata[1]:.3f} px/mm<extra></extra>",
+      }],
+      layout({ xaxis: axis("u", "px"), yaxis: axis("v", "px", { autorange: "reversed", scaleanchor: "x" }) }),
+    );
+    mapNote.textContent = `|dt/dZ| of every edge on ${MAP_LINES} scan lines spread over the image (a straight-line fit over Z).`;
+  };
+
+  const qa = Object.entries(first.qa || {}).filter(([, v]) => v === null || ["number", "string", "boolean"].includes(typeof v));
+  page(
+    container,
+    `Projector calibration ${calibration.id} (version ${calibration.version})`,
+    h("p", {}, h("a", { href: `#/jobs/${job.id}` }, jobName(job)), " · ", h("a", { href: calibration.file_url }, "Download the table (HDF5)")),
+    h("div", { class: "two-columns" },
+      h("dl", { class: "facts" }, [
+        ["Scan", first.axis === "rows" ? "along image rows (vertical stripes)" : "along image columns (horizontal stripes)"],
+        ["Stripe period", `${num(first.period_px, 2)} px`],
+        ["Reference height", `${num(first.reference_z_mm, 2)} mm`],
+        ["Table", `${first.n_edges} edges × ${first.n_lines} scan lines × ${first.z_mm.length} heights (${num(first.z_mm[0], 1)} … ${num(first.z_mm[first.z_mm.length - 1], 1)} mm)`],
+      ].map(([term, value]) => [h("dt", {}, term), h("dd", {}, value)])),
+      table("Projector table QA", [
+        { title: "Check", value: (r) => r[0] },
+        { title: "Value", value: (r) => (typeof r[1] === "number" ? String(Number(r[1].toPrecision(6))) : String(r[1])) },
+      ], qa)),
+    h("div", { class: "plot-controls" }, lineInput.wrap),
+    h("div", { class: "plot-grid" }, curves.element, h("div", {}, map.element, mapNote)),
+  );
+  context.onLeave(() => {
+    curves.purge();
+    map.purge();
+  });
+  await drawCurves();
+  await attempt("draw the sensitivity map", drawMap);
+}

@@ -1,0 +1,505 @@
+// Jobs: the form that starts calibration and topography jobs (the JSON spec of POST /api/v1/jobs, with its
+// defaults), live progress bars (Server-Sent Events), cancel and retry, the error text of a failed job, its log,
+// its files and links to its report or viewer.
+import { getJSON, postJSON, query, subscribe } from "../api.js";
+import { specInputs } from "../specform.js";
+import { attempt, field, fill, formatBytes, formatDuration, formatTime, h, page, say, showError, table } from "../ui.js";
+
+export const JOB_KIND_NAMES = {
+  ingest: "Ingest",
+  camera_calibration: "Camera calibration",
+  projector_calibration: "Projector calibration",
+  topography: "Topography",
+  export: "Export",
+  selftest: "Self-test",
+};
+const ACTIVE = ["queued", "running"];
+const MAX_STREAMS = 3; // a browser keeps 6 connections per server: leave room for the page's own requests
+
+export const shortId = (id) => id.slice(0, 8);
+export const jobName = (job) => `${JOB_KIND_NAMES[job.kind] || job.kind} ${shortId(job.id)}`;
+const isActive = (job) => ACTIVE.includes(job.state) || job.stopping;
+
+/** Where a finished job's results are shown. */
+export function resultLink(job) {
+  if (job.state !== "succeeded") return null;
+  if (job.kind === "camera_calibration" || job.kind === "projector_calibration") {
+    return h("a", { href: `#/jobs/${job.id}/report` }, "Calibration report");
+  }
+  if (job.kind === "topography") return h("a", { href: `#/jobs/${job.id}/viewer` }, "Topography viewer");
+  return null;
+}
+
+// ---- one job's progress, with its buttons ------------------------------------------------------------------
+
+/** A live view of a job: state, progress bar, stage, time left, error, cancel/retry. `update(job)` redraws it. */
+export class JobProgress {
+  constructor(job, { onRetried = () => {}, onChange = () => {} } = {}) {
+    this.onRetried = onRetried;
+    this.onChange = onChange;
+    this.bar = h("progress", { max: 1, "aria-label": `Progress of ${jobName(job)}` });
+    this.text = h("span", { class: "progress-text" });
+    this.stateBadge = h("span", { class: "badge" });
+    this.error = h("p", { class: "error job-error", hidden: true });
+    this.cancelButton = h("button", { type: "button", class: "small", "aria-label": `Cancel ${jobName(job)}`, onclick: () => this.cancel() }, "Cancel");
+    this.retryButton = h("button", { type: "button", class: "small", "aria-label": `Retry ${jobName(job)}`, onclick: () => this.retry() }, "Retry");
+    this.element = h(
+      "div",
+      { class: "job-progress" },
+      this.stateBadge,
+      this.bar,
+      this.text,
+      this.cancelButton,
+      this.retryButton,
+      this.error,
+    );
+    this.update(job);
+  }
+
+  update(job) {
+    this.job = job;
+    const p = job.progress;
+    this.stateBadge.textContent = job.stopping ? "stopping" : job.state;
+    this.stateBadge.className = `badge state-${job.state}`;
+    if (job.state === "succeeded") {
+      this.bar.value = 1;
+    } else if (p.fraction === null || p.fraction === undefined) {
+      if (job.state === "queued" || job.state === "running") this.bar.removeAttribute("value"); // indeterminate
+      else this.bar.value = 0;
+    } else {
+      this.bar.value = p.fraction;
+    }
+    const percent = job.state === "succeeded" ? 100 : p.fraction !== null && p.fraction !== undefined ? Math.floor(p.fraction * 100) : null;
+    const parts = [];
+    if (percent !== null) parts.push(`${percent} %`);
+    if (p.stage) parts.push(p.stage);
+    if (p.total) parts.push(`${p.done}/${p.total}`);
+    if (isActive(job) && p.eta_s !== null && p.eta_s !== undefined) parts.push(`${formatDuration(p.eta_s)} left`);
+    if (!isActive(job) && job.duration_s !== null && job.duration_s !== undefined) parts.push(`took ${formatDuration(job.duration_s)}`);
+    this.text.textContent = parts.join(" · ");
+    this.error.textContent = job.error || "";
+    this.error.hidden = !job.error;
+    this.cancelButton.hidden = !ACTIVE.includes(job.state) || job.stopping;
+    this.retryButton.hidden = !["failed", "cancelled"].includes(job.state) || job.stopping || Boolean(job.retried_by);
+    this.onChange(job);
+  }
+
+  async cancel() {
+    try {
+      this.update(await postJSON(`jobs/${this.job.id}/cancel`));
+      say(`${jobName(this.job)} cancelled.`);
+    } catch (error) {
+      showError(error, `cancel ${jobName(this.job)}`);
+    }
+  }
+
+  async retry() {
+    try {
+      const retried = await postJSON(`jobs/${this.job.id}/retry`);
+      say(`${jobName(this.job)} started again as ${jobName(retried)}.`);
+      this.retryButton.hidden = true;
+      this.onRetried(retried);
+    } catch (error) {
+      showError(error, `retry ${jobName(this.job)}`);
+    }
+  }
+}
+
+/** Follow a job's events; returns the function that stops following. */
+export function followJob(jobId, { onJob, onLog = () => {}, onEnd = () => {} }) {
+  return subscribe(
+    `jobs/${jobId}/events`,
+    { job: onJob, log: onLog, end: onEnd },
+    { onError: (message) => showError(message, `follow job ${shortId(jobId)}`) },
+  );
+}
+
+// ---- the list of jobs (of an experiment, or all) ------------------------------------------------------------------
+
+/**
+ * A table of jobs that stays live: active jobs follow their event streams (at most MAX_STREAMS at once; the rest,
+ * and jobs started elsewhere, are picked up by a slower poll of the list).
+ */
+export class JobList {
+  constructor({ experimentId = null, context, label = "Jobs", onRefresh = () => {} }) {
+    this.experimentId = experimentId;
+    this.onRefresh = onRefresh;
+    this.context = context;
+    this.label = label;
+    this.rows = new Map(); // job id -> { progress: JobProgress, row: <tr> }
+    this.streams = new Map(); // job id -> close()
+    this.tbody = h("tbody");
+    this.empty = h("p", { class: "empty" }, "No jobs yet.");
+    this.table = h(
+      "table",
+      { "aria-label": label, class: "jobs", hidden: true },
+      h("thead", {}, h("tr", {}, ["Job", "Input", "Progress", "Started", "Results"].map((t) => h("th", { scope: "col" }, t)))),
+      this.tbody,
+    );
+    this.element = h("div", {}, this.empty, this.table);
+    this.timer = null;
+    context.onLeave(() => this.stop());
+  }
+
+  stop() {
+    clearTimeout(this.timer);
+    for (const close of this.streams.values()) close();
+    this.streams.clear();
+  }
+
+  async refresh() {
+    clearTimeout(this.timer);
+    const jobs = await attempt("list the jobs", () => getJSON(`jobs${query({ experiment_id: this.experimentId, limit: 200 })}`));
+    if (!this.context.current()) return;
+    if (jobs) {
+      this.show(jobs.items.filter((job) => job.kind !== "ingest" || isActive(job)));
+      this.onRefresh(jobs.items);
+    }
+    const anyActive = jobs && jobs.items.some(isActive);
+    this.timer = setTimeout(() => this.refresh(), anyActive ? 2000 : 10000);
+  }
+
+  show(jobs) {
+    this.empty.hidden = jobs.length > 0;
+    this.table.hidden = jobs.length === 0;
+    const ordered = [];
+    for (const job of jobs) {
+      let entry = this.rows.get(job.id);
+      if (!entry) {
+        const progress = new JobProgress(job, { onRetried: () => this.refresh() });
+        const results = h("td");
+        const row = h(
+          "tr",
+          { "data-job": job.id },
+          h("td", {}, h("a", { href: `#/jobs/${job.id}` }, jobName(job))),
+          h("td", { class: "job-input" }, describeInput(job)),
+          h("td", {}, progress.element),
+          h("td", {}, formatTime(job.created_at)),
+          results,
+        );
+        entry = { progress, row, results };
+        this.rows.set(job.id, entry);
+      }
+      if (!this.streams.has(job.id)) entry.progress.update(job);
+      fill(entry.results, resultLink(entry.progress.job));
+      ordered.push(entry.row);
+      if (isActive(job) && !this.streams.has(job.id) && this.streams.size < MAX_STREAMS) this.follow(job.id, entry);
+    }
+    this.tbody.replaceChildren(...ordered);
+  }
+
+  follow(jobId, entry) {
+    const close = followJob(jobId, {
+      onJob: (job) => {
+        entry.progress.update(job);
+        fill(entry.results, resultLink(job));
+      },
+      onEnd: () => {
+        this.streams.delete(jobId);
+        if (this.context.current()) this.refresh();
+      },
+    });
+    this.streams.set(jobId, close);
+  }
+}
+
+/** What a job works on, in words, from its spec. */
+export function describeInput(job) {
+  const spec = job.spec || {};
+  const parts = [];
+  if (spec.recording_id) parts.push(h("a", { href: `#/recordings/${spec.recording_id}` }, `recording ${spec.recording_id}`));
+  if (spec.camera_calibration_id) parts.push(`camera cal. ${spec.camera_calibration_id}`);
+  if (spec.projector_calibration_id) parts.push(`projector cal. ${spec.projector_calibration_id}`);
+  if (spec.job_id) parts.push(`job ${shortId(spec.job_id)}`);
+  if (spec.format) parts.push(spec.format);
+  return parts.flatMap((part, i) => (i ? [", ", part] : [part]));
+}
+
+// ---- the form ------------------------------------------------------------------------------------------------------
+
+const RECORDING_KIND_OF_JOB = {
+  camera_calibration: "camera_calibration",
+  projector_calibration: "projector_calibration",
+  topography: "test",
+};
+
+/**
+ * The form that starts a calibration or topography job, its inputs made from the API's schema of each kind's
+ * spec (specform.js): the same parameters and defaults a script sends to POST /api/v1/jobs, shown as JSON under
+ * the form. `recordings()` returns the experiment's recordings (with `camera_name`); `calibrations(cameraId,
+ * kind)` resolves to [{ id, label }] of its calibrations, newest first.
+ */
+export function jobForm({ recordings, calibrations, onStarted }) {
+  const kind = field(
+    "Job kind",
+    h("select", {}, Object.keys(RECORDING_KIND_OF_JOB).map((value) => h("option", { value }, JOB_KIND_NAMES[value]))),
+  );
+  const pickers = {
+    recording_id: { label: "Recording", select: h("select", { required: true }) },
+    camera_calibration_id: { label: "Camera calibration", select: h("select", { required: true }) },
+    projector_calibration_id: { label: "Projector calibration", select: h("select", { required: true }) },
+  };
+  const inputs = h("div", { class: "spec-inputs grid-form" });
+  const about = h("p", { class: "hint wide-row" });
+  const specView = h("pre", { class: "spec", "aria-label": "Job spec (JSON)" });
+  const submit = h("button", { type: "submit", class: "primary" }, "Start job");
+  let current = null;
+
+  const showSpec = () => {
+    specView.textContent = current ? JSON.stringify(current.spec(), null, 2) : "";
+  };
+  const options = (select, items, emptyText) => {
+    const previous = select.value;
+    fill(select, items.length ? items.map((item) => h("option", { value: item.id }, item.label)) : h("option", { value: "" }, emptyText));
+    if (items.some((item) => String(item.id) === previous)) select.value = previous;
+  };
+  const refreshCalibrations = async () => {
+    const chosen = recordings().find((r) => String(r.id) === pickers.recording_id.select.value);
+    if (chosen) {
+      const [cameraCals, projectorCals] = await Promise.all([calibrations(chosen.camera_id, "camera"), calibrations(chosen.camera_id, "projector")]);
+      options(pickers.camera_calibration_id.select, cameraCals, "no camera calibration yet");
+      options(pickers.projector_calibration_id.select, projectorCals, "no projector calibration yet");
+    }
+    showSpec();
+  };
+  const refreshRecordings = () => {
+    const wanted = RECORDING_KIND_OF_JOB[kind.input.value];
+    const ready = recordings().filter((r) => r.kind === wanted && r.state === "ready");
+    options(
+      pickers.recording_id.select,
+      ready.map((r) => ({ id: r.id, label: `#${r.id} ${r.filename} (${r.camera_name}, ${r.frame_count} frames)` })),
+      "no ready recording of this kind",
+    );
+    return refreshCalibrations();
+  };
+  // The button waits while the choices are being fetched, so that nothing stale is sent.
+  const busy = async (action) => {
+    submit.disabled = true;
+    try {
+      await action();
+    } finally {
+      submit.disabled = false;
+    }
+  };
+  const changeKind = () =>
+    busy(async () => {
+      try {
+        current = await specInputs(kind.input.value, pickers);
+        about.textContent = current.description;
+        inputs.replaceChildren(...current.elements);
+        for (const picker of Object.values(pickers)) picker.select.closest(".field")?.classList.add("wide");
+        await refreshRecordings();
+      } catch (error) {
+        showError(error, "read the job parameters from the server");
+      }
+    });
+
+  kind.input.addEventListener("change", changeKind);
+  pickers.recording_id.select.addEventListener("change", () => busy(refreshCalibrations));
+  const form = h(
+    "form",
+    {
+      class: "card",
+      "aria-label": "Start a job",
+      oninput: showSpec,
+      onchange: showSpec,
+      onsubmit: async (event) => {
+        event.preventDefault();
+        submit.disabled = true;
+        try {
+          const job = await postJSON("jobs", current.spec());
+          say(`${jobName(job)} started.`);
+          onStarted(job);
+        } catch (error) {
+          showError(error, "start the job");
+        } finally {
+          submit.disabled = false;
+        }
+      },
+    },
+    h("h3", {}, "Start a job"),
+    h("div", { class: "grid-form" }, kind.wrap, about),
+    inputs,
+    h("div", { class: "actions" }, submit),
+    h("details", { class: "spec-box" }, h("summary", {}, "The spec sent to POST /api/v1/jobs"), specView),
+  );
+  const ready = changeKind();
+  return { element: form, refresh: () => ready.then(() => busy(refreshRecordings)) };
+}
+
+/** The calibrations of a camera, from its succeeded calibration jobs. */
+async function calibrationsOf(experimentId, cameraId, kind) {
+  const found = await attempt(`list the ${kind} calibrations`, () =>
+    getJSON(`calibrations${query({ camera_id: cameraId, kind })}`),
+  );
+  return (found || []).map((c) => {
+    const verdict = c.summary && c.summary.verdict ? ` · ${c.summary.verdict}` : "";
+    const rms = c.summary && Number.isFinite(c.summary.rms_px) ? ` · RMS ${c.summary.rms_px.toFixed(3)} px` : "";
+    return { id: c.id, label: `#${c.id} v${c.version}${rms}${verdict} · ${formatTime(c.created_at)}` };
+  });
+}
+
+/** The jobs section of an experiment page: the live list and the form. */
+export function jobsPanel({ experimentId, context, recordings }) {
+  let form = null;
+  let succeeded = -1;
+  const list = new JobList({
+    experimentId,
+    context,
+    label: "Jobs of this experiment",
+    // A calibration that has just succeeded becomes a choice of the form.
+    onRefresh: (jobs) => {
+      const now = jobs.filter((job) => job.state === "succeeded").length;
+      if (now !== succeeded && form) form.refresh();
+      succeeded = now;
+    },
+  });
+  form = jobForm({
+    recordings,
+    calibrations: (cameraId, kind) => calibrationsOf(experimentId, cameraId, kind),
+    onStarted: () => list.refresh(),
+  });
+  list.refresh();
+  return {
+    element: h("section", { "aria-labelledby": "jobs-title" }, h("h2", { id: "jobs-title" }, "Jobs and results"), list.element, form.element),
+    recordingsChanged: () => form.refresh(),
+  };
+}
+
+// ---- pages ---------------------------------------------------------------------------------------------------------
+
+export async function renderJobs(container, _params, context) {
+  const list = new JobList({ context, label: "All jobs" });
+  page(container, "Jobs", list.element);
+  await list.refresh();
+}
+
+const MAX_CHUNK_ROWS = 40;
+
+/** A chunked job's parts: a table when there are few, else how many are in each state and which workers. */
+function chunksView(chunks) {
+  if (!chunks.length) return null;
+  const count = (state) => chunks.filter((c) => c.state === state).length;
+  const workers = [...new Set(chunks.map((c) => c.worker).filter(Boolean))];
+  const line = h("p", { class: "facts" },
+    `${chunks.length} chunks: ${count("done")} done, ${count("running")} running, ${count("pending")} pending`,
+    workers.length ? ` · workers: ${workers.join(", ")}` : "");
+  if (chunks.length > MAX_CHUNK_ROWS) return line;
+  return [
+    line,
+    table(
+      "Chunks",
+      [
+        { title: "Phase", value: (c) => (c.phase === undefined ? "–" : String(c.phase)) },
+        { title: "Chunk", value: (c) => String(c.index) },
+        { title: "Frames", value: (c) => `${c.first_frame}–${c.stop_frame - 1}` },
+        { title: "State", value: (c) => c.state },
+        { title: "Done", value: (c) => `${c.done}/${c.stop_frame - c.first_frame}` },
+        { title: "Worker", value: (c) => c.worker || "–" },
+        { title: "Took", value: (c) => (c.started_at && c.finished_at ? formatDuration((new Date(c.finished_at) - new Date(c.started_at)) / 1000) : "–") },
+      ],
+      chunks,
+    ),
+  ];
+}
+
+function logLine(line) {
+  return h("div", { class: `log-${line.level}` }, `${formatTime(line.at)}  ${line.level.padEnd(7)} ${line.message}`);
+}
+
+export async function renderJob(container, { id }, context) {
+  const job = await attempt("open the job", () => getJSON(`jobs/${id}`));
+  if (!job || !context.current()) return;
+  const facts = h("dl", { class: "facts" });
+  const files = h("div");
+  const links = h("p");
+  const resultBox = h("div");
+  const chunksBox = h("div");
+  const logBox = h("div", { class: "log", role: "log", "aria-label": "Job log", tabindex: 0 });
+  const drawFacts = (current) => {
+    fill(
+      facts,
+      [
+        ["Kind", JOB_KIND_NAMES[current.kind] || current.kind],
+        ["State", current.stopping ? "stopping" : current.state],
+        ["Input", current.spec && current.spec.recording_id ? describeInput(current) : null],
+        ["Attempt", current.retry_of ? [`${current.attempt}, retry of `, h("a", { href: `#/jobs/${current.retry_of}` }, shortId(current.retry_of))] : String(current.attempt)],
+        ["Retried as", current.retried_by ? h("a", { href: `#/jobs/${current.retried_by}` }, shortId(current.retried_by)) : null],
+        ["Worker", current.worker || "–"],
+        ["Created", formatTime(current.created_at)],
+        ["Started", formatTime(current.started_at)],
+        ["Finished", formatTime(current.finished_at)],
+        ["Experiment", current.experiment_id ? h("a", { href: `#/experiments/${current.experiment_id}` }, `#${current.experiment_id}`) : null],
+      ]
+        .filter(([, value]) => value !== null)
+        .map(([term, value]) => [h("dt", {}, term), h("dd", {}, value)]),
+    );
+    fill(
+      files,
+      table(
+        "Result files",
+        [
+          { title: "File", value: (f) => h("a", { href: f.url, download: f.name }, f.name) },
+          { title: "Size", value: (f) => formatBytes(f.size_bytes) },
+          { title: "SHA-256", value: (f) => h("code", {}, f.sha256.slice(0, 16)) },
+        ],
+        current.files,
+        { empty: "No files." },
+      ),
+    );
+    fill(links, resultLink(current));
+    const scalars = Object.entries(current.result || {}).filter(([, v]) => v === null || ["number", "string", "boolean"].includes(typeof v));
+    fill(
+      resultBox,
+      scalars.length
+        ? table("Result", [{ title: "Quantity", value: (r) => r[0] }, { title: "Value", value: (r) => (typeof r[1] === "number" ? String(Number(r[1].toPrecision(6))) : String(r[1])) }], scalars)
+        : null,
+    );
+    fill(chunksBox, chunksView(current.chunks));
+  };
+  const progress = new JobProgress(job, {
+    onRetried: (retried) => {
+      window.location.hash = `#/jobs/${retried.id}`;
+    },
+    onChange: drawFacts,
+  });
+  page(
+    container,
+    jobName(job),
+    progress.element,
+    links,
+    facts,
+    resultBox,
+    chunksBox,
+    h("details", { class: "spec-box" }, h("summary", {}, "Spec and provenance"), h("pre", {}, JSON.stringify({ spec: job.spec, provenance: job.provenance }, null, 2))),
+    h("h2", {}, "Files"),
+    files,
+    h("h2", {}, "Log"),
+    logBox,
+  );
+  drawFacts(job);
+  let lastLine = 0;
+  const addLines = (lines) => {
+    for (const line of lines) {
+      if (line.id <= lastLine) continue;
+      lastLine = line.id;
+      logBox.append(logLine(line));
+    }
+    logBox.scrollTop = logBox.scrollHeight;
+  };
+  const lines = await attempt("read the job's log", () => getJSON(`jobs/${id}/log`));
+  if (!context.current()) return;
+  if (lines) addLines(lines);
+  if (!lines || !lines.length) logBox.replaceChildren(h("div", { class: "empty" }, "No log lines yet."));
+  if (isActive(job)) {
+    const close = followJob(job.id, {
+      onJob: (current) => progress.update(current),
+      onLog: (line) => {
+        if (lastLine === 0) logBox.replaceChildren();
+        addLines([line]);
+      },
+      onEnd: () => {},
+    });
+    context.onLeave(close);
+  }
+}

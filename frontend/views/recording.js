@@ -1,0 +1,141 @@
+// A recording: its facts, the QA warnings (each naming its frames), a frame scrubber over the previews, and the
+// per-frame QA (grey level, saturation, contrast, board detection) with the current frame marked.
+import { apiUrl, getJSON } from "../api.js";
+import { Figure, axis, lineLayout, lineTraces, verticalMarker } from "../plots.js";
+import { attempt, formatBytes, formatTime, h, page } from "../ui.js";
+import { KIND_NAMES } from "./experiments.js";
+
+const BOARD_TEXT = { true: "board found", false: "board NOT found", null: "board not checked" };
+
+function facts(recording) {
+  const rows = [
+    ["Kind", KIND_NAMES[recording.kind] || recording.kind],
+    ["State", recording.state + (recording.error ? `: ${recording.error}` : "")],
+    ["File", `${recording.filename} (${recording.format || "?"}, ${formatBytes(recording.size_bytes)})`],
+    ["Frames", recording.frame_count ? `${recording.frame_count} × ${recording.width_px}×${recording.height_px} px, ${recording.bit_depth} bit` : "–"],
+    ["Frame rate", recording.fps ? `${recording.fps} frames/s` : "–"],
+    ["Sidecars", Object.keys(recording.sidecars || {}).join(", ") || "none"],
+    ["SHA-256", h("code", {}, recording.sha256 || "–")],
+    ["Uploaded", formatTime(recording.created_at)],
+  ];
+  if (recording.duplicate_of) rows.push(["Same bytes as", h("a", { href: `#/recordings/${recording.duplicate_of}` }, `recording ${recording.duplicate_of}`)]);
+  return h("dl", { class: "facts" }, rows.map(([term, value]) => [h("dt", {}, term), h("dd", {}, value)]));
+}
+
+export async function renderRecording(container, { id }, context) {
+  const recording = await attempt("open the recording", () => getJSON(`recordings/${id}`));
+  if (!recording || !context.current()) return;
+  const back = h("p", {}, h("a", { href: `#/experiments/${recording.experiment_id}` }, "Back to the experiment"));
+  if (recording.state !== "ready") {
+    page(container, `Recording ${recording.id}: ${recording.filename}`, back, facts(recording),
+      h("p", { class: recording.state === "invalid" ? "bad" : "busy" },
+        recording.state === "invalid" ? "This recording cannot be used; upload it again once the reason above is fixed." : "Its frames are being checked; reload in a moment."));
+    return;
+  }
+  const qa = await attempt("read the recording's QA", () => getJSON(`recordings/${id}/qa`));
+  if (!context.current()) return;
+  const last = recording.frame_count - 1;
+
+  // ---- scrubber ----
+  const slider = h("input", { type: "range", min: 0, max: last, step: 1, value: 0, "aria-label": "Frame", class: "scrubber" });
+  const number = h("input", { type: "number", min: 0, max: last, step: 1, value: 0, "aria-label": "Frame number" });
+  const image = h("img", { class: "frame", alt: "Frame 0 of the recording", width: recording.width_px, height: recording.height_px });
+  const frameFacts = h("p", { class: "frame-facts", "aria-live": "polite" });
+  let current = -1;
+  const qaFrames = qa ? qa.frames : null;
+  const show = (index) => {
+    const frame = Math.max(0, Math.min(last, Math.round(Number(index) || 0)));
+    if (frame === current) return;
+    current = frame;
+    slider.value = frame;
+    number.value = frame;
+    image.src = apiUrl(`recordings/${recording.id}/frames/${frame}`);
+    image.alt = `Frame ${frame} of the recording`;
+    const parts = [`Frame ${frame} of ${last}`];
+    if (qaFrames) {
+      parts.push(`grey level ${(100 * qaFrames.mean_fraction[frame]).toFixed(1)} %`);
+      parts.push(`saturated ${qaFrames.saturation_pct[frame].toFixed(2)} %`);
+      parts.push(`contrast ${qaFrames.contrast[frame].toFixed(2)}`);
+      if (recording.kind === "camera_calibration") parts.push(BOARD_TEXT[String(qaFrames.board_found[frame])]);
+    }
+    frameFacts.textContent = parts.join(" · ");
+    if (qaFigure.drawn) qaFigure.react(qaTraces(), qaLayout());
+  };
+  slider.addEventListener("input", () => show(slider.value));
+  number.addEventListener("change", () => show(number.value));
+  const stepButton = (text, delta) =>
+    h("button", { type: "button", class: "small", "aria-label": text, onclick: () => show(current + delta) }, delta < 0 ? "◀" : "▶");
+
+  // ---- QA plot ----
+  const frames = Array.from({ length: recording.frame_count }, (_, i) => i);
+  const boardFound = qaFrames ? qaFrames.board_found : [];
+  const hasBoard = boardFound.some((v) => v !== null);
+  const qaSeries = () =>
+    qaFrames
+      ? [
+          { name: "mean grey level", x: frames, y: qaFrames.mean_fraction.map((v) => 100 * v) },
+          { name: "saturated pixels", x: frames, y: qaFrames.saturation_pct },
+          { name: "contrast × 100", x: frames, y: qaFrames.contrast.map((v) => 100 * v) },
+        ]
+      : [];
+  const qaTraces = () => {
+    const traces = lineTraces(qaSeries(), { mode: "lines+markers" });
+    if (hasBoard) {
+      const missing = frames.filter((i) => boardFound[i] === false);
+      traces.push({
+        type: "scatter",
+        mode: "markers",
+        name: "board not found",
+        x: missing,
+        y: missing.map(() => 0),
+        marker: { symbol: "x", size: 10, color: "#d62728" },
+      });
+    }
+    return traces;
+  };
+  const qaLayout = () => lineLayout({ xAxis: axis("frame", "index"), yAxis: axis("level", "%"), shapes: current >= 0 ? [verticalMarker(current)] : [] });
+  const qaFigure = new Figure({
+    name: "Per-frame QA",
+    filename: `recording-${recording.id}-qa`,
+    height: 300,
+    csv: () => ({
+      columns: ["frame", "mean_grey_fraction", "saturation_pct", "contrast", "board_found"],
+      rows: frames.map((i) => [i, qaFrames.mean_fraction[i], qaFrames.saturation_pct[i], qaFrames.contrast[i], boardFound[i] === null ? "" : boardFound[i]]),
+    }),
+  });
+
+  // ---- warnings ----
+  const warnings = h(
+    "ul",
+    { class: "warnings", "aria-label": "QA warnings" },
+    recording.warnings.map((w) =>
+      h(
+        "li",
+        { class: "warn" },
+        w.message,
+        w.frames.length ? " Frames: " : "",
+        w.frames.slice(0, 40).map((frame) => h("button", { type: "button", class: "link", "aria-label": `Show frame ${frame}`, onclick: () => show(frame) }, String(frame))),
+        w.frames.length > 40 ? ` … (${w.frames.length} in all)` : "",
+      ),
+    ),
+  );
+  page(
+    container,
+    `Recording ${recording.id}: ${recording.filename}`,
+    back,
+    h("div", { class: "two-columns" },
+      h("div", {}, facts(recording),
+        h("h2", {}, "QA warnings"),
+        recording.warnings.length ? warnings : h("p", { class: "ok" }, "No warnings."),
+        recording.notes.length ? h("ul", { class: "notes" }, recording.notes.map((n) => h("li", {}, n))) : null),
+      h("section", { "aria-label": "Frames", class: "scrubber-box" },
+        h("div", { class: "frame-box" }, image),
+        h("div", { class: "scrubber-row" }, stepButton("Previous frame", -1), slider, stepButton("Next frame", 1), number),
+        frameFacts),
+    ),
+    qaFrames ? qaFigure.element : null,
+  );
+  context.onLeave(() => qaFigure.purge());
+  if (qaFrames) await qaFigure.react(qaTraces(), qaLayout());
+  show(0);
+}

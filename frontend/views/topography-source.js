@@ -1,0 +1,99 @@
+// Where the viewer's numbers come from: the topography results API of a job (GET /jobs/{id}/topography,
+// .../grid, .../profile, .../history). One place to change when that API changes; the viewer only sees fields
+// ({ x, y, z rows }), profiles ({ s, x, y, w }) and histories ({ frame, time_s, w }).
+import { getBuffer, getJSON, query } from "../api.js";
+
+/** NaN for JSON nulls: the API's arrays carry null where there is no number. */
+const numbers = (values) => Array.from(values || [], (v) => (v === null || v === undefined ? NaN : Number(v)));
+
+export const DISPLAY_BUDGET = 250; // nodes per side of a frame's field (the server block-averages down to it)
+const PROFILE_POINTS = 300;
+
+/** Coordinates "first,step" (header X-Grid-X-mm) → n values. */
+function axisFrom(header, n) {
+  const [first, step] = header.split(",").map(Number);
+  return Array.from({ length: n }, (_, i) => first + i * step);
+}
+
+export class TopographySource {
+  constructor(job) {
+    this.job = job;
+    this.base = `jobs/${job.id}/topography`;
+  }
+
+  /**
+   * frames: { index, time_s, punch_displacement_mm, force_kN, peak_w_mm } (NaN where not logged),
+   * grid { nx, ny, step_mm, x_min_mm, ... }, w_range_mm [min, max] over the peaks, summary.
+   */
+  async meta() {
+    const body = await getJSON(this.base);
+    const peaks = numbers(body.peak_w_mm);
+    const finite = peaks.filter(Number.isFinite);
+    return {
+      grid: body.grid,
+      summary: body.summary,
+      frames: {
+        index: body.frames,
+        time_s: numbers(body.time_s),
+        punch_displacement_mm: numbers(body.punch_displacement_mm),
+        force_kN: numbers(body.force_kN),
+        peak_w_mm: peaks,
+      },
+      w_range_mm: finite.length ? [Math.min(0, ...finite), Math.max(...finite)] : [-1, 1],
+    };
+  }
+
+  /** A frame's deflection field as float32, within the display budget; `region` { x0, x1, y0, y1 } zooms. */
+  async field(frame, region = null) {
+    const window = region ? { x_min: region.x0, x_max: region.x1, y_min: region.y0, y_max: region.y1 } : {};
+    const { buffer, headers } = await getBuffer(
+      `${this.base}/grid${query({ frame, budget: DISPLAY_BUDGET, format: "f32", ...window })}`,
+    );
+    const [ny, nx] = headers.get("X-Grid-Shape").split(",").map(Number);
+    const values = new Float32Array(buffer);
+    return {
+      x: axisFrom(headers.get("X-Grid-X-mm"), nx),
+      y: axisFrom(headers.get("X-Grid-Y-mm"), ny),
+      z: Array.from({ length: ny }, (_, j) => values.subarray(j * nx, (j + 1) * nx)),
+      step: Number(headers.get("X-Grid-Step") || 1),
+    };
+  }
+
+  /** Profiles along `line` for several frames at once, from the full-resolution grid: [{ frame, s, x, y, w }]. */
+  async profiles(frames, line) {
+    const params = new URLSearchParams({ x0: line.x0, y0: line.y0, x1: line.x1, y1: line.y1, n_points: PROFILE_POINTS });
+    for (const frame of frames) params.append("frames", frame);
+    const body = await getJSON(`${this.base}/profile?${params}`);
+    const s = numbers(body.s_mm);
+    const x = numbers(body.x_mm);
+    const y = numbers(body.y_mm);
+    return body.profiles.map((p) => ({ frame: p.frame, s, x, y, w: numbers(p.w_mm) }));
+  }
+
+  /** w at a point in every frame. */
+  async history(point) {
+    const body = await getJSON(`${this.base}/history${query({ x_mm: point.x, y_mm: point.y })}`);
+    return { frame: body.frames, time_s: numbers(body.time_s), w: numbers(body.w_mm) };
+  }
+
+  /** "camera left, recording 3": what the result was measured from. */
+  async label() {
+    const id = this.job.spec.recording_id;
+    const recording = await getJSON(`recordings/${id}`);
+    const camera = await getJSON(`cameras/${recording.camera_id}`);
+    return `camera ${camera.name}, recording ${id}`;
+  }
+
+  /** Succeeded topography jobs of the same experiment on other cameras' recordings, newest first. */
+  async otherTopographies() {
+    if (!this.job.experiment_id) return [];
+    const jobs = await getJSON(`jobs${query({ experiment_id: this.job.experiment_id, kind: "topography", state: "succeeded", limit: 100 })}`);
+    const others = jobs.items.filter((other) => other.id !== this.job.id && other.spec.recording_id !== this.job.spec.recording_id);
+    return Promise.all(
+      others.map(async (other) => {
+        const source = new TopographySource(other);
+        return { job: other, label: await source.label(), source };
+      }),
+    );
+  }
+}
