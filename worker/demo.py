@@ -132,7 +132,7 @@ def advance(session: Session, state: AppState, experiment_id: int, presets: list
     for name in presets:
         camera = cameras.get(name)
         recordings = {r.kind: r for r in sorted(camera.recordings, key=lambda r: r.id)} if camera else {}
-        if camera is None or set(recordings) != set(RECORDING_KINDS):
+        if camera is None or not set(recordings).issuperset(RECORDING_KINDS):
             finished = False  # still being simulated
             continue
         if any(r.state == "invalid" for r in recordings.values()):

@@ -59,6 +59,8 @@ export async function renderRecording(container, { id }, context) {
       if (recording.kind === "camera_calibration") parts.push(BOARD_TEXT[String(qaFrames.board_found[frame])]);
     }
     frameFacts.textContent = parts.join(" · ");
+    for (const cell of container.querySelectorAll(".board-strip button")) cell.removeAttribute("aria-current");
+    container.querySelector(`.board-strip li:nth-child(${frame + 1}) button`)?.setAttribute("aria-current", "true");
     if (qaFigure.drawn) qaFigure.react(qaTraces(), qaLayout());
   };
   slider.addEventListener("input", () => show(slider.value));
@@ -104,6 +106,22 @@ export async function renderRecording(container, { id }, context) {
     }),
   });
 
+  // ---- board detection, one cell per frame (a click shows the frame) ----
+  const boardStrip = hasBoard
+    ? h("div", { class: "board-strip-box" },
+        h("h2", {}, "Board detection per frame"),
+        h("ol", { class: "board-strip", "aria-label": "Board detection per frame" },
+          frames.map((i) => h("li", {},
+            h("button", {
+              type: "button",
+              class: `board-${String(boardFound[i])}`,
+              "aria-label": `Frame ${i}: ${BOARD_TEXT[String(boardFound[i])]}`,
+              title: `Frame ${i}: ${BOARD_TEXT[String(boardFound[i])]}`,
+              onclick: () => show(i),
+            }, boardFound[i] === true ? "✓" : boardFound[i] === false ? "✗" : "–")))),
+        h("p", { class: "hint" }, `${boardFound.filter((v) => v === true).length} of ${frames.length} frames show the board.`))
+    : null;
+
   // ---- warnings ----
   const warnings = h(
     "ul",
@@ -131,7 +149,8 @@ export async function renderRecording(container, { id }, context) {
       h("section", { "aria-label": "Frames", class: "scrubber-box" },
         h("div", { class: "frame-box" }, image),
         h("div", { class: "scrubber-row" }, stepButton("Previous frame", -1), slider, stepButton("Next frame", 1), number),
-        frameFacts),
+        frameFacts,
+        boardStrip),
     ),
     qaFrames ? qaFigure.element : null,
   );

@@ -178,6 +178,14 @@ def test_upload_calibrate_measure_and_explore(page, live_server, virtual_test, c
             f"max {max(times):.0f} ms"
         )
     assert statistics.median(times) < 300
+
+    # Playback moves the frames on by itself until paused.
+    frame_number = page.get_by_role("spinbutton", name="Frame number")
+    shown = frame_number.input_value()
+    page.get_by_role("button", name="Play").click()
+    expect(frame_number).not_to_have_value(shown)
+    page.get_by_role("button", name="Pause").click()
+    expect(page.get_by_role("button", name="Play")).to_be_visible()
     page.get_by_role("tab", name="3-D surface").click()
     expect(page.get_by_role("img", name="Deflection surface")).to_be_visible()
     screenshot(page, "viewer-surface")
