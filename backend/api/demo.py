@@ -43,7 +43,10 @@ class DemoOut(BaseModel):
 
 @router.post("/demo", status_code=202, response_model=DemoOut, responses=error_responses(401, 422, 503))
 def make_demo(
-    session: SessionDep, state: StateDep, principal: CurrentUser, body: Annotated[DemoIn | None, Body()] = None
+    session: SessionDep,
+    state: StateDep,
+    principal: CurrentUser,
+    body: Annotated[DemoIn | None, Body(examples=[{"cameras": ["kodak"], "test_frames": 20}])] = None,
 ) -> DemoOut:
     """Make a virtual experiment and measure it: simulated recordings, calibrations and topography."""
     body = body or DemoIn()
