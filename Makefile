@@ -21,7 +21,7 @@ run: $(STAMP)
 lint: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
-	$(BIN)/mypy worker/measurement
+	$(BIN)/mypy fringelab
 
 test: lint
 	$(BIN)/python -m pytest

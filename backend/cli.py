@@ -231,7 +231,7 @@ def build_parser() -> argparse.ArgumentParser:
     health.set_defaults(handler=cmd_health)
     commands.add_parser("version", help="print the version").set_defaults(handler=cmd_version)
 
-    from worker.commands import COMMAND_MODULES
+    from fringelab.commands import COMMAND_MODULES
 
     for name in COMMAND_MODULES:
         try:

@@ -43,7 +43,7 @@ from backend.storage import (
     replace_with_link,
     sync_file,
 )
-from worker.measurement.containers import (
+from fringelab.formats.containers import (
     UPLOAD_SUFFIXES,
     CorruptRecording,
     UnsafeArchive,

@@ -76,7 +76,7 @@ class GridCut:
 
 class TopographyReader:
     """A topography result (`topography.h5`, schema fringelab.topography; layout in
-    worker/measurement/topography_files.py) opened read-only. Reads one frame's grid at a time; frames are named
+    fringelab/science/topography_files.py) opened read-only. Reads one frame's grid at a time; frames are named
     by their recording index (`/frames/index`)."""
 
     def __init__(self, path: Path) -> None:

@@ -6,7 +6,7 @@ Layout (under `Settings.data_path`):
     uploads/put/<random>.part        a streamed PUT upload in progress (removed if it fails)
     recordings/<id>/recording.<ext>  the uploaded file as sent (.zip, .tif, .avi, .mp4, .cine)
     recordings/<id>/<sidecar>        z.csv, frames.csv or board.json added after the upload
-    recordings/<id>/previews.h5      what the ingest derived (see `backend.previews`)
+    recordings/<id>/previews.h5      what the ingest derived (see `fringelab.formats.previews`)
     trash/                           directories on their way out (renamed here, then removed)
 
 A file is never written in place where a reader may see it: it is written under a temporary name and renamed.

@@ -37,11 +37,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from scipy.spatial.transform import Rotation  # noqa: E402
 
-from worker.measurement.calibration import CornerView, calibrate_from_views  # noqa: E402
-from worker.measurement.camera import backproject_to_z, fit_inverse_model  # noqa: E402
-from worker.measurement.chessboard import Board, BoardNotFoundError, detect_board  # noqa: E402
-from worker.measurement.readers import open_recording  # noqa: E402
-from worker.measurement.synthetic import (  # noqa: E402
+from fringelab.formats.recordings import open_recording  # noqa: E402
+from fringelab.science.calibration import CornerView, calibrate_from_views  # noqa: E402
+from fringelab.science.camera import backproject_to_z, fit_inverse_model  # noqa: E402
+from fringelab.science.chessboard import Board, BoardNotFoundError, detect_board  # noqa: E402
+from fringelab.science.synthetic import (  # noqa: E402
     BoardPose,
     ChessboardRenderer,
     board_pose_at_z,

@@ -160,7 +160,7 @@ def upload_virtual_experiment(bench: Bench, frames: int) -> dict[str, Any]:
 
     import numpy as np
 
-    from worker.measurement.simulate import simulate_experiment
+    from fringelab.pipelines.simulation import simulate_experiment
 
     virtual = simulate_experiment(
         bench.root / "virtual", "kodak", n_test_frames=frames, calibration_z_mm=np.arange(0.0, 80.0 + 1e-9, 4.0),

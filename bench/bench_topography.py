@@ -30,24 +30,19 @@ from pathlib import Path  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from worker.measurement.fringes import EdgeSettings, locate_edges  # noqa: E402
-from worker.measurement.projector import build_projector_calibration, exact_camera_model  # noqa: E402
-from worker.measurement.readers import open_recording  # noqa: E402
-from worker.measurement.simulate import (  # noqa: E402
+from fringelab.formats.recordings import open_recording  # noqa: E402
+from fringelab.formats.topography import write_recording  # noqa: E402
+from fringelab.pipelines.topography import topography_recording  # noqa: E402
+from fringelab.science.fringes import EdgeSettings, locate_edges  # noqa: E402
+from fringelab.science.projector import build_projector_calibration, exact_camera_model  # noqa: E402
+from fringelab.science.simulate import (  # noqa: E402
     FringeRenderer,
     Imaging,
     preset,
     punch_timeline,
     render_straight_stripes,
 )
-from worker.measurement.topography import (  # noqa: E402
-    TopographySettings,
-    grid_for_first_frame,
-    grid_measurement,
-    topography_recording,
-    track_and_measure,
-)
-from worker.measurement.topography_files import write_recording  # noqa: E402
+from fringelab.science.topography import TopographySettings, grid_for_first_frame, grid_measurement, track_and_measure  # noqa: E402
 
 cv2.setNumThreads(1)
 

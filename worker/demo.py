@@ -53,7 +53,8 @@ def _owner(session: Session, experiment: Experiment) -> Principal:
 
 @shared_task(bind=True, name="fringelab.demo", ignore_result=True)
 def demo(self: Task, experiment_id: int, presets: list[str], test_frames: int) -> None:
-    from worker.measurement.simulate import preset, simulate_experiment
+    from fringelab.pipelines.simulation import simulate_experiment
+    from fringelab.science.simulate import preset
 
     state = _state(self)
     settings = state.settings
@@ -124,7 +125,7 @@ def _latest_job(jobs: list[Job], kind: str, recording_id: int) -> Job | None:
 def advance(session: Session, state: AppState, experiment_id: int, presets: list[str]) -> bool:
     """Start, for each demo camera, the next job its ready inputs allow. True when nothing is left to start (every
     camera has its topography job, or a step failed and the demo stops there for that camera)."""
-    from worker.measurement.simulate import preset
+    from fringelab.science.simulate import preset
 
     cameras = {c.name: c for c in session.scalars(select(Camera).where(Camera.experiment_id == experiment_id))}
     jobs = list(session.scalars(select(Job).where(Job.experiment_id == experiment_id)))

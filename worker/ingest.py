@@ -3,7 +3,7 @@
 Task "fringelab.ingest" takes a job id whose spec is {"recording_id": N}. It probes the format, frame count,
 size, bit depth and frame rate (stored at once, so a client sees them within seconds), validates the sidecars
 against the frames, then reads every frame once: statistics, a display-size preview and a thumbnail
-(`backend.previews`), and for camera-calibration recordings whether the chessboard of `board.json` is found.
+(`fringelab.formats.previews`), and for camera-calibration recordings whether the chessboard of `board.json` is found.
 The recording ends `ready` with its warnings, or `invalid` with the reasons (and the job fails with them);
 never `ready` after any failure. Running it twice (acks-late redelivery) writes the same result.
 """
@@ -20,14 +20,21 @@ import numpy as np
 from celery import Task, shared_task
 
 from backend.models import Recording
-from backend.previews import PREVIEW_FILE, THUMBNAIL_PX, PreviewWriter
 from backend.settings import Settings
 from backend.storage import recording_dir
-from worker.jobrunner import JobCancelled, JobContext, run_job
-from worker.measurement import MeasurementError
-from worker.measurement.chessboard import Board
-from worker.measurement.containers import ZipLimits
-from worker.measurement.quality import (
+from fringelab.formats.containers import ZipLimits
+from fringelab.formats.previews import PREVIEW_FILE, THUMBNAIL_PX, PreviewWriter
+from fringelab.formats.recordings import (
+    FrameSource,
+    frame_indices,
+    open_recording,
+    read_board_json,
+    read_frames_csv,
+    read_z_csv,
+)
+from fringelab.science import MeasurementError
+from fringelab.science.chessboard import Board
+from fringelab.science.quality import (
     FrameStats,
     QaWarning,
     board_visible,
@@ -40,14 +47,7 @@ from worker.measurement.quality import (
     saturated_pct,
     to_uint8,
 )
-from worker.measurement.readers import (
-    FrameSource,
-    frame_indices,
-    open_recording,
-    read_board_json,
-    read_frames_csv,
-    read_z_csv,
-)
+from worker.jobrunner import JobCancelled, JobContext, run_job
 
 MAX_REASONS = 10
 PROBE_FRAMES = 5

@@ -42,7 +42,7 @@ from backend.jobs import (
 )
 from backend.models import Job, JobChunk, utcnow
 from backend.settings import Settings
-from worker.measurement import MeasurementError
+from fringelab.science import MeasurementError
 from worker.runtime import job_dir, sessions_of, settings_of
 
 log = logging.getLogger(__name__)

@@ -1,7 +1,7 @@
 """Celery tasks of the measurement jobs, and the generic chunk and merge tasks of chunked jobs.
 
 Each task only says how to run a job as a task: it takes a job id, and `worker.jobrunner` loads the job, calls
-the body below, and stores the outcome. Bodies load their inputs from storage, call `worker.measurement`, and
+the body below, and stores the outcome. Bodies load their inputs from storage, call `fringelab.science`, and
 write their files through `JobContext.output` (temporary file + rename), so a task that runs twice writes the
 same complete files. A chunked kind has three bodies: the entry (check inputs, plan the chunks), the chunk
 (frames `[first, stop)` in any order on any worker) and the merge (everything that must run in frame order).
@@ -229,10 +229,11 @@ def record_calibration(
 
 
 def camera_calibration_body(context: JobContext) -> dict[str, Any]:
-    from worker.measurement.calibration import CalibrationCancelled, calibrate_camera_recording
-    from worker.measurement.camera_files import write_camera_json
-    from worker.measurement.chessboard import Board
-    from worker.measurement.readers import open_recording
+    from fringelab.formats.camera import write_camera_json
+    from fringelab.formats.recordings import open_recording
+    from fringelab.pipelines.camera_calibration import calibrate_camera_recording
+    from fringelab.science.calibration import CalibrationCancelled
+    from fringelab.science.chessboard import Board
 
     spec = context.spec
     recording, camera, path = _recording_input(context)
@@ -301,11 +302,12 @@ def _calibration_file(context: JobContext, calibration_id: int) -> Path:
 
 
 def projector_calibration_body(context: JobContext) -> dict[str, Any]:
-    from worker.measurement.camera_files import read_camera_json
-    from worker.measurement.fringes import EdgeSettings
-    from worker.measurement.projector import CalibrationCancelled, ProjectorSettings, calibrate_projector_recording
-    from worker.measurement.readers import open_recording
-    from worker.measurement.topography_files import write_projector_calibration
+    from fringelab.formats.camera import read_camera_json
+    from fringelab.formats.recordings import open_recording
+    from fringelab.formats.topography import write_projector_calibration
+    from fringelab.pipelines.projector_calibration import calibrate_projector_recording
+    from fringelab.science.fringes import EdgeSettings
+    from fringelab.science.projector import CalibrationCancelled, ProjectorSettings
 
     spec = context.spec
     recording, camera, path = _recording_input(context)
@@ -379,10 +381,10 @@ class _TopographyInputs:
 
 def _topography_inputs(context: JobContext) -> _TopographyInputs:
     """The recording (open: close it), calibrations, frames to write and settings of a topography job."""
-    from worker.measurement.camera_files import read_camera_json
-    from worker.measurement.readers import open_recording
-    from worker.measurement.topography import TopographySettings, frame_range
-    from worker.measurement.topography_files import read_projector_calibration
+    from fringelab.formats.camera import read_camera_json
+    from fringelab.formats.recordings import open_recording
+    from fringelab.formats.topography import read_projector_calibration
+    from fringelab.science.topography import TopographySettings, frame_range
 
     spec = context.spec
     _recording, _camera, path = _recording_input(context)
@@ -399,7 +401,7 @@ def _topography_inputs(context: JobContext) -> _TopographyInputs:
 
 
 def topography_entry(context: JobContext) -> Chunked:
-    from worker.measurement.topography import check_recording_against, check_stripes_against
+    from fringelab.science.topography import check_recording_against, check_stripes_against
 
     inputs = _topography_inputs(context)
     try:
@@ -416,8 +418,8 @@ def topography_entry(context: JobContext) -> Chunked:
 
 def topography_locate(context: JobContext, first: int, stop: int) -> None:
     """Phase 0, any worker: the edges of frames [first, stop)."""
-    from worker.measurement.topography import locate_test_edges
-    from worker.measurement.topography_files import write_edges
+    from fringelab.formats.topography import write_edges
+    from fringelab.science.topography import locate_test_edges
 
     inputs = _topography_inputs(context)
     try:
@@ -449,7 +451,7 @@ def _save_measurements(context: JobContext, first: int, measurements: list[Any])
 
 
 def _load_measurements(context: JobContext, first: int) -> list[Any]:
-    from worker.measurement.topography import FrameMeasurement
+    from fringelab.science.topography import FrameMeasurement
 
     data = _load(context, f"chunks/measure-{first:07d}.npz")
     offsets = data["offsets"]
@@ -469,8 +471,8 @@ def _load_measurements(context: JobContext, first: int) -> list[Any]:
 def topography_track(context: JobContext, ranges: list[tuple[int, int]]) -> Chunked:
     """Merge of phase 0, in frame order: identity, tracking and 3-D points over the stored edges; the grid comes
     from the flat first frame. Then the gridding fans out over the frames to write."""
-    from worker.measurement.topography import clamp_circle, grid_for_first_frame, track_and_measure
-    from worker.measurement.topography_files import read_edges
+    from fringelab.formats.topography import read_edges
+    from fringelab.science.topography import clamp_circle, grid_for_first_frame, track_and_measure
 
     inputs = _topography_inputs(context)
     inputs.close()  # only its length and path are used from here on
@@ -513,8 +515,8 @@ def topography_track(context: JobContext, ranges: list[tuple[int, int]]) -> Chun
 
 def topography_grid(context: JobContext, first: int, stop: int) -> None:
     """Phase 1, any worker: the deflection grid and peak of frames [first, stop)."""
-    from worker.measurement.fields import Grid, field_peak
-    from worker.measurement.topography import grid_measurement
+    from fringelab.science.fields import Grid, field_peak
+    from fringelab.science.topography import grid_measurement
 
     inputs = _topography_inputs(context)
     inputs.close()
@@ -533,10 +535,10 @@ def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict
     """Merge of phase 1, in frame order: the result file, as `topography_recording` writes it."""
     from dataclasses import asdict, fields
 
-    from worker.measurement.calibration import code_versions
-    from worker.measurement.fields import Grid, Peak
-    from worker.measurement.topography import _calibration_attrs
-    from worker.measurement.topography_files import FrameTable, TopographyWriter, _json, read_frames_csv
+    from fringelab.formats.topography import FrameTable, TopographyWriter, _json, read_frames_csv
+    from fringelab.pipelines.provenance import code_versions
+    from fringelab.pipelines.topography import _calibration_attrs
+    from fringelab.science.fields import Grid, Peak
 
     inputs = _topography_inputs(context)
     source, wanted, projector = inputs.source, inputs.wanted, inputs.projector
@@ -605,7 +607,7 @@ def _finite_or_none(value: Any) -> Any:
 
 
 def export_body(context: JobContext) -> dict[str, Any]:
-    from worker.measurement.topography_files import export_result
+    from fringelab.formats.topography import export_result
 
     spec = context.spec
     with context.sessions() as session:

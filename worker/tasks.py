@@ -1,4 +1,4 @@
-"""Celery tasks: thin wrappers that load inputs by id, call `worker.measurement`, store results atomically.
+"""Celery tasks: thin wrappers that load inputs by id, call `fringelab.science`, store results atomically.
 
 Tasks are registered with `shared_task` so they bind to the app the worker process created from its settings.
 """

@@ -1,7 +1,7 @@
 """Recordings: list, read, update, delete; re-run the ingest; add a sidecar; frame previews, QA and the file.
 
 Uploads (tus and PUT) are in `backend.api.uploads`. Frames are served from the preview store the ingest wrote
-(`backend.previews`): display size at most FRINGELAB_PREVIEW_SIZE_PX, 8-bit; the original file, with its
+(`fringelab.formats.previews`): display size at most FRINGELAB_PREVIEW_SIZE_PX, 8-bit; the original file, with its
 frames at full resolution and bit depth, is downloaded whole from `/recordings/{id}/file`.
 """
 
@@ -27,7 +27,6 @@ from backend.api.deps import (
 from backend.auth import Principal, audit, readable_experiments
 from backend.errors import Conflict, NotFound, UnprocessableContent, error_responses
 from backend.models import Camera, Experiment, Recording
-from backend.previews import PREVIEW_FILE, encode_png, read_preview, read_qa
 from backend.recordings import (
     delete_recording,
     recording_for,
@@ -47,6 +46,7 @@ from backend.schemas.recordings import (
     SidecarName,
 )
 from backend.storage import recording_dir, write_atomic
+from fringelab.formats.previews import PREVIEW_FILE, encode_png, read_preview, read_qa
 
 router = APIRouter(tags=["recordings"])
 

@@ -31,7 +31,7 @@ def virtual_test(api_paths, tmp_path_factory: pytest.TempPathFactory):  # type: 
     missing = [path for path in needed if path not in api_paths]
     if missing:
         pytest.skip(f"this build lacks {', '.join(missing)}")
-    simulate = pytest.importorskip("worker.measurement.simulate", reason="this build has no simulate yet")
+    simulate = pytest.importorskip("fringelab.science.simulate", reason="this build has no simulate yet")
     preset, simulate_experiment = simulate.preset, simulate.simulate_experiment
 
     # Fewer calibration frames than the command's defaults keep the test quick: the board at 7 heights, the flat

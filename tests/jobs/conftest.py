@@ -163,7 +163,7 @@ TEST_FRAMES = 12  # the virtual punch reaches ~60 mm and perforates (frame 9) wi
 
 @pytest.fixture(scope="session")
 def virtual_experiment(tmp_path_factory):
-    from worker.measurement.simulate import simulate_experiment
+    from fringelab.pipelines.simulation import simulate_experiment
 
     # 4 mm projector steps over 0..80 mm: half the default's frames, still ~20 samples per table entry
     return simulate_experiment(
@@ -209,10 +209,10 @@ def sequential_topography(
     settings, recording_path: Path, camera_job: dict, projector_job: dict, out_path: Path
 ) -> Path:
     """`fringelab topography` on the same inputs: one pass, edges located inline, no chunks, no job."""
-    from worker.measurement.camera_files import read_camera_json
-    from worker.measurement.readers import open_recording
-    from worker.measurement.topography import topography_recording
-    from worker.measurement.topography_files import read_projector_calibration
+    from fringelab.formats.camera import read_camera_json
+    from fringelab.formats.recordings import open_recording
+    from fringelab.formats.topography import read_projector_calibration
+    from fringelab.pipelines.topography import topography_recording
 
     def result(job: dict, name: str) -> Path:
         return settings.data_path / "results" / "jobs" / job["id"] / name

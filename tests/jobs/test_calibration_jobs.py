@@ -9,9 +9,9 @@ import pytest
 
 from backend.db import make_engine, make_sessionmaker
 from backend.models import Camera, Experiment, Recording
+from fringelab.formats.recordings import write_frame_folder, z_csv_text
+from fringelab.science.synthetic import reference_camera, render_zstack_frames, zstack_board
 from tests.jobs.conftest import log_messages, wait_job
-from worker.measurement.readers import write_frame_folder, z_csv_text
-from worker.measurement.synthetic import reference_camera, render_zstack_frames, zstack_board
 
 pytestmark = pytest.mark.integration
 Z_MM = np.linspace(-20.0, 60.0, 5)  # the fewest frames a zstack calibration takes, over a plausible range

@@ -49,7 +49,7 @@ def cli(env: dict[str, str], *args: str, stdin: str | None = None) -> str:
 @pytest.fixture(scope="module")
 def virtual(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """`fringelab simulate` output, as folders (the script zips them): 4 mm projector steps keep it small."""
-    from worker.measurement.simulate import simulate_experiment
+    from fringelab.pipelines.simulation import simulate_experiment
 
     out = tmp_path_factory.mktemp("virtual") / "kodak"
     simulate_experiment(out, "kodak", n_test_frames=TEST_FRAMES, calibration_z_mm=np.arange(0.0, 80.0 + 1e-9, 4.0),

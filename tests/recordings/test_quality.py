@@ -11,16 +11,16 @@ import cv2
 import numpy as np
 import pytest
 
-from backend.previews import PREVIEW_FILE, encode_png, read_preview, read_qa, shrink
-from tests.recordings.formats import stripe_frames, write_zip
-from worker.ingest import inspect_recording
-from worker.measurement.quality import (
+from fringelab.formats.previews import PREVIEW_FILE, encode_png, read_preview, read_qa, shrink
+from fringelab.science.quality import (
     describe_frames,
     effective_bit_depth,
     exposure_warnings,
     frame_stats,
     saturated_pct,
 )
+from tests.recordings.formats import stripe_frames, write_zip
+from worker.ingest import inspect_recording
 
 
 def chessboard(*, cols: int = 8, rows: int = 6, square: int = 16, margin: int = 24) -> np.ndarray:

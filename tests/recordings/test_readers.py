@@ -8,15 +8,9 @@ import cv2
 import numpy as np
 import pytest
 
+from fringelab.formats.containers import CorruptRecording, UnsafeArchive, UnsupportedRecording, ZipLimits
+from fringelab.formats.recordings import frame_indices, open_recording, read_board_json, read_frames_csv, read_z_csv
 from tests.recordings.formats import encode, stripe_frames, write_cine, write_tiff_stack, write_video, write_zip
-from worker.measurement.containers import CorruptRecording, UnsafeArchive, UnsupportedRecording, ZipLimits
-from worker.measurement.readers import (
-    frame_indices,
-    open_recording,
-    read_board_json,
-    read_frames_csv,
-    read_z_csv,
-)
 
 
 @pytest.mark.parametrize(("suffix", "dtype"), [(".png", np.uint8), (".png", np.uint16), (".tif", np.uint16),

@@ -1,0 +1,238 @@
+"""`fringelab calibrate-projector`, `topography`, `export` and `simulate`: the structured-light side on the CLI.
+
+Thin: parse arguments, call the entry functions of `fringelab.science` (projector, topography,
+topography_files, simulate), print a summary. numpy and the measurement package are imported inside the
+handlers so registering the commands stays instant.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+
+def _frames(text: str) -> slice:
+    try:
+        start, stop = text.split(":")
+        return slice(int(start) if start else None, int(stop) if stop else None)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected A:B (frames A to B−1; either may be left out), got {text!r}"
+        ) from None
+
+
+def _line(text: str) -> tuple[float, float, float, float]:
+    try:
+        x0, y0, x1, y1 = (float(part) for part in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected X0,Y0,X1,Y1 in mm, got {text!r}") from None
+    return x0, y0, x1, y1
+
+
+def register(subparsers: Any) -> None:
+    """Add `calibrate-projector`, `topography`, `export` and `simulate` to the CLI's subparsers."""
+    calibrate = subparsers.add_parser(
+        "calibrate-projector",
+        help="build the projector look-up table from a flat-plate Z-stack",
+        description="Projector calibration (METHOD.md §4): the position of every stripe edge against Z, from a "
+        "folder or ZIP of frames of the flat plate moved along Z, with z.csv (frame,z_mm).",
+    )
+    calibrate.add_argument("recording", help="folder or ZIP of frames with z.csv")
+    calibrate.add_argument("--camera", required=True, help="camera.json of the camera that took the frames")
+    calibrate.add_argument("-o", "--output", required=True, help="projector calibration to write (.h5)")
+    calibrate.add_argument(
+        "--reference-z",
+        type=float,
+        default=0.0,
+        metavar="MM",
+        help="Z of the flat test plate at rest, where edges are counted (default 0)",
+    )
+    calibrate.add_argument(
+        "--axis",
+        choices=("auto", "rows", "cols"),
+        default="auto",
+        help="scan along image rows (vertical stripes) or columns; default: detect",
+    )
+    calibrate.add_argument("--poly-degree", type=int, default=3, help="degree of Z(t) per edge and line (default 3)")
+    calibrate.set_defaults(handler=calibrate_projector_command)
+
+    topography = subparsers.add_parser(
+        "topography",
+        help="measure the deflection of every frame of a test",
+        description="Topography (METHOD.md §5–6): edges of every frame, identity from the flat first frame, Z from "
+        "the projector table, X and Y by back-projection, the gridded deflection field; written as HDF5.",
+    )
+    topography.add_argument("recording", help="folder or ZIP of test frames (frames.csv beside them is kept)")
+    topography.add_argument("--camera", required=True, help="camera.json")
+    topography.add_argument("--projector", required=True, help="projector calibration (.h5)")
+    topography.add_argument("-o", "--output", required=True, help="result file to write (.h5)")
+    topography.add_argument(
+        "--frames", type=_frames, metavar="A:B", help="write frames A to B−1 only (tracking still starts at frame 0)"
+    )
+    topography.add_argument("--grid-step", type=float, default=2.0, metavar="MM", help="grid spacing (default 2)")
+    topography.add_argument(
+        "--temporal-smoothing",
+        type=int,
+        default=0,
+        metavar="H",
+        help="smooth edge positions over 2H+1 frames (default 0: off)",
+    )
+    topography.set_defaults(handler=topography_command)
+
+    export = subparsers.add_parser(
+        "export",
+        help="export a topography result (CSV, NPZ, MATLAB, VTK)",
+        description="Export a topography result: points-csv (frame,x_mm,y_mm,z_mm), grid-npz, mat (MATLAB), vtk "
+        "(a .pvd time series of .vtu surfaces for ParaView) or profile-csv (a section along --line).",
+    )
+    export.add_argument("result", help="result .h5 written by `fringelab topography`")
+    export.add_argument("--format", required=True, choices=("points-csv", "grid-npz", "mat", "vtk", "profile-csv"))
+    export.add_argument("-o", "--output", required=True, help="file to write (.csv, .npz, .mat, .pvd)")
+    export.add_argument(
+        "--line",
+        type=_line,
+        metavar="X0,Y0,X1,Y1",
+        help="profile line in mm (profile-csv; default: along X through the punch axis); "
+        "write --line=X0,... when X0 is negative",
+    )
+    export.set_defaults(handler=export_command)
+
+    simulate = subparsers.add_parser(
+        "simulate",
+        help="write a virtual experiment (camera and projector calibrations, a punch test, ground truth)",
+        description="Render a whole virtual experiment with stripes projected on a plate deflecting to 60 mm and "
+        "perforating, through one of the paper's cameras, in the recording formats, with ground truth in OUT/truth.",
+    )
+    simulate.add_argument("out", help="folder to write into")
+    simulate.add_argument(
+        "--preset",
+        choices=("kodak", "phantom"),
+        default="kodak",
+        help="kodak: 512 × 480 px, vertical stripes; phantom: 1024 × 1024 px, horizontal",
+    )
+    simulate.add_argument("--frames", type=int, default=40, help="test frames (default 40)")
+    simulate.add_argument(
+        "--z-step", type=float, default=2.0, metavar="MM", help="projector calibration step over 0 … 80 mm (default 2)"
+    )
+    simulate.add_argument("--zip", action="store_true", help="write ZIPs instead of folders")
+    simulate.add_argument("--seed", type=int, default=0, help="noise seed")
+    simulate.set_defaults(handler=simulate_command)
+
+
+def _fail(error: Exception) -> int:
+    print(f"error: {error}", file=sys.stderr)
+    return 2
+
+
+def calibrate_projector_command(args: argparse.Namespace) -> int:
+    from fringelab.formats.camera import read_camera_json
+    from fringelab.formats.recordings import open_recording
+    from fringelab.formats.topography import write_projector_calibration
+    from fringelab.pipelines.projector_calibration import calibrate_projector_recording
+    from fringelab.science import MeasurementError
+    from fringelab.science.fringes import EdgeSettings
+    from fringelab.science.projector import ProjectorSettings
+
+    try:
+        settings = ProjectorSettings(
+            edges=EdgeSettings(axis=args.axis),
+            reference_z_mm=args.reference_z,
+            poly_degree=args.poly_degree,
+            min_z_samples=max(6, args.poly_degree + 2),
+        )
+        calibration = calibrate_projector_recording(
+            open_recording(args.recording), read_camera_json(args.camera), settings=settings
+        )
+        write_projector_calibration(calibration, args.output)
+    except (ValueError, MeasurementError, OSError) as error:
+        return _fail(error)
+    qa = calibration.qa
+    low, median, high = qa.sensitivity_px_per_mm
+    print(
+        f"{args.output}: {qa.n_edges} edges over {calibration.n_lines} lines ({calibration.axis}), Z "
+        f"{qa.z_range_mm[0]:g} … {qa.z_range_mm[1]:g} mm in {len(calibration.z_mm)} steps; coverage "
+        f"{qa.coverage:.1%}; sensitivity {median:.3f} px/mm (5–95 %: {low:.3f}–{high:.3f}); fit RMS "
+        f"{qa.fit_rms_mm:.4f} mm; {qa.n_non_monotonic} non-monotonic, {qa.n_insensitive} insensitive entries left out"
+    )
+    return 0
+
+
+def topography_command(args: argparse.Namespace) -> int:
+    from fringelab.formats.camera import read_camera_json
+    from fringelab.formats.recordings import open_recording
+    from fringelab.formats.topography import read_projector_calibration
+    from fringelab.pipelines.topography import topography_recording
+    from fringelab.science import MeasurementError
+    from fringelab.science.topography import TopographySettings
+
+    try:
+        source = open_recording(args.recording)
+        frames = None if args.frames is None else range(len(source))[args.frames]
+        summary = topography_recording(
+            source,
+            read_camera_json(args.camera),
+            read_projector_calibration(args.projector),
+            out_path=args.output,
+            frames=frames,
+            settings=TopographySettings(grid_step_mm=args.grid_step, temporal_smoothing_frames=args.temporal_smoothing),
+        )
+    except (ValueError, MeasurementError, OSError) as error:
+        return _fail(error)
+    print(
+        f"{summary.path}: frames {summary.frames.start}–{summary.frames.stop - 1}; flat first frame RMS "
+        f"{summary.flat_rms_mm:.3f} mm; peak deflection {summary.max_peak_w_mm:.2f} mm; punch axis at "
+        f"({summary.punch_axis_xy_mm[0]:.1f}, {summary.punch_axis_xy_mm[1]:.1f}) mm; "
+        f"{summary.n_out_of_range_total} points beyond the calibrated Z range masked"
+    )
+    return 0
+
+
+def export_command(args: argparse.Namespace) -> int:
+    from fringelab.formats.topography import export_result
+
+    try:
+        path = export_result(args.result, args.format, args.output, line=args.line)
+    except (ValueError, OSError) as error:
+        return _fail(error)
+    print(f"{path}: {args.format} written")
+    return 0
+
+
+def simulate_command(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from fringelab.pipelines.simulation import simulate_experiment
+    from fringelab.science.simulate import preset
+
+    if args.frames < 4:
+        return _fail(ValueError(f"--frames: expected at least 4, got {args.frames}"))
+    if not 0 < args.z_step <= 10:
+        return _fail(ValueError(f"--z-step: expected 0 < step ≤ 10 mm, got {args.z_step}"))
+    try:
+        experiment = simulate_experiment(
+            args.out,
+            args.preset,
+            n_test_frames=args.frames,
+            calibration_z_mm=np.arange(0.0, 80.0 + 1e-9, args.z_step),
+            as_zip=args.zip,
+            seed=args.seed,
+        )
+    except (ValueError, OSError) as error:
+        return _fail(error)
+    print(f"{experiment.root}: virtual {args.preset} experiment written; next:")
+    camera = preset(args.preset).camera
+    print(
+        f"  fringelab calibrate-camera {experiment.camera_calibration} --du {camera.du_px_per_mm:g} "
+        f"--dv {camera.dv_px_per_mm:g} --scale-on {camera.scale_on} -o {experiment.root / 'camera.json'}"
+    )
+    print(f"  (or use the exact camera: {experiment.camera_json})")
+    print(
+        f"  fringelab calibrate-projector {experiment.projector_calibration} --camera {experiment.camera_json} "
+        f"-o {experiment.root / 'projector.h5'}"
+    )
+    print(
+        f"  fringelab topography {experiment.test} --camera {experiment.camera_json} --projector "
+        f"{experiment.root / 'projector.h5'} -o {experiment.root / 'result.h5'}"
+    )
+    return 0

@@ -1,0 +1,612 @@
+"""Readers and writers of recordings and sidecars: the only place in `measurement` that touches files.
+
+A recording is opened lazily: `open_recording(path)` returns a `FrameSource`, a sequence of 2-D grey frames
+(uint8 or uint16) decoded one at a time on access, so a multi-GB sequence is never held in memory. Formats:
+a folder or ZIP of PNG/TIFF/BMP/JPEG frames (natural name order), a multi-page TIFF, an AVI or MP4 video and a
+Phantom .cine file (uncompressed 8/16-bit grey, 24/48-bit colour). Colour frames are converted to grey
+(ITU-R BT.601 luma) and the source says so (`colour_converted`). Container checks without decoding (format
+sniffing, ZIP safety, the .cine header) live in `containers`.
+
+Sidecars (`z.csv`, `frames.csv`, `board.json`) are parsed and validated here with errors that name the file,
+line and column; `frame_indices` checks that a sidecar's frame ids match the frames of the recording.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import lzma
+import math
+import os
+import struct
+import threading
+import zipfile
+import zlib
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, overload
+
+import cv2
+import numpy as np
+
+from fringelab.formats.containers import (
+    IMAGE_SUFFIXES,
+    CorruptRecording,
+    UnsupportedRecording,
+    ZipLimits,
+    inspect_zip,
+    is_junk_entry,
+    read_cine_header,
+    sniff_format,
+)
+from fringelab.science import natural_key
+
+if TYPE_CHECKING:
+    from fringelab.science.chessboard import Board
+
+__all__ = [
+    "IMAGE_SUFFIXES",
+    "FrameSource",
+    "FramesTable",
+    "decode_grey",
+    "frame_indices",
+    "natural_key",
+    "open_recording",
+    "read_board_json",
+    "read_frames_csv",
+    "read_z_csv",
+    "write_frame_folder",
+    "z_csv_text",
+]
+
+MAX_SIDECAR_BYTES = 16 << 20
+MAX_FRAME_PIXELS = 1 << 27  # 134 Mpx; a high-speed camera frame is a few Mpx
+
+
+def _as_grey(image: np.ndarray, *, name: str) -> tuple[np.ndarray, bool]:
+    """A 2-D uint8/uint16 frame from a decoded image, and whether colour was converted."""
+    if image.dtype not in (np.uint8, np.uint16):
+        raise ValueError(f"{name}: {image.dtype} pixels; frames must be 8- or 16-bit unsigned integers")
+    if image.ndim == 2:
+        return image, False
+    if image.ndim == 3 and image.shape[2] in (3, 4):
+        code = cv2.COLOR_BGRA2GRAY if image.shape[2] == 4 else cv2.COLOR_BGR2GRAY
+        return cv2.cvtColor(np.ascontiguousarray(image), code), True
+    if image.ndim == 3 and image.shape[2] == 1:
+        return image[:, :, 0], False
+    raise ValueError(f"{name}: image of shape {image.shape}; expected (rows, cols) or (rows, cols, 3|4)")
+
+
+def _looks_truncated(data: bytes, name: str) -> bool:
+    """Decoders fill the missing rows of a truncated JPEG or BMP silently; catch those by their structure."""
+    suffix = Path(name).suffix.lower()
+    if suffix in (".jpg", ".jpeg"):
+        return b"\xff\xd9" not in data[-64:]
+    if suffix == ".png":
+        return b"IEND" not in data[-16:]
+    if suffix == ".bmp" and len(data) >= 6:
+        return int.from_bytes(data[2:6], "little") > len(data)
+    return False
+
+
+def _declared_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) an image header declares, for PNG, BMP and JPEG; None when not found."""
+    if data.startswith(b"\x89PNG") and len(data) >= 24:
+        return struct.unpack(">II", data[16:24])
+    if data.startswith(b"BM") and len(data) >= 26:
+        width, height = struct.unpack("<ii", data[18:26])
+        return abs(width), abs(height)
+    if data.startswith(b"\xff\xd8"):
+        position = 2
+        while position + 9 <= len(data) and data[position] == 0xFF:
+            marker, length = data[position + 1], struct.unpack(">H", data[position + 2 : position + 4])[0]
+            if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):  # start of frame
+                height, width = struct.unpack(">HH", data[position + 5 : position + 9])
+                return width, height
+            position += 2 + length
+    return None
+
+
+def _check_pixels(width: int, height: int, *, name: str) -> None:
+    if width * height > MAX_FRAME_PIXELS:
+        raise ValueError(
+            f"{name}: declares {width} × {height} px, more than {MAX_FRAME_PIXELS} pixels a frame may have"
+        )
+
+
+def _decode(data: bytes, *, name: str) -> tuple[np.ndarray, bool]:
+    if _looks_truncated(data, name):
+        raise ValueError(f"{name}: the image is truncated")
+    declared = _declared_size(data)
+    if declared is not None:
+        _check_pixels(*declared, name=name)  # a small file can declare a huge image: refuse before decoding
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)
+    if image is None:
+        raise ValueError(f"{name}: not a readable image (corrupt, truncated or unsupported format)")
+    return _as_grey(image, name=name)
+
+
+def decode_grey(data: bytes, *, name: str) -> np.ndarray:
+    """Decode image bytes to a 2-D grey array (uint8 or uint16), keeping the bit depth."""
+    return _decode(data, name=name)[0]
+
+
+class FrameSource(Sequence[np.ndarray]):
+    """A recording: a lazy sequence of 2-D grey frames with the facts its container states.
+
+    format: one of `containers.FORMATS`. frame_names: one name per frame (the entry or file name for image
+    sequences, "frame N" otherwise). fps: the frame rate the container states, or None. bit_depth: significant
+    bits of a sample as stored (8 or 16; a .cine states its real depth, e.g. 12). colour_converted: colour
+    frames were met and converted to grey. Use as a context manager, or call `close()`, to release the file.
+    """
+
+    format: str = ""
+
+    def __init__(self, path: Path, frame_names: Sequence[str], *, fps: float | None = None, bit_depth: int = 8):
+        self.path = path
+        self.frame_names: tuple[str, ...] = tuple(frame_names)
+        self.fps = fps
+        self.bit_depth = bit_depth
+        self.colour_converted = False
+        self._lock = threading.Lock()
+
+    def __len__(self) -> int:
+        return len(self.frame_names)
+
+    @overload
+    def __getitem__(self, index: int) -> np.ndarray: ...
+
+    @overload
+    def __getitem__(self, index: slice) -> list[np.ndarray]: ...
+
+    def __getitem__(self, index: int | slice) -> np.ndarray | list[np.ndarray]:
+        if isinstance(index, slice):
+            return [self[i] for i in range(*index.indices(len(self)))]
+        count = len(self)
+        position = index + count if index < 0 else index
+        if not 0 <= position < count:
+            raise IndexError(f"frame {index} out of range: the recording has {count} frames")
+        with self._lock:
+            frame, colour = self._read(position)
+        self.colour_converted |= colour
+        return frame
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        for i in range(len(self)):
+            yield self[i]
+
+    def _read(self, index: int) -> tuple[np.ndarray, bool]:
+        raise NotImplementedError
+
+    def sidecar_text(self, name: str) -> str | None:
+        """Text of a sidecar (`z.csv`, `frames.csv`, `board.json`), or None.
+
+        A file of that name beside a single-file recording (or a ZIP) comes first: it is how a sidecar is
+        added to a .cine, TIFF or video, or corrected for a ZIP; then the one stored inside a ZIP or folder.
+        """
+        beside = self.path.parent / name
+        if beside.is_file():
+            return _read_text_file(beside)
+        return None
+
+    def close(self) -> None:
+        """Release open files; frames can still be read afterwards (the file is opened again)."""
+
+    def __enter__(self) -> FrameSource:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"<{type(self).__name__} {self.format} {self.path.name}: {len(self)} frames>"
+
+
+def _read_text_file(path: Path) -> str:
+    if path.stat().st_size > MAX_SIDECAR_BYTES:
+        raise ValueError(f"{path.name}: larger than {MAX_SIDECAR_BYTES} bytes; not a sidecar")
+    try:
+        return path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError:
+        raise ValueError(f"{path.name}: not UTF-8 text") from None
+
+
+class ImageFolder(FrameSource):
+    """Frames as image files in a folder (not its subfolders), in natural name order."""
+
+    format = "folder"
+
+    def _read(self, index: int) -> tuple[np.ndarray, bool]:
+        name = self.frame_names[index]
+        return _decode((self.path / name).read_bytes(), name=name)
+
+    def read_bytes(self, name: str) -> bytes:
+        return (self.path / name).read_bytes()
+
+    def sidecar_text(self, name: str) -> str | None:
+        candidate = self.path / name
+        return _read_text_file(candidate) if candidate.is_file() else None
+
+
+class ImageZip(FrameSource):
+    """Frames as image entries of a ZIP, in natural order of their names; the archive stays open between reads."""
+
+    format = "zip"
+
+    def __init__(self, path: Path, frame_names: Sequence[str], sidecar_names: dict[str, str]):
+        super().__init__(path, frame_names)
+        self._sidecar_names = sidecar_names
+        self._archive: zipfile.ZipFile | None = None
+        self._pid = 0
+
+    def _open(self) -> zipfile.ZipFile:
+        if self._archive is None or self._pid != os.getpid():  # a forked worker opens its own handle
+            self._archive = zipfile.ZipFile(self.path)
+            self._pid = os.getpid()
+        return self._archive
+
+    def read_bytes(self, name: str) -> bytes:
+        try:
+            return self._open().read(name)
+        except (zipfile.BadZipFile, EOFError, OSError, zlib.error, lzma.LZMAError) as error:  # bad CRC, damaged data
+            raise ValueError(f"{name}: cannot be read from the ZIP ({error})") from None
+
+    def _read(self, index: int) -> tuple[np.ndarray, bool]:
+        name = self.frame_names[index]
+        return _decode(self.read_bytes(name), name=name)
+
+    def sidecar_text(self, name: str) -> str | None:
+        beside = super().sidecar_text(name)
+        if beside is not None or name not in self._sidecar_names:
+            return beside
+        with self._lock:
+            data = self.read_bytes(self._sidecar_names[name])
+        try:
+            return data.decode("utf-8-sig")
+        except UnicodeDecodeError:
+            raise ValueError(f"{name}: not UTF-8 text") from None
+
+    def close(self) -> None:
+        if self._archive is not None:
+            self._archive.close()
+            self._archive = None
+
+
+class TiffStack(FrameSource):
+    """Pages of a (multi-page) TIFF, one frame per page, decoded with tifffile (OpenCV for codecs it lacks)."""
+
+    format = "tiff"
+
+    def __init__(self, path: Path):
+        import tifffile
+
+        try:
+            self._tiff = tifffile.TiffFile(path)
+            pages = self._tiff.pages
+            count = len(pages)
+            first = pages.first
+        except (tifffile.TiffFileError, ValueError, OSError, IndexError) as error:
+            raise CorruptRecording(f"{path.name}: not a readable TIFF ({error})") from None
+        if count == 0:
+            raise CorruptRecording(f"{path.name}: the TIFF has no pages")
+        super().__init__(path, [f"page {i}" for i in range(count)], bit_depth=16 if first.bitspersample > 8 else 8)
+
+    def _read(self, index: int) -> tuple[np.ndarray, bool]:
+        name = f"{self.path.name} page {index}"
+        try:
+            page = self._tiff.pages[index]
+            shape: tuple[int, ...] = tuple(getattr(page, "shape", ()))
+            if len(shape) >= 2:
+                _check_pixels(int(shape[1]), int(shape[0]), name=name)
+            image = page.asarray()
+        except ValueError as error:
+            if "imagecodecs" not in str(error):
+                raise ValueError(f"{name}: {error}") from None
+            flags = cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR
+            ok, images = cv2.imreadmulti(str(self.path), start=index, count=1, flags=flags)
+            if not ok or not images:
+                raise ValueError(f"{name}: cannot be decoded ({error})") from None
+            image = images[0]
+        except (OSError, IndexError, KeyError) as error:
+            raise ValueError(f"{name}: cannot be decoded ({error})") from None
+        else:
+            # tifffile gives RGB order; OpenCV's conversion expects BGR.
+            if image.ndim == 3 and image.shape[2] in (3, 4):
+                image = image[:, :, [2, 1, 0, 3][: image.shape[2]]]
+        return _as_grey(image, name=name)
+
+    def close(self) -> None:
+        self._tiff.close()
+
+
+class VideoFrames(FrameSource):
+    """Frames of an AVI or MP4 video decoded by OpenCV (8-bit); sequential reading avoids seeking."""
+
+    def __init__(self, path: Path, format: str):
+        self.format = format
+        self._capture = cv2.VideoCapture(str(path))
+        if not self._capture.isOpened():
+            raise CorruptRecording(f"{path.name}: OpenCV cannot open this {format.upper()} video (codec or damage)")
+        count = int(self._capture.get(cv2.CAP_PROP_FRAME_COUNT))
+        if count <= 0:
+            count = self._count_by_grabbing()
+        if count <= 0:
+            raise CorruptRecording(f"{path.name}: the video holds no frames")
+        fps = float(self._capture.get(cv2.CAP_PROP_FPS)) or None
+        super().__init__(path, [f"frame {i}" for i in range(count)], fps=fps, bit_depth=8)
+        self._next = 0
+
+    def _count_by_grabbing(self) -> int:
+        count = 0
+        while self._capture.grab():
+            count += 1
+        self._capture.set(cv2.CAP_PROP_POS_FRAMES, 0)
+        return count
+
+    def _read(self, index: int) -> tuple[np.ndarray, bool]:
+        if index != self._next:
+            self._capture.set(cv2.CAP_PROP_POS_FRAMES, index)
+        ok, image = self._capture.read()
+        self._next = index + 1
+        if not ok or image is None:
+            self._next = -1
+            raise ValueError(f"{self.path.name} frame {index}: cannot be decoded (the video ends early or is damaged)")
+        if image.ndim == 3 and not _channels_equal(image):
+            return _as_grey(image, name=f"frame {index}")
+        return (image[:, :, 0].copy() if image.ndim == 3 else image), False
+
+    def close(self) -> None:
+        self._capture.release()
+
+
+def _channels_equal(image: np.ndarray) -> bool:
+    return bool((image[:, :, 0] == image[:, :, 1]).all() and (image[:, :, 1] == image[:, :, 2]).all())
+
+
+class CineFrames(FrameSource):
+    """Frames of an uncompressed Phantom .cine file, read at their offsets (bottom-up rows flipped)."""
+
+    format = "cine"
+
+    def __init__(self, path: Path):
+        self.header = read_cine_header(path)
+        super().__init__(
+            path,
+            [f"frame {i}" for i in range(self.header.frame_count)],
+            fps=self.header.frame_rate_hz,
+            bit_depth=self.header.real_bpp,
+        )
+        self._fd: int | None = None
+
+    def _read(self, index: int) -> tuple[np.ndarray, bool]:
+        if self._fd is None:
+            self._fd = os.open(self.path, os.O_RDONLY)
+        header = self.header
+        start = int(header.image_offsets[index])
+        annotation = int.from_bytes(os.pread(self._fd, 4, start), "little")
+        data = os.pread(self._fd, header.frame_bytes, start + annotation)
+        if annotation < 8 or len(data) != header.frame_bytes:
+            raise ValueError(f"{self.path.name} frame {index}: truncated")
+        shape: tuple[int, ...] = (header.height_px, header.width_px)
+        if header.channels == 3:
+            shape += (3,)
+        image = np.frombuffer(data, dtype=header.dtype).reshape(shape)
+        if header.bottom_up:
+            image = image[::-1]
+        image = image.astype(header.dtype.newbyteorder("="), copy=True)
+        return _as_grey(image, name=f"{self.path.name} frame {index}")
+
+    def close(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+
+
+def open_recording(path: str | Path, *, zip_limits: ZipLimits | None = None) -> FrameSource:
+    """Open a recording lazily, whatever its format (see the module docstring).
+
+    Raises ValueError (`containers.UnsupportedRecording`, `UnsafeArchive`, `CorruptRecording`) when the file is
+    not a recording, holds no image, or must not be opened.
+    """
+    path = Path(path)
+    kind = sniff_format(path)
+    if kind == "folder":
+        names = [
+            p.name
+            for p in path.iterdir()
+            if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES and not is_junk_entry(p.name)
+        ]
+        if not names:
+            raise UnsupportedRecording(f"{path}: no image frames found (accepted: {', '.join(IMAGE_SUFFIXES)})")
+        return ImageFolder(path, sorted(names, key=natural_key))
+    if kind == "zip":
+        contents = inspect_zip(path, limits=zip_limits)
+        return ImageZip(path, contents.frame_names, contents.sidecar_names)
+    if kind == "tiff":
+        return TiffStack(path)
+    if kind == "cine":
+        return CineFrames(path)
+    return VideoFrames(path, kind)
+
+
+# ---------------------------------------------------------------------------------------------------- sidecars
+
+
+def _rows(
+    text: str, *, name: str, required: tuple[str, ...], allowed: set[str]
+) -> Iterator[tuple[int, dict[str, str]]]:
+    reader = csv.DictReader(io.StringIO(text))
+    columns = [f.strip() for f in reader.fieldnames or []]
+    if not set(required) <= set(columns):
+        raise ValueError(f"{name}: expected columns '{','.join(required)}', got {reader.fieldnames}")
+    unknown = [c for c in columns if c not in allowed]
+    if unknown:
+        raise ValueError(f"{name}: unknown column {unknown[0]!r} (accepted: {', '.join(sorted(allowed))})")
+    for line_no, row in enumerate(reader, start=2):
+        if None in row or any(value is None for value in row.values()):
+            raise ValueError(f"{name} line {line_no}: expected {len(columns)} values")
+        yield line_no, {k.strip(): (v or "").strip() for k, v in row.items()}
+
+
+def _number(row: dict[str, str], column: str, *, name: str, line_no: int) -> float:
+    try:
+        value = float(row[column])
+    except ValueError:
+        raise ValueError(f"{name} line {line_no}, column {column}: {row[column]!r} is not a number") from None
+    if not math.isfinite(value):
+        raise ValueError(f"{name} line {line_no}, column {column}: not finite")
+    return value
+
+
+def _frame_id(row: dict[str, str], *, name: str, line_no: int) -> int:
+    try:
+        return int(row["frame"])
+    except ValueError:
+        raise ValueError(f"{name} line {line_no}, column frame: {row['frame']!r} is not an integer") from None
+
+
+def read_z_csv(text: str, *, name: str = "z.csv") -> dict[int, float]:
+    """Parse `frame,z_mm` rows into {frame: z_mm}; errors name the line."""
+    z_by_frame: dict[int, float] = {}
+    for line_no, row in _rows(text, name=name, required=("frame", "z_mm"), allowed={"frame", "z_mm"}):
+        frame = _frame_id(row, name=name, line_no=line_no)
+        z_mm = _number(row, "z_mm", name=name, line_no=line_no)
+        if frame in z_by_frame:
+            raise ValueError(f"{name} line {line_no}: frame {frame} appears twice")
+        z_by_frame[frame] = z_mm
+    if not z_by_frame:
+        raise ValueError(f"{name}: no rows")
+    return z_by_frame
+
+
+FRAMES_CSV_COLUMNS = ("time_s", "punch_displacement_mm", "force_kN")
+
+
+@dataclass(frozen=True, eq=False)
+class FramesTable:
+    """Rows of `frames.csv`: frame ids and any of time, punch displacement and force, each of shape (N,).
+
+    A column absent from the file is None.
+    """
+
+    frame: np.ndarray
+    time_s: np.ndarray | None
+    punch_displacement_mm: np.ndarray | None
+    force_kN: np.ndarray | None
+
+    def columns(self) -> list[str]:
+        return [c for c in FRAMES_CSV_COLUMNS if getattr(self, c) is not None]
+
+
+def read_frames_csv(text: str, *, name: str = "frames.csv") -> FramesTable:
+    """Parse `frame,time_s,punch_displacement_mm,force_kN` (frame and any subset of the others).
+
+    Frame ids are unique integers; time_s, when given, increases strictly with the frame id.
+    """
+    allowed = {"frame", *FRAMES_CSV_COLUMNS}
+    rows = list(_rows(text, name=name, required=("frame",), allowed=allowed))
+    present = [c for c in FRAMES_CSV_COLUMNS if rows and c in rows[0][1]]
+    if not present:
+        raise ValueError(f"{name}: needs at least one of {', '.join(FRAMES_CSV_COLUMNS)} besides frame")
+    if not rows:
+        raise ValueError(f"{name}: no rows")
+    frames: list[int] = []
+    values: dict[str, list[float]] = {c: [] for c in present}
+    seen: set[int] = set()
+    for line_no, row in rows:
+        frame = _frame_id(row, name=name, line_no=line_no)
+        if frame in seen:
+            raise ValueError(f"{name} line {line_no}: frame {frame} appears twice")
+        seen.add(frame)
+        frames.append(frame)
+        for column in present:
+            values[column].append(_number(row, column, name=name, line_no=line_no))
+    frame_ids = np.asarray(frames, dtype=np.int64)
+    table = {c: np.asarray(v, dtype=np.float64) for c, v in values.items()}
+    if "time_s" in table:
+        order = np.argsort(frame_ids)
+        if (np.diff(table["time_s"][order]) <= 0).any():
+            raise ValueError(f"{name}: time_s must increase with the frame number")
+    return FramesTable(
+        frame=frame_ids,
+        time_s=table.get("time_s"),
+        punch_displacement_mm=table.get("punch_displacement_mm"),
+        force_kN=table.get("force_kN"),
+    )
+
+
+def read_board_json(text: str, *, name: str = "board.json") -> Board:
+    """Parse a chessboard description: {"cols": 9, "rows": 6, "square_mm": 25.0, "origin": [4, 2] or null}.
+
+    cols × rows count inner corners; `"inner_corners": [cols, rows]` may replace cols and rows.
+    """
+    from fringelab.science.chessboard import Board
+
+    try:
+        data: Any = json.loads(text)
+    except json.JSONDecodeError as error:
+        raise ValueError(f"{name}: not valid JSON ({error})") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{name}: expected a JSON object, got {type(data).__name__}")
+    if "inner_corners" in data:
+        corners = data["inner_corners"]
+        if not (isinstance(corners, list) and len(corners) == 2):
+            raise ValueError(f"{name}: inner_corners must be [cols, rows]")
+        data = {**data, "cols": corners[0], "rows": corners[1]}
+    missing = [key for key in ("cols", "rows", "square_mm") if key not in data]
+    if missing:
+        raise ValueError(f"{name}: missing {', '.join(missing)} (expected cols, rows, square_mm, optional origin)")
+    cols, rows, square_mm, origin = data["cols"], data["rows"], data["square_mm"], data.get("origin")
+    if not (isinstance(cols, int) and isinstance(rows, int) and cols >= 2 and rows >= 2):
+        raise ValueError(f"{name}: needs at least 2 × 2 inner corners (integers), got {cols!r} × {rows!r}")
+    if isinstance(square_mm, bool) or not isinstance(square_mm, int | float) or not 0 < square_mm < math.inf:
+        raise ValueError(f"{name}: square_mm must be a positive number, got {square_mm!r}")
+    if origin is not None:
+        valid = isinstance(origin, list) and len(origin) == 2 and all(isinstance(v, int) and v >= 0 for v in origin)
+        if not valid:
+            raise ValueError(f"{name}: origin must be [i, j] corner indices ≥ 0 or null, got {origin!r}")
+        origin = (origin[0], origin[1])
+    return Board(cols=cols, rows=rows, square_mm=float(square_mm), origin=origin)
+
+
+def frame_indices(frame_ids: Sequence[int] | np.ndarray, frame_count: int, *, name: str) -> np.ndarray:
+    """0-based frame indices of a sidecar's frame ids, which number the frames 0..n−1 or 1..n.
+
+    Ids are read as 1-based when none is 0 and the largest is n. Raises ValueError naming the first id that
+    matches no frame.
+    """
+    ids = np.asarray(frame_ids, dtype=np.int64)
+    one_based = ids.size > 0 and ids.min() >= 1 and ids.max() == frame_count
+    indices = ids - 1 if one_based else ids
+    outside = np.flatnonzero((indices < 0) | (indices >= frame_count))
+    if outside.size:
+        bad = int(ids[outside[0]])
+        raise ValueError(
+            f"{name}: frame {bad} matches no frame of the recording, which has {frame_count} frames "
+            f"(numbered 0–{frame_count - 1} or 1–{frame_count})"
+        )
+    return indices
+
+
+def write_frame_folder(
+    path: str | Path, frames: Sequence[np.ndarray], *, sidecars: dict[str, str] | None = None
+) -> Path:
+    """Write frames as frame0000.png, frame0001.png, ... and sidecar texts (e.g. {"z.csv": ...}) into a folder.
+
+    For synthetic recordings and tests; the folder is readable with `open_recording`.
+    """
+    path = Path(path)
+    path.mkdir(parents=True, exist_ok=True)
+    for index, frame in enumerate(frames):
+        if not cv2.imwrite(str(path / f"frame{index:04d}.png"), frame):
+            raise ValueError(f"{path}: could not write frame {index} (dtype {frame.dtype}, shape {frame.shape})")
+    for name, text in (sidecars or {}).items():
+        (path / name).write_text(text)
+    return path
+
+
+def z_csv_text(z_mm: Sequence[float], *, first_frame: int = 0) -> str:
+    """The text of a `z.csv` sidecar for frames numbered from `first_frame`."""
+    return "frame,z_mm\n" + "".join(f"{first_frame + i},{z!r}\n" for i, z in enumerate(map(float, z_mm)))

@@ -1,0 +1,122 @@
+"""A whole virtual experiment written to disk in the recording formats, with its ground truth beside it.
+
+The rendering is `fringelab.science.simulate`; this module only writes what it renders (`fringelab.formats`).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from fringelab.science.simulate import FringeRenderer, Imaging, preset, punch_timeline, true_camera_calibration
+
+
+@dataclass(frozen=True)
+class VirtualExperiment:
+    """Paths of a written virtual experiment."""
+
+    root: Path
+    camera_calibration: Path
+    projector_calibration: Path
+    test: Path
+    camera_json: Path
+    truth_json: Path
+
+
+def simulate_experiment(
+    out_dir: str | Path,
+    preset_name: str,
+    *,
+    n_test_frames: int = 40,
+    calibration_z_mm: Sequence[float] | np.ndarray | None = None,
+    camera_z_mm: Sequence[float] = tuple(np.linspace(-20.0, 100.0, 13)),
+    as_zip: bool = False,
+    seed: int = 0,
+    imaging: Imaging | None = None,
+    progress: Callable[[int, int, str], None] | None = None,
+) -> VirtualExperiment:
+    """Write a whole virtual experiment for one camera in the recording formats, with ground truth beside it.
+
+    out_dir/camera_calibration  chessboard Z-stack (frames, z.csv, board.json)
+    out_dir/projector_calibration  flat plate at calibration_z_mm (default 0 … 80 mm in 2 mm steps; z.csv)
+    out_dir/test  the punch test in n_test_frames (frames.csv: frame,time_s,punch_displacement_mm,force_kN)
+    out_dir/truth/camera.json  the exact camera as a camera-calibration file
+    out_dir/truth/experiment.json  camera, projector, scene, imaging, calibration heights and per-frame states
+    (folders, or .zip files with as_zip). Frames are rendered and written one at a time.
+    """
+    from fringelab.formats.recordings import z_csv_text
+    from fringelab.formats.topography import FrameTable, frames_csv_text, write_json, write_recording
+    from fringelab.science.chessboard import Board
+    from fringelab.science.synthetic import ChessboardRenderer, board_pose_at_z, zstack_board
+
+    setup = preset(preset_name, imaging=imaging)
+    z_cal = np.asarray(setup.calibration_z_mm if calibration_z_mm is None else calibration_z_mm, np.float64)
+    timeline = punch_timeline(n_test_frames, max_deflection_mm=setup.max_deflection_mm,
+                             punch_radius_mm=setup.scene.punch_radius_mm)  # fmt: skip
+    root = Path(out_dir)
+    root.mkdir(parents=True, exist_ok=True)
+    suffix = ".zip" if as_zip else ""
+    rng = np.random.default_rng(seed)
+    total = len(camera_z_mm) + len(z_cal) + n_test_frames
+    done = 0
+
+    def counted(frames: Iterator[np.ndarray], stage: str) -> Iterator[np.ndarray]:
+        nonlocal done
+        for frame in frames:
+            yield frame
+            done += 1
+            if progress is not None:
+                progress(done, total, stage)
+
+    board: Board = zstack_board(setup.camera)
+    chessboard = ChessboardRenderer(setup.camera, board)
+    board_json = json.dumps({"cols": board.cols, "rows": board.rows, "square_mm": board.square_mm}) + "\n"
+    camera_path = write_recording(
+        root / f"camera_calibration{suffix}",
+        counted((chessboard.render(board_pose_at_z(z), rng=rng) for z in camera_z_mm), "camera calibration"),
+        sidecars={"z.csv": z_csv_text(list(camera_z_mm)), "board.json": board_json},
+        as_zip=as_zip,
+    )
+    renderer = FringeRenderer(setup)
+    projector_path = write_recording(
+        root / f"projector_calibration{suffix}",
+        counted((renderer.render_flat(z, rng=rng) for z in z_cal), "projector calibration"),
+        sidecars={"z.csv": z_csv_text(z_cal.tolist())},
+        as_zip=as_zip,
+    )
+    table = FrameTable(
+        frame=np.arange(n_test_frames), time_s=timeline.time_s,
+        punch_displacement_mm=timeline.punch_displacement_mm, force_kN=timeline.force_kN,
+    )  # fmt: skip
+    test_path = write_recording(
+        root / f"test{suffix}",
+        counted((renderer.render_test(state, rng=rng) for state in timeline.states), "test"),
+        sidecars={"frames.csv": frames_csv_text(table)},
+        as_zip=as_zip,
+    )
+    from fringelab.formats.camera import write_camera_json
+
+    camera_json = write_camera_json(true_camera_calibration(setup.camera), root / "truth" / "camera.json")
+    truth = {
+        "preset": setup.name,
+        "camera": asdict(setup.camera),
+        "projector": asdict(setup.projector),
+        "scene": asdict(setup.scene),
+        "imaging": asdict(setup.imaging),
+        "board": {"cols": board.cols, "rows": board.rows, "square_mm": board.square_mm},
+        "camera_calibration_z_mm": list(map(float, camera_z_mm)),
+        "projector_calibration_z_mm": z_cal.tolist(),
+        "perforation_frame": timeline.perforation_frame,
+        "frames": [
+            {"frame": i, "w0_mm": s.w0_mm, "hole_radius_mm": s.hole_radius_mm} for i, s in enumerate(timeline.states)
+        ],
+        "deflection": "w(r) = w0 ln(rho_R/rho)/ln(rho_R/b), rho = sqrt(r^2 + b^2), rho_R = sqrt(R^2 + b^2), "
+        "b = punch_radius_mm, R = clamp_radius_mm, r from scene.centre_xy_mm; no surface for r < hole_radius_mm",
+        "seed": seed,
+    }
+    truth_json = write_json(root / "truth" / "experiment.json", truth)
+    return VirtualExperiment(root, camera_path, projector_path, test_path, camera_json, truth_json)

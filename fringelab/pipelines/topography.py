@@ -1,0 +1,200 @@
+"""Topography of a whole test recording into its result file (METHOD.md §5–6).
+
+What the command line calls, and the sequential reference the worker's frame-parallel topography job must equal
+bit for bit. The stages (edges, identity, Z, X and Y, gridding) live in `fringelab.science.topography`; the
+result file is written by `fringelab.formats.topography`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fringelab.science.calibration import ProgressCallback
+from fringelab.science.fields import Grid
+from fringelab.science.fringes import FrameEdges
+from fringelab.science.projector import CameraModel, ProjectorCalibration, camera_fingerprint
+from fringelab.science.topography import (
+    TopographyCancelled,
+    TopographyError,
+    TopographySettings,
+    check_recording_against,
+    check_stripes_against,
+    clamp_circle,
+    frame_range,
+    grid_for_first_frame,
+    grid_measurement,
+    locate_test_edges,
+    track_and_measure,
+)
+
+
+@dataclass(frozen=True)
+class TopographySummary:
+    """What a topography run produced: the result file and its headline numbers (also in /summary)."""
+
+    path: Path
+    frames: range
+    flat_rms_mm: float
+    max_peak_w_mm: float
+    n_out_of_range_total: int
+    clamp_centre_xy_mm: tuple[float, float]
+    clamp_radius_mm: float
+    punch_axis_xy_mm: tuple[float, float]
+
+
+def topography_recording(
+    source: Any,
+    camera_model: CameraModel,
+    projector: ProjectorCalibration,
+    *,
+    out_path: str | Path,
+    frames: range | Sequence[int] | None = None,
+    settings: TopographySettings | None = None,
+    edges: Iterable[FrameEdges] | None = None,
+    progress: ProgressCallback | None = None,
+    should_cancel: Callable[[], bool] | None = None,
+) -> TopographySummary:
+    """Topography of a test recording into an HDF5 result file (layout in `topography_files`): what the CLI and
+    the tasks call.
+
+    source: a frame source from `readers.open_recording` (frames.csv beside the frames, if any, is stored with
+    the result). frames: the frames to write (a contiguous range); identity is always fixed on frame 0, so the
+    sequential pass runs from frame 0 to the last frame written (plus the temporal smoothing half-width), and
+    the frames written are identical to those of a run over the whole recording. edges: already located edges
+    of frames 0, 1, ... (e.g. from chunks run in parallel, see `topography_files.read_edges`); None locates
+    them here. progress(done, total, stage) after every frame ("frames"), should_cancel() polled between frames
+    (TopographyCancelled; the partial file is removed).
+
+    Memory does not grow with the number of frames: frames are read, located, tracked, gridded and written one
+    at a time.
+    """
+    from fringelab.formats.topography import FrameTable, TopographyWriter, _json, read_frames_csv
+    from fringelab.pipelines.provenance import code_versions
+    from fringelab.science.fields import field_peak
+
+    settings = TopographySettings() if settings is None else settings
+    n_frames = len(source)
+    wanted = frame_range(frames, n_frames)
+    stop = min(wanted.stop + settings.temporal_smoothing_frames, n_frames)
+    first_image = source[0]
+    check_recording_against(np.shape(first_image)[:2], projector, camera_model)
+    if edges is None:
+        check_stripes_against(first_image, projector)
+    frames_text = source.sidecar_text("frames.csv") if hasattr(source, "sidecar_text") else None
+    # Frames the log does not list (or no log at all) get NaN.
+    table = read_frames_csv(frames_text) if frames_text is not None else FrameTable.empty()
+    log = table.rows(list(range(n_frames)))
+
+    def located() -> Iterator[FrameEdges]:
+        supplied = iter(edges) if edges is not None else None
+        for index in range(stop):
+            if should_cancel is not None and should_cancel():
+                raise TopographyCancelled(f"cancelled after {index} of {stop} frames")
+            if supplied is not None:
+                try:
+                    frame_edges = next(supplied)
+                except StopIteration:
+                    raise ValueError(f"edges: {index} located frames given, {stop} needed") from None
+            else:
+                image = first_image if index == 0 else source[index]
+                frame_edges = next(locate_test_edges([image], projector))
+            yield frame_edges
+            if progress is not None:
+                progress(index + 1, stop, "frames")
+
+    where = str(getattr(source, "path", "recording"))
+    writer: TopographyWriter | None = None
+    grid: Grid | None = None
+    max_edge_mm = float("nan")
+    z_flat = float("nan")
+    flat_rms = float("nan")
+    clamp = (float("nan"),) * 3
+    n_first_tracks = 0
+    centres: list[tuple[float, float]] = []
+    peaks: list[float] = []
+    n_out_of_range = 0
+    try:
+        for measurement in track_and_measure(located(), projector, camera_model, settings=settings):
+            if measurement.frame == 0:
+                grid, max_edge_mm = grid_for_first_frame(measurement, projector, settings)
+                z = measurement.points_obj_mm[:, 2]
+                z_flat = float(np.median(z))
+                flat_rms = float(np.sqrt(np.mean((z - z_flat) ** 2)))
+                clamp = clamp_circle(measurement.points_obj_mm[:, :2])
+                n_first_tracks = measurement.n_tracks
+                writer = TopographyWriter(
+                    out_path,
+                    grid=grid,
+                    max_edge_mm=max_edge_mm,
+                    z_flat_mm=z_flat,
+                    axis=projector.axis,
+                    attrs={
+                        "settings_json": _json(asdict(settings)),
+                        "edge_settings_json": _json(asdict(projector.edges)),
+                        "provenance_json": _json({"input": where, "n_frames_in_recording": n_frames,
+                                                  "frames_written": [wanted.start, wanted.stop], **code_versions()}),
+                    },
+                    calibration_attrs=_calibration_attrs(camera_model, projector),
+                )  # fmt: skip
+            if measurement.frame not in wanted:
+                continue
+            assert writer is not None and grid is not None
+            z_grid = grid_measurement(measurement, projector, grid, max_edge_mm=max_edge_mm)
+            peak = field_peak(z_grid - z_flat, grid)
+            time_s, punch_mm, force_kn = (float(log[name][measurement.frame]) for name in FrameTable.COLUMNS)
+            writer.append(measurement, z_grid, peak, log=(time_s, punch_mm, force_kn))
+            peaks.append(peak.w_mm)
+            if np.isfinite(peak.centre_x_mm) and peak.w_mm >= 5.0:
+                centres.append((peak.centre_x_mm, peak.centre_y_mm))
+            n_out_of_range += measurement.n_out_of_range
+        if writer is None:
+            raise TopographyError(f"{where}: the recording has no frames")
+        axis_xy = tuple(np.median(np.array(centres), axis=0)) if centres else (float("nan"), float("nan"))
+        summary = {
+            "flat_rms_mm": flat_rms, "n_tracks_first_frame": n_first_tracks, "clamp_centre_x_mm": clamp[0],
+            "clamp_centre_y_mm": clamp[1], "clamp_radius_mm": clamp[2], "punch_axis_x_mm": axis_xy[0],
+            "punch_axis_y_mm": axis_xy[1], "n_out_of_range_total": n_out_of_range,
+        }  # fmt: skip
+        path = writer.close(summary)
+    except BaseException:
+        if writer is not None:
+            writer.abort()
+        raise
+    return TopographySummary(
+        path=path,
+        frames=wanted,
+        flat_rms_mm=flat_rms,
+        max_peak_w_mm=float(np.nanmax(peaks)) if peaks and np.any(np.isfinite(peaks)) else float("nan"),
+        n_out_of_range_total=n_out_of_range,
+        clamp_centre_xy_mm=(clamp[0], clamp[1]),
+        clamp_radius_mm=clamp[2],
+        punch_axis_xy_mm=(float(axis_xy[0]), float(axis_xy[1])),
+    )
+
+
+def _calibration_attrs(camera_model: CameraModel, projector: ProjectorCalibration) -> dict[str, Any]:
+    """What the result records of the calibrations it used (provenance)."""
+    from fringelab.formats.camera import calibration_as_dict
+    from fringelab.formats.topography import _json
+    from fringelab.science.calibration import CameraCalibration
+
+    if isinstance(camera_model, CameraCalibration):
+        camera_json = _json(calibration_as_dict(camera_model))
+    else:
+        camera_json = _json(asdict(camera_model.camera))
+    projector_doc = {
+        "image_shape": list(projector.image_shape), "axis": projector.axis, "period_px": projector.period_px,
+        "reference_z_mm": projector.reference_z_mm, "z_mm": projector.z_mm, "n_edges": projector.n_edges,
+        "edges": asdict(projector.edges), "qa": asdict(projector.qa), "provenance": projector.provenance,
+    }  # fmt: skip
+    return {
+        "camera_json": camera_json,
+        "camera_fingerprint": camera_fingerprint(camera_model.camera),
+        "projector_json": _json(projector_doc),
+        "projector_camera_fingerprint": projector.camera_fingerprint,
+    }

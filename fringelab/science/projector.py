@@ -1,0 +1,687 @@
+"""Projector calibration: the look-up table of every stripe edge's image position against Z (METHOD.md §4).
+
+Belongs here: building the table from a flat-plate Z-stack (edge identity kept consistent over all Z steps),
+checking it (monotonic in Z, sensitive enough, covering the field), fitting Z as a low-order polynomial of the
+edge position for every (edge, scan line), and looking Z up without ever extrapolating. Not here: locating edges
+in one frame (`fringes.py`), tracking them through a test (`topography.py`), files (`fringelab.formats.topography.py`).
+
+Table. Edge k (k = 0, 1, ... in stripe order along +t, polarity alternating) on scan line s of the flat plate at
+height Z_j has position `lut_t_px[k, s, j]` along the line (NaN where not seen). For each (k, s) with enough
+samples over a contiguous run of Z steps, `Z = Σ_i c_i τ^i` with τ = (t − t_centre)/t_scale is fitted by least
+squares. `t_lo_px..t_hi_px` is the sampled range widened by a noise margin of `range_margin_mm` of Z (0.1 mm,
+about five times the noise of one measured Z): a flat plate resting exactly at the lowest calibrated Z must not
+lose half of its points to noise. Outside it nothing is looked up, and the polynomial is never evaluated further
+out.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any, Protocol
+
+import numpy as np
+
+from . import MeasurementError
+from .calibration import CalibrationCancelled, ProgressCallback
+from .camera import Camera, InverseModel, backproject_to_z, fit_inverse_model
+from .fringes import EdgeSettings, FrameEdges, detect_stripes, locate_edges, order_edges
+
+
+class ProjectorCalibrationError(MeasurementError):
+    """The projector look-up table cannot be built or is unusable (too few Z steps, stripes that do not move
+    with Z, Z steps too coarse for the stripe period, edges lost between steps)."""
+
+
+class CalibrationMismatchError(MeasurementError):
+    """Recordings and calibrations do not belong together (image size, camera, stripe direction)."""
+
+
+class CameraModel(Protocol):
+    """What the topography needs of a camera calibration: the camera and its inverse model.
+
+    A `calibration.CameraCalibration` (from `fringelab.formats.camera.read_camera_json`) is one;
+    `exact_camera_model` makes
+    one from a bare `Camera`.
+    """
+
+    @property
+    def camera(self) -> Camera: ...
+
+    @property
+    def inverse(self) -> InverseModel: ...
+
+
+@dataclass(frozen=True)
+class ExactCamera:
+    """A `CameraModel` of a known camera (synthetic data, tests)."""
+
+    camera: Camera
+    inverse: InverseModel
+
+
+def exact_camera_model(camera: Camera) -> ExactCamera:
+    """The camera with its fitted inverse model, usable wherever a camera calibration is expected."""
+    return ExactCamera(camera=camera, inverse=fit_inverse_model(camera))
+
+
+def camera_fingerprint(camera: Camera) -> str:
+    """A short hash of the camera's parameters: calibrations made with one camera model carry the same one."""
+    text = ",".join(f"{name}={value!r}" for name, value in sorted(asdict(camera).items()))
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+@dataclass(frozen=True)
+class ProjectorSettings:
+    """Settings of the projector calibration.
+
+    edges: edge location settings (axis and period are detected on the reference frame when left automatic,
+        then fixed for every frame of the calibration and of the tests that use it).
+    reference_z_mm: the Z at which edge k is counted (the flat test plate's rest height, usually 0).
+    poly_degree: degree of Z as a polynomial in t per (edge, line); 3 follows the mild curvature of t(Z) that
+        perspective gives while averaging the noise of ~40 Z steps.
+    min_z_samples: fewest Z steps an (edge, line) needs in a contiguous run to get a table entry.
+    min_sensitivity_px_per_mm: entries whose edge moves less than this per mm of Z are left out: their Z would
+        be noise (0.05 px/mm turns 0.01 px of edge noise into 0.2 mm).
+    max_reversal_px: a step of t against the entry's trend larger than this marks the entry non-monotonic.
+    max_step_fraction: the largest edge shift between consecutive Z steps, as a fraction of the stripe period,
+        for which identity is carried safely from step to step.
+    range_margin_mm: how far (in Z) each entry's range is widened for noise (see the module docstring); 0 looks
+        up strictly within the sampled positions.
+    """
+
+    edges: EdgeSettings = field(default_factory=EdgeSettings)
+    reference_z_mm: float = 0.0
+    poly_degree: int = 3
+    min_z_samples: int = 6
+    min_sensitivity_px_per_mm: float = 0.05
+    max_reversal_px: float = 0.1
+    max_step_fraction: float = 0.35
+    range_margin_mm: float = 0.1
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.poly_degree <= 5:
+            raise ValueError(f"poly_degree: expected 1..5, got {self.poly_degree}")
+        if self.min_z_samples < self.poly_degree + 2:
+            raise ValueError(
+                f"min_z_samples: expected ≥ poly_degree + 2 = {self.poly_degree + 2}, got {self.min_z_samples}"
+            )
+        if not self.range_margin_mm >= 0:
+            raise ValueError(f"range_margin_mm: expected ≥ 0, got {self.range_margin_mm}")
+        if not 0 < self.max_step_fraction <= 0.5:
+            raise ValueError(f"max_step_fraction: expected 0 < f ≤ 0.5, got {self.max_step_fraction}")
+
+
+@dataclass(frozen=True)
+class ProjectorQA:
+    """Quality numbers of a projector calibration.
+
+    coverage: fraction of the (edge, line) points seen at the reference Z that have a table entry.
+    n_entries: number of (edge, line) table entries; n_edges: number of edges K.
+    sensitivity_px_per_mm: percentiles 5, 50, 95 of |dt/dZ| over the entries (how far an edge moves per mm).
+    fit_rms_mm: RMS residual in Z of the polynomial fits over all entries; fit_p95_mm: their 95th percentile.
+    n_non_monotonic: entries left out because t reversed against its trend in Z.
+    n_insensitive: entries left out for too small a sensitivity.
+    max_step_shift_periods: largest median edge shift between consecutive Z steps, in stripe periods.
+    edge_noise_px: median over frames of the per-frame edge noise estimate.
+    z_range_mm: (lowest, highest) calibrated Z.
+    xy_extent_mm: (X_min, X_max, Y_min, Y_max) of the entries back-projected at the reference Z.
+    """
+
+    coverage: float
+    n_entries: int
+    n_edges: int
+    sensitivity_px_per_mm: tuple[float, float, float]
+    fit_rms_mm: float
+    fit_p95_mm: float
+    n_non_monotonic: int
+    n_insensitive: int
+    max_step_shift_periods: float
+    edge_noise_px: float
+    z_range_mm: tuple[float, float]
+    xy_extent_mm: tuple[float, float, float, float]
+
+
+@dataclass(frozen=True, eq=False)
+class ProjectorCalibration:
+    """The look-up table and its fits (see the module docstring); arrays are (K, S[, ...]) with K edges and S
+    scan lines.
+
+    edges: the edge settings used, with axis and period fixed; tests must be processed with them.
+    z_mm: (J,) calibration heights in increasing order; polarity: (K,) int8 of each edge.
+    lut_t_px: (K, S, J) float32, the table; reference_t_px: (K, S) positions at the reference Z.
+    coefficients: (K, S, D+1); t_centre_px, t_scale_px, t_lo_px, t_hi_px, z_lo_mm, z_hi_mm,
+    sensitivity_px_per_mm, fit_rms_mm: (K, S), NaN where there is no entry.
+    """
+
+    image_shape: tuple[int, int]
+    edges: EdgeSettings
+    reference_z_mm: float
+    z_mm: np.ndarray
+    polarity: np.ndarray
+    lut_t_px: np.ndarray
+    reference_t_px: np.ndarray
+    coefficients: np.ndarray
+    t_centre_px: np.ndarray
+    t_scale_px: np.ndarray
+    t_lo_px: np.ndarray
+    t_hi_px: np.ndarray
+    z_lo_mm: np.ndarray
+    z_hi_mm: np.ndarray
+    sensitivity_px_per_mm: np.ndarray
+    fit_rms_mm: np.ndarray
+    qa: ProjectorQA
+    camera_fingerprint: str
+    provenance: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def axis(self) -> str:
+        return self.edges.axis
+
+    @property
+    def period_px(self) -> float:
+        assert self.edges.period_px is not None  # fixed at calibration
+        return float(self.edges.period_px)
+
+    @property
+    def n_edges(self) -> int:
+        return int(self.lut_t_px.shape[0])
+
+    @property
+    def n_lines(self) -> int:
+        return int(self.lut_t_px.shape[1])
+
+    @property
+    def valid(self) -> np.ndarray:
+        """(K, S) bool: where the table has an entry."""
+        return np.isfinite(self.t_lo_px)
+
+    def z_from_t(self, k: np.ndarray, line: np.ndarray, t_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Z (mm) of edge points, each shape (N,): edge index k, scan line, position t (px).
+
+        Returns z_mm (NaN where not looked up) and status (int8): 0 looked up, 1 outside the calibrated range of
+        that (edge, line) (never extrapolated), 2 no table entry for that (edge, line).
+        """
+        k = np.asarray(k, np.int64)
+        line = np.asarray(line, np.int64)
+        t = np.asarray(t_px, np.float64)
+        z = np.full(len(t), np.nan)
+        status = np.full(len(t), 2, np.int8)
+        known = np.flatnonzero((k >= 0) & (k < self.n_edges) & (line >= 0) & (line < self.n_lines))
+        flat = k[known] * self.n_lines + line[known]
+        t_known = t[known]
+        lo, hi = self.t_lo_px.ravel().take(flat), self.t_hi_px.ravel().take(flat)
+        has_entry = np.isfinite(lo)
+        in_range = has_entry & (t_known >= lo) & (t_known <= hi)
+        status[known] = np.where(in_range, 0, np.where(has_entry, 1, 2))
+        idx, flat = known[in_range], flat[in_range]
+        tau = (t[idx] - self.t_centre_px.ravel().take(flat)) / self.t_scale_px.ravel().take(flat)
+        coefficients = self.coefficients.reshape(-1, self.coefficients.shape[-1])[flat]
+        value = coefficients[:, -1].copy()
+        for i in range(coefficients.shape[1] - 2, -1, -1):
+            value = value * tau + coefficients[:, i]
+        z[idx] = value
+        return z, status
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Building the table
+
+
+def _key(line: np.ndarray, t_px: np.ndarray, stride: float) -> np.ndarray:
+    return line.astype(np.float64) * stride + t_px
+
+
+def match_to_reference(
+    line: np.ndarray,
+    t_px: np.ndarray,
+    polarity: np.ndarray,
+    reference_t_px: np.ndarray,
+    reference_polarity: np.ndarray,
+    *,
+    n_samples: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """For each edge point, the nearest reference edge of the same polarity on the same line.
+
+    line, t_px, polarity: shape (N,) edge points. reference_t_px: (K, S) positions (NaN = none);
+    reference_polarity: (K,). Returns k (N,) (−1 where the line has no reference edge of that polarity) and the
+    signed distance t − reference (N,) in px.
+    """
+    k_out = np.full(len(line), -1, np.int64)
+    distance = np.full(len(line), np.nan)
+    stride = float(n_samples + 1000.0)
+    for sign in (1, -1):
+        ks = np.flatnonzero(reference_polarity == sign)
+        if len(ks) == 0:
+            continue
+        ref = reference_t_px[ks]  # (Ks, S)
+        kk, ss = np.nonzero(np.isfinite(ref))
+        keys = _key(ss, ref[kk, ss], stride)
+        # Runs of increasing keys per edge (tracks keep their order along a line): the stable sort (timsort)
+        # merges them in N log K.
+        order = np.argsort(keys, kind="stable")
+        keys, kk = keys[order], ks[kk[order]]
+        members = np.flatnonzero(polarity == sign)
+        if len(members) == 0 or len(keys) == 0:
+            continue
+        query = _key(line[members], t_px[members].astype(np.float64), stride)
+        pos = np.searchsorted(keys, query)
+        lo = np.clip(pos - 1, 0, len(keys) - 1)
+        hi = np.minimum(pos, len(keys) - 1)
+        nearest = np.where(np.abs(keys[lo] - query) <= np.abs(keys[hi] - query), lo, hi)
+        gap = query - keys[nearest]
+        same_line = np.abs(gap) < 0.5 * stride
+        k_out[members[same_line]] = kk[nearest[same_line]]
+        distance[members[same_line]] = gap[same_line]
+    return k_out, distance
+
+
+def _assign_by_votes(
+    edges: FrameEdges, predicted_t_px: np.ndarray, polarity: np.ndarray
+) -> tuple[np.ndarray, float, float]:
+    """Edge index of every point of a frame from its stripe order and the predicted positions of the table's
+    edges: every point votes for the nearest predicted edge of its polarity, and each component of the frame's
+    order takes the offset most of its points vote for.
+
+    Returns k (N,) (−1 unassigned), the fraction of voting points that agree with their component's offset
+    (a split vote means the stripes moved about half a period: ambiguous), and the median |t − prediction| of
+    the assigned points (px).
+    """
+    order = order_edges(edges)
+    relative = order.crossing_index(edges)
+    component = order.component[edges.chain] if len(edges) else np.zeros(0, np.int64)
+    k_near, distance = match_to_reference(
+        edges.line, edges.t_px, edges.polarity, predicted_t_px, polarity, n_samples=edges.n_samples
+    )
+    votes_ok = (k_near >= 0) & (relative >= 0)
+    k = np.full(len(edges), -1, np.int64)
+    agreeing = 0
+    voting = 0
+    for comp in np.unique(component[votes_ok]):
+        members = votes_ok & (component == comp)
+        offsets, counts = np.unique(k_near[members] - relative[members], return_counts=True)
+        best = int(np.argmax(counts))
+        voting += int(counts.sum())
+        agreeing += int(counts[best])
+        # A component must be carried by a clear majority of its own points.
+        if counts[best] >= 0.6 * counts.sum() and counts[best] >= 10:
+            in_comp = (component == comp) & (relative >= 0)
+            k[in_comp] = relative[in_comp] + offsets[best]
+    agreement = agreeing / voting if voting else 0.0
+    matched = (k >= 0) & (k == k_near)
+    median_distance = float(np.median(np.abs(distance[matched]))) if np.any(matched) else float("nan")
+    return k, agreement, median_distance
+
+
+def _scatter(k: np.ndarray, line: np.ndarray, t_px: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Dense (K, S) array of positions; (k, line) pairs that occur twice in a frame are dropped (NaN)."""
+    out = np.full(shape, np.nan)
+    ok = (k >= 0) & (k < shape[0])
+    flat = k[ok] * shape[1] + line[ok]
+    counts = np.bincount(flat, minlength=shape[0] * shape[1])
+    single = counts[flat] == 1
+    out.ravel()[flat[single]] = t_px[ok][single]
+    return out
+
+
+def build_projector_calibration(
+    frames: Iterable[np.ndarray],
+    z_mm: Sequence[float],
+    camera_model: CameraModel,
+    *,
+    settings: ProjectorSettings | None = None,
+    provenance: dict[str, Any] | None = None,
+    progress: ProgressCallback | None = None,
+    should_cancel: Callable[[], bool] | None = None,
+) -> ProjectorCalibration:
+    """The look-up table of a flat-plate Z-stack (METHOD.md §4).
+
+    frames: the grey frames in recording order (read one at a time); z_mm: the stage Z of each frame, strictly
+    monotonic. camera_model: the camera the frames were taken with (image size check, object-space QA, and a
+    fingerprint so tests can be checked against it).
+
+    Identity: the frame nearest to reference_z_mm is put in stripe order (edges counted k = 0, 1, ... along
+    +t); every further frame, in order of Z away from it, is put in order on its own and its offset found by the
+    majority vote of its points against the positions predicted from the previous two steps. The Z steps must
+    move the edges by less than settings.max_step_fraction of a stripe period (QA: max_step_shift_periods);
+    steps of more than about 0.6 period alias (each edge looks like its neighbour moving the other way, the same
+    for all of them), which no image reveals, so choose the steps for the stripe period and sensitivity. Raises
+    ProjectorCalibrationError when identity cannot be carried (steps too coarse), when the stripes do not move
+    with Z, or when too little of the field gets a table entry; CalibrationMismatchError when the frames are not
+    of the camera's size.
+    """
+    settings = ProjectorSettings() if settings is None else settings
+    z = np.asarray(z_mm, dtype=np.float64)
+    if z.ndim != 1 or len(z) < settings.min_z_samples:
+        raise ProjectorCalibrationError(
+            f"projector calibration needs at least {settings.min_z_samples} Z steps, got {z.size}"
+        )
+    steps = np.diff(z)
+    if not (np.all(steps > 0) or np.all(steps < 0)):
+        raise ValueError("z_mm: expected strictly monotonic stage heights (one per frame)")
+    camera = camera_model.camera
+    expected_shape = (camera.image_height_px, camera.image_width_px)
+    frame_list = frames if isinstance(frames, Sequence) else list(frames)
+    n_frames = len(z)
+    if len(frame_list) != n_frames:
+        raise ValueError(f"z_mm has {n_frames} heights but the recording has {len(frame_list)} frames")
+    sorted_j = np.argsort(z)  # position in Z order → recording index
+    z_sorted = z[sorted_j]
+    j_ref = int(np.argmin(np.abs(z_sorted - settings.reference_z_mm)))
+    visit = [j_ref, *range(j_ref + 1, n_frames), *range(j_ref - 1, -1, -1)]
+    total = n_frames + 1
+
+    def frame_at(j: int) -> np.ndarray:
+        image = np.asarray(frame_list[int(sorted_j[j])])
+        if image.shape[:2] != expected_shape:
+            raise CalibrationMismatchError(
+                f"frame {int(sorted_j[j])} is {image.shape[1]} × {image.shape[0]} px but the camera calibration is "
+                f"for {expected_shape[1]} × {expected_shape[0]} px: use the camera calibration of this camera"
+            )
+        return image
+
+    reference_image = frame_at(j_ref)
+    edge_settings = settings.edges
+    if edge_settings.axis == "auto" or edge_settings.period_px is None:
+        geometry = detect_stripes(reference_image, axis=edge_settings.axis)
+        edge_settings = replace(
+            edge_settings,
+            axis=geometry.axis,
+            period_px=geometry.period_px if edge_settings.period_px is None else edge_settings.period_px,
+        )
+    assert edge_settings.period_px is not None
+    period = float(edge_settings.period_px)
+
+    positions: dict[int, np.ndarray] = {}  # j → (K_cap, S) positions, k shifted by `k_offset`
+    noise: list[float] = []
+    step_shifts: list[float] = []
+    polarity: np.ndarray | None = None
+    n_lines = expected_shape[0] if edge_settings.axis == "rows" else expected_shape[1]
+    for done, j in enumerate(visit):
+        if should_cancel is not None and should_cancel():
+            raise CalibrationCancelled(f"cancelled after {done} of {n_frames} frames")
+        image = reference_image if j == j_ref else frame_at(j)
+        edges = locate_edges(image, edge_settings)
+        noise.append(edges.noise_px)
+        if j == j_ref:
+            order = order_edges(edges)
+            k = order.crossing_index(edges)
+            keep = (k >= 0) & (order.component[edges.chain] == 0)
+            if np.count_nonzero(keep) < 0.5 * len(edges) or len(edges) == 0:
+                raise ProjectorCalibrationError(
+                    f"the stripes of the reference frame (Z = {z_sorted[j]:g} mm) could not be put in order: only "
+                    f"{np.count_nonzero(keep)} of {len(edges)} edge points form one connected stripe pattern"
+                )
+            k = np.where(keep, k, -1)
+            n_k = int(k.max()) + 1
+            polarity = np.zeros(n_k, np.int8)
+            polarity[k[keep]] = edges.polarity[keep]
+            positions[j] = _scatter(k, edges.line.astype(np.int64), edges.t_px.astype(np.float64), (n_k, n_lines))
+        else:
+            assert polarity is not None
+            previous = j - 1 if j > j_ref else j + 1
+            before_previous = previous - 1 if j > j_ref else previous + 1
+            predicted = positions[previous].copy()
+            if before_previous in positions:
+                rate = (positions[previous] - positions[before_previous]) / (
+                    z_sorted[previous] - z_sorted[before_previous]
+                )
+                moved = predicted + rate * (z_sorted[j] - z_sorted[previous])
+                predicted = np.where(np.isfinite(moved), moved, predicted)
+            k, agreement, median_distance = _assign_by_votes(edges, predicted, polarity)
+            shift = median_distance / period if np.isfinite(median_distance) else float("nan")
+            step_shifts.append(shift)
+            if (
+                agreement < 0.9
+                or not shift <= settings.max_step_fraction
+                or np.count_nonzero(k >= 0) < 0.5 * len(edges)
+            ):
+                raise ProjectorCalibrationError(
+                    f"edge identity could not be carried from Z = {z_sorted[previous]:g} mm to Z = {z_sorted[j]:g} mm: "
+                    f"the edges moved {shift:.2f} stripe periods from where they were expected ({agreement:.0%} of "
+                    f"the edge points agree on which edge is which; at most {settings.max_step_fraction:g} periods "
+                    "can be followed safely); record the projector calibration with finer Z steps"
+                )
+            # Edges that came into view outside the reference frame's range get indices beyond it: grow the table.
+            lowest, highest = int(k[k >= 0].min()), int(k.max())
+            if lowest < 0 or highest >= len(polarity):
+                shift = max(0, -lowest)
+                new_n = max(len(polarity), highest + 1) + shift
+                polarity = _grown_polarity(polarity, shift, new_n)
+                positions = {jj: _grown(p, shift, new_n) for jj, p in positions.items()}
+                k = np.where(k >= 0, k + shift, k)
+            fits = (k >= 0) & (polarity[np.maximum(k, 0)] == edges.polarity)
+            k = np.where(fits, k, -1)
+            positions[j] = _scatter(
+                k, edges.line.astype(np.int64), edges.t_px.astype(np.float64), (len(polarity), n_lines)
+            )
+        if progress is not None:
+            progress(done + 1, total, "edges")
+    assert polarity is not None
+    lut = np.stack([positions[j] for j in range(n_frames)], axis=-1).astype(np.float32)
+    calibration = _fit_table(
+        lut,
+        z_sorted,
+        polarity,
+        j_ref=j_ref,
+        settings=settings,
+        edge_settings=edge_settings,
+        image_shape=expected_shape,
+        camera_model=camera_model,
+        noise_px=float(np.nanmedian(noise)) if noise else float("nan"),
+        max_step_shift=float(max(step_shifts, default=0.0)),
+        provenance=dict(provenance or {}),
+    )
+    if progress is not None:
+        progress(total, total, "done")
+    return calibration
+
+
+def _grown(array: np.ndarray, shift: int, n: int) -> np.ndarray:
+    out = np.full((n, array.shape[1]), np.nan)
+    out[shift : shift + array.shape[0]] = array
+    return out
+
+
+def _grown_polarity(polarity: np.ndarray, shift: int, n: int) -> np.ndarray:
+    out = np.zeros(n, np.int8)
+    out[shift : shift + len(polarity)] = polarity
+    # Polarity alternates with k: fill the new edges from the parity of a known one.
+    known = int(np.flatnonzero(out)[0])
+    parity_sign = out[known] * (1 if known % 2 == 0 else -1)
+    ks = np.arange(n)
+    return np.where(out != 0, out, np.where(ks % 2 == 0, parity_sign, -parity_sign)).astype(np.int8)
+
+
+def _longest_valid_run(valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Start and end (exclusive) along the last axis of the longest run of True in each row of `valid`."""
+    n = valid.shape[-1]
+    flat = valid.reshape(-1, n)
+    best_start = np.zeros(len(flat), np.int64)
+    best_len = np.zeros(len(flat), np.int64)
+    run_start = np.zeros(len(flat), np.int64)
+    run_len = np.zeros(len(flat), np.int64)
+    for j in range(n):
+        on = flat[:, j]
+        run_start = np.where(on & (run_len == 0), j, run_start)
+        run_len = np.where(on, run_len + 1, 0)
+        longer = run_len > best_len
+        best_len = np.where(longer, run_len, best_len)
+        best_start = np.where(longer, run_start, best_start)
+    shape = valid.shape[:-1]
+    return best_start.reshape(shape), (best_start + best_len).reshape(shape)
+
+
+@dataclass(frozen=True, eq=False)
+class _BlockFit:
+    enough: np.ndarray
+    valid: np.ndarray
+    sensitivity: np.ndarray
+    monotonic: np.ndarray
+    start: np.ndarray
+    end: np.ndarray
+    t_min: np.ndarray
+    t_max: np.ndarray
+    centre: np.ndarray
+    scale: np.ndarray
+    coefficients: np.ndarray
+    fit_rms: np.ndarray
+
+
+def _fit_block(lut_block: np.ndarray, z_sorted: np.ndarray, settings: ProjectorSettings) -> _BlockFit:
+    """Checks and polynomial fits of a block of table rows, lut_block shape (k, S, J)."""
+    n_j = lut_block.shape[-1]
+    t = lut_block.astype(np.float64)
+    start, end = _longest_valid_run(np.isfinite(t))
+    j_index = np.arange(n_j)
+    in_run = (j_index >= start[..., None]) & (j_index < end[..., None])
+    enough = in_run.sum(axis=-1) >= settings.min_z_samples
+    weights = np.where(in_run & enough[..., None], 1.0, 0.0)
+    t_filled = np.where(weights > 0, t, 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t_min = np.where(weights > 0, t, np.inf).min(axis=-1)
+        t_max = np.where(weights > 0, t, -np.inf).max(axis=-1)
+        n = np.maximum(weights.sum(-1), 1)
+        # Linear fit t = a + b·Z: the sensitivity b (px/mm) and the trend whose reversals are checked.
+        z_mean = (weights * z_sorted).sum(-1) / n
+        t_mean = (weights * t_filled).sum(-1) / n
+        dz = (z_sorted - z_mean[..., None]) * weights
+        sensitivity = (dz * (t_filled - t_mean[..., None])).sum(-1) / (dz * dz).sum(-1)
+    sensitive = enough & (np.abs(sensitivity) >= settings.min_sensitivity_px_per_mm)
+    # Monotonic: no step within the run goes against the trend by more than max_reversal_px.
+    steps = np.diff(t, axis=-1)
+    step_in_run = in_run[..., 1:] & in_run[..., :-1]
+    against = np.where(step_in_run, -np.sign(sensitivity)[..., None] * steps, -np.inf)
+    monotonic = np.nan_to_num(against, nan=-np.inf).max(axis=-1) <= settings.max_reversal_px
+    valid = sensitive & monotonic
+
+    # Z as a polynomial of τ = (t − centre)/scale per entry, by weighted least squares (batched normal equations).
+    with np.errstate(invalid="ignore"):  # inf − inf where a row has no run
+        centre = np.where(valid, 0.5 * (t_min + t_max), 0.0)
+        scale = np.where(valid, np.maximum(0.5 * (t_max - t_min), 1e-3), 1.0)
+    tau = (t_filled - centre[..., None]) / scale[..., None]
+    degree = settings.poly_degree
+    powers = tau[..., None] ** np.arange(degree + 1)  # (k, S, J, D+1)
+    w = np.where(valid[..., None], weights, 0.0)
+    normal = np.einsum("ksj,ksja,ksjb->ksab", w, powers, powers)
+    rhs = np.einsum("ksj,ksja,j->ksa", w, powers, z_sorted)
+    normal[~valid] = np.eye(degree + 1)
+    rhs[~valid] = 0.0
+    coefficients = np.linalg.solve(normal, rhs[..., None])[..., 0]
+    fitted = np.einsum("ksja,ksa->ksj", powers, coefficients)
+    residual = np.where(w > 0, fitted - z_sorted, 0.0)
+    fit_rms = np.sqrt((residual**2).sum(-1) / np.maximum(w.sum(-1), 1))
+    return _BlockFit(
+        enough=enough, valid=valid, sensitivity=sensitivity, monotonic=monotonic, start=start, end=end,
+        t_min=t_min, t_max=t_max, centre=centre, scale=scale, coefficients=coefficients, fit_rms=fit_rms,
+    )  # fmt: skip
+
+
+def _fit_table(
+    lut: np.ndarray,
+    z_sorted: np.ndarray,
+    polarity: np.ndarray,
+    *,
+    j_ref: int,
+    settings: ProjectorSettings,
+    edge_settings: EdgeSettings,
+    image_shape: tuple[int, int],
+    camera_model: CameraModel,
+    noise_px: float,
+    max_step_shift: float,
+    provenance: dict[str, Any],
+) -> ProjectorCalibration:
+    n_k, n_s, n_j = lut.shape
+    # Blocks of a few edges keep the (k, S, J, D+1) temporaries small (tens of MB at 1024 lines).
+    block = max(1, int(2e6 // max(n_s * n_j * (settings.poly_degree + 1), 1)))
+    parts = [_fit_block(lut[k0 : k0 + block], z_sorted, settings) for k0 in range(0, n_k, block)]
+
+    def joined(name: str) -> np.ndarray:
+        return np.concatenate([getattr(part, name) for part in parts], axis=0)
+
+    enough, valid, sensitivity, monotonic = (
+        joined("enough"),
+        joined("valid"),
+        joined("sensitivity"),
+        joined("monotonic"),
+    )
+    start, end, t_min, t_max = joined("start"), joined("end"), joined("t_min"), joined("t_max")
+    centre, scale, coefficients, fit_rms = joined("centre"), joined("scale"), joined("coefficients"), joined("fit_rms")
+    sensitive = enough & (np.abs(sensitivity) >= settings.min_sensitivity_px_per_mm)
+    n_insensitive = int(np.count_nonzero(enough & ~sensitive))
+    n_non_monotonic = int(np.count_nonzero(sensitive & ~monotonic))
+    if np.count_nonzero(enough) and n_insensitive > 0.5 * np.count_nonzero(enough):
+        median = float(np.nanmedian(np.abs(sensitivity[enough])))
+        raise ProjectorCalibrationError(
+            f"the stripe edges hardly move with Z (median {median:.3f} px per mm, below "
+            f"{settings.min_sensitivity_px_per_mm} px/mm): the stripes run along the camera–projector baseline, "
+            "so the table cannot resolve Z; turn the ruling (or the projector) so the stripes cross the baseline"
+        )
+
+    nan = np.nan
+    entry = valid
+    margin_px = settings.range_margin_mm * np.abs(sensitivity)
+    z_lo = np.where(entry, z_sorted[np.minimum(start, n_j - 1)], nan)
+    z_hi = np.where(entry, z_sorted[np.maximum(end - 1, 0)], nan)
+    reference_t = lut[:, :, j_ref].astype(np.float64)
+    seen_at_ref = np.isfinite(reference_t)
+    coverage = np.count_nonzero(entry & seen_at_ref) / max(int(np.count_nonzero(seen_at_ref)), 1)
+    if not np.any(entry):
+        raise ProjectorCalibrationError(
+            f"no (edge, line) got a table entry: every edge needs ≥ {settings.min_z_samples} consecutive Z steps "
+            "with a monotonic, Z-sensitive position"
+        )
+    abs_sens = np.abs(sensitivity[entry])
+    sens_pct = tuple(float(v) for v in np.percentile(abs_sens, [5, 50, 95]))
+    fit_values = fit_rms[entry]
+
+    # Object-space extent of the entries at the reference Z (for the report and the default grid).
+    kk, ss = np.nonzero(entry & seen_at_ref)
+    t_ref = reference_t[kk, ss]
+    q_px = np.column_stack([t_ref, ss] if edge_settings.axis == "rows" else [ss, t_ref])
+    if len(q_px):
+        xy = backproject_to_z(camera_model.camera, q_px, float(z_sorted[j_ref]), inverse=camera_model.inverse)
+        extent = (
+            float(np.nanmin(xy[:, 0])),
+            float(np.nanmax(xy[:, 0])),
+            float(np.nanmin(xy[:, 1])),
+            float(np.nanmax(xy[:, 1])),
+        )
+    else:
+        extent = (nan, nan, nan, nan)
+    qa = ProjectorQA(
+        coverage=float(coverage),
+        n_entries=int(np.count_nonzero(entry)),
+        n_edges=n_k,
+        sensitivity_px_per_mm=sens_pct,  # type: ignore[arg-type]
+        fit_rms_mm=float(np.sqrt(np.mean(fit_values**2))),
+        fit_p95_mm=float(np.percentile(fit_values, 95)),
+        n_non_monotonic=n_non_monotonic,
+        n_insensitive=n_insensitive,
+        max_step_shift_periods=max_step_shift,
+        edge_noise_px=noise_px,
+        z_range_mm=(float(z_sorted[0]), float(z_sorted[-1])),
+        xy_extent_mm=extent,
+    )
+    return ProjectorCalibration(
+        image_shape=image_shape,
+        edges=edge_settings,
+        reference_z_mm=float(z_sorted[j_ref]),
+        z_mm=z_sorted,
+        polarity=polarity,
+        lut_t_px=lut,
+        reference_t_px=np.where(seen_at_ref, reference_t, nan),
+        coefficients=np.where(entry[..., None], coefficients, nan),
+        t_centre_px=np.where(entry, centre, nan),
+        t_scale_px=np.where(entry, scale, nan),
+        t_lo_px=np.where(entry, t_min - margin_px, nan),
+        t_hi_px=np.where(entry, t_max + margin_px, nan),
+        z_lo_mm=z_lo,
+        z_hi_mm=z_hi,
+        sensitivity_px_per_mm=np.where(entry, sensitivity, nan),
+        fit_rms_mm=np.where(entry, fit_rms, nan),
+        qa=qa,
+        camera_fingerprint=camera_fingerprint(camera_model.camera),
+        provenance=provenance,
+    )

@@ -1,0 +1,500 @@
+"""The virtual experiment: stripes rendered through a camera and a pinhole projector onto a deforming plate.
+
+Belongs here: image-space test stripes with known edges, the scene (clamped plate, punch, perforation), the
+pinhole projector, the renderer (supersampled, antialiased stripes, Lambertian shading, blur, uneven
+illumination, 8-bit noise), presets for the paper's two cameras, and writing a whole experiment (camera
+calibration, projector calibration and test recordings plus ground truth) in the recording formats.
+Not here: the camera model (`camera.py`) and the chessboard renderer (`synthetic.py`), which it uses.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Any
+
+import cv2
+import numpy as np
+from scipy import special
+
+from .camera import Camera, backproject_to_z, fit_inverse_model, project_points
+from .synthetic import reference_camera
+
+
+def square_wave_box_mean(x: np.ndarray, width: np.ndarray | float, period: float) -> np.ndarray:
+    """Mean of a 50 % square wave (1 on [0, P/2), 0 on [P/2, P), period P) over [x − w/2, x + w/2].
+
+    The exact box average through the antiderivative, so a sample's value moves continuously with the edge
+    position (no staircase from point sampling). Zero width gives the point value.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    w = np.broadcast_to(np.asarray(width, dtype=np.float64), x.shape)
+    half = 0.5 * period
+
+    def antiderivative(y: np.ndarray) -> np.ndarray:
+        cycles = np.floor(y / period)
+        return cycles * half + np.minimum(y - cycles * period, half)
+
+    point = ((x - np.floor(x / period) * period) < half).astype(np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mean = (antiderivative(x + 0.5 * w) - antiderivative(x - 0.5 * w)) / w
+    return np.where(w > 1e-9, mean, point)
+
+
+def square_wave_blurred(x: np.ndarray, sigma: np.ndarray | float, period: float) -> np.ndarray:
+    """A 50 % square wave (1 on [0, P/2), 0 on [P/2, P), period P) convolved with a Gaussian of width sigma.
+
+    Each sample takes the normal CDF of its signed distance to the nearest edge. The next edge is at least P/4
+    away: for sigma ≤ P/14 (10 px stripes under 0.7 px of blur) what that leaves out is below 2e-4 of the
+    contrast mid-stripe and below 1e-6 within two sigma of an edge, so the edges stay where the wave has them.
+    """
+    u = np.mod(np.asarray(x), period)
+    quarter = 0.25 * period
+    # Nearest edge: 0 (rising) for u < P/4, P/2 (falling) for P/4 ≤ u < 3P/4, P (rising) beyond.
+    signed = np.where(u < quarter, u, np.where(u < 3.0 * quarter, 2.0 * quarter - u, u - 4.0 * quarter))
+    return special.ndtr(signed / sigma)
+
+
+def render_straight_stripes(
+    shape: tuple[int, int],
+    *,
+    period_px: float,
+    angle_deg: float,
+    phase_px: float,
+    rng: np.random.Generator,
+    blur_px: float = 0.7,
+    noise_grey: float = 2.0,
+    dark_grey: float = 40.0,
+    bright_grey: float = 200.0,
+    supersample: int = 4,
+    uneven_illumination: bool = True,
+) -> np.ndarray:
+    """An 8-bit image, shape (H, W), of straight stripes with exactly known edges: test data for edge location.
+
+    The stripe coordinate of pixel (u, v) is x = u·cos θ + v·sin θ − phase_px (θ = angle_deg; 0 = vertical
+    stripes); the image is bright where x mod period_px < period_px / 2, so rising edges (dark → bright along
+    +x) lie at x = m·period_px and falling ones at x = (m + ½)·period_px. Each pixel integrates its
+    supersample² sub-pixels, each the exact box mean of the square wave over its footprint; the optical blur
+    (Gaussian, blur_px) acts at the supersampled level, before pixel integration, as in a camera.
+    """
+    height, width = shape
+    ss = int(supersample)
+    theta = np.deg2rad(angle_deg)
+    normal = np.array([np.cos(theta), np.sin(theta)])
+    grid_v, grid_u = np.mgrid[0 : height * ss, 0 : width * ss].astype(np.float64)
+    grid_u = (grid_u + 0.5) / ss - 0.5
+    grid_v = (grid_v + 0.5) / ss - 0.5
+    x = grid_u * normal[0] + grid_v * normal[1] - phase_px
+    stripes = square_wave_box_mean(x, (abs(normal[0]) + abs(normal[1])) / ss, period_px)
+    if blur_px > 0:
+        stripes = cv2.GaussianBlur(stripes, (0, 0), blur_px * ss)
+    illumination = 1.0
+    if uneven_illumination:
+        illumination = 0.75 + 0.25 * np.cos(2.0 * (grid_u / width - 0.3)) * np.cos(grid_v / height - 0.6)
+    image = illumination * (dark_grey + (bright_grey - dark_grey) * stripes)
+    image = image.reshape(height, ss, width, ss).mean(axis=(1, 3))
+    image += rng.normal(0.0, noise_grey, shape)
+    return np.clip(np.round(image), 0, 255).astype(np.uint8)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# The scene: a clamped plate pushed at its centre, a pinhole projector, a camera.
+
+
+@dataclass(frozen=True)
+class Projector:
+    """A pinhole slide projector with a binary stripe slide (a Ronchi ruling), possibly with lens distortion.
+
+    Slide coordinates (x_s, y_s) in mm: x_s = f·x/z, y_s = f·y/z of a point in the projector frame
+    (points_proj = rotation · (points_obj − centre_obj_mm)), then radial distortion x_s·(1 + k1·r²). The slide
+    is bright where (x_s − phase_mm) mod period_mm < period_mm / 2, so the stripes are lines of constant x_s and
+    the light sheets are planes through the projector centre.
+    """
+
+    centre_obj_mm: tuple[float, float, float]
+    rotation: tuple[tuple[float, float, float], ...]
+    f_mm: float
+    period_mm: float
+    phase_mm: float = 0.0
+    k1_per_mm2: float = 0.0
+
+    def slide_mm(self, x_mm: np.ndarray, y_mm: np.ndarray, z_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Slide coordinates (x_s, y_s) in mm of object points given by their coordinate arrays."""
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = self.rotation
+        dx, dy, dz = x_mm - self.centre_obj_mm[0], y_mm - self.centre_obj_mm[1], z_mm - self.centre_obj_mm[2]
+        scale = self.f_mm / (r20 * dx + r21 * dy + r22 * dz)
+        xs = (r00 * dx + r01 * dy + r02 * dz) * scale
+        ys = (r10 * dx + r11 * dy + r12 * dz) * scale
+        if self.k1_per_mm2:
+            factor = 1.0 + self.k1_per_mm2 * (xs * xs + ys * ys)
+            xs, ys = xs * factor, ys * factor
+        return xs, ys
+
+
+def projector_looking_at(
+    centre_obj_mm: tuple[float, float, float],
+    target_obj_mm: tuple[float, float, float],
+    *,
+    stripe_normal_obj: tuple[float, float, float],
+    f_mm: float,
+    period_mm: float,
+    phase_mm: float = 0.0,
+    k1_per_mm2: float = 0.0,
+) -> Projector:
+    """A projector at `centre_obj_mm` aimed at `target_obj_mm`, its slide x axis as close as possible to
+    `stripe_normal_obj` (so the stripes on a plate facing it run across that direction)."""
+    centre = np.asarray(centre_obj_mm, dtype=np.float64)
+    axis = np.asarray(target_obj_mm, dtype=np.float64) - centre
+    axis /= np.linalg.norm(axis)
+    x_axis = np.asarray(stripe_normal_obj, dtype=np.float64)
+    x_axis = x_axis - axis * (x_axis @ axis)
+    x_axis /= np.linalg.norm(x_axis)
+    y_axis = np.cross(axis, x_axis)
+    rotation = tuple((float(row[0]), float(row[1]), float(row[2])) for row in (x_axis, y_axis, axis))
+    return Projector(
+        centre_obj_mm=(float(centre[0]), float(centre[1]), float(centre[2])),
+        rotation=rotation,
+        f_mm=f_mm,
+        period_mm=period_mm,
+        phase_mm=phase_mm,
+        k1_per_mm2=k1_per_mm2,
+    )
+
+
+@dataclass(frozen=True)
+class PlateScene:
+    """The test rig as the camera sees it: a plate clamped over a circle, a dark clamp ring, dark background.
+
+    The plate deflects toward the camera (+Z) with a smoothed membrane profile
+    w(r) = w0 · ln(ρ_R/ρ) / ln(ρ_R/b), ρ = √(r² + b²), ρ_R = √(R² + b²), b the punch radius, r from the punch
+    axis, R the clamp radius: flat-topped under the punch, zero at the clamp, logarithmic between (the shape of a
+    membrane under a central load). After perforation a hole of radius hole_radius_mm opens on the punch axis.
+    """
+
+    centre_xy_mm: tuple[float, float] = (8.0, -5.0)
+    clamp_radius_mm: float = 250.0
+    clamp_outer_radius_mm: float = 330.0
+    punch_radius_mm: float = 10.0
+    plate_albedo: float = 0.85
+    clamp_albedo: float = 0.06
+    background_albedo: float = 0.02
+    texture_amplitude: float = 0.02
+
+    def deflection_mm(self, x_mm: np.ndarray, y_mm: np.ndarray, w0_mm: float) -> tuple[np.ndarray, ...]:
+        """w and its slopes ∂w/∂X, ∂w/∂Y at object points (zero outside the clamp circle)."""
+        dx = x_mm - self.centre_xy_mm[0]
+        dy = y_mm - self.centre_xy_mm[1]
+        r2 = dx * dx + dy * dy
+        b2 = self.punch_radius_mm**2
+        rho_r2 = self.clamp_radius_mm**2 + b2
+        scale = w0_mm / np.log(np.sqrt(rho_r2 / b2))
+        inside = r2 < self.clamp_radius_mm**2
+        w = np.where(inside, scale * 0.5 * np.log(rho_r2 / (r2 + b2)), 0.0)
+        dw_dr2 = np.where(inside, -0.5 * scale / (r2 + b2), 0.0)
+        return w, 2.0 * dx * dw_dr2, 2.0 * dy * dw_dr2
+
+    def radius_mm(self, x_mm: np.ndarray, y_mm: np.ndarray) -> np.ndarray:
+        return np.hypot(x_mm - self.centre_xy_mm[0], y_mm - self.centre_xy_mm[1])
+
+
+@dataclass(frozen=True)
+class PlateState:
+    """One instant of the test: central deflection w0 and the radius of the hole (0 before perforation)."""
+
+    w0_mm: float
+    hole_radius_mm: float = 0.0
+
+
+@dataclass(frozen=True)
+class Imaging:
+    """Grey levels and optics of the rendered frames (8-bit output)."""
+
+    supersample: int = 2
+    blur_px: float = 0.7
+    gain_grey: float = 230.0
+    dark_stripe_fraction: float = 0.15
+    ambient_grey: float = 6.0
+    vignetting: float = 0.25
+    noise_grey: float = 2.0
+
+
+@dataclass(frozen=True)
+class Preset:
+    """A whole virtual set-up: camera, projector, scene and imaging."""
+
+    name: str
+    camera: Camera
+    projector: Projector
+    scene: PlateScene
+    imaging: Imaging
+    max_deflection_mm: float = 60.0
+    calibration_z_mm: tuple[float, ...] = tuple(np.arange(0.0, 80.0 + 1e-9, 2.0))
+
+
+class FringeRenderer:
+    """Renders the stripes of a preset's projector on the plate through its camera.
+
+    For every sub-pixel (supersample² per pixel) the camera ray is found once (X, Y at Z = 0 and the ray's slope
+    dX/dZ, dY/dZ); each frame then intersects the rays with the plate surface (Newton on Z − w(X(Z), Y(Z))),
+    projects the surface points into the projector, and takes the slide's value there, box-averaged over the
+    sub-pixel's footprint on the slide so that it moves continuously with the edge. Lambertian shading,
+    projector vignetting and 1/d² fall-off make the illumination uneven; the optical blur acts on the supersampled
+    image before pixel integration; then noise and rounding to 8 bits.
+    """
+
+    _BLOCK_ROWS = 64
+
+    def __init__(self, preset: Preset) -> None:
+        self.preset = preset
+        camera = preset.camera
+        ss = preset.imaging.supersample
+        height, width = camera.image_height_px * ss, camera.image_width_px * ss
+        inverse = fit_inverse_model(camera)
+        sub_u = (np.arange(width) + 0.5) / ss - 0.5
+        self._x0 = np.empty((height, width), np.float32)
+        self._y0 = np.empty((height, width), np.float32)
+        self._sx = np.empty((height, width), np.float32)
+        self._sy = np.empty((height, width), np.float32)
+        for start in range(0, height, 256):
+            rows = np.arange(start, min(start + 256, height))
+            grid_u, grid_v = np.meshgrid(sub_u, (rows + 0.5) / ss - 0.5)
+            q_px = np.column_stack([grid_u.ravel(), grid_v.ravel()])
+            at_0 = backproject_to_z(camera, q_px, 0.0, inverse=inverse)
+            at_100 = backproject_to_z(camera, q_px, 100.0, inverse=inverse)
+            shape = (len(rows), width)
+            self._x0[rows] = at_0[:, 0].reshape(shape)
+            self._y0[rows] = at_0[:, 1].reshape(shape)
+            self._sx[rows] = ((at_100[:, 0] - at_0[:, 0]) / 100.0).reshape(shape)
+            self._sy[rows] = ((at_100[:, 1] - at_0[:, 1]) / 100.0).reshape(shape)
+        centre = np.asarray(preset.projector.centre_obj_mm)
+        self._nominal_distance_mm = float(np.linalg.norm(centre - np.r_[preset.scene.centre_xy_mm, 0.0]))
+
+    def render_flat(self, z_mm: float, *, rng: np.random.Generator) -> np.ndarray:
+        """A projector-calibration frame: a flat matte plate filling the view at height z_mm."""
+        return self._render(rng=rng, flat_z_mm=float(z_mm), state=None)
+
+    def render_test(self, state: PlateState, *, rng: np.random.Generator) -> np.ndarray:
+        """A test frame: the clamped plate deflected to state.w0_mm, with its hole if perforated."""
+        return self._render(rng=rng, flat_z_mm=None, state=state)
+
+    def _render(self, *, rng: np.random.Generator, flat_z_mm: float | None, state: PlateState | None) -> np.ndarray:
+        imaging = self.preset.imaging
+        ss = imaging.supersample
+        reflected: np.ndarray = np.empty(self._x0.shape, np.float32)
+        pattern: np.ndarray = np.empty(self._x0.shape, np.float32)
+        step = self._BLOCK_ROWS * ss
+        for start in range(0, reflected.shape[0], step):
+            rows = slice(start, min(start + step, reflected.shape[0]))
+            reflected[rows], pattern[rows] = self._radiance_block(rows, flat_z_mm=flat_z_mm, state=state)
+        # The stripes come blurred already; the optics blur the rest of the scene (the clamp ring, the hole)
+        # here. Blurring the product would be exact; the two factors vary on very different scales, so this
+        # differs only within a blur width of the clamp and the hole, which no measurement uses.
+        if imaging.blur_px > 0:
+            reflected = cv2.GaussianBlur(reflected, (0, 0), imaging.blur_px * ss, borderType=cv2.BORDER_REPLICATE)
+        grey = imaging.ambient_grey + imaging.gain_grey * reflected * pattern
+        camera = self.preset.camera
+        image = grey.reshape(camera.image_height_px, ss, camera.image_width_px, ss).mean(axis=(1, 3))
+        image = image + rng.normal(0.0, imaging.noise_grey, image.shape)
+        return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+
+    def surface_block(
+        self, rows: slice, *, flat_z_mm: float | None, state: PlateState | None
+    ) -> tuple[np.ndarray, ...]:
+        """Where the sub-pixel rays of `rows` meet the surface: X, Y, Z, ∂w/∂X, ∂w/∂Y (float32 arrays)."""
+        x0, y0, sx, sy = self._x0[rows], self._y0[rows], self._sx[rows], self._sy[rows]
+        if flat_z_mm is not None:
+            z = np.full_like(x0, flat_z_mm)
+            zero = np.zeros_like(x0)
+            return x0 + sx * z, y0 + sy * z, z, zero, zero
+        assert state is not None
+        scene = self.preset.scene
+        # Only rays that pass within the clamp circle below the highest point can meet the deflected plate;
+        # elsewhere the surface is the plane Z = 0 (the clamp ring and what lies beyond).
+        reach = max(state.w0_mm, 0.0) * float(max(np.abs(sx).max(), np.abs(sy).max()))
+        candidates = np.flatnonzero(scene.radius_mm(x0, y0).ravel() < scene.clamp_radius_mm + reach + 1.0)
+        x0c, y0c = x0.ravel()[candidates], y0.ravel()[candidates]
+        sxc, syc = sx.ravel()[candidates], sy.ravel()[candidates]
+        zc, wx, wy = scene.deflection_mm(x0c, y0c, state.w0_mm)
+        for _ in range(8):
+            w, wx, wy = scene.deflection_mm(x0c + sxc * zc, y0c + syc * zc, state.w0_mm)
+            residual = zc - w
+            zc = zc - residual / (1.0 - wx * sxc - wy * syc)
+            if float(np.max(np.abs(residual), initial=0.0)) < 1e-4:
+                break
+        z = np.zeros(x0.size, np.float32)
+        slope_x = np.zeros(x0.size, np.float32)
+        slope_y = np.zeros(x0.size, np.float32)
+        # The slopes of the last iteration are those at the final point to within 1e-4 mm of Z.
+        z[candidates], slope_x[candidates], slope_y[candidates] = zc, wx, wy
+        shape = x0.shape
+        z_mm = z.reshape(shape)
+        return x0 + sx * z_mm, y0 + sy * z_mm, z_mm, slope_x.reshape(shape), slope_y.reshape(shape)
+
+    def _radiance_block(
+        self, rows: slice, *, flat_z_mm: float | None, state: PlateState | None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Reflectance × illumination, and the projected pattern (blurred), of the sub-pixels of `rows`."""
+        preset = self.preset
+        scene, projector, imaging = preset.scene, preset.projector, preset.imaging
+        x, y, z, wx, wy = self.surface_block(rows, flat_z_mm=flat_z_mm, state=state)
+        xs, ys = projector.slide_mm(x, y, z)
+        # The optical blur (Gaussian, blur_px) and the sub-pixel's own box (width 1/ss px, variance 1/(12 ss²))
+        # act on the stripes through the local scale of the slide: x_s changes by |∇x_s| per px. A Gaussian of
+        # the combined width is exact for the blur and a close, symmetric stand-in for the box, so the edges stay
+        # where they are; it needs no fine sampling, and the supersampling then integrates the pixel.
+        ss = imaging.supersample
+        slide_per_px = ss * np.hypot(np.gradient(xs, axis=0), np.gradient(xs, axis=1))
+        sigma = slide_per_px * np.sqrt(imaging.blur_px**2 + 1.0 / (12.0 * ss * ss))
+        stripes = square_wave_blurred(xs - projector.phase_mm, np.maximum(sigma, 1e-6), projector.period_mm)
+        lx, ly, lz = (projector.centre_obj_mm[0] - x, projector.centre_obj_mm[1] - y, projector.centre_obj_mm[2] - z)
+        distance2 = lx * lx + ly * ly + lz * lz
+        cos_incidence = (lz - wx * lx - wy * ly) / np.sqrt(distance2 * (1.0 + wx * wx + wy * wy))
+        vignette = 1.0 - imaging.vignetting * (xs * xs + ys * ys) / (0.2 * projector.f_mm) ** 2
+        falloff = self._nominal_distance_mm**2 / distance2
+        if state is None:
+            albedo = scene.plate_albedo * (1.0 + scene.texture_amplitude * np.sin(x / 29.0) * np.cos(y / 41.0))
+        else:
+            r = scene.radius_mm(x, y)
+            texture = 1.0 + scene.texture_amplitude * np.sin(x / 37.0 + 1.0) * np.sin(y / 53.0)
+            albedo = np.where(r < scene.clamp_radius_mm, scene.plate_albedo * texture, scene.clamp_albedo)
+            albedo = np.where(r < scene.clamp_outer_radius_mm, albedo, scene.background_albedo)
+            albedo = np.where(r < state.hole_radius_mm, scene.background_albedo, albedo)
+        light = np.maximum(cos_incidence, 0.0) * np.maximum(vignette, 0.0) * falloff
+        pattern = imaging.dark_stripe_fraction + (1.0 - imaging.dark_stripe_fraction) * stripes
+        return (albedo * light).astype(np.float32), pattern.astype(np.float32)
+
+
+PRESETS = ("kodak", "phantom")
+# Stripe period in the image near the plate centre, as in METHOD.md §7 ("stripes ~10 px per period").
+TARGET_PERIOD_PX = 10.0
+# The paper's projector: an 85 mm Kodak Retinar lens about 2 m from the plate.
+PROJECTOR_F_MM = 85.0
+PROJECTOR_DISTANCE_MM = 2000.0
+
+
+def _stripe_period_for(camera: Camera, projector: Projector, scene: PlateScene, scan_axis: str) -> float:
+    """Slide period (mm) that gives TARGET_PERIOD_PX along the scan axis at the image point of the plate centre."""
+    centre = np.array([[scene.centre_xy_mm[0], scene.centre_xy_mm[1], 0.0]])
+    q0 = project_points(camera, centre)[0]
+    step = np.array([1.0, 0.0]) if scan_axis == "rows" else np.array([0.0, 1.0])
+    points = backproject_to_z(camera, np.array([q0 - step, q0 + step]), 0.0)
+    xs, _ = projector.slide_mm(points[:, 0], points[:, 1], points[:, 2])
+    return float(TARGET_PERIOD_PX * abs(xs[1] - xs[0]) / 2.0)
+
+
+def preset(name: str, *, imaging: Imaging | None = None) -> Preset:
+    """The virtual set-up of one of the paper's cameras, about 2 m from the plate.
+
+    "kodak": 512 × 480 px (the Kodak MotionCorder's size), stripes roughly vertical in the image, the projector
+    30° off the plate normal on the −X side (edges move ~0.6 px per mm of Z). "phantom": 1024 × 1024 px (the
+    Phantom v5.0's size), stripes roughly horizontal, the projector 15° off the normal on the +Y side, opposite the
+    camera's 27° tilt (edges move ~1.2 px per mm of Z, so calibration steps must stay at about 2 mm). Both use
+    the paper's reference cameras (Table 1 distortion) with a shorter focal length so the whole Ø500 mm plate
+    and part of the clamp are in view.
+    """
+    scene = PlateScene()
+    target = (scene.centre_xy_mm[0], scene.centre_xy_mm[1], 0.0)
+    if name == "kodak":
+        camera = replace(reference_camera("512x480"), f_mm=17.0)
+        angle, direction, normal, scan_axis = np.deg2rad(30.0), np.array([-1.0, 0.0]), (1.0, 0.0, 0.0), "rows"
+    elif name == "phantom":
+        camera = replace(reference_camera("1024x1024"), f_mm=16.0)
+        angle, direction, normal, scan_axis = np.deg2rad(15.0), np.array([0.0, 1.0]), (0.0, 1.0, 0.0), "cols"
+    else:
+        raise ValueError(f"preset: expected one of {PRESETS}, got {name!r}")
+    offset = PROJECTOR_DISTANCE_MM * np.sin(angle) * direction
+    centre = (target[0] + offset[0], target[1] + offset[1], PROJECTOR_DISTANCE_MM * np.cos(angle))
+    provisional = projector_looking_at(centre, target, stripe_normal_obj=normal, f_mm=PROJECTOR_F_MM, period_mm=1.0)
+    period_mm = _stripe_period_for(camera, provisional, scene, scan_axis)
+    projector = replace(provisional, period_mm=period_mm, phase_mm=0.3 * period_mm, k1_per_mm2=5e-5)
+    return Preset(name=name, camera=camera, projector=projector, scene=scene, imaging=imaging or Imaging())
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# The whole virtual experiment
+
+
+@dataclass(frozen=True, eq=False)
+class PunchTimeline:
+    """What happens in each frame of the virtual test, and the log it writes (frames.csv).
+
+    states: (n,) plate states; time_s, punch_displacement_mm, force_kN: (n,); perforation_frame: the first frame
+    with a hole.
+    """
+
+    states: tuple[PlateState, ...]
+    time_s: np.ndarray
+    punch_displacement_mm: np.ndarray
+    force_kN: np.ndarray
+    perforation_frame: int
+
+
+def punch_timeline(
+    n_frames: int = 40,
+    *,
+    max_deflection_mm: float = 60.0,
+    punch_radius_mm: float = 10.0,
+    perforation_fraction: float = 0.75,
+    frame_interval_s: float = 0.5,
+) -> PunchTimeline:
+    """A quasi-static punch test in n_frames: flat in frame 0, the centre deflected to max_deflection_mm at the
+    frame perforation_fraction of the way through, then a hole opening from half to 1.2 times the punch radius.
+
+    The deflection grows as (t/t_peak)^1.25: slowly at first, as the punch beds in, so even a short recording
+    moves the edges little from frame to frame at the start, where the tracking has no motion to predict from.
+    """
+    if n_frames < 4:
+        raise ValueError(f"n_frames: expected ≥ 4, got {n_frames}")
+    peak = max(1, int(round(perforation_fraction * (n_frames - 1))))
+    if peak >= n_frames - 1:
+        peak = n_frames - 2
+    states = []
+    for i in range(n_frames):
+        if i <= peak:
+            states.append(PlateState(max_deflection_mm * (i / peak) ** 1.25))
+        else:
+            progress = (i - peak) / max(n_frames - 1 - peak, 1)
+            radius = punch_radius_mm * (0.5 + 0.7 * progress)
+            states.append(PlateState(max_deflection_mm * (1.0 + 0.02 * progress), hole_radius_mm=radius))
+    w0 = np.array([s.w0_mm for s in states])
+    index = np.arange(n_frames)
+    # The punch indents the plate a little (2 % of the deflection), and after perforation pushes on through.
+    punch = np.where(index <= peak, 1.02 * w0, 1.02 * max_deflection_mm + 3.0 * (index - peak))
+    force = np.where(index <= peak, 120.0 * (w0 / max_deflection_mm) ** 1.5, 120.0 * 0.25 ** (index - peak))
+    return PunchTimeline(
+        states=tuple(states),
+        time_s=index * frame_interval_s,
+        punch_displacement_mm=punch,
+        force_kN=force,
+        perforation_frame=peak + 1,
+    )
+
+
+def true_deflection_mm(scene: PlateScene, state: PlateState, x_mm: np.ndarray, y_mm: np.ndarray) -> np.ndarray:
+    """The true w at object points (NaN inside the hole)."""
+    w, _, _ = scene.deflection_mm(np.asarray(x_mm, np.float64), np.asarray(y_mm, np.float64), state.w0_mm)
+    return np.where(scene.radius_mm(x_mm, y_mm) < state.hole_radius_mm, np.nan, w)
+
+
+def true_camera_calibration(camera: Camera) -> Any:
+    """A camera calibration document object for the exact camera (for ground truth and demos).
+
+    Made by the calibration solver on noise-free corners of a 3-D grid, then pinned to the exact parameters, so
+    it carries every field a calibration file has.
+    """
+    from .calibration import CornerView, calibrate_from_views
+
+    grid_x, grid_y = np.meshgrid(np.linspace(-200, 200, 9), np.linspace(-160, 160, 7))
+    views = []
+    for z in (-20.0, 40.0, 100.0):
+        points = np.column_stack([grid_x.ravel(), grid_y.ravel(), np.full(grid_x.size, z)])
+        views.append(CornerView(f"z={z:g}", points, project_points(camera, points), z))
+    calibration = calibrate_from_views(
+        views,
+        image_size_px=(camera.image_width_px, camera.image_height_px),
+        mode="zstack",
+        du_px_per_mm=camera.du_px_per_mm,
+        dv_px_per_mm=camera.dv_px_per_mm,
+        scale_on=camera.scale_on,
+        provenance={"input": "virtual experiment (exact camera)"},
+    )
+    return replace(calibration, camera=camera, inverse=fit_inverse_model(camera))

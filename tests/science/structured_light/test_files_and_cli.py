@@ -1,0 +1,196 @@
+"""Exports read back to the same numbers; frames.csv; the virtual experiment on disk; the CLI commands."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import meshio
+import numpy as np
+import pytest
+from scipy.io import loadmat
+
+from fringelab.commands import topography as commands
+from fringelab.formats.camera import read_camera_json, write_camera_json
+from fringelab.formats.recordings import open_recording, z_csv_text
+from fringelab.formats.topography import (
+    TopographyResult,
+    export_result,
+    read_frames_csv,
+    read_points_csv,
+    read_pvd,
+    write_recording,
+)
+from fringelab.pipelines.simulation import simulate_experiment
+from fringelab.pipelines.topography import topography_recording
+from fringelab.science.fields import line_profile
+from fringelab.science.simulate import true_camera_calibration
+
+from .conftest import RenderedExperiment, recorded_test
+
+
+@pytest.fixture(scope="module")
+def result_path(kodak: RenderedExperiment, tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("result") / "result.h5"
+    topography_recording(recorded_test(kodak, 6), kodak.camera, kodak.projector, out_path=path)
+    return path
+
+
+def test_points_csv_round_trip(result_path: Path, tmp_path: Path) -> None:
+    rows = read_points_csv(export_result(result_path, "points-csv", tmp_path / "points.csv"))
+    assert (tmp_path / "points.csv").read_text().startswith("frame,x_mm,y_mm,z_mm\n")
+    with TopographyResult(result_path) as result:
+        expected = np.vstack(
+            [
+                np.column_stack([np.full(len(result.points(i)), f), result.points(i)])
+                for i, f in enumerate(result.frames)
+            ]
+        )
+    # Written with 4 decimals (0.1 µm), from float32 storage.
+    np.testing.assert_allclose(rows, expected, atol=6e-5)
+
+
+def test_grid_npz_round_trip(result_path: Path, tmp_path: Path) -> None:
+    data = np.load(export_result(result_path, "grid-npz", tmp_path / "grid.npz"))
+    with TopographyResult(result_path) as result:
+        np.testing.assert_array_equal(data["x_mm"], result.grid.x_mm)
+        np.testing.assert_array_equal(data["y_mm"], result.grid.y_mm)
+        np.testing.assert_array_equal(data["frames"], result.frames)
+        assert data["z_mm"].shape == (result.n_frames, *result.grid.shape)
+        for i in range(result.n_frames):
+            np.testing.assert_array_equal(data["z_mm"][i], result.z_grid(i).astype(np.float32))
+        assert float(data["z_flat_mm"]) == result.z_flat_mm
+
+
+def test_mat_round_trip(result_path: Path, tmp_path: Path) -> None:
+    data = loadmat(export_result(result_path, "mat", tmp_path / "result.mat"))
+    with TopographyResult(result_path) as result:
+        np.testing.assert_array_equal(data["x_mm"].ravel(), result.grid.x_mm)
+        np.testing.assert_array_equal(data["frames"].ravel(), result.frames)
+        np.testing.assert_array_equal(data["force_kN"].ravel(), result.column("frames/force_kN"))
+        np.testing.assert_array_equal(data["peak_w_mm"].ravel(), result.column("peak/w_mm"))
+        for i in range(result.n_frames):
+            np.testing.assert_array_equal(data["z_mm"][i], result.z_grid(i))
+        assert len(data["points"]) == int(result.offsets[-1])
+        np.testing.assert_allclose(data["points"][: len(result.points(0)), 1:], result.points(0))
+
+
+def test_vtk_time_series_round_trip(result_path: Path, tmp_path: Path) -> None:
+    collection = read_pvd(export_result(result_path, "vtk", tmp_path / "result.pvd"))
+    with TopographyResult(result_path) as result:
+        assert [time for time, _ in collection] == list(result.column("frames/time_s"))
+        gx, gy = np.meshgrid(result.grid.x_mm, result.grid.y_mm)
+        for i, (_, path) in enumerate(collection):
+            mesh = meshio.read(path)
+            z = result.z_grid(i)
+            # Every point of the surface is a grid node with data, at its height.
+            iy = np.round((mesh.points[:, 1] - result.grid.y_mm[0]) / result.grid.step_mm).astype(int)
+            ix = np.round((mesh.points[:, 0] - result.grid.x_mm[0]) / result.grid.step_mm).astype(int)
+            np.testing.assert_allclose(mesh.points[:, 0], gx[iy, ix])
+            np.testing.assert_allclose(mesh.points[:, 2], z[iy, ix])
+            np.testing.assert_allclose(mesh.point_data["w_mm"], z[iy, ix] - result.z_flat_mm)
+            assert len(mesh.get_cells_type("quad")) > 0.9 * np.count_nonzero(np.isfinite(z))
+
+
+def test_profile_csv_round_trip(result_path: Path, tmp_path: Path) -> None:
+    line = (-200.0, -5.0, 200.0, 40.0)
+    rows = np.loadtxt(
+        export_result(result_path, "profile-csv", tmp_path / "p.csv", line=line), delimiter=",", skiprows=1
+    )
+    with TopographyResult(result_path) as result:
+        for i, frame in enumerate(result.frames):
+            block = rows[rows[:, 0] == frame]
+            profile = line_profile(result.z_grid(i), result.grid, line[:2], line[2:])
+            np.testing.assert_allclose(block[:, 2], profile.s_mm, atol=1e-4)
+            np.testing.assert_allclose(block[:, 5], profile.values, atol=1e-4)
+            np.testing.assert_allclose(block[:, 6], profile.values - result.z_flat_mm, atol=1e-4)
+    with pytest.raises(ValueError, match="only used by the profile-csv format"):
+        export_result(result_path, "mat", tmp_path / "x.mat", line=line)
+    with pytest.raises(ValueError, match="format: expected one of"):
+        export_result(result_path, "xlsx", tmp_path / "x.xlsx")
+
+
+def test_frames_csv_errors_name_the_line() -> None:
+    table = read_frames_csv("frame,time_s,force_kN\n0,0.0,1.5\n1,0.5,\n")
+    np.testing.assert_array_equal(table.frame, [0, 1])
+    assert np.isnan(table.force_kN[1]) and np.all(np.isnan(table.punch_displacement_mm))
+    with pytest.raises(ValueError, match="line 3: time_s must be a number"):
+        read_frames_csv("frame,time_s\n0,0\n1,abc\n")
+    with pytest.raises(ValueError, match="line 3: frame 0 appears twice"):
+        read_frames_csv("frame,time_s\n0,0\n0,1\n")
+    with pytest.raises(ValueError, match="unknown columns"):
+        read_frames_csv("frame,speed\n0,1\n")
+
+
+def test_virtual_experiment_on_disk(tmp_path: Path) -> None:
+    experiment = simulate_experiment(
+        tmp_path / "exp", "kodak", n_test_frames=4, calibration_z_mm=[0.0, 2.0, 4.0], camera_z_mm=(-20.0, 40.0, 100.0),
+        as_zip=True,
+    )  # fmt: skip
+    camera = open_recording(experiment.camera_calibration)
+    projector = open_recording(experiment.projector_calibration)
+    test = open_recording(experiment.test)
+    assert (len(camera), len(projector), len(test)) == (3, 3, 4)
+    assert test[0].shape == (480, 512) and test[0].dtype == np.uint8
+    assert json.loads(camera.sidecar_text("board.json")).keys() == {"cols", "rows", "square_mm"}
+    assert projector.sidecar_text("z.csv") == z_csv_text([0.0, 2.0, 4.0])
+    log = read_frames_csv(test.sidecar_text("frames.csv"))
+    assert log.force_kN[0] == 0.0 and log.time_s[-1] > 0
+    truth = json.loads(experiment.truth_json.read_text())
+    assert truth["preset"] == "kodak" and len(truth["frames"]) == 4 and truth["perforation_frame"] == 3
+    assert read_camera_json(experiment.camera_json).camera.image_width_px == 512
+
+
+def _run(*argv: str) -> int:
+    parser = argparse.ArgumentParser(prog="fringelab")
+    commands.register(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    return int(args.handler(args))
+
+
+def test_cli_calibrate_topography_export(kodak: RenderedExperiment, tmp_path: Path, capsys) -> None:
+    camera_json = write_camera_json(true_camera_calibration(kodak.preset.camera), tmp_path / "camera.json")
+    calibration = write_recording(
+        tmp_path / "projector_calibration", kodak.calibration_frames[:12],
+        sidecars={"z.csv": z_csv_text(kodak.calibration_z_mm[:12])},
+    )  # fmt: skip
+    source = recorded_test(kodak, 6)
+    test = write_recording(tmp_path / "test.zip", source.frames, sidecars=source.sidecars, as_zip=True)
+    assert (
+        _run("calibrate-projector", str(calibration), "--camera", str(camera_json), "-o", str(tmp_path / "p.h5")) == 0
+    )
+    assert "coverage" in capsys.readouterr().out
+    argv = ["topography", str(test), "--camera", str(camera_json), "--projector", str(tmp_path / "p.h5")]
+    assert _run(*argv, "-o", str(tmp_path / "r.h5"), "--frames", "2:5") == 0
+    assert "frames 2–4" in capsys.readouterr().out
+    with TopographyResult(tmp_path / "r.h5") as result:
+        np.testing.assert_array_equal(result.frames, [2, 3, 4])
+    for fmt, name in (("points-csv", "p.csv"), ("grid-npz", "g.npz"), ("mat", "r.mat"), ("vtk", "r.pvd")):
+        assert _run("export", str(tmp_path / "r.h5"), "--format", fmt, "-o", str(tmp_path / name)) == 0
+    # A line starting at a negative X is given with '=' (argparse reads "-100,..." as an option otherwise).
+    assert _run("export", str(tmp_path / "r.h5"), "--format", "profile-csv", "-o", str(tmp_path / "l.csv"),
+                "--line=-100,0,100,0") == 0  # fmt: skip
+    # Failures a user must act on come back as exit code 2 with the reason.
+    other = write_camera_json(true_camera_calibration(kodak.preset.camera.__class__(
+        **{**kodak.preset.camera.__dict__, "f_mm": 17.5})), tmp_path / "other.json")  # fmt: skip
+    capsys.readouterr()
+    assert _run(*argv[:3], str(other), *argv[4:], "-o", str(tmp_path / "x.h5")) == 2
+    assert "made with another camera calibration" in capsys.readouterr().err
+    assert not (tmp_path / "x.h5").exists()
+
+
+@pytest.mark.slow
+def test_cli_simulate_then_measure(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "exp"
+    assert _run("simulate", str(out), "--preset", "kodak") == 0
+    printed = capsys.readouterr().out
+    assert "fringelab calibrate-projector" in printed
+    camera = out / "truth" / "camera.json"
+    assert _run("calibrate-projector", str(out / "projector_calibration"), "--camera", str(camera),
+                "-o", str(out / "projector.h5")) == 0  # fmt: skip
+    assert _run("topography", str(out / "test"), "--camera", str(camera), "--projector", str(out / "projector.h5"),
+                "-o", str(out / "result.h5")) == 0  # fmt: skip
+    with TopographyResult(out / "result.h5") as result:
+        peak = result.column("peak/w_mm")
+        assert result.n_frames == 40 and 57.0 < np.nanmax(peak) < 61.0

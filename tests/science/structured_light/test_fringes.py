@@ -1,0 +1,154 @@
+"""Stripe edges of one frame (METHOD.md §5): direction, period, sub-pixel location, polarity, masks, errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fringelab.science.fringes import (
+    EdgeSettings,
+    FrameEdges,
+    NoStripesError,
+    detect_stripes,
+    locate_edges,
+)
+from fringelab.science.simulate import render_straight_stripes
+
+PERIOD_PX = 10.3
+PHASE_PX = 3.37
+
+
+def edge_errors_px(edges: FrameEdges, *, angle_deg: float, period_px: float, phase_px: float) -> np.ndarray:
+    """Signed error of each edge along its scan line, against the nearest true edge of the renderer."""
+    theta = np.deg2rad(angle_deg)
+    normal = np.array([np.cos(theta), np.sin(theta)])
+    q = edges.q_px()
+    x = q @ normal - phase_px
+    half_periods = x / (0.5 * period_px)
+    across = (half_periods - np.round(half_periods)) * 0.5 * period_px
+    along_scan = abs(normal[0]) if edges.axis == "rows" else abs(normal[1])
+    return across / along_scan
+
+
+def true_polarity(edges: FrameEdges, *, angle_deg: float, period_px: float, phase_px: float) -> np.ndarray:
+    """+1 where the renderer has a rising edge along increasing t, −1 for a falling one."""
+    theta = np.deg2rad(angle_deg)
+    normal = np.array([np.cos(theta), np.sin(theta)])
+    x = edges.q_px() @ normal - phase_px
+    rising_along_x = np.round(x / (0.5 * period_px)).astype(int) % 2 == 0
+    t_component = normal[0] if edges.axis == "rows" else normal[1]
+    return np.where(rising_along_x == (t_component > 0), 1, -1)
+
+
+@pytest.mark.parametrize("angle_deg", [0.0, 20.0, -35.0, 70.0, 90.0])
+def test_edges_of_known_stripes_have_small_bias_and_noise(angle_deg: float) -> None:
+    rng = np.random.default_rng(7)
+    image = render_straight_stripes((240, 256), period_px=PERIOD_PX, angle_deg=angle_deg, phase_px=PHASE_PX, rng=rng)
+    edges = locate_edges(image)
+    assert edges.axis == ("rows" if abs(angle_deg) < 45 else "cols")
+    errors = edge_errors_px(edges, angle_deg=angle_deg, period_px=PERIOD_PX, phase_px=PHASE_PX)
+    # Every line crosses ~ 25 edges; borders lose a few lines to the along-stripe smoothing.
+    assert len(edges) > 0.8 * 25 * 240
+    # Bias: the probit chord leaves < 0.01 px of pixel locking at blur 0.7 px, and it averages over the phases.
+    assert abs(np.mean(errors)) < 0.005
+    # Noise σ = 2 grey levels on a 160-level step gives ≈ 0.02 px per crossing before smoothing along the edge,
+    # ≈ 0.01 px after; 0.02 px RMS leaves room for the residual pixel locking.
+    assert np.sqrt(np.mean(errors**2)) < 0.02
+    assert np.max(np.abs(errors)) < 0.1
+    assert np.array_equal(
+        edges.polarity, true_polarity(edges, angle_deg=angle_deg, period_px=PERIOD_PX, phase_px=PHASE_PX)
+    )
+    assert 0.0 < edges.noise_px < 0.03
+
+
+@pytest.mark.parametrize(("angle_deg", "axis"), [(0.0, "rows"), (12.0, "rows"), (90.0, "cols"), (-60.0, "cols")])
+def test_detect_stripes_finds_direction_and_period(angle_deg: float, axis: str) -> None:
+    rng = np.random.default_rng(1)
+    image = render_straight_stripes((200, 220), period_px=9.0, angle_deg=angle_deg, phase_px=1.0, rng=rng)
+    geometry = detect_stripes(image)
+    assert geometry.axis == axis
+    # The period along the scan line is the stripe period over the cosine of the angle to the scan normal.
+    along = 9.0 / max(abs(np.cos(np.deg2rad(angle_deg))), abs(np.sin(np.deg2rad(angle_deg))))
+    assert geometry.period_px == pytest.approx(along, rel=0.02)
+    # The gradient angle is the stripe normal, known modulo 180°.
+    assert (geometry.angle_deg - angle_deg + 90.0) % 180.0 - 90.0 == pytest.approx(0.0, abs=1.0)
+    assert geometry.coherence > 0.9
+
+
+def test_fixed_geometry_gives_the_same_edges_as_detection() -> None:
+    rng = np.random.default_rng(2)
+    image = render_straight_stripes((120, 160), period_px=PERIOD_PX, angle_deg=5.0, phase_px=2.0, rng=rng)
+    geometry = detect_stripes(image)
+    auto = locate_edges(image)
+    fixed = locate_edges(image, EdgeSettings(axis=geometry.axis, period_px=geometry.period_px))
+    np.testing.assert_array_equal(auto.t_px, fixed.t_px)
+
+
+def test_dark_areas_give_no_edges_near_them() -> None:
+    rng = np.random.default_rng(3)
+    image = render_straight_stripes((200, 200), period_px=PERIOD_PX, angle_deg=0.0, phase_px=0.0, rng=rng)
+    rows, cols = np.mgrid[0:200, 0:200]
+    outside = np.hypot(cols - 100, rows - 100) > 80
+    hole = np.hypot(cols - 100, rows - 100) < 20
+    image[outside | hole] = (8 + rng.normal(0, 2, image.shape)).clip(0, 255).astype(np.uint8)[outside | hole]
+    edges = locate_edges(image)
+    # Along its scan line, no edge is within ~half a period of a dark pixel: there the mid-level would be set by
+    # the dark area (the 1.5 px slack is the sub-pixel position within the straddling pair).
+    reach = int(0.5 * PERIOD_PX - 1.5)
+    columns = np.round(edges.t_px).astype(int)[:, None] + np.arange(-reach, reach + 1)[None, :]
+    near = (outside | hole)[edges.line[:, None], np.clip(columns, 0, 199)]
+    # Where the hole is less than a period across (its top and bottom rows) it is not "dark" at this scale, and
+    # an edge may come within the reach; such an edge is still a true one.
+    r_px = np.hypot(edges.q_px()[:, 0] - 100, edges.q_px()[:, 1] - 100)
+    assert not np.any(near[r_px > 50])
+    assert np.count_nonzero(near.any(axis=1)) < 10
+    errors = edge_errors_px(edges, angle_deg=0.0, period_px=PERIOD_PX, phase_px=0.0)
+    assert np.max(np.abs(errors)) < 0.15
+    assert len(edges) > 2000
+    errors = edge_errors_px(edges, angle_deg=0.0, period_px=PERIOD_PX, phase_px=0.0)
+    assert np.max(np.abs(errors)) < 0.1
+
+
+def test_saturated_stripes_are_rejected() -> None:
+    rng = np.random.default_rng(4)
+    image = render_straight_stripes(
+        (100, 200),
+        period_px=PERIOD_PX,
+        angle_deg=0.0,
+        phase_px=0.0,
+        rng=rng,
+        bright_grey=300.0,
+        uneven_illumination=False,
+    )
+    image[:, :100] = render_straight_stripes((100, 100), period_px=PERIOD_PX, angle_deg=0.0, phase_px=0.0, rng=rng)
+    edges = locate_edges(image)
+    assert edges.saturated_fraction > 0.15
+    # The right half clips at 255: none of its edges may come through.
+    assert np.all(edges.t_px < 100 + PERIOD_PX)
+    assert len(edges) > 0
+
+
+def test_uniform_or_noise_frames_have_no_stripes() -> None:
+    rng = np.random.default_rng(5)
+    with pytest.raises(NoStripesError, match="no stripes found"):
+        locate_edges(np.full((64, 64), 128, np.uint8))
+    with pytest.raises(NoStripesError, match="no stripes found"):
+        locate_edges(rng.normal(128, 20, (64, 64)).clip(0, 255).astype(np.uint8))
+
+
+def test_malformed_images_and_settings_are_value_errors() -> None:
+    with pytest.raises(ValueError, match=r"expected a 2-D grey image of shape \(H, W\)"):
+        locate_edges(np.zeros((10, 10, 3), np.uint8))
+    with pytest.raises(ValueError, match="axis: expected one of"):
+        EdgeSettings(axis="diagonal")
+    with pytest.raises(ValueError, match="period_px"):
+        EdgeSettings(period_px=1.0)
+
+
+def test_sixteen_bit_frames_give_the_edges_of_eight_bit_ones() -> None:
+    rng = np.random.default_rng(6)
+    image = render_straight_stripes((80, 120), period_px=PERIOD_PX, angle_deg=3.0, phase_px=1.0, rng=rng)
+    settings = EdgeSettings(axis="rows", period_px=PERIOD_PX)
+    eight = locate_edges(image, settings)
+    sixteen = locate_edges(image.astype(np.uint16) * 257, settings)
+    np.testing.assert_allclose(sixteen.t_px, eight.t_px, atol=1e-4)

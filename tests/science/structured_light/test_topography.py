@@ -1,0 +1,199 @@
+"""The topography pipeline (METHOD.md §5–6): chunked runs, temporal smoothing, the result file, bad input."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fringelab.formats.topography import TopographyResult, read_edges, write_edges
+from fringelab.pipelines.topography import topography_recording
+from fringelab.science.fringes import NoStripesError
+from fringelab.science.projector import CalibrationMismatchError, exact_camera_model
+from fringelab.science.simulate import PlateState, true_deflection_mm
+from fringelab.science.topography import (
+    FirstFrameNotFlatError,
+    TopographyCancelled,
+    TopographySettings,
+    check_stripes_against,
+    locate_test_edges,
+    track_and_measure,
+)
+
+from .conftest import MemorySource, RenderedExperiment, recorded_test
+
+N_FRAMES = 16  # the first 16 frames of the kodak test: flat, then up to ~25 mm of deflection
+
+
+def source_of(experiment: RenderedExperiment, n: int = N_FRAMES) -> MemorySource:
+    return recorded_test(experiment, n)
+
+
+def read_all(path: Path) -> dict[str, np.ndarray]:
+    with TopographyResult(path) as result:
+        return {
+            "frames": result.frames,
+            "grid": np.stack([result.z_grid(i) for i in range(result.n_frames)]),
+            "points": np.vstack([result.points(i) for i in range(result.n_frames)]),
+            "peak": result.column("peak/w_mm"),
+            "time": result.column("frames/time_s"),
+            "force": result.column("frames/force_kN"),
+        }
+
+
+def test_chunked_runs_give_identical_results(kodak: RenderedExperiment, tmp_path: Path) -> None:
+    source = source_of(kodak)
+    whole = topography_recording(source, kodak.camera, kodak.projector, out_path=tmp_path / "whole.h5")
+    assert whole.frames == range(N_FRAMES)
+    # Edge location in three chunks (as three workers would), stored and read back, then one sequential pass.
+    chunks = [range(0, 5), range(5, 11), range(11, N_FRAMES)]
+    stored = []
+    for i, chunk in enumerate(chunks):
+        edges = list(locate_test_edges([source[f] for f in chunk], kodak.projector))
+        stored.append(write_edges(tmp_path / f"edges{i}.h5", list(chunk), edges))
+    located = []
+    for path in stored:
+        frames, edges = read_edges(path)
+        located.extend(edges)
+    part = topography_recording(
+        source, kodak.camera, kodak.projector, out_path=tmp_path / "part.h5", frames=range(6, 12), edges=located
+    )
+    assert part.frames == range(6, 12)
+    a, b = read_all(tmp_path / "whole.h5"), read_all(tmp_path / "part.h5")
+    np.testing.assert_array_equal(b["frames"], np.arange(6, 12))
+    np.testing.assert_array_equal(b["grid"], a["grid"][6:12])
+    np.testing.assert_array_equal(b["peak"], a["peak"][6:12])
+    with TopographyResult(tmp_path / "whole.h5") as whole_file, TopographyResult(tmp_path / "part.h5") as part_file:
+        for i in range(6):
+            np.testing.assert_array_equal(part_file.points(i), whole_file.points(i + 6))
+            np.testing.assert_array_equal(part_file.point_labels(i)[0], whole_file.point_labels(i + 6)[0])
+
+
+def test_temporal_smoothing_is_chunk_safe_and_reduces_noise(kodak: RenderedExperiment, tmp_path: Path) -> None:
+    settings = TopographySettings(temporal_smoothing_frames=2)
+    source = source_of(kodak)
+    topography_recording(source, kodak.camera, kodak.projector, out_path=tmp_path / "a.h5", settings=settings)
+    topography_recording(
+        source, kodak.camera, kodak.projector, out_path=tmp_path / "b.h5", settings=settings, frames=range(4, 9)
+    )
+    a, b = read_all(tmp_path / "a.h5"), read_all(tmp_path / "b.h5")
+    np.testing.assert_array_equal(b["grid"], a["grid"][4:9])
+    # Against the truth, smoothing over 5 frames lowers the noise of w (the deflection is smooth in time).
+    raw = list(track_and_measure(kodak.test_edges[:N_FRAMES], kodak.projector, kodak.camera))
+    smooth = list(track_and_measure(kodak.test_edges[:N_FRAMES], kodak.projector, kodak.camera, settings=settings))
+    assert [m.frame for m in smooth] == list(range(N_FRAMES))
+
+    def rms(measurement) -> float:
+        state = kodak.timeline.states[measurement.frame]
+        p = measurement.points_obj_mm
+        r = kodak.preset.scene.radius_mm(p[:, 0], p[:, 1])
+        keep = (r > 25) & (r < 235)
+        error = p[keep, 2] - true_deflection_mm(kodak.preset.scene, state, p[keep, 0], p[keep, 1])
+        return float(np.sqrt(np.mean(error**2)))
+
+    middle = range(3, N_FRAMES - 3)
+    assert np.mean([rms(smooth[i]) for i in middle]) < 0.9 * np.mean([rms(raw[i]) for i in middle])
+
+
+def test_result_file_holds_log_quality_and_provenance(kodak: RenderedExperiment, tmp_path: Path) -> None:
+    source = source_of(kodak)
+    summary = topography_recording(source, kodak.camera, kodak.projector, out_path=tmp_path / "r.h5")
+    with TopographyResult(summary.path) as result:
+        np.testing.assert_allclose(result.column("frames/time_s"), kodak.timeline.time_s[:N_FRAMES])
+        np.testing.assert_allclose(result.column("frames/force_kN"), kodak.timeline.force_kN[:N_FRAMES])
+        assert result.file["grid/z_mm"].chunks == (1, *result.grid.shape)
+        assert result.file["grid/z_mm"].attrs["unit"] == "mm"
+        assert "projector_json" in result.file["calibration"].attrs
+        assert np.all(result.column("qa/n_points") > 20_000)
+        assert abs(result.z_flat_mm) < 0.01
+        # A point history at 100 mm from the centre follows the truth.
+        x, y = kodak.preset.scene.centre_xy_mm[0] + 100.0, kodak.preset.scene.centre_xy_mm[1]
+        truth = [true_deflection_mm(kodak.preset.scene, s, np.array([x]), np.array([y]))[0]
+                 for s in kodak.timeline.states[:N_FRAMES]]  # fmt: skip
+        np.testing.assert_allclose(result.history(x, y), truth, atol=0.05)
+        summary_attrs = result.summary()
+    # The clamp circle is found from the rim of the data, ~7 mm inside the clamp (edges within half a stripe of
+    # the dark ring are rejected), centred on the plate to ~1 mm.
+    np.testing.assert_allclose(summary.clamp_centre_xy_mm, kodak.preset.scene.centre_xy_mm, atol=1.5)
+    assert 235 < summary_attrs["clamp_radius_mm"] < 250
+    assert summary.flat_rms_mm < 0.05
+
+
+def test_cancel_removes_the_partial_file(kodak: RenderedExperiment, tmp_path: Path) -> None:
+    calls = []
+
+    def should_cancel() -> bool:
+        calls.append(1)
+        return len(calls) > 3
+
+    with pytest.raises(TopographyCancelled):
+        topography_recording(
+            source_of(kodak), kodak.camera, kodak.projector, out_path=tmp_path / "c.h5", should_cancel=should_cancel
+        )
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_progress_reports_every_frame(kodak: RenderedExperiment, tmp_path: Path) -> None:
+    seen = []
+    topography_recording(
+        source_of(kodak, 5), kodak.camera, kodak.projector, out_path=tmp_path / "p.h5",
+        progress=lambda done, total, stage: seen.append((done, total, stage)),
+    )  # fmt: skip
+    assert seen == [(i, 5, "frames") for i in range(1, 6)]
+
+
+def test_first_frame_that_is_not_flat_is_refused(kodak: RenderedExperiment) -> None:
+    deflected = kodak.test_edges[12:16]  # starts at ~20 mm of deflection
+    with pytest.raises(FirstFrameNotFlatError, match="not the flat plate"):
+        list(track_and_measure(deflected, kodak.projector, kodak.camera))
+
+
+def test_recordings_of_another_size_or_camera_are_refused(kodak: RenderedExperiment, phantom, tmp_path) -> None:
+    with pytest.raises(CalibrationMismatchError, match="1024 × 1024 px but the projector calibration is for 512 × 480"):
+        topography_recording(source_of(phantom, 2), kodak.camera, kodak.projector, out_path=tmp_path / "x.h5")
+    with pytest.raises(CalibrationMismatchError, match="different cameras"):
+        topography_recording(source_of(kodak, 2), phantom.camera, kodak.projector, out_path=tmp_path / "x.h5")
+    other = exact_camera_model(replace(kodak.camera.camera, f_mm=kodak.camera.camera.f_mm * 1.01))
+    with pytest.raises(CalibrationMismatchError, match="made with another camera calibration"):
+        topography_recording(source_of(kodak, 2), other, kodak.projector, out_path=tmp_path / "x.h5")
+
+
+def test_stripes_in_another_direction_are_refused(kodak: RenderedExperiment) -> None:
+    turned = replace(kodak.projector, edges=replace(kodak.projector.edges, axis="cols"))
+    with pytest.raises(CalibrationMismatchError, match="stripes of the test run roughly vertical"):
+        check_stripes_against(kodak.test_frames[0], turned)
+
+
+def test_frames_without_stripes_are_refused(kodak: RenderedExperiment, tmp_path: Path) -> None:
+    blank = MemorySource([np.full((480, 512), 30, np.uint8)] * 2, {})
+    with pytest.raises(NoStripesError, match="no stripes found"):
+        topography_recording(blank, kodak.camera, kodak.projector, out_path=tmp_path / "x.h5")
+
+
+def test_deflection_beyond_the_calibrated_range_is_masked_and_counted(kodak: RenderedExperiment) -> None:
+    # The same test against a table that only reaches 20 mm: points higher up are masked, never extrapolated.
+    from fringelab.science.projector import build_projector_calibration
+
+    keep = kodak.calibration_z_mm <= 20.0
+    short = build_projector_calibration(
+        [f for f, k in zip(kodak.calibration_frames, keep, strict=True) if k],
+        kodak.calibration_z_mm[keep],
+        kodak.camera,
+    )
+    frame = 20  # w0 ≈ 31 mm: w > 20 mm within r ≈ 29 mm of the axis, some 800 edge points
+    measurement = list(track_and_measure(kodak.test_edges[: frame + 1], short, kodak.camera))[-1]
+    assert measurement.n_out_of_range > 300
+    assert np.max(measurement.points_obj_mm[:, 2]) <= 20.0 + 0.1 + 0.05  # range + noise margin + noise
+    state: PlateState = kodak.timeline.states[frame]
+    p = measurement.points_obj_mm
+    error = p[:, 2] - true_deflection_mm(kodak.preset.scene, state, p[:, 0], p[:, 1])
+    r = kodak.preset.scene.radius_mm(p[:, 0], p[:, 1])
+    assert np.sqrt(np.mean(error[r < 235] ** 2)) < 0.1
+
+
+def test_frame_ranges_are_checked(kodak: RenderedExperiment, tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="non-empty contiguous range"):
+        topography_recording(source_of(kodak, 4), kodak.camera, kodak.projector, out_path=tmp_path / "x.h5",
+                             frames=range(2, 9))  # fmt: skip

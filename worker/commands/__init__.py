@@ -1,8 +1,0 @@
-"""Science subcommands of the `fringelab` CLI (calibrate-camera, calibrate-projector, topography, export, simulate).
-
-Each module listed in COMMAND_MODULES defines `register(subparsers)`, which adds its subcommands to the
-argparse tree built by `backend.cli`. Registration must stay cheap: import numpy, OpenCV and
-`worker.measurement` inside the handlers, not at module level, so `fringelab version` stays instant.
-"""
-
-COMMAND_MODULES = ("worker.commands.camera", "worker.commands.topography")
