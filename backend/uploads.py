@@ -50,8 +50,8 @@ from backend.storage import (
     sha256_of_file,
     truncate_file,
     tus_dir,
-    write_atomic,
 )
+from fringelab.formats.atomic import atomic_write
 
 TUS_VERSION = "1.0.0"
 UPLOAD_ID = re.compile(r"[0-9a-f]{32}")
@@ -183,7 +183,7 @@ class TusUploadStorage(TusStorage):
             if recording_id is not None:
                 merged["metadata"] = {**data.get("metadata", {}), "recording_id": recording_id}
             try:
-                write_atomic(self._info_path(uid), json.dumps(merged, default=str).encode())
+                atomic_write(self._info_path(uid), json.dumps(merged, default=str).encode())
             except OSError as error:  # a full disk: tell the client, keep the previous info
                 refused = PayloadTooLarge(f"cannot record the upload's progress: {error}", code="insufficient_storage")
                 raise UploadRefused(refused) from None

@@ -30,8 +30,7 @@ from pathlib import Path  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from fringelab.formats.recordings import open_recording  # noqa: E402
-from fringelab.formats.topography import write_recording  # noqa: E402
+from fringelab.formats.recordings import open_recording, write_recording  # noqa: E402
 from fringelab.pipelines.topography import topography_recording  # noqa: E402
 from fringelab.science.fringes import EdgeSettings, locate_edges  # noqa: E402
 from fringelab.science.projector import build_projector_calibration, exact_camera_model  # noqa: E402

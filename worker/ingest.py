@@ -24,14 +24,8 @@ from backend.settings import Settings
 from backend.storage import recording_dir
 from fringelab.formats.containers import ZipLimits
 from fringelab.formats.previews import PREVIEW_FILE, THUMBNAIL_PX, PreviewWriter
-from fringelab.formats.recordings import (
-    FrameSource,
-    frame_indices,
-    open_recording,
-    read_board_json,
-    read_frames_csv,
-    read_z_csv,
-)
+from fringelab.formats.recordings import FrameSource, open_recording
+from fringelab.formats.sidecars import frame_indices, read_board_json, read_frames_csv, read_z_csv
 from fringelab.science import MeasurementError
 from fringelab.science.chessboard import Board
 from fringelab.science.quality import (

@@ -18,7 +18,6 @@ import os
 import socket
 import threading
 import time
-import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -42,6 +41,7 @@ from backend.jobs import (
 )
 from backend.models import Job, JobChunk, utcnow
 from backend.settings import Settings
+from fringelab.formats.atomic import atomic_path
 from fringelab.science import MeasurementError
 from worker.runtime import job_dir, sessions_of, settings_of
 
@@ -127,16 +127,8 @@ class JobContext:
         """Write a file atomically: yields a temporary path in the job directory; on success it is renamed to
         `name`, so readers and a second run of the task see the old complete file or the new one, never a part.
         Published files are listed on the job (size, SHA-256) when it succeeds."""
-        final = self.directory / name
-        final.parent.mkdir(parents=True, exist_ok=True)
-        temporary = final.with_name(f".{final.name}.{uuid.uuid4().hex[:8]}.partial")
-        try:
-            yield temporary
-            with temporary.open("rb+") as handle:
-                os.fsync(handle.fileno())
-            os.replace(temporary, final)
-        finally:
-            temporary.unlink(missing_ok=True)
+        with atomic_path(self.directory / name) as partial:
+            yield partial
         if publish:
             self.files[name] = media_type
 

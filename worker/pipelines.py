@@ -303,8 +303,8 @@ def _calibration_file(context: JobContext, calibration_id: int) -> Path:
 
 def projector_calibration_body(context: JobContext) -> dict[str, Any]:
     from fringelab.formats.camera import read_camera_json
+    from fringelab.formats.projector import write_projector_calibration
     from fringelab.formats.recordings import open_recording
-    from fringelab.formats.topography import write_projector_calibration
     from fringelab.pipelines.projector_calibration import calibrate_projector_recording
     from fringelab.science.fringes import EdgeSettings
     from fringelab.science.projector import CalibrationCancelled, ProjectorSettings
@@ -382,8 +382,8 @@ class _TopographyInputs:
 def _topography_inputs(context: JobContext) -> _TopographyInputs:
     """The recording (open: close it), calibrations, frames to write and settings of a topography job."""
     from fringelab.formats.camera import read_camera_json
+    from fringelab.formats.projector import read_projector_calibration
     from fringelab.formats.recordings import open_recording
-    from fringelab.formats.topography import read_projector_calibration
     from fringelab.science.topography import TopographySettings, frame_range
 
     spec = context.spec
@@ -418,7 +418,7 @@ def topography_entry(context: JobContext) -> Chunked:
 
 def topography_locate(context: JobContext, first: int, stop: int) -> None:
     """Phase 0, any worker: the edges of frames [first, stop)."""
-    from fringelab.formats.topography import write_edges
+    from fringelab.formats.edges import write_edges
     from fringelab.science.topography import locate_test_edges
 
     inputs = _topography_inputs(context)
@@ -471,7 +471,7 @@ def _load_measurements(context: JobContext, first: int) -> list[Any]:
 def topography_track(context: JobContext, ranges: list[tuple[int, int]]) -> Chunked:
     """Merge of phase 0, in frame order: identity, tracking and 3-D points over the stored edges; the grid comes
     from the flat first frame. Then the gridding fans out over the frames to write."""
-    from fringelab.formats.topography import read_edges
+    from fringelab.formats.edges import read_edges
     from fringelab.science.topography import clamp_circle, grid_for_first_frame, track_and_measure
 
     inputs = _topography_inputs(context)
@@ -535,7 +535,9 @@ def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict
     """Merge of phase 1, in frame order: the result file, as `topography_recording` writes it."""
     from dataclasses import asdict, fields
 
-    from fringelab.formats.topography import FrameTable, TopographyWriter, _json, read_frames_csv
+    from fringelab.formats.hdf5 import json_text
+    from fringelab.formats.sidecars import FrameTable, read_frames_csv
+    from fringelab.formats.topography import TopographyWriter
     from fringelab.pipelines.provenance import code_versions
     from fringelab.pipelines.topography import _calibration_attrs
     from fringelab.science.fields import Grid, Peak
@@ -556,9 +558,9 @@ def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict
         writer = TopographyWriter(
             temporary, grid=Grid(x_mm=track["x_mm"], y_mm=track["y_mm"]), max_edge_mm=float(track["max_edge_mm"]),
             z_flat_mm=z_flat, axis=projector.axis,
-            attrs={"settings_json": _json(asdict(inputs.settings)),
-                   "edge_settings_json": _json(asdict(projector.edges)),
-                   "provenance_json": _json({"input": where, "n_frames_in_recording": n_frames,
+            attrs={"settings_json": json_text(asdict(inputs.settings)),
+                   "edge_settings_json": json_text(asdict(projector.edges)),
+                   "provenance_json": json_text({"input": where, "n_frames_in_recording": n_frames,
                                              "frames_written": [wanted.start, wanted.stop], **code_versions()})},
             calibration_attrs=_calibration_attrs(inputs.camera_model, projector),
         )  # fmt: skip
@@ -607,7 +609,7 @@ def _finite_or_none(value: Any) -> Any:
 
 
 def export_body(context: JobContext) -> dict[str, Any]:
-    from fringelab.formats.topography import export_result
+    from fringelab.formats.exports import export_result
 
     spec = context.spec
     with context.sessions() as session:

@@ -45,7 +45,8 @@ from backend.schemas.recordings import (
     RecordingUpdate,
     SidecarName,
 )
-from backend.storage import recording_dir, write_atomic
+from backend.storage import recording_dir
+from fringelab.formats.atomic import atomic_write
 from fringelab.formats.previews import PREVIEW_FILE, encode_png, read_preview, read_qa
 
 router = APIRouter(tags=["recordings"])
@@ -157,7 +158,7 @@ def _store_sidecar(state: StateDep, principal: Principal, recording_id: int, nam
     with state.sessions() as session:
         recording = recording_for(session, principal, recording_id, write=True)
         refuse_if_in_use(session, f"recording {recording.id}", recording_ids=[recording.id])
-        write_atomic(recording_dir(state.settings.data_path, recording.id) / name, data)
+        atomic_write(recording_dir(state.settings.data_path, recording.id) / name, data)
         audit(session, principal, "upload", "sidecar", recording.id, name=name, size_bytes=len(data))
         return recording_out(submit_ingest(session, state, recording))
 

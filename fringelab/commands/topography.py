@@ -127,8 +127,8 @@ def _fail(error: Exception) -> int:
 
 def calibrate_projector_command(args: argparse.Namespace) -> int:
     from fringelab.formats.camera import read_camera_json
+    from fringelab.formats.projector import write_projector_calibration
     from fringelab.formats.recordings import open_recording
-    from fringelab.formats.topography import write_projector_calibration
     from fringelab.pipelines.projector_calibration import calibrate_projector_recording
     from fringelab.science import MeasurementError
     from fringelab.science.fringes import EdgeSettings
@@ -160,8 +160,8 @@ def calibrate_projector_command(args: argparse.Namespace) -> int:
 
 def topography_command(args: argparse.Namespace) -> int:
     from fringelab.formats.camera import read_camera_json
+    from fringelab.formats.projector import read_projector_calibration
     from fringelab.formats.recordings import open_recording
-    from fringelab.formats.topography import read_projector_calibration
     from fringelab.pipelines.topography import topography_recording
     from fringelab.science import MeasurementError
     from fringelab.science.topography import TopographySettings
@@ -189,7 +189,7 @@ def topography_command(args: argparse.Namespace) -> int:
 
 
 def export_command(args: argparse.Namespace) -> int:
-    from fringelab.formats.topography import export_result
+    from fringelab.formats.exports import export_result
 
     try:
         path = export_result(args.result, args.format, args.output, line=args.line)

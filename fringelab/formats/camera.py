@@ -25,14 +25,13 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
 
+from fringelab.formats.atomic import atomic_write
 from fringelab.science.calibration import (
     CAMERA_PARAMETERS,
     CameraCalibration,
@@ -267,23 +266,10 @@ def _nan_array(values: Any) -> np.ndarray:
     return np.array(values, dtype=np.float64)  # None → nan under dtype float64
 
 
-def _write_atomically(path: Path, text: str) -> None:
-    """Write `text` to a temp file beside `path`, then rename it over `path` (atomic on POSIX)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
-    try:
-        with os.fdopen(handle, "w", encoding="utf-8") as file:
-            file.write(text)
-        os.replace(temp_name, path)
-    except BaseException:
-        Path(temp_name).unlink(missing_ok=True)
-        raise
-
-
 def write_camera_json(calibration: CameraCalibration, path: str | Path) -> Path:
     """Write the calibration's JSON document to `path` atomically; returns the path."""
     path = Path(path)
-    _write_atomically(path, json.dumps(calibration_as_dict(calibration), indent=1, allow_nan=False) + "\n")
+    atomic_write(path, json.dumps(calibration_as_dict(calibration), indent=1, allow_nan=False) + "\n")
     return path
 
 
@@ -317,5 +303,5 @@ def write_opencv_yaml(calibration: CameraCalibration, path: str | Path) -> Path:
     storage.write("tvec", np.array(opencv.tvec_mm).reshape(3, 1))
     storage.write("avg_reprojection_error", calibration.rms_px)
     storage.write("source", f"{SCHEMA} v{SCHEMA_VERSION}, mode {calibration.mode}, verdict {calibration.verdict.level}")
-    _write_atomically(path, storage.releaseAndGetString())
+    atomic_write(path, storage.releaseAndGetString())
     return path

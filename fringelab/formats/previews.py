@@ -40,7 +40,7 @@ class PreviewWriter:
         self._temporary = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")
         self._file = h5py.File(self._temporary, "w", locking=False)
 
-    def _dataset(self, name: str, image: np.ndarray) -> h5py.Dataset:
+    def unit_dataset(self, name: str, image: np.ndarray) -> h5py.Dataset:
         if name not in self._file:
             shape = (self.frame_count, *image.shape)
             # No compression: fringe and speckle images barely compress, and lzf would cost 7× the write.
@@ -52,8 +52,8 @@ class PreviewWriter:
 
     def write_frame(self, index: int, *, display: np.ndarray, thumbnail: np.ndarray) -> None:
         """Store frame `index` at display size and as a thumbnail (2-D uint8 arrays)."""
-        self._dataset("frames", display)[index] = display
-        self._dataset("thumbnails", thumbnail)[index] = thumbnail
+        self.unit_dataset("frames", display)[index] = display
+        self.unit_dataset("thumbnails", thumbnail)[index] = thumbnail
 
     def commit(self, *, frame_count: int, qa: dict[str, np.ndarray], attrs: dict[str, int]) -> None:
         """Write the per-frame QA arrays (each of shape (frame_count,)) and the attributes, then publish."""

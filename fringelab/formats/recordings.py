@@ -13,24 +13,20 @@ line and column; `frame_indices` checks that a sidecar's frame ids match the fra
 
 from __future__ import annotations
 
-import csv
-import io
-import json
 import lzma
-import math
 import os
 import struct
 import threading
 import zipfile
 import zlib
-from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, overload
+from typing import TYPE_CHECKING, overload
 
 import cv2
 import numpy as np
 
+from fringelab.formats.atomic import atomic_path
 from fringelab.formats.containers import (
     IMAGE_SUFFIXES,
     CorruptRecording,
@@ -44,21 +40,15 @@ from fringelab.formats.containers import (
 from fringelab.science import natural_key
 
 if TYPE_CHECKING:
-    from fringelab.science.chessboard import Board
+    pass
 
 __all__ = [
     "IMAGE_SUFFIXES",
     "FrameSource",
-    "FramesTable",
     "decode_grey",
-    "frame_indices",
     "natural_key",
     "open_recording",
-    "read_board_json",
-    "read_frames_csv",
-    "read_z_csv",
     "write_frame_folder",
-    "z_csv_text",
 ]
 
 MAX_SIDECAR_BYTES = 16 << 20
@@ -434,162 +424,6 @@ def open_recording(path: str | Path, *, zip_limits: ZipLimits | None = None) -> 
 # ---------------------------------------------------------------------------------------------------- sidecars
 
 
-def _rows(
-    text: str, *, name: str, required: tuple[str, ...], allowed: set[str]
-) -> Iterator[tuple[int, dict[str, str]]]:
-    reader = csv.DictReader(io.StringIO(text))
-    columns = [f.strip() for f in reader.fieldnames or []]
-    if not set(required) <= set(columns):
-        raise ValueError(f"{name}: expected columns '{','.join(required)}', got {reader.fieldnames}")
-    unknown = [c for c in columns if c not in allowed]
-    if unknown:
-        raise ValueError(f"{name}: unknown column {unknown[0]!r} (accepted: {', '.join(sorted(allowed))})")
-    for line_no, row in enumerate(reader, start=2):
-        if None in row or any(value is None for value in row.values()):
-            raise ValueError(f"{name} line {line_no}: expected {len(columns)} values")
-        yield line_no, {k.strip(): (v or "").strip() for k, v in row.items()}
-
-
-def _number(row: dict[str, str], column: str, *, name: str, line_no: int) -> float:
-    try:
-        value = float(row[column])
-    except ValueError:
-        raise ValueError(f"{name} line {line_no}, column {column}: {row[column]!r} is not a number") from None
-    if not math.isfinite(value):
-        raise ValueError(f"{name} line {line_no}, column {column}: not finite")
-    return value
-
-
-def _frame_id(row: dict[str, str], *, name: str, line_no: int) -> int:
-    try:
-        return int(row["frame"])
-    except ValueError:
-        raise ValueError(f"{name} line {line_no}, column frame: {row['frame']!r} is not an integer") from None
-
-
-def read_z_csv(text: str, *, name: str = "z.csv") -> dict[int, float]:
-    """Parse `frame,z_mm` rows into {frame: z_mm}; errors name the line."""
-    z_by_frame: dict[int, float] = {}
-    for line_no, row in _rows(text, name=name, required=("frame", "z_mm"), allowed={"frame", "z_mm"}):
-        frame = _frame_id(row, name=name, line_no=line_no)
-        z_mm = _number(row, "z_mm", name=name, line_no=line_no)
-        if frame in z_by_frame:
-            raise ValueError(f"{name} line {line_no}: frame {frame} appears twice")
-        z_by_frame[frame] = z_mm
-    if not z_by_frame:
-        raise ValueError(f"{name}: no rows")
-    return z_by_frame
-
-
-FRAMES_CSV_COLUMNS = ("time_s", "punch_displacement_mm", "force_kN")
-
-
-@dataclass(frozen=True, eq=False)
-class FramesTable:
-    """Rows of `frames.csv`: frame ids and any of time, punch displacement and force, each of shape (N,).
-
-    A column absent from the file is None.
-    """
-
-    frame: np.ndarray
-    time_s: np.ndarray | None
-    punch_displacement_mm: np.ndarray | None
-    force_kN: np.ndarray | None
-
-    def columns(self) -> list[str]:
-        return [c for c in FRAMES_CSV_COLUMNS if getattr(self, c) is not None]
-
-
-def read_frames_csv(text: str, *, name: str = "frames.csv") -> FramesTable:
-    """Parse `frame,time_s,punch_displacement_mm,force_kN` (frame and any subset of the others).
-
-    Frame ids are unique integers; time_s, when given, increases strictly with the frame id.
-    """
-    allowed = {"frame", *FRAMES_CSV_COLUMNS}
-    rows = list(_rows(text, name=name, required=("frame",), allowed=allowed))
-    present = [c for c in FRAMES_CSV_COLUMNS if rows and c in rows[0][1]]
-    if not present:
-        raise ValueError(f"{name}: needs at least one of {', '.join(FRAMES_CSV_COLUMNS)} besides frame")
-    if not rows:
-        raise ValueError(f"{name}: no rows")
-    frames: list[int] = []
-    values: dict[str, list[float]] = {c: [] for c in present}
-    seen: set[int] = set()
-    for line_no, row in rows:
-        frame = _frame_id(row, name=name, line_no=line_no)
-        if frame in seen:
-            raise ValueError(f"{name} line {line_no}: frame {frame} appears twice")
-        seen.add(frame)
-        frames.append(frame)
-        for column in present:
-            values[column].append(_number(row, column, name=name, line_no=line_no))
-    frame_ids = np.asarray(frames, dtype=np.int64)
-    table = {c: np.asarray(v, dtype=np.float64) for c, v in values.items()}
-    if "time_s" in table:
-        order = np.argsort(frame_ids)
-        if (np.diff(table["time_s"][order]) <= 0).any():
-            raise ValueError(f"{name}: time_s must increase with the frame number")
-    return FramesTable(
-        frame=frame_ids,
-        time_s=table.get("time_s"),
-        punch_displacement_mm=table.get("punch_displacement_mm"),
-        force_kN=table.get("force_kN"),
-    )
-
-
-def read_board_json(text: str, *, name: str = "board.json") -> Board:
-    """Parse a chessboard description: {"cols": 9, "rows": 6, "square_mm": 25.0, "origin": [4, 2] or null}.
-
-    cols × rows count inner corners; `"inner_corners": [cols, rows]` may replace cols and rows.
-    """
-    from fringelab.science.chessboard import Board
-
-    try:
-        data: Any = json.loads(text)
-    except json.JSONDecodeError as error:
-        raise ValueError(f"{name}: not valid JSON ({error})") from None
-    if not isinstance(data, dict):
-        raise ValueError(f"{name}: expected a JSON object, got {type(data).__name__}")
-    if "inner_corners" in data:
-        corners = data["inner_corners"]
-        if not (isinstance(corners, list) and len(corners) == 2):
-            raise ValueError(f"{name}: inner_corners must be [cols, rows]")
-        data = {**data, "cols": corners[0], "rows": corners[1]}
-    missing = [key for key in ("cols", "rows", "square_mm") if key not in data]
-    if missing:
-        raise ValueError(f"{name}: missing {', '.join(missing)} (expected cols, rows, square_mm, optional origin)")
-    cols, rows, square_mm, origin = data["cols"], data["rows"], data["square_mm"], data.get("origin")
-    if not (isinstance(cols, int) and isinstance(rows, int) and cols >= 2 and rows >= 2):
-        raise ValueError(f"{name}: needs at least 2 × 2 inner corners (integers), got {cols!r} × {rows!r}")
-    if isinstance(square_mm, bool) or not isinstance(square_mm, int | float) or not 0 < square_mm < math.inf:
-        raise ValueError(f"{name}: square_mm must be a positive number, got {square_mm!r}")
-    if origin is not None:
-        valid = isinstance(origin, list) and len(origin) == 2 and all(isinstance(v, int) and v >= 0 for v in origin)
-        if not valid:
-            raise ValueError(f"{name}: origin must be [i, j] corner indices ≥ 0 or null, got {origin!r}")
-        origin = (origin[0], origin[1])
-    return Board(cols=cols, rows=rows, square_mm=float(square_mm), origin=origin)
-
-
-def frame_indices(frame_ids: Sequence[int] | np.ndarray, frame_count: int, *, name: str) -> np.ndarray:
-    """0-based frame indices of a sidecar's frame ids, which number the frames 0..n−1 or 1..n.
-
-    Ids are read as 1-based when none is 0 and the largest is n. Raises ValueError naming the first id that
-    matches no frame.
-    """
-    ids = np.asarray(frame_ids, dtype=np.int64)
-    one_based = ids.size > 0 and ids.min() >= 1 and ids.max() == frame_count
-    indices = ids - 1 if one_based else ids
-    outside = np.flatnonzero((indices < 0) | (indices >= frame_count))
-    if outside.size:
-        bad = int(ids[outside[0]])
-        raise ValueError(
-            f"{name}: frame {bad} matches no frame of the recording, which has {frame_count} frames "
-            f"(numbered 0–{frame_count - 1} or 1–{frame_count})"
-        )
-    return indices
-
-
 def write_frame_folder(
     path: str | Path, frames: Sequence[np.ndarray], *, sidecars: dict[str, str] | None = None
 ) -> Path:
@@ -607,6 +441,32 @@ def write_frame_folder(
     return path
 
 
-def z_csv_text(z_mm: Sequence[float], *, first_frame: int = 0) -> str:
-    """The text of a `z.csv` sidecar for frames numbered from `first_frame`."""
-    return "frame,z_mm\n" + "".join(f"{first_frame + i},{z!r}\n" for i, z in enumerate(map(float, z_mm)))
+def write_recording(
+    path: str | Path, frames: Iterable[np.ndarray], *, sidecars: dict[str, str] | None = None, as_zip: bool = False
+) -> Path:
+    """Write frames one at a time as frame0000.png, ... with sidecar texts, into a folder or a ZIP (`as_zip`).
+
+    Readable with `fringelab.formats.recordings.open_recording`. Frames are encoded as they come, so a long
+    recording is never held.
+    """
+    path = Path(path)
+
+    def encoded(frame: np.ndarray, index: int) -> bytes:
+        ok, data = cv2.imencode(".png", frame)
+        if not ok:
+            raise ValueError(f"{path}: could not encode frame {index} (dtype {frame.dtype}, shape {frame.shape})")
+        return data.tobytes()
+
+    if as_zip:
+        with atomic_path(path) as temp, zipfile.ZipFile(temp, "w", compression=zipfile.ZIP_STORED) as archive:
+            for index, frame in enumerate(frames):
+                archive.writestr(f"frame{index:04d}.png", encoded(frame, index))
+            for name, text in (sidecars or {}).items():
+                archive.writestr(name, text)
+        return path
+    path.mkdir(parents=True, exist_ok=True)
+    for index, frame in enumerate(frames):
+        (path / f"frame{index:04d}.png").write_bytes(encoded(frame, index))
+    for name, text in (sidecars or {}).items():
+        (path / name).write_text(text)
+    return path

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from fringelab.formats.recordings import read_board_json, read_z_csv
+from fringelab.formats.sidecars import read_board_json, read_z_csv
 from fringelab.pipelines.provenance import code_versions
 from fringelab.science.calibration import (
     MODES,

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from fringelab.formats.recordings import read_z_csv
+from fringelab.formats.sidecars import read_z_csv
 from fringelab.pipelines.provenance import code_versions
 from fringelab.science.calibration import ProgressCallback, zstack_heights_mm
 from fringelab.science.projector import (

@@ -48,8 +48,9 @@ def simulate_experiment(
     out_dir/truth/experiment.json  camera, projector, scene, imaging, calibration heights and per-frame states
     (folders, or .zip files with as_zip). Frames are rendered and written one at a time.
     """
-    from fringelab.formats.recordings import z_csv_text
-    from fringelab.formats.topography import FrameTable, frames_csv_text, write_json, write_recording
+    from fringelab.formats.atomic import write_json
+    from fringelab.formats.recordings import write_recording
+    from fringelab.formats.sidecars import FrameTable, frames_csv_text, z_csv_text
     from fringelab.science.chessboard import Board
     from fringelab.science.synthetic import ChessboardRenderer, board_pose_at_z, zstack_board
 

@@ -73,7 +73,9 @@ def topography_recording(
     Memory does not grow with the number of frames: frames are read, located, tracked, gridded and written one
     at a time.
     """
-    from fringelab.formats.topography import FrameTable, TopographyWriter, _json, read_frames_csv
+    from fringelab.formats.hdf5 import json_text
+    from fringelab.formats.sidecars import FrameTable, read_frames_csv
+    from fringelab.formats.topography import TopographyWriter
     from fringelab.pipelines.provenance import code_versions
     from fringelab.science.fields import field_peak
 
@@ -134,9 +136,9 @@ def topography_recording(
                     z_flat_mm=z_flat,
                     axis=projector.axis,
                     attrs={
-                        "settings_json": _json(asdict(settings)),
-                        "edge_settings_json": _json(asdict(projector.edges)),
-                        "provenance_json": _json({"input": where, "n_frames_in_recording": n_frames,
+                        "settings_json": json_text(asdict(settings)),
+                        "edge_settings_json": json_text(asdict(projector.edges)),
+                        "provenance_json": json_text({"input": where, "n_frames_in_recording": n_frames,
                                                   "frames_written": [wanted.start, wanted.stop], **code_versions()}),
                     },
                     calibration_attrs=_calibration_attrs(camera_model, projector),
@@ -180,13 +182,13 @@ def topography_recording(
 def _calibration_attrs(camera_model: CameraModel, projector: ProjectorCalibration) -> dict[str, Any]:
     """What the result records of the calibrations it used (provenance)."""
     from fringelab.formats.camera import calibration_as_dict
-    from fringelab.formats.topography import _json
+    from fringelab.formats.hdf5 import json_text
     from fringelab.science.calibration import CameraCalibration
 
     if isinstance(camera_model, CameraCalibration):
-        camera_json = _json(calibration_as_dict(camera_model))
+        camera_json = json_text(calibration_as_dict(camera_model))
     else:
-        camera_json = _json(asdict(camera_model.camera))
+        camera_json = json_text(asdict(camera_model.camera))
     projector_doc = {
         "image_shape": list(projector.image_shape), "axis": projector.axis, "period_px": projector.period_px,
         "reference_z_mm": projector.reference_z_mm, "z_mm": projector.z_mm, "n_edges": projector.n_edges,
@@ -195,6 +197,6 @@ def _calibration_attrs(camera_model: CameraModel, projector: ProjectorCalibratio
     return {
         "camera_json": camera_json,
         "camera_fingerprint": camera_fingerprint(camera_model.camera),
-        "projector_json": _json(projector_doc),
+        "projector_json": json_text(projector_doc),
         "projector_camera_fingerprint": projector.camera_fingerprint,
     }

@@ -210,8 +210,8 @@ def sequential_topography(
 ) -> Path:
     """`fringelab topography` on the same inputs: one pass, edges located inline, no chunks, no job."""
     from fringelab.formats.camera import read_camera_json
+    from fringelab.formats.projector import read_projector_calibration
     from fringelab.formats.recordings import open_recording
-    from fringelab.formats.topography import read_projector_calibration
     from fringelab.pipelines.topography import topography_recording
 
     def result(job: dict, name: str) -> Path:

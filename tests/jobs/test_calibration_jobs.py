@@ -9,7 +9,8 @@ import pytest
 
 from backend.db import make_engine, make_sessionmaker
 from backend.models import Camera, Experiment, Recording
-from fringelab.formats.recordings import write_frame_folder, z_csv_text
+from fringelab.formats.recordings import write_frame_folder
+from fringelab.formats.sidecars import z_csv_text
 from fringelab.science.synthetic import reference_camera, render_zstack_frames, zstack_board
 from tests.jobs.conftest import log_messages, wait_job
 

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from fringelab.formats.containers import CorruptRecording, UnsafeArchive, UnsupportedRecording, ZipLimits
-from fringelab.formats.recordings import frame_indices, open_recording, read_board_json, read_frames_csv, read_z_csv
+from fringelab.formats.recordings import open_recording
+from fringelab.formats.sidecars import frame_indices, read_board_json, read_frames_csv, read_z_csv
 from tests.recordings.formats import encode, stripe_frames, write_cine, write_tiff_stack, write_video, write_zip
 
 

@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fringelab.formats.recordings import open_recording, write_frame_folder, z_csv_text
+from fringelab.formats.recordings import open_recording, write_frame_folder
+from fringelab.formats.sidecars import z_csv_text
 from fringelab.pipelines.camera_calibration import calibrate_camera_recording
 from fringelab.science.camera import Camera
 from fringelab.science.chessboard import Board

@@ -12,7 +12,8 @@ import pytest
 
 from fringelab.commands import camera as camera_commands
 from fringelab.formats.camera import read_camera_json, write_camera_json
-from fringelab.formats.recordings import open_recording, write_frame_folder, z_csv_text
+from fringelab.formats.recordings import open_recording, write_frame_folder
+from fringelab.formats.sidecars import z_csv_text
 from fringelab.pipelines.camera_calibration import calibrate_camera_recording
 from fringelab.science.calibration import CalibrationCancelled, CalibrationError
 from fringelab.science.camera import project_points
@@ -184,7 +185,7 @@ def test_cli_errors_are_one_line_and_leave_no_file(small_stack, tmp_path, capsys
 
 
 def test_failed_write_keeps_the_old_file(calibrations, tmp_path, monkeypatch):
-    from fringelab.formats import camera as camera_files
+    from fringelab.formats import atomic
 
     out = tmp_path / "camera.json"
     out.write_text("old")
@@ -193,7 +194,7 @@ def test_failed_write_keeps_the_old_file(calibrations, tmp_path, monkeypatch):
     def broken_write(text_file, *args, **kwargs):
         raise OSError("disk full")
 
-    monkeypatch.setattr(camera_files.os, "replace", broken_write)
+    monkeypatch.setattr(atomic.os, "replace", broken_write)
     with pytest.raises(OSError, match="disk full"):
         write_camera_json(calibration, out)
     assert out.read_text() == "old"

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fringelab.formats.recordings import read_board_json
+from fringelab.formats.sidecars import read_board_json
 from fringelab.science.chessboard import Board, BoardNotFoundError, detect_board, label_board_corners
 from fringelab.science.synthetic import ChessboardRenderer, board_pose_at_z, reference_camera
 

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from fringelab.formats.topography import FrameTable, frames_csv_text
+from fringelab.formats.sidecars import FrameTable, frames_csv_text
 from fringelab.science.fringes import FrameEdges
 from fringelab.science.projector import (
     ExactCamera,

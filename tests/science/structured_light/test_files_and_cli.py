@@ -13,15 +13,10 @@ from scipy.io import loadmat
 
 from fringelab.commands import topography as commands
 from fringelab.formats.camera import read_camera_json, write_camera_json
-from fringelab.formats.recordings import open_recording, z_csv_text
-from fringelab.formats.topography import (
-    TopographyResult,
-    export_result,
-    read_frames_csv,
-    read_points_csv,
-    read_pvd,
-    write_recording,
-)
+from fringelab.formats.exports import export_result, read_points_csv, read_pvd
+from fringelab.formats.recordings import open_recording, write_recording
+from fringelab.formats.sidecars import read_frames_csv, z_csv_text
+from fringelab.formats.topography import TopographyResult
 from fringelab.pipelines.simulation import simulate_experiment
 from fringelab.pipelines.topography import topography_recording
 from fringelab.science.fields import line_profile
@@ -114,12 +109,13 @@ def test_profile_csv_round_trip(result_path: Path, tmp_path: Path) -> None:
 def test_frames_csv_errors_name_the_line() -> None:
     table = read_frames_csv("frame,time_s,force_kN\n0,0.0,1.5\n1,0.5,\n")
     np.testing.assert_array_equal(table.frame, [0, 1])
-    assert np.isnan(table.force_kN[1]) and np.all(np.isnan(table.punch_displacement_mm))
-    with pytest.raises(ValueError, match="line 3: time_s must be a number"):
+    assert np.isnan(table.force_kN[1]) and table.punch_displacement_mm is None
+    assert np.all(np.isnan(table.rows([0, 1])["punch_displacement_mm"]))  # an absent column reads as not logged
+    with pytest.raises(ValueError, match="line 3, column time_s: .abc. is not a number"):
         read_frames_csv("frame,time_s\n0,0\n1,abc\n")
     with pytest.raises(ValueError, match="line 3: frame 0 appears twice"):
         read_frames_csv("frame,time_s\n0,0\n0,1\n")
-    with pytest.raises(ValueError, match="unknown columns"):
+    with pytest.raises(ValueError, match="unknown column"):
         read_frames_csv("frame,speed\n0,1\n")
 
 

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fringelab.formats.recordings import z_csv_text
-from fringelab.formats.topography import read_projector_calibration, write_projector_calibration
+from fringelab.formats.projector import read_projector_calibration, write_projector_calibration
+from fringelab.formats.sidecars import z_csv_text
 from fringelab.pipelines.projector_calibration import calibrate_projector_recording
 from fringelab.science.fringes import NoStripesError
 from fringelab.science.projector import (

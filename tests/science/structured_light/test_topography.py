@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fringelab.formats.topography import TopographyResult, read_edges, write_edges
+from fringelab.formats.edges import read_edges, write_edges
+from fringelab.formats.topography import TopographyResult
 from fringelab.pipelines.topography import topography_recording
 from fringelab.science.fringes import NoStripesError
 from fringelab.science.projector import CalibrationMismatchError, exact_camera_model

@@ -1,0 +1,52 @@
+"""HDF5 conventions shared by fringelab's result files: every dataset carries its unit and description, JSON
+documents in attributes have no NaN, and every file names its schema and version."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import h5py
+import numpy as np
+
+if TYPE_CHECKING:
+    pass
+
+
+SCHEMA_VERSION = 1
+
+
+def unit_dataset(
+    group: h5py.Group, name: str, data: Any, *, unit: str, description: str, **kwargs: Any
+) -> h5py.Dataset:
+    dataset = group.create_dataset(name, data=data, **kwargs)
+    dataset.attrs["unit"] = unit
+    dataset.attrs["description"] = description
+    return dataset
+
+
+def json_text(value: Any) -> str:
+    def clean(obj: Any) -> Any:
+        if isinstance(obj, dict):
+            return {str(k): clean(v) for k, v in obj.items()}
+        if isinstance(obj, list | tuple):
+            return [clean(v) for v in obj]
+        if isinstance(obj, float | np.floating):
+            return float(obj) if math.isfinite(obj) else None
+        if isinstance(obj, np.integer):
+            return int(obj)
+        if isinstance(obj, np.ndarray):
+            return clean(obj.tolist())
+        return obj
+
+    return json.dumps(clean(value))
+
+
+def require_schema(file: h5py.File, schema: str, path: Path) -> None:
+    found = file.attrs.get("schema")
+    if found != schema:
+        raise ValueError(f"{path}: not a {schema} file (schema {found!r})")
+    if int(file.attrs.get("schema_version", -1)) != SCHEMA_VERSION:
+        raise ValueError(f"{path}: schema version {file.attrs.get('schema_version')} is not supported (expected 1)")
