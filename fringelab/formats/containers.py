@@ -7,8 +7,11 @@ can refuse a bad upload at once and the readers can trust what they open. Decodi
 - `inspect_zip(path, limits=...)`: frame and sidecar names of a ZIP, refusing path traversal, symbolic links,
   encrypted or exotic entries, truncation and ZIP bombs (total size, per-entry size, compression ratio,
   overlapping entries).
-- `read_cine_header(path)`: geometry, pixel format, frame rate and frame offsets of a Phantom .cine file,
-  checked against the file size (a truncated .cine is refused here).
+- `read_cine_header(path)`: geometry, pixel format (incl. packed 10/12-bit), frame rate, trigger numbering,
+  per-frame time stamps (tagged blocks) and frame offsets of a Phantom .cine file, checked against the file size
+  (a truncated .cine is refused here); `unpack_cine_pixels` turns one stored image into an array.
+- `read_mraw_header(path)`: a Photron .cih/.cihx header and its .mraw checked against each other (8-, 12- and
+  16-bit mono); `unpack_mraw_pixels` turns one stored frame into an array.
 
 Errors are `ValueError` subclasses that say what is wrong with the file: `UnsupportedRecording` (a format
 fringelab does not read), `UnsafeArchive` (a ZIP that must not be opened) and `CorruptRecording` (damaged or
@@ -33,7 +36,7 @@ IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".bmp", ".jpg", ".jpeg")
 SIDECAR_NAMES = ("z.csv", "frames.csv", "board.json")
 # Single-file recordings by name; a ZIP holds frames. A folder of frames is read from disk, not uploaded.
 UPLOAD_SUFFIXES = {".zip": "zip", ".tif": "tiff", ".tiff": "tiff", ".avi": "avi", ".mp4": "mp4", ".cine": "cine"}
-FORMATS = ("folder", "zip", "tiff", "avi", "mp4", "cine")
+FORMATS = ("folder", "zip", "tiff", "avi", "mp4", "cine", "mraw")
 
 GiB = 1 << 30
 MiB = 1 << 20
@@ -60,6 +63,8 @@ def sniff_format(path: str | Path) -> str:
     path = Path(path)
     if path.is_dir():
         return "folder"
+    if path.suffix.lower() in (*MRAW_HEADER_SUFFIXES, ".mraw"):
+        return "mraw"  # raw pixel data has no signature; the header beside it is checked when it is read
     with path.open("rb") as handle:
         head = handle.read(16)
     if not head:
@@ -83,7 +88,7 @@ def sniff_format(path: str | Path) -> str:
         )
     raise UnsupportedRecording(
         f"{path.name}: not a recording format fringelab reads (accepted: ZIP of PNG/TIFF/BMP/JPEG frames, "
-        "multi-page TIFF, AVI, MP4, Phantom .cine)"
+        "multi-page TIFF, AVI, MP4, Phantom .cine, Photron .cih/.cihx + .mraw)"
     )
 
 
@@ -220,9 +225,16 @@ _CINE_HEADER = struct.Struct("<2sHHHiIiIIIIQ")  # CINEFILEHEADER, 44 bytes
 _BITMAP_INFO = struct.Struct("<IiiHHIIiiII")  # BITMAPINFOHEADER, 40 bytes
 # Offsets of the SETUP fields we use, from the Phantom file-format documentation.
 _SETUP_FRAME_RATE_16 = 0  # uint16, legacy
-_SETUP_LENGTH = 142  # uint16, size of SETUP in bytes
+_SETUP_LENGTH = 142  # uint16, size of SETUP in bytes; the tagged blocks follow it
 _SETUP_FRAME_RATE = 768  # uint32
 _SETUP_REAL_BPP = 896  # uint32
+# CINEFILEHEADER.Compression: what the camera stored.
+_CINE_COMPRESSION = {1: "JPEG-compressed", 2: "raw Bayer (uninterpolated colour)"}
+# BITMAPINFOHEADER.biCompression of packed grey data: bits a pixel, name in the Phantom documentation.
+_CINE_PACKINGS = {0: (0, ""), 256: (10, "P10"), 1024: (12, "P12L")}
+_TAG_TIME_ONLY = 1002  # TIME64 per image
+_TAG_TIME_TOTAL = 1001  # older files: the same, with the IRIG time code
+_TIME64_FRACTION = float(1 << 32)
 
 
 @dataclass(frozen=True, eq=False)
@@ -230,7 +242,11 @@ class CineHeader:
     """What a reader needs of a Phantom .cine file.
 
     image_offsets: shape (frame_count,), byte offset of each frame's annotation block. bit_count: bits per
-    stored pixel (8 or 16 grey, 24 or 48 colour). real_bpp: significant bits of a pixel (e.g. 12).
+    stored pixel of unpacked data (8 or 16 grey, 24 or 48 colour). packing: "" (one pixel a byte or two), "P10"
+    (4 pixels in 5 bytes, Phantom's companded 10-bit codes) or "P12L" (2 pixels in 3 bytes, linear 12-bit).
+    real_bpp: significant bits of a pixel (e.g. 12). first_image_no: the camera's number of the first stored
+    frame (the trigger frame is 0, so pre-trigger frames are negative). frame_time_s: shape (frame_count,),
+    time of each frame relative to the trigger from the file's time-stamp block, or None when it has none.
     """
 
     width_px: int
@@ -241,6 +257,8 @@ class CineHeader:
     bottom_up: bool
     first_image_no: int
     image_offsets: np.ndarray
+    packing: str = ""
+    frame_time_s: np.ndarray | None = None
 
     @property
     def frame_count(self) -> int:
@@ -252,28 +270,42 @@ class CineHeader:
 
     @property
     def dtype(self) -> np.dtype:
-        return np.dtype("<u2") if self.bit_count in (16, 48) else np.dtype(np.uint8)
+        return np.dtype("<u2") if self.bit_count in (16, 48) or self.packing else np.dtype(np.uint8)
+
+    @property
+    def packed_bits(self) -> int:
+        return {"P10": 10, "P12L": 12}.get(self.packing, 0)
 
     @property
     def frame_bytes(self) -> int:
+        """Bytes of one stored image (packed images take 10 or 12 bits a pixel)."""
+        if self.packing:
+            return self.width_px * self.height_px * self.packed_bits // 8
         return self.width_px * self.height_px * self.channels * self.dtype.itemsize
+
+    @property
+    def frame_numbers(self) -> np.ndarray:
+        """The camera's number of each stored frame (first_image_no, first_image_no + 1, ...), shape (n,)."""
+        return np.arange(self.frame_count, dtype=np.int64) + self.first_image_no
 
 
 def read_cine_header(path: str | Path) -> CineHeader:
-    """Parse and check a .cine header; refuses compressed or packed pixel formats and truncated files."""
+    """Parse and check a .cine header; refuses compressed files, unknown pixel formats and truncated files."""
     path = Path(path)
     size = path.stat().st_size
     with path.open("rb") as handle:
         raw = handle.read(_CINE_HEADER.size)
         if len(raw) < _CINE_HEADER.size:
-            raise CorruptRecording(f"{path.name}: shorter than a .cine header")
+            raise CorruptRecording(f"{path.name}: shorter than a .cine header (truncated)")
         (kind, header_size, compression, _version, _first_movie, _total, first_no, count, off_bitmap, off_setup,
-         off_offsets, _trigger) = _CINE_HEADER.unpack(raw)  # fmt: skip
+         off_offsets, trigger_time64) = _CINE_HEADER.unpack(raw)  # fmt: skip
         if kind != b"CI" or header_size != CINE_HEADER_SIZE:
             raise UnsupportedRecording(f"{path.name}: not a Phantom .cine file")
         if compression != 0:
+            what = _CINE_COMPRESSION.get(compression, f"compression code {compression}")
             raise UnsupportedRecording(
-                f"{path.name}: compressed or raw-Bayer .cine (compression {compression}); export it uncompressed"
+                f"{path.name}: a {what} .cine cannot be measured; save it from PCC as an uncompressed grey "
+                "(or interpolated colour) .cine, 8/16-bit or packed 10/12-bit"
             )
         if count == 0:
             raise CorruptRecording(f"{path.name}: the .cine holds no frames")
@@ -285,10 +317,11 @@ def read_cine_header(path: str | Path) -> CineHeader:
         (_bi_size, width, height, _planes, bit_count, bi_compression, _image_size, *_rest) = _BITMAP_INFO.unpack(
             handle.read(_BITMAP_INFO.size)
         )
-        if bit_count not in (8, 16, 24, 48) or bi_compression != 0:
+        packed_bits, packing = _CINE_PACKINGS.get(bi_compression, (-1, ""))
+        if packed_bits < 0 or bit_count not in (8, 16, 24, 48) or (packing and bit_count not in (8, 16)):
             raise UnsupportedRecording(
-                f"{path.name}: {bit_count}-bit pixels with bitmap compression {bi_compression}; only uncompressed "
-                "8- and 16-bit (and 24/48-bit colour) .cine files are read; export unpacked"
+                f"{path.name}: {bit_count}-bit pixels with bitmap compression {bi_compression}; fringelab reads "
+                "uncompressed 8/16-bit grey, 24/48-bit colour and packed 10-bit (P10) or 12-bit (P12L) grey .cine"
             )
         if width <= 0 or height == 0:
             raise CorruptRecording(f"{path.name}: frame size {width} × {height} px")
@@ -300,35 +333,278 @@ def read_cine_header(path: str | Path) -> CineHeader:
             frame_rate = float(struct.unpack_from("<I", setup, _SETUP_FRAME_RATE)[0]) or None
         elif len(setup) >= 2:
             frame_rate = float(struct.unpack_from("<H", setup, _SETUP_FRAME_RATE_16)[0]) or None
-        depth = 16 if bit_count in (16, 48) else 8
+        depth = packed_bits or (16 if bit_count in (16, 48) else 8)
         real_bpp = depth
         if usable >= _SETUP_REAL_BPP + 4:
             real_bpp = int(struct.unpack_from("<I", setup, _SETUP_REAL_BPP)[0]) or depth
         handle.seek(off_offsets)
         offsets = np.frombuffer(handle.read(8 * count), dtype="<u8").astype(np.int64)
+        times = _cine_frame_times(handle, path.name, off_setup + setup_length, off_offsets, count)
     header = CineHeader(
         width_px=width,
         height_px=abs(height),
-        bit_count=bit_count,
+        bit_count=16 if packing else bit_count,
         real_bpp=min(real_bpp, depth),
         frame_rate_hz=frame_rate,
-        bottom_up=height > 0,
+        bottom_up=height > 0 and not packing,  # packed images are stored top-down
         first_image_no=first_no,
         image_offsets=offsets,
+        packing=packing,
+        frame_time_s=_times_from_trigger(times, trigger_time64, first_no, frame_rate),
     )
-    # Each frame: annotation block (its size first, uint32), then image bytes; the last must fit in the file.
+    _check_cine_frames_fit(path, header, size)
+    return header
+
+
+def _times_from_trigger(
+    stamps: np.ndarray | None, trigger_time64: int, first_image_no: int, frame_rate_hz: float | None
+) -> np.ndarray | None:
+    """Frame times in s relative to the trigger from TIME64 stamps (seconds since 1970 in the high 32 bits, the
+    fraction in the low 32), subtracted as integers to keep TIME64's 0.23 ns; a file without a trigger time
+    counts from its first frame's number and the frame rate."""
+    if stamps is None:
+        return None
+    ticks = stamps.astype(np.int64)  # 2^-32 s; fits int64 until 2038 + 68 years
+    if trigger_time64:
+        return (ticks - np.int64(trigger_time64)) / _TIME64_FRACTION
+    start_s = first_image_no / frame_rate_hz if frame_rate_hz else 0.0
+    return (ticks - ticks[0]) / _TIME64_FRACTION + start_s
+
+
+def _cine_frame_times(handle: BinaryIO, name: str, start: int, stop: int, count: int) -> np.ndarray | None:
+    """TIME64 stamps (n,) uint64 of each frame from the tagged blocks between SETUP and the frame offsets, or
+    None when the file has none.
+
+    Each block: uint32 size (header included), uint16 type, uint16 reserved, data. Unknown blocks are skipped;
+    a block that runs past the frame offsets means a damaged header.
+    """
+    offset = start
+    while offset + 8 <= stop:
+        block_size, block_type, _reserved = struct.unpack("<IHH", _read_at(handle, offset, 8))
+        if block_size < 8 or offset + block_size > stop:
+            raise CorruptRecording(f"{name}: a tagged block at byte {offset} runs into the frame offsets (damaged)")
+        if block_type in (_TAG_TIME_ONLY, _TAG_TIME_TOTAL) and block_size - 8 >= 8 * count:
+            return np.frombuffer(_read_at(handle, offset + 8, 8 * count), dtype="<u8").astype(np.uint64)
+        offset += block_size
+    return None
+
+
+def _check_cine_frames_fit(path: Path, header: CineHeader, size: int) -> None:
+    """Every frame's annotation and image must lie inside the file, one after another: a truncated .cine is an
+    error, never a recording with fewer frames."""
+    offsets = header.image_offsets
+    if (offsets < CINE_HEADER_SIZE).any():
+        raise CorruptRecording(f"{path.name}: a frame offset points into the file header (damaged)")
+    if header.frame_count > 1 and (np.diff(offsets) < header.frame_bytes + 8).any():
+        raise CorruptRecording(f"{path.name}: frame offsets overlap (damaged header)")
     last = int(offsets.max())
-    if (offsets < CINE_HEADER_SIZE).any() or last + 8 > size:
-        raise CorruptRecording(f"{path.name}: a frame offset lies outside the file (truncated or damaged)")
+    if last + 8 > size:
+        raise CorruptRecording(
+            f"{path.name}: frame {header.frame_count - 1} starts past the end of the file ({size} bytes); "
+            "the .cine is truncated"
+        )
     with path.open("rb") as handle:
         annotation = struct.unpack("<I", _read_at(handle, last, 4))[0]
     if annotation < 8 or last + annotation + header.frame_bytes > size:
         raise CorruptRecording(
             f"{path.name}: the last frame ends past the end of the file ({size} bytes); the .cine is truncated"
         )
-    return header
+
+
+def unpack_cine_pixels(data: bytes, header: CineHeader) -> np.ndarray:
+    """The pixels of one stored .cine image as a 2-D (or colour 3-D) array, rows top-down, native byte order.
+
+    Packed data is a big-endian bit stream: P10 holds 4 pixels in 5 bytes, P12L 2 pixels in 3 bytes.
+    """
+    rows, cols = header.height_px, header.width_px
+    if header.packing:
+        packed = np.frombuffer(data, dtype=np.uint8)
+        if header.packing == "P12L":
+            return _unpack_12bit_big_endian(data).reshape(rows, cols)
+        else:
+            b = packed.reshape(-1, 5).astype(np.uint16)
+            pixels = np.empty((len(b), 4), dtype=np.uint16)
+            pixels[:, 0] = (b[:, 0] << 2) | (b[:, 1] >> 6)
+            pixels[:, 1] = ((b[:, 1] & 0x3F) << 4) | (b[:, 2] >> 4)
+            pixels[:, 2] = ((b[:, 2] & 0x0F) << 6) | (b[:, 3] >> 2)
+            pixels[:, 3] = ((b[:, 3] & 0x03) << 8) | b[:, 4]
+        return pixels.reshape(rows, cols)
+    shape: tuple[int, ...] = (rows, cols, 3) if header.channels == 3 else (rows, cols)
+    image = np.frombuffer(data, dtype=header.dtype).reshape(shape)
+    if header.bottom_up:
+        image = image[::-1]
+    return image.astype(header.dtype.newbyteorder("="), copy=True)
 
 
 def _read_at(handle: BinaryIO, offset: int, length: int) -> bytes:
     handle.seek(offset)
     return bytes(handle.read(max(0, length)))
+
+
+# ---------------------------------------------------------------------------------------------------- Photron MRAW
+
+MRAW_HEADER_SUFFIXES = (".cihx", ".cih")
+_MAX_CIH_BYTES = 4 << 20
+
+
+@dataclass(frozen=True)
+class MrawHeader:
+    """What a reader needs of a Photron MRAW recording (the .mraw data and its .cih/.cihx header).
+
+    bits: bits a stored pixel takes (8, 12 packed big-endian 2 pixels in 3 bytes, or 16 little-endian).
+    effective_bits: significant bits of a pixel (the camera's sensor depth). start_frame: the camera's number of
+    the first stored frame (the trigger frame is 0). data_path: the .mraw file.
+    """
+
+    width_px: int
+    height_px: int
+    frame_count: int
+    bits: int
+    effective_bits: int
+    frame_rate_hz: float | None
+    start_frame: int
+    data_path: Path
+    header_path: Path
+
+    @property
+    def frame_bytes(self) -> int:
+        return self.width_px * self.height_px * self.bits // 8
+
+    @property
+    def frame_numbers(self) -> np.ndarray:
+        return np.arange(self.frame_count, dtype=np.int64) + self.start_frame
+
+
+def mraw_paths(path: str | Path) -> tuple[Path, Path]:
+    """(header, data) paths of an MRAW recording named by its .cih, .cihx or .mraw file (same stem, same folder)."""
+    path = Path(path)
+    data = path.with_suffix(".mraw")
+    if path.suffix.lower() in MRAW_HEADER_SUFFIXES:
+        return path, data
+    for suffix in MRAW_HEADER_SUFFIXES:
+        for candidate in (path.with_suffix(suffix), path.with_suffix(suffix.upper())):
+            if candidate.is_file():
+                return candidate, path
+    raise UnsupportedRecording(f"{path.name}: a Photron .mraw needs its .cihx or .cih header beside it (same name)")
+
+
+def _cih_fields(path: Path) -> dict[str, str]:
+    """The header as {key: text}: `Key : Value` lines of a .cih, or the XML of a .cihx, under the .cih names."""
+    if path.stat().st_size > _MAX_CIH_BYTES:
+        raise CorruptRecording(f"{path.name}: larger than {_MAX_CIH_BYTES} bytes; not a Photron header")
+    data = path.read_bytes()
+    if path.suffix.lower() == ".cih":
+        fields: dict[str, str] = {}
+        for line in data.decode("latin-1").splitlines():
+            key, sep, value = line.partition(" : ")
+            if sep:
+                fields[key.strip()] = value.strip()
+        return fields
+    start, stop = data.find(b"<cih>"), data.rfind(b"</cih>")
+    if start < 0 or stop < 0:
+        raise CorruptRecording(f"{path.name}: no <cih> document in the .cihx (truncated or damaged)")
+    import xml.etree.ElementTree as ElementTree
+
+    try:
+        root = ElementTree.fromstring(data[start : stop + len(b"</cih>")])
+    except ElementTree.ParseError as error:
+        raise CorruptRecording(f"{path.name}: the .cihx XML is damaged ({error})") from None
+    where = {
+        "Record Rate(fps)": "recordInfo/recordRate",
+        "Total Frame": "frameInfo/totalFrame",
+        "Start Frame": "frameInfo/startFrame",
+        "Image Width": "imageDataInfo/resolution/width",
+        "Image Height": "imageDataInfo/resolution/height",
+        "Color Type": "imageDataInfo/colorInfo/type",
+        "Color Bit": "imageDataInfo/colorInfo/bit",
+        "EffectiveBit Depth": "imageDataInfo/effectiveBit/depth",
+        "EffectiveBit Side": "imageDataInfo/effectiveBit/side",
+        "File Format": "imageFileInfo/fileFormat",
+    }
+    return {key: (root.findtext(xpath) or "").strip() for key, xpath in where.items() if root.find(xpath) is not None}
+
+
+def read_mraw_header(path: str | Path) -> MrawHeader:
+    """Parse a Photron .cih/.cihx header and check its .mraw against it (a truncated .mraw is refused here).
+
+    path: the .cih, .cihx or .mraw file. Refuses colour (raw Bayer) recordings and bit depths other than 8, 12
+    and 16, naming what the header says.
+    """
+    header_path, data_path = mraw_paths(path)
+    if not header_path.is_file():
+        raise UnsupportedRecording(f"{header_path.name}: the Photron header is missing")
+    if not data_path.is_file():
+        raise CorruptRecording(f"{header_path.name}: its data file {data_path.name} is missing")
+    fields = _cih_fields(header_path)
+    name = header_path.name
+
+    def number(key: str, *, required: bool = True) -> float | None:
+        text = fields.get(key, "")
+        if not text:
+            if required:
+                raise CorruptRecording(f"{name}: no '{key}' in the header (truncated or damaged)")
+            return None
+        try:
+            return float(text)
+        except ValueError:
+            raise CorruptRecording(f"{name}: '{key}' is {text!r}, not a number") from None
+
+    file_format = fields.get("File Format", "MRaw")
+    if file_format.lower() != "mraw":
+        raise UnsupportedRecording(f"{name}: the header describes a {file_format!r} recording, not MRaw")
+    colour = fields.get("Color Type", "Mono")
+    if colour.lower() not in ("mono", ""):
+        raise UnsupportedRecording(
+            f"{name}: a {colour} (raw Bayer) MRAW cannot be measured; record or save in monochrome"
+        )
+    width, height, count = (int(number(k) or 0) for k in ("Image Width", "Image Height", "Total Frame"))
+    bits = int(number("Color Bit") or 0)
+    if bits not in (8, 12, 16):
+        raise UnsupportedRecording(f"{name}: {bits}-bit pixels; fringelab reads 8-, 12- and 16-bit MRAW")
+    if width <= 0 or height <= 0 or count <= 0:
+        raise CorruptRecording(f"{name}: {width} × {height} px, {count} frames")
+    effective = int(number("EffectiveBit Depth", required=False) or bits)
+    if fields.get("EffectiveBit Side", "Lower").lower() == "higher":
+        effective = bits  # the significant bits sit at the top: the values span the full range
+    header = MrawHeader(
+        width_px=width,
+        height_px=height,
+        frame_count=count,
+        bits=bits,
+        effective_bits=min(effective, bits),
+        frame_rate_hz=number("Record Rate(fps)", required=False) or None,
+        start_frame=int(number("Start Frame", required=False) or 0),
+        data_path=data_path,
+        header_path=header_path,
+    )
+    size, expected = data_path.stat().st_size, header.frame_bytes * count
+    if size < expected:
+        raise CorruptRecording(
+            f"{data_path.name}: {size} bytes, but {count} frames of {width} × {height} px at {bits} bits need "
+            f"{expected}; the .mraw is truncated"
+        )
+    if size > expected:
+        raise CorruptRecording(
+            f"{data_path.name}: {size} bytes, more than the {expected} its header describes; the header does not "
+            "belong to this .mraw"
+        )
+    return header
+
+
+def unpack_mraw_pixels(data: bytes, header: MrawHeader) -> np.ndarray:
+    """One MRAW frame's bytes as a (rows, cols) array: uint8, or uint16 for 12-bit (unpacked) and 16-bit data."""
+    shape = (header.height_px, header.width_px)
+    if header.bits == 8:
+        return np.frombuffer(data, dtype=np.uint8).reshape(shape).copy()
+    if header.bits == 16:
+        return np.frombuffer(data, dtype="<u2").reshape(shape).astype(np.uint16)
+    return _unpack_12bit_big_endian(data).reshape(shape)
+
+
+def _unpack_12bit_big_endian(data: bytes) -> np.ndarray:
+    """Two 12-bit pixels in three bytes, most significant bits first (Phantom P12L, Photron 12-bit MRAW)."""
+    b = np.frombuffer(data, dtype=np.uint8).reshape(-1, 3).astype(np.uint16)
+    pixels = np.empty((len(b), 2), dtype=np.uint16)
+    pixels[:, 0] = (b[:, 0] << 4) | (b[:, 1] >> 4)
+    pixels[:, 1] = ((b[:, 1] & 0x0F) << 8) | b[:, 2]
+    return pixels.ravel()

@@ -2,8 +2,9 @@
 
 A recording is opened lazily: `open_recording(path)` returns a `FrameSource`, a sequence of 2-D grey frames
 (uint8 or uint16) decoded one at a time on access, so a multi-GB sequence is never held in memory. Formats:
-a folder or ZIP of PNG/TIFF/BMP/JPEG frames (natural name order), a multi-page TIFF, an AVI or MP4 video and a
-Phantom .cine file (uncompressed 8/16-bit grey, 24/48-bit colour). Colour frames are converted to grey
+a folder or ZIP of PNG/TIFF/BMP/JPEG frames (natural name order), a multi-page TIFF, an AVI or MP4 video, a
+Phantom .cine file (uncompressed 8/16-bit grey, 24/48-bit colour, packed 10/12-bit grey) and a Photron MRAW
+(.cih/.cihx + .mraw, 8/12/16-bit mono). Colour frames are converted to grey
 (ITU-R BT.601 luma) and the source says so (`colour_converted`). Container checks without decoding (format
 sniffing, ZIP safety, the .cine header) live in `containers`.
 
@@ -20,8 +21,9 @@ import threading
 import zipfile
 import zlib
 from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, overload
+from typing import TYPE_CHECKING, Any, BinaryIO, overload
 
 import cv2
 import numpy as np
@@ -35,8 +37,12 @@ from fringelab.formats.containers import (
     inspect_zip,
     is_junk_entry,
     read_cine_header,
+    read_mraw_header,
     sniff_format,
+    unpack_cine_pixels,
+    unpack_mraw_pixels,
 )
+from fringelab.formats.sidecars import FRAMES_CSV_COLUMNS
 from fringelab.science import natural_key
 
 if TYPE_CHECKING:
@@ -129,7 +135,11 @@ class FrameSource(Sequence[np.ndarray]):
     format: one of `containers.FORMATS`. frame_names: one name per frame (the entry or file name for image
     sequences, "frame N" otherwise). fps: the frame rate the container states, or None. bit_depth: significant
     bits of a sample as stored (8 or 16; a .cine states its real depth, e.g. 12). colour_converted: colour
-    frames were met and converted to grey. Use as a context manager, or call `close()`, to release the file.
+    frames were met and converted to grey. frame_numbers: shape (n,), each frame's number as the camera counts
+    it (0, 1, ... unless the container says otherwise, e.g. a .cine counts from its trigger). frame_times_s:
+    shape (n,), each frame's time in s as the container states it (relative to the trigger), or None. notes:
+    what a reader should know about how the frames were read. Use as a context manager, or call `close()`, to
+    release the file.
     """
 
     format: str = ""
@@ -140,6 +150,9 @@ class FrameSource(Sequence[np.ndarray]):
         self.fps = fps
         self.bit_depth = bit_depth
         self.colour_converted = False
+        self.frame_numbers: np.ndarray = np.arange(len(self.frame_names), dtype=np.int64)
+        self.frame_times_s: np.ndarray | None = None
+        self.notes: list[str] = []
         self._lock = threading.Lock()
 
     def __len__(self) -> int:
@@ -281,6 +294,7 @@ class TiffStack(FrameSource):
             raise CorruptRecording(f"{path.name}: not a readable TIFF ({error})") from None
         if count == 0:
             raise CorruptRecording(f"{path.name}: the TIFF has no pages")
+        _refuse_truncated_tiff(self._tiff, path, count)
         super().__init__(path, [f"page {i}" for i in range(count)], bit_depth=16 if first.bitspersample > 8 else 8)
 
     def _read(self, index: int) -> tuple[np.ndarray, bool]:
@@ -309,6 +323,23 @@ class TiffStack(FrameSource):
 
     def close(self) -> None:
         self._tiff.close()
+
+
+def _refuse_truncated_tiff(tiff: Any, path: Path, count: int) -> None:
+    """tifffile stops at the first page it cannot read, so a truncated stack would open with fewer pages: the
+    last page read must end the page chain (next-page offset 0) and its data must lie inside the file."""
+    header = tiff.tiff
+    last = tiff.pages[count - 1]
+    size = path.stat().st_size
+    position = last.offset + header.tagnosize + len(last.tags) * header.tagsize
+    tiff.filehandle.seek(position)
+    raw = tiff.filehandle.read(header.offsetsize)
+    following = struct.unpack(tiff.byteorder + header.offsetformat[-1], raw)[0] if len(raw) == header.offsetsize else 1
+    ends = [int(o) + int(n) for o, n in zip(last.dataoffsets, last.databytecounts, strict=False)]
+    if following != 0 or (ends and max(ends) > size):
+        raise CorruptRecording(
+            f"{path.name}: the TIFF is truncated after page {count - 1} ({size} bytes); upload the whole file"
+        )
 
 
 class VideoFrames(FrameSource):
@@ -356,42 +387,96 @@ def _channels_equal(image: np.ndarray) -> bool:
 
 
 class CineFrames(FrameSource):
-    """Frames of an uncompressed Phantom .cine file, read at their offsets (bottom-up rows flipped)."""
+    """Frames of a Phantom .cine file, read at their offsets: uncompressed 8/16-bit grey (bottom-up rows
+    flipped), 24/48-bit colour, or packed 10-bit (P10) and 12-bit (P12L) grey unpacked to uint16.
+
+    frame_numbers are the camera's (the trigger frame is 0); frame_times_s come from the file's time-stamp block,
+    else from the frame rate and those numbers. P10 pixels are Phantom's companded 10-bit codes as stored (as
+    pims returns them); `notes` says so, since their grey levels are not linear in the light.
+    """
 
     format = "cine"
 
     def __init__(self, path: Path):
         self.header = read_cine_header(path)
+        header = self.header
         super().__init__(
             path,
-            [f"frame {i}" for i in range(self.header.frame_count)],
-            fps=self.header.frame_rate_hz,
-            bit_depth=self.header.real_bpp,
+            [f"frame {number}" for number in header.frame_numbers],
+            fps=header.frame_rate_hz,
+            bit_depth=header.real_bpp,
         )
-        self._fd: int | None = None
+        self.frame_numbers = header.frame_numbers
+        if header.frame_time_s is not None:
+            self.frame_times_s = header.frame_time_s
+            self.notes.append("frame times from the .cine time stamps, relative to the trigger")
+        elif header.frame_rate_hz:
+            self.frame_times_s = header.frame_numbers / header.frame_rate_hz
+            self.notes.append("frame times from the .cine frame rate and frame numbers (no time stamps)")
+        if header.packing == "P10":
+            self.notes.append("P10 packed .cine: grey levels are the camera's companded 10-bit codes, not linear")
+        self._handle: BinaryIO | None = None
+        self._pid = 0
 
     def _read(self, index: int) -> tuple[np.ndarray, bool]:
-        if self._fd is None:
-            self._fd = os.open(self.path, os.O_RDONLY)
+        if self._handle is None or self._pid != os.getpid():  # a forked worker opens its own handle
+            self._handle = self.path.open("rb")
+            self._pid = os.getpid()
         header = self.header
         start = int(header.image_offsets[index])
-        annotation = int.from_bytes(os.pread(self._fd, 4, start), "little")
-        data = os.pread(self._fd, header.frame_bytes, start + annotation)
+        self._handle.seek(start)
+        annotation = int.from_bytes(self._handle.read(4), "little")
+        self._handle.seek(start + annotation)
+        data = self._handle.read(header.frame_bytes)
         if annotation < 8 or len(data) != header.frame_bytes:
-            raise ValueError(f"{self.path.name} frame {index}: truncated")
-        shape: tuple[int, ...] = (header.height_px, header.width_px)
-        if header.channels == 3:
-            shape += (3,)
-        image = np.frombuffer(data, dtype=header.dtype).reshape(shape)
-        if header.bottom_up:
-            image = image[::-1]
-        image = image.astype(header.dtype.newbyteorder("="), copy=True)
+            raise CorruptRecording(f"{self.path.name} frame {index}: truncated")
+        image = unpack_cine_pixels(data, header)
         return _as_grey(image, name=f"{self.path.name} frame {index}")
 
     def close(self) -> None:
-        if self._fd is not None:
-            os.close(self._fd)
-            self._fd = None
+        if self._handle is not None:
+            self._handle.close()
+            self._handle = None
+
+
+class MrawFrames(FrameSource):
+    """Frames of a Photron MRAW recording (.mraw data + .cih/.cihx header): 8-bit, 12-bit (packed, unpacked to
+    uint16 with numpy) or 16-bit mono, read one frame at a time at its offset. frame_numbers are the camera's
+    (the header's Start Frame; the trigger frame is 0); frame_times_s from those numbers and the record rate."""
+
+    format = "mraw"
+
+    def __init__(self, path: Path):
+        self.header = read_mraw_header(path)
+        header = self.header
+        super().__init__(
+            header.header_path,
+            [f"frame {number}" for number in header.frame_numbers],
+            fps=header.frame_rate_hz,
+            bit_depth=header.effective_bits,
+        )
+        self.frame_numbers = header.frame_numbers
+        if header.frame_rate_hz:
+            self.frame_times_s = header.frame_numbers / header.frame_rate_hz
+            self.notes.append("frame times from the MRAW record rate and start frame (relative to the trigger)")
+        self._handle: BinaryIO | None = None
+        self._pid = 0
+
+    def _read(self, index: int) -> tuple[np.ndarray, bool]:
+        if self._handle is None or self._pid != os.getpid():  # a forked worker opens its own handle
+            self._handle = self.header.data_path.open("rb")
+            self._pid = os.getpid()
+        size = self.header.frame_bytes
+        self._handle.seek(index * size)
+        data = self._handle.read(size)
+        if len(data) != size:
+            raise CorruptRecording(f"{self.header.data_path.name} frame {index}: truncated")
+        return unpack_mraw_pixels(data, self.header), False
+
+    def close(self) -> None:
+        if self._handle is not None:
+            self._handle.close()
+            self._handle = None
 
 
 def open_recording(path: str | Path, *, zip_limits: ZipLimits | None = None) -> FrameSource:
@@ -418,7 +503,52 @@ def open_recording(path: str | Path, *, zip_limits: ZipLimits | None = None) -> 
         return TiffStack(path)
     if kind == "cine":
         return CineFrames(path)
+    if kind == "mraw":
+        return MrawFrames(path)
     return VideoFrames(path, kind)
+
+
+# ---------------------------------------------------------------------------------------------------- test log
+
+
+@dataclass(frozen=True, eq=False)
+class RecordingLog:
+    """Per frame of a recording (n,): the test log columns (`FrameTable.COLUMNS`, NaN where not logged), the
+    camera's frame numbers, and where time_s came from (`time_source`: "frames.csv", the container's time stamps
+    or frame rate, or "none" when nothing states it)."""
+
+    columns: dict[str, np.ndarray]
+    camera_frame: np.ndarray
+    time_source: str
+
+    def row(self, index: int) -> tuple[float, float, float]:
+        """(time_s, punch_displacement_mm, force_kN) of frame `index`."""
+        return tuple(float(self.columns[name][index]) for name in FRAMES_CSV_COLUMNS)  # type: ignore[return-value]
+
+
+def recording_log(source: Sequence[np.ndarray]) -> RecordingLog:
+    """The test log of every frame: frames.csv where it has a column, else what the container states (a .cine's
+    time stamps relative to the trigger), else NaN; frame numbers as the camera counts them.
+
+    source: a `FrameSource`, or any sequence of frames with `sidecar_text(name)` (what it lacks counts as absent).
+    """
+    from fringelab.formats.sidecars import FrameTable, read_frames_csv
+
+    n_frames = len(source)
+    sidecar_text = getattr(source, "sidecar_text", None)
+    text = sidecar_text("frames.csv") if sidecar_text is not None else None
+    table = read_frames_csv(text) if text is not None else FrameTable.empty()
+    columns = table.rows(list(range(n_frames)))
+    time_source = "frames.csv" if table.time_s is not None else "none"
+    times_s = getattr(source, "frame_times_s", None)
+    if table.time_s is None and times_s is not None:
+        columns["time_s"] = np.asarray(times_s, dtype=np.float64)
+        notes = getattr(source, "notes", [])
+        time_source = f"{getattr(source, 'format', 'recording')}: " + next(
+            (note for note in notes if note.startswith("frame times")), "frame times"
+        )
+    camera_frame = np.asarray(getattr(source, "frame_numbers", np.arange(n_frames)), np.int64)
+    return RecordingLog(columns=columns, camera_frame=camera_frame, time_source=time_source)
 
 
 # ---------------------------------------------------------------------------------------------------- sidecars

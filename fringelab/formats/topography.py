@@ -13,7 +13,10 @@ Topography result (schema "fringelab.topography", version 1); lengths in mm in t
                     provenance_json (code versions, input checksums)
   /calibration      attrs: camera_json (the camera calibration document or the camera's parameters),
                     camera_fingerprint, projector_json (its settings, QA, provenance, table size)
-  /frames           index (n,) int64; time_s, punch_displacement_mm, force_kN (n,) float64, NaN if not logged
+  /frames           index (n,) int64; camera_frame (n,) int64 (the camera's numbering, e.g. from a .cine's
+                    trigger; absent in older files: the index); time_s, punch_displacement_mm, force_kN (n,)
+                    float64, NaN if not logged; time_s from frames.csv, else the recording's own time stamps
+                    (root attr time_source says which)
   /points           offsets (n + 1,) int64: frame i's points are rows offsets[i]:offsets[i+1] of
                     x_mm, y_mm, z_mm (P,) float32, edge (P,) int32 (edge index k), line (P,) int32 (scan line)
   /grid             x_mm (nx,), y_mm (ny,); z_mm (n, ny, nx) float32, chunked one frame per chunk, NaN outside
@@ -109,8 +112,17 @@ class TopographyWriter:
             maxshape=(None,),
             chunks=(1024,),
         )
+        unit_dataset(
+            frames,
+            "camera_frame",
+            np.zeros(0, np.int64),
+            unit="1",
+            description="frame number as the camera counts it (a .cine counts from its trigger frame 0)",
+            maxshape=(None,),
+            chunks=(1024,),
+        )
         for name, unit, description in (
-            ("time_s", "s", "time of the frame (frames.csv)"),
+            ("time_s", "s", "time of the frame (frames.csv, else the recording's time stamps; see time_source)"),
             ("punch_displacement_mm", "mm", "punch displacement (frames.csv)"),
             ("force_kN", "kN", "punch force (frames.csv)"),
         ):
@@ -220,10 +232,14 @@ class TopographyWriter:
         peak: Peak,
         *,
         log: tuple[float, float, float],
+        camera_frame: int | None = None,
     ) -> None:
-        """Add one frame: its points, grid, peak, test-log row (time_s, punch_displacement_mm, force_kN), QA."""
+        """Add one frame: its points, grid, peak, test-log row (time_s, punch_displacement_mm, force_kN), QA, and
+        its number as the camera counts it (default: its index)."""
         file = self._file
         self._append(file["frames/index"], np.array([measurement.frame]))
+        number = measurement.frame if camera_frame is None else camera_frame
+        self._append(file["frames/camera_frame"], np.array([number], np.int64))
         for name, value in zip(("time_s", "punch_displacement_mm", "force_kN"), log, strict=True):
             self._append(file[f"frames/{name}"], np.array([value]))
         points = measurement.points_obj_mm
@@ -310,7 +326,19 @@ class TopographyResult:
 
     def column(self, name: str) -> np.ndarray:
         """A per-frame dataset, e.g. "frames/time_s", "peak/w_mm", "qa/n_points"."""
+        if name == "frames/camera_frame" and name not in self.file:
+            return self.frames.copy()  # results written before the camera's numbering was kept
         return self.file[name][()]
+
+    @property
+    def camera_frames(self) -> np.ndarray:
+        """Frame numbers as the camera counts them (n,) (a .cine from its trigger; else the recording index)."""
+        return self.column("frames/camera_frame")
+
+    @property
+    def time_source(self) -> str:
+        """Where frames/time_s came from ("frames.csv", the recording's time stamps, "none"); "" in older files."""
+        return str(self.file.attrs.get("time_source", ""))
 
     def points(self, i: int) -> np.ndarray:
         """The 3-D points (N, 3) of frame position i."""

@@ -74,7 +74,7 @@ def topography_recording(
     at a time.
     """
     from fringelab.formats.hdf5 import json_text
-    from fringelab.formats.sidecars import FrameTable, read_frames_csv
+    from fringelab.formats.recordings import recording_log
     from fringelab.formats.topography import TopographyWriter
     from fringelab.pipelines.provenance import code_versions
     from fringelab.science.fields import field_peak
@@ -87,10 +87,8 @@ def topography_recording(
     check_recording_against(np.shape(first_image)[:2], projector, camera_model)
     if edges is None:
         check_stripes_against(first_image, projector)
-    frames_text = source.sidecar_text("frames.csv") if hasattr(source, "sidecar_text") else None
-    # Frames the log does not list (or no log at all) get NaN.
-    table = read_frames_csv(frames_text) if frames_text is not None else FrameTable.empty()
-    log = table.rows(list(range(n_frames)))
+    # Frames the log does not list (or no log at all) get NaN; the time axis falls back on the container's.
+    log = recording_log(source)
 
     def located() -> Iterator[FrameEdges]:
         supplied = iter(edges) if edges is not None else None
@@ -136,6 +134,7 @@ def topography_recording(
                     z_flat_mm=z_flat,
                     axis=projector.axis,
                     attrs={
+                        "time_source": log.time_source,
                         "settings_json": json_text(asdict(settings)),
                         "edge_settings_json": json_text(asdict(projector.edges)),
                         "provenance_json": json_text({"input": where, "n_frames_in_recording": n_frames,
@@ -148,8 +147,10 @@ def topography_recording(
             assert writer is not None and grid is not None
             z_grid = grid_measurement(measurement, projector, grid, max_edge_mm=max_edge_mm)
             peak = field_peak(z_grid - z_flat, grid)
-            time_s, punch_mm, force_kn = (float(log[name][measurement.frame]) for name in FrameTable.COLUMNS)
-            writer.append(measurement, z_grid, peak, log=(time_s, punch_mm, force_kn))
+            writer.append(
+                measurement, z_grid, peak, log=log.row(measurement.frame),
+                camera_frame=int(log.camera_frame[measurement.frame]),
+            )  # fmt: skip
             peaks.append(peak.w_mm)
             if np.isfinite(peak.centre_x_mm) and peak.w_mm >= 5.0:
                 centres.append((peak.centre_x_mm, peak.centre_y_mm))

@@ -3,7 +3,6 @@ TIFF, AVI/MP4 and Phantom .cine (a small writer of the uncompressed layout), plu
 
 from __future__ import annotations
 
-import io
 import struct
 import zipfile
 from collections.abc import Sequence
@@ -69,35 +68,141 @@ def write_video(path: Path, frames: Sequence[np.ndarray], *, fps: float = 25.0) 
     return path
 
 
-def write_cine(path: Path, frames: Sequence[np.ndarray], *, fps: int = 5000, real_bpp: int | None = None) -> Path:
-    """An uncompressed Phantom .cine: header, bitmap header, a 1024-byte setup, frame offsets, frames.
+CINE_SETUP_BYTES = 7240  # SETUP as Phantom software 7xx writes it (all fields up to cine_name)
+CINE_TRIGGER_TIME_S = 1_700_000_000.25  # an arbitrary trigger time (s since 1970), exact in TIME64
 
-    Frames are stored bottom-up as Phantom writes them; colour frames (rows, cols, 3) as BGR, 24 or 48 bits.
+
+def time64(seconds: float) -> int:
+    """Phantom TIME64: whole seconds in the high 32 bits, the fraction of a second in the low 32 bits."""
+    whole = int(seconds // 1)
+    return (whole << 32) + round((seconds - whole) * 2**32)
+
+
+def pack_bits(frame: np.ndarray, bits: int) -> bytes:
+    """Big-endian bit stream of `bits`-bit pixels (P10: 4 pixels in 5 bytes, P12L: 2 in 3), as Phantom packs."""
+    values = frame.astype(np.uint64).ravel()
+    group = 4 if bits == 10 else 2
+    words = np.zeros(len(values) // group, dtype=np.uint64)
+    for k in range(group):
+        words = (words << np.uint64(bits)) | values[k::group]
+    n_bytes = bits * group // 8
+    out = np.zeros((len(words), n_bytes), dtype=np.uint8)
+    for k in range(n_bytes):
+        out[:, k] = (words >> np.uint64(8 * (n_bytes - 1 - k))) & np.uint64(0xFF)
+    return out.tobytes()
+
+
+def write_cine(
+    path: Path,
+    frames: Sequence[np.ndarray],
+    *,
+    fps: int = 5000,
+    real_bpp: int | None = None,
+    packing: str = "",
+    first_image_no: int = 0,
+    time_stamps: bool = True,
+    jitter_s: float = 0.0,
+    compression: int = 0,
+) -> Path:
+    """A Phantom .cine laid out as a camera writes it: CINEFILEHEADER, BITMAPINFOHEADER, a full SETUP, tagged
+    blocks (1002 frame time stamps, 1003 exposures), the frame offsets, then per frame an annotation block
+    (size, annotation bytes, image size) and the image.
+
+    Unpacked frames are stored bottom-up as Phantom writes them; colour frames (rows, cols, 3) as BGR, 24 or 48
+    bits; packed frames ("P10", "P12L"; uint16 frames of 10/12-bit values) top-down as a bit stream.
+    first_image_no: the camera's number of the first stored frame (trigger frame 0). Frame i is stamped at
+    trigger + (first_image_no + i) / fps + jitter_s * (i % 3 - 1).
     """
     frame0 = frames[0]
     height, width = frame0.shape[:2]
     channels = 3 if frame0.ndim == 3 else 1
+    bits = {"": 0, "P10": 10, "P12L": 12}[packing]
     depth = 16 if frame0.dtype == np.uint16 else 8
     bit_count = depth * channels
-    setup = bytearray(1024)
+    bi_compression = {"": 0, "P10": 256, "P12L": 1024}[packing]
+    frame_bytes = width * height * bits // 8 if bits else width * height * channels * depth // 8
+    setup = bytearray(CINE_SETUP_BYTES)
     struct.pack_into("<H", setup, 0, min(fps, 65535))
     struct.pack_into("<H", setup, 142, len(setup))
     struct.pack_into("<I", setup, 768, fps)
-    struct.pack_into("<I", setup, 896, real_bpp or depth)
+    struct.pack_into("<I", setup, 800, 780)  # software version: every SETUP field present
+    struct.pack_into("<I", setup, 896, real_bpp or bits or depth)
+    n = len(frames)
+    after_trigger_s = (first_image_no + np.arange(n)) / fps + jitter_s * (np.arange(n) % 3 - 1)
+    blocks = b""
+    if time_stamps:
+        ticks = [time64(CINE_TRIGGER_TIME_S) + round(t * 2**32) for t in after_trigger_s]
+        stamps = np.asarray(ticks, dtype="<u8").tobytes()
+        exposures = np.full(n, int(0.5 / fps * 2**32), dtype="<u4").tobytes()
+        blocks += struct.pack("<IHH", 8 + len(stamps), 1002, 1) + stamps
+        blocks += struct.pack("<IHH", 8 + len(exposures), 1003, 0) + exposures
     off_bitmap, off_setup = 44, 84
-    off_offsets = off_setup + len(setup)
-    first_image = off_offsets + 8 * len(frames)
-    frame_bytes = width * height * channels * depth // 8
-    annotation = 8
-    offsets = [first_image + i * (annotation + frame_bytes) for i in range(len(frames))]
-    out = io.BytesIO()
-    out.write(struct.pack("<2sHHHiIiIIIIQ", b"CI", 44, 0, 1, 0, len(frames), 0, len(frames), off_bitmap,
-                          off_setup, off_offsets, 0))  # fmt: skip
-    out.write(struct.pack("<IiiHHIIiiII", 40, width, height, 1, bit_count, 0, frame_bytes, 0, 0, 0, 0))
-    out.write(setup)
-    out.write(np.asarray(offsets, dtype="<u8").tobytes())
-    for frame in frames:
-        out.write(struct.pack("<II", annotation, frame_bytes))
-        out.write(np.ascontiguousarray(frame[::-1]).astype(frame.dtype.newbyteorder("<")).tobytes())
-    path.write_bytes(out.getvalue())
+    off_offsets = off_setup + len(setup) + len(blocks)
+    first_image = off_offsets + 8 * n
+    annotation = b"\x00" * 16  # a camera's annotation bytes (content unused)
+    block = 4 + len(annotation) + 4
+    offsets = [first_image + i * (block + frame_bytes) for i in range(n)]
+    with path.open("wb") as out:
+        out.write(struct.pack("<2sHHHiIiIIIIQ", b"CI", 44, compression, 1, first_image_no, n, first_image_no, n,
+                              off_bitmap, off_setup, off_offsets, time64(CINE_TRIGGER_TIME_S)))  # fmt: skip
+        out.write(struct.pack("<IiiHHIIiiII", 40, width, height, 1, bit_count, bi_compression, frame_bytes, 0, 0, 0, 0))
+        out.write(setup)
+        out.write(blocks)
+        out.write(np.asarray(offsets, dtype="<u8").tobytes())
+        for frame in frames:
+            out.write(struct.pack("<I", block) + annotation + struct.pack("<I", frame_bytes))
+            if bits:
+                out.write(pack_bits(frame, bits))
+            else:
+                out.write(np.ascontiguousarray(frame[::-1]).astype(frame.dtype.newbyteorder("<")).tobytes())
     return path
+
+
+def write_mraw(
+    path: Path,
+    frames: Sequence[np.ndarray],
+    *,
+    bits: int,
+    fps: float = 50000,
+    start_frame: int = 0,
+    header: str = "cih",
+    effective_bits: int | None = None,
+    colour: str = "Mono",
+) -> Path:
+    """A Photron MRAW as the camera software saves it: `<stem>.mraw` (frames back to back: 8-bit, 12-bit packed
+    big-endian 2 pixels in 3 bytes, or 16-bit little-endian) and `<stem>.cih` (text) or `<stem>.cihx` (binary
+    preamble + XML). Returns the header path."""
+    height, width = frames[0].shape
+    with path.with_suffix(".mraw").open("wb") as out:
+        for frame in frames:
+            if bits == 12:
+                out.write(pack_bits(frame, 12))
+            else:
+                out.write(frame.astype(np.uint8 if bits == 8 else "<u2").tobytes())
+    effective = effective_bits or bits
+    if header == "cih":
+        lines = {"Date": "2026/11/23", "Camera Type": "FASTCAM SA-Z type 2100K-M-64GB", "Record Rate(fps)": f"{fps:g}",
+                 "Shutter Speed(s)": "1/100000", "Total Frame": len(frames), "Start Frame": start_frame,
+                 "Correct Trigger Frame": 0, "Original Total Frame": len(frames), "Image Width": width,
+                 "Image Height": height, "Color Type": colour, "Color Bit": bits, "File Format": "MRaw",
+                 "EffectiveBit Depth": effective, "EffectiveBit Side": "Lower", "Comment Text": ""}  # fmt: skip
+        text = "#Camera Information Header\n" + "".join(f"{k} : {v}\n" for k, v in lines.items()) + "\nEND\n"
+        target = path.with_suffix(".cih")
+        target.write_bytes(text.encode("ascii"))
+        return target
+    xml = f"""<cih>
+<fileInfo><date>2026/11/23</date><time>04:40</time></fileInfo>
+<deviceInfo><deviceName>FASTCAM Nova S12</deviceName></deviceInfo>
+<recordInfo><recordRate>{fps:g}</recordRate><shutterSpeed>0.00001</shutterSpeed></recordInfo>
+<frameInfo><totalFrame>{len(frames)}</totalFrame><startFrame>{start_frame}</startFrame>
+<recordedFrame>{len(frames)}</recordedFrame></frameInfo>
+<imageDataInfo><resolution><width>{width}</width><height>{height}</height></resolution>
+<colorInfo><type>{colour}</type><bit>{bits}</bit></colorInfo>
+<effectiveBit><depth>{effective}</depth><side>Lower</side></effectiveBit></imageDataInfo>
+<imageFileInfo><fileFormat>MRaw</fileFormat></imageFileInfo>
+<basicInfo><comment>test</comment></basicInfo>
+</cih>
+"""
+    target = path.with_suffix(".cihx")
+    target.write_bytes(b"\x00\x01\x02\x03cihx binary preamble\n" + xml.encode("utf-8"))
+    return target

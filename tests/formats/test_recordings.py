@@ -249,3 +249,15 @@ def test_damaged_compressed_data_in_a_zip_names_the_frame(tmp_path):
     source[0]
     with pytest.raises(ValueError, match="frame1.png"):
         source[1]
+
+
+@pytest.mark.parametrize("keep", [0.99, 0.8, 0.75, 0.6, 0.5, 0.3])
+def test_truncated_tiff_is_refused_never_fewer_pages(tmp_path, keep):
+    path = write_tiff_stack(tmp_path / "a.tif", stripe_frames(5))
+    data = path.read_bytes()
+    path.write_bytes(data[: int(len(data) * keep)])
+    with pytest.raises(ValueError, match="truncated|not a readable TIFF|page"):
+        source = open_recording(path)
+        for i in range(len(source)):
+            source[i]
+        assert len(source) == 5  # reached only if every frame read: then all five must be there

@@ -202,7 +202,7 @@ def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict
     from dataclasses import asdict, fields
 
     from fringelab.formats.hdf5 import json_text
-    from fringelab.formats.sidecars import FrameTable, read_frames_csv
+    from fringelab.formats.recordings import recording_log
     from fringelab.formats.topography import TopographyWriter
     from fringelab.pipelines.provenance import code_versions
     from fringelab.pipelines.topography import _calibration_attrs
@@ -210,10 +210,9 @@ def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict
 
     inputs = _topography_inputs(context)
     source, wanted, projector = inputs.source, inputs.wanted, inputs.projector
-    frames_text = source.sidecar_text("frames.csv")
+    log = recording_log(source)
     n_frames, where = len(source), str(source.path)
     inputs.close()
-    log = (read_frames_csv(frames_text) if frames_text is not None else FrameTable.empty()).rows(list(range(n_frames)))
     track = load_arrays(context, "chunks/track.npz")
     z_flat, clamp = float(track["z_flat_mm"]), [float(v) for v in track["clamp"]]
     peak_names = [f.name for f in fields(Peak)]
@@ -224,7 +223,7 @@ def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict
         writer = TopographyWriter(
             temporary, grid=Grid(x_mm=track["x_mm"], y_mm=track["y_mm"]), max_edge_mm=float(track["max_edge_mm"]),
             z_flat_mm=z_flat, axis=projector.axis,
-            attrs={"settings_json": json_text(asdict(inputs.settings)),
+            attrs={"time_source": log.time_source, "settings_json": json_text(asdict(inputs.settings)),
                    "edge_settings_json": json_text(asdict(projector.edges)),
                    "provenance_json": json_text({"input": where, "n_frames_in_recording": n_frames,
                                              "frames_written": [wanted.start, wanted.stop], **code_versions()})},
@@ -235,8 +234,8 @@ def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict
                 gridded = load_arrays(context, f"chunks/grid-{first:07d}.npz")
                 for i, measurement in enumerate(_load_measurements(context, first)):
                     peak = Peak(**dict(zip(peak_names, map(float, gridded["peak"][i]), strict=True)))
-                    row = tuple(float(log[name][measurement.frame]) for name in FrameTable.COLUMNS)
-                    writer.append(measurement, gridded["z_mm"][i], peak, log=row)  # type: ignore[arg-type]
+                    writer.append(measurement, gridded["z_mm"][i], peak, log=log.row(measurement.frame),
+                                  camera_frame=int(log.camera_frame[measurement.frame]))  # fmt: skip
                     peaks.append(peak.w_mm)
                     if np.isfinite(peak.centre_x_mm) and peak.w_mm >= 5.0:
                         centres.append((peak.centre_x_mm, peak.centre_y_mm))
