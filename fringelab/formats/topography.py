@@ -25,6 +25,9 @@ Topography result (schema "fringelab.topography", version 1); lengths in mm in t
                     centre_y_mm (n,): centroid of the area above half the peak (the punch axis), NaN early on
   /qa               n_points, n_tracks, n_ended, n_out_of_range, n_unmatched (n,) int64; edge_noise_px,
                     grid_coverage (n,) float64 (fraction of the first frame's grid area still with data)
+  /xdmf             nodes_xy_mm (ny·nx, 2), quads (M, 4), z_mm/<i> (ny, nx) virtual views of grid/z_mm[i]: what
+                    the XDMF sidecar (`write_xdmf`, ParaView) points at; absent in older files
+  grid/z_mm has HDF5 dimension scales: frames/index, grid/y_mm, grid/x_mm
   /summary          attrs: flat_rms_mm (RMS of w over the first frame), n_tracks_first_frame, clamp_centre_x_mm,
                     clamp_centre_y_mm, clamp_radius_mm (circle through the outermost first-frame points),
                     punch_axis_x_mm, punch_axis_y_mm (median of the per-frame centres), n_out_of_range_total
@@ -39,7 +42,7 @@ from typing import TYPE_CHECKING, Any
 import h5py
 import numpy as np
 
-from fringelab.formats.atomic import commit_partial, partial_path
+from fringelab.formats.atomic import atomic_path, commit_partial, partial_path
 from fringelab.formats.hdf5 import SCHEMA_VERSION, require_schema, unit_dataset
 from fringelab.science.fields import Grid, Peak
 
@@ -174,6 +177,13 @@ class TopographyWriter:
             shuffle=True,
             fillvalue=np.nan,
         )
+        # Dimension scales: tools that read HDF5 generically (h5py, HDFView, xarray/h5netcdf) see z_mm's axes.
+        z_dataset = grid_group["z_mm"]
+        for dim, scale, label in ((0, frames["index"], "frame"), (1, grid_group["y_mm"], "y_mm"),
+                                  (2, grid_group["x_mm"], "x_mm")):  # fmt: skip
+            scale.make_scale(label)
+            z_dataset.dims[dim].attach_scale(scale)
+            z_dataset.dims[dim].label = label
         peak = file.create_group("peak")
         for name, description in (
             ("w_mm", "largest deflection w = z − z_flat of the grid"),
@@ -272,9 +282,10 @@ class TopographyWriter:
         self._n += 1
 
     def close(self, summary: dict[str, Any]) -> Path:
-        """Write the summary attributes, close the file and move it into place."""
+        """Write the summary attributes and the XDMF views, close the file and move it into place."""
         file = self._file
         file.attrs["n_frames"] = self._n
+        _write_xdmf_views(file, self.grid, self._n)
         group = file.require_group("summary")
         for key, value in summary.items():
             group.attrs[key] = value
@@ -286,6 +297,90 @@ class TopographyWriter:
             self._file.close()
         finally:
             self._temp.unlink(missing_ok=True)
+
+
+XDMF_GROUP = "xdmf"
+
+
+def _write_xdmf_views(file: h5py.File, grid: Grid, n_frames: int) -> None:
+    """What an XDMF sidecar points at: the grid nodes (N, 2) and its quads (M, 4) once, and per frame a virtual
+    dataset (ny, nx) that is a view of grid/z_mm[i] (no copy), since XDMF readers without hyperslab support
+    (meshio) need one dataset per time step."""
+    group = file.create_group(XDMF_GROUP)
+    group.attrs["description"] = "views of /grid for the XDMF sidecar (ParaView); no data of their own"
+    ny, nx = grid.shape
+    gx, gy = np.meshgrid(grid.x_mm, grid.y_mm)
+    unit_dataset(group, "nodes_xy_mm", np.column_stack([gx.ravel(), gy.ravel()]), unit="mm",
+                 description="grid nodes (ny·nx, 2), row-major as grid/z_mm[i].ravel()")  # fmt: skip
+    node = np.arange(ny * nx).reshape(ny, nx)
+    quads = np.column_stack(
+        [node[:-1, :-1].ravel(), node[:-1, 1:].ravel(), node[1:, 1:].ravel(), node[1:, :-1].ravel()]
+    )
+    unit_dataset(group, "quads", quads.astype(np.int64), unit="1", description="node indices of each grid cell")
+    frames = group.create_group("z_mm")
+    source = h5py.VirtualSource(".", "grid/z_mm", shape=(n_frames, ny, nx), dtype=np.float32)
+    for i in range(n_frames):
+        layout = h5py.VirtualLayout(shape=(ny, nx), dtype=np.float32)
+        layout[:, :] = source[i, :, :]
+        frames.create_virtual_dataset(f"{i:06d}", layout, fillvalue=np.nan)
+
+
+def _data_item(dimensions: str, number_type: str, precision: int, where: str) -> str:
+    from xml.sax.saxutils import escape
+
+    return (
+        f'<DataItem Dimensions="{dimensions}" NumberType="{number_type}" Precision="{precision}" Format="HDF">'
+        f"{escape(where)}</DataItem>"
+    )
+
+
+def write_xdmf(result_path: str | Path, xdmf_path: str | Path | None = None) -> Path:
+    """An XDMF 3 sidecar (default `<result stem>.xdmf` beside it) so ParaView (File > Open, "Xdmf3 Reader") and
+    meshio open a topography result directly: a temporal collection of the grid surface (quads on the X, Y
+    nodes) with node data z_mm per frame, at time_s where logged, else the frame index. The sidecar names the
+    result file relatively, so keep the two together. Results written before the views existed are refused
+    with what to do."""
+    result_path = Path(result_path)
+    xdmf_path = result_path.with_suffix(".xdmf") if xdmf_path is None else Path(xdmf_path)
+    with TopographyResult(result_path) as result:
+        if XDMF_GROUP not in result.file:
+            raise ValueError(f"{result_path.name}: written before XDMF views existed; run the topography again")
+        ny, nx = result.grid.shape
+        n_nodes, n_quads = ny * nx, int(result.file[f"{XDMF_GROUP}/quads"].shape[0])
+        times = result.column("frames/time_s")
+        name = result_path.name
+        steps = []
+        for i, frame in enumerate(result.frames):
+            time = float(times[i]) if np.isfinite(times[i]) else float(frame)
+            steps.append(
+                f'''      <Grid Name="frame {int(frame)}" GridType="Uniform">
+        <Time Value="{time!r}"/>
+        <xi:include xpointer="xpointer(//Grid[@Name='surface']/*[self::Topology or self::Geometry])"/>
+        <Attribute Name="z_mm" AttributeType="Scalar" Center="Node">
+          {_data_item(f"{ny} {nx}", "Float", 4, f"{name}:/{XDMF_GROUP}/z_mm/{i:06d}")}
+        </Attribute>
+      </Grid>'''
+            )
+    text = f'''<?xml version="1.0"?>
+<Xdmf xmlns:xi="http://www.w3.org/2001/XInclude" Version="3.0">
+  <Domain>
+    <Grid Name="surface" GridType="Uniform">
+      <Topology TopologyType="Quadrilateral" NumberOfElements="{n_quads}">
+        {_data_item(f"{n_quads} 4", "Int", 8, f"{name}:/{XDMF_GROUP}/quads")}
+      </Topology>
+      <Geometry GeometryType="XY">
+        {_data_item(f"{n_nodes} 2", "Float", 8, f"{name}:/{XDMF_GROUP}/nodes_xy_mm")}
+      </Geometry>
+    </Grid>
+    <Grid Name="z_mm over time" GridType="Collection" CollectionType="Temporal">
+{chr(10).join(steps)}
+    </Grid>
+  </Domain>
+</Xdmf>
+'''
+    with atomic_path(xdmf_path) as temp:
+        temp.write_text(text)
+    return xdmf_path
 
 
 class TopographyResult:

@@ -75,7 +75,7 @@ def topography_recording(
     """
     from fringelab.formats.hdf5 import json_text
     from fringelab.formats.recordings import recording_log
-    from fringelab.formats.topography import TopographyWriter
+    from fringelab.formats.topography import TopographyWriter, write_xdmf
     from fringelab.pipelines.provenance import code_versions
     from fringelab.science.fields import field_peak
 
@@ -164,6 +164,7 @@ def topography_recording(
             "punch_axis_y_mm": axis_xy[1], "n_out_of_range_total": n_out_of_range,
         }  # fmt: skip
         path = writer.close(summary)
+        write_xdmf(path)  # the ParaView sidecar beside the result
     except BaseException:
         if writer is not None:
             writer.abort()
