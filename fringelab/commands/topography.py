@@ -32,6 +32,8 @@ def _line(text: str) -> tuple[float, float, float, float]:
 
 def register(subparsers: Any) -> None:
     """Add `calibrate-projector`, `topography`, `export` and `simulate` to the CLI's subparsers."""
+    from fringelab.formats.exports import EXPORT_FORMATS
+
     calibrate = subparsers.add_parser(
         "calibrate-projector",
         help="build the projector look-up table from a flat-plate Z-stack",
@@ -87,8 +89,21 @@ def register(subparsers: Any) -> None:
         "(a .pvd time series of .vtu surfaces for ParaView) or profile-csv (a section along --line).",
     )
     export.add_argument("result", help="result .h5 written by `fringelab topography`")
-    export.add_argument("--format", required=True, choices=("points-csv", "grid-npz", "mat", "vtk", "profile-csv"))
-    export.add_argument("-o", "--output", required=True, help="file to write (.csv, .npz, .mat, .pvd)")
+    export.add_argument("--format", required=True, choices=EXPORT_FORMATS)
+    export.add_argument(
+        "-o", "--output", required=True, help="file to write (.csv, .npz, .mat, .pvd; a folder with --per-frame)"
+    )
+    export.add_argument(
+        "--per-frame",
+        action="store_true",
+        help="points-csv: one CSV per frame into the folder --output (each fits a spreadsheet)",
+    )
+    export.add_argument(
+        "--mat-version",
+        choices=("auto", "5", "7.3"),
+        default="auto",
+        help="mat: v5 while every variable fits its 2 GB limit, else v7.3 (HDF5) (default: auto)",
+    )
     export.add_argument(
         "--line",
         type=_line,
@@ -192,7 +207,10 @@ def export_command(args: argparse.Namespace) -> int:
     from fringelab.formats.exports import export_result
 
     try:
-        path = export_result(args.result, args.format, args.output, line=args.line)
+        path = export_result(
+            args.result, args.format, args.output, line=args.line, per_frame=args.per_frame,
+            mat_version=args.mat_version,
+        )  # fmt: skip
     except (ValueError, OSError) as error:
         return _fail(error)
     print(f"{path}: {args.format} written")

@@ -2,33 +2,63 @@
 
 from __future__ import annotations
 
+import time
+import warnings
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal, get_args
+from typing import TYPE_CHECKING, Any, Literal, get_args
 
 import numpy as np
 
 from fringelab.formats.atomic import atomic_path
-from fringelab.formats.topography import TopographyResult
-from fringelab.science.fields import line_profile
 
-if TYPE_CHECKING:
-    pass
+if TYPE_CHECKING:  # imported where used, so that the CLI can list EXPORT_FORMATS without loading h5py
+    from fringelab.formats.topography import TopographyResult
 
 
 ExportFormat = Literal["points-csv", "grid-npz", "mat", "vtk", "profile-csv"]
 EXPORT_FORMATS: tuple[str, ...] = get_args(ExportFormat)  # the one list of export formats
 
 
-def export_points_csv(result: TopographyResult, path: str | Path) -> Path:
-    """CSV of every 3-D point: frame,x_mm,y_mm,z_mm (written frame by frame)."""
+SPREADSHEET_MAX_ROWS = 1_048_576  # Excel and LibreOffice Calc: rows of one sheet, the header row included
+
+
+class SpreadsheetLimitWarning(UserWarning):
+    """A CSV export has more rows than a spreadsheet shows; the file is complete, a spreadsheet cuts it."""
+
+
+def export_points_csv(result: TopographyResult, path: str | Path, *, per_frame: bool = False) -> Path:
+    """CSV of every 3-D point: frame,x_mm,y_mm,z_mm (written frame by frame).
+
+    per_frame: write one CSV per frame into the folder `path` (frame_<n>.csv, same columns) instead, so each opens
+    in a spreadsheet. A single file of more than SPREADSHEET_MAX_ROWS rows is still written whole (scripts read
+    it), with a SpreadsheetLimitWarning that says a spreadsheet will cut it and how to get one file per frame.
+    """
     path = Path(path)
-    with atomic_path(path) as temp, open(temp, "w", newline="") as out:
-        out.write("frame,x_mm,y_mm,z_mm\n")
+    if per_frame:
+        path.mkdir(parents=True, exist_ok=True)
         for i, frame in enumerate(result.frames):
-            points = result.points(i)
-            block = np.column_stack([np.full(len(points), frame), points])
-            np.savetxt(out, block, fmt=["%d", "%.4f", "%.4f", "%.4f"], delimiter=",")
+            with atomic_path(path / f"frame_{int(frame):06d}.csv") as temp, open(temp, "w", newline="") as out:
+                _write_points(out, result, [(i, frame)])
+        return path
+    rows = int(result.offsets[-1]) + 1
+    with atomic_path(path) as temp, open(temp, "w", newline="") as out:
+        _write_points(out, result, list(enumerate(result.frames)))
+    if rows > SPREADSHEET_MAX_ROWS:
+        warnings.warn(
+            f"{path.name}: {rows} rows, more than the {SPREADSHEET_MAX_ROWS} a spreadsheet shows (it will cut the "
+            "file); export one CSV per frame (--per-frame) to open them in a spreadsheet",
+            SpreadsheetLimitWarning,
+            stacklevel=2,
+        )
     return path
+
+
+def _write_points(out: Any, result: TopographyResult, frames: list[tuple[int, Any]]) -> None:
+    out.write("frame,x_mm,y_mm,z_mm\n")
+    for i, frame in frames:
+        points = result.points(i)
+        block = np.column_stack([np.full(len(points), frame), points])
+        np.savetxt(out, block, fmt=["%d", "%.4f", "%.4f", "%.4f"], delimiter=",")
 
 
 def read_points_csv(path: str | Path) -> np.ndarray:
@@ -60,37 +90,120 @@ def export_grid_npz(result: TopographyResult, path: str | Path) -> Path:
     return path
 
 
-def export_mat(result: TopographyResult, path: str | Path) -> Path:
-    """MATLAB .mat (scipy.io.savemat): grid x_mm, y_mm, z_mm (frames × ny × nx), frames, time_s,
-    punch_displacement_mm, force_kN, peak_w_mm, z_flat_mm, points (P × 4: frame, x_mm, y_mm, z_mm), units."""
-    from scipy.io import savemat
+MAT_V5_MAX_VARIABLE_BYTES = 2**31 - 1  # MATLAB's limit on one variable of a v5/v7 MAT-file (2 GB)
+MatVersion = Literal["auto", "5", "7.3"]
 
-    path = Path(path)
-    points = [
-        np.column_stack([np.full(len(p), frame), p])
-        for frame, p in ((f, result.points(i)) for i, f in enumerate(result.frames))
-    ]
-    data = {
+
+def _mat_variables(result: TopographyResult) -> dict[str, Any]:
+    """The small variables of the MAT export (the grid stack and the points are streamed separately)."""
+    return {
         "x_mm": result.grid.x_mm,
         "y_mm": result.grid.y_mm,
-        "z_mm": _grid_stack(result).astype(np.float64),
         "frames": result.frames.astype(np.float64),
+        "camera_frames": result.camera_frames.astype(np.float64),
         "time_s": result.column("frames/time_s"),
         "punch_displacement_mm": result.column("frames/punch_displacement_mm"),
         "force_kN": result.column("frames/force_kN"),
         "peak_w_mm": result.column("peak/w_mm"),
         "z_flat_mm": result.z_flat_mm,
-        "points": np.vstack(points) if points else np.zeros((0, 4)),
-        "units": {
-            "length": "mm",
-            "time": "s",
-            "force": "kN",
-            "frame": "X, Y in the plate plane, +Z toward the camera; w = z - z_flat_mm",
-        },
+    }
+
+
+_MAT_UNITS = {
+    "length": "mm",
+    "time": "s",
+    "force": "kN",
+    "frame": "X, Y in the plate plane, +Z toward the camera; w = z - z_flat_mm",
+}
+
+
+def export_mat(
+    result: TopographyResult,
+    path: str | Path,
+    *,
+    version: MatVersion = "auto",
+    v5_max_variable_bytes: int | None = None,
+) -> Path:
+    """MATLAB .mat: grid x_mm, y_mm, z_mm (frames × ny × nx, single), frames, camera_frames, time_s,
+    punch_displacement_mm, force_kN, peak_w_mm, z_flat_mm, points (P × 4 single: frame, x_mm, y_mm, z_mm), units.
+
+    z_mm and points are single precision: the result stores them as float32, so double would add bytes, not
+    digits. version "auto" writes v5 (scipy.io.savemat, compressed) while every variable fits v5's 2 GB per
+    variable (a 1024² grid passes it after ~500 frames), else v7.3 (HDF5, written frame by frame; MATLAB `load`,
+    h5py, or `mat73` in Python read it).
+    """
+    path = Path(path)
+    ny, nx = result.grid.shape
+    n_points = int(result.offsets[-1])
+    largest = max(result.n_frames * ny * nx * 4, n_points * 4 * 4)
+    limit = MAT_V5_MAX_VARIABLE_BYTES if v5_max_variable_bytes is None else v5_max_variable_bytes
+    if version == "7.3" or (version == "auto" and largest > limit):
+        return _export_mat_v73(result, path)
+    from scipy.io import savemat
+
+    points = [
+        np.column_stack([np.full(len(p), frame), p]).astype(np.float32)
+        for frame, p in ((f, result.points(i)) for i, f in enumerate(result.frames))
+    ]
+    data = {
+        **_mat_variables(result),
+        "z_mm": _grid_stack(result).astype(np.float32),
+        "points": np.vstack(points) if points else np.zeros((0, 4), np.float32),
+        "units": _MAT_UNITS,
     }
     with atomic_path(path) as temp, open(temp, "wb") as out:
         savemat(out, data, do_compression=True)
     return path
+
+
+def _export_mat_v73(result: TopographyResult, path: Path) -> Path:
+    """A MATLAB v7.3 MAT-file: HDF5 with a 512-byte user block holding the MAT header, one dataset per variable
+    with its MATLAB_class, dimensions reversed (HDF5 is row-major, MATLAB column-major), vectors as 1 × n."""
+    import h5py
+
+    ny, nx = result.grid.shape
+    n_points = int(result.offsets[-1])
+    with atomic_path(path) as temp:
+        with h5py.File(temp, "w", userblock_size=512) as file:
+            for name, value in _mat_variables(result).items():
+                array = np.asarray(value, dtype=np.float64)
+                array = array.reshape(1, 1) if array.ndim == 0 else array.reshape(-1, 1)  # MATLAB 1 × n
+                _mat_dataset(file, name, array, "double")
+            z = file.create_dataset("z_mm", shape=(nx, ny, result.n_frames), dtype=np.float32,
+                                    chunks=(nx, ny, 1) if result.n_frames else None, compression="gzip",
+                                    compression_opts=1, fillvalue=np.nan)  # fmt: skip
+            z.attrs["MATLAB_class"] = np.bytes_("single")
+            points = file.create_dataset("points", shape=(4, n_points), dtype=np.float32,
+                                         chunks=(4, min(max(n_points, 1), 1 << 16)), compression="gzip",
+                                         compression_opts=1)  # fmt: skip
+            points.attrs["MATLAB_class"] = np.bytes_("single")
+            for i, frame in enumerate(result.frames):
+                z[:, :, i] = result.file["grid/z_mm"][i].T
+                lo, hi = int(result.offsets[i]), int(result.offsets[i + 1])
+                block = np.column_stack([np.full(hi - lo, frame), result.points(i)]).astype(np.float32)
+                points[:, lo:hi] = block.T
+            units = file.create_group("units")
+            units.attrs["MATLAB_class"] = np.bytes_("struct")
+            names = list(_MAT_UNITS)
+            units.attrs.create(
+                "MATLAB_fields",
+                np.array([np.array(list(n), dtype="S1") for n in names], dtype=object),
+                dtype=h5py.vlen_dtype(np.dtype("S1")),
+            )
+            for key, text in _MAT_UNITS.items():
+                chars = np.frombuffer(text.encode("utf-16-le"), dtype="<u2").reshape(-1, 1)  # MATLAB 1 × len
+                dataset = _mat_dataset(units, key, chars, "char")
+                dataset.attrs["MATLAB_int_decode"] = np.int32(2)
+        header = f"MATLAB 7.3 MAT-file, Platform: fringelab, Created on: {time.ctime()} HDF5 schema 1.00 ."
+        with open(temp, "r+b") as out:
+            out.write(header.encode("ascii")[:116].ljust(116) + bytes(8) + b"\x00\x02IM")
+    return path
+
+
+def _mat_dataset(group: Any, name: str, array: np.ndarray, matlab_class: str) -> Any:
+    dataset = group.create_dataset(name, data=array)
+    dataset.attrs["MATLAB_class"] = np.bytes_(matlab_class)
+    return dataset
 
 
 def export_vtk(result: TopographyResult, path: str | Path) -> Path:
@@ -162,6 +275,8 @@ def export_profile_csv(
 ) -> Path:
     """CSV of the section profile along a line X0,Y0 → X1,Y1 (mm) for every frame:
     frame,time_s,s_mm,x_mm,y_mm,z_mm,w_mm (s along the line; NaN where the grid has no data)."""
+    from fringelab.science.fields import line_profile
+
     path = Path(path)
     x0, y0, x1, y1 = default_profile_line(result) if line is None else line
     times = result.column("frames/time_s")
@@ -186,20 +301,33 @@ def export_profile_csv(
 
 
 def export_result(
-    result_path: str | Path, fmt: str, out_path: str | Path, *, line: tuple[float, float, float, float] | None = None
+    result_path: str | Path,
+    fmt: str,
+    out_path: str | Path,
+    *,
+    line: tuple[float, float, float, float] | None = None,
+    per_frame: bool = False,
+    mat_version: MatVersion = "auto",
 ) -> Path:
-    """Export a topography result in one of EXPORT_FORMATS; `line` (X0, Y0, X1, Y1 mm) for profile-csv only."""
+    """Export a topography result in one of EXPORT_FORMATS; `line` (X0, Y0, X1, Y1 mm) for profile-csv only,
+    `per_frame` (one CSV per frame into the folder out_path) for points-csv only, `mat_version` for mat only."""
     if fmt not in EXPORT_FORMATS:
         raise ValueError(f"format: expected one of {EXPORT_FORMATS}, got {fmt!r}")
     if line is not None and fmt != "profile-csv":
         raise ValueError("a line is only used by the profile-csv format")
+    if per_frame and fmt != "points-csv":
+        raise ValueError("per_frame is only used by the points-csv format")
+    if mat_version not in get_args(MatVersion):
+        raise ValueError(f"mat_version: expected one of {get_args(MatVersion)}, got {mat_version!r}")
+    from fringelab.formats.topography import TopographyResult
+
     with TopographyResult(result_path) as result:
         if fmt == "points-csv":
-            return export_points_csv(result, out_path)
+            return export_points_csv(result, out_path, per_frame=per_frame)
         if fmt == "grid-npz":
             return export_grid_npz(result, out_path)
         if fmt == "mat":
-            return export_mat(result, out_path)
+            return export_mat(result, out_path, version=mat_version)
         if fmt == "vtk":
             return export_vtk(result, out_path)
         return export_profile_csv(result, out_path, line=line)
