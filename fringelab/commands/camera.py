@@ -11,6 +11,8 @@ import argparse
 import sys
 from typing import Any
 
+from fringelab.commands.output import emit, fail, progress_bar
+
 
 def _pair_of_ints(text: str) -> tuple[int, int]:
     try:
@@ -32,6 +34,8 @@ def _pitch(text: str) -> tuple[float, float]:
 
 def register(subparsers: Any) -> None:
     """Add `calibrate-camera` and `camera-export` to the CLI's subparsers."""
+    from fringelab.commands.output import add_output_options
+
     calibrate = subparsers.add_parser(
         "calibrate-camera",
         help="calibrate a camera from a chessboard recording (Z-stack or free poses)",
@@ -79,17 +83,14 @@ def register(subparsers: Any) -> None:
     )
     calibrate.add_argument("-o", "--output", required=True, help="calibration JSON to write")
     calibrate.add_argument("--opencv-yaml", help="also write the camera as OpenCV FileStorage YAML")
+    add_output_options(calibrate)
     calibrate.set_defaults(handler=calibrate_camera_command)
 
     export = subparsers.add_parser("camera-export", help="export a camera calibration to another format")
     export.add_argument("calibration", help="camera.json written by calibrate-camera")
     export.add_argument("--opencv-yaml", required=True, metavar="OUT", help="OpenCV FileStorage YAML to write")
+    add_output_options(export)
     export.set_defaults(handler=camera_export_command)
-
-
-def _fail(error: Exception) -> int:
-    print(f"error: {error}", file=sys.stderr)
-    return 2
 
 
 def _sensor_constants(args: argparse.Namespace) -> tuple[float, float, tuple[float, float] | None]:
@@ -124,38 +125,44 @@ def calibrate_camera_command(args: argparse.Namespace) -> int:
             raise ValueError("give all of --board-cols, --board-rows and --square-mm, or none (board.json)")
         else:
             board = Board(cols=args.board_cols, rows=args.board_rows, square_mm=args.square_mm)
-        calibration = calibrate_camera_recording(
-            open_recording(args.recording),
-            board=board,
-            mode=args.mode,
-            du_px_per_mm=du,
-            dv_px_per_mm=dv,
-            scale_on=args.scale_on,
-            origin=args.origin,
-            reject_outliers=args.reject_outliers,
-            pixel_pitch_um=pitch,
-            detector=args.detector,
-            subpix_half_window_px=args.subpix_window,
-        )
+        with progress_bar(args, "calibrate-camera") as progress:
+            calibration = calibrate_camera_recording(
+                open_recording(args.recording),
+                progress=progress,
+                board=board,
+                mode=args.mode,
+                du_px_per_mm=du,
+                dv_px_per_mm=dv,
+                scale_on=args.scale_on,
+                origin=args.origin,
+                reject_outliers=args.reject_outliers,
+                pixel_pitch_um=pitch,
+                detector=args.detector,
+                subpix_half_window_px=args.subpix_window,
+            )
         write_camera_json(calibration, args.output)
         if args.opencv_yaml:
             write_opencv_yaml(calibration, args.opencv_yaml)
     except (ValueError, MeasurementError) as error:
-        return _fail(error)
+        return fail(args, error)
     camera, opencv = calibration.camera, calibration.opencv
     used = sum(f.status == "used" for f in calibration.frames)
-    print(
+    lines = [
         f"{args.output}: verdict {calibration.verdict.level}; RMS {calibration.rms_px:.3f} px over "
         f"{calibration.n_points} corners in {used}/{len(calibration.frames)} frames; f = {camera.f_mm:.4f} mm "
         f"(fx {opencv.fx_px:.2f}, fy {opencv.fy_px:.2f} px), "
         f"principal point ({camera.u0_px:.2f}, {camera.v0_px:.2f}) px"
-    )
-    for reason in calibration.verdict.reasons if calibration.verdict.level != "good" else ():
-        print(f"  {reason}")
-    for frame in calibration.frames:
-        if frame.status != "used":
-            print(f"  {frame.frame}: {frame.status}: {frame.reason}")
-    return 0
+    ]
+    lines += [f"  {reason}" for reason in (calibration.verdict.reasons if calibration.verdict.level != "good" else ())]
+    lines += [
+        f"  {frame.frame}: {frame.status}: {frame.reason}" for frame in calibration.frames if frame.status != "used"
+    ]
+    result = {
+        "path": args.output, "verdict": calibration.verdict, "rms_px": calibration.rms_px,
+        "n_points": calibration.n_points, "frames_used": used, "camera": camera, "opencv": opencv,
+        "frames": [{"frame": f.frame, "status": f.status, "reason": f.reason} for f in calibration.frames],
+    }  # fmt: skip
+    return emit(args, result, lines)
 
 
 def camera_export_command(args: argparse.Namespace) -> int:
@@ -165,6 +172,5 @@ def camera_export_command(args: argparse.Namespace) -> int:
     try:
         write_opencv_yaml(read_camera_json(args.calibration), args.opencv_yaml)
     except (ValueError, MeasurementError, OSError) as error:
-        return _fail(error)
-    print(f"{args.opencv_yaml}: OpenCV FileStorage YAML written")
-    return 0
+        return fail(args, error)
+    return emit(args, {"path": args.opencv_yaml}, [f"{args.opencv_yaml}: OpenCV FileStorage YAML written"])

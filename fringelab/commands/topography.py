@@ -8,8 +8,9 @@ handlers so registering the commands stays instant.
 from __future__ import annotations
 
 import argparse
-import sys
 from typing import Any
+
+from fringelab.commands.output import emit, fail, progress_bar
 
 
 def _frames(text: str) -> slice:
@@ -32,6 +33,7 @@ def _line(text: str) -> tuple[float, float, float, float]:
 
 def register(subparsers: Any) -> None:
     """Add `calibrate-projector`, `topography`, `export` and `simulate` to the CLI's subparsers."""
+    from fringelab.commands.output import add_output_options
     from fringelab.formats.exports import EXPORT_FORMATS
 
     calibrate = subparsers.add_parser(
@@ -57,6 +59,7 @@ def register(subparsers: Any) -> None:
         help="scan along image rows (vertical stripes) or columns; default: detect",
     )
     calibrate.add_argument("--poly-degree", type=int, default=3, help="degree of Z(t) per edge and line (default 3)")
+    add_output_options(calibrate)
     calibrate.set_defaults(handler=calibrate_projector_command)
 
     topography = subparsers.add_parser(
@@ -80,6 +83,7 @@ def register(subparsers: Any) -> None:
         metavar="H",
         help="smooth edge positions over 2H+1 frames (default 0: off)",
     )
+    add_output_options(topography)
     topography.set_defaults(handler=topography_command)
 
     export = subparsers.add_parser(
@@ -111,6 +115,7 @@ def register(subparsers: Any) -> None:
         help="profile line in mm (profile-csv; default: along X through the punch axis); "
         "write --line=X0,... when X0 is negative",
     )
+    add_output_options(export)
     export.set_defaults(handler=export_command)
 
     simulate = subparsers.add_parser(
@@ -132,12 +137,8 @@ def register(subparsers: Any) -> None:
     )
     simulate.add_argument("--zip", action="store_true", help="write ZIPs instead of folders")
     simulate.add_argument("--seed", type=int, default=0, help="noise seed")
+    add_output_options(simulate)
     simulate.set_defaults(handler=simulate_command)
-
-
-def _fail(error: Exception) -> int:
-    print(f"error: {error}", file=sys.stderr)
-    return 2
 
 
 def calibrate_projector_command(args: argparse.Namespace) -> int:
@@ -156,21 +157,23 @@ def calibrate_projector_command(args: argparse.Namespace) -> int:
             poly_degree=args.poly_degree,
             min_z_samples=max(6, args.poly_degree + 2),
         )
-        calibration = calibrate_projector_recording(
-            open_recording(args.recording), read_camera_json(args.camera), settings=settings
-        )
+        with progress_bar(args, "calibrate-projector") as progress:
+            calibration = calibrate_projector_recording(
+                open_recording(args.recording), read_camera_json(args.camera), settings=settings, progress=progress
+            )
         write_projector_calibration(calibration, args.output)
     except (ValueError, MeasurementError, OSError) as error:
-        return _fail(error)
+        return fail(args, error)
     qa = calibration.qa
     low, median, high = qa.sensitivity_px_per_mm
-    print(
+    text = (
         f"{args.output}: {qa.n_edges} edges over {calibration.n_lines} lines ({calibration.axis}), Z "
         f"{qa.z_range_mm[0]:g} … {qa.z_range_mm[1]:g} mm in {len(calibration.z_mm)} steps; coverage "
         f"{qa.coverage:.1%}; sensitivity {median:.3f} px/mm (5–95 %: {low:.3f}–{high:.3f}); fit RMS "
         f"{qa.fit_rms_mm:.4f} mm; {qa.n_non_monotonic} non-monotonic, {qa.n_insensitive} insensitive entries left out"
     )
-    return 0
+    result = {"path": args.output, "axis": calibration.axis, "n_lines": calibration.n_lines, "qa": qa}
+    return emit(args, result, [text])
 
 
 def topography_command(args: argparse.Namespace) -> int:
@@ -184,23 +187,27 @@ def topography_command(args: argparse.Namespace) -> int:
     try:
         source = open_recording(args.recording)
         frames = None if args.frames is None else range(len(source))[args.frames]
-        summary = topography_recording(
-            source,
-            read_camera_json(args.camera),
-            read_projector_calibration(args.projector),
-            out_path=args.output,
-            frames=frames,
-            settings=TopographySettings(grid_step_mm=args.grid_step, temporal_smoothing_frames=args.temporal_smoothing),
-        )
+        with progress_bar(args, "topography") as progress:
+            summary = topography_recording(
+                source,
+                read_camera_json(args.camera),
+                read_projector_calibration(args.projector),
+                out_path=args.output,
+                frames=frames,
+                settings=TopographySettings(
+                    grid_step_mm=args.grid_step, temporal_smoothing_frames=args.temporal_smoothing
+                ),
+                progress=progress,
+            )
     except (ValueError, MeasurementError, OSError) as error:
-        return _fail(error)
-    print(
+        return fail(args, error)
+    text = (
         f"{summary.path}: frames {summary.frames.start}–{summary.frames.stop - 1}; flat first frame RMS "
         f"{summary.flat_rms_mm:.3f} mm; peak deflection {summary.max_peak_w_mm:.2f} mm; punch axis at "
         f"({summary.punch_axis_xy_mm[0]:.1f}, {summary.punch_axis_xy_mm[1]:.1f}) mm; "
         f"{summary.n_out_of_range_total} points beyond the calibrated Z range masked"
     )
-    return 0
+    return emit(args, {**vars(summary), "xdmf": summary.path.with_suffix(".xdmf")}, [text])
 
 
 def export_command(args: argparse.Namespace) -> int:
@@ -212,9 +219,8 @@ def export_command(args: argparse.Namespace) -> int:
             mat_version=args.mat_version,
         )  # fmt: skip
     except (ValueError, OSError) as error:
-        return _fail(error)
-    print(f"{path}: {args.format} written")
-    return 0
+        return fail(args, error)
+    return emit(args, {"path": path, "format": args.format}, [f"{path}: {args.format} written"])
 
 
 def simulate_command(args: argparse.Namespace) -> int:
@@ -224,33 +230,35 @@ def simulate_command(args: argparse.Namespace) -> int:
     from fringelab.science.simulate import preset
 
     if args.frames < 4:
-        return _fail(ValueError(f"--frames: expected at least 4, got {args.frames}"))
+        return fail(args, ValueError(f"--frames: expected at least 4, got {args.frames}"))
     if not 0 < args.z_step <= 10:
-        return _fail(ValueError(f"--z-step: expected 0 < step ≤ 10 mm, got {args.z_step}"))
+        return fail(args, ValueError(f"--z-step: expected 0 < step ≤ 10 mm, got {args.z_step}"))
     try:
-        experiment = simulate_experiment(
-            args.out,
-            args.preset,
-            n_test_frames=args.frames,
-            calibration_z_mm=np.arange(0.0, 80.0 + 1e-9, args.z_step),
-            as_zip=args.zip,
-            seed=args.seed,
-        )
+        with progress_bar(args, "simulate") as progress:
+            experiment = simulate_experiment(
+                args.out,
+                args.preset,
+                n_test_frames=args.frames,
+                calibration_z_mm=np.arange(0.0, 80.0 + 1e-9, args.z_step),
+                as_zip=args.zip,
+                seed=args.seed,
+                progress=progress,
+            )
     except (ValueError, OSError) as error:
-        return _fail(error)
-    print(f"{experiment.root}: virtual {args.preset} experiment written; next:")
+        return fail(args, error)
+    lines = [f"{experiment.root}: virtual {args.preset} experiment written; next:"]
     camera = preset(args.preset).camera
-    print(
+    lines.append(
         f"  fringelab calibrate-camera {experiment.camera_calibration} --du {camera.du_px_per_mm:g} "
         f"--dv {camera.dv_px_per_mm:g} --scale-on {camera.scale_on} -o {experiment.root / 'camera.json'}"
     )
-    print(f"  (or use the exact camera: {experiment.camera_json})")
-    print(
+    lines.append(f"  (or use the exact camera: {experiment.camera_json})")
+    lines.append(
         f"  fringelab calibrate-projector {experiment.projector_calibration} --camera {experiment.camera_json} "
         f"-o {experiment.root / 'projector.h5'}"
     )
-    print(
+    lines.append(
         f"  fringelab topography {experiment.test} --camera {experiment.camera_json} --projector "
         f"{experiment.root / 'projector.h5'} -o {experiment.root / 'result.h5'}"
     )
-    return 0
+    return emit(args, vars(experiment), lines)
