@@ -19,7 +19,7 @@ def test_simulate_calibrate_topography_export_with_progress_and_json(tmp_path):
 
     projector = tmp_path / "projector.h5"
     calibrated = run_cli("calibrate-projector", experiment["projector_calibration"], "--camera",
-                         experiment["camera_json"], "-o", str(projector), "--progress", "always", timeout=300)  # fmt: skip
+                         experiment["camera_json"], "-o", str(projector), "--progress", "always")  # fmt: skip
     assert calibrated.returncode == 0, calibrated.stderr
     bar = calibrated.stderr.replace("\r", "\n")
     assert "calibrate-projector: edges" in bar and "100%|" in bar  # the bar went to stderr and finished
