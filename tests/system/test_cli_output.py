@@ -48,3 +48,23 @@ def test_an_error_is_json_too(tmp_path):
     error = json.loads(failed.stdout)
     assert "missing" in error["error"] and error["type"]
     assert failed.stderr.startswith("error: ")
+
+
+def test_the_readme_command_line_run_works_as_written(tmp_path):
+    """The README's "as written" block, line by line, in an empty folder (only `make install` is skipped)."""
+    import re
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    block = re.search(r"A whole\s+run on a virtual experiment, as written:\n\n```sh\n(.*?)```", readme, re.S)
+    assert block, "the README lost its command-line walk-through"
+    script = Path(sys.executable).parent / "fringelab"
+    lines = [line for line in block.group(1).splitlines() if line and line != "make install"]
+    assert len(lines) >= 4
+    for line in lines:
+        command = line.replace(".venv/bin/fringelab", str(script)).replace("python3", sys.executable)
+        done = subprocess.run(command, shell=True, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+        assert done.returncode == 0, f"{line}\n{done.stderr}"
+    assert (tmp_path / "virtual/result.mat").is_file() and (tmp_path / "virtual/result.xdmf").is_file()
