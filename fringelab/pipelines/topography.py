@@ -19,13 +19,13 @@ from fringelab.formats.hdf5 import json_text
 from fringelab.formats.sidecars import FrameTable, read_frames_csv
 from fringelab.formats.topography import TopographyWriter
 from fringelab.pipelines.provenance import code_versions
+from fringelab.science import Cancelled
 from fringelab.science.calibration import CameraCalibration, ProgressCallback
 from fringelab.science.fields import Grid, field_peak
 from fringelab.science.fringes import FrameEdges
 from fringelab.science.projector import CameraModel, ProjectorCalibration, camera_fingerprint
 from fringelab.science.topography import (
     SummaryTally,
-    TopographyCancelled,
     TopographyError,
     TopographySettings,
     check_recording_against,
@@ -74,7 +74,7 @@ def topography_recording(
     the frames written are identical to those of a run over the whole recording. edges: already located edges
     of frames 0, 1, ... (e.g. from chunks run in parallel, see `topography_files.read_edges`); None locates
     them here. progress(done, total, stage) after every frame ("frames"), should_cancel() polled between frames
-    (TopographyCancelled; the partial file is removed).
+    (Cancelled; the partial file is removed).
 
     Memory does not grow with the number of frames: frames are read, located, tracked, gridded and written one
     at a time.
@@ -97,7 +97,7 @@ def topography_recording(
         supplied = iter(edges) if edges is not None else None
         for index in range(stop):
             if should_cancel is not None and should_cancel():
-                raise TopographyCancelled(f"cancelled after {index} of {stop} frames")
+                raise Cancelled(f"cancelled after {index} of {stop} frames")
             if supplied is not None:
                 try:
                     frame_edges = next(supplied)

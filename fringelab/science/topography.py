@@ -47,10 +47,6 @@ class TopographyError(MeasurementError):
     """The topography cannot be computed from this recording (too few edges identified, ...)."""
 
 
-class TopographyCancelled(Exception):
-    """Raised when the caller's `should_cancel()` returned True; not a failure of the measurement."""
-
-
 @dataclass(frozen=True)
 class TopographySettings:
     """Settings of the topography.
