@@ -1,4 +1,4 @@
-"""Camera calibration of a whole recording: frames and sidecars in, a `CameraCalibration` out (METHOD.md §3).
+"""Camera calibration of a whole recording: frames and sidecars in, a `CameraCalibration` out (docs/method.md §3).
 
 What the command line and the worker's camera-calibration job call. The science stages (corner detection, the
 solver) live in `fringelab.science`; the sidecars are parsed by `fringelab.formats.recordings`.

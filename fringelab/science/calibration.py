@@ -1,4 +1,4 @@
-"""Camera calibration from chessboard corners (METHOD.md §3.1): Z-stack (the paper) and free poses (Zhang).
+"""Camera calibration from chessboard corners (docs/method.md §3.1): Z-stack (the paper) and free poses (Zhang).
 
 Belongs here: the solver (3-D DLT start, Levenberg–Marquardt, covariance), per-frame statistics, outlier-frame
 rejection, the residual map, the verdict, the `CameraCalibration` result, and `calibrate_camera_recording`, the
@@ -7,7 +7,7 @@ one entry point the CLI and the Celery task call. Not here: the camera model (`c
 
 The Levenberg–Marquardt runs over an equivalent, well-conditioned form of the same model: OpenCV's intrinsics
 (fx, fy, cx, cy, k1..p2 on normalised coordinates), a Rodrigues vector and a translation per pose. With D_u, D_v
-fixed this is a one-to-one reparametrisation of the 14 Heikkilä parameters (METHOD.md §3), so the minimum is the
+fixed this is a one-to-one reparametrisation of the 14 Heikkilä parameters (docs/method.md §3), so the minimum is the
 same; cv2.projectPoints supplies the analytic Jacobian, the Euler angles' gimbal lock is avoided, and the
 covariance is carried over to the Heikkilä parameters with the Jacobian of the exact conversion.
 """
@@ -233,7 +233,7 @@ def _pose_vector(rotation: np.ndarray, t_mm: np.ndarray) -> np.ndarray:
 
 
 def _initial_intrinsics(fx: float, fy: float, cx: float, cy: float, *, du: float, dv: float, scale_on: str) -> list:
-    # METHOD.md §3.1: the scale factor starts at 1 and the distortion at 0; f comes from the axis without s.
+    # docs/method.md §3.1: the scale factor starts at 1 and the distortion at 0; f comes from the axis without s.
     f_px_per_mm = fy / dv if scale_on == "u" else fx / du
     return [f_px_per_mm * du, f_px_per_mm * dv, cx, cy, 0.0, 0.0, 0.0, 0.0]
 

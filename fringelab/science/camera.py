@@ -1,10 +1,10 @@
-"""Heikkilä camera model (METHOD.md §3): forward projection, inverse model, back-projection, OpenCV interop.
+"""Heikkilä camera model (docs/method.md §3): forward projection, inverse model, back-projection, OpenCV interop.
 
 Belongs here: the `Camera`, `InverseModel` and `OpenCVCamera` dataclasses and pure functions on them.
 Not here: estimating a camera from corners (`calibration.py`), finding corners (`chessboard.py`), files
 (`fringelab.formats.camera.py`).
 
-Conventions (METHOD.md §2-3): object frame X, Y in the plate plane, +Z toward the camera, mm. The camera frame
+Conventions (docs/method.md §2-3): object frame X, Y in the plate plane, +Z toward the camera, mm. The camera frame
 has z along the optical axis. `M = Rz(κ)·Ry(φ)·Rx(ω)` takes object to camera coordinates and
 `[x0, y0, z0]` is the object origin seen from the camera. Ideal sensor coordinates (ũ, ṽ) are in mm; pixels
 (u, v) = (column, row) with (0, 0) the centre of the top-left pixel. The scale factor `su` multiplies u
@@ -22,7 +22,7 @@ from .arrays import checked_array
 
 SCALE_ON_CHOICES = ("u", "v")
 
-# The inverse model is fitted on a 45 × 45 grid covering 110 % of the image (METHOD.md §3.2).
+# The inverse model is fitted on a 45 × 45 grid covering 110 % of the image (docs/method.md §3.2).
 INVERSE_GRID_POINTS = 45
 INVERSE_GRID_COVERAGE = 1.10
 # Newton refinement stops when the forward model reproduces the input pixel to this; the acceptance number is
@@ -83,7 +83,7 @@ class Camera:
 
 @dataclass(frozen=True)
 class InverseModel:
-    """Heikkilä's 8-parameter inverse model (pixels → ideal sensor mm), METHOD.md §3.2.
+    """Heikkilä's 8-parameter inverse model (pixels → ideal sensor mm), docs/method.md §3.2.
 
     `approximation_residual_px` is the largest error of the 8-parameter model alone over the fitting grid;
     `residual_px` the largest error after Newton refinement on the forward model (the QA number).
@@ -348,7 +348,7 @@ def backproject_to_z(
 
 
 def camera_as_opencv(camera: Camera) -> OpenCVCamera:
-    """The same camera in OpenCV's form (METHOD.md §3): exact, k3 = 0."""
+    """The same camera in OpenCV's form (docs/method.md §3): exact, k3 = 0."""
     f = camera.f_mm
     sx, sy = camera.pixels_per_mm
     rvec = Rotation.from_matrix(camera.rotation).as_rotvec()

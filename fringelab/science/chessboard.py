@@ -1,8 +1,8 @@
-"""Chessboard inner corners: detection, sub-pixel refinement and consistent labelling (METHOD.md §3.1).
+"""Chessboard inner corners: detection, sub-pixel refinement and consistent labelling (docs/method.md §3.1).
 
 Belongs here: the `Board` description, finding its inner corners in one grey image with OpenCV
 (findChessboardCornersSB, falling back to findChessboardCorners), refining them with cornerSubPix, and
-labelling them by the rule of METHOD.md §3.1 so a board moved along Z keeps its origin in every frame.
+labelling them by the rule of docs/method.md §3.1 so a board moved along Z keeps its origin in every frame.
 Not here: reading frames (`fringelab.formats.recordings.py`) and using the corners (`calibration.py`).
 
 Labelling rule: +X is the board direction closest to image right, +Y the one closest to image up, so +Z points
@@ -182,7 +182,7 @@ def _found_size(image_u8: np.ndarray) -> tuple[int, int] | None:
 
 
 def label_board_corners(grid_px: np.ndarray, *, board: Board) -> BoardCorners:
-    """Label a corner grid, shape (n_a, n_b, 2), by the rule of METHOD.md §3.1 (see the module docstring)."""
+    """Label a corner grid, shape (n_a, n_b, 2), by the rule of docs/method.md §3.1 (see the module docstring)."""
     grid = np.asarray(grid_px, dtype=np.float64)
     if grid.ndim != 3 or grid.shape[2] != 2 or min(grid.shape[:2]) < 2:
         raise ValueError(f"grid_px: expected shape (n_a, n_b, 2) with n_a, n_b ≥ 2, got {grid.shape}")

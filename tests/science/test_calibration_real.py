@@ -46,7 +46,7 @@ def test_default_pipeline_matches_opencv(reference):
     print(f"default corners: RMS {calibration.rms_px:.4f} px (OpenCV {reference['rms_reprojection_error_px']:.4f})")
     for name, value in intrinsics(calibration).items():
         print(f"  {name} {value:.3f} (OpenCV {reference[name]:.3f})")
-        assert value == pytest.approx(reference[name], rel=0.01)  # METHOD.md §7: 1 %
+        assert value == pytest.approx(reference[name], rel=0.01)  # docs/method.md §7: 1 %
     # Our corner window is sized to the squares; OpenCV's fixed 23 × 23 px window reaches the neighbouring
     # corners on left02's small squares (its 1.22 px outlier). So our RMS is lower, never higher.
     assert calibration.rms_px < reference["rms_reprojection_error_px"] * 1.05
