@@ -17,7 +17,7 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal, get_args
 
 import cv2
 import numpy as np
@@ -31,6 +31,7 @@ from .camera import (
     Camera,
     InverseModel,
     OpenCVCamera,
+    ScaleAxis,
     angles_from_rotation,
     camera_as_opencv,
     camera_from_opencv,
@@ -38,7 +39,8 @@ from .camera import (
 )
 from .chessboard import Board
 
-MODES = ("zstack", "poses")
+CalibrationMode = Literal["zstack", "poses"]  # a Z-stack of one board pose, or free poses
+MODES: tuple[str, ...] = get_args(CalibrationMode)
 VERDICT_LEVELS = ("good", "check", "bad")
 
 # The 14 estimated Heikkilä parameters, as `Camera` field names, in the order of `correlation`.
@@ -94,8 +96,8 @@ class FrameResult:
     n_corners: int = 0
     rms_px: float | None = None
     max_px: float | None = None
-    rvec_rad: tuple[float, float, float] | None = None
-    tvec_mm: tuple[float, float, float] | None = None
+    r_cam_from_obj_rad: tuple[float, float, float] | None = None
+    t_cam_from_obj_mm: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -156,7 +158,7 @@ class CameraCalibration:
 
     camera: Camera
     inverse: InverseModel
-    mode: str
+    mode: CalibrationMode
     rms_px: float
     residual_std_px: float
     n_points: int
@@ -421,7 +423,8 @@ def _opencv_camera_from_vector(x: np.ndarray, image_size_px: tuple[int, int]) ->
         image_width_px=image_size_px[0], image_height_px=image_size_px[1],
         fx_px=float(x[0]), fy_px=float(x[1]), cx_px=float(x[2]), cy_px=float(x[3]),
         k1=float(x[4]), k2=float(x[5]), p1=float(x[6]), p2=float(x[7]),
-        rvec_rad=(float(x[8]), float(x[9]), float(x[10])), tvec_mm=(float(x[11]), float(x[12]), float(x[13])),
+        r_cam_from_obj_rad=(float(x[8]), float(x[9]), float(x[10])),
+        t_cam_from_obj_mm=(float(x[11]), float(x[12]), float(x[13])),
     )  # fmt: skip
 
 
@@ -556,10 +559,10 @@ def calibrate_from_views(
     views: Sequence[CornerView],
     *,
     image_size_px: tuple[int, int],
-    mode: str,
+    mode: CalibrationMode,
     du_px_per_mm: float,
     dv_px_per_mm: float,
-    scale_on: str = "u",
+    scale_on: ScaleAxis = "u",
     reject_outliers: bool = False,
     skipped: Sequence[FrameResult] = (),
     board: Board | None = None,
@@ -726,8 +729,8 @@ def _frame_results(views, active, rejected, skipped, problem, x, residual, mode)
         by_view[i] = FrameResult(
             frame=view.frame, status="used", z_mm=view.z_mm, n_corners=len(view.q_px),
             rms_px=float(np.sqrt(np.mean(distance**2))), max_px=float(np.max(distance)),
-            rvec_rad=None if pose is None else (float(pose[0]), float(pose[1]), float(pose[2])),
-            tvec_mm=None if pose is None else (float(pose[3]), float(pose[4]), float(pose[5])),
+            r_cam_from_obj_rad=None if pose is None else (float(pose[0]), float(pose[1]), float(pose[2])),
+            t_cam_from_obj_mm=None if pose is None else (float(pose[3]), float(pose[4]), float(pose[5])),
         )  # fmt: skip
         p_list.append(view.points_obj_mm)
         q_list.append(view.q_px)

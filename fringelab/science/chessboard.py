@@ -13,6 +13,7 @@ image; the origin is the centre inner corner ((n − 1) // 2 along each axis) un
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal, get_args
 
 import cv2
 import numpy as np
@@ -83,7 +84,8 @@ def _as_uint8(image: np.ndarray) -> np.ndarray:
     return np.clip(scaled, 0, 255).astype(np.uint8)
 
 
-DETECTORS = ("auto", "classic")
+Detector = Literal["auto", "classic"]
+DETECTORS: tuple[str, ...] = get_args(Detector)
 
 
 def _detect_grid(image_u8: np.ndarray, pattern: tuple[int, int], detector: str) -> tuple[np.ndarray | None, str]:
@@ -136,7 +138,7 @@ def find_board_corners(
     *,
     board: Board,
     frame: str = "image",
-    detector: str = "auto",
+    detector: Detector = "auto",
     subpix_half_window_px: int | None = None,
 ) -> tuple[np.ndarray, str]:
     """Sub-pixel inner corners of `board` in a grey image, shape (H, W): grid (n_a, n_b, 2) in detector order.
@@ -223,12 +225,12 @@ def detect_board(
     *,
     board: Board,
     frame: str = "image",
-    detector: str = "auto",
+    detector: Detector = "auto",
     subpix_half_window_px: int | None = None,
 ) -> BoardCorners:
     """Find, refine and label the inner corners of `board` in a grey image, shape (H, W) (see find_board_corners)."""
-    grid, detector = find_board_corners(
+    grid, used = find_board_corners(
         image, board=board, frame=frame, detector=detector, subpix_half_window_px=subpix_half_window_px
     )
     labelled = label_board_corners(grid, board=board)
-    return BoardCorners(labelled.q_px, labelled.ij, labelled.points_board_mm, detector)
+    return BoardCorners(labelled.q_px, labelled.ij, labelled.points_board_mm, used)

@@ -56,7 +56,11 @@ def test_projection_agrees_with_opencv(size):
     points_obj_mm = plate_points_mm(np.random.default_rng(1), 500)
     opencv = camera_as_opencv(camera)
     q_cv, _ = cv2.projectPoints(
-        points_obj_mm, np.array(opencv.rvec_rad), np.array(opencv.tvec_mm), opencv.camera_matrix, opencv.dist_coeffs
+        points_obj_mm,
+        np.array(opencv.r_cam_from_obj_rad),
+        np.array(opencv.t_cam_from_obj_mm),
+        opencv.camera_matrix,
+        opencv.dist_coeffs,
     )
     q_px = project_points(camera, points_obj_mm)
     assert np.max(np.abs(q_px - q_cv.reshape(-1, 2))) < 1e-9  # 1e-9 px: round-off of ~1e3 px values in float64
@@ -88,7 +92,7 @@ def test_opencv_mapping_formulas():
     assert opencv.k2 == pytest.approx(camera.k2_per_mm4 * f**4, rel=1e-15)
     assert opencv.p1 == pytest.approx(camera.p1_per_mm * f, rel=1e-15)
     assert opencv.p2 == pytest.approx(camera.p2_per_mm * f, rel=1e-15)
-    np.testing.assert_allclose(cv2.Rodrigues(np.array(opencv.rvec_rad))[0], camera.rotation, atol=1e-14)
+    np.testing.assert_allclose(cv2.Rodrigues(np.array(opencv.r_cam_from_obj_rad))[0], camera.rotation, atol=1e-14)
 
 
 def test_k3_is_refused():
