@@ -9,14 +9,11 @@ from typing import TYPE_CHECKING, Any, Literal, get_args
 
 import numpy as np
 
+from fringelab.formats import EXPORT_FILES, EXPORT_FORMATS, ExportFormat  # noqa: F401  (declared once, there)
 from fringelab.formats.atomic import atomic_path
 
 if TYPE_CHECKING:  # imported where used, so that the CLI can list EXPORT_FORMATS without loading h5py
     from fringelab.formats.topography import TopographyResult
-
-
-ExportFormat = Literal["points-csv", "grid-npz", "mat", "vtk", "profile-csv"]
-EXPORT_FORMATS: tuple[str, ...] = get_args(ExportFormat)  # the one list of export formats
 
 
 SPREADSHEET_MAX_ROWS = 1_048_576  # Excel and LibreOffice Calc: rows of one sheet, the header row included

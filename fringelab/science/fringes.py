@@ -1,4 +1,5 @@
-"""Stripe edges of one image: orientation and period, sub-pixel edge location, linking and smoothing (METHOD.md §5).
+"""Stripe edges of one image: orientation and period, sub-pixel edge location, linking and smoothing
+(docs/method.md §5).
 
 Belongs here: finding the stripe direction and period of an image (`detect_stripes`), and `locate_edges`, a pure
 function of one frame that returns every dark/bright transition at sub-pixel accuracy, linked into edge curves
@@ -120,7 +121,7 @@ class FrameEdges:
     """The stripe edges of one frame, sorted by (line, t_px).
 
     axis, period_px: the scan geometry used (see the module docstring).
-    image_shape: (height, width) of the frame.
+    image_shape_hw_px: (height, width) of the frame.
     line: shape (N,) int32, scan-line index of each edge point.
     t_px: shape (N,) float32, sub-pixel position along the line, smoothed along the edge.
     polarity: shape (N,) int8, +1 dark → bright with increasing t, −1 bright → dark.
@@ -132,7 +133,7 @@ class FrameEdges:
 
     axis: Axis
     period_px: float
-    image_shape: tuple[int, int]
+    image_shape_hw_px: tuple[int, int]
     line: np.ndarray
     t_px: np.ndarray
     polarity: np.ndarray
@@ -147,12 +148,12 @@ class FrameEdges:
     @property
     def n_lines(self) -> int:
         """Number of scan lines (image rows for "rows", columns for "cols")."""
-        return self.image_shape[0] if self.axis == "rows" else self.image_shape[1]
+        return self.image_shape_hw_px[0] if self.axis == "rows" else self.image_shape_hw_px[1]
 
     @property
     def n_samples(self) -> int:
         """Length of a scan line (px)."""
-        return self.image_shape[1] if self.axis == "rows" else self.image_shape[0]
+        return self.image_shape_hw_px[1] if self.axis == "rows" else self.image_shape_hw_px[0]
 
     def q_px(self) -> np.ndarray:
         """Edge points as pixels (u, v), shape (N, 2)."""
@@ -254,7 +255,7 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     image: shape (H, W), uint8, uint16 or float grey levels (float on the 8-bit scale).
 
     A pure function of the frame and the settings, so frames can be processed in any order and on any worker.
-    Steps (METHOD.md §5): Gaussian smoothing along the stripes; local mid-level (I_max + I_min)/2 over a window
+    Steps (docs/method.md §5): Gaussian smoothing along the stripes; local mid-level (I_max + I_min)/2 over a window
     of `window_periods` periods along each scan line; every sign change of I − mid is an edge candidate, placed
     by a probit fit to the four straddling pixels; candidates with low contrast, a clipped bright
     side or near a dark area are rejected, as are pairs closer than a quarter of the edge spacing (noise
@@ -272,7 +273,7 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     else:
         axis = settings.axis  # type: ignore[assignment]
         period_px = settings.period_px
-    image_shape = image.shape
+    image_shape_hw_px = image.shape
     # Transposing before the conversion to float moves a quarter of the bytes.
     scan = _grey_image(image if axis == "rows" else np.ascontiguousarray(image.T))
     n_lines, n_samples = scan.shape
@@ -350,7 +351,7 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     return FrameEdges(
         axis=axis,
         period_px=float(period_px),
-        image_shape=(int(image_shape[0]), int(image_shape[1])),
+        image_shape_hw_px=(int(image_shape_hw_px[0]), int(image_shape_hw_px[1])),
         line=line,
         t_px=t_px.astype(np.float32),
         polarity=polarity,
@@ -513,7 +514,7 @@ class EdgeOrder:
 
 
 def order_edges(edges: FrameEdges, *, max_gap_periods: float = 0.8) -> EdgeOrder:
-    """Put the edge curves of a frame in stripe order (METHOD.md §5: the basis of edge identity).
+    """Put the edge curves of a frame in stripe order (docs/method.md §5: the basis of edge identity).
 
     Two edge points that follow each other on a scan line with opposite polarities, less than max_gap_periods
     stripe periods apart (a stripe is half a period wide, so a gap of more than ~0.8 period means a missed
