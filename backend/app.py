@@ -12,7 +12,7 @@ from backend.api import auth, demo, experiments, health, jobs, recordings, resul
 from backend.errors import install_error_handlers
 from backend.frontend import mount_frontend
 from backend.limits import BodySizeLimit
-from backend.openapi import install_openapi
+from backend.openapi import install_openapi, operation_id
 from fringelab.core.db import make_engine, make_sessionmaker
 from fringelab.core.jobs import reconcile_periodically, reconcile_quietly
 from fringelab.core.queue import create_celery
@@ -46,6 +46,7 @@ def create_app(settings: Settings) -> FastAPI:
         redoc_url="/api/redoc",
         openapi_url="/api/openapi.json",
         lifespan=lifespan,
+        generate_unique_id_function=operation_id,
     )
     app.state.fringelab = state
     install_error_handlers(app)

@@ -48,6 +48,54 @@ DESCRIPTIONS = {
 }
 
 
+# Operation ids as a generated client's method names: verb_noun, from the route function's name (FastAPI's
+# default glues on the path and method: `read_job_api_v1_jobs__job_id__get`). One table, so a client's names are
+# reviewed in one place; a route missing here fails `operation_id` (and its test) instead of getting a long name.
+OPERATION_IDS = {
+    "health": "get_health",
+    "login": "login", "logout": "logout", "me": "get_me",
+    "list_tokens": "list_tokens", "create_token": "create_token", "revoke_token": "revoke_token",
+    "list_users": "list_users", "add_user": "create_user", "update_user": "update_user",
+    "list_groups": "list_groups", "add_group": "create_group", "audit_trail": "list_audit_events",
+    "create_experiment": "create_experiment", "list_experiments": "list_experiments",
+    "read_experiment": "get_experiment", "patch_experiment": "update_experiment",
+    "remove_experiment": "delete_experiment",
+    "create_camera": "create_camera", "list_cameras": "list_cameras", "read_camera": "get_camera",
+    "update_camera": "update_camera", "remove_camera": "delete_camera",
+    "list_recordings": "list_recordings", "list_camera_recordings": "list_camera_recordings",
+    "read_recording": "get_recording", "update_recording": "update_recording",
+    "remove_recording": "delete_recording", "reingest_recording": "reingest_recording",
+    "put_sidecar": "put_recording_sidecar", "frame_png": "get_recording_frame", "recording_qa": "get_recording_qa",
+    "download_recording": "download_recording",
+    "tus_options": "get_upload_options", "extension_creation_route": "create_upload",
+    "core_head_route": "get_upload_offset", "core_patch_route": "append_upload",
+    "extension_termination_route": "delete_upload", "put_recording": "upload_recording",
+    "start_job": "create_job", "list_jobs": "list_jobs", "read_job": "get_job", "read_log": "get_job_log",
+    "job_events": "stream_job_events", "cancel": "cancel_job", "retry": "retry_job",
+    "download": "download_job_file",
+    "list_calibrations": "list_calibrations", "read_calibration": "get_calibration",
+    "calibration_report": "get_calibration_report", "projector_table_curves": "get_projector_table",
+    "calibration_file": "download_calibration_file",
+    "topography_overview": "get_topography", "topography_grid": "get_topography_grid",
+    "topography_profile": "get_topography_profile", "topography_history": "get_topography_history",
+    "make_demo": "create_demo",
+}  # fmt: skip
+
+
+def operation_id(route: Any) -> str:
+    """The operationId of a route (FastAPI's `generate_unique_id_function`): its name in OPERATION_IDS. Routes
+    outside the document (the dashboard's files) and tuspyserver's trailing-slash twins, which `complete` leaves
+    out, get names of their own so no two collide."""
+    if not getattr(route, "include_in_schema", True):
+        return str(route.name)
+    if route.path.endswith("/") and route.path.startswith(UPLOADS):
+        return f"{OPERATION_IDS.get(route.name, route.name)}_twin"
+    try:
+        return OPERATION_IDS[route.name]
+    except KeyError:
+        raise KeyError(f"route {route.name!r} ({route.path}) has no operation id: add it to OPERATION_IDS") from None
+
+
 def install_openapi(app: FastAPI) -> None:
     """Make `app.openapi()` return the completed document (built once, on first use)."""
     generate = app.openapi

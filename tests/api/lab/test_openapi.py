@@ -115,3 +115,16 @@ def test_every_reference_resolves_and_ids_are_unique(document):
     assert len(ids) == len(set(ids))
     for method, path, operation in operations(document):
         assert operation.get("summary") and operation.get("tags"), f"{method.upper()} {path}"
+
+
+def test_operation_ids_read_as_names(document):
+    import re
+
+    ids = [operation["operationId"] for _, _, operation in operations(document)]
+    assert len(ids) == len(set(ids)), "operation ids must be unique"
+    for name in ids:
+        assert re.fullmatch(r"[a-z]+(_[a-z0-9]+)*", name) and "api_v1" not in name, name
+    by_route = {(method, path): operation["operationId"] for method, path, operation in operations(document)}
+    assert by_route[("post", "/api/v1/jobs")] == "create_job"
+    assert by_route[("get", "/api/v1/jobs/{job_id}/topography/grid")] == "get_topography_grid"
+    assert by_route[("get", "/api/v1/jobs/{job_id}")] == "get_job"
