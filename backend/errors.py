@@ -8,7 +8,7 @@ import logging
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
-from pydantic import BaseModel
+from pydantic import BaseModel, Field
 from starlette.exceptions import HTTPException
 
 from fringelab.core.errors import (
@@ -31,6 +31,9 @@ log = logging.getLogger(__name__)
 class ErrorBody(BaseModel):
     detail: str
     code: str
+    job_id: str | None = Field(
+        None, description="With `duplicate_job` (409): the id of the identical job already queued or running."
+    )
 
 
 # The one place where domain errors become HTTP statuses (the most specific class wins).
@@ -68,6 +71,8 @@ def error_json(error: DomainError) -> JSONResponse:
     body: dict[str, str | None] = {"detail": error.detail, "code": error.code}
     if error.names_field:
         body["field"] = error.field
+    if error.job_id is not None:
+        body["job_id"] = error.job_id
     return JSONResponse(body, status_code=http_status(error), headers=error_headers(error))
 
 

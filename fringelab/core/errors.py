@@ -14,9 +14,16 @@ class DomainError(Exception):
     code = "bad_request"
 
     def __init__(
-        self, detail: str, *, code: str | None = None, field: str | None = None, retry_after_s: float | None = None
+        self,
+        detail: str,
+        *,
+        code: str | None = None,
+        field: str | None = None,
+        retry_after_s: float | None = None,
+        job_id: str | None = None,
     ) -> None:
         super().__init__(detail)
+        self.job_id = job_id  # the job the answer is about (duplicate_job: the one already doing this)
         self.detail = detail
         self.code = code or type(self).code
         self.field = field

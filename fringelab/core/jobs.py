@@ -319,11 +319,13 @@ def create_job(
     prepared = prepare_job(session, spec, authorize=authorize)
     for active in session.scalars(select(Job).where(Job.kind == spec["kind"], Job.state.in_(ACTIVE_STATES))):
         if active.spec == spec:
-            raise job_error(
+            error = job_error(
                 Conflict,
                 "duplicate_job",
                 f"job {active.id} with the same spec is already {active.state}; watch it instead, or cancel it first",
             )
+            error.job_id = active.id
+            raise error
     return submit_job(
         session,
         celery,

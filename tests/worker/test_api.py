@@ -174,6 +174,7 @@ def test_cancel_a_queued_job_twice_and_retry_it(client):
     job_id = client.post("/api/v1/jobs", json=SELFTEST).json()["id"]
     duplicate = client.post("/api/v1/jobs", json=SELFTEST)
     assert duplicate.status_code == 409 and duplicate.json()["code"] == "duplicate_job"
+    assert duplicate.json()["job_id"] == job_id  # the queued job's id, for a script to watch it
     assert job_id in duplicate.json()["detail"]
 
     retry_running = client.post(f"/api/v1/jobs/{job_id}/retry")
