@@ -42,6 +42,20 @@ RESULT_ERRORS: dict[int | str, dict[str, Any]] = {
     410: {"model": ErrorOut, "description": "The result file is no longer on disk (or unreadable); retry the job."},
 }
 MM = Annotated[float, Query(allow_inf_nan=False, description="mm, in the object frame")]
+OptionalMM = Annotated[float | None, Query(allow_inf_nan=False, description="mm, in the object frame (required)")]
+DeprecatedMM = Annotated[
+    float | None, Query(allow_inf_nan=False, deprecated=True, description="old name: use the `_mm` parameter")
+]
+
+
+def _line_mm(named: tuple[float | None, ...], old: tuple[float | None, ...]) -> tuple[float, float, float, float]:
+    """The line from x0_mm, y0_mm, x1_mm, y1_mm, or from the deprecated x0, y0, x1, y1 (not a mix)."""
+    for values in (named, old):
+        if all(v is not None for v in values):
+            x0, y0, x1, y1 = (float(v) for v in values)  # type: ignore[arg-type]
+            return x0, y0, x1, y1
+    missing = [n for n, v in zip(("x0_mm", "y0_mm", "x1_mm", "y1_mm"), named, strict=True) if v is None]
+    raise Invalid(f"the line needs x0_mm, y0_mm, x1_mm and y1_mm (missing: {', '.join(missing)})", code="invalid_line")
 
 
 def _listed(values: np.ndarray, decimals: int = 4) -> list[Any]:
@@ -335,19 +349,27 @@ class ProfileOut(BaseModel):
 def topography_profile(
     job: JobDep,
     state: StateDep,
-    x0: MM,
-    y0: MM,
-    x1: MM,
-    y1: MM,
     frames: Annotated[
         list[Annotated[int, Field(ge=0, le=MAX_ID)]],
         Query(min_length=1, max_length=50, description="Recording frame indices."),
     ],
     n_points: Annotated[int, Query(ge=2, le=5000)] = 200,
+    x0_mm: OptionalMM = None,
+    y0_mm: OptionalMM = None,
+    x1_mm: OptionalMM = None,
+    y1_mm: OptionalMM = None,
+    x0: DeprecatedMM = None,
+    y0: DeprecatedMM = None,
+    x1: DeprecatedMM = None,
+    y1: DeprecatedMM = None,
 ) -> ProfileOut:
-    """Deflection profiles w(s) along the segment (x0, y0) → (x1, y1) in mm, for the frames asked."""
+    """Deflection profiles w(s) along the segment (x0_mm, y0_mm) → (x1_mm, y1_mm), for the frames asked.
+
+    Points and lines take the same style everywhere: `x_mm, y_mm` for a point (history), `x0_mm, y0_mm, x1_mm,
+    y1_mm` for a line. The old names `x0, y0, x1, y1` still work and are deprecated."""
+    line = _line_mm((x0_mm, y0_mm, x1_mm, y1_mm), (x0, y0, x1, y1))
     with topography(job, state.settings.data_path) as reader:
-        cut = reader.profile(frames, (x0, y0, x1, y1), n_points=n_points)
+        cut = reader.profile(frames, line, n_points=n_points)
     return ProfileOut(
         s_mm=_listed(cut["s_mm"]),
         x_mm=_listed(cut["x_mm"]),

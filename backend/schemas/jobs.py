@@ -23,12 +23,19 @@ class Progress(BaseModel):
     eta_s: float | None = Field(description="Seconds left in this stage at the rate so far; null when unknown.")
 
 
+RELATIVE_URL = (
+    "Root-relative URL (`/api/v1/...`, no scheme or host): resolve it against the server's base URL, e.g. "
+    "`urllib.parse.urljoin('http://lab:8000/', url)`; behind a proxy at a sub-path, against that sub-path's base "
+    "(`fringelab.client.Client` does this)."
+)
+
+
 class JobFileOut(BaseModel):
     name: str
     size_bytes: int
     sha256: str
     media_type: str
-    url: str
+    url: str = Field(description=RELATIVE_URL)
 
 
 class ChunkOut(BaseModel):
@@ -96,5 +103,5 @@ class CalibrationOut(BaseModel):
     sha256: str
     summary: dict[str, Any]
     created_at: datetime
-    file_url: str
-    report_url: str
+    file_url: str = Field(description=RELATIVE_URL)
+    report_url: str = Field(description=RELATIVE_URL)

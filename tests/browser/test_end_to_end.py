@@ -143,10 +143,10 @@ def test_upload_calibrate_measure_and_explore(page, live_server, virtual_test, c
     answer = httpx.get(
         f"{live_server.base_url}/api/v1/jobs/{topography_job}/topography/profile",
         params={
-            "x0": line["x0"],
-            "y0": line["y0"],
-            "x1": line["x1"],
-            "y1": line["y1"],
+            "x0_mm": line["x0"],
+            "y0_mm": line["y0"],
+            "x1_mm": line["x1"],
+            "y1_mm": line["y1"],
             "frames": [last],
             "n_points": 300,
         },

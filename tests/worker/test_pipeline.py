@@ -90,7 +90,7 @@ def test_the_whole_measurement_through_the_api(
     history = client.get(f"/api/v1/jobs/{chunked['id']}/topography/history",
                          params={"x_mm": centre[0] + 40, "y_mm": centre[1]}).json()  # fmt: skip
     assert history["w_mm"][8] > history["w_mm"][2] > history["w_mm"][0] - 0.5  # it rises with the punch
-    line = {"x0": centre[0] - 100, "y0": centre[1], "x1": centre[0] + 100, "y1": centre[1], "n_points": 101}
+    line = {"x0_mm": centre[0] - 100, "y0_mm": centre[1], "x1_mm": centre[0] + 100, "y1_mm": centre[1], "n_points": 101}
     profile = client.get(f"/api/v1/jobs/{chunked['id']}/topography/profile", params=line | {"frames": [8]}).json()
     w = np.array([np.nan if v is None else v for v in profile["profiles"][0]["w_mm"]])
     assert np.nanargmax(w) in range(40, 61)  # highest near the punch axis

@@ -99,8 +99,12 @@ def test_a_grid_is_block_averaged_to_the_budget_and_a_window_is_full_resolution(
 
 
 def test_profiles_and_histories_sample_the_grid(client, job_id):
-    line = {"x0": -90.0, "y0": -50.0, "x1": 90.0, "y1": 40.0, "n_points": 7}
+    line = {"x0_mm": -90.0, "y0_mm": -50.0, "x1_mm": 90.0, "y1_mm": 40.0, "n_points": 7}
     body = client.get(f"/api/v1/jobs/{job_id}/topography/profile", params=line | {"frames": [13, 11]}).json()
+    old_names = {"x0": -90.0, "y0": -50.0, "x1": 90.0, "y1": 40.0, "n_points": 7, "frames": [13, 11]}
+    assert client.get(f"/api/v1/jobs/{job_id}/topography/profile", params=old_names).json() == body  # deprecated
+    half = client.get(f"/api/v1/jobs/{job_id}/topography/profile", params={"x0_mm": 1.0, "frames": [13]})
+    assert half.status_code == 422 and "y0_mm, x1_mm, y1_mm" in half.json()["detail"]
     assert body["s_mm"][-1] == pytest.approx(math.hypot(180.0, 90.0))
     assert [p["frame"] for p in body["profiles"]] == [13, 11]
     x, y = np.array(body["x_mm"]), np.array(body["y_mm"])

@@ -120,7 +120,7 @@ def _request(world: World, method: str, path: str) -> dict[str, Any]:
         ("POST", "/api/v1/jobs"): {"json": {"kind": "export", "job_id": world.ids["job"], "format": "grid-npz"}},
         ("GET", "/api/v1/jobs/{job_id}/topography/grid"): {"params": {"frame": 0}},
         ("GET", "/api/v1/jobs/{job_id}/topography/profile"): {
-            "params": {"x0": 0, "y0": 0, "x1": 10, "y1": 0, "frames": [0]}
+            "params": {"x0_mm": 0, "y0_mm": 0, "x1_mm": 10, "y1_mm": 0, "frames": [0]}
         },
         ("GET", "/api/v1/jobs/{job_id}/topography/history"): {"params": {"x_mm": 0, "y_mm": 0}},
         ("HEAD", "/api/v1/uploads/{uuid}"): {"headers": TUS},
