@@ -24,8 +24,8 @@ class Progress(BaseModel):
 
 
 RELATIVE_URL = (
-    "Root-relative URL (`/api/v1/...`, no scheme or host): resolve it against the server's base URL, e.g. "
-    "`urllib.parse.urljoin('http://lab:8000/', url)`; behind a proxy at a sub-path, against that sub-path's base "
+    "Root-relative URL (`/api/v1/...`, no scheme, host or proxy sub-path): append it to the base URL you call the "
+    "API at, e.g. `http://lab:8000` + url, or `https://lab.example/fringelab` + url behind a proxy at a sub-path "
     "(`fringelab.client.Client` does this)."
 )
 
