@@ -129,6 +129,33 @@ def test_the_round_trip_with_a_dropped_upload(server, virtual, tmp_path):
     heights = np.nanmax(export["z_mm"], axis=(1, 2)) - export["z_flat_mm"]  # w = z - z of the flat plate
     np.testing.assert_allclose(heights, overview["peak_w_mm"], atol=1e-3)  # the API rounds to 0.1 µm
 
+    # the Python client, in-process on the same job: results as numpy arrays equal to the export's grid
+    from fringelab.client import Client
+
+    with Client(up.base_url, token) as client:
+        last = overview["frames"][-1]
+        grid = client.get_topography_grid(topography["id"], last, budget=2000)  # every node
+        assert grid.step == 1 and grid.w_mm.dtype == np.float32
+        expected_w = export["z_mm"][-1] - export["z_flat_mm"]
+        np.testing.assert_allclose(grid.w_mm, expected_w, atol=1e-6, equal_nan=True)  # float32 of the same file
+        series = client.topography_series(topography["id"])
+        np.testing.assert_array_equal(series["frames"], overview["frames"])
+        assert np.nanmax(series["peak_w_mm"]) == max(w for w in overview["peak_w_mm"] if w is not None)
+        frames, w_t = client.get_topography_history(topography["id"], x, y)
+        assert len(frames) == len(w_t) == len(overview["frames"]) and w_t.dtype == np.float64
+        s_mm, profiles = client.get_topography_profile(topography["id"], [last], (x - 50, y, x + 50, y), n_points=11)
+        assert len(s_mm) == 11 and set(profiles) == {last}
+        paths = client.export(topography["id"], "points-csv", tmp_path / "client-export")
+        assert paths[0].name == "topography.csv" and paths[0].read_text().startswith("frame,x_mm,y_mm,z_mm")
+        # an identical job still running: 409 with its id, or that job itself with reuse_running
+        spec = {"kind": "export", "job_id": topography["id"], "format": "mat"}
+        first = client.create_job(spec)
+        again = client.create_job(spec, reuse_running=True)
+        if again["id"] != first["id"]:  # only when the first ended in between (then nothing was running)
+            assert client.get_job(first["id"])["state"] in ("succeeded", "failed", "cancelled")
+        client.wait_job(again["id"])
+        client.wait_job(first["id"])
+
     # the audit trail names ada for every upload and job start
     engine = make_engine(f"sqlite:///{up.data_dir / 'fringelab.db'}")
     with make_sessionmaker(engine)() as session:
