@@ -106,7 +106,7 @@ def read_projector_calibration(path: str | Path) -> ProjectorCalibration:
             arrays = {name: file[name][()] for name in _PROJECTOR_ARRAYS}
             return ProjectorCalibration(
                 image_shape_hw_px=(int(file.attrs["image_height_px"]), int(file.attrs["image_width_px"])),
-                edges=EdgeSettings(**json.loads(file.attrs["edge_settings_json"])),
+                edges=EdgeSettings.from_dict(json.loads(file.attrs["edge_settings_json"])),
                 reference_z_mm=float(file.attrs["reference_z_mm"]),
                 z_mm=file["z_mm"][()],
                 polarity=file["polarity"][()],

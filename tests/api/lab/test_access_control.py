@@ -33,9 +33,8 @@ from fringelab.core.accounts import create_user, issue_token
 from fringelab.core.db import make_engine, make_sessionmaker, upgrade_database
 from fringelab.core.models import Calibration, Job, JobLog, utcnow
 from fringelab.core.settings import Settings
-from tests.api.lab.conftest import bearer
 from tests.formats.recording_files import stripe_frames, write_zip
-from tests.support import wait_for
+from tests.support import bearer, wait_for
 from worker.app import create_worker_app
 
 pytestmark = pytest.mark.integration
