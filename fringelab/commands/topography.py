@@ -214,10 +214,11 @@ def export_command(args: argparse.Namespace) -> int:
     from fringelab.formats.exports import export_result
 
     try:
-        path = export_result(
-            args.result, args.format, args.output, line=args.line, per_frame=args.per_frame,
-            mat_version=args.mat_version,
-        )  # fmt: skip
+        with progress_bar(args, "export") as progress:
+            path = export_result(
+                args.result, args.format, args.output, line=args.line, per_frame=args.per_frame,
+                mat_version=args.mat_version, progress=progress,
+            )  # fmt: skip
     except (ValueError, OSError) as error:
         return fail(args, error)
     return emit(args, {"path": path, "format": args.format}, [f"{path}: {args.format} written"])

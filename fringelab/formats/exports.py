@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import time
 import warnings
+from collections.abc import Callable
+from contextvars import ContextVar
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, get_args
 
@@ -14,6 +16,17 @@ from fringelab.formats.atomic import atomic_path
 
 if TYPE_CHECKING:  # imported where used, so that the CLI can list EXPORT_FORMATS without loading h5py
     from fringelab.formats.topography import TopographyResult
+
+
+# progress(done, total, stage) of the export running in this context (export_result sets it; the CLI draws a bar)
+_PROGRESS: ContextVar[Callable[[int, int, str], None] | None] = ContextVar("export_progress", default=None)
+
+
+def _tick(result: TopographyResult, i: int, stage: str) -> None:
+    """Frame position i of the result is done."""
+    progress = _PROGRESS.get()
+    if progress is not None:
+        progress(i + 1, result.n_frames, stage)
 
 
 SPREADSHEET_MAX_ROWS = 1_048_576  # Excel and LibreOffice Calc: rows of one sheet, the header row included
@@ -36,6 +49,7 @@ def export_points_csv(result: TopographyResult, path: str | Path, *, per_frame: 
         for i, frame in enumerate(result.frames):
             with atomic_path(path / f"frame_{int(frame):06d}.csv") as temp, open(temp, "w", newline="") as out:
                 _write_points(out, result, [(i, frame)])
+            _tick(result, i, "points")
         return path
     rows = int(result.offsets[-1]) + 1
     with atomic_path(path) as temp, open(temp, "w", newline="") as out:
@@ -56,6 +70,8 @@ def _write_points(out: Any, result: TopographyResult, frames: list[tuple[int, An
         points = result.points(i)
         block = np.column_stack([np.full(len(points), frame), points])
         np.savetxt(out, block, fmt=["%d", "%.4f", "%.4f", "%.4f"], delimiter=",")
+        if len(frames) > 1:
+            _tick(result, i, "points")
 
 
 def read_points_csv(path: str | Path) -> np.ndarray:
@@ -65,10 +81,16 @@ def read_points_csv(path: str | Path) -> np.ndarray:
 
 def _grid_stack(result: TopographyResult) -> np.ndarray:
     return (
-        np.stack([result.file["grid/z_mm"][i] for i in range(result.n_frames)])
+        np.stack([_grid_frame(result, i) for i in range(result.n_frames)])
         if result.n_frames
         else np.zeros((0, *result.grid.shape), np.float32)
     )
+
+
+def _grid_frame(result: TopographyResult, i: int) -> np.ndarray:
+    z = result.file["grid/z_mm"][i]
+    _tick(result, i, "grids")
+    return z
 
 
 def export_grid_npz(result: TopographyResult, path: str | Path) -> Path:
@@ -179,6 +201,7 @@ def _export_mat_v73(result: TopographyResult, path: Path) -> Path:
                 lo, hi = int(result.offsets[i]), int(result.offsets[i + 1])
                 block = np.column_stack([np.full(hi - lo, frame), result.points(i)]).astype(np.float32)
                 points[:, lo:hi] = block.T
+                _tick(result, i, "frames")
             units = file.create_group("units")
             units.attrs["MATLAB_class"] = np.bytes_("struct")
             names = list(_MAT_UNITS)
@@ -237,6 +260,7 @@ def export_vtk(result: TopographyResult, path: str | Path) -> Path:
         meshio.write(folder / name, mesh, binary=True)
         time = float(times[i]) if np.isfinite(times[i]) else float(frame)
         entries.append(f'    <DataSet timestep="{time!r}" part="0" file="{folder.name}/{name}"/>')
+        _tick(result, i, "surfaces")
     pvd = (
         '<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">\n'
         "  <Collection>\n" + "\n".join(entries) + "\n  </Collection>\n</VTKFile>\n"
@@ -294,6 +318,7 @@ def export_profile_csv(
                 ]
             )
             np.savetxt(out, block, fmt=["%d", "%.6g", "%.4f", "%.4f", "%.4f", "%.4f", "%.4f"], delimiter=",")
+            _tick(result, i, "profiles")
     return path
 
 
@@ -305,9 +330,11 @@ def export_result(
     line: tuple[float, float, float, float] | None = None,
     per_frame: bool = False,
     mat_version: MatVersion = "auto",
+    progress: Callable[[int, int, str], None] | None = None,
 ) -> Path:
     """Export a topography result in one of EXPORT_FORMATS; `line` (X0, Y0, X1, Y1 mm) for profile-csv only,
-    `per_frame` (one CSV per frame into the folder out_path) for points-csv only, `mat_version` for mat only."""
+    `per_frame` (one CSV per frame into the folder out_path) for points-csv only, `mat_version` for mat only;
+    progress(done, total, stage) after every frame."""
     if fmt not in EXPORT_FORMATS:
         raise ValueError(f"format: expected one of {EXPORT_FORMATS}, got {fmt!r}")
     if line is not None and fmt != "profile-csv":
@@ -318,13 +345,29 @@ def export_result(
         raise ValueError(f"mat_version: expected one of {get_args(MatVersion)}, got {mat_version!r}")
     from fringelab.formats.topography import TopographyResult
 
-    with TopographyResult(result_path) as result:
-        if fmt == "points-csv":
-            return export_points_csv(result, out_path, per_frame=per_frame)
-        if fmt == "grid-npz":
-            return export_grid_npz(result, out_path)
-        if fmt == "mat":
-            return export_mat(result, out_path, version=mat_version)
-        if fmt == "vtk":
-            return export_vtk(result, out_path)
-        return export_profile_csv(result, out_path, line=line)
+    token = _PROGRESS.set(progress)
+    try:
+        with TopographyResult(result_path) as result:
+            return _export(result, fmt, out_path, line=line, per_frame=per_frame, mat_version=mat_version)
+    finally:
+        _PROGRESS.reset(token)
+
+
+def _export(
+    result: TopographyResult,
+    fmt: str,
+    out_path: str | Path,
+    *,
+    line: tuple[float, float, float, float] | None,
+    per_frame: bool,
+    mat_version: MatVersion,
+) -> Path:
+    if fmt == "points-csv":
+        return export_points_csv(result, out_path, per_frame=per_frame)
+    if fmt == "grid-npz":
+        return export_grid_npz(result, out_path)
+    if fmt == "mat":
+        return export_mat(result, out_path, version=mat_version)
+    if fmt == "vtk":
+        return export_vtk(result, out_path)
+    return export_profile_csv(result, out_path, line=line)

@@ -204,6 +204,7 @@ def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict
     from dataclasses import fields
 
     from fringelab.formats.recordings import recording_log
+    from fringelab.formats.topography import write_xdmf
     from fringelab.science.fields import Grid, Peak
 
     inputs = _topography_inputs(context)
@@ -232,6 +233,8 @@ def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict
                     context.progress(measurement.frame - wanted.start + 1, len(wanted), "writing")
             writer.close(tally.attrs(flat_rms_mm=float(track["flat_rms_mm"]),
                                      n_tracks_first_frame=int(track["n_tracks_first_frame"]), clamp=clamp))  # fmt: skip
+    with context.output("topography.xdmf", media_type="application/xml") as temporary:
+        write_xdmf(context.directory / "topography.h5", temporary)  # ParaView opens it beside topography.h5
     remove_chunk_files(context.directory)
     result = {
         "frames": [wanted.start, wanted.stop - 1],

@@ -78,3 +78,16 @@ def test_points_csv_past_spreadsheet_rows_warns_or_splits(result_path: Path, tmp
     assert [int(f.stem.split("_")[1]) for f in files] == frames
     for f, points in zip(files, total, strict=True):
         np.testing.assert_allclose(read_points_csv(f)[:, 1:], points, atol=6e-5)  # 4 decimals of float32 mm
+
+
+def test_every_export_reports_progress_per_frame(result_path: Path, tmp_path: Path) -> None:
+    from fringelab.formats import EXPORT_FORMATS
+
+    with TopographyResult(result_path) as result:
+        n = result.n_frames
+    for fmt in EXPORT_FORMATS:
+        calls: list[tuple[int, int, str]] = []
+        suffix = {"vtk": ".pvd", "grid-npz": ".npz", "mat": ".mat"}.get(fmt, ".csv")
+        export_result(result_path, fmt, tmp_path / f"out{suffix}", progress=lambda *a, c=calls: c.append(a))
+        assert calls and calls[-1][:2] == (n, n), (fmt, calls)
+        assert [done for done, _, _ in calls] == sorted(done for done, _, _ in calls)  # never backwards
