@@ -25,7 +25,7 @@ import stat
 import struct
 import zipfile
 from dataclasses import dataclass
-from pathlib import Path, PurePosixPath
+from pathlib import Path, PurePath, PurePosixPath
 from typing import BinaryIO
 
 import numpy as np
@@ -37,6 +37,8 @@ SIDECAR_NAMES = ("z.csv", "frames.csv", "board.json")
 # Single-file recordings by name; a ZIP holds frames. A folder of frames is read from disk, not uploaded.
 UPLOAD_SUFFIXES = {".zip": "zip", ".tif": "tiff", ".tiff": "tiff", ".avi": "avi", ".mp4": "mp4", ".cine": "cine"}
 FORMATS = ("folder", "zip", "tiff", "avi", "mp4", "cine", "mraw")
+# Containers whose header states the significant bits of a pixel (others: measured from the largest value).
+STATES_BIT_DEPTH = ("cine", "mraw")
 
 GiB = 1 << 30
 MiB = 1 << 20
@@ -124,6 +126,7 @@ class ZipContents:
     frame_names: tuple[str, ...]  # in natural order
     sidecar_names: dict[str, str]  # sidecar base name -> entry name
     uncompressed_bytes: int
+    mraw_entries: tuple[str, str] | None = None  # (.cih/.cihx entry, stored .mraw entry): a Photron recording
 
 
 _SUPPORTED_COMPRESSION = (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED, zipfile.ZIP_BZIP2, zipfile.ZIP_LZMA)
@@ -204,8 +207,45 @@ def inspect_zip(path: str | Path, *, limits: ZipLimits | None = None) -> ZipCont
             sidecars.setdefault(base, info.filename)
     _refuse_overlapping_entries(path.name, infos)
     if not frames:
-        raise UnsupportedRecording(f"{path.name}: no image frames in the ZIP (accepted: {', '.join(IMAGE_SUFFIXES)})")
+        mraw = _mraw_entries(path.name, infos)
+        if mraw is not None:
+            return ZipContents((), sidecars, total, mraw_entries=mraw)
+        raise UnsupportedRecording(
+            f"{path.name}: no image frames in the ZIP (accepted: {', '.join(IMAGE_SUFFIXES)}, or a Photron "
+            ".cihx/.cih with its .mraw)"
+        )
     return ZipContents(tuple(sorted(frames, key=natural_key)), sidecars, total)
+
+
+def _mraw_entries(name: str, infos: list[zipfile.ZipInfo]) -> tuple[str, str] | None:
+    """(header, data) entries of a Photron recording in a ZIP: one .mraw, stored (not compressed) so frames are
+    read at their offsets, and its .cihx or .cih of the same stem."""
+    data = [i for i in infos if not i.is_dir() and not is_junk_entry(i.filename)
+            and i.filename.lower().endswith(".mraw")]  # fmt: skip
+    if len(data) != 1:
+        return None
+    if data[0].compress_type != zipfile.ZIP_STORED:
+        raise UnsupportedRecording(
+            f"{name}: {data[0].filename} is compressed in the ZIP; store it uncompressed (zip -0) so its frames "
+            "can be read where they lie"
+        )
+    stem = data[0].filename[: -len(".mraw")]
+    by_name = {i.filename.lower(): i.filename for i in infos}
+    for suffix in MRAW_HEADER_SUFFIXES:
+        header = by_name.get((stem + suffix).lower())
+        if header is not None:
+            return header, data[0].filename
+    raise UnsupportedRecording(f"{name}: {data[0].filename} has no .cihx or .cih of the same name in the ZIP")
+
+
+def zip_entry_data_offset(path: Path, info: zipfile.ZipInfo) -> int:
+    """Where a stored entry's bytes start in the ZIP file (after its local header, name and extra field)."""
+    with path.open("rb") as handle:
+        local = _read_at(handle, info.header_offset, 30)
+    if len(local) < 30 or local[:4] != b"PK\x03\x04":
+        raise CorruptRecording(f"{path.name}: entry {info.filename!r} has no local header (damaged)")
+    name_length, extra_length = struct.unpack_from("<HH", local, 26)
+    return info.header_offset + 30 + name_length + extra_length
 
 
 def _refuse_overlapping_entries(name: str, infos: list[zipfile.ZipInfo]) -> None:
@@ -464,7 +504,8 @@ class MrawHeader:
     frame_rate_hz: float | None
     start_frame: int
     data_path: Path
-    header_path: Path
+    header_path: PurePath  # a file, or the entry name of a header inside a ZIP
+    data_offset: int = 0  # where the frames start in data_path (non-zero for an .mraw stored inside a ZIP)
 
     @property
     def frame_bytes(self) -> int:
@@ -488,11 +529,10 @@ def mraw_paths(path: str | Path) -> tuple[Path, Path]:
     raise UnsupportedRecording(f"{path.name}: a Photron .mraw needs its .cihx or .cih header beside it (same name)")
 
 
-def _cih_fields(path: Path) -> dict[str, str]:
+def _cih_fields(path: PurePath, data: bytes) -> dict[str, str]:
     """The header as {key: text}: `Key : Value` lines of a .cih, or the XML of a .cihx, under the .cih names."""
-    if path.stat().st_size > _MAX_CIH_BYTES:
+    if len(data) > _MAX_CIH_BYTES:
         raise CorruptRecording(f"{path.name}: larger than {_MAX_CIH_BYTES} bytes; not a Photron header")
-    data = path.read_bytes()
     if path.suffix.lower() == ".cih":
         fields: dict[str, str] = {}
         for line in data.decode("latin-1").splitlines():
@@ -535,7 +575,26 @@ def read_mraw_header(path: str | Path) -> MrawHeader:
         raise UnsupportedRecording(f"{header_path.name}: the Photron header is missing")
     if not data_path.is_file():
         raise CorruptRecording(f"{header_path.name}: its data file {data_path.name} is missing")
-    fields = _cih_fields(header_path)
+    if header_path.stat().st_size > _MAX_CIH_BYTES:
+        raise CorruptRecording(f"{header_path.name}: larger than {_MAX_CIH_BYTES} bytes; not a Photron header")
+    return mraw_header_from(
+        header_path, header_path.read_bytes(), data_path=data_path, data_name=data_path.name,
+        data_offset=0, data_bytes=data_path.stat().st_size,
+    )  # fmt: skip
+
+
+def mraw_header_from(
+    header_path: PurePath,
+    header_bytes: bytes,
+    *,
+    data_path: Path,
+    data_name: str,
+    data_offset: int,
+    data_bytes: int,
+) -> MrawHeader:
+    """An MRAW header from the header file's bytes, checked against the span of the data it describes
+    (data_bytes from data_offset in data_path: a whole .mraw, or a stored .mraw entry of a ZIP)."""
+    fields = _cih_fields(header_path, header_bytes)
     name = header_path.name
 
     def number(key: str, *, required: bool = True) -> float | None:
@@ -576,16 +635,17 @@ def read_mraw_header(path: str | Path) -> MrawHeader:
         start_frame=int(number("Start Frame", required=False) or 0),
         data_path=data_path,
         header_path=header_path,
+        data_offset=data_offset,
     )
-    size, expected = data_path.stat().st_size, header.frame_bytes * count
+    size, expected = data_bytes, header.frame_bytes * count
     if size < expected:
         raise CorruptRecording(
-            f"{data_path.name}: {size} bytes, but {count} frames of {width} × {height} px at {bits} bits need "
+            f"{data_name}: {size} bytes, but {count} frames of {width} × {height} px at {bits} bits need "
             f"{expected}; the .mraw is truncated"
         )
     if size > expected:
         raise CorruptRecording(
-            f"{data_path.name}: {size} bytes, more than the {expected} its header describes; the header does not "
+            f"{data_name}: {size} bytes, more than the {expected} its header describes; the header does not "
             "belong to this .mraw"
         )
     return header

@@ -22,7 +22,7 @@ import zipfile
 import zlib
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import TYPE_CHECKING, Any, BinaryIO, overload
 
 import cv2
@@ -32,15 +32,18 @@ from fringelab.formats.atomic import atomic_path
 from fringelab.formats.containers import (
     IMAGE_SUFFIXES,
     CorruptRecording,
+    MrawHeader,
     UnsupportedRecording,
     ZipLimits,
     inspect_zip,
     is_junk_entry,
+    mraw_header_from,
     read_cine_header,
     read_mraw_header,
     sniff_format,
     unpack_cine_pixels,
     unpack_mraw_pixels,
+    zip_entry_data_offset,
 )
 from fringelab.formats.sidecars import FRAMES_CSV_COLUMNS
 from fringelab.science import natural_key
@@ -446,11 +449,12 @@ class MrawFrames(FrameSource):
 
     format = "mraw"
 
-    def __init__(self, path: Path):
-        self.header = read_mraw_header(path)
-        header = self.header
+    def __init__(self, path: Path, *, header: MrawHeader | None = None):
+        self.header = header = read_mraw_header(path) if header is None else header
+        # The header file (sidecars are found beside it), or the ZIP that holds both files.
+        where = header.header_path if isinstance(header.header_path, Path) else path
         super().__init__(
-            header.header_path,
+            where,
             [f"frame {number}" for number in header.frame_numbers],
             fps=header.frame_rate_hz,
             bit_depth=header.effective_bits,
@@ -467,7 +471,7 @@ class MrawFrames(FrameSource):
             self._handle = self.header.data_path.open("rb")
             self._pid = os.getpid()
         size = self.header.frame_bytes
-        self._handle.seek(index * size)
+        self._handle.seek(self.header.data_offset + index * size)
         data = self._handle.read(size)
         if len(data) != size:
             raise CorruptRecording(f"{self.header.data_path.name} frame {index}: truncated")
@@ -477,6 +481,20 @@ class MrawFrames(FrameSource):
         if self._handle is not None:
             self._handle.close()
             self._handle = None
+
+
+def _mraw_in_zip(path: Path, entries: tuple[str, str]) -> MrawFrames:
+    """A Photron recording uploaded as one ZIP: its header read from the archive, its frames read where the
+    stored .mraw lies in the ZIP file."""
+    header_name, data_name = entries
+    with zipfile.ZipFile(path) as archive:
+        header_bytes = archive.read(header_name)
+        data_info = archive.getinfo(data_name)
+    header = mraw_header_from(
+        PurePosixPath(header_name), header_bytes, data_path=path, data_name=data_name,
+        data_offset=zip_entry_data_offset(path, data_info), data_bytes=data_info.file_size,
+    )  # fmt: skip
+    return MrawFrames(path, header=header)
 
 
 def open_recording(path: str | Path, *, zip_limits: ZipLimits | None = None) -> FrameSource:
@@ -498,6 +516,8 @@ def open_recording(path: str | Path, *, zip_limits: ZipLimits | None = None) -> 
         return ImageFolder(path, sorted(names, key=natural_key))
     if kind == "zip":
         contents = inspect_zip(path, limits=zip_limits)
+        if contents.mraw_entries is not None:
+            return _mraw_in_zip(path, contents.mraw_entries)
         return ImageZip(path, contents.frame_names, contents.sidecar_names)
     if kind == "tiff":
         return TiffStack(path)

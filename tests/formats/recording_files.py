@@ -206,3 +206,14 @@ def write_mraw(
     target = path.with_suffix(".cihx")
     target.write_bytes(b"\x00\x01\x02\x03cihx binary preamble\n" + xml.encode("utf-8"))
     return target
+
+
+def write_mraw_zip(path: Path, frames: Sequence[np.ndarray], *, bits: int, **options: object) -> Path:
+    """A Photron recording as one upload: its .cih and .mraw stored (uncompressed) in a ZIP."""
+    folder = path.parent / f"{path.stem}_mraw"
+    folder.mkdir(exist_ok=True)
+    header = write_mraw(folder / "shot", frames, bits=bits, **options)  # type: ignore[arg-type]
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_STORED) as archive:
+        archive.write(header, header.name)
+        archive.write(header.with_suffix(".mraw"), "shot.mraw")
+    return path

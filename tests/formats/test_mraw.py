@@ -71,3 +71,36 @@ def test_colour_mraw_is_refused(tmp_path):
     header_path = write_mraw(tmp_path / "shot", _frames(2, 8), bits=8, colour="Color")
     with pytest.raises(UnsupportedRecording, match="monochrome"):
         open_recording(header_path)
+
+
+@pytest.mark.parametrize("header", ["cih", "cihx"])
+def test_mraw_uploaded_as_one_zip_reads_frames_where_they_lie(tmp_path, header):
+    import zipfile
+
+    from fringelab.formats.containers import inspect_zip
+
+    frames = _frames(3, 12)
+    header_path = write_mraw(tmp_path / "shot", frames, bits=12, start_frame=-1, header=header)
+    archive_path = tmp_path / "shot.zip"
+    with zipfile.ZipFile(archive_path, "w", zipfile.ZIP_STORED) as archive:
+        archive.write(header_path, f"run 7/{header_path.name}")
+        archive.write(header_path.with_suffix(".mraw"), "run 7/shot.mraw")
+        archive.writestr("run 7/frames.csv", "frame,force_kN\n0,1\n")
+    assert inspect_zip(archive_path).mraw_entries == (f"run 7/{header_path.name}", "run 7/shot.mraw")
+    with open_recording(archive_path) as source:
+        assert (source.format, len(source)) == ("mraw", 3)
+        np.testing.assert_array_equal(source.frame_numbers, [-1, 0, 1])
+        for i in (2, 0, 1):
+            np.testing.assert_array_equal(source[i], frames[i])
+    # the .mraw compressed in the ZIP cannot be read in place: refused with what to do
+    with zipfile.ZipFile(tmp_path / "deflated.zip", "w", zipfile.ZIP_DEFLATED) as archive:
+        archive.write(header_path, header_path.name)
+        archive.write(header_path.with_suffix(".mraw"), "shot.mraw")
+    with pytest.raises(UnsupportedRecording, match="store it uncompressed"):
+        open_recording(tmp_path / "deflated.zip")
+    # truncated inside the ZIP: the entry's size does not match the header
+    with zipfile.ZipFile(tmp_path / "short.zip", "w", zipfile.ZIP_STORED) as archive:
+        archive.write(header_path, header_path.name)
+        archive.writestr("shot.mraw", header_path.with_suffix(".mraw").read_bytes()[:-7])
+    with pytest.raises(CorruptRecording, match="truncated"):
+        open_recording(tmp_path / "short.zip")

@@ -21,7 +21,7 @@ import numpy as np
 from fringelab.core.models import Recording
 from fringelab.core.settings import Settings
 from fringelab.core.storage import recording_dir
-from fringelab.formats.containers import ZipLimits
+from fringelab.formats.containers import STATES_BIT_DEPTH, ZipLimits
 from fringelab.formats.previews import PREVIEW_FILE, THUMBNAIL_PX, PreviewWriter
 from fringelab.formats.recordings import FrameSource, open_recording
 from fringelab.formats.sidecars import frame_indices, read_board_json, read_frames_csv, read_z_csv
@@ -183,7 +183,7 @@ def inspect_recording(
 def _probe(source: FrameSource, first: np.ndarray) -> Probe:
     """Facts from the container and a few frames: the effective bit depth needs their largest value."""
     count = len(source)
-    if first.dtype == np.uint16 and source.format != "cine":
+    if first.dtype == np.uint16 and source.format not in STATES_BIT_DEPTH:
         peak = int(first.max())
         for index in np.unique(np.linspace(0, count - 1, min(count, PROBE_FRAMES)).round().astype(int))[1:]:
             with contextlib.suppress(ValueError):  # a frame that cannot be read is reported by the frame pass
@@ -298,7 +298,7 @@ def _summarize(
 ) -> None:
     stats: list[FrameStats] = checked["stats"]
     probe = found.probe
-    if probe.format != "cine" and probe.bit_depth > 8:
+    if probe.format not in STATES_BIT_DEPTH and probe.bit_depth > 8:
         probe.bit_depth = effective_bit_depth(max(s.max for s in stats), stored_bits=16)
     scale_dn = full_scale(probe.bit_depth)
     mean_fraction = np.array([s.mean / scale_dn for s in stats])

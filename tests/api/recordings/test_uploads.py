@@ -15,7 +15,15 @@ import pytest
 
 from fringelab.core.storage import put_dir, recording_dir, tus_dir
 from tests.api.recordings.conftest import TUS, Api, serve, tus_create, tus_offset, tus_patch, tus_upload
-from tests.formats.recording_files import encode, stripe_frames, write_cine, write_tiff_stack, write_video, write_zip
+from tests.formats.recording_files import (
+    encode,
+    stripe_frames,
+    write_cine,
+    write_mraw_zip,
+    write_tiff_stack,
+    write_video,
+    write_zip,
+)
 from tests.support import wait_for
 
 Z_CSV = "frame,z_mm\n" + "".join(f"{i},{i * 0.5}\n" for i in range(8))
@@ -190,6 +198,8 @@ def test_every_format_uploads_with_put_and_becomes_ready(api, celery_worker, tmp
         "clip.mp4": (write_video(tmp_path / "v.mp4", stripe_frames(5), fps=30), 8, 8),
         "shot8.cine": (write_cine(tmp_path / "c8.cine", stripe_frames(5), fps=1000), 8, 8),
         "shot16.cine": (write_cine(tmp_path / "c16.cine", grey16, fps=1000, real_bpp=12), 16, 12),
+        "packed.cine": (write_cine(tmp_path / "p12.cine", grey16, fps=1000, packing="P12L"), 16, 12),
+        "photron.zip": (write_mraw_zip(tmp_path / "m.zip", grey16, bits=12, fps=1000), 16, 12),
     }
     created = {}
     for name, (path, _stored, _bits) in files.items():
