@@ -71,7 +71,7 @@ def error_json(error: DomainError) -> JSONResponse:
     body: dict[str, str | None] = {"detail": error.detail, "code": error.code}
     if error.names_field:
         body["field"] = error.field
-    if error.job_id is not None:
+    if getattr(error, "job_id", None) is not None:  # errors that skip DomainError.__init__ have none
         body["job_id"] = error.job_id
     return JSONResponse(body, status_code=http_status(error), headers=error_headers(error))
 

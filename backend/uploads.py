@@ -69,6 +69,7 @@ class UploadRefused(DomainError, HTTPException):
     def __init__(self, error: DomainError) -> None:
         HTTPException.__init__(self, status_code=http_status(error), detail=error.detail, headers=error_headers(error))
         self.code, self.field, self.names_field, self.retry_after_s = error.code, None, False, error.retry_after_s
+        self.job_id = error.job_id
 
 
 class TusUploadStorage(TusStorage):
