@@ -441,6 +441,30 @@ def _link_chains(
         label = jumped
 
 
+def edge_smoothing_weights(sigma_lines: float) -> np.ndarray:
+    """The interior weights (2h + 1,), h = ⌈3σ⌉, of the along-edge smoothing: a Gaussian-weighted local quadratic
+    fit (Savitzky–Golay) evaluated at its centre."""
+    half = max(1, int(np.ceil(3.0 * sigma_lines)))
+    offsets = np.arange(-half, half + 1, dtype=np.float64)
+    gauss = np.exp(-0.5 * (offsets / sigma_lines) ** 2)
+    moments = np.array([np.sum(gauss * offsets**m) for m in range(5)])
+    design = np.array([[moments[i + j] for j in range(3)] for i in range(3)])
+    # Row 0 of the inverse normal matrix times [1, d, d²]·g: the weights that give the fitted value at d = 0.
+    return np.asarray(np.linalg.solve(design, np.eye(3))[0] @ np.vstack([gauss, gauss * offsets, gauss * offsets**2]))
+
+
+def smoothed_noise_ratio(sigma_lines: float) -> float:
+    """σ of a smoothed edge position over the RMS of raw − smoothed (`FrameEdges.noise_px`), for independent
+    noise of the raw positions: √(Σw² / (1 − 2w₀ + Σw²)) with the interior weights w (0 without smoothing: the
+    frame's noise_px is then NaN)."""
+    if not sigma_lines > 0:
+        return float("nan")
+    w = edge_smoothing_weights(sigma_lines)
+    w0 = w[len(w) // 2]
+    sum2 = float(np.sum(w**2))
+    return float(np.sqrt(sum2 / (1.0 - 2.0 * w0 + sum2)))
+
+
 def _smooth_along_chains(line: np.ndarray, t_px: np.ndarray, chain: np.ndarray, *, sigma_lines: float) -> np.ndarray:
     """t smoothed along each chain by a Gaussian-weighted local quadratic fit in the line index, shape (N,).
 
@@ -464,10 +488,7 @@ def _smooth_along_chains(line: np.ndarray, t_px: np.ndarray, chain: np.ndarray, 
 
     offsets = np.arange(-half, half + 1, dtype=np.float64)
     gauss = np.exp(-0.5 * (offsets / sigma_lines) ** 2)
-    moments = np.array([np.sum(gauss * offsets**m) for m in range(5)])
-    design = np.array([[moments[i + j] for j in range(3)] for i in range(3)])
-    # Row 0 of the inverse normal matrix times [1, d, d²]·g: the weights that give the fitted value at d = 0.
-    interior_weights = np.linalg.solve(design, np.eye(3))[0] @ np.vstack([gauss, gauss * offsets, gauss * offsets**2])
+    interior_weights = edge_smoothing_weights(sigma_lines)
     smoothed_sorted = ndimage.correlate1d(t_sorted, interior_weights, mode="nearest")
 
     near_end = np.flatnonzero((before < half) | (after < half))
