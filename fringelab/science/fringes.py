@@ -453,16 +453,25 @@ def edge_smoothing_weights(sigma_lines: float) -> np.ndarray:
     return np.asarray(np.linalg.solve(design, np.eye(3))[0] @ np.vstack([gauss, gauss * offsets, gauss * offsets**2]))
 
 
-def smoothed_noise_ratio(sigma_lines: float) -> float:
-    """σ of a smoothed edge position over the RMS of raw − smoothed (`FrameEdges.noise_px`), for independent
-    noise of the raw positions: √(Σw² / (1 − 2w₀ + Σw²)) with the interior weights w (0 without smoothing: the
-    frame's noise_px is then NaN)."""
+def smoothed_noise_ratio(sigma_lines: float, *, presmooth_px: float = 0.0) -> float:
+    """σ of a smoothed edge position over the RMS of raw − smoothed (`FrameEdges.noise_px`).
+
+    The image is presmoothed along the stripes (Gaussian σ_p px), so the raw positions' noise on lines d apart
+    correlates as C(d) = exp(−d²/4σ_p²) (white noise through a Gaussian); with the interior smoothing weights w
+    the ratio is √(wᵀCw / (e₀ − w)ᵀC(e₀ − w)). NaN without edge smoothing (noise_px is then NaN too).
+
+    >>> round(smoothed_noise_ratio(3.0), 3), round(smoothed_noise_ratio(3.0, presmooth_px=1.0), 3)
+    (0.466, 1.326)
+    """
     if not sigma_lines > 0:
         return float("nan")
     w = edge_smoothing_weights(sigma_lines)
-    w0 = w[len(w) // 2]
-    sum2 = float(np.sum(w**2))
-    return float(np.sqrt(sum2 / (1.0 - 2.0 * w0 + sum2)))
+    d = np.arange(len(w)) - len(w) // 2
+    gap = d[:, None] - d[None, :]
+    correlation = np.exp(-(gap**2) / (4.0 * presmooth_px**2)) if presmooth_px > 0 else np.eye(len(w))
+    residual = -w
+    residual[len(w) // 2] += 1.0
+    return float(np.sqrt((w @ correlation @ w) / (residual @ correlation @ residual)))
 
 
 def _smooth_along_chains(line: np.ndarray, t_px: np.ndarray, chain: np.ndarray, *, sigma_lines: float) -> np.ndarray:
