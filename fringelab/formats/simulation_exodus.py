@@ -10,6 +10,8 @@ num_nodes) or, in the older layout, one `vals_nod_var` (time_step, num_nod_var, 
 
 from __future__ import annotations
 
+import contextlib
+import io
 import re
 import warnings
 from pathlib import Path
@@ -35,7 +37,8 @@ def read_exodus(path: str | Path) -> FEResults:
 
     path = Path(path)
     try:
-        with warnings.catch_warnings():
+        # meshio prints "Skipping some time data" for every transient file: the time steps are read below.
+        with warnings.catch_warnings(), contextlib.redirect_stderr(io.StringIO()):
             warnings.simplefilter("ignore")
             mesh = meshio.exodus.read(str(path))  # not meshio.read, which exits the process on a bad file
     except Exception as error:

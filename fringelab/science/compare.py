@@ -17,7 +17,8 @@ about the model's own X = 0 and/or Y = 0 planes; rotate about Z by rotation_deg;
 from __future__ import annotations
 
 from collections import OrderedDict
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -110,6 +111,7 @@ class Mapping:
     time_offset_s: float
     detected: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
+    origin_on_axis: bool = False  # the origin was put on the measured punch axis (to be refined by `fit_origin`)
 
     def as_dict(self) -> dict[str, object]:
         return {
@@ -117,7 +119,7 @@ class Mapping:
             "w_sign": self.w_sign, "origin_xy_mm": list(self.origin_xy_mm), "rotation_deg": self.rotation_deg,
             "surface": self.surface, "shell_thickness_mm": self.shell_thickness_mm, "time_unit_s": self.time_unit_s,
             "force_unit_kN": self.force_unit_kN, "time_offset_s": self.time_offset_s,
-            "detected": list(self.detected), "notes": list(self.notes),
+            "detected": list(self.detected), "notes": list(self.notes), "origin_on_axis": self.origin_on_axis,
         }  # fmt: skip
 
 
@@ -246,6 +248,15 @@ class MappedModel:
     mapping: Mapping
     surface: ModelSurface
     reference_mm: np.ndarray  # (M, 3) the surface nodes' reference positions, oriented and scaled (not unfolded)
+    # Deflected surfaces of the last states read (they do not depend on the origin or rotation, so copies of the
+    # model with another origin share it).
+    _surfaces: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict, repr=False)
+
+    def with_origin(self, origin_xy_mm: tuple[float, float], *, note: str | None = None) -> MappedModel:
+        """The same model with another origin (and a note on why)."""
+        notes = self.mapping.notes + ((note,) if note else ())
+        mapping = replace(self.mapping, origin_xy_mm=(float(origin_xy_mm[0]), float(origin_xy_mm[1])), notes=notes)
+        return replace(self, mapping=mapping)
 
     def _to_plate_xy(self, xy: np.ndarray) -> np.ndarray:
         angle = np.deg2rad(self.mapping.rotation_deg)
@@ -255,6 +266,13 @@ class MappedModel:
 
     def surface_w(self, state: int) -> tuple[np.ndarray, np.ndarray]:
         """Deflected surface of one state before unfolding: xy (M, 2) in the oriented, scaled model frame and w (M,)."""
+        if state not in self._surfaces:
+            while len(self._surfaces) >= 4:
+                self._surfaces.pop(next(iter(self._surfaces)))
+            self._surfaces[state] = self._surface_w(state)
+        return self._surfaces[state]
+
+    def _surface_w(self, state: int) -> tuple[np.ndarray, np.ndarray]:
         scale = LENGTH_UNITS[self.mapping.length_unit]
         u = _oriented(
             self.results.displacement(state)[self.surface.nodes], self.mapping.normal_axis, self.mapping.w_sign
@@ -373,6 +391,7 @@ def map_model(results: FEResults, plate: PlateFrame, settings: MappingSettings |
     scale = LENGTH_UNITS[length_unit]
     reference_mm = scale * surface_xyz
     origin = settings.origin_xy_mm
+    origin_on_axis = False
     if origin is None:
         detected.append("origin_xy_mm")
         axis = np.asarray(plate.axis_xy_mm, np.float64)
@@ -383,9 +402,11 @@ def map_model(results: FEResults, plate: PlateFrame, settings: MappingSettings |
                 notes.append("model centred on the measured punch axis: taken as in plate coordinates")
             else:
                 origin = (float(axis[0] - centre[0]), float(axis[1] - centre[1]))
+                origin_on_axis = True
                 notes.append("model centre moved onto the measured punch axis")
         else:
             origin = (float(axis[0]), float(axis[1]))
+            origin_on_axis = True
             notes.append("model origin (its symmetry axis) put on the measured punch axis")
     thickness = settings.shell_thickness_mm / scale if settings.shell_thickness_mm is not None else None
     if len(results.shells):
@@ -409,7 +430,7 @@ def map_model(results: FEResults, plate: PlateFrame, settings: MappingSettings |
         origin_xy_mm=(float(origin[0]), float(origin[1])), rotation_deg=settings.rotation_deg,
         surface=settings.surface, shell_thickness_mm=shell_thickness_mm, time_unit_s=float(time_unit_s),
         force_unit_kN=float(force_unit), time_offset_s=settings.time_offset_s, detected=tuple(detected),
-        notes=tuple(notes),
+        notes=tuple(notes), origin_on_axis=origin_on_axis,
     )  # fmt: skip
     return MappedModel(results, mapping, surface, reference_mm)
 
@@ -545,6 +566,65 @@ def align_frames(
         else state_peak_mm
     )
     return align_by_values("peak deflection", frame_peak_mm, peaks, unit="mm")
+
+
+def align_by_footprint_peak(
+    model: MappedModel, grid: Grid, measured_w: Callable[[int], np.ndarray], n_frames: int
+) -> Alignment:
+    """Pair frames with states by peak deflection, each frame against the simulated peak over its own measured
+    footprint: a measurement that lost the top of the dome (a hole, points out of range) reports a lower peak,
+    and so does the simulation seen through the same nodes. measured_w(i): frame i's w (ny, nx), read once.
+
+    The states' grids are sampled once and held (S × ny × nx floats)."""
+    states = [model.sample(s, grid) for s in range(model.results.n_states)]
+    frame_peak = np.full(n_frames, np.nan)
+    state_lo = np.full(n_frames, -1, np.int64)
+    fraction = np.zeros(n_frames)
+    reasons = []
+    curves = np.full((n_frames, len(states)), np.nan)
+    for i in range(n_frames):
+        w = measured_w(i)
+        seen = np.isfinite(w)
+        frame_peak[i] = np.nanmax(w) if np.any(seen) else np.nan
+        curves[i] = [np.nanmax(np.where(seen, s, np.nan)) if np.any(seen & np.isfinite(s)) else np.nan for s in states]
+        try:
+            one = align_by_values("peak deflection", frame_peak[i : i + 1], curves[i], unit="mm")
+        except ComparisonError as error:
+            reasons.append(str(error).split(";")[0])
+            continue
+        state_lo[i], fraction[i] = one.state_lo[0], one.fraction[0]
+        reasons.append(one.reason[0])
+    if not np.any(state_lo >= 0):
+        raise ComparisonError("align by peak deflection: no test frame's peak lies within the simulation's; "
+                              "choose another alignment (--align displacement|time)")  # fmt: skip
+    return Alignment("peak deflection", state_lo, fraction, tuple(reasons), frame_peak, np.nanmax(curves, axis=0))
+
+
+def fit_origin(model: MappedModel, grid: Grid, measured_w: np.ndarray, *, state_lo: int, fraction: float,
+               search_mm: float = 10.0) -> MappedModel:  # fmt: skip
+    """The model moved in the plane to fit a measured frame best (least squares of w_meas − w_sim), within
+    search_mm of where it is: for a model whose axis was put on the measured punch axis, which is only as good
+    as the measured dome's centroid. Use a well-deflected frame; the move is in the mapping's notes."""
+    from scipy.optimize import minimize
+
+    start = np.asarray(model.mapping.origin_xy_mm, np.float64)
+
+    def misfit(offset: np.ndarray) -> float:
+        if np.hypot(*offset) > search_mm:
+            return 1e6 + float(np.hypot(*offset))
+        moved = model.with_origin((start[0] + offset[0], start[1] + offset[1]))
+        w_sim = moved.sample(state_lo, grid)
+        if fraction > 0 and state_lo + 1 < model.results.n_states:
+            w_sim = (1.0 - fraction) * w_sim + fraction * moved.sample(state_lo + 1, grid)
+        diff = measured_w - w_sim
+        both = np.isfinite(diff)
+        return float(np.mean(diff[both] ** 2)) if np.count_nonzero(both) > 100 else 1e6
+
+    simplex = np.array([[0.0, 0.0], [2.0, 0.0], [0.0, 2.0]])
+    options = {"initial_simplex": simplex, "xatol": 0.02, "fatol": 1e-9, "maxiter": 200}
+    offset = minimize(misfit, np.zeros(2), method="Nelder-Mead", options=options).x
+    note = f"origin fitted to the measurement: moved by ({offset[0]:.2f}, {offset[1]:.2f}) mm"
+    return model.with_origin((start[0] + offset[0], start[1] + offset[1]), note=note)
 
 
 # ----------------------------------------------------------------------------------------------------------------

@@ -559,6 +559,9 @@ def true_plate_model(
     punch = frame_punch if state_punch_mm is None else np.asarray(state_punch_mm, np.float64)
     w0 = np.interp(punch, frame_punch, w0_frames)
     time_s = np.interp(punch, frame_punch, timeline.time_s)
+    # Beyond the last frame the punch goes on at its last speed (states there keep distinct times).
+    speed = (frame_punch[-1] - frame_punch[-2]) / (timeline.time_s[-1] - timeline.time_s[-2])
+    time_s = np.where(punch > frame_punch[-1], timeline.time_s[-1] + (punch - frame_punch[-1]) / speed, time_s)
     force = np.interp(punch, frame_punch, timeline.force_kN)
     plate_xy = local + np.asarray(scene.centre_xy_mm)
     shape, _, _ = scene.deflection_mm(plate_xy[:, 0], plate_xy[:, 1], 1.0)
