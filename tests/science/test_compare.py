@@ -213,3 +213,26 @@ def test_no_overlap_in_displacement() -> None:
     with pytest.raises(compare.ComparisonError, match=r"no punch displacement.*--punch-node ID"):
         compare.align_frames(model, "displacement", frame_time_s=np.zeros(2), frame_punch_mm=np.zeros(2),
                              frame_peak_mm=np.zeros(2))  # fmt: skip
+
+
+def test_camera_covariance_moves_the_points_as_a_parameter_change_does() -> None:
+    """One parameter with a standard error: the covariance of X, Y is the square of the move that a change of
+    that size makes (central differences over ±se are exact to second order: 1e-3 relative here)."""
+    from dataclasses import replace
+
+    from fringelab.science.simulate import preset
+    from fringelab.science.uncertainty import camera_sigma_xy_mm, with_camera_term
+
+    camera = preset("kodak").camera
+    points = np.array([[0.0, 0.0, 10.0], [150.0, -100.0, 40.0]])
+    names = ("f_mm", "z0_mm")
+    covariance = camera_sigma_xy_mm(camera, points, standard_errors={"f_mm": 0.01, "z0_mm": 0.0},
+                                    correlation=np.eye(2), parameters=names)  # fmt: skip
+    from fringelab.science.camera import backproject_to_z, project_points
+
+    q = project_points(camera, points)
+    moved = backproject_to_z(replace(camera, f_mm=camera.f_mm + 0.01), q, points[:, 2])[:, :2] - points[:, :2]
+    np.testing.assert_allclose(covariance, moved[:, :, None] * moved[:, None, :], rtol=2e-2, atol=1e-10)
+    slope = np.array([[0.5, 0.0], [0.0, 0.0]])
+    sigma = with_camera_term(np.array([0.01, 0.01]), slope, covariance)
+    assert sigma[1] == 0.01 and sigma[0] == pytest.approx(np.hypot(0.01, 0.5 * abs(moved[0, 0])), rel=2e-2)
