@@ -84,7 +84,8 @@ def camera_sigma_xy_mm(
         minus = project_points(replace(camera, **{name: getattr(camera, name) - h}), points)
         dq = (plus - minus) / (2 * h)
         moves[j] = -np.linalg.solve(a, dq[..., None])[..., 0]
-    return np.einsum("jna,jk,knb->nab", moves, covariance, moves)
+    per_point = moves.transpose(1, 2, 0)  # (N, 2, P)
+    return np.asarray(per_point @ covariance @ per_point.transpose(0, 2, 1))
 
 
 def with_camera_term(sigma_w_mm: np.ndarray, slope_xy: np.ndarray, covariance_xy_mm2: np.ndarray) -> np.ndarray:
