@@ -3,20 +3,17 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal, get_args
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from fringelab.formats import EXPORT_FILES, EXPORT_FORMATS, ExportFormat  # noqa: F401  (declared once, there)
 from fringelab.formats.atomic import atomic_path
 from fringelab.formats.topography import TopographyResult
 from fringelab.science.fields import line_profile
 
 if TYPE_CHECKING:
     pass
-
-
-ExportFormat = Literal["points-csv", "grid-npz", "mat", "vtk", "profile-csv"]
-EXPORT_FORMATS: tuple[str, ...] = get_args(ExportFormat)  # the one list of export formats
 
 
 def export_points_csv(result: TopographyResult, path: str | Path) -> Path:

@@ -1,4 +1,4 @@
-"""Topography of a whole test recording into its result file (METHOD.md §5–6).
+"""Topography of a whole test recording into its result file (docs/method.md §5–6).
 
 What the command line calls, and the sequential reference the worker's frame-parallel topography job must equal
 bit for bit. The stages (edges, identity, Z, X and Y, gridding) live in `fringelab.science.topography`; the
@@ -19,13 +19,13 @@ from fringelab.formats.hdf5 import json_text
 from fringelab.formats.sidecars import FrameTable, read_frames_csv
 from fringelab.formats.topography import TopographyWriter
 from fringelab.pipelines.provenance import code_versions
+from fringelab.science import Cancelled
 from fringelab.science.calibration import CameraCalibration, ProgressCallback
 from fringelab.science.fields import Grid, field_peak
 from fringelab.science.fringes import FrameEdges
 from fringelab.science.projector import CameraModel, ProjectorCalibration, camera_fingerprint
 from fringelab.science.topography import (
     SummaryTally,
-    TopographyCancelled,
     TopographyError,
     TopographySettings,
     check_recording_against,
@@ -74,7 +74,7 @@ def topography_recording(
     the frames written are identical to those of a run over the whole recording. edges: already located edges
     of frames 0, 1, ... (e.g. from chunks run in parallel, see `topography_files.read_edges`); None locates
     them here. progress(done, total, stage) after every frame ("frames"), should_cancel() polled between frames
-    (TopographyCancelled; the partial file is removed).
+    (Cancelled; the partial file is removed).
 
     Memory does not grow with the number of frames: frames are read, located, tracked, gridded and written one
     at a time.
@@ -97,7 +97,7 @@ def topography_recording(
         supplied = iter(edges) if edges is not None else None
         for index in range(stop):
             if should_cancel is not None and should_cancel():
-                raise TopographyCancelled(f"cancelled after {index} of {stop} frames")
+                raise Cancelled(f"cancelled after {index} of {stop} frames")
             if supplied is not None:
                 try:
                     frame_edges = next(supplied)
@@ -199,7 +199,7 @@ def _calibration_attrs(camera_model: CameraModel, projector: ProjectorCalibratio
     else:
         camera_json = json_text(asdict(camera_model.camera))
     projector_doc = {
-        "image_shape": list(projector.image_shape), "axis": projector.axis, "period_px": projector.period_px,
+        "image_shape": list(projector.image_shape_hw_px), "axis": projector.axis, "period_px": projector.period_px,
         "reference_z_mm": projector.reference_z_mm, "z_mm": projector.z_mm, "n_edges": projector.n_edges,
         "edges": asdict(projector.edges), "qa": asdict(projector.qa), "provenance": projector.provenance,
     }  # fmt: skip

@@ -1,4 +1,5 @@
-"""Topography: edge identity through a test, Z from the projector table, X and Y by back-projection (METHOD.md §5–6).
+"""Topography: edge identity through a test, Z from the projector table, X and Y by back-projection
+(docs/method.md §5–6).
 
 Belongs here: identifying the edges of the first (flat) test frame against the projector calibration, tracking
 every (edge, scan line) point frame to frame and ending tracks that break, optional temporal smoothing, and
@@ -46,10 +47,6 @@ class FirstFrameNotFlatError(MeasurementError):
 
 class TopographyError(MeasurementError):
     """The topography cannot be computed from this recording (too few edges identified, ...)."""
-
-
-class TopographyCancelled(Exception):
-    """Raised when the caller's `should_cancel()` returned True; not a failure of the measurement."""
 
 
 @dataclass(frozen=True)
@@ -119,20 +116,21 @@ class FrameMeasurement:
 
 
 def check_recording_against(
-    image_shape: tuple[int, int], projector: ProjectorCalibration, camera_model: CameraModel
+    image_shape_hw_px: tuple[int, int], projector: ProjectorCalibration, camera_model: CameraModel
 ) -> None:
     """Raise CalibrationMismatchError when a recording's frames, the camera and the projector table disagree."""
     camera = camera_model.camera
     camera_shape = (camera.image_height_px, camera.image_width_px)
-    if tuple(image_shape) != tuple(projector.image_shape):
+    table_h, table_w = projector.image_shape_hw_px
+    if tuple(image_shape_hw_px) != (table_h, table_w):
         raise CalibrationMismatchError(
-            f"the test frames are {image_shape[1]} × {image_shape[0]} px but the projector calibration is for "
-            f"{projector.image_shape[1]} × {projector.image_shape[0]} px: use the calibrations of this camera"
+            f"the test frames are {image_shape_hw_px[1]} × {image_shape_hw_px[0]} px but the projector calibration is "
+            f"for {table_w} × {table_h} px: use the calibrations of this camera"
         )
-    if camera_shape != tuple(projector.image_shape):
+    if camera_shape != (table_h, table_w):
         raise CalibrationMismatchError(
             f"the camera calibration is for {camera_shape[1]} × {camera_shape[0]} px but the projector calibration "
-            f"for {projector.image_shape[1]} × {projector.image_shape[0]} px: they come from different cameras"
+            f"for {table_w} × {table_h} px: they come from different cameras"
         )
     if camera_fingerprint(camera) != projector.camera_fingerprint:
         raise CalibrationMismatchError(
@@ -156,11 +154,11 @@ def check_stripes_against(first_frame: np.ndarray, projector: ProjectorCalibrati
 def locate_test_edges(frames: Iterable[np.ndarray], projector: ProjectorCalibration) -> Iterator[FrameEdges]:
     """`fringes.locate_edges` with the projector calibration's edge settings, frame by frame (lazy)."""
     for image in frames:
-        if tuple(np.shape(image)[:2]) != tuple(projector.image_shape):
+        if tuple(np.shape(image)[:2]) != tuple(projector.image_shape_hw_px):
             shape = np.shape(image)
             raise CalibrationMismatchError(
                 f"a test frame is {shape[1]} × {shape[0]} px but the projector calibration is for "
-                f"{projector.image_shape[1]} × {projector.image_shape[0]} px"
+                f"{projector.image_shape_hw_px[1]} × {projector.image_shape_hw_px[0]} px"
             )
         yield locate_edges(image, projector.edges)
 
@@ -224,7 +222,7 @@ def identify_first_frame(edges: FrameEdges, projector: ProjectorCalibration, *, 
 
 @dataclass
 class EdgeTracker:
-    """Tracks every (edge k, scan line s) point from frame to frame (METHOD.md §5).
+    """Tracks every (edge k, scan line s) point from frame to frame (docs/method.md §5).
 
     positions: (K, S) current positions (NaN = no track); velocity: (K, S) last motion per frame.
     A track follows the nearest edge point of its polarity on its line to where its last motion predicts it,
@@ -396,7 +394,7 @@ def track_and_measure(
     settings: TopographySettings | None = None,
     first_frame: int = 0,
 ) -> Iterator[FrameMeasurement]:
-    """The sequential pass: identity, tracking, Z from the table, X and Y by back-projection (METHOD.md §5–6).
+    """The sequential pass: identity, tracking, Z from the table, X and Y by back-projection (docs/method.md §5–6).
 
     edges: the located edges of consecutive frames in frame order, starting with the flat first frame of the
     test (`first_frame` is its index in the recording). Yields one FrameMeasurement per frame, in order (with
@@ -504,7 +502,7 @@ def clamp_circle(points_xy_mm: np.ndarray, *, n_sectors: int = 72) -> tuple[floa
     The points end where the clamp ring hides the plate; the outermost point of each angular sector around
     their centroid lies on that circle (a little inside it: edges within half a stripe of the ring are
     rejected), so a least-squares (Kåsa) circle through them, refitted once without points more than 3 mm off,
-    gives the plate centre from the clamp (METHOD.md §2).
+    gives the plate centre from the clamp (docs/method.md §2).
     """
     xy = points_xy_mm[np.all(np.isfinite(points_xy_mm), axis=1)]
     if len(xy) < 3 * n_sectors:
