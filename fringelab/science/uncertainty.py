@@ -29,7 +29,7 @@ from .fringes import EdgeSettings, smoothed_noise_ratio
 
 def edge_sigma_px(noise_px: float, edges: EdgeSettings) -> float:
     """σ (px) of a smoothed edge position in a frame whose raw − smoothed RMS is noise_px."""
-    return float(noise_px) * smoothed_noise_ratio(edges.edge_smoothing_px, presmooth_px=edges.presmooth_px)
+    return float(noise_px) * smoothed_noise_ratio(edges.edge_smoothing_lines, presmooth_px=edges.presmooth_px)
 
 
 def point_sigma_z_mm(
