@@ -281,8 +281,8 @@ class TopographyWriter:
         self._n += 1
 
     def _sigma_grid(self, measurement: FrameMeasurement, sigma: np.ndarray) -> np.ndarray:
-        """σ on the grid: linear on the same triangles as the heights (`fields.grid_edge_points`)."""
-        from fringelab.science.fields import grid_edge_points
+        """σ on the grid, on the same triangles as the heights (`science.uncertainty.grid_sigma_mm`)."""
+        from fringelab.science.uncertainty import grid_sigma_mm
 
         if len(sigma) == 0 or not np.any(np.isfinite(sigma)):
             return np.full(self.grid.shape, np.nan)
@@ -290,7 +290,7 @@ class TopographyWriter:
         x, y, _ = measurement.dense(shape)
         dense_sigma = np.full(shape, np.nan)
         dense_sigma[measurement.k, measurement.line] = sigma
-        return grid_edge_points(x, y, dense_sigma, self.grid, max_edge_mm=self.max_edge_mm)
+        return grid_sigma_mm(x, y, dense_sigma, self.grid, max_edge_mm=self.max_edge_mm)
 
     def close(self, summary: dict[str, Any]) -> Path:
         """Write the summary attributes, close the file and move it into place."""

@@ -10,10 +10,11 @@ Belongs here (pure): the standard deviation of a measured height from what the m
    residual RMS r has a prediction error of about r·√((D + 1)/J) (the average over the fitted range).
 3. The camera calibration: its parameter covariance (standard errors and correlations) moves where a pixel's
    ray meets the plane by δX, δY (the forward model's Jacobians); that changes w by ∇w·(δX, δY).
-The first two are independent and add in quadrature per point (`point_sigma_z_mm`). Grid nodes take the linear
-interpolation of their corners' σ, as their value is interpolated: this treats neighbouring points as fully
-correlated, which they nearly are along an edge (the smoothing), so it does not claim the averaging gain
-independent points would have. The camera term is a field over the plate (`camera_sigma_xy_mm`), applied with
+The first two are independent and add in quadrature per point (`point_sigma_z_mm`). A grid node is interpolated
+linearly from the three corners of its triangle, which lie on two neighbouring edges (k and k + 1): errors of one
+edge on neighbouring lines are nearly fully correlated (the smoothing along the edge, the table fitted to
+smoothed calibration edges), errors of different edges independent, so σ_node² = (Σ_k λσ)² + (Σ_k+1 λσ)²
+(`grid_sigma_mm`). The camera term is a field over the plate (`camera_sigma_xy_mm`), applied with
 the surface's slope (`with_camera_term`). Not here: where the numbers are stored (`fringelab.formats.topography`).
 """
 
@@ -24,6 +25,7 @@ from dataclasses import replace
 import numpy as np
 
 from .camera import Camera, project_points
+from .fields import Grid, grid_edge_points
 from .fringes import EdgeSettings, smoothed_noise_ratio
 
 
@@ -47,6 +49,17 @@ def point_sigma_z_mm(
         edge = edge_sigma_px / sensitivity
         table = np.asarray(fit_rms_mm, np.float64) * np.sqrt(n_coefficients / np.asarray(n_heights, np.float64))
     return np.hypot(edge, table)
+
+
+def grid_sigma_mm(
+    x_mm: np.ndarray, y_mm: np.ndarray, sigma_mm: np.ndarray, grid: Grid, *, max_edge_mm: float
+) -> np.ndarray:
+    """σ (ny, nx) of the gridded heights from the points' σ, all (K, S) over (edge, line) (NaN = not measured):
+    the interpolation weights summed per edge, edges independent (see the module docstring)."""
+    edge = np.arange(sigma_mm.shape[0])[:, None]
+    even = grid_edge_points(x_mm, y_mm, np.where(edge % 2 == 0, sigma_mm, 0.0), grid, max_edge_mm=max_edge_mm)
+    odd = grid_edge_points(x_mm, y_mm, np.where(edge % 2 == 1, sigma_mm, 0.0), grid, max_edge_mm=max_edge_mm)
+    return np.hypot(even, odd)
 
 
 def camera_sigma_xy_mm(
