@@ -11,6 +11,16 @@ import json
 import sys
 from typing import Any
 
+from fringelab.formats import COMPARISON_EXPORTS
+
+
+def _line(text: str) -> tuple[float, float, float, float]:
+    try:
+        x0, y0, x1, y1 = (float(part) for part in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected X0,Y0,X1,Y1 in mm, got {text!r}") from None
+    return x0, y0, x1, y1
+
 
 def _pair(text: str) -> tuple[float, float]:
     try:
@@ -56,10 +66,12 @@ def register(subparsers: Any) -> None:
                         '"max_diff_mm"}, …]} to stdout')  # fmt: skip
     parser.set_defaults(handler=compare_command)
 
-    export = subparsers.add_parser("export-comparison", help="export a comparison file (csv, hdf5, mat, vtk)")
+    export = subparsers.add_parser("export-comparison", help="export a comparison file")
     export.add_argument("comparison", help="comparison file (.h5)")
-    export.add_argument("--format", required=True, choices=("csv", "hdf5", "mat", "vtk"))
-    export.add_argument("-o", "--output", required=True, help="file to write (.csv, .h5, .mat, .pvd)")
+    export.add_argument("--format", required=True, choices=COMPARISON_EXPORTS)
+    export.add_argument("-o", "--output", required=True, help="file to write (.csv, .h5, .mat, .pvd, .csv)")
+    export.add_argument("--line", type=_line, metavar="X0,Y0,X1,Y1",
+                        help="profile-csv: the line in mm (default along X through the grid's middle)")  # fmt: skip
     export.set_defaults(handler=export_command)
 
 
@@ -100,7 +112,7 @@ def export_command(args: argparse.Namespace) -> int:
     from fringelab.formats.comparison import export_comparison
 
     try:
-        path = export_comparison(args.comparison, args.format, args.output)
+        path = export_comparison(args.comparison, args.format, args.output, line=args.line)
     except (ValueError, OSError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2

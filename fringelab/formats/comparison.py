@@ -18,7 +18,8 @@ compared, and /frames/reason says why for a frame without a simulation partner:
   /simulation  time_s, punch_displacement_mm, force_kN, peak_w_mm (S,) per simulation state (NaN where the
                simulation has none)
 Exports (COMPARISON_EXPORTS): "csv" (per-frame table), "hdf5" (this file), "mat" (MATLAB), "vtk" (ParaView
-time series of the difference map).
+time series of the difference map), "profile-csv" (measured, simulated and σ along any line, every frame, with
+the points beyond 2σ marked).
 """
 
 from __future__ import annotations
@@ -27,18 +28,17 @@ import json
 import shutil
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, Literal, get_args
+from typing import Any
 
 import h5py
 import numpy as np
 
+from fringelab.formats import COMPARISON_EXPORTS
 from fringelab.formats.atomic import atomic_path, commit_partial, partial_path
 from fringelab.formats.hdf5 import SCHEMA_VERSION, json_text, require_schema, unit_dataset
 from fringelab.science.fields import Grid
 
 COMPARISON_SCHEMA = "fringelab.comparison"
-ComparisonExport = Literal["csv", "hdf5", "mat", "vtk"]
-COMPARISON_EXPORTS: tuple[str, ...] = get_args(ComparisonExport)
 
 FRAME_COLUMNS: tuple[tuple[str, str, str], ...] = (
     ("time_s", "s", "time of the frame (frames.csv)"),
@@ -223,10 +223,15 @@ class ComparisonResult:
         return table
 
 
-def export_comparison(comparison: str | Path, fmt: str, out: str | Path) -> Path:
-    """Write an export of a comparison file: "csv" (per-frame table), "hdf5" (a copy), "mat", "vtk" (.pvd)."""
+def export_comparison(
+    comparison: str | Path, fmt: str, out: str | Path, *, line: tuple[float, float, float, float] | None = None
+) -> Path:
+    """Write an export of a comparison file: "csv" (per-frame table), "hdf5" (a copy), "mat", "vtk" (.pvd), or
+    "profile-csv" along `line` (X0, Y0, X1, Y1 in mm; default along X through the grid's middle row)."""
     if fmt not in COMPARISON_EXPORTS:
         raise ValueError(f"format: expected one of {COMPARISON_EXPORTS}, got {fmt!r}")
+    if line is not None and fmt != "profile-csv":
+        raise ValueError("line is only used by the profile-csv format")
     out = Path(out)
     if fmt == "hdf5":
         with ComparisonResult(comparison):
@@ -246,6 +251,8 @@ def export_comparison(comparison: str | Path, fmt: str, out: str | Path) -> Path
                     cells = [f"{rows[c][i]:.6g}" if np.isfinite(rows[c][i]) else "" for c in range(len(names))]
                     handle.write(",".join(cells) + "," + reasons[i].replace(",", ";") + "\n")
             return out
+        if fmt == "profile-csv":
+            return _export_profile(result, out, line)
         if fmt == "mat":
             from scipy.io import savemat
 
@@ -263,6 +270,32 @@ def export_comparison(comparison: str | Path, fmt: str, out: str | Path) -> Path
                 savemat(handle, data, do_compression=True)
             return out
         return _export_vtk(result, out)
+
+
+def _export_profile(result: ComparisonResult, path: Path, line: tuple[float, float, float, float] | None) -> Path:
+    """CSV frame,s_mm,x_mm,y_mm,w_meas_mm,w_sim_mm,diff_mm,sigma_w_mm,beyond_2sigma along a line, every frame
+    (empty cells where there is no value; beyond_2sigma is 1 where |diff| > 2σ, 0 where not, empty unknown)."""
+    from fringelab.science.fields import line_profile
+
+    grid = result.grid
+    if line is None:
+        middle = float(grid.y_mm[len(grid.y_mm) // 2])
+        line = (float(grid.x_mm[0]), middle, float(grid.x_mm[-1]), middle)
+    names = ("w_meas_mm", "w_sim_mm", "diff_mm", "sigma_w_mm")
+    with atomic_path(path) as temp, open(temp, "w", newline="") as handle:
+        handle.write("frame,s_mm,x_mm,y_mm," + ",".join(names) + ",beyond_2sigma\n")
+        for i, frame in enumerate(result.frames):
+            stack = np.stack([result.field(name, i) for name in names])
+            profile = line_profile(stack, grid, line[:2], line[2:])
+            meas, sim, diff, sigma = profile.values
+            with np.errstate(invalid="ignore"):
+                beyond = np.where(np.isfinite(diff) & np.isfinite(sigma), np.abs(diff) > 2 * sigma, np.nan)
+            for j in range(len(profile.s_mm)):
+                cells = [profile.s_mm[j], profile.x_mm[j], profile.y_mm[j], meas[j], sim[j], diff[j], sigma[j]]
+                text = ",".join(f"{v:.5f}" if np.isfinite(v) else "" for v in cells)
+                flag = "" if np.isnan(beyond[j]) else str(int(beyond[j]))
+                handle.write(f"{int(frame)},{text},{flag}\n")
+    return path
 
 
 def _export_vtk(result: ComparisonResult, path: Path) -> Path:

@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 from fringelab.commands import comparison as commands
-from fringelab.formats.comparison import COMPARISON_EXPORTS, ComparisonResult, export_comparison
+from fringelab.formats import COMPARISON_EXPORTS
+from fringelab.formats.comparison import ComparisonResult, export_comparison
 from fringelab.formats.topography import TopographyResult
 from fringelab.pipelines.comparison import compare_result
 from fringelab.pipelines.simulation import write_true_simulation
@@ -106,8 +107,18 @@ def test_cli_compare_json_and_exports(measured, tmp_path, capsys) -> None:  # ty
     printed = json.loads(capsys.readouterr().out)
     assert [row["frame"] for row in printed["frames"]] == list(range(8))
     assert all(row["rms_diff_mm"] < 0.03 and row["max_diff_mm"] < 1.0 for row in printed["frames"])
-    for fmt, name in zip(COMPARISON_EXPORTS, ("c.csv", "copy.h5", "c.mat", "c.pvd"), strict=True):
+    for fmt, name in zip(COMPARISON_EXPORTS, ("c.csv", "copy.h5", "c.mat", "c.pvd", "p.csv"), strict=True):
         assert _run("export-comparison", str(out), "--format", fmt, "-o", str(tmp_path / name)) == 0
+    # a profile along any line (here a diagonal through the plate), every frame, points beyond 2σ marked
+    assert _run("export-comparison", str(out), "--format", "profile-csv", "-o", str(tmp_path / "d.csv"),
+                "--line=-150,-150,150,150") == 0  # fmt: skip
+    profile = np.genfromtxt(tmp_path / "d.csv", delimiter=",", names=True)
+    assert set(profile["frame"]) == set(range(8)) and np.nanmax(profile["s_mm"]) == pytest.approx(
+        300 * np.sqrt(2), abs=2
+    )
+    has = np.isfinite(profile["diff_mm"])
+    np.testing.assert_allclose(profile["diff_mm"][has], (profile["w_meas_mm"] - profile["w_sim_mm"])[has], atol=2e-5)
+    assert 0.0 < np.nanmean(profile["beyond_2sigma"]) < 0.1
     table = np.genfromtxt(tmp_path / "c.csv", delimiter=",", names=True, dtype=None, encoding="utf-8")
     np.testing.assert_allclose(table["rms_diff_mm"], [row["rms_diff_mm"] for row in printed["frames"]], rtol=1e-5)
     from scipy.io import loadmat
