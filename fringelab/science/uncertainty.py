@@ -4,7 +4,7 @@ Belongs here (pure): the standard deviation of a measured height from what the m
 1. Edge location in the test frame: each frame's `noise_px` is the RMS of raw − smoothed edge positions. The
    locator presmooths the image along the stripes (Gaussian σ_p px), which correlates the raw noise of
    neighbouring scan lines as exp(−d²/4σ_p²), then smooths along each edge with fixed weights w; the σ of a
-   smoothed position is then noise_px · √(wᵀCw / (e₀−w)ᵀC(e₀−w)) (`fringes.smoothed_noise_ratio`). Through
+   smoothed position is then noise_px · √(wᵀCw / (e₀−w)ᵀC(e₀−w)) (`smoothing.smoothed_noise_ratio`). Through
    the projector table's sensitivity (px per mm of Z) it is σ_Z,edge = σ_t / |dt/dZ|.
 2. The table itself: each (edge, line) polynomial of D + 1 coefficients fitted to J calibration heights with
    residual RMS r has a prediction error of about r·√((D + 1)/J) (the average over the fitted range).
@@ -21,12 +21,16 @@ the surface's slope (`with_camera_term`). Not here: where the numbers are stored
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .camera import Camera, project_points
 from .fields import Grid, grid_edge_points
-from .fringes import EdgeSettings, smoothed_noise_ratio
+from .smoothing import smoothed_noise_ratio
+
+if TYPE_CHECKING:
+    from .fringes import EdgeSettings
 
 
 def edge_sigma_px(noise_px: float, edges: EdgeSettings) -> float:
