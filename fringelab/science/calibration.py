@@ -499,6 +499,9 @@ def residual_map(q_px: np.ndarray, residual_px: np.ndarray, image_size_px: tuple
 # Verdict
 
 
+YES_NO = "yes/no"  # the unit of a check that holds or does not (value 1 or 0)
+
+
 def _check(name: str, value: float, unit: str, *, good: float, bad: float, higher_is_better: bool = False,
            what: str) -> VerdictCheck:  # fmt: skip
     if higher_is_better:
@@ -508,6 +511,8 @@ def _check(name: str, value: float, unit: str, *, good: float, bad: float, highe
         level = "good" if value <= good else ("check" if value <= bad else "bad")
         limits = f"good ≤ {good:g} {unit}, bad > {bad:g} {unit}"
     message = f"{what}: {value:.4g} {unit} ({limits})".replace(" )", ")")
+    if unit == YES_NO:
+        message = f"{what}: {'yes' if value >= good else 'no'}"
     return VerdictCheck(name, float(value), unit, good, bad, higher_is_better, level, message)
 
 
@@ -524,8 +529,8 @@ def judge_calibration(
     worst_rms = float(frame_rms.max())
     worst_ratio = worst_rms / median_rms if worst_rms > OUTLIER_FLOOR_PX else 1.0
     checks = [
-        _check("solver", 1.0 if converged else 0.0, "", good=1.0, bad=1.0, higher_is_better=True,
-               what="Levenberg–Marquardt converged (1) or stopped at its iteration limit (0)"),
+        _check("solver", 1.0 if converged else 0.0, YES_NO, good=1.0, bad=1.0, higher_is_better=True,
+               what="Levenberg–Marquardt converged (no: it stopped at its iteration limit)"),
         _check("residual_std", residual_std_px, "px", good=0.2, bad=0.5,
                what="residual standard deviation per coordinate (Heikkilä: below 0.2 px)"),
         # A frame far worse than the others is a detection or Z error in that frame; below 0.2 px it is harmless.

@@ -35,6 +35,10 @@ export function plusMinus(value, error) {
   return `${value.toFixed(digits)} ± ${error.toFixed(digits)}`;
 }
 
+/** A check that holds or does not (the solver converged): shown as yes/no, not as 1.000 (older reports have no
+ * unit for it). */
+const yesNo = (check) => check.unit === "yes/no" || (check.name === "solver" && !check.unit);
+
 function verdictBox(verdict) {
   return h(
     "section",
@@ -45,9 +49,9 @@ function verdictBox(verdict) {
       "Verdict checks",
       [
         { title: "Check", value: (c) => c.name },
-        { title: "Value", value: (c) => `${num(c.value, 3)} ${c.unit}`, class: "num" },
-        { title: "Good if", value: (c) => `${c.higher_is_better ? "≥" : "≤"} ${c.good_limit} ${c.unit}`, class: "num" },
-        { title: "Bad if", value: (c) => `${c.higher_is_better ? "<" : ">"} ${c.bad_limit} ${c.unit}`, class: "num" },
+        { title: "Value", value: (c) => (yesNo(c) ? (c.value >= c.good_limit ? "yes" : "no") : `${num(c.value, 3)} ${c.unit}`), class: "num" },
+        { title: "Good if", value: (c) => (yesNo(c) ? "yes" : `${c.higher_is_better ? "≥" : "≤"} ${c.good_limit} ${c.unit}`), class: "num" },
+        { title: "Bad if", value: (c) => (yesNo(c) ? "no" : `${c.higher_is_better ? "<" : ">"} ${c.bad_limit} ${c.unit}`), class: "num" },
         { title: "Level", value: (c) => h("span", { class: `level-${c.level}` }, c.level) },
         { title: "Meaning", value: (c) => c.message },
       ],
@@ -193,7 +197,7 @@ export async function renderCalibration(container, { id }, context) {
   page(container, "Calibration report", h("p", {}, `${jobName(job)} is not a calibration.`));
 }
 
-const MAP_LINES = 16; // scan lines sampled for the sensitivity map (one request each)
+const MAP_LINES = 24; // scan lines sampled for the sensitivity map (one request each), first and last included
 const CURVES = 24; // edges drawn on the curves plot
 
 /** Least-squares slope of t against z over the finite samples (px/mm), or NaN with fewer than 2. */
@@ -218,6 +222,16 @@ function tAtReference(lut, curve) {
   const near = seen.reduce((best, j) => (Math.abs(z[j] - lut.reference_z_mm) < Math.abs(z[best] - lut.reference_z_mm) ? j : best));
   const offset = lut.reference_z_mm - z[near];
   return offset === 0 ? t[near] : t[near] + slope(z, t) * offset;
+}
+
+/** Where an edge is on its scan line, px: at the reference height when it was seen there, else at the seen height
+ * nearest to it (never carried beyond what was seen, so every point lies on the image). NaN when never seen. */
+function tSeen(lut, curve) {
+  const z = numbersOf(lut.z_mm);
+  const t = numbersOf(curve.t_px);
+  const seen = z.map((_, j) => j).filter((j) => Number.isFinite(t[j]));
+  if (!seen.length) return NaN;
+  return t[seen.reduce((best, j) => (Math.abs(z[j] - lut.reference_z_mm) < Math.abs(z[best] - lut.reference_z_mm) ? j : best))];
 }
 
 /** The projector calibration: its settings and QA, the table's curves along a scan line, and its sensitivity. */
@@ -276,36 +290,53 @@ async function projectorReport(container, job, context) {
     await drawCurves();
   });
 
-  // Sensitivity dt/dZ of every edge on MAP_LINES scan lines spread over the image: a map of how far an edge
-  // moves per mm of height (higher is more sensitive).
+  // Sensitivity dt/dZ of every edge on MAP_LINES scan lines spread from the first to the last line of the image:
+  // how far an edge moves per mm of height (higher is more sensitive), and the Z resolution that implies at the
+  // table's measured edge noise (noise px / sensitivity px per mm). Points are where the edges were seen, so
+  // every one lies on the image; the axes are the image's.
+  const edgeNoisePx = first.qa && Number.isFinite(first.qa.edge_noise_px) ? first.qa.edge_noise_px : null;
   const map = new Figure({
     name: "Sensitivity map",
     filename: `${name}-sensitivity`,
     height: 420,
-    csv: () => ({ columns: ["line", "edge", "t_px", "sensitivity_px_per_mm"], rows: mapRows }),
+    csv: () => ({ columns: ["line", "edge", "u_px", "v_px", "sensitivity_px_per_mm", "z_resolution_mm"], rows: mapRows }),
   });
   let mapRows = [];
-  const mapNote = h("p", { class: "hint" }, `Reading ${MAP_LINES} scan lines of the table for the map…`);
+  const mapNote = h("p", { class: "hint", "aria-label": "About the sensitivity map" }, `Reading ${MAP_LINES} scan lines of the table for the map…`);
   const drawMap = async () => {
-    const lines = Array.from({ length: MAP_LINES }, (_, i) => Math.round(((i + 0.5) * first.n_lines) / MAP_LINES));
+    const recording = await getJSON(`recordings/${job.spec.recording_id}`);
+    const size = { widthPx: recording.width_px, heightPx: recording.height_px };
+    const count = Math.min(MAP_LINES, first.n_lines);
+    const lines = [...new Set(Array.from({ length: count }, (_, i) => Math.round((i * (first.n_lines - 1)) / Math.max(1, count - 1))))];
     const tables = await Promise.all(lines.map((line) => getJSON(`calibrations/${calibrationId}/table?line=${line}`)));
     if (!context.current()) return;
-    mapRows = tables.flatMap((t) => t.curves.map((c) => [t.line, c.edge, tAtReference(t, c), slope(numbersOf(t.z_mm), numbersOf(c.t_px))]));
-    const shown = mapRows.filter((r) => Number.isFinite(r[2]) && Number.isFinite(r[3]));
-    const [u, v] = first.axis === "rows" ? [(r) => r[2], (r) => r[0]] : [(r) => r[0], (r) => r[2]];
+    const rows = first.axis === "rows";
+    mapRows = tables.flatMap((t) =>
+      t.curves.map((c) => {
+        const along = tSeen(t, c);
+        const sensitivity = slope(numbersOf(t.z_mm), numbersOf(c.t_px));
+        const resolution = edgeNoisePx !== null && Math.abs(sensitivity) > 0 ? edgeNoisePx / Math.abs(sensitivity) : NaN;
+        return [t.line, c.edge, rows ? along : t.line, rows ? t.line : along, sensitivity, resolution];
+      }),
+    );
+    const shown = mapRows.filter((r) => Number.isFinite(r[2]) && Number.isFinite(r[4]) && r[2] >= 0 && r[2] <= size.widthPx && r[3] >= 0 && r[3] <= size.heightPx);
+    const base = imageLayout(size);
     await map.react(
       [{
         type: "scatter",
         mode: "markers",
-        x: shown.map(u),
-        y: shown.map(v),
-        marker: { size: 6, color: shown.map((r) => Math.abs(r[3])), colorscale: "Viridis", colorbar: { title: { text: "|dt/dZ| (px/mm)" } } },
-        customdata: shown.map((r) => [r[1], r[3]]),
-        hovertemplate: "edge %{customdata[0]}<br>u %{x:.0f} px, v %{y:.0f} px<br>dt/dZ %{customdata[1]:.3f} px/mm<extra></extra>",
+        x: shown.map((r) => r[2]),
+        y: shown.map((r) => r[3]),
+        marker: { size: 5, color: shown.map((r) => Math.abs(r[4])), colorscale: "Viridis", colorbar: { title: { text: "|dt/dZ| (px/mm)" } } },
+        customdata: shown.map((r) => [r[1], r[4], r[5]]),
+        hovertemplate: "edge %{customdata[0]}<br>u %{x:.0f} px, v %{y:.0f} px<br>dt/dZ %{customdata[1]:.3f} px/mm<br>Z resolution %{customdata[2]:.4f} mm<extra></extra>",
       }],
-      layout({ xaxis: axis("u", "px"), yaxis: axis("v", "px", { autorange: "reversed", scaleanchor: "x" }) }),
+      { ...base, showlegend: false },
     );
-    mapNote.textContent = `|dt/dZ| of every edge on ${MAP_LINES} scan lines spread over the image (a straight-line fit over Z).`;
+    const resolutions = shown.map((r) => r[5]).filter(Number.isFinite).sort((a, b) => a - b);
+    const median = resolutions.length ? resolutions[Math.floor(resolutions.length / 2)] : NaN;
+    mapNote.textContent = `|dt/dZ| of every edge on ${lines.length} scan lines from the first to the last ${rows ? "row" : "column"} of the ${size.widthPx} × ${size.heightPx} px image (a straight-line fit over Z), drawn where the edge was seen.` +
+      (edgeNoisePx !== null ? ` At the measured edge noise of ${num(edgeNoisePx, 4)} px this means a Z resolution of ${num(median, 4)} mm (median), ${num(resolutions[resolutions.length - 1], 4)} mm at the least sensitive edge.` : " The table records no edge noise, so no Z resolution is given.");
   };
 
   const qa = Object.entries(first.qa || {}).filter(([, v]) => v === null || ["number", "string", "boolean"].includes(typeof v));

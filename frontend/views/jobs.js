@@ -72,8 +72,9 @@ export class JobProgress {
     const percent = job.state === "succeeded" ? 100 : p.fraction !== null && p.fraction !== undefined ? Math.floor(p.fraction * 100) : null;
     const parts = [];
     if (percent !== null) parts.push(`${percent} %`);
-    if (p.stage) parts.push(p.stage);
-    if (p.total) parts.push(`${p.done}/${p.total}`);
+    // The stage and the count say what a running job is doing; a finished one is not "writing" any more.
+    if (p.stage && isActive(job)) parts.push(p.stage);
+    if (p.total && isActive(job)) parts.push(`${p.done}/${p.total}`);
     if (isActive(job) && p.eta_s !== null && p.eta_s !== undefined) parts.push(`${formatDuration(p.eta_s)} left`);
     if (!isActive(job) && job.duration_s !== null && job.duration_s !== undefined) parts.push(`took ${formatDuration(job.duration_s)}`);
     this.text.textContent = parts.join(" · ");

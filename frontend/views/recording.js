@@ -144,8 +144,10 @@ export async function renderRecording(container, { id }, context) {
     h("div", { class: "two-columns" },
       h("div", {}, facts(recording),
         h("h2", {}, "QA warnings"),
-        recording.warnings.length ? warnings : h("p", { class: "ok" }, "No warnings."),
-        recording.notes.length ? h("ul", { class: "notes" }, recording.notes.map((n) => h("li", {}, n))) : null),
+        recording.warnings.length ? warnings : h("p", { class: "ok" }, "No QA warnings."),
+        // Notes are facts about the file (a duplicate, colour converted to grey), not warnings: a heading of
+        // their own, so that "No QA warnings" is never followed by something that reads like one.
+        recording.notes.length ? [h("h2", {}, "Notes"), h("ul", { class: "notes", "aria-label": "Notes" }, recording.notes.map((n) => h("li", {}, n)))] : null),
       h("section", { "aria-label": "Frames", class: "scrubber-box" },
         h("div", { class: "frame-box" }, image),
         h("div", { class: "scrubber-row" }, stepButton("Previous frame", -1), slider, stepButton("Next frame", 1), number),
