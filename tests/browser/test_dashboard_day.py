@@ -1,0 +1,227 @@
+"""A lab's day in the dashboard, on a demo experiment with two virtual cameras measured by the real worker: the
+viewer's notices never move the page, the colour range follows the view on demand, every CSV names the grid it
+holds, camera against camera shows the difference (map and curves, distinct line styles), the projector report's
+sensitivity map lies on the image, and the small texts say what they mean (no stage on a finished job, yes/no
+for the solver, no "No warnings" followed by something that reads like one).
+
+One demo (both cameras, few frames) is made per module and shared by every test; each test is one or two page
+loads with several checks."""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import re
+import time
+
+import httpx
+import pytest
+from playwright.sync_api import expect
+
+from tests.browser.conftest import screenshot
+
+pytestmark = [pytest.mark.browser, pytest.mark.integration, pytest.mark.slow]
+DEMO_FRAMES = 6
+DEMO_TIMEOUT_S = 900  # both cameras on a loaded 2-core machine: about 3 minutes alone, much more when shared
+
+
+@pytest.fixture(scope="module")
+def demo(live_server, api_paths):  # type: ignore[no-untyped-def]
+    """The demo experiment with both cameras measured: {experiment_id, jobs: {(kind, camera): job}}."""
+    if "/api/v1/demo" not in api_paths:
+        pytest.skip("this build has no demo endpoint (/api/v1/demo)")
+    base = f"{live_server.base_url}/api/v1"
+    made = httpx.post(f"{base}/demo", json={"cameras": ["kodak", "phantom"], "test_frames": DEMO_FRAMES}, timeout=30)
+    assert made.status_code == 202, made.text
+    experiment_id = made.json()["experiment_id"]
+    deadline = time.monotonic() + DEMO_TIMEOUT_S
+    while True:
+        jobs = httpx.get(f"{base}/jobs", params={"experiment_id": experiment_id, "limit": 100}, timeout=30).json()
+        failed = [job for job in jobs["items"] if job["state"] in ("failed", "cancelled")]
+        assert not failed, f"demo jobs failed: {[(job['kind'], job['error']) for job in failed]}"
+        topographies = [job for job in jobs["items"] if job["kind"] == "topography" and job["state"] == "succeeded"]
+        if len(topographies) == 2:
+            break
+        assert time.monotonic() < deadline, f"the demo did not finish in {DEMO_TIMEOUT_S} s: {jobs['items']}"
+        time.sleep(2)
+    cameras = {c["id"]: c["name"] for c in httpx.get(f"{base}/experiments/{experiment_id}/cameras", timeout=30).json()}
+    found = {}
+    for job in jobs["items"]:
+        if job["state"] != "succeeded" or job["kind"] == "ingest":
+            continue
+        recording = httpx.get(f"{base}/recordings/{job['spec']['recording_id']}", timeout=30).json()
+        found[(job["kind"], cameras[recording["camera_id"]])] = job
+    return {"experiment_id": experiment_id, "jobs": found, "base": base}
+
+
+def download_csv(page, button_name: str) -> tuple[str, list[dict[str, str]]]:  # type: ignore[no-untyped-def]
+    with page.expect_download() as download:
+        page.get_by_role("button", name=button_name).click()
+    text = download.value.path().read_text()
+    return download.value.suggested_filename, list(csv.DictReader(io.StringIO(text)))
+
+
+TO_SCREEN = """async ([x, y]) => {
+    const plots = await import("/plots.js");
+    return plots.screenPoint(document.querySelector("#field-map .plot-area"), x, y);
+}"""
+
+
+def test_viewer_keeps_still_colours_follow_the_view_csvs_name_their_grid(page, demo):
+    job = demo["jobs"][("topography", "kodak")]
+    grid = httpx.get(f"{demo['base']}/jobs/{job['id']}/topography", timeout=30).json()["grid"]
+    page.goto(f"/#/jobs/{job['id']}/viewer")
+    expect(page.get_by_role("slider", name="Frame")).to_be_visible(timeout=30_000)
+    page.wait_for_function("() => window.fringelab.frameSwitchMs.length >= 1")
+    the_map = page.get_by_role("img", name="Deflection map")
+    the_map.scroll_into_view_if_needed()
+    before = the_map.bounding_box()
+
+    # A section line across the plate: its notice appears, and nothing under the pointer moves.
+    x_mid, y_mid = (grid["x_min_mm"] + grid["x_max_mm"]) / 2, (grid["y_min_mm"] + grid["y_max_mm"]) / 2
+    half = 0.4 * (grid["x_max_mm"] - grid["x_min_mm"])
+    start = page.evaluate(TO_SCREEN, [x_mid - half, y_mid + 30])
+    end = page.evaluate(TO_SCREEN, [x_mid + half, y_mid + 30])
+    page.mouse.move(start["x"], start["y"])
+    page.mouse.down()
+    page.mouse.move(end["x"], end["y"], steps=6)
+    page.mouse.up()
+    expect(page.get_by_role("status")).to_contain_text("Section line A")
+    assert the_map.bounding_box() == before, "the map moved when the notice appeared"
+    # The next click lands where it was aimed: the point added is within one display cell of the aim.
+    aim = (x_mid + 40.0, y_mid - 50.0)
+    target = page.evaluate(TO_SCREEN, list(aim))
+    page.mouse.click(target["x"], target["y"])
+    expect(page.get_by_role("list", name="Points")).to_contain_text("P1")
+    point = page.evaluate("() => window.fringelab.viewer.points[0]")
+    cell_mm = 2 * grid["step_mm"] * 2  # a display node is a block of result nodes; a screen pixel is far less
+    assert math.hypot(point["x"] - aim[0], point["y"] - aim[1]) < cell_mm, (point, aim)
+    expect(page.get_by_role("status")).to_contain_text("Point P1")
+    assert the_map.bounding_box() == before
+
+    # Zoom into a 60 mm square off the centre; with the switch on, the colours span what is in view.
+    page.evaluate(
+        """async ([x0, x1, y0, y1]) => {
+            await Plotly.relayout(document.querySelector("#field-map .plot-area"),
+                {"xaxis.range": [x0, x1], "yaxis.range": [y0, y1]});
+        }""",
+        [x_mid + 100, x_mid + 160, y_mid - 30, y_mid + 30],
+    )
+    whole = page.evaluate("() => window.fringelab.viewer.shownColorRange")
+    page.get_by_label("Colour range of this view").check()
+    page.wait_for_function("() => window.fringelab.viewer.shownColorRange[1] < window.fringelab.viewer.colorRange[1]")
+    in_view = page.evaluate(
+        """([x0, x1, y0, y1]) => {
+            const trace = document.querySelector("#field-map .plot-area").data[0];
+            const values = [];
+            trace.z.forEach((row, j) => row.forEach((w, i) => {
+                const x = trace.x[i], y = trace.y[j];
+                if (x >= x0 && x <= x1 && y >= y0 && y <= y1 && Number.isFinite(w)) values.push(w);
+            }));
+            return { lo: Math.min(...values), hi: Math.max(...values), zmin: trace.zmin, zmax: trace.zmax, n: values.length };
+        }""",
+        [x_mid + 100, x_mid + 160, y_mid - 30, y_mid + 30],
+    )
+    assert in_view["n"] > 20
+    # Exact: the range is the extremes of the values shown (float32 in the page either way).
+    assert in_view["zmin"] == pytest.approx(in_view["lo"], abs=1e-6)
+    assert in_view["zmax"] == pytest.approx(in_view["hi"], abs=1e-6)
+    assert in_view["zmax"] - in_view["zmin"] < 0.5 * (whole[1] - whole[0]), (in_view, whole)
+    screenshot(page, "viewer-colour-range-of-this-view")
+
+    # The map's CSV is the display grid and says so (name and columns); the profile CSV is the result grid.
+    name, rows = download_csv(page, "Download Deflection map CSV")
+    display_step = float(rows[0]["grid_step_mm"])
+    assert display_step > grid["step_mm"], "the map is block-averaged for display"
+    assert f"display-grid-{display_step:.2f}mm" in name, name
+    assert rows[0]["grid"].startswith("display") and f"{grid['step_mm']:.2f} mm result grid" in rows[0]["grid"]
+    xs = sorted({float(row["x_mm"]) for row in rows})
+    assert xs[1] - xs[0] == pytest.approx(display_step, rel=1e-9)
+    _, profile_rows = download_csv(page, "Download Section profiles CSV")
+    assert {row["grid"] for row in profile_rows} == {"result"}
+    assert {float(row["grid_step_mm"]) for row in profile_rows} == {grid["step_mm"]}
+    _, history_rows = download_csv(page, "Download Point histories CSV")
+    assert history_rows and {row["grid"] for row in history_rows} == {"result"}
+    _, peak_rows = download_csv(page, "Download Peak deflection and force CSV")
+    assert {row["grid"] for row in peak_rows} == {"result"}
+
+
+def test_camera_against_camera_difference_map_and_curves(page, demo):
+    job = demo["jobs"][("topography", "kodak")]
+    page.goto(f"/#/jobs/{job['id']}/viewer")
+    section = page.get_by_role("region", name="Camera against camera")
+    expect(section.get_by_label("Compare with the topography of")).to_contain_text("camera phantom", timeout=30_000)
+    figure = section.get_by_role("img", name="Camera against camera")
+    expect(figure.locator(".scatterlayer .trace")).to_have_count(3)
+    styles = page.evaluate(
+        """() => document.querySelector("#view section[aria-label='Camera against camera'] .plot-area").data
+            .map((t) => [t.name, t.line.dash, t.yaxis])"""
+    )
+    assert len({dash for _, dash, _ in styles}) == 3, f"three distinct line styles: {styles}"
+    assert styles[2][0].startswith("difference") and styles[2][2] == "y2"
+    expect(section.get_by_label("Difference between the cameras")).to_contain_text("RMS")
+    screenshot(page, "camera-against-camera-curves")
+
+    section.get_by_label("Compare", exact=True).select_option(label="difference map, this frame")
+    expect(section.get_by_label("Difference between the cameras")).to_contain_text("Difference map")
+    difference = page.evaluate(
+        """() => {
+            const trace = document.querySelector("#view section[aria-label='Camera against camera'] .plot-area").data[0];
+            const values = trace.z.flatMap((row) => Array.from(row).filter(Number.isFinite));
+            return { type: trace.type, n: values.length,
+                     rms: Math.sqrt(values.reduce((a, d) => a + d * d, 0) / values.length) };
+        }"""
+    )
+    assert difference["type"] == "heatmap" and difference["n"] > 1000, difference
+    # Both cameras measure the same simulated plate: METHOD.md's accuracy target is 0.10 mm RMS over the dome for
+    # each camera, so their difference stays within 2 × 0.10 mm.
+    assert difference["rms"] < 0.2, difference
+    name, rows = download_csv(page, "Download Camera against camera CSV")
+    assert "difference" in name and "display-grid" in name
+    row = next(r for r in rows if r["difference_w_mm"])
+    assert float(row["difference_w_mm"]) == pytest.approx(float(row["w_mm"]) - float(row["other_w_mm"]), abs=1e-5)
+    section.scroll_into_view_if_needed()
+    screenshot(page, "camera-against-camera-difference-map")
+
+
+def test_reports_and_small_texts(page, demo):
+    camera_job = demo["jobs"][("camera_calibration", "kodak")]
+    page.goto(f"/#/jobs/{camera_job['id']}/report")
+    checks = page.get_by_role("table", name="Verdict checks")
+    solver = checks.get_by_role("row").filter(has_text=re.compile(r"^solver"))
+    expect(solver).to_contain_text("yes")
+    expect(solver).not_to_contain_text("1.000")
+
+    projector_job = demo["jobs"][("projector_calibration", "kodak")]
+    page.goto(f"/#/jobs/{projector_job['id']}/report")
+    note = page.get_by_label("About the sensitivity map")
+    expect(note).to_contain_text("Z resolution", timeout=60_000)
+    recording = httpx.get(f"{demo['base']}/recordings/{projector_job['spec']['recording_id']}", timeout=30).json()
+    width, height = recording["width_px"], recording["height_px"]
+    points = page.evaluate(
+        """() => { const t = [...document.querySelectorAll("figure")].find((f) => f.textContent.includes("Sensitivity map"))
+                     .querySelector(".plot-area").data[0]; return { u: Array.from(t.x), v: Array.from(t.y) }; }"""
+    )
+    assert all(0 <= u <= width for u in points["u"]) and all(0 <= v <= height for v in points["v"])
+    # Scan lines from the first to the last of the image: the points reach both ends across the lines.
+    across = points["v"] if max(points["v"]) - min(points["v"]) > 0.5 * height else points["u"]
+    extent = height if across is points["v"] else width
+    assert min(across) < 0.1 * extent and max(across) > 0.9 * extent, (min(across), max(across))
+    screenshot(page, "projector-report")
+
+    page.goto(f"/#/experiments/{demo['experiment_id']}")
+    jobs = page.get_by_role("table", name="Jobs of this experiment")
+    succeeded = jobs.get_by_role("row").filter(has_text="succeeded")
+    expect(succeeded.first).to_be_visible(timeout=30_000)
+    for text in succeeded.all_inner_texts():
+        assert "writing" not in text and "checking frames" not in text, text
+
+    test_recording = demo["jobs"][("topography", "kodak")]["spec"]["recording_id"]
+    page.goto(f"/#/recordings/{test_recording}")
+    expect(page.get_by_role("heading", name="QA warnings")).to_be_visible(timeout=30_000)
+    notes = page.get_by_role("list", name="Notes")
+    if notes.count():
+        # Notes come under their own heading, never right after "No QA warnings." as if they were one.
+        expect(page.get_by_role("heading", name="Notes")).to_be_visible()
+    screenshot(page, "recording-notes")
