@@ -64,11 +64,11 @@ export async function renderExperiments(container, _params, context) {
       class: "primary",
       onclick: async () => {
         demo.disabled = true;
-        say("Making the demo experiment: simulating recordings…");
         try {
-          const made = await postJSON("demo", { cameras: demoCameras.input.value.split(",") });
-          say(`Demo experiment ${made.experiment_id} made; its jobs are running.`);
-          window.location.hash = `#/experiments/${made.experiment_id}`;
+          const cameras = demoCameras.input.value;
+          const made = await postJSON("demo", { cameras: cameras.split(",") });
+          // The experiment page shows the demo's steps at once, from the first second.
+          window.location.hash = `#/experiments/${made.experiment_id}?demo=${cameras}&since=${Date.now()}`;
         } catch (error) {
           showError(error, "make the demo experiment");
           demo.disabled = false;
@@ -229,7 +229,14 @@ export async function renderExperiment(container, { id }, context) {
   }
   const camerasBox = h("div", { class: "cameras" });
   const recordingsByCamera = new Map();
-  const jobs = jobsPanel({ experimentId: experiment.id, context, recordings: () => [...recordingsByCamera.values()].flat() });
+  const demoCameras = (context.query.get("demo") || "").split(",").filter(Boolean);
+  const demo = demoCameras.length ? new DemoProgress(demoCameras, Number(context.query.get("since")) || Date.now(), context) : null;
+  const jobs = jobsPanel({
+    experimentId: experiment.id,
+    context,
+    recordings: () => [...recordingsByCamera.values()].flat(),
+    onJobs: (items) => demo && demo.jobsChanged(items),
+  });
   // Cameras made elsewhere (a script, the demo's worker) appear too: new ones are added, shown ones (and their
   // uploads in progress) stay as they are.
   const sections = new Map();
@@ -246,11 +253,14 @@ export async function renderExperiment(container, { id }, context) {
       const section = cameraSection(camera, context, (cam, recordings) => {
         recordingsByCamera.set(cam.id, recordings.map((r) => ({ ...r, camera_name: cam.name })));
         jobs.recordingsChanged();
+        if (demo) demo.recordingsChanged(cam, recordings);
       });
       sections.set(camera.id, section);
       camerasBox.append(section);
     }
-    camerasTimer = setTimeout(loadCameras, 5000);
+    if (demo) demo.camerasChanged(cameras);
+    // While the demo's worker is still adding cameras, look every second; else every 5 s.
+    camerasTimer = setTimeout(loadCameras, demo && !demo.allCameras() ? 1000 : 5000);
   };
   context.onLeave(() => clearTimeout(camerasTimer));
   page(
@@ -268,8 +278,106 @@ export async function renderExperiment(container, { id }, context) {
       h("dt", {}, "Notes"),
       h("dd", {}, experiment.notes || "–"),
     ),
+    demo ? demo.element : null,
     h("section", { "aria-labelledby": "cameras-title" }, h("h2", { id: "cameras-title" }, "Cameras and recordings"), camerasBox, cameraForm(experiment.id, loadCameras)),
     jobs.element,
   );
   await loadCameras();
+}
+
+// ---- the demo's progress -------------------------------------------------------------------------------------------
+
+const DEMO_STEPS = [
+  ["camera", "camera added"],
+  ["simulated", "recordings simulated"],
+  ["ingested", "recordings checked"],
+  ["camera_calibration", "camera calibration"],
+  ["projector_calibration", "projector calibration"],
+  ["topography", "topography"],
+];
+
+/**
+ * What the demo's worker has done for each virtual camera, shown from the first second after the click (the
+ * simulation itself takes tens of seconds before anything else appears): a step list per camera with the time
+ * since the click, drawn from the cameras, recordings and jobs the page reads anyway.
+ */
+class DemoProgress {
+  constructor(cameras, since, context) {
+    this.names = cameras;
+    this.since = since;
+    this.state = Object.fromEntries(cameras.map((name) => [name, { camera: null, recordings: [], jobs: [] }]));
+    this.cameraIds = new Map();
+    this.list = h("ul", { class: "demo-steps", "aria-label": "Demo progress" });
+    this.clock = h("span", { class: "facts" });
+    this.title = h("span", {}, "Demo in progress ");
+    this.element = h("section", { class: "card demo-progress", "aria-labelledby": "demo-title" },
+      h("h2", { id: "demo-title" }, this.title, this.clock), this.list);
+    this.timer = setInterval(() => this.draw(), 1000);
+    context.onLeave(() => clearInterval(this.timer));
+    this.draw();
+  }
+
+  allCameras() {
+    return this.names.every((name) => this.state[name].camera);
+  }
+
+  camerasChanged(cameras) {
+    for (const camera of cameras) {
+      if (!this.state[camera.name]) continue;
+      this.state[camera.name].camera = camera;
+      this.cameraIds.set(camera.id, camera.name);
+    }
+    this.draw();
+  }
+
+  recordingsChanged(camera, recordings) {
+    if (this.state[camera.name]) this.state[camera.name].recordings = recordings;
+    this.draw();
+  }
+
+  jobsChanged(jobs) {
+    this.jobs = jobs;
+    this.draw();
+  }
+
+  /** [step, "done" | "doing" | "waiting" | "failed", detail] for one camera. */
+  steps(name) {
+    const { camera, recordings } = this.state[name];
+    const ids = new Set(recordings.map((r) => r.id));
+    const jobs = (this.jobs || []).filter((job) => ids.has(job.spec && job.spec.recording_id));
+    const jobOf = (kind) => jobs.find((job) => job.kind === kind);
+    const out = [];
+    let before = "done";
+    const push = (key, status, detail = "") => {
+      const shown = before === "done" ? status : "waiting";
+      out.push([key, shown, detail]);
+      before = shown;
+    };
+    push("camera", camera ? "done" : "doing");
+    push("simulated", recordings.length >= 3 ? "done" : "doing", recordings.length ? `${recordings.length} of 3` : "");
+    const ready = recordings.filter((r) => r.state === "ready").length;
+    const invalid = recordings.some((r) => r.state === "invalid");
+    push("ingested", invalid ? "failed" : recordings.length >= 3 && ready === recordings.length ? "done" : "doing", `${ready} of 3`);
+    for (const kind of ["camera_calibration", "projector_calibration", "topography"]) {
+      const job = jobOf(kind);
+      const status = !job ? "doing" : job.state === "succeeded" ? "done" : ["failed", "cancelled"].includes(job.state) ? "failed" : "doing";
+      const percent = job && job.progress && Number.isFinite(job.progress.fraction) ? `${Math.floor(100 * job.progress.fraction)} %` : "";
+      push(kind, status, job && status === "doing" ? percent : "");
+    }
+    return out;
+  }
+
+  draw() {
+    const seconds = Math.max(0, Math.round((Date.now() - this.since) / 1000));
+    const finished = this.names.every((name) => this.steps(name).every(([, status]) => status === "done"));
+    this.title.textContent = finished ? "Demo done " : "Demo in progress ";
+    this.clock.textContent = finished ? `· in about ${seconds} s` : `· ${seconds} s since the click`;
+    if (finished) clearInterval(this.timer);
+    const labels = Object.fromEntries(DEMO_STEPS);
+    const mark = { done: "✓", doing: "…", waiting: "·", failed: "✗" };
+    fill(this.list, this.names.map((name) => h("li", {}, h("strong", {}, `Camera ${name}: `),
+      this.steps(name).map(([key, status, detail], i) => [i ? " → " : "",
+        h("span", { class: `demo-step demo-${status}`, "data-step": key, "data-status": status },
+          `${mark[status]} ${labels[key]}${detail ? ` (${detail})` : ""}`)]))));
+  }
 }

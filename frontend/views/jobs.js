@@ -153,6 +153,7 @@ export class JobList {
     const jobs = await attempt("list the jobs", () => getJSON(`jobs${query({ experiment_id: this.experimentId, limit: 200 })}`));
     if (!this.context.current()) return;
     if (jobs) {
+      this.latest = jobs.items;
       this.show(jobs.items.filter((job) => job.kind !== "ingest" || isActive(job)));
       this.onRefresh(jobs.items);
     }
@@ -194,6 +195,11 @@ export class JobList {
       onJob: (job) => {
         entry.progress.update(job);
         fill(entry.results, resultLink(job));
+        // Who listens to the list hears of each live change too, not only of the next refresh.
+        if (this.latest) {
+          this.latest = this.latest.map((known) => (known.id === job.id ? job : known));
+          this.onRefresh(this.latest);
+        }
       },
       onEnd: () => {
         this.streams.delete(jobId);
@@ -341,7 +347,7 @@ async function calibrationsOf(experimentId, cameraId, kind) {
 }
 
 /** The jobs section of an experiment page: the live list and the form. */
-export function jobsPanel({ experimentId, context, recordings }) {
+export function jobsPanel({ experimentId, context, recordings, onJobs = () => {} }) {
   let form = null;
   let succeeded = -1;
   const list = new JobList({
@@ -350,6 +356,7 @@ export function jobsPanel({ experimentId, context, recordings }) {
     label: "Jobs of this experiment",
     // A calibration that has just succeeded becomes a choice of the form.
     onRefresh: (jobs) => {
+      onJobs(jobs);
       const now = jobs.filter((job) => job.state === "succeeded").length;
       if (now !== succeeded && form) form.refresh();
       succeeded = now;

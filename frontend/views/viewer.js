@@ -696,7 +696,10 @@ class Viewer {
       series.push({ name: "difference (this − other)", x: time.values, y: differences, ...styles.difference });
     }
     this.comparedSeries = { columns: ["series", time.key === "time" ? `time_${time.unit}` : "frame", "peak_w_mm", "grid", "grid_step_mm"], series, grid: "result" };
-    return show(series, differences, time.title, axis("peak deflection w", "mm"), { shapes: [verticalMarker(time.values[this.position])] });
+    await show(series, differences, time.title, axis("peak deflection w", "mm"), { shapes: [verticalMarker(time.values[this.position])] });
+    // Each peak is the largest w over that camera's own measured area: say so, since areas differ.
+    if (other) this.compareStats.append(" Each peak is taken over that camera's own measured area; the difference map compares the same points.");
+    return null;
   }
 
   /** This frame's field minus the other camera's (its frame nearest in time), on this field's nodes. */

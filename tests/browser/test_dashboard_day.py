@@ -87,7 +87,7 @@ def test_viewer_keeps_still_colours_follow_the_view_csvs_name_their_grid(page, d
     page.mouse.down()
     page.mouse.move(end["x"], end["y"], steps=6)
     page.mouse.up()
-    expect(page.get_by_role("status")).to_contain_text("Section line A")
+    expect(page.locator("#status")).to_contain_text("Section line A")
     assert the_map.bounding_box() == before, "the map moved when the notice appeared"
     # The next click lands where it was aimed: the point added is within one display cell of the aim.
     aim = (x_mid + 40.0, y_mid - 50.0)
@@ -97,7 +97,7 @@ def test_viewer_keeps_still_colours_follow_the_view_csvs_name_their_grid(page, d
     point = page.evaluate("() => window.fringelab.viewer.points[0]")
     cell_mm = 2 * grid["step_mm"] * 2  # a display node is a block of result nodes; a screen pixel is far less
     assert math.hypot(point["x"] - aim[0], point["y"] - aim[1]) < cell_mm, (point, aim)
-    expect(page.get_by_role("status")).to_contain_text("Point P1")
+    expect(page.locator("#status")).to_contain_text("Point P1")
     assert the_map.bounding_box() == before
 
     # Zoom into a 60 mm square off the centre; with the switch on, the colours span what is in view.
@@ -119,7 +119,8 @@ def test_viewer_keeps_still_colours_follow_the_view_csvs_name_their_grid(page, d
                 const x = trace.x[i], y = trace.y[j];
                 if (x >= x0 && x <= x1 && y >= y0 && y <= y1 && Number.isFinite(w)) values.push(w);
             }));
-            return { lo: Math.min(...values), hi: Math.max(...values), zmin: trace.zmin, zmax: trace.zmax, n: values.length };
+            const [lo, hi] = [Math.min(...values), Math.max(...values)];
+            return { lo, hi, zmin: trace.zmin, zmax: trace.zmax, n: values.length };
         }""",
         [x_mid + 100, x_mid + 160, y_mid - 30, y_mid + 30],
     )
@@ -167,7 +168,8 @@ def test_camera_against_camera_difference_map_and_curves(page, demo):
     expect(section.get_by_label("Difference between the cameras")).to_contain_text("Difference map")
     difference = page.evaluate(
         """() => {
-            const trace = document.querySelector("#view section[aria-label='Camera against camera'] .plot-area").data[0];
+            const section = document.querySelector("#view section[aria-label='Camera against camera']");
+            const trace = section.querySelector(".plot-area").data[0];
             const values = trace.z.flatMap((row) => Array.from(row).filter(Number.isFinite));
             return { type: trace.type, n: values.length,
                      rms: Math.sqrt(values.reduce((a, d) => a + d * d, 0) / values.length) };
@@ -200,8 +202,12 @@ def test_reports_and_small_texts(page, demo):
     recording = httpx.get(f"{demo['base']}/recordings/{projector_job['spec']['recording_id']}", timeout=30).json()
     width, height = recording["width_px"], recording["height_px"]
     points = page.evaluate(
-        """() => { const t = [...document.querySelectorAll("figure")].find((f) => f.textContent.includes("Sensitivity map"))
-                     .querySelector(".plot-area").data[0]; return { u: Array.from(t.x), v: Array.from(t.y) }; }"""
+        """() => {
+            const figures = [...document.querySelectorAll("figure")];
+            const figure = figures.find((f) => f.textContent.includes("Sensitivity map"));
+            const t = figure.querySelector(".plot-area").data[0];
+            return { u: Array.from(t.x), v: Array.from(t.y) };
+        }"""
     )
     assert all(0 <= u <= width for u in points["u"]) and all(0 <= v <= height for v in points["v"])
     # Scan lines from the first to the last of the image: the points reach both ends across the lines.
@@ -225,3 +231,20 @@ def test_reports_and_small_texts(page, demo):
         # Notes come under their own heading, never right after "No QA warnings." as if they were one.
         expect(page.get_by_role("heading", name="Notes")).to_be_visible()
     screenshot(page, "recording-notes")
+
+
+def test_demo_shows_its_progress_from_the_first_second(page, demo):
+    """Last in this module (it starts a second demo): the steps show at once after the click, and end done."""
+    page.goto("/#/experiments")
+    page.get_by_label("Virtual cameras").select_option(label="Kodak only (under a minute)")
+    page.get_by_role("button", name="Load demo experiment").click()
+    steps = page.get_by_role("list", name="Demo progress")
+    # At once: the page has the step list before the worker has made anything (no request is waited for).
+    expect(steps).to_be_visible(timeout=3_000)
+    expect(steps).to_contain_text("Camera kodak")
+    expect(page.get_by_role("heading", name=re.compile(r"^Demo in progress"))).to_contain_text("since the click")
+    expect(steps.locator("[data-status='doing']")).to_have_count(1)
+    screenshot(page, "demo-progress-at-once")
+    expect(page.get_by_role("heading", name=re.compile(r"^Demo done"))).to_be_visible(timeout=DEMO_TIMEOUT_S * 1000)
+    expect(steps.locator("[data-status='done']")).to_have_count(6)
+    screenshot(page, "demo-progress-done")
