@@ -3,6 +3,7 @@
 // its files and links to its report or viewer.
 import { getJSON, postJSON, query, subscribe } from "../api.js";
 import { specInputs } from "../specform.js";
+import { exportPanel } from "./exports.js";
 import { attempt, field, fill, formatBytes, formatDuration, formatTime, h, page, say, showError, table } from "../ui.js";
 
 export const JOB_KIND_NAMES = {
@@ -20,9 +21,16 @@ export const shortId = (id) => id.slice(0, 8);
 export const jobName = (job) => `${JOB_KIND_NAMES[job.kind] || job.kind} ${shortId(job.id)}`;
 const isActive = (job) => ACTIVE.includes(job.state) || job.stopping;
 
-/** Where a finished job's results are shown. */
+/** Download links of a succeeded job's files (an export's files, wherever the job is listed). */
+export function downloadLinks(job) {
+  if (job.state !== "succeeded" || !job.files || !job.files.length) return null;
+  return job.files.map((file, i) => [i ? " " : "", h("a", { href: file.url, download: file.name, class: "download" }, `Download ${file.name}`)]);
+}
+
+/** Where a finished job's results are shown: its report, its viewer, or (an export) its files. */
 export function resultLink(job) {
   if (job.state !== "succeeded") return null;
+  if (job.kind === "export") return downloadLinks(job);
   if (job.kind === "camera_calibration" || job.kind === "projector_calibration") {
     return h("a", { href: `#/jobs/${job.id}/report` }, "Calibration report");
   }
@@ -415,6 +423,9 @@ function logLine(line) {
   return h("div", { class: `log-${line.level}` }, `${formatTime(line.at)}  ${line.level.padEnd(7)} ${line.message}`);
 }
 
+/** [first, …, last] frame numbers from a result's [first, last]. */
+const rangeOf = ([first, last]) => Array.from({ length: last - first + 1 }, (_, i) => first + i);
+
 export async function renderJob(container, { id }, context) {
   const job = await attempt("open the job", () => getJSON(`jobs/${id}`));
   if (!job || !context.current()) return;
@@ -482,6 +493,9 @@ export async function renderJob(container, { id }, context) {
     h("details", { class: "spec-box" }, h("summary", {}, "Spec and provenance"), h("pre", {}, JSON.stringify({ spec: job.spec, provenance: job.provenance }, null, 2))),
     h("h2", {}, "Files"),
     files,
+    job.kind === "topography" && job.state === "succeeded" && job.result && Array.isArray(job.result.frames)
+      ? exportPanel(job, { frames: rangeOf(job.result.frames), context }).element
+      : null,
     h("h2", {}, "Log"),
     logBox,
   );

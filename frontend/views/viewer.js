@@ -22,6 +22,7 @@ import {
 } from "../plots.js";
 import { attempt, field, fill, h, num, page, say, showError } from "../ui.js";
 import { TopographySource } from "./topography-source.js";
+import { exportPanel } from "./exports.js";
 import { jobName } from "./jobs.js";
 
 const LINE_LABELS = "ABCDEFGHIJKLMNOPQRSTUVWXYZ";
@@ -222,6 +223,7 @@ class Viewer {
     this.compareWhat.addEventListener("change", () => this.drawComparison());
     this.compareFigure = new Figure({ name: "Camera against camera", filename: `topography-${this.job.id.slice(0, 8)}-cameras`, height: 420, csv: () => this.compareCSV() });
 
+    this.exports = exportPanel(this.job, { frames: this.frames, lines: () => this.lines, context: this.context });
     const m = this.meta;
     this.element = h(
       "div",
@@ -265,6 +267,7 @@ class Viewer {
           h("div", { class: "field inline" }, h("label", { for: "compare-what" }, "Compare"), this.compareWhat)),
         (this.compareStats = h("p", { class: "facts", "aria-label": "Difference between the cameras" })),
         this.compareFigure.element)),
+      this.exports.element,
     );
   }
 
@@ -466,6 +469,7 @@ class Viewer {
   }
 
   drawChips() {
+    if (this.exports) this.exports.describe();
     const chip = (text, color, remove, name) =>
       h("li", {}, h("span", { class: "swatch", style: `background:${color}` }), text,
         h("button", { type: "button", class: "link", "aria-label": `Remove ${name}`, onclick: remove }, "×"));

@@ -4,8 +4,8 @@ holds, camera against camera shows the difference (map and curves, distinct line
 sensitivity map lies on the image, and the small texts say what they mean (no stage on a finished job, yes/no
 for the solver, no "No warnings" followed by something that reads like one).
 
-One demo (both cameras, few frames) is made per module and shared by every test; each test is one or two page
-loads with several checks."""
+One demo (both cameras, few frames; the `demo` fixture of conftest.py) is shared by every test; each test is one
+or two page loads with several checks."""
 
 from __future__ import annotations
 
@@ -13,46 +13,14 @@ import csv
 import io
 import math
 import re
-import time
 
 import httpx
 import pytest
 from playwright.sync_api import expect
 
-from tests.browser.conftest import screenshot
+from tests.browser.conftest import DEMO_TIMEOUT_S, screenshot
 
 pytestmark = [pytest.mark.browser, pytest.mark.integration, pytest.mark.slow]
-DEMO_FRAMES = 6
-DEMO_TIMEOUT_S = 900  # both cameras on a loaded 2-core machine: about 3 minutes alone, much more when shared
-
-
-@pytest.fixture(scope="module")
-def demo(live_server, api_paths):  # type: ignore[no-untyped-def]
-    """The demo experiment with both cameras measured: {experiment_id, jobs: {(kind, camera): job}}."""
-    if "/api/v1/demo" not in api_paths:
-        pytest.skip("this build has no demo endpoint (/api/v1/demo)")
-    base = f"{live_server.base_url}/api/v1"
-    made = httpx.post(f"{base}/demo", json={"cameras": ["kodak", "phantom"], "test_frames": DEMO_FRAMES}, timeout=30)
-    assert made.status_code == 202, made.text
-    experiment_id = made.json()["experiment_id"]
-    deadline = time.monotonic() + DEMO_TIMEOUT_S
-    while True:
-        jobs = httpx.get(f"{base}/jobs", params={"experiment_id": experiment_id, "limit": 100}, timeout=30).json()
-        failed = [job for job in jobs["items"] if job["state"] in ("failed", "cancelled")]
-        assert not failed, f"demo jobs failed: {[(job['kind'], job['error']) for job in failed]}"
-        topographies = [job for job in jobs["items"] if job["kind"] == "topography" and job["state"] == "succeeded"]
-        if len(topographies) == 2:
-            break
-        assert time.monotonic() < deadline, f"the demo did not finish in {DEMO_TIMEOUT_S} s: {jobs['items']}"
-        time.sleep(2)
-    cameras = {c["id"]: c["name"] for c in httpx.get(f"{base}/experiments/{experiment_id}/cameras", timeout=30).json()}
-    found = {}
-    for job in jobs["items"]:
-        if job["state"] != "succeeded" or job["kind"] == "ingest":
-            continue
-        recording = httpx.get(f"{base}/recordings/{job['spec']['recording_id']}", timeout=30).json()
-        found[(job["kind"], cameras[recording["camera_id"]])] = job
-    return {"experiment_id": experiment_id, "jobs": found, "base": base}
 
 
 def download_csv(page, button_name: str) -> tuple[str, list[dict[str, str]]]:  # type: ignore[no-untyped-def]
@@ -248,3 +216,47 @@ def test_demo_shows_its_progress_from_the_first_second(page, demo):
     expect(page.get_by_role("heading", name=re.compile(r"^Demo done"))).to_be_visible(timeout=DEMO_TIMEOUT_S * 1000)
     expect(steps.locator("[data-status='done']")).to_have_count(6)
     screenshot(page, "demo-progress-done")
+
+
+def test_exports_from_the_viewer_and_their_downloads_in_the_jobs_list(page, demo):
+    """Every format of the API's list, started from the viewer for a frame range; the profile CSV follows the
+    lines drawn; each export job gets its download link in the form and in the jobs list."""
+    import numpy as np
+
+    job = demo["jobs"][("topography", "kodak")]
+    page.goto(f"/#/jobs/{job['id']}/viewer")
+    expect(page.get_by_role("slider", name="Frame")).to_be_visible(timeout=30_000)
+    page.get_by_text("Type a section line").click()
+    for name, value in (("x₀", "-150"), ("y₀", "0"), ("x₁", "150"), ("y₁", "0")):
+        page.get_by_label(f"Line {name} (mm)").fill(value)
+    page.get_by_role("button", name="Add line").click()
+    expect(page.get_by_role("list", name="Section lines")).to_contain_text("A")
+    form = page.get_by_role("form", name="Export the result")
+    formats = form.get_by_label("Export format").locator("option").evaluate_all("(os) => os.map((o) => o.value)")
+    assert formats == ["points-csv", "grid-npz", "mat", "vtk", "profile-csv"]  # EXPORT_FORMATS, in its order
+    form.get_by_label("First frame").fill("2")
+    form.get_by_label("Last frame").fill("4")
+    for fmt in formats:
+        form.get_by_label("Export format").select_option(fmt)
+        form.get_by_role("button", name="Export", exact=True).click()
+    started = form.get_by_role("list", name="Exports started here")
+    expect(started.get_by_role("link", name=re.compile(r"^Download "))).to_have_count(len(formats), timeout=120_000)
+    form.scroll_into_view_if_needed()
+    screenshot(page, "viewer-exports")
+
+    links = started.get_by_role("link", name=re.compile(r"^Download ")).evaluate_all("(as) => as.map((a) => a.href)")
+    by_name = {link.rsplit("/", 1)[-1]: link for link in links}
+    profile = httpx.get(next(link for name, link in by_name.items() if "profile" in name), timeout=30).text
+    rows = list(csv.DictReader(io.StringIO(profile)))
+    assert {row["line"] for row in rows} == {"A"} and {row["frame"] for row in rows} == {"2", "3", "4"}
+    assert all(float(row["y_mm"]) == pytest.approx(0.0, abs=1e-3) for row in rows)  # along the line typed
+    npz_url = next(link for name, link in by_name.items() if name.endswith(".npz"))
+    npz = np.load(io.BytesIO(httpx.get(npz_url, timeout=30).content))
+    np.testing.assert_array_equal(npz["frames"], [2, 3, 4])
+
+    page.goto("/#/jobs")
+    exports = page.get_by_role("table", name="All jobs").get_by_role("row").filter(has_text="Export")
+    expect(exports).to_have_count(len(formats), timeout=30_000)
+    for i in range(len(formats)):
+        expect(exports.nth(i).get_by_role("link", name=re.compile(r"^Download "))).to_be_visible()
+    screenshot(page, "jobs-list-export-downloads")
