@@ -15,13 +15,14 @@ from datetime import datetime
 from typing import Annotated, Any
 
 import anyio
-from fastapi import APIRouter, Body, Depends, Query
+from fastapi import APIRouter, Body, Depends, Query, Response
 from fastapi.responses import FileResponse
 from fastapi.sse import EventSourceResponse, ServerSentEvent
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from backend.api.deps import CurrentUser, SessionDep, StateDep
+from backend.schemas.deletion import DeletionOut, deletion_out
 from backend.schemas.jobs import (
     MAX_ID,
     ChunkOut,
@@ -35,6 +36,7 @@ from backend.schemas.jobs import (
     Progress,
 )
 from fringelab.core.accounts import Principal, access_level, audit, can_access, readable_experiments
+from fringelab.core.deletion import execute, plan_job
 from fringelab.core.errors import Forbidden, Gone, NotFound, Unavailable
 from fringelab.core.jobs import (
     NotVisible,
@@ -287,6 +289,22 @@ def _snapshot(state: AppState, job_id: str, after: int) -> tuple[JobOut | None, 
         if job is None:
             return None, []
         return job_out(session, job), _log_lines(session, job_id, after=after)
+
+
+@router.get("/jobs/{job_id}/deletion", response_model=DeletionOut, responses=WRITE_ERRORS)
+def job_deletion(writable: WritableJobDep, session: SessionDep, state: StateDep) -> DeletionOut:
+    """What deleting the job takes with it (its files, log, calibration, exports), and the jobs that stop it now
+    (itself while queued or running, jobs using its calibration or result); nothing is deleted."""
+    return deletion_out(plan_job(session, state.settings, writable))
+
+
+@router.delete("/jobs/{job_id}", status_code=204, responses=WRITE_ERRORS)
+def remove_job(writable: WritableJobDep, session: SessionDep, state: StateDep, principal: CurrentUser) -> Response:
+    """Deletes a finished job with its result files, log, calibration and exports; 409 `in_use` while it is
+    queued or running (cancel it first) or a queued or running job uses its calibration or result."""
+    plan = plan_job(session, state.settings, writable)
+    execute(session, state.settings, principal, plan, kind="job", id=writable.id)
+    return Response(status_code=204)
 
 
 @router.post("/jobs/{job_id}/cancel", response_model=JobOut, responses=WRITE_ERRORS)

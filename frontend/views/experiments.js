@@ -4,6 +4,10 @@ import { apiUrl, getJSON, postJSON } from "../api.js";
 import { attempt, field, fill, formatBytes, formatTime, h, page, say, showError, table } from "../ui.js";
 import { Uploader } from "../upload.js";
 import { jobsPanel } from "./jobs.js";
+import { deleteButton } from "./deletion.js";
+
+/** Show the current route again (after a delete changed what it lists). */
+const reshow = () => window.dispatchEvent(new HashChangeEvent("hashchange"));
 
 export const KIND_NAMES = {
   camera_calibration: "Camera calibration",
@@ -102,6 +106,7 @@ export async function renderExperiments(container, _params, context) {
         { title: "Punch", value: (e) => e.punch },
         { title: "Test date", value: (e) => e.test_date },
         { title: "Created", value: (e) => formatTime(e.created_at) },
+        { title: "", value: (e) => deleteButton(`experiments/${e.id}`, `experiment ${e.name}`, reshow) },
       ],
       experiments,
       { empty: "No experiments yet: create one below, or load the demo." },
@@ -120,7 +125,7 @@ function recordingState(recording) {
   return h("span", { class: "busy" }, `${recording.state}…`);
 }
 
-function recordingsTable(camera, recordings) {
+function recordingsTable(camera, recordings, onDeleted) {
   return table(
     `Recordings of ${camera.name}`,
     [
@@ -129,6 +134,7 @@ function recordingsTable(camera, recordings) {
       { title: "State", value: recordingState },
       { title: "Frames", value: (r) => (r.frame_count ? `${r.frame_count} × ${r.width_px}×${r.height_px} px, ${r.bit_depth} bit` : "–") },
       { title: "Size", value: (r) => formatBytes(r.size_bytes) },
+      { title: "", value: (r) => deleteButton(`recordings/${r.id}`, `recording ${r.id} ${r.filename}`, onDeleted) },
     ],
     recordings,
     { empty: "No recordings yet." },
@@ -187,7 +193,7 @@ function cameraSection(camera, context, onRecordingsChanged) {
     const signature = JSON.stringify(recordings.map((r) => [r.id, r.state, r.frame_count, r.warnings.length, r.filename]));
     if (signature !== shown) {
       shown = signature;
-      fill(recordingsBox, recordingsTable(camera, recordings));
+      fill(recordingsBox, recordingsTable(camera, recordings, refresh));
       onRecordingsChanged(camera, recordings);
     }
     // Quickly while a recording is being checked; slowly otherwise, so that recordings uploaded by scripts or
@@ -209,7 +215,7 @@ function cameraSection(camera, context, onRecordingsChanged) {
   return h(
     "section",
     { class: "card camera", "aria-label": `Camera ${camera.name}` },
-    h("h3", {}, `Camera ${camera.name}`),
+    h("div", { class: "camera-head" }, h("h3", {}, `Camera ${camera.name}`), deleteButton(`cameras/${camera.id}`, `camera ${camera.name}`, reshow)),
     h(
       "p",
       { class: "facts" },
@@ -266,6 +272,9 @@ export async function renderExperiment(container, { id }, context) {
   page(
     container,
     experiment.name,
+    h("p", {}, deleteButton(`experiments/${experiment.id}`, `experiment ${experiment.name}`, () => {
+      window.location.hash = "#/experiments";
+    }, { small: false })),
     h(
       "dl",
       { class: "facts" },

@@ -32,8 +32,8 @@ export function exportPanel(job, { frames, lines = () => [], context }) {
   const format = field("Export format", h("select", {}, h("option", { value: "" }, "reading the formats…")));
   const first = field("First frame", h("input", { type: "number", min: frames[0], max: frames[frames.length - 1], step: 1, value: frames[0] }));
   const last = field("Last frame", h("input", { type: "number", min: frames[0], max: frames[frames.length - 1], step: 1, value: frames[frames.length - 1] }));
-  const about = h("p", { class: "hint", "aria-live": "polite" });
-  const started = h("ul", { class: "exports", "aria-label": "Exports started here" });
+  const about = h("p", { class: "hint wide-row", "aria-live": "polite" });
+  const started = h("ul", { class: "exports wide-row", "aria-label": "Exports started here" });
   const submit = h("button", { type: "submit", class: "primary" }, "Export");
   const describe = () => {
     const chosen = lines();

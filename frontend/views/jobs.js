@@ -4,6 +4,7 @@
 import { getJSON, postJSON, query, subscribe } from "../api.js";
 import { specInputs } from "../specform.js";
 import { exportPanel } from "./exports.js";
+import { deleteButton } from "./deletion.js";
 import { attempt, field, fill, formatBytes, formatDuration, formatTime, h, page, say, showError, table } from "../ui.js";
 
 export const JOB_KIND_NAMES = {
@@ -142,7 +143,7 @@ export class JobList {
     this.table = h(
       "table",
       { "aria-label": label, class: "jobs", hidden: true },
-      h("thead", {}, h("tr", {}, ["Job", "Input", "Progress", "Started", "Results"].map((t) => h("th", { scope: "col" }, t)))),
+      h("thead", {}, h("tr", {}, ["Job", "Input", "Progress", "Started", "Results", ""].map((t) => h("th", { scope: "col" }, t)))),
       this.tbody,
     );
     this.element = h("div", {}, this.empty, this.table);
@@ -178,6 +179,7 @@ export class JobList {
       if (!entry) {
         const progress = new JobProgress(job, { onRetried: () => this.refresh() });
         const results = h("td");
+        const actions = h("td");
         const row = h(
           "tr",
           { "data-job": job.id },
@@ -186,12 +188,18 @@ export class JobList {
           h("td", {}, progress.element),
           h("td", {}, formatTime(job.created_at)),
           results,
+          actions,
         );
-        entry = { progress, row, results };
+        entry = { progress, row, results, actions };
         this.rows.set(job.id, entry);
       }
       if (!this.streams.has(job.id)) entry.progress.update(job);
       fill(entry.results, resultLink(entry.progress.job));
+      // Finished jobs can go (with their results); a queued or running one is cancelled first.
+      fill(entry.actions, isActive(entry.progress.job) ? null : deleteButton(`jobs/${job.id}`, jobName(job), () => {
+        this.rows.delete(job.id);
+        this.refresh();
+      }));
       ordered.push(entry.row);
       if (isActive(job) && !this.streams.has(job.id) && this.streams.size < MAX_STREAMS) this.follow(job.id, entry);
     }
@@ -485,6 +493,9 @@ export async function renderJob(container, { id }, context) {
   page(
     container,
     jobName(job),
+    isActive(job) ? null : h("p", {}, deleteButton(`jobs/${job.id}`, jobName(job), () => {
+      window.location.hash = job.experiment_id ? `#/experiments/${job.experiment_id}` : "#/jobs";
+    }, { small: false })),
     progress.element,
     links,
     facts,
