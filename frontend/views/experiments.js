@@ -145,7 +145,10 @@ function cameraForm(experimentId, onAdded) {
   const name = field("Camera name", h("input", { type: "text", required: true, maxlength: 100, placeholder: "left" }));
   const width = field("Image width (px)", h("input", { type: "number", required: true, min: 1, step: 1, value: 1024 }));
   const height = field("Image height (px)", h("input", { type: "number", required: true, min: 1, step: 1, value: 1024 }));
-  const pitch = field("Pixel pitch (µm)", h("input", { type: "number", required: true, min: 0.01, step: "any", value: 20 }));
+  const pitch = field("Pixel pitch u (µm)", h("input", { type: "number", required: true, min: 0.01, step: "any", value: 20 }),
+    "Along a row (the image's width). Data sheets give the pixel pitch (or pixel size, cell size) in µm: one number for square pixels, or horizontal × vertical = u × v.");
+  const pitchV = field("Pixel pitch v (µm)", h("input", { type: "number", min: 0.01, step: "any", placeholder: "as u" }),
+    "Along a column (the height); empty for square pixels. From a sensor size instead: pitch = sensor width (mm) × 1000 / width (px), and with the heights for v.");
   return h(
     "form",
     {
@@ -159,6 +162,7 @@ function cameraForm(experimentId, onAdded) {
             image_width_px: Number(width.input.value),
             image_height_px: Number(height.input.value),
             pixel_pitch_um: Number(pitch.input.value),
+            pixel_pitch_v_um: pitchV.input.value === "" ? null : Number(pitchV.input.value),
           });
           say(`Camera ${camera.name} added.`);
           name.input.value = "";
@@ -173,6 +177,7 @@ function cameraForm(experimentId, onAdded) {
     width.wrap,
     height.wrap,
     pitch.wrap,
+    pitchV.wrap,
     h("div", { class: "actions" }, h("button", { type: "submit" }, "Add camera")),
   );
 }
@@ -219,7 +224,10 @@ function cameraSection(camera, context, onRecordingsChanged) {
     h(
       "p",
       { class: "facts" },
-      `${camera.image_width_px} × ${camera.image_height_px} px, pixel pitch ${Number(camera.pixel_pitch_um.toPrecision(6))} µm`,
+      `${camera.image_width_px} × ${camera.image_height_px} px, pixel pitch `,
+      camera.pixel_pitch_v_um && camera.pixel_pitch_v_um !== camera.pixel_pitch_um
+        ? `${Number(camera.pixel_pitch_um.toPrecision(6))} × ${Number(camera.pixel_pitch_v_um.toPrecision(6))} µm (u × v)`
+        : `${Number(camera.pixel_pitch_um.toPrecision(6))} µm (square pixels)`,
     ),
     recordingsBox,
     h("div", { class: "upload-kind" }, kind.wrap),

@@ -276,8 +276,30 @@ export function jobForm({ recordings, calibrations, onStarted }) {
     fill(select, items.length ? items.map((item) => h("option", { value: item.id }, item.label)) : h("option", { value: "" }, emptyText));
     if (items.some((item) => String(item.id) === previous)) select.value = previous;
   };
+  const boardNote = h("p", { class: "hint wide-row", "aria-label": "Where the board comes from" });
+  /** A camera calibration's board, prefilled from the recording's board.json when it has a readable one. */
+  let prefilledFor = null; // the recording (and kind) last prefilled: a later refresh keeps what the user typed
+  const prefillBoard = (chosen) => {
+    const key = chosen ? `${kind.input.value}:${chosen.id}:${JSON.stringify(chosen.sidecars || {})}` : null;
+    if (key === prefilledFor) return;
+    prefilledFor = key;
+    boardNote.textContent = "";
+    if (!current || kind.input.value !== "camera_calibration" || !chosen) return;
+    const board = chosen.sidecars && chosen.sidecars["board.json"];
+    if (board && Number.isInteger(board.cols)) {
+      current.set({ board: { cols: board.cols, rows: board.rows, square_mm: board.square_mm, origin: board.origin } });
+      boardNote.textContent = `Board from the recording's board.json: ${board.cols} × ${board.rows} inner corners, ${board.square_mm} mm squares; change it here if it is wrong.`;
+    } else {
+      current.set({ board: null });
+      boardNote.textContent = board && board.error
+        ? `The recording's board.json could not be read (${board.error}): give the board here (tick Board).`
+        : "The recording has no board.json: give the board here (tick Board), or add board.json on the recording's page.";
+    }
+    showSpec();
+  };
   const refreshCalibrations = async () => {
     const chosen = recordings().find((r) => String(r.id) === pickers.recording_id.select.value);
+    prefillBoard(chosen);
     if (chosen) {
       const [cameraCals, projectorCals] = await Promise.all([calibrations(chosen.camera_id, "camera"), calibrations(chosen.camera_id, "projector")]);
       options(pickers.camera_calibration_id.select, cameraCals, "no camera calibration yet");
@@ -308,8 +330,9 @@ export function jobForm({ recordings, calibrations, onStarted }) {
     busy(async () => {
       try {
         current = await specInputs(kind.input.value, pickers);
+        prefilledFor = null;
         about.textContent = current.description;
-        inputs.replaceChildren(...current.elements);
+        inputs.replaceChildren(...current.elements, boardNote);
         for (const picker of Object.values(pickers)) picker.select.closest(".field")?.classList.add("wide");
         await refreshRecordings();
       } catch (error) {

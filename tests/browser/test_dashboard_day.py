@@ -260,3 +260,87 @@ def test_exports_from_the_viewer_and_their_downloads_in_the_jobs_list(page, demo
     for i in range(len(formats)):
         expect(exports.nth(i).get_by_role("link", name=re.compile(r"^Download "))).to_be_visible()
     screenshot(page, "jobs-list-export-downloads")
+
+
+def test_delete_says_what_goes_with_it_and_removes_it(page, live_server, demo):
+    """An experiment of its own (so the shared demo stays): the confirmation names what goes, "Keep it" keeps it,
+    "Delete" removes it; then a finished export job of the demo is deleted from the jobs list."""
+    base = demo["base"]
+    experiment = httpx.post(f"{base}/experiments", json={"name": "Trial to delete"}, timeout=30).json()
+    camera = {"name": "spare", "image_width_px": 64, "image_height_px": 48, "pixel_pitch_um": 20}
+    assert httpx.post(f"{base}/experiments/{experiment['id']}/cameras", json=camera, timeout=30).status_code == 201
+    page.goto(f"/#/experiments/{experiment['id']}")
+    page.get_by_role("button", name="Delete experiment Trial to delete").click()
+    dialog = page.get_by_role("dialog", name="Delete experiment Trial to delete?")
+    expect(dialog).to_contain_text(f"Deletes experiment {experiment['id']} (Trial to delete) with 1 camera")
+    expect(dialog).to_contain_text("This cannot be undone.")
+    screenshot(page, "delete-confirmation", full_page=False)
+    dialog.get_by_role("button", name="Keep it").click()
+    expect(dialog).to_have_count(0)
+    assert httpx.get(f"{base}/experiments/{experiment['id']}", timeout=30).status_code == 200
+    page.get_by_role("button", name="Delete experiment Trial to delete").click()
+    page.get_by_role("dialog").get_by_role("button", name="Delete", exact=True).click()
+    expect(page).to_have_url(re.compile(r"#/experiments$"))
+    expect(page.get_by_role("table", name="Experiments")).not_to_contain_text("Trial to delete")
+    assert httpx.get(f"{base}/experiments/{experiment['id']}", timeout=30).status_code == 404
+
+    export = httpx.post(f"{base}/jobs", json={"kind": "export", "job_id": demo["jobs"][("topography", "kodak")]["id"],
+                                              "format": "grid-npz"}, timeout=30).json()  # fmt: skip
+    page.goto(f"/#/jobs/{export['id']}")
+    expect(page.get_by_role("link", name=re.compile(r"^Download topography"))).to_be_visible(timeout=120_000)
+    page.goto("/#/jobs")
+    row = page.get_by_role("row").filter(has=page.get_by_role("link", name=f"Export {export['id'][:8]}"))
+    row.get_by_role("button", name=f"Delete Export {export['id'][:8]}").click()
+    dialog = page.get_by_role("dialog")
+    expect(dialog).to_contain_text(f"Deletes export job {export['id']} with 1 job")
+    dialog.get_by_role("button", name="Delete", exact=True).click()
+    expect(row).to_have_count(0)
+    assert httpx.get(f"{base}/jobs/{export['id']}", timeout=30).status_code == 404
+
+
+def test_board_in_the_calibration_form_and_sidecars_replaced_from_the_recording_page(page, demo, tmp_path):
+    """The camera calibration form is prefilled from the recording's board.json; on the recording page an odd
+    board.json is replaced: another lab's spelling reads as the same board, an unreadable one is one warning (the
+    recording stays ready), and the original goes back."""
+    base = demo["base"]
+    recording_id = demo["jobs"][("camera_calibration", "kodak")]["spec"]["recording_id"]
+    recording = httpx.get(f"{base}/recordings/{recording_id}", timeout=30).json()
+    board = recording["sidecars"]["board.json"]
+    page.goto(f"/#/experiments/{demo['experiment_id']}")
+    form = page.get_by_role("form", name="Start a job")
+    form.get_by_label("Job kind").select_option(label="Camera calibration")
+    form.get_by_label("Recording", exact=True).select_option(str(recording_id))
+    expect(form.get_by_label("Where the board comes from")).to_contain_text("Board from the recording's board.json")
+    expect(form.get_by_label("Cols", exact=True)).to_have_value(str(board["cols"]))
+    expect(form.get_by_label("Rows", exact=True)).to_have_value(str(board["rows"]))
+    expect(form.get_by_label("Square (mm)")).to_have_value(f"{board['square_mm']:g}")
+    spec = page.get_by_label("Job spec (JSON)").text_content()
+    assert f'"cols": {board["cols"]}' in spec
+    form.scroll_into_view_if_needed()
+    screenshot(page, "calibration-form-board")
+
+    def replace(text: str) -> None:
+        path = tmp_path / "board.json"
+        path.write_text(text)
+        sidecars = page.get_by_role("form", name="Replace a sidecar")
+        sidecars.get_by_label("Sidecar", exact=True).select_option("board.json")
+        sidecars.get_by_label("Sidecar file").set_input_files(str(path))
+        sidecars.get_by_role("button", name="Replace the sidecar").click()
+        expect(page.locator("#status")).to_contain_text("board.json replaced: the recording is ready", timeout=120_000)
+
+    page.goto(f"/#/recordings/{recording_id}")
+    square_m = board["square_mm"] / 1000
+    replace(f'{{"boardWidth": {board["cols"]}, "boardHeight": {board["rows"]}, "squareSize": {square_m}, "unit": "m"}}')
+    again = httpx.get(f"{base}/recordings/{recording_id}", timeout=30).json()
+    assert again["state"] == "ready" and again["sidecars"]["board.json"]["cols"] == board["cols"]
+    assert again["sidecars"]["board.json"]["square_mm"] == pytest.approx(board["square_mm"])
+    replace('{"pattern": "chessboard"}')
+    warnings = page.get_by_role("list", name="QA warnings")
+    expect(warnings).to_contain_text("board.json: missing cols, rows, square_mm")
+    expect(warnings).not_to_contain_text("no board.json")
+    expect(page.get_by_role("heading", name="QA warnings")).to_be_visible()
+    screenshot(page, "recording-board-unreadable")
+    origin = board["origin"]
+    replace(f'{{"cols": {board["cols"]}, "rows": {board["rows"]}, "square_mm": {board["square_mm"]}, '
+            f'"origin": {"null" if origin is None else origin}}}')  # fmt: skip
+    assert httpx.get(f"{base}/recordings/{recording_id}", timeout=30).json()["sidecars"]["board.json"] == board
