@@ -2,8 +2,9 @@
 what the dashboard draws (frame list and time histories, a frame's grid within a display budget, profiles,
 point histories).
 
-Thin: files are read through `backend.results`; access follows the experiment (of the calibration's camera, or
-of the job). Arrays come as JSON lists with null where there is no data, or, for a grid, as raw float32.
+Thin: files are read through `fringelab.formats` (`backend.results` for paths and reports); access follows the
+experiment (of the calibration's camera, or of the job). Arrays come as JSON lists with null where there is no
+data, or, for a grid, as raw float32.
 """
 
 from __future__ import annotations
@@ -21,21 +22,19 @@ from sqlalchemy import select
 
 from backend.api.deps import CurrentUser, SessionDep, StateDep, experiment_for
 from backend.api.jobs import ERRORS, JobDep
-from backend.results import (
-    GRID_BUDGET_NODES,
-    FrameNotInResult,
-    OutsideGrid,
-    ResultUnavailable,
-    TopographyReader,
-    camera_report,
-    projector_table,
-    result_path,
-)
+from backend.results import camera_report, plain, projector_table, result_path
 from backend.schemas.jobs import MAX_ID, CalibrationOut, ErrorOut
 from fringelab.core.accounts import readable_experiments
 from fringelab.core.errors import Conflict, Gone, Invalid, NotFound
 from fringelab.core.jobs import as_utc, job_error
 from fringelab.core.models import Calibration, Camera, Experiment, Job
+from fringelab.formats.topography import (
+    GRID_BUDGET_NODES,
+    FrameNotInResult,
+    OutsideGrid,
+    ResultUnavailable,
+    TopographyResult,
+)
 
 router = APIRouter(tags=["results"])
 RESULT_ERRORS: dict[int | str, dict[str, Any]] = {
@@ -201,7 +200,7 @@ TOPOGRAPHY_FILE = "topography.h5"
 
 
 @contextmanager
-def topography(job: Job, data_path: Any) -> Iterator[TopographyReader]:
+def topography(job: Job, data_path: Any) -> Iterator[TopographyResult]:
     """The result of a succeeded topography job, open; a job error (409/410/422) with what to do otherwise."""
     if job.kind != "topography":
         raise job_error(NotFound, "not_topography", f"job {job.id} is a {job.kind} job, not a topography")
@@ -213,7 +212,7 @@ def topography(job: Job, data_path: Any) -> Iterator[TopographyReader]:
     if entry is None:
         raise job_error(Gone, "result_missing", f"job {job.id} has no {TOPOGRAPHY_FILE}; retry the job")
     try:
-        with TopographyReader(result_path(data_path, entry["path"])) as reader:
+        with TopographyResult(result_path(data_path, entry["path"])) as reader:
             yield reader
     except FrameNotInResult as error:
         raise job_error(Invalid, "frame_not_in_result", str(error), field="frame") from None
@@ -261,7 +260,7 @@ def topography_overview(job: JobDep, state: StateDep) -> TopographyOverview:
                 "ny": int(y.size),
                 "step_mm": float(x[1] - x[0]) if x.size > 1 else 0.0,
             },  # fmt: skip
-            summary=reader.summary(),
+            summary={key: plain(value) for key, value in reader.summary().items()},
         )
 
 
@@ -304,7 +303,7 @@ def topography_grid(
         raise job_error(Invalid, "incomplete_window", "give all of x_min, x_max, y_min, y_max, or none", field="x_min")
     window = None if x_min is None else tuple(float(b) for b in bounds)  # type: ignore[arg-type]
     with topography(job, state.settings.data_path) as reader:
-        cut = reader.grid(frame, budget=budget, window_mm=window)  # type: ignore[arg-type]
+        cut = reader.grid_cut(frame, budget=budget, window_mm=window)  # type: ignore[arg-type]
     if format == "f32":
 
         def first_step(axis: np.ndarray) -> str:

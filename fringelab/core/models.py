@@ -82,6 +82,7 @@ class Camera(Base):
     def pixel_pitch_uv_um(self) -> tuple[float, float]:
         """(pitch along u, pitch along v) in µm: D_u = 1000 / pitch_u px/mm, D_v = 1000 / pitch_v px/mm."""
         return self.pixel_pitch_um, self.pixel_pitch_v_um or self.pixel_pitch_um
+
     recordings: Mapped[list[Recording]] = relationship(back_populates="camera", cascade="all, delete-orphan")
 
 

@@ -11,7 +11,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from fringelab.formats.exports import ExportFormat
+from fringelab.formats import ExportFormat
 
 MAX_ID = 2**31 - 1  # ids and frame numbers are 32-bit integers in the database
 

@@ -7,10 +7,11 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal, get_args
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from fringelab.formats import EXPORT_FILES, EXPORT_FORMATS, ExportFormat  # noqa: F401  (declared once, there)
 from fringelab.formats.atomic import atomic_path
 from fringelab.formats.topography import TopographyResult
 from fringelab.science.fields import line_profile
@@ -19,8 +20,6 @@ if TYPE_CHECKING:
     pass
 
 
-ExportFormat = Literal["points-csv", "grid-npz", "mat", "vtk", "profile-csv"]
-EXPORT_FORMATS: tuple[str, ...] = get_args(ExportFormat)  # the one list of export formats
 Line = tuple[float, float, float, float]  # X0, Y0, X1, Y1 in mm
 FrameRange = tuple[int, int]  # first and last recording frame number, both included
 LINE_LABELS = "ABCDEFGHIJKLMNOPQRSTUVWXYZ"  # the viewer's names of section lines, in the order drawn

@@ -8,6 +8,11 @@ file formats (`fringelab.formats`).
 import re
 
 
+class Cancelled(Exception):
+    """The caller asked to stop (its `should_cancel()` returned True, or its job ended): not a failure. The one
+    cancellation exception of fringelab, from the science up to the worker's job runner."""
+
+
 class MeasurementError(Exception):
     """A measurement failed for a reason the user must act on (board not found, Z out of range, ...)."""
 

@@ -11,7 +11,7 @@ from worker.runner import JobContext
 
 
 def export_body(context: JobContext) -> dict[str, Any]:
-    from fringelab.formats.exports import export_result
+    from fringelab.formats.exports import EXPORT_FILES, export_result
 
     spec = context.spec
     with context.sessions() as session:
@@ -30,9 +30,9 @@ def export_body(context: JobContext) -> dict[str, Any]:
         work = context.directory / "vtk"
         shutil.rmtree(work, ignore_errors=True)  # a previous run's leftovers
         export_result(result_path, fmt, work / "topography.pvd", frames=frame_range)
-        name = "topography-vtk.zip"
+        name, media = EXPORT_FILES[fmt]
         with (
-            context.output(name, media_type="application/zip") as temporary,
+            context.output(name, media_type=media) as temporary,
             zipfile.ZipFile(temporary, "w", compression=zipfile.ZIP_DEFLATED) as archive,
         ):
             for path in sorted(work.rglob("*")):
@@ -40,13 +40,7 @@ def export_body(context: JobContext) -> dict[str, Any]:
                     archive.write(path, path.relative_to(work))
         shutil.rmtree(work)
     else:
-        suffix, media = {
-            "points-csv": (".csv", "text/csv"),
-            "profile-csv": ("-profile.csv", "text/csv"),
-            "grid-npz": (".npz", "application/octet-stream"),
-            "mat": (".mat", "application/x-matlab-data"),
-        }[fmt]
-        name = f"topography{suffix}"
+        name, media = EXPORT_FILES[fmt]
         with context.output(name, media_type=media) as temporary:
             export_result(result_path, fmt, temporary, line=line, lines=lines, frames=frame_range)  # type: ignore[arg-type]
     context.progress(1, 1, "exporting")

@@ -25,7 +25,7 @@ from fringelab.formats.containers import ZipLimits
 from fringelab.formats.previews import PREVIEW_FILE, THUMBNAIL_PX, PreviewWriter
 from fringelab.formats.recordings import FrameSource, open_recording
 from fringelab.formats.sidecars import frame_indices, read_board_json, read_frames_csv, read_z_csv
-from fringelab.science import MeasurementError
+from fringelab.science import Cancelled, MeasurementError
 from fringelab.science.chessboard import Board
 from fringelab.science.quality import (
     FrameStats,
@@ -40,7 +40,7 @@ from fringelab.science.quality import (
     saturated_pct,
     to_uint8,
 )
-from worker.runner import JobCancelled, JobContext
+from worker.runner import JobContext
 
 MAX_REASONS = 10
 PROBE_FRAMES = 5
@@ -93,7 +93,7 @@ def ingest_recording(context: JobContext) -> dict[str, Any]:
             progress=context.progress,
             on_probe=on_probe,
         )
-    except JobCancelled:
+    except Cancelled:
         _update(context, recording_id, state="invalid", error="the ingest was cancelled; run it again to check it")
         raise
     except (ValueError, MeasurementError) as error:
@@ -138,7 +138,7 @@ def _update(context: JobContext, recording_id: int, **fields: Any) -> None:
     with context.sessions() as session:
         recording = session.get(Recording, recording_id)
         if recording is None:
-            raise JobCancelled(f"recording {recording_id} was deleted")
+            raise Cancelled(f"recording {recording_id} was deleted")
         for name, value in fields.items():
             setattr(recording, name, value)
         session.commit()
