@@ -267,9 +267,19 @@ def test_delete_says_what_goes_with_it_and_removes_it(page, live_server, demo):
     "Delete" removes it; then a finished export job of the demo is deleted from the jobs list."""
     base = demo["base"]
     experiment = httpx.post(f"{base}/experiments", json={"name": "Trial to delete"}, timeout=30).json()
-    camera = {"name": "spare", "image_width_px": 64, "image_height_px": 48, "pixel_pitch_um": 20}
-    assert httpx.post(f"{base}/experiments/{experiment['id']}/cameras", json=camera, timeout=30).status_code == 201
     page.goto(f"/#/experiments/{experiment['id']}")
+    # A camera with non-square pixels (11.5 × 12.0 µm), through the form; the hint says what a data sheet gives.
+    cameras = page.get_by_role("form", name="Add a camera")
+    cameras.get_by_label("Camera name").fill("spare")
+    cameras.get_by_label("Image width (px)").fill("64")
+    cameras.get_by_label("Image height (px)").fill("48")
+    cameras.get_by_label("Pixel pitch u (µm)").fill("11.5")
+    cameras.get_by_label("Pixel pitch v (µm)").fill("12")
+    expect(cameras).to_contain_text("horizontal × vertical = u × v")
+    cameras.get_by_role("button", name="Add camera").click()
+    expect(page.get_by_role("region", name="Camera spare")).to_contain_text("pixel pitch 11.5 × 12 µm (u × v)")
+    listed = httpx.get(f"{base}/experiments/{experiment['id']}/cameras", timeout=30).json()
+    assert [(c["pixel_pitch_um"], c["pixel_pitch_v_um"]) for c in listed] == [(11.5, 12.0)]
     page.get_by_role("button", name="Delete experiment Trial to delete").click()
     dialog = page.get_by_role("dialog", name="Delete experiment Trial to delete?")
     expect(dialog).to_contain_text(f"Deletes experiment {experiment['id']} (Trial to delete) with 1 camera")
