@@ -37,9 +37,9 @@ from .camera import (
     fit_inverse_model,
 )
 from .chessboard import Board
+from .verdict import VERDICT_LEVELS, YES_NO, Verdict, VerdictCheck, check, verdict_of  # noqa: F401 (re-exported)
 
 MODES = ("zstack", "poses")
-VERDICT_LEVELS = ("good", "check", "bad")
 
 # The 14 estimated Heikkilä parameters, as `Camera` field names, in the order of `correlation`.
 CAMERA_PARAMETERS = (
@@ -125,29 +125,6 @@ class ResidualMap:
     rms_px: np.ndarray
     systematic_px: float
     coverage: float
-
-
-@dataclass(frozen=True)
-class VerdictCheck:
-    """One rule of the verdict: the value, its thresholds and the level it earned."""
-
-    name: str
-    value: float
-    unit: str
-    good_limit: float
-    bad_limit: float
-    higher_is_better: bool
-    level: str
-    message: str
-
-
-@dataclass(frozen=True)
-class Verdict:
-    """good / check / bad: the worst level of the checks, with the reasons for anything not good."""
-
-    level: str
-    reasons: tuple[str, ...]
-    checks: tuple[VerdictCheck, ...]
 
 
 @dataclass(frozen=True, eq=False)
@@ -495,21 +472,9 @@ def residual_map(q_px: np.ndarray, residual_px: np.ndarray, image_size_px: tuple
 # Verdict
 
 
-YES_NO = "yes/no"  # the unit of a check that holds or does not (value 1 or 0)
-
-
 def _check(name: str, value: float, unit: str, *, good: float, bad: float, higher_is_better: bool = False,
            what: str) -> VerdictCheck:  # fmt: skip
-    if higher_is_better:
-        level = "good" if value >= good else ("check" if value >= bad else "bad")
-        limits = f"good ≥ {good:g} {unit}, bad < {bad:g} {unit}"
-    else:
-        level = "good" if value <= good else ("check" if value <= bad else "bad")
-        limits = f"good ≤ {good:g} {unit}, bad > {bad:g} {unit}"
-    message = f"{what}: {value:.4g} {unit} ({limits})".replace(" )", ")")
-    if unit == YES_NO:
-        message = f"{what}: {'yes' if value >= good else 'no'}"
-    return VerdictCheck(name, float(value), unit, good, bad, higher_is_better, level, message)
+    return check(name, value, unit, good=good, bad=bad, higher_is_better=higher_is_better, what=what)
 
 
 def judge_calibration(
@@ -545,9 +510,7 @@ def judge_calibration(
         _check("frames_lost", 100.0 * lost, "%", good=20.0, bad=50.0,
                what="frames skipped (no board) or rejected (outliers)"),
     ]  # fmt: skip
-    level = max((c.level for c in checks), key=VERDICT_LEVELS.index)
-    reasons = tuple(c.message for c in checks if c.level != "good") or ("all checks within their thresholds",)
-    return Verdict(level=level, reasons=reasons, checks=tuple(checks))
+    return verdict_of(checks)
 
 
 # --------------------------------------------------------------------------------------------------------------
