@@ -57,8 +57,9 @@ function sidecarForm(recording, context) {
           outcome.textContent = `${name.input.value} stored; checking the recording again…`;
           const now = await settle();
           if (now && context.current()) {
-            say(`${name.input.value} replaced: the recording is ${now.state}.`);
+            // Shown again first (a new view clears the status line), then the outcome is said.
             window.dispatchEvent(new HashChangeEvent("hashchange"));
+            say(`${name.input.value} replaced: the recording is ${now.state}.`);
           }
         } catch (error) {
           showError(error, `replace ${name.input.value}`);
