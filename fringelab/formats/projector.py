@@ -52,7 +52,7 @@ def write_projector_calibration(calibration: ProjectorCalibration, path: str | P
         file.attrs["qa_json"] = json_text(asdict(calibration.qa))
         file.attrs["provenance_json"] = json_text(calibration.provenance)
         file.attrs["description"] = (
-            "Projector look-up table (METHOD.md §4): lut_t_px[k, s, j] is the position (px, along scan line s) of "
+            "Projector look-up table (docs/method.md §4): lut_t_px[k, s, j] is the position (px, along scan line s) of "
             "stripe edge k on the flat plate at Z = z_mm[j]; Z(t) = Σ_i coefficients[k, s, i]·τ^i with "
             "τ = (t − t_centre_px)/t_scale_px for t_lo_px ≤ t ≤ t_hi_px. axis 'rows': scan lines are image rows and "
             "t the column; 'cols': scan lines are columns and t the row."

@@ -1,4 +1,4 @@
-"""Topography of a whole test recording into its result file (METHOD.md §5–6).
+"""Topography of a whole test recording into its result file (docs/method.md §5–6).
 
 What the command line calls, and the sequential reference the worker's frame-parallel topography job must equal
 bit for bit. The stages (edges, identity, Z, X and Y, gridding) live in `fringelab.science.topography`; the

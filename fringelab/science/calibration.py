@@ -1,4 +1,4 @@
-"""Camera calibration from chessboard corners (METHOD.md §3.1): Z-stack (the paper) and free poses (Zhang).
+"""Camera calibration from chessboard corners (docs/method.md §3.1): Z-stack (the paper) and free poses (Zhang).
 
 Belongs here: the solver (3-D DLT start, Levenberg–Marquardt, covariance), per-frame statistics, outlier-frame
 rejection, the residual map, the verdict, the `CameraCalibration` result, and `calibrate_camera_recording`, the
@@ -7,7 +7,7 @@ one entry point the CLI and the Celery task call. Not here: the camera model (`c
 
 The Levenberg–Marquardt runs over an equivalent, well-conditioned form of the same model: OpenCV's intrinsics
 (fx, fy, cx, cy, k1..p2 on normalised coordinates), a Rodrigues vector and a translation per pose. With D_u, D_v
-fixed this is a one-to-one reparametrisation of the 14 Heikkilä parameters (METHOD.md §3), so the minimum is the
+fixed this is a one-to-one reparametrisation of the 14 Heikkilä parameters (docs/method.md §3), so the minimum is the
 same; cv2.projectPoints supplies the analytic Jacobian, the Euler angles' gimbal lock is avoided, and the
 covariance is carried over to the Heikkilä parameters with the Jacobian of the exact conversion.
 """
@@ -17,7 +17,7 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal, get_args
 
 import cv2
 import numpy as np
@@ -31,6 +31,7 @@ from .camera import (
     Camera,
     InverseModel,
     OpenCVCamera,
+    ScaleAxis,
     angles_from_rotation,
     camera_as_opencv,
     camera_from_opencv,
@@ -39,7 +40,8 @@ from .camera import (
 from .chessboard import Board
 from .verdict import VERDICT_LEVELS, YES_NO, Verdict, VerdictCheck, check, verdict_of  # noqa: F401 (re-exported)
 
-MODES = ("zstack", "poses")
+CalibrationMode = Literal["zstack", "poses"]  # a Z-stack of one board pose, or free poses
+MODES: tuple[str, ...] = get_args(CalibrationMode)
 
 # The 14 estimated Heikkilä parameters, as `Camera` field names, in the order of `correlation`.
 CAMERA_PARAMETERS = (
@@ -94,8 +96,8 @@ class FrameResult:
     n_corners: int = 0
     rms_px: float | None = None
     max_px: float | None = None
-    rvec_rad: tuple[float, float, float] | None = None
-    tvec_mm: tuple[float, float, float] | None = None
+    r_cam_from_obj_rad: tuple[float, float, float] | None = None
+    t_cam_from_obj_mm: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -133,7 +135,7 @@ class CameraCalibration:
 
     camera: Camera
     inverse: InverseModel
-    mode: str
+    mode: CalibrationMode
     rms_px: float
     residual_std_px: float
     n_points: int
@@ -210,7 +212,7 @@ def _pose_vector(rotation: np.ndarray, t_mm: np.ndarray) -> np.ndarray:
 
 
 def _initial_intrinsics(fx: float, fy: float, cx: float, cy: float, *, du: float, dv: float, scale_on: str) -> list:
-    # METHOD.md §3.1: the scale factor starts at 1 and the distortion at 0; f comes from the axis without s.
+    # docs/method.md §3.1: the scale factor starts at 1 and the distortion at 0; f comes from the axis without s.
     f_px_per_mm = fy / dv if scale_on == "u" else fx / du
     return [f_px_per_mm * du, f_px_per_mm * dv, cx, cy, 0.0, 0.0, 0.0, 0.0]
 
@@ -398,7 +400,8 @@ def _opencv_camera_from_vector(x: np.ndarray, image_size_px: tuple[int, int]) ->
         image_width_px=image_size_px[0], image_height_px=image_size_px[1],
         fx_px=float(x[0]), fy_px=float(x[1]), cx_px=float(x[2]), cy_px=float(x[3]),
         k1=float(x[4]), k2=float(x[5]), p1=float(x[6]), p2=float(x[7]),
-        rvec_rad=(float(x[8]), float(x[9]), float(x[10])), tvec_mm=(float(x[11]), float(x[12]), float(x[13])),
+        r_cam_from_obj_rad=(float(x[8]), float(x[9]), float(x[10])),
+        t_cam_from_obj_mm=(float(x[11]), float(x[12]), float(x[13])),
     )  # fmt: skip
 
 
@@ -524,10 +527,10 @@ def calibrate_from_views(
     views: Sequence[CornerView],
     *,
     image_size_px: tuple[int, int],
-    mode: str,
+    mode: CalibrationMode,
     du_px_per_mm: float,
     dv_px_per_mm: float,
-    scale_on: str = "u",
+    scale_on: ScaleAxis = "u",
     reject_outliers: bool = False,
     skipped: Sequence[FrameResult] = (),
     board: Board | None = None,
@@ -694,8 +697,8 @@ def _frame_results(views, active, rejected, skipped, problem, x, residual, mode)
         by_view[i] = FrameResult(
             frame=view.frame, status="used", z_mm=view.z_mm, n_corners=len(view.q_px),
             rms_px=float(np.sqrt(np.mean(distance**2))), max_px=float(np.max(distance)),
-            rvec_rad=None if pose is None else (float(pose[0]), float(pose[1]), float(pose[2])),
-            tvec_mm=None if pose is None else (float(pose[3]), float(pose[4]), float(pose[5])),
+            r_cam_from_obj_rad=None if pose is None else (float(pose[0]), float(pose[1]), float(pose[2])),
+            t_cam_from_obj_mm=None if pose is None else (float(pose[3]), float(pose[4]), float(pose[5])),
         )  # fmt: skip
         p_list.append(view.points_obj_mm)
         q_list.append(view.q_px)

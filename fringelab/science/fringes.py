@@ -1,4 +1,5 @@
-"""Stripe edges of one image: orientation and period, sub-pixel edge location, linking and smoothing (METHOD.md §5).
+"""Stripe edges of one image: orientation and period, sub-pixel edge location, linking and smoothing
+(docs/method.md §5).
 
 Belongs here: finding the stripe direction and period of an image (`detect_stripes`), and `locate_edges`, a pure
 function of one frame that returns every dark/bright transition at sub-pixel accuracy, linked into edge curves
@@ -254,7 +255,7 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     image: shape (H, W), uint8, uint16 or float grey levels (float on the 8-bit scale).
 
     A pure function of the frame and the settings, so frames can be processed in any order and on any worker.
-    Steps (METHOD.md §5): Gaussian smoothing along the stripes; local mid-level (I_max + I_min)/2 over a window
+    Steps (docs/method.md §5): Gaussian smoothing along the stripes; local mid-level (I_max + I_min)/2 over a window
     of `window_periods` periods along each scan line; every sign change of I − mid is an edge candidate, placed
     by a probit fit to the four straddling pixels; candidates with low contrast, a clipped bright
     side or near a dark area are rejected, as are pairs closer than a quarter of the edge spacing (noise
@@ -513,7 +514,7 @@ class EdgeOrder:
 
 
 def order_edges(edges: FrameEdges, *, max_gap_periods: float = 0.8) -> EdgeOrder:
-    """Put the edge curves of a frame in stripe order (METHOD.md §5: the basis of edge identity).
+    """Put the edge curves of a frame in stripe order (docs/method.md §5: the basis of edge identity).
 
     Two edge points that follow each other on a scan line with opposite polarities, less than max_gap_periods
     stripe periods apart (a stripe is half a period wide, so a gap of more than ~0.8 period means a missed

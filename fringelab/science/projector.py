@@ -1,4 +1,4 @@
-"""Projector calibration: the look-up table of every stripe edge's image position against Z (METHOD.md §4).
+"""Projector calibration: the look-up table of every stripe edge's image position against Z (docs/method.md §4).
 
 Belongs here: building the table from a flat-plate Z-stack (edge identity kept consistent over all Z steps),
 checking it (monotonic in Z, sensitive enough, covering the field), fitting Z as a low-order polynomial of the
@@ -335,7 +335,7 @@ def build_projector_calibration(
     progress: ProgressCallback | None = None,
     should_cancel: Callable[[], bool] | None = None,
 ) -> ProjectorCalibration:
-    """The look-up table of a flat-plate Z-stack (METHOD.md §4).
+    """The look-up table of a flat-plate Z-stack (docs/method.md §4).
 
     frames: the grey frames in recording order (read one at a time); z_mm: the stage Z of each frame, strictly
     monotonic. camera_model: the camera the frames were taken with (image size check, object-space QA, and a

@@ -364,7 +364,7 @@ class FringeRenderer:
 
 
 PRESETS = ("kodak", "phantom")
-# Stripe period in the image near the plate centre, as in METHOD.md §7 ("stripes ~10 px per period").
+# Stripe period in the image near the plate centre, as in docs/method.md §7 ("stripes ~10 px per period").
 TARGET_PERIOD_PX = 10.0
 # The paper's projector: an 85 mm Kodak Retinar lens about 2 m from the plate.
 PROJECTOR_F_MM = 85.0

@@ -1,4 +1,5 @@
-"""Topography: edge identity through a test, Z from the projector table, X and Y by back-projection (METHOD.md §5–6).
+"""Topography: edge identity through a test, Z from the projector table, X and Y by back-projection
+(docs/method.md §5–6).
 
 Belongs here: identifying the edges of the first (flat) test frame against the projector calibration, tracking
 every (edge, scan line) point frame to frame and ending tracks that break, optional temporal smoothing, and
@@ -217,7 +218,7 @@ def identify_first_frame(edges: FrameEdges, projector: ProjectorCalibration, *, 
 
 @dataclass
 class EdgeTracker:
-    """Tracks every (edge k, scan line s) point from frame to frame (METHOD.md §5).
+    """Tracks every (edge k, scan line s) point from frame to frame (docs/method.md §5).
 
     positions: (K, S) current positions (NaN = no track); velocity: (K, S) last motion per frame.
     A track follows the nearest edge point of its polarity on its line to where its last motion predicts it,
@@ -389,7 +390,7 @@ def track_and_measure(
     settings: TopographySettings | None = None,
     first_frame: int = 0,
 ) -> Iterator[FrameMeasurement]:
-    """The sequential pass: identity, tracking, Z from the table, X and Y by back-projection (METHOD.md §5–6).
+    """The sequential pass: identity, tracking, Z from the table, X and Y by back-projection (docs/method.md §5–6).
 
     edges: the located edges of consecutive frames in frame order, starting with the flat first frame of the
     test (`first_frame` is its index in the recording). Yields one FrameMeasurement per frame, in order (with
@@ -491,7 +492,7 @@ def clamp_circle(points_xy_mm: np.ndarray, *, n_sectors: int = 72) -> tuple[floa
     The points end where the clamp ring hides the plate; the outermost point of each angular sector around
     their centroid lies on that circle (a little inside it: edges within half a stripe of the ring are
     rejected), so a least-squares (Kåsa) circle through them, refitted once without points more than 3 mm off,
-    gives the plate centre from the clamp (METHOD.md §2).
+    gives the plate centre from the clamp (docs/method.md §2).
     """
     xy = points_xy_mm[np.all(np.isfinite(points_xy_mm), axis=1)]
     if len(xy) < 3 * n_sectors:
