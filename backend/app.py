@@ -8,7 +8,7 @@ import anyio
 from fastapi import FastAPI
 
 from backend import __version__
-from backend.api import auth, demo, docs, experiments, health, jobs, recordings, results, uploads
+from backend.api import auth, demo, docs, experiments, health, jobs, overview, recordings, results, uploads
 from backend.errors import install_error_handlers
 from backend.frontend import mount_docs, mount_frontend
 from backend.limits import BodySizeLimit
@@ -59,6 +59,7 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(results.router, prefix="/api/v1")
     app.include_router(demo.router, prefix="/api/v1")
     app.include_router(docs.router, prefix="/api/v1")
+    app.include_router(overview.router, prefix="/api/v1")
 
     install_openapi(app)
     mount_docs(app)

@@ -14,7 +14,6 @@ export const KIND_NAMES = {
   projector_calibration: "Projector calibration",
   test: "Test",
 };
-const BUSY_STATES = ["uploading", "ingesting"];
 
 // ---- the list -----------------------------------------------------------------------------------------------------
 
@@ -182,8 +181,9 @@ function cameraForm(experimentId, onAdded) {
   );
 }
 
-/** A camera's box: its facts, its recordings (refreshed while any is busy) and an upload control. */
-function cameraSection(camera, context, onRecordingsChanged) {
+/** A camera's box: its facts, its recordings and an upload control. `refreshers` gets its refresh, which the
+ * page calls when the jobs' event stream says something changed (an ingest moved on: a recording's state). */
+function cameraSection(camera, context, onRecordingsChanged, refreshers) {
   const recordingsBox = h("div", {}, h("p", {}, "Loading…"));
   const kind = field(
     `Kind of the recordings to upload to ${camera.name}`,
@@ -201,10 +201,11 @@ function cameraSection(camera, context, onRecordingsChanged) {
       fill(recordingsBox, recordingsTable(camera, recordings, refresh));
       onRecordingsChanged(camera, recordings);
     }
-    // Quickly while a recording is being checked; slowly otherwise, so that recordings uploaded by scripts or
-    // made by the demo appear too.
-    timer = setTimeout(refresh, recordings.some((r) => BUSY_STATES.includes(r.state)) ? 1500 : 5000);
+    // Each upload starts an ingest job, whose events refresh this list; a recording still uploading (no job
+    // yet) is looked at again in a moment.
+    if (recordings.some((r) => r.state === "uploading")) timer = setTimeout(refresh, 2000);
   };
+  refreshers.set(camera.id, refresh);
   context.onLeave(() => clearTimeout(timer));
   const uploader = new Uploader({
     endpoint: apiUrl("uploads"),
@@ -245,12 +246,23 @@ export async function renderExperiment(container, { id }, context) {
   const recordingsByCamera = new Map();
   const demoCameras = (context.query.get("demo") || "").split(",").filter(Boolean);
   const demo = demoCameras.length ? new DemoProgress(demoCameras, Number(context.query.get("since")) || Date.now(), context) : null;
+  const refreshers = new Map(); // camera id → refresh of its recordings
   const jobs = jobsPanel({
     experimentId: experiment.id,
     context,
     recordings: () => [...recordingsByCamera.values()].flat(),
-    onJobs: (items) => demo && demo.jobsChanged(items),
+    // The jobs' event stream drives this page: a job added, moving on or ending may mean new cameras or
+    // recordings (the demo's worker) or a recording's new state (its ingest).
+    onJobs: (items) => {
+      if (demo) demo.jobsChanged(items);
+      const signature = JSON.stringify(items.map((j) => [j.id, j.state]));
+      if (signature === lastJobs) return;
+      lastJobs = signature;
+      loadCameras();
+      for (const refresh of refreshers.values()) refresh();
+    },
   });
+  let lastJobs = null;
   // Cameras made elsewhere (a script, the demo's worker) appear too: new ones are added, shown ones (and their
   // uploads in progress) stay as they are.
   const sections = new Map();
@@ -268,13 +280,14 @@ export async function renderExperiment(container, { id }, context) {
         recordingsByCamera.set(cam.id, recordings.map((r) => ({ ...r, camera_name: cam.name })));
         jobs.recordingsChanged();
         if (demo) demo.recordingsChanged(cam, recordings);
-      });
+      }, refreshers);
       sections.set(camera.id, section);
       camerasBox.append(section);
     }
     if (demo) demo.camerasChanged(cameras);
-    // While the demo's worker is still adding cameras, look every second; else every 5 s.
-    camerasTimer = setTimeout(loadCameras, demo && !demo.allCameras() ? 1000 : 5000);
+    // The demo's worker adds its cameras before any of their jobs exist: look every second until they are all
+    // here. Otherwise new cameras come with jobs' events, or from this page's form.
+    if (demo && !demo.allCameras()) camerasTimer = setTimeout(loadCameras, 1000);
   };
   context.onLeave(() => clearTimeout(camerasTimer));
   page(

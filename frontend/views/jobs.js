@@ -16,7 +16,7 @@ export const JOB_KIND_NAMES = {
   selftest: "Self-test",
 };
 const ACTIVE = ["queued", "running"];
-const MAX_STREAMS = 3; // a browser keeps 6 connections per server: leave room for the page's own requests
+const MAX_STREAMS = 2; // a browser keeps 6 connections per server: the list's own stream, uploads and requests need the rest
 
 export const shortId = (id) => id.slice(0, 8);
 export const jobName = (job) => `${JOB_KIND_NAMES[job.kind] || job.kind} ${shortId(job.id)}`;
@@ -127,8 +127,9 @@ export function followJob(jobId, { onJob, onLog = () => {}, onEnd = () => {} }) 
 // ---- the list of jobs (of an experiment, or all) ------------------------------------------------------------------
 
 /**
- * A table of jobs that stays live: active jobs follow their event streams (at most MAX_STREAMS at once; the rest,
- * and jobs started elsewhere, are picked up by a slower poll of the list).
+ * A table of jobs that stays live without polling: the list's event stream (GET /jobs/events) says when a job is
+ * added, moves on, ends or goes, and the list is read again then; active jobs also follow their own streams (at
+ * most MAX_STREAMS at once) for their progress and log.
  */
 export class JobList {
   constructor({ experimentId = null, context, label = "Jobs", onRefresh = () => {} }) {
@@ -148,17 +149,32 @@ export class JobList {
     );
     this.element = h("div", {}, this.empty, this.table);
     this.timer = null;
+    this.closeList = null;
     context.onLeave(() => this.stop());
   }
 
   stop() {
     clearTimeout(this.timer);
+    if (this.closeList) this.closeList();
     for (const close of this.streams.values()) close();
     this.streams.clear();
   }
 
+  /** Read the list again whenever the jobs' event stream says something changed (at most every 500 ms). */
+  listen() {
+    if (this.closeList) return;
+    this.closeList = subscribe(`jobs/events${query({ experiment_id: this.experimentId })}`, {
+      jobs: () => {
+        if (this.timer) return;
+        this.timer = setTimeout(() => {
+          this.timer = null;
+          this.refresh();
+        }, 500);
+      },
+    });
+  }
+
   async refresh() {
-    clearTimeout(this.timer);
     const jobs = await attempt("list the jobs", () => getJSON(`jobs${query({ experiment_id: this.experimentId, limit: 200 })}`));
     if (!this.context.current()) return;
     if (jobs) {
@@ -166,8 +182,7 @@ export class JobList {
       this.show(jobs.items.filter((job) => job.kind !== "ingest" || isActive(job)));
       this.onRefresh(jobs.items);
     }
-    const anyActive = jobs && jobs.items.some(isActive);
-    this.timer = setTimeout(() => this.refresh(), anyActive ? 2000 : 10000);
+    this.listen();
   }
 
   show(jobs) {

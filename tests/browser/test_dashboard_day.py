@@ -15,6 +15,7 @@ import math
 import re
 
 import httpx
+import numpy as np
 import pytest
 from playwright.sync_api import expect
 
@@ -156,32 +157,61 @@ def test_camera_against_camera_difference_map_and_curves(page, demo):
 
 
 def test_reports_and_small_texts(page, demo):
+    from fringelab.science.camera import camera_centre_obj_mm
+    from fringelab.science.simulate import preset
+
     camera_job = demo["jobs"][("camera_calibration", "kodak")]
     page.goto(f"/#/jobs/{camera_job['id']}/report")
     checks = page.get_by_role("table", name="Verdict checks")
     solver = checks.get_by_role("row").filter(has_text=re.compile(r"^solver"))
     expect(solver).to_contain_text("yes")
     expect(solver).not_to_contain_text("1.000")
+    # The pose both ways, each labelled: the camera centre in plate coordinates is the simulated camera's.
+    calibration_id = camera_job["result"]["calibration_id"]
+    pose = httpx.get(f"{demo['base']}/calibrations/{calibration_id}/report", timeout=30).json()["report"]["pose"]
+    truth = camera_centre_obj_mm(preset("kodak").camera)
+    # 1 % of the 2 m camera distance: the calibrated distance moves with f, whose standard error the verdict
+    # accepts up to 0.5 %.
+    distance = float(np.linalg.norm(truth))
+    assert np.linalg.norm(np.array(pose["camera_centre_in_object_mm"]) - truth) < 0.01 * distance, (pose, truth)
+    shown = ", ".join("0.0" if f"{v:.1f}" == "-0.0" else f"{v:.1f}" for v in pose["camera_centre_in_object_mm"])
+    expect(page.locator("dl.facts")).to_contain_text(f"Camera centre in plate coordinates({shown}) mm")
+    expect(page.locator("dl.facts")).to_contain_text("Plate origin in camera coordinates(")
+    screenshot(page, "camera-report-pose")
+    # A check's name leads to where the method documentation explains it, marked.
+    checks.get_by_role("link", name="residual_std").click()
+    expect(page.get_by_role("heading", name="The measurement method")).to_be_visible()
+    found = page.locator("article.doc .found")
+    expect(found).to_contain_text("residual_std")
+    expect(found).to_be_in_viewport()
+    screenshot(page, "help-residual-std", full_page=False)
 
     projector_job = demo["jobs"][("projector_calibration", "kodak")]
     page.goto(f"/#/jobs/{projector_job['id']}/report")
+    verdict = page.get_by_role("region", name="Verdict")
+    expect(verdict).to_contain_text("Verdict: ", timeout=60_000)
+    expect(verdict.get_by_role("table", name="Verdict checks")).to_contain_text("z_resolution_mm")
     note = page.get_by_label("About the sensitivity map")
-    expect(note).to_contain_text("Z resolution", timeout=60_000)
+    expect(note).to_contain_text("Z resolution")
     recording = httpx.get(f"{demo['base']}/recordings/{projector_job['spec']['recording_id']}", timeout=30).json()
     width, height = recording["width_px"], recording["height_px"]
-    points = page.evaluate(
+    the_map = page.evaluate(
         """() => {
             const figures = [...document.querySelectorAll("figure")];
             const figure = figures.find((f) => f.textContent.includes("Sensitivity map"));
             const t = figure.querySelector(".plot-area").data[0];
-            return { u: Array.from(t.x), v: Array.from(t.y) };
+            const values = t.z.flat().filter(Number.isFinite);
+            return { type: t.type, u: Array.from(t.x), v: Array.from(t.y), n: values.length, cells: t.z.flat().length };
         }"""
     )
-    assert all(0 <= u <= width for u in points["u"]) and all(0 <= v <= height for v in points["v"])
-    # Scan lines from the first to the last of the image: the points reach both ends across the lines.
-    across = points["v"] if max(points["v"]) - min(points["v"]) > 0.5 * height else points["u"]
-    extent = height if across is points["v"] else width
-    assert min(across) < 0.1 * extent and max(across) > 0.9 * extent, (min(across), max(across))
+    # The whole image: cell centres span it from edge to edge, inside it, and most cells hold entries.
+    assert the_map["type"] == "heatmap"
+    assert all(0 <= u <= width for u in the_map["u"]) and all(0 <= v <= height for v in the_map["v"])
+    assert min(the_map["u"]) < 0.05 * width and max(the_map["u"]) > 0.95 * width
+    assert min(the_map["v"]) < 0.05 * height and max(the_map["v"]) > 0.95 * height
+    assert the_map["n"] > 0.5 * the_map["cells"], the_map
+    page.get_by_label("Map of").select_option("coverage")
+    expect(page.get_by_role("img", name="Coverage over Z")).to_be_visible()
     screenshot(page, "projector-report")
 
     page.goto(f"/#/experiments/{demo['experiment_id']}")
@@ -221,8 +251,6 @@ def test_demo_shows_its_progress_from_the_first_second(page, demo):
 def test_exports_from_the_viewer_and_their_downloads_in_the_jobs_list(page, demo):
     """Every format of the API's list, started from the viewer for a frame range; the profile CSV follows the
     lines drawn; each export job gets its download link in the form and in the jobs list."""
-    import numpy as np
-
     job = demo["jobs"][("topography", "kodak")]
     page.goto(f"/#/jobs/{job['id']}/viewer")
     expect(page.get_by_role("slider", name="Frame")).to_be_visible(timeout=30_000)
