@@ -382,3 +382,29 @@ def test_board_in_the_calibration_form_and_sidecars_replaced_from_the_recording_
     replace(f'{{"cols": {board["cols"]}, "rows": {board["rows"]}, "square_mm": {board["square_mm"]}, '
             f'"origin": {"null" if origin is None else origin}}}')  # fmt: skip
     assert httpx.get(f"{base}/recordings/{recording_id}", timeout=30).json()["sidecars"]["board.json"] == board
+
+
+def test_queue_shows_what_runs_on_which_worker_and_updates_from_events(page, demo):
+    """A self-test of the workers (many frames, so that it is seen running) appears on the queue page with its
+    worker, and leaves it when it ends, with no reload and no polling: the page reads the queue again only when
+    the jobs' event stream says something changed. Storage is listed per user."""
+    requests: list[str] = []
+    page.on("request", lambda request: requests.append(request.url))
+    page.goto("/#/queue")
+    expect(page.get_by_role("table", name="Storage per user")).to_contain_text("local")
+    started = httpx.post(f"{demo['base']}/jobs", json={"kind": "selftest", "frames": 400, "frame_size_px": 256},
+                         timeout=30).json()  # fmt: skip
+    running = page.get_by_role("table", name="Running jobs")
+    row = running.get_by_role("row").filter(has=page.get_by_role("link", name=f"Self-test {started['id'][:8]}"))
+    expect(row).to_be_visible(timeout=60_000)
+    worker = httpx.get(f"{demo['base']}/jobs/{started['id']}", timeout=30).json()["worker"]
+    expect(row).to_contain_text(worker)
+    screenshot(page, "queue-running")
+    expect(row).to_have_count(0, timeout=240_000)
+    assert httpx.get(f"{demo['base']}/jobs/{started['id']}", timeout=30).json()["state"] == "succeeded"
+    assert any(url.endswith("/api/v1/jobs/events") for url in requests), "the page does not follow the events"
+    # Idle now: a poll would read the queue again within a few seconds; events do not come, so neither do reads.
+    page.wait_for_timeout(1_000)
+    before = sum("/api/v1/queue" in url for url in requests)
+    page.wait_for_timeout(6_000)
+    assert sum("/api/v1/queue" in url for url in requests) == before, "the queue page polls"

@@ -46,6 +46,9 @@ def test_every_page_loads_with_only_the_server_reachable(page, live_server, demo
         f"/#/jobs/{jobs[('camera_calibration', 'kodak')]['id']}/report": ("region", "Verdict"),
         f"/#/jobs/{jobs[('projector_calibration', 'kodak')]['id']}/report": ("img", "Sensitivity map"),
         f"/#/jobs/{topography['id']}/viewer": ("img", "Deflection map"),
+        "/#/queue": ("heading", "Queue"),
+        "/#/help": ("list", "Documents"),
+        "/#/help/method?section=4-projector-calibration-look-up-table": ("heading", "The measurement method"),
         "/#/tokens": ("heading", "API tokens"),
         "/#/system": ("heading", "System"),
     }
