@@ -208,10 +208,12 @@ async def jobs_events(
 ) -> AsyncIterator[ServerSentEvent]:
     """Changes of the jobs list as Server-Sent Events: `jobs` ({"changed": [ids], "total": n}) whenever a job the
     caller may see (of `experiment_id`, or any) is added, moves on, ends or goes; the dashboard's lists and the
-    queue page refresh on it instead of polling. The stream stays open; comments keep it alive."""
+    queue page refresh on it instead of polling. Comments keep it alive; it closes after FRINGELAB_LIST_EVENTS_S
+    and the browser's EventSource reconnects (the first event after a reconnect names every job)."""
     last: dict[str, str] | None = None
     idle_s = 0.0
-    while True:
+    ends = anyio.current_time() + state.settings.list_events_s  # then the browser reconnects (retry)
+    while anyio.current_time() < ends:
         total, text, _ids = await anyio.to_thread.run_sync(_list_signature, state, principal, experiment_id)
         marks = json.loads(text)
         if marks != last:
