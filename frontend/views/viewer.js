@@ -285,6 +285,8 @@ class Viewer {
     this.frameNumber.value = this.frames[start];
     this.drawChips();
     await this.showFrame(start);
+    // Left already (the page changed while the first frame loaded): nothing to listen to.
+    if (!this.context.current() || !this.mapFigure.drawn) return;
     // Plotly adds its event methods to the plot once it has drawn it.
     listenToMap(this.mapFigure, { onLine: (line) => this.addLine(line), onPoint: (point) => this.addPoint(point) });
     this.mapFigure.plot.on("plotly_relayout", (update) => {
