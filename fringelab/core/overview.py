@@ -54,9 +54,9 @@ class UserStorage:
 
 def queue_overview(session: Session, principal: Principal) -> QueueOverview:
     readable = set(session.scalars(select(Experiment.id).where(readable_experiments(session, principal))))
-    names = dict(session.execute(select(Experiment.id, Experiment.name)).tuples().all())
+    names = dict(session.execute(select(Experiment.id, Experiment.name)).all())
     owners = dict(
-        session.execute(select(Experiment.id, User.username).join(User, User.id == Experiment.owner_id)).tuples().all()
+        session.execute(select(Experiment.id, User.username).join(User, User.id == Experiment.owner_id)).all()
     )
     jobs = list(session.scalars(select(Job).where(Job.state.in_(ACTIVE_STATES)).order_by(Job.created_at, Job.id)))
     shown: dict[str, list[QueuedJob]] = {"running": [], "queued": []}
@@ -98,7 +98,7 @@ def queue_overview(session: Session, principal: Principal) -> QueueOverview:
 def storage_by_user(session: Session, principal: Principal) -> list[UserStorage]:
     """Bytes of recordings and of job results per experiment owner (experiments without an owner: "local").
     A member sees their own line; an admin every user's."""
-    usernames = dict(session.execute(select(User.id, User.username)).tuples().all())
+    usernames = dict(session.execute(select(User.id, User.username)).all())
     per_owner: dict[str, dict[str, Any]] = {}
 
     def entry(owner_id: int | None) -> dict[str, Any]:
@@ -116,7 +116,7 @@ def storage_by_user(session: Session, principal: Principal) -> list[UserStorage]
     for owner_id, count, size in recordings:
         entry(owner_id)["recordings"] += int(count)
         entry(owner_id)["recording_bytes"] += int(size or 0)
-    owner_of = dict(session.execute(select(Experiment.id, Experiment.owner_id)).tuples().all())
+    owner_of = dict(session.execute(select(Experiment.id, Experiment.owner_id)).all())
     for experiment_id, files in session.execute(
         select(Job.experiment_id, Job.files).where(Job.experiment_id.is_not(None))
     ):
