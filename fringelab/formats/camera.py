@@ -6,7 +6,7 @@ Belongs here: converting a `CameraCalibration` to and from its JSON document, an
 self-describing, with units in every name.
 
 Document (schema "fringelab.camera-calibration", version 1), angles in degrees as at every interface:
-  schema, schema_version, mode, image_size_px {width, height},
+  schema, schema_version, mode, image_size_wh_px {width, height},
   sensor {du_px_per_mm, dv_px_per_mm, pixel_pitch_um [u, v] | null, scale_on},
   parameters {name: {value, unit, standard_error}} for su, f_mm, u0_px, v0_px, k1_per_mm2, k2_per_mm4,
       p1_per_mm, p2_per_mm, x0_mm, y0_mm, z0_mm, omega_deg, phi_deg, kappa_deg,

@@ -133,7 +133,7 @@ def calibrate_camera_recording(
         "pixel_pitch_um": None if pixel_pitch_um is None else list(pixel_pitch_um),
     }  # fmt: skip
     calibration = calibrate_from_views(
-        views, image_size_px=image_size, mode=mode, du_px_per_mm=du_px_per_mm, dv_px_per_mm=dv_px_per_mm,
+        views, image_size_wh_px=image_size, mode=mode, du_px_per_mm=du_px_per_mm, dv_px_per_mm=dv_px_per_mm,
         scale_on=scale_on, reject_outliers=reject_outliers, skipped=skipped, board=board,
         pixel_pitch_um=pixel_pitch_um,
         provenance={"input": where, "input_sha256": digest.hexdigest(), "n_frames": n_frames, "settings": settings,

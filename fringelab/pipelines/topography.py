@@ -199,7 +199,7 @@ def _calibration_attrs(camera_model: CameraModel, projector: ProjectorCalibratio
     else:
         camera_json = json_text(asdict(camera_model.camera))
     projector_doc = {
-        "image_shape": list(projector.image_shape), "axis": projector.axis, "period_px": projector.period_px,
+        "image_shape": list(projector.image_shape_hw_px), "axis": projector.axis, "period_px": projector.period_px,
         "reference_z_mm": projector.reference_z_mm, "z_mm": projector.z_mm, "n_edges": projector.n_edges,
         "edges": asdict(projector.edges), "qa": asdict(projector.qa), "provenance": projector.provenance,
     }  # fmt: skip

@@ -155,7 +155,7 @@ class ProjectorCalibration:
     sensitivity_px_per_mm, fit_rms_mm: (K, S), NaN where there is no entry.
     """
 
-    image_shape: tuple[int, int]
+    image_shape_hw_px: tuple[int, int]
     edges: EdgeSettings
     reference_z_mm: float
     z_mm: np.ndarray
@@ -467,7 +467,7 @@ def build_projector_calibration(
         j_ref=j_ref,
         settings=settings,
         edge_settings=edge_settings,
-        image_shape=expected_shape,
+        image_shape_hw_px=expected_shape,
         camera_model=camera_model,
         noise_px=float(np.nanmedian(noise)) if noise else float("nan"),
         max_step_shift=float(max(step_shifts, default=0.0)),
@@ -586,7 +586,7 @@ def _fit_table(
     j_ref: int,
     settings: ProjectorSettings,
     edge_settings: EdgeSettings,
-    image_shape: tuple[int, int],
+    image_shape_hw_px: tuple[int, int],
     camera_model: CameraModel,
     noise_px: float,
     max_step_shift: float,
@@ -665,7 +665,7 @@ def _fit_table(
         xy_extent_mm=extent,
     )
     return ProjectorCalibration(
-        image_shape=image_shape,
+        image_shape_hw_px=image_shape_hw_px,
         edges=edge_settings,
         reference_z_mm=float(z_sorted[j_ref]),
         z_mm=z_sorted,

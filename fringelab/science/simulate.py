@@ -490,7 +490,7 @@ def true_camera_calibration(camera: Camera) -> Any:
         views.append(CornerView(f"z={z:g}", points, project_points(camera, points), z))
     calibration = calibrate_from_views(
         views,
-        image_size_px=(camera.image_width_px, camera.image_height_px),
+        image_size_wh_px=(camera.image_width_px, camera.image_height_px),
         mode="zstack",
         du_px_per_mm=camera.du_px_per_mm,
         dv_px_per_mm=camera.dv_px_per_mm,

@@ -84,7 +84,7 @@ def test_reference_corners_give_opencvs_camera(reference):
         for name in reference["images_found"]
     ]
     calibration = calibrate_from_views(
-        views, image_size_px=IMAGE_SIZE, mode="poses", du_px_per_mm=1.0, dv_px_per_mm=1.0
+        views, image_size_wh_px=IMAGE_SIZE, mode="poses", du_px_per_mm=1.0, dv_px_per_mm=1.0
     )
     k = np.array([[reference["fx"], 0, reference["cx"]], [0, reference["fy"], reference["cy"]], [0, 0, 1]])
     dist = np.array([reference[name] for name in ("k1", "k2", "p1", "p2", "k3")])

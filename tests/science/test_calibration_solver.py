@@ -59,7 +59,7 @@ def _with_rotation(camera: Camera, rotation: np.ndarray) -> Camera:
 
 def calibrate(views, camera, **options):
     return calibrate_from_views(
-        views, image_size_px=(camera.image_width_px, camera.image_height_px), du_px_per_mm=camera.du_px_per_mm,
+        views, image_size_wh_px=(camera.image_width_px, camera.image_height_px), du_px_per_mm=camera.du_px_per_mm,
         dv_px_per_mm=camera.dv_px_per_mm, scale_on=camera.scale_on, **options,
     )  # fmt: skip
 
