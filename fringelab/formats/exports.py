@@ -1,32 +1,51 @@
-"""Exports of a topography result for other tools: points CSV, grid NPZ, MATLAB .mat, VTK time series, profile CSV."""
+"""Exports of a topography result for other tools: points CSV, grid NPZ, MATLAB .mat, VTK time series, profile CSV.
+
+Every export takes an optional frame range (`frames`: first and last recording frame number, both included) and
+holds the result grid itself (never a display grid); the profile CSV takes any number of lines, labelled."""
 
 from __future__ import annotations
 
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from contextvars import ContextVar
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal, get_args
+from typing import Any, Literal, get_args
 
 import numpy as np
 
 from fringelab.formats import EXPORT_FILES, EXPORT_FORMATS, ExportFormat  # noqa: F401  (declared once, there)
 from fringelab.formats.atomic import atomic_path
+from fringelab.formats.topography import TopographyResult
+from fringelab.science.fields import line_profile
 
-if TYPE_CHECKING:  # imported where used, so that the CLI can list EXPORT_FORMATS without loading h5py
-    from fringelab.formats.topography import TopographyResult
+Line = tuple[float, float, float, float]  # X0, Y0, X1, Y1 in mm
+FrameRange = tuple[int, int]  # first and last recording frame number, both included
+LINE_LABELS = "ABCDEFGHIJKLMNOPQRSTUVWXYZ"  # the viewer's names of section lines, in the order drawn
+
+
+def frame_positions(result: TopographyResult, frames: FrameRange | None) -> np.ndarray:
+    """Positions (indices into the result's frames) of the frames in `frames`, in order; ValueError when none is."""
+    if frames is None:
+        return np.arange(result.n_frames)
+    first, last = frames
+    if first > last:
+        raise ValueError(f"frames: the first frame {first} comes after the last {last}")
+    chosen = np.flatnonzero((result.frames >= first) & (result.frames <= last))
+    if not len(chosen):
+        shown = f"{int(result.frames[0])}…{int(result.frames[-1])}" if result.n_frames else "none"
+        raise ValueError(f"frames: no frame of the result lies in {first}…{last} (its frames: {shown})")
+    return chosen
 
 
 # progress(done, total, stage) of the export running in this context (export_result sets it; the CLI draws a bar)
 _PROGRESS: ContextVar[Callable[[int, int, str], None] | None] = ContextVar("export_progress", default=None)
 
 
-def _tick(result: TopographyResult, i: int, stage: str) -> None:
-    """Frame position i of the result is done."""
+def _tick(done: int, total: int, stage: str) -> None:
     progress = _PROGRESS.get()
     if progress is not None:
-        progress(i + 1, result.n_frames, stage)
+        progress(done, total, stage)
 
 
 SPREADSHEET_MAX_ROWS = 1_048_576  # Excel and LibreOffice Calc: rows of one sheet, the header row included
@@ -36,7 +55,9 @@ class SpreadsheetLimitWarning(UserWarning):
     """A CSV export has more rows than a spreadsheet shows; the file is complete, a spreadsheet cuts it."""
 
 
-def export_points_csv(result: TopographyResult, path: str | Path, *, per_frame: bool = False) -> Path:
+def export_points_csv(
+    result: TopographyResult, path: str | Path, *, frames: FrameRange | None = None, per_frame: bool = False
+) -> Path:
     """CSV of every 3-D point: frame,x_mm,y_mm,z_mm (written frame by frame).
 
     per_frame: write one CSV per frame into the folder `path` (frame_<n>.csv, same columns) instead, so each opens
@@ -44,16 +65,17 @@ def export_points_csv(result: TopographyResult, path: str | Path, *, per_frame: 
     it), with a SpreadsheetLimitWarning that says a spreadsheet will cut it and how to get one file per frame.
     """
     path = Path(path)
+    positions = frame_positions(result, frames)
     if per_frame:
         path.mkdir(parents=True, exist_ok=True)
-        for i, frame in enumerate(result.frames):
-            with atomic_path(path / f"frame_{int(frame):06d}.csv") as temp, open(temp, "w", newline="") as out:
-                _write_points(out, result, [(i, frame)])
-            _tick(result, i, "points")
+        for k, i in enumerate(positions):
+            with atomic_path(path / f"frame_{int(result.frames[i]):06d}.csv") as temp, open(temp, "w") as out:
+                _write_points(out, result, [i])
+            _tick(k + 1, len(positions), "points")
         return path
-    rows = int(result.offsets[-1]) + 1
+    rows = 1 + sum(int(result.offsets[i + 1] - result.offsets[i]) for i in positions)
     with atomic_path(path) as temp, open(temp, "w", newline="") as out:
-        _write_points(out, result, list(enumerate(result.frames)))
+        _write_points(out, result, list(positions), progress=True)
     if rows > SPREADSHEET_MAX_ROWS:
         warnings.warn(
             f"{path.name}: {rows} rows, more than the {SPREADSHEET_MAX_ROWS} a spreadsheet shows (it will cut the "
@@ -64,14 +86,14 @@ def export_points_csv(result: TopographyResult, path: str | Path, *, per_frame: 
     return path
 
 
-def _write_points(out: Any, result: TopographyResult, frames: list[tuple[int, Any]]) -> None:
+def _write_points(out: Any, result: TopographyResult, positions: list[int], *, progress: bool = False) -> None:
     out.write("frame,x_mm,y_mm,z_mm\n")
-    for i, frame in frames:
+    for k, i in enumerate(positions):
         points = result.points(i)
-        block = np.column_stack([np.full(len(points), frame), points])
+        block = np.column_stack([np.full(len(points), result.frames[i]), points])
         np.savetxt(out, block, fmt=["%d", "%.4f", "%.4f", "%.4f"], delimiter=",")
-        if len(frames) > 1:
-            _tick(result, i, "points")
+        if progress:
+            _tick(k + 1, len(positions), "points")
 
 
 def read_points_csv(path: str | Path) -> np.ndarray:
@@ -79,31 +101,30 @@ def read_points_csv(path: str | Path) -> np.ndarray:
     return np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
 
 
-def _grid_stack(result: TopographyResult) -> np.ndarray:
+def _grid_stack(result: TopographyResult, positions: np.ndarray) -> np.ndarray:
+    def frame(k: int, i: int) -> np.ndarray:
+        _tick(k + 1, len(positions), "grids")
+        return result.file["grid/z_mm"][i]
+
     return (
-        np.stack([_grid_frame(result, i) for i in range(result.n_frames)])
-        if result.n_frames
+        np.stack([frame(k, i) for k, i in enumerate(positions)])
+        if len(positions)
         else np.zeros((0, *result.grid.shape), np.float32)
     )
 
 
-def _grid_frame(result: TopographyResult, i: int) -> np.ndarray:
-    z = result.file["grid/z_mm"][i]
-    _tick(result, i, "grids")
-    return z
-
-
-def export_grid_npz(result: TopographyResult, path: str | Path) -> Path:
+def export_grid_npz(result: TopographyResult, path: str | Path, *, frames: FrameRange | None = None) -> Path:
     """NPZ with x_mm (nx), y_mm (ny), z_mm (frames, ny, nx) NaN outside the data, frames (recording indices),
     and z_flat_mm (w = z − z_flat_mm). Holds the whole grid stack in memory (as `numpy.load` will)."""
     path = Path(path)
+    positions = frame_positions(result, frames)
     with atomic_path(path) as temp, open(temp, "wb") as out:
         np.savez_compressed(
             out,
             x_mm=result.grid.x_mm,
             y_mm=result.grid.y_mm,
-            z_mm=_grid_stack(result),
-            frames=result.frames,
+            z_mm=_grid_stack(result, positions),
+            frames=result.frames[positions],
             z_flat_mm=np.float64(result.z_flat_mm),
         )
     return path
@@ -111,23 +132,6 @@ def export_grid_npz(result: TopographyResult, path: str | Path) -> Path:
 
 MAT_V5_MAX_VARIABLE_BYTES = 2**31 - 1  # MATLAB's limit on one variable of a v5/v7 MAT-file (2 GB)
 MatVersion = Literal["auto", "5", "7.3"]
-
-
-def _mat_variables(result: TopographyResult) -> dict[str, Any]:
-    """The small variables of the MAT export (the grid stack and the points are streamed separately)."""
-    return {
-        "x_mm": result.grid.x_mm,
-        "y_mm": result.grid.y_mm,
-        "frames": result.frames.astype(np.float64),
-        "camera_frames": result.camera_frames.astype(np.float64),
-        "time_s": result.column("frames/time_s"),
-        "punch_displacement_mm": result.column("frames/punch_displacement_mm"),
-        "force_kN": result.column("frames/force_kN"),
-        "peak_w_mm": result.column("peak/w_mm"),
-        "z_flat_mm": result.z_flat_mm,
-    }
-
-
 _MAT_UNITS = {
     "length": "mm",
     "time": "s",
@@ -136,10 +140,26 @@ _MAT_UNITS = {
 }
 
 
+def _mat_variables(result: TopographyResult, positions: np.ndarray) -> dict[str, Any]:
+    """The small variables of the MAT export (the grid stack and the points are written separately)."""
+    return {
+        "x_mm": result.grid.x_mm,
+        "y_mm": result.grid.y_mm,
+        "frames": result.frames[positions].astype(np.float64),
+        "camera_frames": result.camera_frames[positions].astype(np.float64),
+        "time_s": result.column("frames/time_s")[positions],
+        "punch_displacement_mm": result.column("frames/punch_displacement_mm")[positions],
+        "force_kN": result.column("frames/force_kN")[positions],
+        "peak_w_mm": result.column("peak/w_mm")[positions],
+        "z_flat_mm": result.z_flat_mm,
+    }
+
+
 def export_mat(
     result: TopographyResult,
     path: str | Path,
     *,
+    frames: FrameRange | None = None,
     version: MatVersion = "auto",
     v5_max_variable_bytes: int | None = None,
 ) -> Path:
@@ -152,21 +172,22 @@ def export_mat(
     h5py, or `mat73` in Python read it).
     """
     path = Path(path)
+    positions = frame_positions(result, frames)
     ny, nx = result.grid.shape
-    n_points = int(result.offsets[-1])
-    largest = max(result.n_frames * ny * nx * 4, n_points * 4 * 4)
+    n_points = sum(int(result.offsets[i + 1] - result.offsets[i]) for i in positions)
+    largest = max(len(positions) * ny * nx * 4, n_points * 4 * 4)
     limit = MAT_V5_MAX_VARIABLE_BYTES if v5_max_variable_bytes is None else v5_max_variable_bytes
     if version == "7.3" or (version == "auto" and largest > limit):
-        return _export_mat_v73(result, path)
+        return _export_mat_v73(result, path, positions, n_points)
     from scipy.io import savemat
 
     points = [
-        np.column_stack([np.full(len(p), frame), p]).astype(np.float32)
-        for frame, p in ((f, result.points(i)) for i, f in enumerate(result.frames))
+        np.column_stack([np.full(len(p), result.frames[i]), p]).astype(np.float32)
+        for i, p in ((i, result.points(i)) for i in positions)
     ]
     data = {
-        **_mat_variables(result),
-        "z_mm": _grid_stack(result).astype(np.float32),
+        **_mat_variables(result, positions),
+        "z_mm": _grid_stack(result, positions).astype(np.float32),
         "points": np.vstack(points) if points else np.zeros((0, 4), np.float32),
         "units": _MAT_UNITS,
     }
@@ -175,39 +196,39 @@ def export_mat(
     return path
 
 
-def _export_mat_v73(result: TopographyResult, path: Path) -> Path:
+def _export_mat_v73(result: TopographyResult, path: Path, positions: np.ndarray, n_points: int) -> Path:
     """A MATLAB v7.3 MAT-file: HDF5 with a 512-byte user block holding the MAT header, one dataset per variable
     with its MATLAB_class, dimensions reversed (HDF5 is row-major, MATLAB column-major), vectors as 1 × n."""
     import h5py
 
     ny, nx = result.grid.shape
-    n_points = int(result.offsets[-1])
+    n = len(positions)
     with atomic_path(path) as temp:
         with h5py.File(temp, "w", userblock_size=512) as file:
-            for name, value in _mat_variables(result).items():
+            for name, value in _mat_variables(result, positions).items():
                 array = np.asarray(value, dtype=np.float64)
                 array = array.reshape(1, 1) if array.ndim == 0 else array.reshape(-1, 1)  # MATLAB 1 × n
                 _mat_dataset(file, name, array, "double")
-            z = file.create_dataset("z_mm", shape=(nx, ny, result.n_frames), dtype=np.float32,
-                                    chunks=(nx, ny, 1) if result.n_frames else None, compression="gzip",
-                                    compression_opts=1, fillvalue=np.nan)  # fmt: skip
+            z = file.create_dataset("z_mm", shape=(nx, ny, n), dtype=np.float32, chunks=(nx, ny, 1) if n else None,
+                                    compression="gzip", compression_opts=1, fillvalue=np.nan)  # fmt: skip
             z.attrs["MATLAB_class"] = np.bytes_("single")
             points = file.create_dataset("points", shape=(4, n_points), dtype=np.float32,
                                          chunks=(4, min(max(n_points, 1), 1 << 16)), compression="gzip",
                                          compression_opts=1)  # fmt: skip
             points.attrs["MATLAB_class"] = np.bytes_("single")
-            for i, frame in enumerate(result.frames):
-                z[:, :, i] = result.file["grid/z_mm"][i].T
-                lo, hi = int(result.offsets[i]), int(result.offsets[i + 1])
-                block = np.column_stack([np.full(hi - lo, frame), result.points(i)]).astype(np.float32)
-                points[:, lo:hi] = block.T
-                _tick(result, i, "frames")
+            start = 0
+            for k, i in enumerate(positions):
+                z[:, :, k] = result.file["grid/z_mm"][i].T
+                block = result.points(i)
+                rows = np.column_stack([np.full(len(block), result.frames[i]), block]).astype(np.float32)
+                points[:, start : start + len(rows)] = rows.T
+                start += len(rows)
+                _tick(k + 1, n, "frames")
             units = file.create_group("units")
             units.attrs["MATLAB_class"] = np.bytes_("struct")
-            names = list(_MAT_UNITS)
             units.attrs.create(
                 "MATLAB_fields",
-                np.array([np.array(list(n), dtype="S1") for n in names], dtype=object),
+                np.array([np.array(list(key), dtype="S1") for key in _MAT_UNITS], dtype=object),
                 dtype=h5py.vlen_dtype(np.dtype("S1")),
             )
             for key, text in _MAT_UNITS.items():
@@ -226,7 +247,7 @@ def _mat_dataset(group: Any, name: str, array: np.ndarray, matlab_class: str) ->
     return dataset
 
 
-def export_vtk(result: TopographyResult, path: str | Path) -> Path:
+def export_vtk(result: TopographyResult, path: str | Path, *, frames: FrameRange | None = None) -> Path:
     """A ParaView time series: `path` (.pvd) listing one .vtu per frame in the folder `<stem>_vtu` beside it.
 
     Each .vtu is the gridded surface (quads between nodes that all have data) at its measured height, with point
@@ -245,7 +266,9 @@ def export_vtk(result: TopographyResult, path: str | Path) -> Path:
     )
     times = result.column("frames/time_s")
     entries = []
-    for i, frame in enumerate(result.frames):
+    positions = frame_positions(result, frames)
+    for k, i in enumerate(positions):
+        frame = result.frames[i]
         z = result.z_grid(i).ravel()
         finite = np.isfinite(z)
         quads = quads_all[np.all(finite[quads_all], axis=1)]
@@ -260,7 +283,7 @@ def export_vtk(result: TopographyResult, path: str | Path) -> Path:
         meshio.write(folder / name, mesh, binary=True)
         time = float(times[i]) if np.isfinite(times[i]) else float(frame)
         entries.append(f'    <DataSet timestep="{time!r}" part="0" file="{folder.name}/{name}"/>')
-        _tick(result, i, "surfaces")
+        _tick(k + 1, len(positions), "surfaces")
     pvd = (
         '<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">\n'
         "  <Collection>\n" + "\n".join(entries) + "\n  </Collection>\n</VTKFile>\n"
@@ -292,33 +315,50 @@ def default_profile_line(result: TopographyResult) -> tuple[float, float, float,
 
 
 def export_profile_csv(
-    result: TopographyResult, path: str | Path, *, line: tuple[float, float, float, float] | None = None
+    result: TopographyResult,
+    path: str | Path,
+    *,
+    line: Line | None = None,
+    lines: Sequence[Line] | None = None,
+    frames: FrameRange | None = None,
 ) -> Path:
-    """CSV of the section profile along a line X0,Y0 → X1,Y1 (mm) for every frame:
-    frame,time_s,s_mm,x_mm,y_mm,z_mm,w_mm (s along the line; NaN where the grid has no data)."""
-    from fringelab.science.fields import line_profile
-
+    """CSV of section profiles along lines X0,Y0 → X1,Y1 (mm) for every frame, sampled on the result grid:
+    line,frame,time_s,s_mm,x_mm,y_mm,z_mm,w_mm (s along the line; NaN where the grid has no data). `lines` are
+    labelled A, B, … in their order (as the viewer names them); `line` is one line labelled A; neither: a line
+    along X through the punch axis."""
     path = Path(path)
-    x0, y0, x1, y1 = default_profile_line(result) if line is None else line
+    if line is not None and lines:
+        raise ValueError("give `line` or `lines`, not both")
+    chosen = list(lines) if lines else [default_profile_line(result) if line is None else line]
+    if len(chosen) > len(LINE_LABELS):
+        raise ValueError(f"lines: at most {len(LINE_LABELS)}, got {len(chosen)}")
+    positions = frame_positions(result, frames)
     times = result.column("frames/time_s")
     with atomic_path(path) as temp, open(temp, "w", newline="") as out:
-        out.write("frame,time_s,s_mm,x_mm,y_mm,z_mm,w_mm\n")
-        for i, frame in enumerate(result.frames):
-            profile = line_profile(result.z_grid(i), result.grid, (x0, y0), (x1, y1))
-            m = len(profile.s_mm)
-            block = np.column_stack(
-                [
-                    np.full(m, frame),
-                    np.full(m, times[i]),
-                    profile.s_mm,
-                    profile.x_mm,
-                    profile.y_mm,
-                    profile.values,
-                    profile.values - result.z_flat_mm,
-                ]
-            )
-            np.savetxt(out, block, fmt=["%d", "%.6g", "%.4f", "%.4f", "%.4f", "%.4f", "%.4f"], delimiter=",")
-            _tick(result, i, "profiles")
+        out.write("line,frame,time_s,s_mm,x_mm,y_mm,z_mm,w_mm\n")
+        done, total = 0, len(chosen) * len(positions)
+        for label, (x0, y0, x1, y1) in zip(LINE_LABELS, chosen, strict=False):
+            for i in positions:
+                done += 1
+                _tick(done, total, "profiles")
+                profile = line_profile(result.z_grid(i), result.grid, (x0, y0), (x1, y1))
+                m = len(profile.s_mm)
+                block = np.column_stack(
+                    [
+                        np.full(m, result.frames[i]),
+                        np.full(m, times[i]),
+                        profile.s_mm,
+                        profile.x_mm,
+                        profile.y_mm,
+                        profile.values,
+                        profile.values - result.z_flat_mm,
+                    ]
+                )
+                for row in block:
+                    out.write(
+                        f"{label},{int(row[0])},{row[1]:.6g},{row[2]:.4f},{row[3]:.4f},{row[4]:.4f},"
+                        f"{row[5]:.4f},{row[6]:.4f}\n"
+                    )
     return path
 
 
@@ -327,47 +367,35 @@ def export_result(
     fmt: str,
     out_path: str | Path,
     *,
-    line: tuple[float, float, float, float] | None = None,
+    line: Line | None = None,
+    lines: Sequence[Line] | None = None,
+    frames: FrameRange | None = None,
     per_frame: bool = False,
     mat_version: MatVersion = "auto",
     progress: Callable[[int, int, str], None] | None = None,
 ) -> Path:
-    """Export a topography result in one of EXPORT_FORMATS; `line` (X0, Y0, X1, Y1 mm) for profile-csv only,
-    `per_frame` (one CSV per frame into the folder out_path) for points-csv only, `mat_version` for mat only;
-    progress(done, total, stage) after every frame."""
+    """Export a topography result in one of EXPORT_FORMATS; `line`/`lines` (X0, Y0, X1, Y1 mm) for profile-csv
+    only; `frames` (first, last recording frame number) for every format; `per_frame` (one CSV per frame into the
+    folder out_path) for points-csv only; `mat_version` for mat only; progress(done, total, stage) per frame."""
     if fmt not in EXPORT_FORMATS:
         raise ValueError(f"format: expected one of {EXPORT_FORMATS}, got {fmt!r}")
-    if line is not None and fmt != "profile-csv":
+    if (line is not None or lines) and fmt != "profile-csv":
         raise ValueError("a line is only used by the profile-csv format")
     if per_frame and fmt != "points-csv":
         raise ValueError("per_frame is only used by the points-csv format")
     if mat_version not in get_args(MatVersion):
         raise ValueError(f"mat_version: expected one of {get_args(MatVersion)}, got {mat_version!r}")
-    from fringelab.formats.topography import TopographyResult
-
     token = _PROGRESS.set(progress)
     try:
         with TopographyResult(result_path) as result:
-            return _export(result, fmt, out_path, line=line, per_frame=per_frame, mat_version=mat_version)
+            if fmt == "points-csv":
+                return export_points_csv(result, out_path, frames=frames, per_frame=per_frame)
+            if fmt == "grid-npz":
+                return export_grid_npz(result, out_path, frames=frames)
+            if fmt == "mat":
+                return export_mat(result, out_path, frames=frames, version=mat_version)
+            if fmt == "vtk":
+                return export_vtk(result, out_path, frames=frames)
+            return export_profile_csv(result, out_path, line=line, lines=lines, frames=frames)
     finally:
         _PROGRESS.reset(token)
-
-
-def _export(
-    result: TopographyResult,
-    fmt: str,
-    out_path: str | Path,
-    *,
-    line: tuple[float, float, float, float] | None,
-    per_frame: bool,
-    mat_version: MatVersion,
-) -> Path:
-    if fmt == "points-csv":
-        return export_points_csv(result, out_path, per_frame=per_frame)
-    if fmt == "grid-npz":
-        return export_grid_npz(result, out_path)
-    if fmt == "mat":
-        return export_mat(result, out_path, version=mat_version)
-    if fmt == "vtk":
-        return export_vtk(result, out_path)
-    return export_profile_csv(result, out_path, line=line)

@@ -38,6 +38,7 @@ from .projector import (
     camera_fingerprint,
     match_to_reference,
 )
+from .uncertainty import edge_sigma_px, point_sigma_z_mm
 
 
 class FirstFrameNotFlatError(MeasurementError):
@@ -91,7 +92,8 @@ class FrameMeasurement:
     points_obj_mm: (N, 3). n_tracks: tracked (edge, line) points in this frame (with or without Z); n_ended:
     tracks that ended at this frame; n_out_of_range: tracked points outside the calibrated Z range of their
     table entry (masked, never extrapolated); n_unmatched: edge points of the frame that belong to no track;
-    edge_noise_px: the frame's edge-location noise estimate.
+    edge_noise_px: the frame's edge-location noise estimate. sigma_z_mm: (N,) σ of each point's Z from the edge
+    noise and the projector table (`uncertainty.point_sigma_z_mm`), None where not computed.
     """
 
     frame: int
@@ -103,6 +105,7 @@ class FrameMeasurement:
     n_out_of_range: int
     n_unmatched: int
     edge_noise_px: float
+    sigma_z_mm: np.ndarray | None = None
 
     def dense(self, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """X, Y, Z as (K, S) arrays over (edge, line), NaN where not measured."""
@@ -432,6 +435,11 @@ def _measure(
     kk, ll, t, z = kk[ok], ll[ok], t[ok], z[ok]
     q_px = np.column_stack([t, ll] if projector.axis == "rows" else [ll, t]).astype(np.float64)
     points = backproject_to_z(camera_model.camera, q_px, z, inverse=camera_model.inverse)
+    sigma_z = point_sigma_z_mm(
+        sensitivity_px_per_mm=projector.sensitivity_px_per_mm[kk, ll], fit_rms_mm=projector.fit_rms_mm[kk, ll],
+        n_heights=np.count_nonzero(np.isfinite(projector.lut_t_px[kk, ll]), axis=-1),
+        n_coefficients=projector.coefficients.shape[-1], edge_sigma_px=edge_sigma_px(noise_px, projector.edges),
+    )  # fmt: skip
     return FrameMeasurement(
         frame=int(frame),
         k=kk.astype(np.int32),
@@ -442,6 +450,7 @@ def _measure(
         n_out_of_range=int(np.count_nonzero(status == 1)),
         n_unmatched=int(n_unmatched),
         edge_noise_px=float(noise_px),
+        sigma_z_mm=sigma_z,
     )
 
 

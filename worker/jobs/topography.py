@@ -105,6 +105,11 @@ def topography_locate(context: JobContext, first: int, stop: int) -> None:
 _MEASURE_COUNTS = ("n_tracks", "n_ended", "n_out_of_range", "n_unmatched")
 
 
+def _sigma(measurement: Any) -> np.ndarray:
+    sigma = measurement.sigma_z_mm
+    return np.full(len(measurement.k), np.nan) if sigma is None else np.asarray(sigma, np.float64)
+
+
 def _save_measurements(context: JobContext, first: int, measurements: list[Any]) -> None:
     sizes = [len(m.k) for m in measurements]
     save_arrays(
@@ -114,6 +119,7 @@ def _save_measurements(context: JobContext, first: int, measurements: list[Any])
         k=np.concatenate([m.k for m in measurements]), line=np.concatenate([m.line for m in measurements]),
         points_obj_mm=np.concatenate([m.points_obj_mm for m in measurements]).reshape(-1, 3),
         edge_noise_px=np.array([m.edge_noise_px for m in measurements], np.float64),
+        sigma_z_mm=np.concatenate([_sigma(m) for m in measurements]),
         **{name: np.array([getattr(m, name) for m in measurements], np.int64) for name in _MEASURE_COUNTS},
     )  # fmt: skip
 
@@ -130,6 +136,7 @@ def _load_measurements(context: JobContext, first: int) -> list[Any]:
             line=data["line"][lo:hi],
             points_obj_mm=data["points_obj_mm"][lo:hi],
             edge_noise_px=float(data["edge_noise_px"][i]),
+            sigma_z_mm=data["sigma_z_mm"][lo:hi],
             **{name: int(data[name][i]) for name in _MEASURE_COUNTS},
         )  # fmt: skip
         for i, (frame, lo, hi) in enumerate(zip(data["frame"], offsets[:-1], offsets[1:], strict=True))
