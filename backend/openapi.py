@@ -50,7 +50,7 @@ DESCRIPTIONS = {
 
 # Operation ids as a generated client's method names: verb_noun, from the route function's name (FastAPI's
 # default glues on the path and method: `read_job_api_v1_jobs__job_id__get`). One table, so a client's names are
-# reviewed in one place; a route missing here fails `operation_id` (and its test) instead of getting a long name.
+# reviewed in one place; a route missing here gets its function's name, and tests/api/lab/test_openapi.py fails.
 OPERATION_IDS = {
     "health": "get_health",
     "login": "login", "logout": "logout", "me": "get_me",
@@ -79,6 +79,11 @@ OPERATION_IDS = {
     "topography_overview": "get_topography", "topography_grid": "get_topography_grid",
     "topography_profile": "get_topography_profile", "topography_history": "get_topography_history",
     "make_demo": "create_demo",
+    "experiment_deletion": "preview_experiment_deletion", "camera_deletion": "preview_camera_deletion",
+    "recording_deletion": "preview_recording_deletion", "job_deletion": "preview_job_deletion",
+    "jobs_events": "stream_jobs_events", "remove_job": "delete_job",
+    "projector_calibration_report": "get_projector_calibration_report",
+    "list_docs": "list_docs", "read_doc": "get_doc", "queue": "get_queue", "storage": "get_storage",
 }  # fmt: skip
 
 
@@ -90,10 +95,8 @@ def operation_id(route: Any) -> str:
         return str(route.name)
     if route.path.endswith("/") and route.path.startswith(UPLOADS):
         return f"{OPERATION_IDS.get(route.name, route.name)}_twin"
-    try:
-        return OPERATION_IDS[route.name]
-    except KeyError:
-        raise KeyError(f"route {route.name!r} ({route.path}) has no operation id: add it to OPERATION_IDS") from None
+    # A route not in the table yet keeps its function's name (a test lists it, so it gets a reviewed one).
+    return OPERATION_IDS.get(route.name, route.name)
 
 
 def install_openapi(app: FastAPI) -> None:
