@@ -165,3 +165,34 @@ def test_an_upload_over_the_limit_or_into_no_experiment_is_refused(settings) -> 
         missing = client.put(f"/api/v1/experiments/{2**31 - 1}/simulations/model.csv", content=b"x")
         assert missing.status_code == 404, missing.text
     assert leftovers(settings) == []
+
+
+def test_an_unsafe_zip_is_refused_and_a_simulation_in_use_is_not_deleted(client, settings) -> None:  # type: ignore[no-untyped-def]
+    experiment = client.post("/api/v1/experiments", json={"name": "plate"}).json()
+    base = f"/api/v1/experiments/{experiment['id']}/simulations"
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w") as archive:
+        archive.writestr("../outside.csv", "state,time_s\n")
+    unsafe = client.put(f"{base}/climb.zip", content=buffer.getvalue())
+    assert unsafe.status_code == 422 and unsafe.json()["code"] == "unsafe_archive", unsafe.text
+    assert "climb.zip" in unsafe.json()["detail"] and "'..'" in unsafe.json()["detail"]
+    assert not (settings.data_path / "uploads" / "outside.csv").exists()
+    assert leftovers(settings) == []
+
+    nodes = "state,time_s,node,x_mm,y_mm,z_mm,ux_mm,uy_mm,uz_mm\n" + "".join(
+        f"{s},{s * 1e-3},{n + 1},{10 * (n % 2)},{10 * (n // 2)},0,0,0,{s if n == 0 else 0}\n"
+        for s in (0, 1)
+        for n in range(4)
+    )
+    simulation = client.put(f"{base}/nodes.csv", content=nodes.encode()).json()
+    assert (simulation["kind"], simulation["n_states"], simulation["n_nodes"]) == ("csv", 2, 4)
+    engine = make_engine(settings.resolved_database_url)
+    with make_sessionmaker(engine)() as session:
+        session.add(Job(id="cmp-1", kind="comparison", state="queued", experiment_id=experiment["id"],
+                        spec={"kind": "comparison", "job_id": "t", "simulation_id": simulation["id"]}))  # fmt: skip
+        session.commit()
+    engine.dispose()
+    refused = client.delete(f"/api/v1/simulations/{simulation['id']}")
+    assert refused.status_code == 409 and refused.json()["code"] == "in_use", refused.text
+    assert "cmp-1" in refused.json()["detail"]
+    assert client.get(f"/api/v1/simulations/{simulation['id']}").status_code == 200
