@@ -8,7 +8,20 @@ import anyio
 from fastapi import FastAPI
 
 from backend import __version__
-from backend.api import auth, demo, docs, experiments, health, jobs, overview, recordings, results, uploads
+from backend.api import (
+    auth,
+    comparisons,
+    demo,
+    docs,
+    experiments,
+    health,
+    jobs,
+    overview,
+    recordings,
+    results,
+    simulations,
+    uploads,
+)
 from backend.errors import install_error_handlers
 from backend.frontend import mount_docs, mount_frontend
 from backend.limits import BodySizeLimit
@@ -56,6 +69,8 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(experiments.router, prefix="/api/v1")
     app.include_router(recordings.router, prefix="/api/v1")
     app.include_router(uploads.create_router(state), prefix="/api/v1")
+    app.include_router(simulations.router, prefix="/api/v1")
+    app.include_router(comparisons.router, prefix="/api/v1")
     app.include_router(jobs.router, prefix="/api/v1")
     app.include_router(results.router, prefix="/api/v1")
     app.include_router(demo.router, prefix="/api/v1")

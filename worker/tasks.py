@@ -20,6 +20,7 @@ from sqlalchemy import select
 from fringelab.core.jobs import CHUNK_TASK, DEMO_ADVANCE_TASK, DEMO_TASK, MERGE_TASK, PING_TASK, TASK_NAMES
 from fringelab.core.models import Job
 from worker.jobs import camera_calibration as camera_calibration_job
+from worker.jobs import comparison as comparison_job
 from worker.jobs import demo as demo_job
 from worker.jobs import export as export_job
 from worker.jobs import ingest as ingest_job
@@ -82,6 +83,11 @@ def topography(self: Task, job_id: str) -> dict[str, Any]:
 @shared_task(bind=True, name=TASK_NAMES["export"], ignore_result=True)
 def export(self: Task, job_id: str) -> dict[str, Any]:
     return run_job(self, job_id, export_job.export_body)
+
+
+@shared_task(bind=True, name=TASK_NAMES["comparison"], ignore_result=True)
+def comparison(self: Task, job_id: str) -> dict[str, Any]:
+    return run_job(self, job_id, comparison_job.comparison_body)
 
 
 @shared_task(bind=True, name=CHUNK_TASK, ignore_result=True)

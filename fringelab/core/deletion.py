@@ -22,7 +22,7 @@ from fringelab.core.errors import Conflict
 from fringelab.core.models import Calibration, Camera, Experiment, Job, JobChunk, JobLog, Recording
 from fringelab.core.recordings import _ids_under
 from fringelab.core.settings import Settings
-from fringelab.core.storage import job_dir, recording_dir, remove_tree
+from fringelab.core.storage import job_dir, recording_dir, remove_tree, simulation_dir
 
 ACTIVE_STATES = ("queued", "running")
 
@@ -178,6 +178,8 @@ def execute(session: Session, settings: Settings, principal: Principal, plan: De
     job_ids = [job.id for job in plan.jobs]
     folders = [recording_dir(settings.data_path, r.id) for r in plan.recordings]
     folders += [job_dir(settings.data_path, job_id) for job_id in job_ids]
+    # an experiment's simulations go with it (ORM cascade), their files here
+    folders += [simulation_dir(settings.data_path, s.id) for e in plan.experiments for s in e.simulations]
     files = [settings.data_path / c.path for c in plan.calibrations]
     for calibration in plan.calibrations:
         session.delete(calibration)

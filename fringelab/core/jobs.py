@@ -42,7 +42,17 @@ from sqlalchemy.orm import Session, sessionmaker
 from fringelab import __version__
 from fringelab.core.accounts import Principal, access_level, audit, can_access
 from fringelab.core.errors import Conflict, DomainError, Forbidden, Invalid, NotFound, Unavailable
-from fringelab.core.models import Calibration, Camera, Experiment, Job, JobChunk, JobLog, Recording, utcnow
+from fringelab.core.models import (
+    Calibration,
+    Camera,
+    Experiment,
+    Job,
+    JobChunk,
+    JobLog,
+    Recording,
+    Simulation,
+    utcnow,
+)
 from fringelab.core.settings import Settings
 
 TASK_NAMES = {
@@ -51,6 +61,7 @@ TASK_NAMES = {
     "projector_calibration": "fringelab.projector_calibration",
     "topography": "fringelab.topography",
     "export": "fringelab.export",
+    "comparison": "fringelab.comparison",
     "selftest": "fringelab.selftest",
 }
 CHUNK_TASK = "fringelab.job_chunk"
@@ -275,6 +286,41 @@ def _check_export_frames(spec: dict[str, Any], source: Job) -> None:
         )
 
 
+def _prepare_comparison(session: Session, spec: dict[str, Any], *, authorize: Authorize) -> Prepared:
+    """A comparison needs a succeeded topography job (with its result file) and a simulation of its experiment."""
+    source = session.get(Job, spec["job_id"])
+    missing = job_error(Invalid, "job_not_found", f"there is no topography job {spec['job_id']}", field="job_id")
+    if source is None or source.kind != "topography":
+        raise missing
+    try:
+        authorize(source.experiment_id)
+    except NotVisible:
+        raise missing from None
+    if source.state != "succeeded":
+        raise job_error(
+            Conflict,
+            "job_not_succeeded",
+            f"topography job {source.id} is {source.state}; compare a succeeded one (wait for it, or run it again)",
+        )
+    if not any(entry.get("name") == "topography.h5" for entry in source.files or []):
+        raise job_error(
+            Conflict, "result_missing", f"topography job {source.id} has no result file any more; run it again"
+        )
+    simulation = session.get(Simulation, spec["simulation_id"])
+    if simulation is None or simulation.experiment_id != source.experiment_id:
+        raise job_error(
+            Invalid,
+            "simulation_not_found",
+            f"there is no simulation {spec['simulation_id']} in the experiment of topography job {source.id}; see "
+            f"GET /api/v1/experiments/{source.experiment_id}/simulations",
+            field="simulation_id",
+        )
+    return Prepared(
+        experiment_id=source.experiment_id,
+        inputs=[{"job_id": source.id}, {"simulation_id": simulation.id, "sha256": simulation.sha256}],
+    )
+
+
 def prepare_job(session: Session, spec: dict[str, Any], *, authorize: Authorize = _nobody_checks) -> Prepared:
     """Check a (shape-valid) spec against the database; raise a `job_error` naming the field, or say what it uses.
     `authorize` is asked as soon as the experiment is known, before anything about its inputs is revealed."""
@@ -297,6 +343,8 @@ def prepare_job(session: Session, spec: dict[str, Any], *, authorize: Authorize 
             )
         _check_export_frames(spec, source)
         return Prepared(experiment_id=source.experiment_id, inputs=[{"job_id": source.id}])
+    if kind == "comparison":
+        return _prepare_comparison(session, spec, authorize=authorize)
     recording_kind = "test" if kind == "topography" else kind
     recording = _recording(
         session, spec["recording_id"], kind=recording_kind, field_name="recording_id", authorize=authorize

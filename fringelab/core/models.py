@@ -59,6 +59,7 @@ class Experiment(Base):
     updated_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow, onupdate=utcnow)
 
     cameras: Mapped[list[Camera]] = relationship(back_populates="experiment", cascade="all, delete-orphan")
+    simulations: Mapped[list[Simulation]] = relationship(back_populates="experiment", cascade="all, delete-orphan")
     owner: Mapped[User | None] = relationship()
     group: Mapped[Group | None] = relationship()
 
@@ -114,6 +115,27 @@ class Recording(Base):
     ingest_job_id: Mapped[str | None] = mapped_column(ForeignKey("jobs.id", ondelete="SET NULL"), nullable=True)
 
     camera: Mapped[Camera] = relationship(back_populates="recordings")
+
+
+class Simulation(Base):
+    """A finite-element simulation uploaded into an experiment (one file, or a ZIP of a folder format), checked by
+    `fringelab.formats.simulations.open_simulation` before it is registered: a row exists only for a readable one."""
+
+    __tablename__ = "simulations"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    experiment_id: Mapped[int] = mapped_column(ForeignKey("experiments.id", ondelete="CASCADE"), index=True)
+    filename: Mapped[str] = mapped_column(String(255), default="")
+    kind: Mapped[str] = mapped_column(String(32), default="")  # d3plot | vtu | pvd | exodus | csv
+    path: Mapped[str] = mapped_column(String(500), default="")  # the file or folder, relative to the data directory
+    size_bytes: Mapped[int] = mapped_column(BigInteger, default=0)
+    sha256: Mapped[str] = mapped_column(String(64), default="")
+    n_states: Mapped[int] = mapped_column(Integer, default=0)
+    n_nodes: Mapped[int] = mapped_column(Integer, default=0)
+    info: Mapped[dict[str, Any]] = mapped_column(default=dict)  # time range, punch and force present, units
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+
+    experiment: Mapped[Experiment] = relationship(back_populates="simulations")
 
 
 class Job(Base):

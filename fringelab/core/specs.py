@@ -11,7 +11,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from fringelab.formats import ExportFormat
+from fringelab.formats import ComparisonExport, ExportFormat
 
 MAX_ID = 2**31 - 1  # ids and frame numbers are 32-bit integers in the database
 
@@ -187,8 +187,55 @@ class ExportSpec(_Spec):
         return self
 
 
+class ComparisonSpec(_Spec):
+    """Compare a succeeded topography with a simulation of the same experiment (docs: README, "Comparison with a
+    simulation"): the model is mapped into the plate frame, each frame paired with a (blended) state, and the
+    difference map, σ_w, profiles and curves written to comparison.h5. Empty mapping options are detected; the
+    result says what was detected. `format` also writes one export of the comparison as a download."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [
+                {
+                    "kind": "comparison",
+                    "job_id": "6f1c2b8e-2d4a-4f6e-9a51-3c7d0e9b2f10",
+                    "simulation_id": 1,
+                    "align": "displacement",
+                }  # fmt: skip
+            ]
+        },
+    )
+
+    kind: Literal["comparison"]
+    job_id: str = Field(min_length=1, max_length=36, description="A succeeded topography job.")
+    simulation_id: int = Field(ge=1, le=MAX_ID, description="A simulation of the same experiment.")
+    align: Literal["displacement", "time", "peak"] = Field(
+        "displacement", description="Pair frames with states by punch displacement, by time, or by peak deflection."
+    )
+    units: Literal["mm", "m"] | None = Field(None, description="The model's length unit; empty: detect.")
+    symmetry: Literal["none", "half-x", "half-y", "quarter"] | None = Field(
+        None, description="The model's symmetry; empty: detect."
+    )
+    normal_axis: Literal["x", "y", "z"] | None = Field(None, description="Model axis out of the plate; empty: detect.")
+    w_sign: Literal[1, -1] | None = Field(None, description="Sign that makes deflection toward the cameras positive.")
+    origin_xy_mm: tuple[float, float] | None = Field(
+        None, description="Where the model's origin lies in the plate frame, mm; empty: on the punch axis."
+    )
+    rotation_deg: float = Field(0.0, ge=-360, le=360, description="Model rotation about Z, degrees.")
+    surface: Literal["toward-cameras", "away", "mid"] = Field(
+        "toward-cameras", description="The model surface the cameras see."
+    )
+    shell_thickness_mm: float | None = Field(None, gt=0, le=1000, description="Overrides the file's.")
+    punch_node: int | None = Field(None, ge=1, le=MAX_ID, description="Node whose travel is the punch displacement.")
+    contact_interface: int | None = Field(None, ge=1, le=MAX_ID, description="rcforc interface of the punch force.")
+    time_unit_s: float | None = Field(None, gt=0, le=1e6, description="Seconds per model time unit.")
+    time_offset_s: float = Field(0.0, ge=-1e6, le=1e6, description="Added to the model's times before aligning.")
+    format: ComparisonExport | None = Field(None, description="Also write this export as a download.")
+
+
 JobSpec = Annotated[
-    SelftestSpec | CameraCalibrationSpec | ProjectorCalibrationSpec | TopographySpec | ExportSpec,
+    SelftestSpec | CameraCalibrationSpec | ProjectorCalibrationSpec | TopographySpec | ExportSpec | ComparisonSpec,
     Field(discriminator="kind"),
 ]
 

@@ -208,6 +208,27 @@ class ComparisonResult:
         """One of FIELDS (ny, nx) of frame position i."""
         return self.file[f"fields/{name}"][i].astype(np.float64)
 
+    def position(self, frame: int) -> int:
+        """Position of recording frame `frame` in this file; ValueError naming the frames held otherwise."""
+        hits = np.flatnonzero(self.frames == frame)
+        if len(hits) == 0:
+            held = f"{int(self.frames[0])}…{int(self.frames[-1])}" if self.n_frames else "none"
+            raise ValueError(f"frame {frame} is not in this comparison (its frames are {held})")
+        return int(hits[0])
+
+    def field_cut(self, name: str, i: int, *, budget: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+        """Field `name` of frame position i block-averaged (NaN-aware) to at most `budget` nodes per side, for
+        display: (x_mm, y_mm, values, step)."""
+        import math
+
+        from fringelab.formats.topography import _block_mean
+
+        values = self.file[f"fields/{name}"][i].astype(np.float64)
+        step = max(1, math.ceil(max(values.shape) / budget))
+        x = _block_mean(self.grid.x_mm[None, :], step)[0]
+        y = _block_mean(self.grid.y_mm[:, None], step)[:, 0]
+        return x, y, _block_mean(values, step), step
+
     def profile(self, axis: str, i: int) -> dict[str, np.ndarray]:
         group = self.file[f"profiles/{axis}"]
         out = {name: group[name][()] for name in ("s_mm", "x_mm", "y_mm")}

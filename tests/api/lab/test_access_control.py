@@ -15,9 +15,11 @@ from __future__ import annotations
 
 import base64
 import hashlib
+import io
 import json
 import shutil
 import uuid
+import zipfile
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -54,7 +56,14 @@ BODY_REFERENCED = {("POST", "/api/v1/uploads"), ("POST", "/api/v1/jobs")}
 NOBODY_ID = 2**31 - 1
 NOBODY_JOB = "00000000-0000-0000-0000-000000000000"
 # 404 codes that mean "no such object" (for the owner, never about her own object).
-MISSING = {"not_found", "upload_not_found", "job_not_found", "calibration_not_found", "recording_not_found"}
+MISSING = {
+    "not_found",
+    "upload_not_found",
+    "job_not_found",
+    "calibration_not_found",
+    "recording_not_found",
+    "simulation_not_found",
+}
 TUS = {"Tus-Resumable": "1.0.0"}
 
 
@@ -83,7 +92,21 @@ PATH_VALUES: dict[str, Callable[[World, str], object]] = {
     "name": lambda w, path: "z.csv" if "/sidecars/" in path else w.ids["job_file"],
     "job_id": lambda w, _: w.ids["job"],
     "calibration_id": lambda w, _: w.ids["calibration"],
+    "simulation_id": lambda w, _: w.ids["simulation"],
 }
+# A finite-element simulation as small as one can be: a nodal CSV of 4 nodes and 2 states, zipped.
+SIMULATION_CSV = "state,time_s,node,x_mm,y_mm,z_mm,ux_mm,uy_mm,uz_mm\n" + "".join(
+    f"{state},{state * 1e-3},{node + 1},{10 * (node % 2)},{10 * (node // 2)},0,0,0,{state if node == 0 else 0}\n"
+    for state in (0, 1)
+    for node in range(4)
+)
+
+
+def simulation_zip() -> bytes:
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w") as archive:
+        archive.writestr("model/nodes.csv", SIMULATION_CSV)
+    return buffer.getvalue()
 
 
 def _request(world: World, method: str, path: str) -> dict[str, Any]:
@@ -108,6 +131,7 @@ def _request(world: World, method: str, path: str) -> dict[str, Any]:
             "headers": {"Content-Type": "text/plain"},
         },
         ("PUT", "/api/v1/uploads/cameras/{camera_id}/{filename}"): {"params": {"kind": "test"}, "content": zip_bytes},
+        ("PUT", "/api/v1/experiments/{experiment_id}/simulations/{filename}"): {"content": simulation_zip()},
         ("POST", "/api/v1/uploads"): {
             "headers": {
                 **TUS,
@@ -185,7 +209,12 @@ def template(tmp_path_factory: pytest.TempPathFactory, redis_server) -> Iterator
             "/api/v1/uploads", headers={**_request_headers_for_upload(camera["id"], zip_bytes), **ada}
         )
         assert created.status_code == 201, created.text
+        simulation = client.put(
+            f"/api/v1/experiments/{experiment['id']}/simulations/{MARKER}.zip", content=simulation_zip(), headers=ada
+        )
+        assert simulation.status_code == 201, simulation.text
         ids.update(
+            simulation=simulation.json()["id"],
             experiment=experiment["id"],
             camera=camera["id"],
             recording=recording.json()["id"],

@@ -1,0 +1,157 @@
+"""Comparison results (a comparison job's `comparison.h5`, `fringelab.formats.comparison`) cut to what the dashboard
+draws: the per-frame differences and both curves, a frame's difference or σ map within a display budget, and the
+profiles through the punch axis, measured against simulated with ±σ.
+
+Thin: the file is read through `ComparisonResult`; access follows the job's experiment. Arrays come as JSON lists
+with null where nothing was compared (the frame's `reason` says why for a frame without a simulation partner).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, Query
+from pydantic import BaseModel, Field
+
+from backend.api.deps import StateDep
+from backend.api.jobs import JobDep
+from backend.api.results import RESULT_ERRORS, _listed
+from backend.results import result_path
+from backend.schemas.jobs import MAX_ID
+from fringelab.core.errors import Conflict, Gone, Invalid, NotFound
+from fringelab.core.jobs import job_error
+from fringelab.core.models import Job
+from fringelab.formats.comparison import FRAME_COLUMNS, SIMULATION_COLUMNS, ComparisonResult
+from fringelab.formats.topography import GRID_BUDGET_NODES, ResultUnavailable
+
+router = APIRouter(tags=["results"])
+COMPARISON_FILE = "comparison.h5"
+
+
+@contextmanager
+def comparison(job: Job, data_path: Any) -> Iterator[ComparisonResult]:
+    """The file of a succeeded comparison job, open; a job error (404/409/410) with what to do otherwise."""
+    if job.kind != "comparison":
+        raise job_error(NotFound, "not_comparison", f"job {job.id} is a {job.kind} job, not a comparison")
+    if job.state != "succeeded":
+        raise job_error(
+            Conflict, "job_not_succeeded", f"job {job.id} is {job.state}; its results come when it succeeds"
+        )
+    entry = next((f for f in job.files if f["name"] == COMPARISON_FILE), None)
+    if entry is None:
+        raise job_error(Gone, "result_missing", f"job {job.id} has no {COMPARISON_FILE}; retry the job")
+    try:
+        path = result_path(data_path, entry["path"])
+        reader = ComparisonResult(path)
+    except (ResultUnavailable, ValueError) as error:
+        raise job_error(Gone, "result_missing", str(error)) from None
+    with reader:
+        yield reader
+
+
+def _position(reader: ComparisonResult, frame: int) -> int:
+    try:
+        return reader.position(frame)
+    except ValueError as error:
+        raise job_error(Invalid, "frame_not_in_result", str(error), field="frame") from None
+
+
+class ComparisonOverview(BaseModel):
+    job_id: str
+    alignment: str = Field(description="displacement, time or peak: how frames were paired with states.")
+    mapping: dict[str, Any] = Field(description="Every mapping choice; `detected` lists those detected, with notes.")
+    frames: dict[str, list[Any]] = Field(
+        description="Per frame: frame, state_lo (−1: no partner), n_nodes, reason, the measured test log, the "
+        "simulated blend (sim_*), rms_diff_mm, max_diff_mm, mean_diff_mm, fraction_beyond_2sigma; null: not compared."
+    )
+    simulation: dict[str, list[float | None]] = Field(
+        description="Per simulation state: time_s, punch_displacement_mm, force_kN, peak_w_mm (null: none)."
+    )
+    grid: dict[str, float | int]
+
+
+@router.get("/jobs/{job_id}/comparison", response_model=ComparisonOverview, responses=RESULT_ERRORS)
+def comparison_overview(job: JobDep, state: StateDep) -> ComparisonOverview:
+    """The per-frame differences (RMS, largest, mean, share beyond 2σ) with both sides' test log and peak
+    deflection (for the frame slider and the peak and force curves of measurement and simulation), the
+    simulation's own curves per state, and the mapping used."""
+    with comparison(job, state.settings.data_path) as reader:
+        frames: dict[str, list[Any]] = {
+            "frame": reader.frames.astype(int).tolist(),
+            "state_lo": reader.column("state_lo").astype(int).tolist(),
+            "n_nodes": reader.column("n_nodes").astype(int).tolist(),
+            "reason": reader.column("reason").tolist(),
+        }
+        for name, _, _ in FRAME_COLUMNS:
+            frames[name] = _listed(reader.column(name), 6)
+        simulation = {name: _listed(reader.column(f"simulation/{name}"), 6) for name, _, _ in SIMULATION_COLUMNS}
+        x, y = reader.grid.x_mm, reader.grid.y_mm
+        return ComparisonOverview(
+            job_id=job.id,
+            alignment=str(reader.file.attrs.get("alignment", "")),
+            mapping=json.loads(json.dumps(reader.mapping, default=str)),
+            frames=frames,
+            simulation=simulation,
+            grid={
+                "x_min_mm": float(x[0]),
+                "x_max_mm": float(x[-1]),
+                "y_min_mm": float(y[0]),
+                "y_max_mm": float(y[-1]),
+                "nx": int(x.size),
+                "ny": int(y.size),
+                "step_mm": float(x[1] - x[0]) if x.size > 1 else 0.0,
+            },  # fmt: skip
+        )
+
+
+class ComparisonGridOut(BaseModel):
+    frame: int
+    field: str
+    step: int = Field(description="Grid nodes per returned node along each axis (1: full resolution).")
+    x_mm: list[float]
+    y_mm: list[float]
+    values_mm: list[list[float | None]] = Field(description="[iy][ix], mm; null where nothing was compared.")
+
+
+@router.get("/jobs/{job_id}/comparison/grid", response_model=ComparisonGridOut, responses=RESULT_ERRORS)
+def comparison_grid(
+    job: JobDep,
+    state: StateDep,
+    frame: Annotated[int, Query(ge=0, le=MAX_ID, description="Recording frame index.")],
+    field: Literal["diff_mm", "sigma_w_mm", "w_meas_mm", "w_sim_mm"] = "diff_mm",
+    budget: Annotated[int, Query(ge=8, le=2000, description="Largest number of nodes per side.")] = GRID_BUDGET_NODES,
+) -> ComparisonGridOut:
+    """One frame's difference map w_meas − w_sim (or σ_w, or either side), block-averaged (NaN-aware) to at
+    most `budget` nodes per side."""
+    with comparison(job, state.settings.data_path) as reader:
+        x, y, values, step = reader.field_cut(field, _position(reader, frame), budget=budget)
+    return ComparisonGridOut(
+        frame=frame, field=field, step=step, x_mm=_listed(x), y_mm=_listed(y), values_mm=_listed(values)
+    )
+
+
+class ComparisonProfileOut(BaseModel):
+    frame: int
+    axis: str
+    s_mm: list[float | None]
+    x_mm: list[float | None]
+    y_mm: list[float | None]
+    measured_mm: list[float | None]
+    simulated_mm: list[float | None]
+    sigma_mm: list[float | None] = Field(description="σ_w of the measurement (the ±σ band); null: not known.")
+
+
+@router.get("/jobs/{job_id}/comparison/profile", response_model=ComparisonProfileOut, responses=RESULT_ERRORS)
+def comparison_profile(
+    job: JobDep,
+    state: StateDep,
+    frame: Annotated[int, Query(ge=0, le=MAX_ID, description="Recording frame index.")],
+    axis: Literal["x", "y"] = "x",
+) -> ComparisonProfileOut:
+    """The profile through the punch axis along X or Y: measured and simulated deflection with σ_w."""
+    with comparison(job, state.settings.data_path) as reader:
+        profile = reader.profile(axis, _position(reader, frame))
+    return ComparisonProfileOut(frame=frame, axis=axis, **{name: _listed(values) for name, values in profile.items()})

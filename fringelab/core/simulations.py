@@ -1,0 +1,221 @@
+"""Finite-element simulations uploaded into an experiment, as the API changes them.
+
+What belongs here: who may see or change a simulation (it follows its experiment, `fringelab.core.accounts`), how a
+received file becomes one (a single model file, or a ZIP of a folder format such as a d3plot family or a .pvd/.vtu
+series, unpacked safely), the check that it reads (`fringelab.formats.simulations.open_simulation`) before anything
+is registered, and when a delete is refused (a comparison job still uses it). Routes call these and stay thin.
+
+Storage: `DATA_DIR/simulations/<id>/model/` holds the file or the unpacked folder; the row exists only once the
+folder is in place and read, so a refused upload leaves neither a row nor files.
+"""
+
+from __future__ import annotations
+
+import shutil
+import uuid
+import zipfile
+from pathlib import Path, PurePosixPath
+from typing import Any
+
+import numpy as np
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from fringelab.core.accounts import Principal, audit, require_access
+from fringelab.core.errors import Conflict, Invalid, NotFound, TooLarge
+from fringelab.core.jobs import ACTIVE_STATES
+from fringelab.core.models import Experiment, Job, Simulation
+from fringelab.core.recordings import check_upload_size
+from fringelab.core.settings import Settings
+from fringelab.core.state import AppState
+from fringelab.core.storage import place_file, put_dir, remove_tree, simulation_dir
+from fringelab.formats.containers import is_junk_entry, unsafe_entry_reason
+
+MODEL_DIR = "model"
+
+
+def simulation_for(session: Session, principal: Principal, simulation_id: int, *, write: bool = False) -> Simulation:
+    """The simulation if `principal` may read (or write) its experiment; otherwise a 404 (403: read-only)."""
+    simulation = session.get(Simulation, simulation_id)
+    if simulation is None:
+        raise NotFound(f"simulation {simulation_id} not found", code="simulation_not_found")
+    require_access(session, principal, simulation.experiment, write=write, what=f"simulation {simulation_id}")
+    return simulation
+
+
+def check_simulation_request(
+    state: AppState, principal: Principal, *, experiment_id: int, filename: str, length: int | None
+) -> None:
+    """Refuse an upload before any byte is sent: unknown experiment, a name that is no plain file name, size or disk."""
+    if not filename or len(filename) > 255 or "/" in filename or "\\" in filename or filename.startswith("."):
+        raise Invalid("filename must be a plain file name of 1 to 255 characters", code="invalid_filename")
+    with state.sessions() as session:
+        experiment = session.get(Experiment, experiment_id)
+        if experiment is None:
+            raise NotFound(f"experiment {experiment_id} not found")
+        require_access(session, principal, experiment, write=True, what=f"experiment {experiment_id}")
+    if length is not None:
+        # a ZIP unpacks beside itself: room for twice the bytes
+        check_upload_size(state.settings, length, reserved_bytes=length)
+
+
+def _unpack(archive_path: Path, target: Path, *, filename: str, settings: Settings) -> None:
+    """Unpack a ZIP of a simulation folder into `target`, refusing unsafe entries and bombs (Invalid naming them)."""
+    try:
+        with zipfile.ZipFile(archive_path) as archive:
+            infos = archive.infolist()
+            total = 0
+            for info in infos:
+                reason = unsafe_entry_reason(info)
+                if reason:
+                    raise Invalid(f"{filename}: {reason}; refused", code="unsafe_archive")
+                total += info.file_size
+                if total > settings.zip_max_uncompressed_bytes:
+                    raise Invalid(
+                        f"{filename}: expands to more than {settings.zip_max_uncompressed_bytes} bytes "
+                        "(FRINGELAB_ZIP_MAX_UNCOMPRESSED_BYTES); refused",
+                        code="unsafe_archive",
+                    )
+                if info.file_size > 2**20 and info.file_size > settings.zip_max_ratio * max(info.compress_size, 1):
+                    raise Invalid(f"{filename}: entry {info.filename!r} is a ZIP bomb; refused", code="unsafe_archive")
+            for info in infos:
+                if info.is_dir() or is_junk_entry(info.filename):
+                    continue
+                out = target.joinpath(*PurePosixPath(info.filename.replace("\\", "/")).parts)
+                out.parent.mkdir(parents=True, exist_ok=True)
+                with archive.open(info) as source, out.open("wb") as sink:
+                    shutil.copyfileobj(source, sink, 2**20)
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, NotImplementedError) as error:
+        raise Invalid(f"{filename}: not a readable ZIP archive ({error})", code="corrupt_archive") from None
+
+
+def _model_folder(root: Path) -> Path:
+    """The folder holding the model: `root`, or the one folder a ZIP wrapped everything in."""
+    entries = list(root.iterdir())
+    while len(entries) == 1 and entries[0].is_dir():
+        root = entries[0]
+        entries = list(root.iterdir())
+    return root
+
+
+def _finite_range(values: np.ndarray | None) -> list[float] | None:
+    if values is None or len(values) == 0 or not np.any(np.isfinite(values)):
+        return None
+    return [float(np.nanmin(values)), float(np.nanmax(values))]
+
+
+def read_simulation_summary(folder: Path, *, filename: str) -> dict[str, Any]:
+    """Open the simulation in `folder` (`open_simulation`): its kind, size and what it holds; Invalid with the
+    reader's message when it is no simulation fringelab reads."""
+    from fringelab.formats.simulations import open_simulation
+
+    try:
+        results = open_simulation(folder)
+    except (ValueError, KeyError, IndexError, OSError, EOFError) as error:
+        message = str(error).replace(str(folder) + "/", "").replace(str(folder), filename)
+        raise Invalid(f"{filename}: not a simulation fringelab reads: {message}", code="invalid_simulation") from None
+    return {
+        "kind": results.kind,
+        "n_states": results.n_states,
+        "n_nodes": results.n_nodes,
+        "info": {
+            "time": _finite_range(results.time),
+            "length_unit": results.length_unit,
+            "time_unit_s": results.time_unit_s,
+            "has_punch_displacement": results.punch_displacement is not None,
+            "has_force": results.force is not None,
+            "n_shells": int(len(results.shells)),
+            "n_solids": int(len(results.solids)),
+        },
+    }
+
+
+def register_simulation(
+    state: AppState,
+    principal: Principal,
+    *,
+    staged: Path,
+    experiment_id: int,
+    filename: str,
+    sha256: str,
+    size_bytes: int,
+) -> int:
+    """Turn a fully received file into a simulation of the experiment; returns its id.
+
+    A ZIP is unpacked (a single file is kept as it is) into a staging folder, read with `open_simulation`, and only
+    then registered and moved into `simulations/<id>/model/`. On a refusal the staging folder is removed; the
+    staged upload stays for the caller to remove.
+    """
+    settings = state.settings
+    work = put_dir(settings.data_path) / f"{uuid.uuid4().hex}.simulation"
+    try:
+        if zipfile.is_zipfile(staged):
+            work.mkdir(parents=True)
+            _unpack(staged, work, filename=filename, settings=settings)
+            if not any(work.iterdir()):
+                raise Invalid(f"{filename}: the ZIP holds no file", code="invalid_simulation")
+        else:
+            (work / "upload").mkdir(parents=True)
+            shutil.copyfile(staged, work / "upload" / filename)
+        folder = _model_folder(work)
+        summary = read_simulation_summary(folder, filename=filename)
+        with state.sessions() as session:
+            experiment = session.get(Experiment, experiment_id)
+            if experiment is None:
+                raise NotFound(f"experiment {experiment_id} not found")
+            require_access(session, principal, experiment, write=True, what=f"experiment {experiment_id}")
+            simulation = Simulation(
+                experiment_id=experiment_id,
+                filename=filename,
+                kind=summary["kind"],
+                size_bytes=size_bytes,
+                sha256=sha256,
+                n_states=summary["n_states"],
+                n_nodes=summary["n_nodes"],
+                info=summary["info"],
+            )
+            session.add(simulation)
+            session.flush()
+            target = simulation_dir(settings.data_path, simulation.id) / MODEL_DIR
+            try:
+                target.parent.mkdir(parents=True, exist_ok=True)
+                place_file(folder, target)
+                simulation.path = str(target.relative_to(settings.data_path))
+                audit(session, principal, "upload", "simulation", simulation.id, filename=filename,
+                      size_bytes=size_bytes, sha256=sha256, experiment_id=experiment_id)  # fmt: skip
+                session.commit()
+            except BaseException:
+                session.rollback()
+                remove_tree(settings.data_path, target.parent)
+                raise
+            return simulation.id
+    except OSError as error:
+        raise TooLarge(
+            f"{filename}: the simulation could not be stored ({error})", code="insufficient_storage"
+        ) from None
+    finally:
+        remove_tree(settings.data_path, work)
+
+
+def jobs_using_simulation(session: Session, simulation_id: int) -> list[Job]:
+    """Queued or running comparison jobs that read the simulation."""
+    return [
+        job
+        for job in session.scalars(select(Job).where(Job.kind == "comparison", Job.state.in_(ACTIVE_STATES)))
+        if (job.spec or {}).get("simulation_id") == simulation_id
+    ]
+
+
+def delete_simulation(session: Session, settings: Settings, principal: Principal, simulation: Simulation) -> None:
+    """The simulation's row and files; 409 `in_use` naming the comparison jobs still reading it."""
+    jobs = jobs_using_simulation(session, simulation.id)
+    if jobs:
+        listed = ", ".join(f"{job.kind} job {job.id} ({job.state})" for job in jobs[:5])
+        raise Conflict(
+            f"simulation {simulation.id} is in use by {listed}; cancel the job or wait until it ends", code="in_use"
+        )
+    directory = simulation_dir(settings.data_path, simulation.id)
+    audit(session, principal, "delete", "simulation", simulation.id, filename=simulation.filename)
+    session.delete(simulation)
+    session.commit()
+    remove_tree(settings.data_path, directory)

@@ -1,0 +1,198 @@
+"""Simulations uploaded into an experiment and comparison jobs, through the API with a real Redis and worker.
+
+The measurement is the virtual experiment's topography (tests/pipelines/conftest.py, `measured`: 8 frames), made
+by the pipeline and registered as a succeeded topography job of the experiment; the simulation is that
+experiment's true surface (`write_true_simulation`), uploaded as a ZIP of its CSV folder. When the simulation is
+the truth, w_meas − w_sim is the measurement's own error: its RMS per frame must equal the RMS of w_meas − w_true
+over the same nodes, within 10 % (the tolerance and its reasons are those of tests/pipelines/test_comparison.py:
+the model's linear interpolation adds about 1.6 %, a mapping off by 0.1 mm or a wrong state adds far more).
+"""
+
+from __future__ import annotations
+
+import io
+import shutil
+import uuid
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from fringelab.core.db import make_engine, make_sessionmaker
+from fringelab.core.models import Job, utcnow
+from fringelab.formats.comparison import ComparisonResult
+from fringelab.pipelines.simulation import write_true_simulation
+from tests.pipelines.conftest import measured  # noqa: F401  (the session's measured virtual experiment)
+from tests.worker.conftest import wait_job
+
+RMS_TOLERANCE = 0.10
+
+
+def zipped(folder: Path) -> bytes:
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", compression=zipfile.ZIP_DEFLATED) as archive:
+        for path in sorted(folder.rglob("*")):
+            if path.is_file():
+                archive.write(path, Path(folder.name) / path.relative_to(folder))
+    return buffer.getvalue()
+
+
+def add_topography_jobs(settings, experiment_id: int, result: Path) -> dict[str, str]:  # type: ignore[no-untyped-def]
+    """A succeeded topography job of the experiment holding `result`, and one still running."""
+    done, running = str(uuid.uuid4()), str(uuid.uuid4())
+    target = settings.data_path / "results" / "jobs" / done / "topography.h5"
+    target.parent.mkdir(parents=True)
+    shutil.copyfile(result, target)
+    entry = {"name": "topography.h5", "path": str(target.relative_to(settings.data_path)),
+             "size_bytes": target.stat().st_size, "sha256": "", "media_type": "application/x-hdf5"}  # fmt: skip
+    engine = make_engine(settings.resolved_database_url)
+    with make_sessionmaker(engine)() as session:
+        session.add(Job(id=done, kind="topography", state="succeeded", experiment_id=experiment_id, files=[entry],
+                        spec={"kind": "topography"}, finished_at=utcnow()))  # fmt: skip
+        session.add(Job(id=running, kind="topography", state="running", experiment_id=experiment_id,
+                        spec={"kind": "topography"}))  # fmt: skip
+        session.commit()
+    engine.dispose()
+    return {"done": done, "running": running}
+
+
+def leftovers(settings) -> list[Path]:  # type: ignore[no-untyped-def]
+    """Files or folders under the upload staging area and the simulations' store."""
+    found: list[Path] = []
+    for folder in (settings.data_path / "uploads" / "put", settings.data_path / "simulations"):
+        if folder.exists():
+            found += list(folder.iterdir())
+    return found
+
+
+def test_a_simulation_that_is_the_truth_differs_from_the_measurement_by_its_error(
+    client,
+    celery_worker,
+    settings,
+    measured,  # noqa: F811
+    tmp_path,
+) -> None:  # type: ignore[no-untyped-def]
+    experiment = client.post("/api/v1/experiments", json={"name": "virtual kodak"}).json()
+    jobs = add_topography_jobs(settings, experiment["id"], measured.result)
+    base = f"/api/v1/experiments/{experiment['id']}/simulations"
+
+    # a file that is no simulation: 422 naming the file and what is expected, nothing registered or left behind
+    refused = client.put(f"{base}/notes.txt", content=b"this is not a model\n")
+    assert refused.status_code == 422, refused.text
+    assert refused.json()["code"] == "invalid_simulation"
+    assert "notes.txt" in refused.json()["detail"] and "d3plot" in refused.json()["detail"], refused.text
+    not_a_zip = client.put(f"{base}/broken.zip", content=b"PK\x03\x04 truncated")
+    assert not_a_zip.status_code == 422, not_a_zip.text
+    assert client.get(base).json() == []
+    assert leftovers(settings) == []
+
+    folder = write_true_simulation(measured.truth_json, tmp_path / "fe", kind="csv")
+    uploaded = client.put(f"{base}/plate-fe.zip", content=zipped(folder))
+    assert uploaded.status_code == 201, uploaded.text
+    simulation = uploaded.json()
+    assert (simulation["kind"], simulation["n_states"]) == ("csv", 8)
+    assert simulation["info"]["has_force"] and simulation["info"]["has_punch_displacement"]
+    assert client.get(base).json() == [simulation]
+    assert client.get(f"/api/v1/simulations/{simulation['id']}").json() == simulation
+
+    spec = {"kind": "comparison", "simulation_id": simulation["id"], "format": "csv"}
+    running = client.post("/api/v1/jobs", json={**spec, "job_id": jobs["running"]})
+    assert running.status_code == 409 and running.json()["code"] == "job_not_succeeded", running.text
+    elsewhere = client.post("/api/v1/experiments", json={"name": "another"}).json()
+    other = add_topography_jobs(settings, elsewhere["id"], measured.result)
+    wrong = client.post("/api/v1/jobs", json={**spec, "job_id": other["done"]})
+    assert wrong.status_code == 422 and wrong.json()["code"] == "simulation_not_found", wrong.text
+
+    created = client.post("/api/v1/jobs", json={**spec, "job_id": jobs["done"]})
+    assert created.status_code == 201, created.text
+    job = wait_job(client, created.json()["id"], timeout_s=300)
+    assert job["state"] == "succeeded", job["error"]
+    assert {f["name"] for f in job["files"]} == {"comparison.h5", "comparison.csv"}
+
+    overview = client.get(f"/api/v1/jobs/{job['id']}/comparison").json()
+    assert overview["alignment"] == "displacement"
+    assert overview["frames"]["reason"] == [""] * 8
+    path = settings.data_path / "results" / "jobs" / job["id"] / "comparison.h5"
+    with ComparisonResult(path) as comparison:
+        gx, gy = np.meshgrid(comparison.grid.x_mm, comparison.grid.y_mm)
+        for i, frame in enumerate(overview["frames"]["frame"]):
+            error = comparison.field("w_meas_mm", i) - measured.true_w_mm(frame, gx, gy)
+            used = np.isfinite(comparison.field("diff_mm", i)) & np.isfinite(error)
+            expected = float(np.sqrt(np.mean(error[used] ** 2)))
+            rms = overview["frames"]["rms_diff_mm"][i]
+            assert abs(rms - expected) <= RMS_TOLERANCE * expected, (frame, rms, expected)
+    # both curves: the simulation's punch travel at each frame is the measured one (the states are the frames)
+    np.testing.assert_allclose(overview["frames"]["sim_punch_displacement_mm"],
+                               overview["frames"]["punch_displacement_mm"], atol=1e-3)  # fmt: skip
+    assert len(overview["simulation"]["peak_w_mm"]) == 8
+
+    frame = overview["frames"]["frame"][5]
+    cut = client.get(f"/api/v1/jobs/{job['id']}/comparison/grid", params={"frame": frame, "budget": 40}).json()
+    assert cut["step"] > 1 and max(len(cut["x_mm"]), len(cut["y_mm"])) <= 40
+    diff = np.array(cut["values_mm"], dtype=float)
+    assert np.nanmax(np.abs(diff)) < 1.0  # the truth: differences are the measurement's noise, not millimetres
+    sigma = client.get(f"/api/v1/jobs/{job['id']}/comparison/grid",
+                       params={"frame": frame, "field": "sigma_w_mm", "budget": 40}).json()  # fmt: skip
+    assert np.nanmin(np.array(sigma["values_mm"], dtype=float)) > 0
+    profile = client.get(f"/api/v1/jobs/{job['id']}/comparison/profile", params={"frame": frame, "axis": "y"}).json()
+    measured_w = np.array(profile["measured_mm"], dtype=float)
+    simulated_w = np.array(profile["simulated_mm"], dtype=float)
+    both = np.isfinite(measured_w) & np.isfinite(simulated_w)
+    assert both.sum() > 20 and np.nanmax(simulated_w) > 5.0
+    # σ_w along the profile (the ±σ band): known at the compared points but the data's very edge
+    assert np.mean(np.isfinite(np.array(profile["sigma_mm"], dtype=float)[both])) > 0.8
+    missing = client.get(f"/api/v1/jobs/{job['id']}/comparison/grid", params={"frame": 999})
+    assert missing.status_code == 422 and missing.json()["code"] == "frame_not_in_result", missing.text
+    not_comparison = client.get(f"/api/v1/jobs/{jobs['done']}/comparison")
+    assert not_comparison.status_code == 404, not_comparison.text
+
+    assert client.delete(f"/api/v1/simulations/{simulation['id']}").status_code == 204
+    assert client.get(base).json() == []
+    assert leftovers(settings) == []
+
+
+def test_an_upload_over_the_limit_or_into_no_experiment_is_refused(settings) -> None:  # type: ignore[no-untyped-def]
+    from fastapi.testclient import TestClient
+
+    from backend.app import create_app
+
+    limited = settings.model_copy(update={"max_upload_bytes": 100})
+    with TestClient(create_app(limited)) as client:
+        experiment = client.post("/api/v1/experiments", json={"name": "plate"}).json()
+        too_big = client.put(f"/api/v1/experiments/{experiment['id']}/simulations/model.csv", content=b"x" * 101)
+        assert too_big.status_code == 413, too_big.text
+        assert "FRINGELAB_MAX_UPLOAD_BYTES" in too_big.json()["detail"]
+        missing = client.put(f"/api/v1/experiments/{2**31 - 1}/simulations/model.csv", content=b"x")
+        assert missing.status_code == 404, missing.text
+    assert leftovers(settings) == []
+
+
+def test_an_unsafe_zip_is_refused_and_a_simulation_in_use_is_not_deleted(client, settings) -> None:  # type: ignore[no-untyped-def]
+    experiment = client.post("/api/v1/experiments", json={"name": "plate"}).json()
+    base = f"/api/v1/experiments/{experiment['id']}/simulations"
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w") as archive:
+        archive.writestr("../outside.csv", "state,time_s\n")
+    unsafe = client.put(f"{base}/climb.zip", content=buffer.getvalue())
+    assert unsafe.status_code == 422 and unsafe.json()["code"] == "unsafe_archive", unsafe.text
+    assert "climb.zip" in unsafe.json()["detail"] and "'..'" in unsafe.json()["detail"]
+    assert not (settings.data_path / "uploads" / "outside.csv").exists()
+    assert leftovers(settings) == []
+
+    nodes = "state,time_s,node,x_mm,y_mm,z_mm,ux_mm,uy_mm,uz_mm\n" + "".join(
+        f"{s},{s * 1e-3},{n + 1},{10 * (n % 2)},{10 * (n // 2)},0,0,0,{s if n == 0 else 0}\n"
+        for s in (0, 1)
+        for n in range(4)
+    )
+    simulation = client.put(f"{base}/nodes.csv", content=nodes.encode()).json()
+    assert (simulation["kind"], simulation["n_states"], simulation["n_nodes"]) == ("csv", 2, 4)
+    engine = make_engine(settings.resolved_database_url)
+    with make_sessionmaker(engine)() as session:
+        session.add(Job(id="cmp-1", kind="comparison", state="queued", experiment_id=experiment["id"],
+                        spec={"kind": "comparison", "job_id": "t", "simulation_id": simulation["id"]}))  # fmt: skip
+        session.commit()
+    engine.dispose()
+    refused = client.delete(f"/api/v1/simulations/{simulation['id']}")
+    assert refused.status_code == 409 and refused.json()["code"] == "in_use", refused.text
+    assert "cmp-1" in refused.json()["detail"]
+    assert client.get(f"/api/v1/simulations/{simulation['id']}").status_code == 200
