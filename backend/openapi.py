@@ -84,6 +84,10 @@ OPERATION_IDS = {
     "jobs_events": "stream_jobs_events", "remove_job": "delete_job",
     "projector_calibration_report": "get_projector_calibration_report",
     "list_docs": "list_docs", "read_doc": "get_doc", "queue": "get_queue", "storage": "get_storage",
+    "put_simulation": "upload_simulation", "list_simulations": "list_simulations",
+    "read_simulation": "get_simulation", "remove_simulation": "delete_simulation",
+    "comparison_overview": "get_comparison", "comparison_grid": "get_comparison_grid",
+    "comparison_profile": "get_comparison_profile",
 }  # fmt: skip
 
 

@@ -12,7 +12,15 @@ import pytest
 
 from backend.app import create_app
 
-PUBLIC = {("get", "/api/v1/health"), ("post", "/api/v1/auth/login"), ("options", "/api/v1/uploads")}
+# Public on purpose: health for monitors, login, the tus capability probe, and the method documentation (the same
+# text ships in the repository's docs/, so the help pages also work on the login page).
+PUBLIC = {
+    ("get", "/api/v1/health"),
+    ("post", "/api/v1/auth/login"),
+    ("options", "/api/v1/uploads"),
+    ("get", "/api/v1/docs"),
+    ("get", "/api/v1/docs/{name}"),
+}
 METHODS = ("get", "put", "post", "delete", "options", "head", "patch")
 # Error answers whose body is not {detail, code}, and why: a failing health check answers with the health report
 # itself (which part is down), for monitors and load balancers.
