@@ -21,7 +21,11 @@ Topography result (schema "fringelab.topography", version 1); lengths in mm in t
   /peak             w_mm, x_mm, y_mm (n,): the largest deflection of the grid and where; centre_x_mm,
                     centre_y_mm (n,): centroid of the area above half the peak (the punch axis), NaN early on
   /qa               n_points, n_tracks, n_ended, n_out_of_range, n_unmatched (n,) int64; edge_noise_px,
-                    grid_coverage (n,) float64 (fraction of the first frame's grid area still with data)
+                    grid_coverage (n,) float64 (fraction of the first frame's grid area still with data);
+                    since the per-frame order (absent in older files, read as NaN): measured_fraction,
+                    visible_area_mm2, measured_area_mm2 and missing_<reason>_mm2 for every reason in
+                    MISSING_REASONS (n,) float64 (what of the plate the reference frame sees was measured, and
+                    what not, by reason); n_order_conflicts, n_order_unresolved (n,) int64
   /summary          attrs: flat_rms_mm (RMS of w over the first frame), n_tracks_first_frame, clamp_centre_x_mm,
                     clamp_centre_y_mm, clamp_radius_mm (circle through the outermost first-frame points),
                     punch_axis_x_mm, punch_axis_y_mm (median of the per-frame centres), n_out_of_range_total
@@ -38,6 +42,7 @@ import numpy as np
 
 from fringelab.formats.atomic import commit_partial, partial_path
 from fringelab.formats.hdf5 import SCHEMA_VERSION, require_schema, unit_dataset
+from fringelab.science.coverage import MISSING_DESCRIPTIONS, MISSING_REASONS
 from fringelab.science.fields import Grid, Peak
 
 if TYPE_CHECKING:
@@ -191,6 +196,24 @@ class TopographyWriter:
             maxshape=(None,),
             chunks=(1024,),
         )
+        coverage_columns = [
+            ("measured_fraction", "1", "measured area / area of the plate the reference frame sees"),
+            ("visible_area_mm2", "mm2", "area of the plate the reference frame sees"),
+            ("measured_area_mm2", "mm2", "area of that plate measured in this frame"),
+        ]
+        coverage_columns += [
+            (f"missing_{name}_mm2", "mm2", f"area not measured: {MISSING_DESCRIPTIONS[name]}")
+            for name in MISSING_REASONS
+        ]
+        for name, unit, description in coverage_columns:
+            unit_dataset(qa, name, np.zeros(0), unit=unit, description=description, maxshape=(None,), chunks=(1024,))
+        for name, description in (
+            ("n_order_conflicts", "conflicts between the sources of the fringe order (masked, never guessed)"),
+            ("n_order_unresolved", "edge points whose order no anchor reaches (masked)"),
+        ):
+            unit_dataset(
+                qa, name, np.zeros(0, np.int64), unit="1", description=description, maxshape=(None,), chunks=(1024,)
+            )
         unit_dataset(
             qa,
             "grid_coverage",
@@ -251,6 +274,14 @@ class TopographyWriter:
             "edge_noise_px": measurement.edge_noise_px,
             "grid_coverage": nodes / self._first_coverage_nodes,
         }
+        coverage = measurement.coverage
+        qa["n_order_conflicts"] = measurement.n_order_conflicts
+        qa["n_order_unresolved"] = measurement.n_order_unresolved
+        qa["measured_fraction"] = coverage.measured_fraction if coverage else np.nan
+        qa["visible_area_mm2"] = coverage.visible_area_mm2 if coverage else np.nan
+        qa["measured_area_mm2"] = coverage.measured_area_mm2 if coverage else np.nan
+        for name in MISSING_REASONS:
+            qa[f"missing_{name}_mm2"] = coverage.missing_mm2[name] if coverage else np.nan
         for name, value in qa.items():
             self._append(file[f"qa/{name}"], np.array([value]))
         self._n += 1
@@ -329,6 +360,16 @@ class TopographyResult:
     def w_grid(self, i: int) -> np.ndarray:
         """Gridded deflection w = z − z_flat (ny, nx) of frame position i."""
         return self.z_grid(i) - self.z_flat_mm
+
+    def coverage(self) -> dict[str, np.ndarray]:
+        """Per frame: measured_fraction, visible_area_mm2, measured_area_mm2, missing_<reason>_mm2 (float, NaN in
+        files written before they existed) and n_order_conflicts (float, NaN likewise)."""
+        names = ["measured_fraction", "visible_area_mm2", "measured_area_mm2", "n_order_conflicts"]
+        names += [f"missing_{name}_mm2" for name in MISSING_REASONS]
+        qa = self.file["qa"]
+        return {
+            name: qa[name][()].astype(np.float64) if name in qa else np.full(self.n_frames, np.nan) for name in names
+        }
 
     def summary(self) -> dict[str, Any]:
         return dict(self.file["summary"].attrs) if "summary" in self.file else {}

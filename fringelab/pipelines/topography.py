@@ -120,6 +120,7 @@ def topography_recording(
     centres: list[tuple[float, float]] = []
     peaks: list[float] = []
     n_out_of_range = 0
+    n_after_first = n_ordered_after_first = n_unresolved = 0
     try:
         for measurement in track_and_measure(located(), projector, camera_model, settings=settings):
             if measurement.frame == 0:
@@ -154,8 +155,19 @@ def topography_recording(
             if np.isfinite(peak.centre_x_mm) and peak.w_mm >= 5.0:
                 centres.append((peak.centre_x_mm, peak.centre_y_mm))
             n_out_of_range += measurement.n_out_of_range
+            if measurement.frame > 0:
+                n_after_first += 1
+                n_ordered_after_first += len(measurement.k)
+                n_unresolved += measurement.n_order_unresolved
         if writer is None:
             raise TopographyError(f"{where}: the recording has no frames")
+        if n_ordered_after_first == 0 and n_after_first > 0:
+            raise TopographyError(
+                f"{where}: the stripes could not be ordered in any frame after the first ({n_after_first} frames, "
+                f"{n_unresolved} edge points with no anchor): the clamped rim, which anchors the fringe order, shows "
+                "no stripes in them; check that the rim stays lit and in view, or set rim_circle_mm to a region "
+                "that stays still"
+            )
         axis_xy = tuple(np.median(np.array(centres), axis=0)) if centres else (float("nan"), float("nan"))
         summary = {
             "flat_rms_mm": flat_rms, "n_tracks_first_frame": n_first_tracks, "clamp_centre_x_mm": clamp[0],

@@ -174,7 +174,8 @@ class PlateScene:
     petals lift by petal_lift_mm[i] (cycled over the petals; + toward the camera) at the hole's rim, falling
     quadratically to 0 at the crack tips, so w jumps across each crack. A specular highlight (a Gaussian spot of
     the projector's light reflected straight into the camera, highlight_gain times the plate's diffuse level at
-    its centre) sits at highlight_xy_mm.
+    its centre) sits at highlight_xy_mm. room_light lights the scene evenly besides the projector (as a fraction
+    of the projector's light at the plate centre), so a shadow is dim, not black.
     """
 
     centre_xy_mm: tuple[float, float] = (8.0, -5.0)
@@ -192,6 +193,7 @@ class PlateScene:
     highlight_xy_mm: tuple[float, float] | None = None
     highlight_sigma_mm: float = 10.0
     highlight_gain: float = 1.5
+    room_light: float = 0.0
 
     def deflection_mm(self, x_mm: np.ndarray, y_mm: np.ndarray, w0_mm: float) -> tuple[np.ndarray, ...]:
         """w and its slopes ∂w/∂X, ∂w/∂Y at object points (zero outside the clamp circle)."""
@@ -433,6 +435,11 @@ class FringeRenderer:
             spot = scene.highlight_gain * np.exp(-0.5 * ((x - hx) ** 2 + (y - hy) ** 2) / scene.highlight_sigma_mm**2)
             light = light * (1.0 + spot / np.maximum(scene.plate_albedo, 1e-6))
         pattern = imaging.dark_stripe_fraction + (1.0 - imaging.dark_stripe_fraction) * stripes
+        if scene.room_light > 0:
+            # Room light adds to the projector's everywhere, shadows included: fold it into both factors.
+            total = light + scene.room_light
+            pattern = (light * pattern + scene.room_light) / total
+            light = total
         return (albedo * light).astype(np.float32), pattern.astype(np.float32)
 
     def _behind_punch(
@@ -621,7 +628,8 @@ def scenario(name: str, setup: Preset, n_frames: int) -> tuple[Preset, PunchTime
     18 mm hole and 6 mm of springback within one frame). "petals": the fast test with four radial cracks growing
     from 15 to 35 mm beyond the hole and petals lifting by different amounts, so w jumps across each crack.
     "highlight": the quasi-static test with a specular highlight on the plate. "shadow": the fast test with the
-    punch coming through the hole, shadowing part of the stripes. "hard": all of them at once.
+    punch coming through the hole, shadowing part of the stripes (dim room light, so the shadow is not black).
+    "hard": all of them at once.
     """
     scene = setup.scene
     petals: dict[str, Any] = {"crack_count": 4, "petal_lift_mm": (5.0, -3.0, 4.0, -2.0)}
@@ -642,10 +650,12 @@ def scenario(name: str, setup: Preset, n_frames: int) -> tuple[Preset, PunchTime
                                   punch_radius_mm=scene.punch_radius_mm)  # fmt: skip
         return replace(setup, scene=replace(scene, **highlight)), timeline
     if name == "shadow":
-        return setup, fast_timeline(n_frames, punch_protrusion_mm_per_frame=12.0, **fast)
+        return replace(setup, scene=replace(scene, room_light=0.1)), fast_timeline(
+            n_frames, punch_protrusion_mm_per_frame=12.0, **fast
+        )
     if name == "hard":
         timeline = fast_timeline(n_frames, crack_length_mm=(15.0, 35.0), punch_protrusion_mm_per_frame=12.0, **fast)
-        return replace(setup, scene=replace(scene, **petals, **highlight)), timeline
+        return replace(setup, scene=replace(scene, room_light=0.1, **petals, **highlight)), timeline
     raise ValueError(f"scenario: expected one of {SCENARIOS}, got {name!r}")
 
 

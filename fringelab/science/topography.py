@@ -29,8 +29,9 @@ import numpy as np
 
 from . import MeasurementError
 from .camera import backproject_to_z
+from .coverage import MISSING_REASONS, FrameCoverage
 from .fields import Grid, grid_covering, grid_edge_points, typical_edge_gap_mm
-from .fringes import FrameEdges, detect_stripes, locate_edges
+from .fringes import UNUSABLE_BLACK, UNUSABLE_BLOCK_PX, UNUSABLE_DARK, FrameEdges, detect_stripes, locate_edges
 from .order import (
     ORDER_CONFLICT,
     ORDER_UNRESOLVED,
@@ -108,7 +109,8 @@ class FrameMeasurement:
     the calibrated Z range of their table entry (masked, never extrapolated); n_unmatched: edge points of the
     frame without an order; edge_noise_px: the frame's edge-location noise estimate; n_order_unresolved: edge
     points whose group no anchor reaches; n_order_conflict_points: edge points masked for a conflict of sources;
-    n_order_conflicts: conflicts found (curves or groups).
+    n_order_conflicts: conflicts found (curves or groups); coverage: what of the plate was measured and what
+    is missing by reason (None for measurements stored without it).
     """
 
     frame: int
@@ -123,6 +125,7 @@ class FrameMeasurement:
     n_order_unresolved: int = 0
     n_order_conflict_points: int = 0
     n_order_conflicts: int = 0
+    coverage: FrameCoverage | None = None
 
     def dense(self, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """X, Y, Z as (K, S) arrays over (edge, line), NaN where not measured."""
@@ -207,6 +210,7 @@ class OrderedFrame:
 
     positions: np.ndarray
     counts: dict[str, int]
+    coverage: FrameCoverage
 
 
 def order_positions(
@@ -230,7 +234,93 @@ def order_positions(
         "n_order_conflicts": int(frame_order.n_conflicts),
         "n_unmatched": len(edges) - n_ordered,
     }
-    return OrderedFrame(positions=positions, counts=counts)
+    coverage = frame_coverage(edges, frame_order.k, frame_order.reason, positions, reference, projector)
+    coverage = FrameCoverage(
+        visible_area_mm2=coverage.visible_area_mm2, measured_area_mm2=coverage.measured_area_mm2,
+        missing_mm2=coverage.missing_mm2, n_order_conflicts=frame_order.n_conflicts,
+    )  # fmt: skip
+    return OrderedFrame(positions=positions, counts=counts, coverage=coverage)
+
+
+def frame_coverage(
+    edges: FrameEdges,
+    k: np.ndarray,
+    reason: np.ndarray,
+    positions: np.ndarray,
+    reference: OrderReference,
+    projector: ProjectorCalibration,
+) -> FrameCoverage:
+    """The measured and missing areas of one frame (`FrameCoverage`).
+
+    k, reason: (N,) order and reason of the frame's edge points (`order.order_frame`); positions: (K, S) the
+    ordered positions. Each reference point missing in the frame is placed where the frame's own measured
+    neighbours on its line say its edge now is (their displacement from the reference, interpolated in k along
+    the line); an unordered edge point found there lends it its reason, else the frame's `unusable` map there
+    does (a block with nothing wrong counts as low contrast: no edge was located).
+    """
+    area = reference.cell_area_mm2
+    seen = np.isfinite(reference.reference_t_px) & np.isfinite(area)
+    kk, ss = np.nonzero(np.isfinite(positions))
+    _, status = projector.z_from_t(kk, ss, positions[kk, ss])
+    measured = np.zeros(positions.shape, bool)
+    measured[kk[status == 0], ss[status == 0]] = True
+    beyond = np.zeros(positions.shape, bool)
+    beyond[kk[status == 1], ss[status == 1]] = True
+    missing = {name: 0.0 for name in MISSING_REASONS}
+    missing["out_of_range"] = float(np.sum(area[seen & beyond]))
+    rest = seen & ~measured & ~beyond
+    rk, rs = np.nonzero(rest)
+    if len(rk):
+        t_now = _displaced_reference(positions, reference.reference_t_px, rk, rs)
+        code = np.full(len(rk), -1, np.int64)
+        # Unordered edge points lend their reason to the missing point nearest them on their line.
+        unordered = np.flatnonzero(k < 0)
+        if len(unordered):
+            stride = float(edges.n_samples + 1000.0)
+            keys = rs.astype(np.float64) * stride + t_now
+            order = np.argsort(keys)
+            query = edges.line[unordered].astype(np.float64) * stride + edges.t_px[unordered]
+            pos = (
+                np.clip(np.searchsorted(keys[order], query), 1, len(order) - 1)
+                if len(order) > 1
+                else np.zeros(len(query), np.int64)
+            )
+            lo, hi = order[np.maximum(pos - 1, 0)], order[pos]
+            nearest = np.where(np.abs(keys[lo] - query) <= np.abs(keys[hi] - query), lo, hi)
+            close = np.abs(keys[nearest] - query) <= 0.25 * projector.period_px
+            code[nearest[close]] = np.where(reason[unordered[close]] == ORDER_CONFLICT, 4, 3)
+        if edges.unusable is not None:
+            block = UNUSABLE_BLOCK_PX
+            rows = np.clip(rs // block, 0, edges.unusable.shape[0] - 1)
+            cols = np.clip(np.round(t_now).astype(np.int64) // block, 0, edges.unusable.shape[1] - 1)
+            image_code = edges.unusable[rows, cols]
+            from_image = np.select([image_code == UNUSABLE_BLACK, image_code == UNUSABLE_DARK], [0, 1], default=2)
+        else:
+            from_image = np.full(len(rk), 2)
+        code = np.where(code >= 0, code, from_image)
+        for index, name in enumerate(MISSING_REASONS[:5]):
+            missing[name] = float(np.sum(area[rk[code == index], rs[code == index]]))
+    return FrameCoverage(
+        visible_area_mm2=float(np.sum(area[seen])),
+        measured_area_mm2=float(np.sum(area[seen & measured])),
+        missing_mm2=missing,
+        n_order_conflicts=0,
+    )
+
+
+def _displaced_reference(
+    positions: np.ndarray, reference_t_px: np.ndarray, kk: np.ndarray, ss: np.ndarray
+) -> np.ndarray:
+    """Where edges (kk, ss) are now: their reference position plus the displacement of the measured edges on
+    their line, interpolated linearly in k (held constant beyond the last one; zero on a line with none)."""
+    displacement = positions - reference_t_px
+    out = reference_t_px[kk, ss].copy()
+    for line in np.unique(ss):
+        known = np.flatnonzero(np.isfinite(displacement[:, line]))
+        on_line = ss == line
+        if len(known):
+            out[on_line] += np.interp(kk[on_line], known, displacement[known, line])
+    return out
 
 
 def savitzky_golay_centre_weights(half_width: int) -> np.ndarray:
@@ -311,7 +401,8 @@ def track_and_measure(
         if reference is None:
             reference = reference_for(frame_edges, projector, camera_model, settings)
         ordered = order_positions(frame_edges, reference, projector, settings)
-        for emitted in smoother.push((first_frame + offset, ordered.counts, frame_edges.noise_px), ordered.positions):
+        item = (first_frame + offset, ordered.counts, frame_edges.noise_px, ordered.coverage)
+        for emitted in smoother.push(item, ordered.positions):
             yield _measure(emitted, projector, camera_model)
     for emitted in smoother.flush():
         yield _measure(emitted, projector, camera_model)
@@ -329,13 +420,14 @@ def measure_frame(
     """One frame measured alone (no temporal smoothing): equal to the same frame measured within its test."""
     settings = TopographySettings() if settings is None else settings
     ordered = order_positions(edges, reference, projector, settings)
-    return _measure(((frame, ordered.counts, edges.noise_px), ordered.positions), projector, camera_model)
+    item = (frame, ordered.counts, edges.noise_px, ordered.coverage)
+    return _measure((item, ordered.positions), projector, camera_model)
 
 
 def _measure(
     emitted: tuple[Any, np.ndarray], projector: ProjectorCalibration, camera_model: CameraModel
 ) -> FrameMeasurement:
-    (frame, counts, noise_px), positions = emitted
+    (frame, counts, noise_px, coverage), positions = emitted
     kk, ll = np.nonzero(np.isfinite(positions))
     t = positions[kk, ll]
     z, status = projector.z_from_t(kk, ll, t)
@@ -356,6 +448,7 @@ def _measure(
         n_order_unresolved=int(counts["n_order_unresolved"]),
         n_order_conflict_points=int(counts["n_order_conflict_points"]),
         n_order_conflicts=int(counts["n_order_conflicts"]),
+        coverage=coverage,
     )
 
 
