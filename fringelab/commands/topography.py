@@ -11,6 +11,8 @@ import argparse
 import sys
 from typing import Any
 
+from fringelab.formats import EXPORT_FORMATS
+
 
 def _frames(text: str) -> slice:
     try:
@@ -87,7 +89,7 @@ def register(subparsers: Any) -> None:
         "(a .pvd time series of .vtu surfaces for ParaView) or profile-csv (a section along --line).",
     )
     export.add_argument("result", help="result .h5 written by `fringelab topography`")
-    export.add_argument("--format", required=True, choices=("points-csv", "grid-npz", "mat", "vtk", "profile-csv"))
+    export.add_argument("--format", required=True, choices=EXPORT_FORMATS)
     export.add_argument("-o", "--output", required=True, help="file to write (.csv, .npz, .mat, .pvd)")
     export.add_argument(
         "--line",

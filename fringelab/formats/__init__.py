@@ -9,3 +9,17 @@ topography    projector tables, topography results (writer and reader), exports,
 Modules the API imports (containers, previews, topography's reader) use numpy and h5py only; decoding frames
 (recordings) and the OpenCV YAML export need OpenCV and are used by the worker and the command line.
 """
+
+from typing import Literal, get_args
+
+# The export formats, declared once (here, light to import: the command line's parser and the job spec use it).
+ExportFormat = Literal["points-csv", "grid-npz", "mat", "vtk", "profile-csv"]
+EXPORT_FORMATS: tuple[str, ...] = get_args(ExportFormat)
+# The file each export job hands out, and its media type (vtk: the .pvd and its .vtu files in one ZIP).
+EXPORT_FILES: dict[str, tuple[str, str]] = {
+    "points-csv": ("topography.csv", "text/csv"),
+    "profile-csv": ("topography-profile.csv", "text/csv"),
+    "grid-npz": ("topography.npz", "application/octet-stream"),
+    "mat": ("topography.mat", "application/x-matlab-data"),
+    "vtk": ("topography-vtk.zip", "application/zip"),
+}

@@ -7,15 +7,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from fringelab.formats import EXPORT_FILES, EXPORT_FORMATS, ExportFormat  # noqa: F401  (declared once, there)
 from fringelab.formats.atomic import atomic_path
 from fringelab.formats.topography import TopographyResult
 from fringelab.science.fields import line_profile
 
 if TYPE_CHECKING:
     pass
-
-
-EXPORT_FORMATS = ("points-csv", "grid-npz", "mat", "vtk", "profile-csv")
 
 
 def export_points_csv(result: TopographyResult, path: str | Path) -> Path:

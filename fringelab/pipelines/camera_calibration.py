@@ -14,9 +14,9 @@ import numpy as np
 
 from fringelab.formats.sidecars import read_board_json, read_z_csv
 from fringelab.pipelines.provenance import code_versions
+from fringelab.science import Cancelled
 from fringelab.science.calibration import (
     MODES,
-    CalibrationCancelled,
     CameraCalibration,
     CornerView,
     FrameResult,
@@ -51,7 +51,7 @@ def calibrate_camera_recording(
     detector and subpix_half_window_px are passed to `chessboard.detect_board` ("classic" and 11 reproduce
     OpenCV's calibration sample). progress(done, total, stage) is called with stage "corners" after each
     frame, "solving" before the solver and "done" at the end (total = frames + 2); should_cancel() is polled
-    between frames and before the solver, and CalibrationCancelled is raised when it returns True.
+    between frames and before the solver, and Cancelled is raised when it returns True.
 
     Frames without the board are skipped and listed with the reason. Raises ValueError for malformed input
     (z.csv, board.json, mixed image sizes) and BoardNotFoundError / CalibrationError for what the user must fix.
@@ -85,7 +85,7 @@ def calibrate_camera_recording(
     image_size: tuple[int, int] | None = None
     for i, name in enumerate(names):
         if should_cancel is not None and should_cancel():
-            raise CalibrationCancelled(f"cancelled after {i} of {n_frames} frames")
+            raise Cancelled(f"cancelled after {i} of {n_frames} frames")
         image = source[i]
         digest.update(f"{name}:{image.shape}:{image.dtype}".encode())
         digest.update(np.ascontiguousarray(image).data)
@@ -120,7 +120,7 @@ def calibrate_camera_recording(
         )
     assert image_size is not None  # at least one frame was read
     if should_cancel is not None and should_cancel():
-        raise CalibrationCancelled(f"cancelled after corner extraction of {n_frames} frames")
+        raise Cancelled(f"cancelled after corner extraction of {n_frames} frames")
     if progress is not None:
         progress(n_frames + 1, total, "solving")
     settings = {

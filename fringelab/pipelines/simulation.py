@@ -12,7 +12,13 @@ from pathlib import Path
 
 import numpy as np
 
+from fringelab.formats.atomic import write_json
+from fringelab.formats.camera import write_camera_json
+from fringelab.formats.recordings import write_recording
+from fringelab.formats.sidecars import FrameTable, frames_csv_text, z_csv_text
+from fringelab.science.chessboard import Board
 from fringelab.science.simulate import FringeRenderer, Imaging, preset, punch_timeline, true_camera_calibration
+from fringelab.science.synthetic import ChessboardRenderer, board_pose_at_z, zstack_board
 
 
 @dataclass(frozen=True)
@@ -48,11 +54,6 @@ def simulate_experiment(
     out_dir/truth/experiment.json  camera, projector, scene, imaging, calibration heights and per-frame states
     (folders, or .zip files with as_zip). Frames are rendered and written one at a time.
     """
-    from fringelab.formats.atomic import write_json
-    from fringelab.formats.recordings import write_recording
-    from fringelab.formats.sidecars import FrameTable, frames_csv_text, z_csv_text
-    from fringelab.science.chessboard import Board
-    from fringelab.science.synthetic import ChessboardRenderer, board_pose_at_z, zstack_board
 
     setup = preset(preset_name, imaging=imaging)
     z_cal = np.asarray(setup.calibration_z_mm if calibration_z_mm is None else calibration_z_mm, np.float64)
@@ -99,7 +100,6 @@ def simulate_experiment(
         sidecars={"frames.csv": frames_csv_text(table)},
         as_zip=as_zip,
     )
-    from fringelab.formats.camera import write_camera_json
 
     camera_json = write_camera_json(true_camera_calibration(setup.camera), root / "truth" / "camera.json")
     truth = {

@@ -65,10 +65,6 @@ class CalibrationError(MeasurementError):
     """Calibration cannot be done from what was given: too few usable frames or Z levels, no convergence."""
 
 
-class CalibrationCancelled(Exception):
-    """Raised when the caller's `should_cancel()` returned True; not a failure of the measurement."""
-
-
 @dataclass(frozen=True, eq=False)
 class CornerView:
     """Corners of one frame: object points, shape (N, 3), and their pixels q_px, shape (N, 2).

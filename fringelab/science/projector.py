@@ -23,8 +23,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from . import MeasurementError
-from .calibration import CalibrationCancelled, ProgressCallback
+from . import Cancelled, MeasurementError
+from .calibration import ProgressCallback
 from .camera import Camera, InverseModel, backproject_to_z, fit_inverse_model
 from .fringes import EdgeSettings, FrameEdges, detect_stripes, locate_edges, order_edges
 
@@ -400,7 +400,7 @@ def build_projector_calibration(
     n_lines = expected_shape[0] if edge_settings.axis == "rows" else expected_shape[1]
     for done, j in enumerate(visit):
         if should_cancel is not None and should_cancel():
-            raise CalibrationCancelled(f"cancelled after {done} of {n_frames} frames")
+            raise Cancelled(f"cancelled after {done} of {n_frames} frames")
         image = reference_image if j == j_ref else frame_at(j)
         edges = locate_edges(image, edge_settings)
         noise.append(edges.noise_px)

@@ -30,7 +30,7 @@ import numpy as np
 from . import MeasurementError
 from .camera import backproject_to_z
 from .coverage import MISSING_REASONS, FrameCoverage
-from .fields import Grid, grid_covering, grid_edge_points, typical_edge_gap_mm
+from .fields import Grid, Peak, grid_covering, grid_edge_points, typical_edge_gap_mm
 from .fringes import UNUSABLE_BLACK, UNUSABLE_BLOCK_PX, UNUSABLE_DARK, FrameEdges, detect_stripes, locate_edges
 from .order import (
     ORDER_CONFLICT,
@@ -58,10 +58,6 @@ __all__ = ["FirstFrameNotFlatError", "clamp_circle"]
 
 class TopographyError(MeasurementError):
     """The topography cannot be computed from this recording (too few edges identified, ...)."""
-
-
-class TopographyCancelled(Exception):
-    """Raised when the caller's `should_cancel()` returned True; not a failure of the measurement."""
 
 
 @dataclass(frozen=True)
@@ -492,3 +488,62 @@ def frame_range(frames: Sequence[int] | range | None, n_frames: int) -> range:
     if len(chosen) == 0 or chosen.step != 1 or chosen.start < 0 or chosen.stop > n_frames:
         raise ValueError(f"frames: expected a non-empty contiguous range within 0..{n_frames - 1}, got {frames}")
     return chosen
+
+
+PUNCH_AXIS_MIN_PEAK_MM = 5.0  # frames whose peak is at least this deep locate the punch axis (shallower: noise)
+
+
+@dataclass
+class SummaryTally:
+    """The headline numbers of a topography run (its /summary), tallied frame by frame in frame order: the one
+    rule for the command line's sequential run and the worker's parallel job."""
+
+    peaks_w_mm: list[float] = field(default_factory=list)
+    centres_xy_mm: list[tuple[float, float]] = field(default_factory=list)
+    n_out_of_range: int = 0
+    n_after_first: int = 0
+    n_ordered_after_first: int = 0
+    n_unresolved_after_first: int = 0
+
+    def add(self, peak: Peak, *, n_out_of_range: int, measurement: FrameMeasurement | None = None) -> None:
+        self.peaks_w_mm.append(peak.w_mm)
+        if np.isfinite(peak.centre_x_mm) and peak.w_mm >= PUNCH_AXIS_MIN_PEAK_MM:
+            self.centres_xy_mm.append((peak.centre_x_mm, peak.centre_y_mm))
+        self.n_out_of_range += n_out_of_range
+        if measurement is not None and measurement.frame > 0:
+            self.n_after_first += 1
+            self.n_ordered_after_first += len(measurement.k)
+            self.n_unresolved_after_first += measurement.n_order_unresolved
+
+    def require_ordered(self, where: str) -> None:
+        """TopographyError when no frame after the reference could be ordered anywhere: a result with nothing
+        measured after its first frame would look like a plate that vanished."""
+        if self.n_after_first > 0 and self.n_ordered_after_first == 0:
+            raise TopographyError(
+                f"{where}: the stripes could not be ordered in any frame after the first ({self.n_after_first} frames, "
+                f"{self.n_unresolved_after_first} edge points with no anchor): the clamped rim, which anchors the "
+                "fringe order, shows no stripes in them; check that the rim stays lit and in view, or set "
+                "rim_circle_mm to a region that stays still"
+            )
+
+    @property
+    def punch_axis_xy_mm(self) -> tuple[float, float]:
+        """Median of the peak centres of the deep frames; NaN before the plate is deep enough anywhere."""
+        if not self.centres_xy_mm:
+            return float("nan"), float("nan")
+        x, y = np.median(np.array(self.centres_xy_mm), axis=0)
+        return float(x), float(y)
+
+    @property
+    def max_peak_w_mm(self) -> float:
+        finite = [w for w in self.peaks_w_mm if np.isfinite(w)]
+        return max(finite) if finite else float("nan")
+
+    def attrs(self, *, flat_rms_mm: float, n_tracks_first_frame: int, clamp: Sequence[float]) -> dict[str, Any]:
+        """The /summary attributes of the result file."""
+        axis_x, axis_y = self.punch_axis_xy_mm
+        return {
+            "flat_rms_mm": flat_rms_mm, "n_tracks_first_frame": n_tracks_first_frame,
+            "clamp_centre_x_mm": clamp[0], "clamp_centre_y_mm": clamp[1], "clamp_radius_mm": clamp[2],
+            "punch_axis_x_mm": axis_x, "punch_axis_y_mm": axis_y, "n_out_of_range_total": self.n_out_of_range,
+        }  # fmt: skip

@@ -1,0 +1,258 @@
+"""The topography job: a test recording, a camera and a projector calibration in; the topography result out.
+
+One fan-out over the frames and a merge in frame order, computing exactly what
+`fringelab.pipelines.topography.topography_recording` computes in one sequential pass (a test holds them to the
+bit, whatever the chunking):
+
+    entry:             the reference: frame 0's edges matched to the table, the rim that anchors the fringe
+                       order, frame 0 measured, the grid from it                    -> chunks/reference.npz
+    phase 0, chunks:   for each frame on its own: edges, fringe order, Z, X, Y, what is missing, the deflection
+                       grid and peak (with temporal smoothing, h frames either side are read too)
+                                                                                    -> chunks/frames-<first>.npz
+    merge 0, in order: the result file (TopographyWriter) and its summary           -> topography.h5
+
+No frame depends on the frames before it (the order is found per frame, anchored on the reference), so there is
+no long in-order phase: the merge only writes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from fringelab.pipelines.topography import result_writer
+from fringelab.science.topography import SummaryTally
+from worker.jobs.inputs import calibration_file, recording_input
+from worker.runner import (
+    Chunked,
+    JobContext,
+    chunk_frames_of,
+    finite_or_none,
+    frame_ranges,
+    load_arrays,
+    remove_chunk_files,
+    save_arrays,
+)
+
+
+@dataclass
+class _TopographyInputs:
+    source: Any
+    camera_model: Any
+    projector: Any
+    wanted: range
+    settings: Any
+
+    def close(self) -> None:
+        self.source.close()
+
+
+def _topography_inputs(context: JobContext) -> _TopographyInputs:
+    """The recording (open: close it), calibrations, frames to write and settings of a topography job."""
+    from fringelab.formats.camera import read_camera_json
+    from fringelab.formats.projector import read_projector_calibration
+    from fringelab.formats.recordings import open_recording
+    from fringelab.science.topography import TopographySettings, frame_range
+
+    spec = context.spec
+    _recording, _camera, path = recording_input(context)
+    camera_model = read_camera_json(calibration_file(context, spec["camera_calibration_id"]))
+    projector = read_projector_calibration(calibration_file(context, spec["projector_calibration_id"]))
+    source = open_recording(path)
+    frames = spec.get("frames") or {}
+    last = frames.get("last")
+    wanted = frame_range(range(frames.get("first", 0), len(source) if last is None else last + 1), len(source))
+    settings = TopographySettings(
+        grid_step_mm=spec["grid_step_mm"], temporal_smoothing_frames=spec["temporal_smoothing_frames"]
+    )
+    return _TopographyInputs(source, camera_model, projector, wanted, settings)
+
+
+def topography_entry(context: JobContext) -> Chunked:
+    """The reference (frame 0), then the frames to write in chunks on any worker."""
+    from fringelab.science.topography import (
+        check_recording_against,
+        check_stripes_against,
+        clamp_circle,
+        grid_for_first_frame,
+        locate_test_edges,
+        measure_frame,
+        reference_for,
+    )
+
+    inputs = _topography_inputs(context)
+    try:
+        first_frame = inputs.source[0]
+        check_recording_against(first_frame.shape[:2], inputs.projector, inputs.camera_model)
+        check_stripes_against(first_frame, inputs.projector)
+        edges = next(iter(locate_test_edges([first_frame], inputs.projector)))
+    finally:
+        inputs.close()
+    projector, settings = inputs.projector, inputs.settings
+    reference = reference_for(edges, projector, inputs.camera_model, settings)
+    # Frame 0 is never smoothed (its window has no frame before it), so measured alone it is what a run gives.
+    first = measure_frame(edges, reference, projector, inputs.camera_model, frame=0, settings=settings)
+    grid, max_edge_mm = grid_for_first_frame(first, projector, settings)
+    z = first.points_obj_mm[:, 2]
+    z_flat = float(np.median(z))
+    save_arrays(
+        context, "chunks/reference.npz",
+        reference_t_px=reference.reference_t_px, rim=reference.rim, rim_circle_mm=np.array(reference.rim_circle_mm),
+        cell_area_mm2=reference.cell_area_mm2, x_mm=grid.x_mm, y_mm=grid.y_mm, max_edge_mm=max_edge_mm,
+        z_flat_mm=z_flat, flat_rms_mm=float(np.sqrt(np.mean((z - z_flat) ** 2))),
+        clamp=np.array(clamp_circle(first.points_obj_mm[:, :2])), n_tracks_first_frame=first.n_tracks,
+    )  # fmt: skip
+    wanted = inputs.wanted
+    context.log(f"topography of frames {wanted.start}..{wanted.stop - 1}, each ordered on its own")
+    ranges = [(wanted.start + a, wanted.start + b) for a, b in frame_ranges(len(wanted), chunk_frames_of(
+        context.spec, context.settings))]  # fmt: skip
+    return Chunked(ranges, stage="measuring")
+
+
+def _reference(context: JobContext) -> Any:
+    from fringelab.science.order import OrderReference
+
+    data = load_arrays(context, "chunks/reference.npz")
+    reference = OrderReference(
+        reference_t_px=data["reference_t_px"], rim=data["rim"],
+        rim_circle_mm=tuple(float(v) for v in data["rim_circle_mm"]),  # type: ignore[arg-type]
+        cell_area_mm2=data["cell_area_mm2"],
+    )  # fmt: skip
+    return reference, data
+
+
+_MEASURE_COUNTS = (
+    "n_tracks", "n_ended", "n_out_of_range", "n_unmatched", "n_order_unresolved", "n_order_conflict_points",
+    "n_order_conflicts",
+)  # fmt: skip
+
+
+def topography_measure(context: JobContext, first: int, stop: int) -> None:
+    """Phase 0, any worker: frames [first, stop) measured and gridded, each on its own."""
+    from fringelab.science.coverage import MISSING_REASONS
+    from fringelab.science.fields import Grid, field_peak
+    from fringelab.science.topography import grid_measurement, locate_test_edges, track_and_measure
+
+    inputs = _topography_inputs(context)
+    projector, settings = inputs.projector, inputs.settings
+    reference, data = _reference(context)
+    grid, z_flat = Grid(x_mm=data["x_mm"], y_mm=data["y_mm"]), float(data["z_flat_mm"])
+    # Temporal smoothing looks h frames either way: read them too (the sequential pass reads no further).
+    h = settings.temporal_smoothing_frames
+    lo, hi = max(0, first - h), min(len(inputs.source), stop + h)
+    measurements, grids, peaks = [], [], []
+    try:
+        frames = (inputs.source[i] for i in range(lo, hi))
+        located = locate_test_edges(frames, projector)
+        for measurement in track_and_measure(
+            located, projector, inputs.camera_model, settings=settings, first_frame=lo, reference=reference
+        ):
+            if not first <= measurement.frame < stop:
+                continue
+            z_grid = grid_measurement(measurement, projector, grid, max_edge_mm=float(data["max_edge_mm"]))
+            measurements.append(measurement)
+            grids.append(z_grid)
+            peaks.append(list(vars(field_peak(z_grid - z_flat, grid)).values()))
+            context.progress(measurement.frame - first + 1, stop - first, "measuring")
+    finally:
+        inputs.close()
+    sizes = [len(m.k) for m in measurements]
+    covered = [m.coverage for m in measurements if m.coverage is not None]
+    if len(covered) != len(measurements):
+        raise RuntimeError("a measurement came without its coverage")
+    coverage = {
+        "visible_area_mm2": [c.visible_area_mm2 for c in covered],
+        "measured_area_mm2": [c.measured_area_mm2 for c in covered],
+        **{f"missing_{name}_mm2": [c.missing_mm2[name] for c in covered] for name in MISSING_REASONS},
+    }
+    save_arrays(
+        context, f"chunks/frames-{first:07d}.npz",
+        frame=np.array([m.frame for m in measurements], np.int64),
+        offsets=np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
+        k=np.concatenate([m.k for m in measurements]), line=np.concatenate([m.line for m in measurements]),
+        points_obj_mm=np.concatenate([m.points_obj_mm for m in measurements]).reshape(-1, 3),
+        edge_noise_px=np.array([m.edge_noise_px for m in measurements], np.float64),
+        z_mm=np.array(grids), peak=np.array(peaks, np.float64),
+        **{name: np.array([getattr(m, name) for m in measurements], np.int64) for name in _MEASURE_COUNTS},
+        **{name: np.array(values, np.float64) for name, values in coverage.items()},
+    )  # fmt: skip
+
+
+def _load_frames(context: JobContext, first: int) -> tuple[list[Any], Any]:
+    from fringelab.science.coverage import MISSING_REASONS, FrameCoverage
+    from fringelab.science.topography import FrameMeasurement
+
+    data = load_arrays(context, f"chunks/frames-{first:07d}.npz")
+    offsets = data["offsets"]
+    measurements = [
+        FrameMeasurement(
+            frame=int(frame),
+            k=data["k"][lo:hi],
+            line=data["line"][lo:hi],
+            points_obj_mm=data["points_obj_mm"][lo:hi],
+            edge_noise_px=float(data["edge_noise_px"][i]),
+            coverage=FrameCoverage(
+                visible_area_mm2=float(data["visible_area_mm2"][i]),
+                measured_area_mm2=float(data["measured_area_mm2"][i]),
+                missing_mm2={name: float(data[f"missing_{name}_mm2"][i]) for name in MISSING_REASONS},
+                n_order_conflicts=int(data["n_order_conflicts"][i]),
+            ),
+            **{name: int(data[name][i]) for name in _MEASURE_COUNTS},
+        )  # fmt: skip
+        for i, (frame, lo, hi) in enumerate(zip(data["frame"], offsets[:-1], offsets[1:], strict=True))
+    ]
+    return measurements, data
+
+
+def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict[str, Any]:
+    """Merge of phase 0, in frame order: the result file, as `topography_recording` writes it."""
+    from dataclasses import fields
+
+    from fringelab.formats.sidecars import FrameTable, read_frames_csv
+    from fringelab.science.fields import Grid, Peak
+
+    inputs = _topography_inputs(context)
+    source, wanted, projector = inputs.source, inputs.wanted, inputs.projector
+    frames_text = source.sidecar_text("frames.csv")
+    n_frames, where = len(source), str(source.path)
+    inputs.close()
+    log = (read_frames_csv(frames_text) if frames_text is not None else FrameTable.empty()).rows(list(range(n_frames)))
+    _, track = _reference(context)
+    z_flat, clamp = float(track["z_flat_mm"]), [float(v) for v in track["clamp"]]
+    peak_names = [f.name for f in fields(Peak)]
+    tally = SummaryTally()
+    with context.output("topography.h5", media_type="application/x-hdf5") as temporary:
+        writer = result_writer(
+            temporary, grid=Grid(x_mm=track["x_mm"], y_mm=track["y_mm"]), max_edge_mm=float(track["max_edge_mm"]),
+            z_flat_mm=z_flat, camera_model=inputs.camera_model, projector=projector, settings=inputs.settings,
+            where=where, n_frames=n_frames, wanted=wanted,
+        )  # fmt: skip
+        with writer:
+            for first, _stop in ranges:
+                measurements, gridded = _load_frames(context, first)
+                for i, measurement in enumerate(measurements):
+                    peak = Peak(**dict(zip(peak_names, map(float, gridded["peak"][i]), strict=True)))
+                    row = tuple(float(log[name][measurement.frame]) for name in FrameTable.COLUMNS)
+                    writer.append(measurement, gridded["z_mm"][i], peak, log=row)  # type: ignore[arg-type]
+                    tally.add(peak, n_out_of_range=measurement.n_out_of_range, measurement=measurement)
+                    context.progress(measurement.frame - wanted.start + 1, len(wanted), "writing")
+            tally.require_ordered(where)
+            writer.close(tally.attrs(flat_rms_mm=float(track["flat_rms_mm"]),
+                                     n_tracks_first_frame=int(track["n_tracks_first_frame"]), clamp=clamp))  # fmt: skip
+    remove_chunk_files(context.directory)
+    result = {
+        "frames": [wanted.start, wanted.stop - 1],
+        "flat_rms_mm": float(track["flat_rms_mm"]),
+        "max_peak_w_mm": tally.max_peak_w_mm,
+        "n_out_of_range_total": tally.n_out_of_range,
+        "punch_axis_xy_mm": list(tally.punch_axis_xy_mm),
+        "clamp_centre_xy_mm": clamp[:2],
+        "clamp_radius_mm": clamp[2],
+    }
+    context.log(
+        f"topography of {len(wanted)} frames: flat first frame RMS {result['flat_rms_mm']:.3f} mm, "
+        f"peak deflection {result['max_peak_w_mm'] or float('nan'):.2f} mm"
+    )
+    return {key: finite_or_none(value) for key, value in result.items()}
