@@ -230,3 +230,40 @@ def test_a_rim_out_of_view_is_refused_with_how_to_set_the_anchor(fast: Case) -> 
     named = replace(settings, order=OrderSettings(rim_circle_mm=(*scene.centre_xy_mm, 130.0), rim_width_mm=30.0))
     reference = reference_for(edges, projector, camera, named)
     assert np.count_nonzero(reference.rim) > 1000
+
+
+def test_the_result_file_says_what_is_missing_and_refuses_a_recording_ordered_nowhere(fast: Case, tmp_path) -> None:
+    from fringelab.formats.topography import TopographyResult
+    from fringelab.pipelines.topography import topography_recording
+    from fringelab.science.topography import TopographyError
+
+    from .structured_light.conftest import MemorySource
+
+    perforation = fast.timeline.perforation_frame
+    frames = fast.frames[perforation - 2 : perforation + 2]
+    source = MemorySource([fast.frames[0], *frames], {})
+    summary = topography_recording(source, fast.camera, fast.projector, out_path=tmp_path / "r.h5")
+    with TopographyResult(summary.path) as result:
+        coverage = result.coverage()
+    fraction = coverage["measured_fraction"]
+    assert fraction[0] > 0.99 and np.all(fraction > 0.95)
+    # Before the hole nothing is dark; after it the hole (and the rejected band around it) is, by its reason.
+    hole = coverage["missing_hole_mm2"]
+    assert hole[3] > 300.0 > hole[2]  # the 18 mm hole is 254 mm², its rim loses half a stripe more
+    assert np.all(coverage["missing_order_unresolved_mm2"] == 0) and np.all(coverage["n_order_conflicts"] == 0)
+    total = coverage["measured_area_mm2"] + sum(coverage[k] for k in coverage if k.startswith("missing_"))
+    np.testing.assert_allclose(total, coverage["visible_area_mm2"], rtol=1e-9)  # every bit of the plate accounted
+
+    # The rim hidden in every frame after the first: the order is anchored nowhere, so nothing is written.
+    camera, scene = fast.camera.camera, fast.preset.scene
+    from fringelab.science.camera import project_points
+
+    centre = project_points(camera, np.array([[*scene.centre_xy_mm, 0.0]]))[0]
+    v, u = np.mgrid[0:480, 0:512]
+    hidden = np.hypot(u - centre[0], v - centre[1]) > 150.0
+    dimmed = [np.where(hidden, 5, frame).astype(np.uint8) for frame in frames]
+    with pytest.raises(TopographyError, match="could not be ordered in any frame"):
+        topography_recording(
+            MemorySource([fast.frames[0], *dimmed], {}), fast.camera, fast.projector, out_path=tmp_path / "x.h5"
+        )
+    assert not (tmp_path / "x.h5").exists()
