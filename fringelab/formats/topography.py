@@ -25,7 +25,9 @@ Topography result (schema "fringelab.topography", version 1); lengths in mm in t
                     since the per-frame order (absent in older files, read as NaN): measured_fraction,
                     visible_area_mm2, measured_area_mm2 and missing_<reason>_mm2 for every reason in
                     MISSING_REASONS (n,) float64 (what of the plate the reference frame sees was measured, and
-                    what not, by reason); n_order_conflicts, n_order_unresolved (n,) int64
+                    what not, by reason); n_order_conflicts, n_order_unresolved (n,) int64; peak_region_coverage
+                    (n,) float64 (share of the grid nodes within PEAK_REGION_RADIUS_MM of the plate centre with
+                    data: below PEAK_REGION_MEASURED the frame's peak was not measured)
   /summary          attrs: flat_rms_mm (RMS of w over the first frame), n_tracks_first_frame, clamp_centre_x_mm,
                     clamp_centre_y_mm, clamp_radius_mm (circle through the outermost first-frame points),
                     punch_axis_x_mm, punch_axis_y_mm (median of the per-frame centres), n_out_of_range_total
@@ -45,13 +47,20 @@ import numpy as np
 
 from fringelab.formats.atomic import commit_partial, partial_path
 from fringelab.formats.hdf5 import SCHEMA_VERSION, require_schema, unit_dataset
-from fringelab.science.coverage import MISSING_DESCRIPTIONS, MISSING_REASONS
+
+# MISSING_REASONS is re-exported for the API (it reads results through this module only).
+from fringelab.science.coverage import MISSING_DESCRIPTIONS
+from fringelab.science.coverage import MISSING_REASONS as MISSING_REASONS
 from fringelab.science.fields import Grid, Peak
 
 if TYPE_CHECKING:
     from fringelab.science.topography import FrameMeasurement
 
 TOPOGRAPHY_SCHEMA = "fringelab.topography"
+# The peak of a punch test is within this of the plate centre; a frame with less than PEAK_REGION_MEASURED of that
+# region measured has no peak to show (a gap, not a drop).
+PEAK_REGION_RADIUS_MM = 40.0
+PEAK_REGION_MEASURED = 0.5
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -83,8 +92,17 @@ class TopographyWriter:
         axis: str,
         attrs: dict[str, Any],
         calibration_attrs: dict[str, Any],
+        peak_region_mm: tuple[float, float, float] | None = None,
     ) -> None:
         self.path = Path(path)
+        # Grid nodes of the region around the punch (X, Y, radius), where the peak is: whether a frame measured it.
+        self._peak_nodes: np.ndarray | None = None
+        if peak_region_mm is not None and all(np.isfinite(peak_region_mm)):
+            px, py, radius = peak_region_mm
+            gx, gy = np.meshgrid(grid.x_mm, grid.y_mm)
+            self._peak_nodes = np.hypot(gx - px, gy - py) <= radius
+            if not np.any(self._peak_nodes):
+                self._peak_nodes = None
         self._temp = partial_path(self.path)
         self.grid = grid
         self.z_flat_mm = z_flat_mm
@@ -219,6 +237,19 @@ class TopographyWriter:
             )
         unit_dataset(
             qa,
+            "peak_region_coverage",
+            np.zeros(0),
+            unit="1",
+            description="share of the grid nodes around the punch (attrs x_mm, y_mm, radius_mm) with data; NaN "
+            "where the region is unknown",
+            maxshape=(None,),
+            chunks=(1024,),
+        )
+        if peak_region_mm is not None:
+            for key, value in zip(("x_mm", "y_mm", "radius_mm"), peak_region_mm, strict=True):
+                qa["peak_region_coverage"].attrs[key] = float(value)
+        unit_dataset(
+            qa,
             "grid_coverage",
             np.zeros(0),
             unit="1",
@@ -277,6 +308,9 @@ class TopographyWriter:
             "edge_noise_px": measurement.edge_noise_px,
             "grid_coverage": nodes / self._first_coverage_nodes,
         }
+        finite = np.isfinite(z_grid_mm)
+        peak_nodes = self._peak_nodes
+        qa["peak_region_coverage"] = np.mean(finite[peak_nodes]) if peak_nodes is not None else np.nan
         coverage = measurement.coverage
         qa["n_order_conflicts"] = measurement.n_order_conflicts
         qa["n_order_unresolved"] = measurement.n_order_unresolved
@@ -418,9 +452,10 @@ class TopographyResult:
         return self.z_grid(i) - self.z_flat_mm
 
     def coverage(self) -> dict[str, np.ndarray]:
-        """Per frame: measured_fraction, visible_area_mm2, measured_area_mm2, missing_<reason>_mm2 (float, NaN in
-        files written before they existed) and n_order_conflicts (float, NaN likewise)."""
+        """Per frame: measured_fraction, visible_area_mm2, measured_area_mm2, missing_<reason>_mm2,
+        n_order_conflicts and peak_region_coverage (float; NaN in files written before they existed)."""
         names = ["measured_fraction", "visible_area_mm2", "measured_area_mm2", "n_order_conflicts"]
+        names += ["peak_region_coverage"]
         names += [f"missing_{name}_mm2" for name in MISSING_REASONS]
         qa = self.file["qa"]
         return {

@@ -18,7 +18,7 @@ import numpy as np
 from fringelab.formats.camera import calibration_as_dict
 from fringelab.formats.hdf5 import json_text
 from fringelab.formats.sidecars import FrameTable, read_frames_csv
-from fringelab.formats.topography import TopographyWriter
+from fringelab.formats.topography import PEAK_REGION_RADIUS_MM, TopographyWriter
 from fringelab.pipelines.provenance import code_versions
 from fringelab.science import Cancelled
 from fringelab.science.calibration import CameraCalibration, ProgressCallback
@@ -139,6 +139,7 @@ def topography_recording(
         writer = result_writer(
             out_path, grid=grid, max_edge_mm=max_edge_mm, z_flat_mm=z_flat, camera_model=camera_model,
             projector=projector, settings=settings, where=where, n_frames=n_frames, wanted=wanted,
+            centre_xy_mm=(clamp[0], clamp[1]),
         )  # fmt: skip
         rest = itertools.chain([reference_edges], stream) if lo == 0 else stream
         for measurement in track_and_measure(
@@ -183,6 +184,7 @@ def result_writer(
     where: str,
     n_frames: int,
     wanted: range,
+    centre_xy_mm: tuple[float, float] = (float("nan"), float("nan")),
 ) -> TopographyWriter:
     """The result file's writer with everything a result records of how it was made (settings, provenance,
     the calibrations it used)."""
@@ -200,6 +202,7 @@ def result_writer(
             "provenance_json": json_text({**provenance, **code_versions()}),
         },
         calibration_attrs=_calibration_attrs(camera_model, projector),
+        peak_region_mm=(centre_xy_mm[0], centre_xy_mm[1], PEAK_REGION_RADIUS_MM),
     )
 
 

@@ -652,9 +652,13 @@ def order_edges(edges: FrameEdges, *, max_gap_periods: float = 0.8) -> EdgeOrder
         root = members[0]
         order, predecessors = breadth_first_order(tree, root, directed=False, return_predecessors=True)
         index[root] = 0
-        for node in order[1:]:
-            parent = predecessors[node]
-            index[node] = index[parent] + int(round(step[parent, node]))
+        # The step along each tree edge, looked up for all of them at once; then one pass in BFS order.
+        children = order[1:]
+        parents = predecessors[children]
+        steps = np.rint(np.asarray(step[parents, children]).ravel()).astype(np.int64).tolist()
+        values = index  # a local name for the loop
+        for node, parent, s in zip(children.tolist(), parents.tolist(), steps, strict=True):
+            values[node] = values[parent] + s
         component[members] = rank[group]
     # Check every statement against the assignment; leave out curves that are mostly contradicted.
     agrees = index[after] - index[before] == 1

@@ -360,12 +360,12 @@ def _inconsistent_chains(edges: FrameEdges, k: np.ndarray, projector: ProjectorC
     t = edges.t_px[ordered].astype(np.float64)
     kk = k[ordered]
     z, status = projector.z_from_t(kk, line, t)
-    outside = status == 1
+    outside = np.flatnonzero(status == 1)
     outside_near = np.zeros(len(ordered), bool)
     for step in (-2, 2):
-        _, neighbour_status = projector.z_from_t(kk + step, line, t)
-        outside_near |= neighbour_status == 0
-    table_against = np.bincount(chain, weights=(outside & outside_near).astype(float), minlength=n_chains)
+        _, neighbour_status = projector.z_from_t(kk[outside] + step, line[outside], t[outside])
+        outside_near[outside] |= neighbour_status == 0
+    table_against = np.bincount(chain, weights=outside_near.astype(float), minlength=n_chains)
     length = np.bincount(chain, minlength=n_chains)
     against_table = table_against > 0.5 * np.maximum(length, 1)
 

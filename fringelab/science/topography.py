@@ -256,12 +256,12 @@ def frame_coverage(
     """
     area = reference.cell_area_mm2
     seen = np.isfinite(reference.reference_t_px) & np.isfinite(area)
-    kk, ss = np.nonzero(np.isfinite(positions))
-    _, status = projector.z_from_t(kk, ss, positions[kk, ss])
-    measured = np.zeros(positions.shape, bool)
-    measured[kk[status == 0], ss[status == 0]] = True
-    beyond = np.zeros(positions.shape, bool)
-    beyond[kk[status == 1], ss[status == 1]] = True
+    # The table's bounds, as `z_from_t` applies them (positions only exist where the table has an entry).
+    with np.errstate(invalid="ignore"):
+        inside = (positions >= projector.t_lo_px) & (positions <= projector.t_hi_px)
+    placed = np.isfinite(positions)
+    measured = placed & inside
+    beyond = placed & ~inside
     missing = {name: 0.0 for name in MISSING_REASONS}
     missing["out_of_range"] = float(np.sum(area[seen & beyond]))
     rest = seen & ~measured & ~beyond

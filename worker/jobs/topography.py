@@ -227,7 +227,7 @@ def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict
         writer = result_writer(
             temporary, grid=Grid(x_mm=track["x_mm"], y_mm=track["y_mm"]), max_edge_mm=float(track["max_edge_mm"]),
             z_flat_mm=z_flat, camera_model=inputs.camera_model, projector=projector, settings=inputs.settings,
-            where=where, n_frames=n_frames, wanted=wanted,
+            where=where, n_frames=n_frames, wanted=wanted, centre_xy_mm=(clamp[0], clamp[1]),
         )  # fmt: skip
         with writer:
             for first, _stop in ranges:
