@@ -34,18 +34,17 @@ from backend.schemas.jobs import (
     LogLineOut,
     Progress,
 )
-from fringelab.core.accounts import Principal, access_level, audit, can_access, readable_experiments
-from fringelab.core.errors import Forbidden, Gone, NotFound, Unavailable
+from fringelab.core.accounts import audit, readable_experiments
+from fringelab.core.errors import Gone, NotFound, Unavailable
 from fringelab.core.jobs import (
-    NotVisible,
     QueueUnavailable,
     as_utc,
     cancel_job,
-    create_job,
     eta_seconds,
-    get_job,
     job_error,
+    job_for,
     retry_job,
+    start_job_as,
     terminate_unstopped,
 )
 from fringelab.core.models import Experiment, Job, JobChunk, JobLog, utcnow
@@ -127,27 +126,6 @@ def job_out(session: Session, job: Job, *, now: datetime | None = None) -> JobOu
     )
 
 
-def _allowed(session: Session, principal: Principal, experiment_id: int | None, *, write: bool) -> bool:
-    if experiment_id is None:
-        return principal.is_admin
-    experiment = session.get(Experiment, experiment_id)
-    return experiment is not None and can_access(session, principal, experiment, write=write)
-
-
-def job_for(session: Session, principal: Principal, job_id: str, *, write: bool = False) -> Job:
-    """The job if `principal` may see it (or change it); otherwise a 404, as if it did not exist."""
-    job = get_job(session, job_id)
-    if not _allowed(session, principal, job.experiment_id, write=False):
-        raise job_error(NotFound, "job_not_found", f"there is no job {job_id}")
-    if write and not _allowed(session, principal, job.experiment_id, write=True):
-        raise job_error(
-            Forbidden,
-            "read_only",
-            f"read-only access: you may read job {job_id} but not change it; ask the experiment's owner",
-        )
-    return job
-
-
 def readable_job(job_id: str, session: SessionDep, principal: CurrentUser) -> Job:
     return job_for(session, principal, job_id)
 
@@ -167,30 +145,7 @@ WRITE_ERRORS: dict[int | str, dict[str, Any]] = {
 @router.post("/jobs", status_code=201, response_model=JobOut, responses=WRITE_ERRORS)
 def start_job(spec: Annotated[JobSpec, Body()], session: SessionDep, state: StateDep, principal: CurrentUser) -> JobOut:
     """Check the spec against the recordings and calibrations it names, then queue the job."""
-
-    def may_start(experiment_id: int | None) -> None:
-        if experiment_id is None:
-            if not principal.is_admin:
-                raise job_error(Forbidden, "forbidden", "jobs outside any experiment (selftest) need an admin account")
-            return
-        experiment = session.get(Experiment, experiment_id)
-        level = access_level(session, principal, experiment) if experiment is not None else None
-        if level is None:
-            raise NotVisible  # the spec's ids are answered as if they did not exist
-        if level == "read":
-            raise job_error(
-                Forbidden,
-                "read_only",
-                f"read-only access: experiment {experiment_id} is shared with your group for reading; "
-                "ask its owner for write access to start jobs",
-            )
-
-    try:
-        job = create_job(session, state.celery, spec.model_dump(mode="json"), authorize=may_start)
-    except QueueUnavailable as error:
-        raise job_error(Unavailable, "queue_unavailable", str(error)) from None
-    audit(session, principal, "start", "job", job.id, kind=job.kind)
-    session.commit()
+    job = start_job_as(session, state.celery, principal, spec.model_dump(mode="json"))
     return job_out(session, job)
 
 

@@ -157,7 +157,7 @@ def projector_table_curves(
     ] = None,
 ) -> ProjectorTable:
     """The curves of a projector calibration's look-up table: the position of each stripe edge along one scan
-    line against the plate's Z (METHOD.md §4), with the table's QA."""
+    line against the plate's Z (docs/method.md §4), with the table's QA."""
     if calibration.kind != "projector":
         raise job_error(NotFound, "no_table", f"calibration {calibration.id} is a {calibration.kind} calibration")
     try:

@@ -37,7 +37,7 @@ def register(subparsers: Any) -> None:
     calibrate = subparsers.add_parser(
         "calibrate-projector",
         help="build the projector look-up table from a flat-plate Z-stack",
-        description="Projector calibration (METHOD.md §4): the position of every stripe edge against Z, from a "
+        description="Projector calibration (docs/method.md §4): the position of every stripe edge against Z, from a "
         "folder or ZIP of frames of the flat plate moved along Z, with z.csv (frame,z_mm).",
     )
     calibrate.add_argument("recording", help="folder or ZIP of frames with z.csv")
@@ -62,8 +62,8 @@ def register(subparsers: Any) -> None:
     topography = subparsers.add_parser(
         "topography",
         help="measure the deflection of every frame of a test",
-        description="Topography (METHOD.md §5–6): edges of every frame, identity from the flat first frame, Z from "
-        "the projector table, X and Y by back-projection, the gridded deflection field; written as HDF5.",
+        description="Topography (docs/method.md §5–6): edges of every frame, identity from the flat first frame, "
+        "Z from the projector table, X and Y by back-projection, the gridded deflection field; written as HDF5.",
     )
     topography.add_argument("recording", help="folder or ZIP of test frames (frames.csv beside them is kept)")
     topography.add_argument("--camera", required=True, help="camera.json")

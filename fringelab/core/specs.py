@@ -65,7 +65,7 @@ class BoardSpec(_Spec):
 
 
 class CameraCalibrationSpec(_Spec):
-    """Calibrate a camera (Heikkilä model, METHOD.md §3) from a ready camera-calibration recording: a chessboard
+    """Calibrate a camera (Heikkilä model, docs/method.md §3) from a ready camera-calibration recording: a chessboard
     moved along Z (`zstack`, with z.csv) or free views of it (`poses`). Every frame is used; frames without the
     board are skipped and listed. D_u, D_v come from the camera's pixel pitch."""
 
@@ -87,7 +87,7 @@ class CameraCalibrationSpec(_Spec):
 
 
 class ProjectorCalibrationSpec(_Spec):
-    """Build the projector look-up table (METHOD.md §4) from a ready projector-calibration recording: the flat
+    """Build the projector look-up table (docs/method.md §4) from a ready projector-calibration recording: the flat
     plate moved along Z (with z.csv), filmed by the camera of `camera_calibration_id`."""
 
     model_config = ConfigDict(

@@ -6,7 +6,7 @@ series for ParaView, profile CSV), stored edges of frame chunks for parallel run
 and writing frame recordings (folder or ZIP of PNG) for the virtual experiment. Every file is written to a
 temporary name beside its target and renamed when complete.
 
-Topography result (schema "fringelab.topography", version 1); lengths in mm in the object frame (METHOD.md §2:
+Topography result (schema "fringelab.topography", version 1); lengths in mm in the object frame (docs/method.md §2:
 +Z toward the camera), frames are recording frame indices; every dataset has `unit` and `description` attrs:
   /                 attrs: schema, schema_version, created_utc, n_frames, z_flat_mm (median Z of the first frame:
                     w = z − z_flat), grid_step_mm, grid_max_edge_mm, axis, settings_json, edge_settings_json,
@@ -114,7 +114,7 @@ class TopographyWriter:
         file.attrs["schema_version"] = SCHEMA_VERSION
         file.attrs["created_utc"] = datetime.now(UTC).isoformat(timespec="seconds")
         file.attrs["length_unit"] = "mm"
-        file.attrs["object_frame"] = "X, Y in the plate plane, +Z toward the camera (METHOD.md §2)"
+        file.attrs["object_frame"] = "X, Y in the plate plane, +Z toward the camera (docs/method.md §2)"
         file.attrs["z_flat_mm"] = z_flat_mm
         file.attrs["grid_step_mm"] = grid.step_mm
         file.attrs["grid_max_edge_mm"] = max_edge_mm

@@ -1,4 +1,4 @@
-"""Camera calibration of a whole recording: frames and sidecars in, a `CameraCalibration` out (METHOD.md §3).
+"""Camera calibration of a whole recording: frames and sidecars in, a `CameraCalibration` out (docs/method.md §3).
 
 What the command line and the worker's camera-calibration job call. The science stages (corner detection, the
 solver) live in `fringelab.science`; the sidecars are parsed by `fringelab.formats.recordings`.
@@ -17,6 +17,7 @@ from fringelab.pipelines.provenance import code_versions
 from fringelab.science import Cancelled
 from fringelab.science.calibration import (
     MODES,
+    CalibrationMode,
     CameraCalibration,
     CornerView,
     FrameResult,
@@ -24,21 +25,22 @@ from fringelab.science.calibration import (
     calibrate_from_views,
     zstack_heights_mm,
 )
-from fringelab.science.chessboard import Board, BoardNotFoundError, detect_board
+from fringelab.science.camera import ScaleAxis
+from fringelab.science.chessboard import Board, BoardNotFoundError, Detector, detect_board
 
 
 def calibrate_camera_recording(
     source: Any,
     *,
     board: Board | None = None,
-    mode: str = "zstack",
+    mode: CalibrationMode = "zstack",
     du_px_per_mm: float,
     dv_px_per_mm: float,
-    scale_on: str = "u",
+    scale_on: ScaleAxis = "u",
     origin: tuple[int, int] | None = None,
     reject_outliers: bool = False,
     pixel_pitch_um: tuple[float, float] | None = None,
-    detector: str = "auto",
+    detector: Detector = "auto",
     subpix_half_window_px: int | None = None,
     progress: ProgressCallback | None = None,
     should_cancel: Callable[[], bool] | None = None,
@@ -131,7 +133,7 @@ def calibrate_camera_recording(
         "pixel_pitch_um": None if pixel_pitch_um is None else list(pixel_pitch_um),
     }  # fmt: skip
     calibration = calibrate_from_views(
-        views, image_size_px=image_size, mode=mode, du_px_per_mm=du_px_per_mm, dv_px_per_mm=dv_px_per_mm,
+        views, image_size_wh_px=image_size, mode=mode, du_px_per_mm=du_px_per_mm, dv_px_per_mm=dv_px_per_mm,
         scale_on=scale_on, reject_outliers=reject_outliers, skipped=skipped, board=board,
         pixel_pitch_um=pixel_pitch_um,
         provenance={"input": where, "input_sha256": digest.hexdigest(), "n_frames": n_frames, "settings": settings,

@@ -1,4 +1,4 @@
-"""Projector calibration of a whole recording: a flat-plate Z-stack in, the look-up table out (METHOD.md §4).
+"""Projector calibration of a whole recording: a flat-plate Z-stack in, the look-up table out (docs/method.md §4).
 
 What the command line and the worker's projector-calibration job call; the table itself is built by
 `fringelab.science.projector.build_projector_calibration`.

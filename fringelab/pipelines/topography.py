@@ -1,4 +1,4 @@
-"""Topography of a whole test recording into its result file (METHOD.md §5–6).
+"""Topography of a whole test recording into its result file (docs/method.md §5–6).
 
 What the command line calls, and the sequential reference the worker's frame-parallel topography job must equal
 bit for bit. The stages (edges, identity, Z, X and Y, gridding) live in `fringelab.science.topography`; the
@@ -214,7 +214,7 @@ def _calibration_attrs(camera_model: CameraModel, projector: ProjectorCalibratio
     else:
         camera_json = json_text(asdict(camera_model.camera))
     projector_doc = {
-        "image_shape": list(projector.image_shape), "axis": projector.axis, "period_px": projector.period_px,
+        "image_shape": list(projector.image_shape_hw_px), "axis": projector.axis, "period_px": projector.period_px,
         "reference_z_mm": projector.reference_z_mm, "z_mm": projector.z_mm, "n_edges": projector.n_edges,
         "edges": asdict(projector.edges), "qa": asdict(projector.qa), "provenance": projector.provenance,
     }  # fmt: skip

@@ -1,6 +1,6 @@
 """The measurement science of fringelab: camera and projector calibration, fringe edges, topography.
 
-Pure: arrays and frozen dataclasses in and out, units and frames in names (METHOD.md). Nothing here imports
+Pure: arrays and frozen dataclasses in and out, units and frames in names (docs/method.md). Nothing here imports
 web, queue or database code, configures logging or reads the environment; file I/O lives only in the
 file formats (`fringelab.formats`).
 """

@@ -1,4 +1,4 @@
-"""Camera calibration from chessboard corners (METHOD.md §3.1): Z-stack (the paper) and free poses (Zhang).
+"""Camera calibration from chessboard corners (docs/method.md §3.1): Z-stack (the paper) and free poses (Zhang).
 
 Belongs here: the solver (3-D DLT start, Levenberg–Marquardt, covariance), per-frame statistics, outlier-frame
 rejection, the residual map, the verdict, the `CameraCalibration` result, and `calibrate_camera_recording`, the
@@ -7,7 +7,7 @@ one entry point the CLI and the Celery task call. Not here: the camera model (`c
 
 The Levenberg–Marquardt runs over an equivalent, well-conditioned form of the same model: OpenCV's intrinsics
 (fx, fy, cx, cy, k1..p2 on normalised coordinates), a Rodrigues vector and a translation per pose. With D_u, D_v
-fixed this is a one-to-one reparametrisation of the 14 Heikkilä parameters (METHOD.md §3), so the minimum is the
+fixed this is a one-to-one reparametrisation of the 14 Heikkilä parameters (docs/method.md §3), so the minimum is the
 same; cv2.projectPoints supplies the analytic Jacobian, the Euler angles' gimbal lock is avoided, and the
 covariance is carried over to the Heikkilä parameters with the Jacobian of the exact conversion.
 """
@@ -17,7 +17,7 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal, get_args
 
 import cv2
 import numpy as np
@@ -31,6 +31,7 @@ from .camera import (
     Camera,
     InverseModel,
     OpenCVCamera,
+    ScaleAxis,
     angles_from_rotation,
     camera_as_opencv,
     camera_from_opencv,
@@ -38,7 +39,8 @@ from .camera import (
 )
 from .chessboard import Board
 
-MODES = ("zstack", "poses")
+CalibrationMode = Literal["zstack", "poses"]  # a Z-stack of one board pose, or free poses
+MODES: tuple[str, ...] = get_args(CalibrationMode)
 VERDICT_LEVELS = ("good", "check", "bad")
 
 # The 14 estimated Heikkilä parameters, as `Camera` field names, in the order of `correlation`.
@@ -94,8 +96,8 @@ class FrameResult:
     n_corners: int = 0
     rms_px: float | None = None
     max_px: float | None = None
-    rvec_rad: tuple[float, float, float] | None = None
-    tvec_mm: tuple[float, float, float] | None = None
+    r_cam_from_obj_rad: tuple[float, float, float] | None = None
+    t_cam_from_obj_mm: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -156,7 +158,7 @@ class CameraCalibration:
 
     camera: Camera
     inverse: InverseModel
-    mode: str
+    mode: CalibrationMode
     rms_px: float
     residual_std_px: float
     n_points: int
@@ -233,18 +235,18 @@ def _pose_vector(rotation: np.ndarray, t_mm: np.ndarray) -> np.ndarray:
 
 
 def _initial_intrinsics(fx: float, fy: float, cx: float, cy: float, *, du: float, dv: float, scale_on: str) -> list:
-    # METHOD.md §3.1: the scale factor starts at 1 and the distortion at 0; f comes from the axis without s.
+    # docs/method.md §3.1: the scale factor starts at 1 and the distortion at 0; f comes from the axis without s.
     f_px_per_mm = fy / dv if scale_on == "u" else fx / du
     return [f_px_per_mm * du, f_px_per_mm * dv, cx, cy, 0.0, 0.0, 0.0, 0.0]
 
 
 def _initial_zstack_dlt(
-    views: Sequence[CornerView], image_size_px: tuple[int, int], *, du: float, dv: float, scale_on: str
+    views: Sequence[CornerView], image_size_wh_px: tuple[int, int], *, du: float, dv: float, scale_on: str
 ) -> np.ndarray:
     points = np.vstack([v.points_obj_mm for v in views])
     q = np.vstack([v.q_px for v in views])
     k, r, t = decompose_camera_matrix(dlt_camera_matrix(points, q))
-    width, height = image_size_px
+    width, height = image_size_wh_px
     if not (-0.5 <= k[0, 2] <= width - 0.5 and -0.5 <= k[1, 2] <= height - 0.5):
         raise CalibrationError(f"the DLT put the principal point outside the image ({k[0, 2]:.0f}, {k[1, 2]:.0f})")
     intrinsics = _initial_intrinsics(k[0, 0], k[1, 1], k[0, 2], k[1, 2], du=du, dv=dv, scale_on=scale_on)
@@ -255,12 +257,12 @@ def _initial_zstack_dlt(
 
 
 def _initial_planar_intrinsics(
-    views: Sequence[CornerView], image_size_px: tuple[int, int], *, du: float, dv: float, scale_on: str
+    views: Sequence[CornerView], image_size_wh_px: tuple[int, int], *, du: float, dv: float, scale_on: str
 ) -> list:
     """Zhang-style start: the camera matrix from the homographies of planar views (principal point at the centre)."""
     object_points = [v.points_obj_mm.astype(np.float32) for v in views]
     image_points = [v.q_px.astype(np.float32) for v in views]
-    k = cv2.initCameraMatrix2D(object_points, image_points, image_size_px)
+    k = cv2.initCameraMatrix2D(object_points, image_points, image_size_wh_px)
     return _initial_intrinsics(k[0, 0], k[1, 1], k[0, 2], k[1, 2], du=du, dv=dv, scale_on=scale_on)
 
 
@@ -416,12 +418,13 @@ def _covariance(normal: np.ndarray, sigma2: float) -> np.ndarray:
     return sigma2 * inverse / np.outer(norms, norms)
 
 
-def _opencv_camera_from_vector(x: np.ndarray, image_size_px: tuple[int, int]) -> OpenCVCamera:
+def _opencv_camera_from_vector(x: np.ndarray, image_size_wh_px: tuple[int, int]) -> OpenCVCamera:
     return OpenCVCamera(
-        image_width_px=image_size_px[0], image_height_px=image_size_px[1],
+        image_width_px=image_size_wh_px[0], image_height_px=image_size_wh_px[1],
         fx_px=float(x[0]), fy_px=float(x[1]), cx_px=float(x[2]), cy_px=float(x[3]),
         k1=float(x[4]), k2=float(x[5]), p1=float(x[6]), p2=float(x[7]),
-        rvec_rad=(float(x[8]), float(x[9]), float(x[10])), tvec_mm=(float(x[11]), float(x[12]), float(x[13])),
+        r_cam_from_obj_rad=(float(x[8]), float(x[9]), float(x[10])),
+        t_cam_from_obj_mm=(float(x[11]), float(x[12]), float(x[13])),
     )  # fmt: skip
 
 
@@ -459,14 +462,14 @@ def _heikkila_from_opencv_jacobian(x14: np.ndarray, *, du: float, dv: float, sca
     return jacobian
 
 
-def residual_map(q_px: np.ndarray, residual_px: np.ndarray, image_size_px: tuple[int, int], *, sigma_px: float,
+def residual_map(q_px: np.ndarray, residual_px: np.ndarray, image_size_wh_px: tuple[int, int], *, sigma_px: float,
                  cells: tuple[int, int] = RESIDUAL_MAP_CELLS) -> ResidualMap:  # fmt: skip
     """Bin residuals, shape (N, 2), at pixels q_px, shape (N, 2), into cells_u × cells_v cells over the image.
 
     sigma_px: the per-coordinate residual standard deviation, to remove the noise part from `systematic_px`.
     """
     cells_u, cells_v = cells
-    width, height = image_size_px
+    width, height = image_size_wh_px
     cu = np.clip(((q_px[:, 0] + 0.5) * cells_u / width).astype(int), 0, cells_u - 1)
     cv_ = np.clip(((q_px[:, 1] + 0.5) * cells_v / height).astype(int), 0, cells_v - 1)
     flat = cv_ * cells_u + cu
@@ -555,11 +558,11 @@ ProgressCallback = Callable[[int, int, str], None]
 def calibrate_from_views(
     views: Sequence[CornerView],
     *,
-    image_size_px: tuple[int, int],
-    mode: str,
+    image_size_wh_px: tuple[int, int],
+    mode: CalibrationMode,
     du_px_per_mm: float,
     dv_px_per_mm: float,
-    scale_on: str = "u",
+    scale_on: ScaleAxis = "u",
     reject_outliers: bool = False,
     skipped: Sequence[FrameResult] = (),
     board: Board | None = None,
@@ -568,7 +571,7 @@ def calibrate_from_views(
 ) -> CameraCalibration:
     """Calibrate a camera from corners: 3-D DLT (zstack) or Zhang (poses) start, then Levenberg–Marquardt.
 
-    image_size_px: (width, height). In `poses` mode the returned camera carries the pose of the first used view.
+    image_size_wh_px: (width, height). In `poses` mode the returned camera carries the pose of the first used view.
     `skipped` frames (board not found) are listed in the result. Raises CalibrationError when fewer views than
     the mode needs remain.
     """
@@ -584,7 +587,7 @@ def calibrate_from_views(
 
     active = list(range(len(views)))
     rejected: dict[int, str] = {}
-    candidates = _initial_candidates(views, image_size_px, mode=mode, du=du, dv=dv, scale_on=scale_on)
+    candidates = _initial_candidates(views, image_size_wh_px, mode=mode, du=du, dv=dv, scale_on=scale_on)
     problem = _build_problem(views, mode=mode)
     fits = [(name, *_levenberg_marquardt(problem, start)) for name, start in candidates]
     costs = [float(np.sum(problem.residual(x) ** 2)) for _, x, _ in fits]
@@ -616,7 +619,7 @@ def calibrate_from_views(
     covariance_o = _covariance(normal, sigma2)
     reference = np.r_[0:14]
     x14 = x[reference]
-    opencv_camera = _opencv_camera_from_vector(x14, image_size_px)
+    opencv_camera = _opencv_camera_from_vector(x14, image_size_wh_px)
     camera = camera_from_opencv(opencv_camera, du_px_per_mm=du, dv_px_per_mm=dv, scale_on=scale_on)
     cov14 = covariance_o[np.ix_(reference, reference)]
     conversion = _heikkila_from_opencv_jacobian(x14, du=du, dv=dv, scale_on=scale_on)
@@ -629,7 +632,7 @@ def calibrate_from_views(
     frames, residual_vectors = _frame_results(views, active, rejected, skipped, problem, x, residual, mode)
     rms_px = float(np.sqrt(residual @ residual / n_points))
     residual_std_px = float(np.sqrt(sigma2))
-    rmap = residual_map(residual_vectors.q_px, residual_vectors.residual_px, image_size_px, sigma_px=residual_std_px)
+    rmap = residual_map(residual_vectors.q_px, residual_vectors.residual_px, image_size_wh_px, sigma_px=residual_std_px)
     inverse = fit_inverse_model(camera)
     verdict = judge_calibration(
         residual_std_px=residual_std_px, frames=frames, residual_map=rmap, inverse=inverse,
@@ -672,7 +675,7 @@ def _require_enough(views: Sequence[CornerView], *, mode: str, skipped: Sequence
             )
 
 
-def _initial_candidates(views, image_size_px, *, mode, du, dv, scale_on) -> list[tuple[str, np.ndarray]]:
+def _initial_candidates(views, image_size_wh_px, *, mode, du, dv, scale_on) -> list[tuple[str, np.ndarray]]:
     """Starting points for LM, each named. poses: Zhang's (initCameraMatrix2D, then PnP per view). zstack: the
     paper's 3-D DLT and a planar start (initCameraMatrix2D on the Z levels, then PnP on all points).
 
@@ -684,7 +687,7 @@ def _initial_candidates(views, image_size_px, *, mode, du, dv, scale_on) -> list
     planar_views = [
         CornerView(v.frame, np.column_stack([v.points_obj_mm[:, :2], np.zeros(len(v.q_px))]), v.q_px) for v in views
     ]
-    intrinsics = _initial_planar_intrinsics(planar_views, image_size_px, du=du, dv=dv, scale_on=scale_on)
+    intrinsics = _initial_planar_intrinsics(planar_views, image_size_wh_px, du=du, dv=dv, scale_on=scale_on)
     if mode == "poses":
         poses = [_solve_pose(v.points_obj_mm, v.q_px, np.array(intrinsics), None, planar=True) for v in views]
         return [("zhang", np.concatenate([intrinsics, *poses]))]
@@ -693,7 +696,7 @@ def _initial_candidates(views, image_size_px, *, mode, du, dv, scale_on) -> list
     candidates = [("planar", np.concatenate([intrinsics, _solve_pose(points, q, np.array(intrinsics), None)]))]
     # A degenerate DLT (nearly coplanar points) leaves the planar start alone.
     with contextlib.suppress(CalibrationError, cv2.error, np.linalg.LinAlgError):
-        candidates.insert(0, ("dlt", _initial_zstack_dlt(views, image_size_px, du=du, dv=dv, scale_on=scale_on)))
+        candidates.insert(0, ("dlt", _initial_zstack_dlt(views, image_size_wh_px, du=du, dv=dv, scale_on=scale_on)))
     return candidates
 
 
@@ -726,8 +729,8 @@ def _frame_results(views, active, rejected, skipped, problem, x, residual, mode)
         by_view[i] = FrameResult(
             frame=view.frame, status="used", z_mm=view.z_mm, n_corners=len(view.q_px),
             rms_px=float(np.sqrt(np.mean(distance**2))), max_px=float(np.max(distance)),
-            rvec_rad=None if pose is None else (float(pose[0]), float(pose[1]), float(pose[2])),
-            tvec_mm=None if pose is None else (float(pose[3]), float(pose[4]), float(pose[5])),
+            r_cam_from_obj_rad=None if pose is None else (float(pose[0]), float(pose[1]), float(pose[2])),
+            t_cam_from_obj_mm=None if pose is None else (float(pose[3]), float(pose[4]), float(pose[5])),
         )  # fmt: skip
         p_list.append(view.points_obj_mm)
         q_list.append(view.q_px)

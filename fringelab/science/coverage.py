@@ -1,4 +1,4 @@
-"""What of the plate a frame measured, and why the rest is missing (METHOD.md §6).
+"""What of the plate a frame measured, and why the rest is missing (docs/method.md §6).
 
 Belongs here: the list of reasons and the per-frame record, shared by the science (which fills it,
 `topography.frame_coverage`) and the result file (which stores it). Pure Python, no OpenCV: the API reads it.
@@ -21,7 +21,7 @@ MISSING_DESCRIPTIONS = {
 
 @dataclass(frozen=True)
 class FrameCoverage:
-    """What of the plate one frame measured, and what it did not, by reason (METHOD.md §6).
+    """What of the plate one frame measured, and what it did not, by reason (docs/method.md §6).
 
     Areas are of the plate as the reference frame sees it (each reference (edge, line) point stands for its share
     of the plate, `OrderReference.cell_area_mm2`); a point of the reference that this frame does not measure is

@@ -1,4 +1,4 @@
-"""Fringe order of every edge point of one frame, from the frame itself and the calibration (METHOD.md §5).
+"""Fringe order of every edge point of one frame, from the frame itself and the calibration (docs/method.md §5).
 
 Belongs here: the reference that anchors the order (the flat reference frame matched to the projector table, and
 the stationary clamped rim found from it), and `order_frame`, a pure function of one frame's edges and that
@@ -222,7 +222,7 @@ def _require_rim_in_view(t: np.ndarray, line: np.ndarray, projector: ProjectorCa
     if len(t) == 0:
         raise RimNotVisibleError("the reference frame has no identified edge points")
     margin = projector.period_px
-    n_samples = projector.image_shape[1] if projector.axis == "rows" else projector.image_shape[0]
+    n_samples = projector.image_shape_hw_px[1] if projector.axis == "rows" else projector.image_shape_hw_px[0]
     lowest = np.full(projector.n_lines, np.inf)
     highest = np.full(projector.n_lines, -np.inf)
     np.minimum.at(lowest, line, t)
@@ -389,7 +389,7 @@ def clamp_circle(points_xy_mm: np.ndarray, *, n_sectors: int = 72) -> tuple[floa
     The points end where the clamp ring hides the plate; the outermost point of each angular sector around
     their centroid lies on that circle (a little inside it: edges within half a stripe of the ring are
     rejected), so a least-squares (Kåsa) circle through them, refitted once without points more than 3 mm off,
-    gives the plate centre from the clamp (METHOD.md §2).
+    gives the plate centre from the clamp (docs/method.md §2).
     """
     xy = points_xy_mm[np.all(np.isfinite(points_xy_mm), axis=1)]
     if len(xy) < 3 * n_sectors:

@@ -467,7 +467,7 @@ class FringeRenderer:
 
 
 PRESETS = ("kodak", "phantom")
-# Stripe period in the image near the plate centre, as in METHOD.md §7 ("stripes ~10 px per period").
+# Stripe period in the image near the plate centre, as in docs/method.md §7 ("stripes ~10 px per period").
 TARGET_PERIOD_PX = 10.0
 # The paper's projector: an 85 mm Kodak Retinar lens about 2 m from the plate.
 PROJECTOR_F_MM = 85.0
@@ -682,7 +682,7 @@ def true_camera_calibration(camera: Camera) -> Any:
         views.append(CornerView(f"z={z:g}", points, project_points(camera, points), z))
     calibration = calibrate_from_views(
         views,
-        image_size_px=(camera.image_width_px, camera.image_height_px),
+        image_size_wh_px=(camera.image_width_px, camera.image_height_px),
         mode="zstack",
         du_px_per_mm=camera.du_px_per_mm,
         dv_px_per_mm=camera.dv_px_per_mm,

@@ -1,4 +1,4 @@
-"""Topography: fringe order per frame, Z from the projector table, X and Y by back-projection (METHOD.md §5–6).
+"""Topography: fringe order per frame, Z from the projector table, X and Y by back-projection (docs/method.md §5–6).
 
 Belongs here: the frame loop of a test. Every frame is measured on its own from its edges, the calibration and
 the reference (first, flat) frame: the order of its edges (`order.py`: anchored on the stationary rim, counted
@@ -132,20 +132,21 @@ class FrameMeasurement:
 
 
 def check_recording_against(
-    image_shape: tuple[int, int], projector: ProjectorCalibration, camera_model: CameraModel
+    image_shape_hw_px: tuple[int, int], projector: ProjectorCalibration, camera_model: CameraModel
 ) -> None:
     """Raise CalibrationMismatchError when a recording's frames, the camera and the projector table disagree."""
     camera = camera_model.camera
     camera_shape = (camera.image_height_px, camera.image_width_px)
-    if tuple(image_shape) != tuple(projector.image_shape):
+    table_h, table_w = projector.image_shape_hw_px
+    if tuple(image_shape_hw_px) != (table_h, table_w):
         raise CalibrationMismatchError(
-            f"the test frames are {image_shape[1]} × {image_shape[0]} px but the projector calibration is for "
-            f"{projector.image_shape[1]} × {projector.image_shape[0]} px: use the calibrations of this camera"
+            f"the test frames are {image_shape_hw_px[1]} × {image_shape_hw_px[0]} px but the projector calibration is "
+            f"for {table_w} × {table_h} px: use the calibrations of this camera"
         )
-    if camera_shape != tuple(projector.image_shape):
+    if camera_shape != (table_h, table_w):
         raise CalibrationMismatchError(
             f"the camera calibration is for {camera_shape[1]} × {camera_shape[0]} px but the projector calibration "
-            f"for {projector.image_shape[1]} × {projector.image_shape[0]} px: they come from different cameras"
+            f"for {table_w} × {table_h} px: they come from different cameras"
         )
     if camera_fingerprint(camera) != projector.camera_fingerprint:
         raise CalibrationMismatchError(
@@ -169,11 +170,11 @@ def check_stripes_against(first_frame: np.ndarray, projector: ProjectorCalibrati
 def locate_test_edges(frames: Iterable[np.ndarray], projector: ProjectorCalibration) -> Iterator[FrameEdges]:
     """`fringes.locate_edges` with the projector calibration's edge settings, frame by frame (lazy)."""
     for image in frames:
-        if tuple(np.shape(image)[:2]) != tuple(projector.image_shape):
+        if tuple(np.shape(image)[:2]) != tuple(projector.image_shape_hw_px):
             shape = np.shape(image)
             raise CalibrationMismatchError(
                 f"a test frame is {shape[1]} × {shape[0]} px but the projector calibration is for "
-                f"{projector.image_shape[1]} × {projector.image_shape[0]} px"
+                f"{projector.image_shape_hw_px[1]} × {projector.image_shape_hw_px[0]} px"
             )
         yield locate_edges(image, projector.edges)
 
@@ -381,7 +382,7 @@ def track_and_measure(
     first_frame: int = 0,
     reference: OrderReference | None = None,
 ) -> Iterator[FrameMeasurement]:
-    """Order, Z from the table, X and Y by back-projection of consecutive frames (METHOD.md §5–6).
+    """Order, Z from the table, X and Y by back-projection of consecutive frames (docs/method.md §5–6).
 
     edges: the located edges of consecutive frames in frame order (`first_frame` is the index of the first in
     the recording). reference: the anchor of the test's order (`reference_for` of its flat first frame); None

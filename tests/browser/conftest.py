@@ -48,15 +48,6 @@ def browser() -> Iterator[object]:
         launched.close()
 
 
-@pytest.fixture(scope="session")
-def api_paths(live_server: UpProcess) -> set[str]:
-    """The paths of the server's API (from its OpenAPI document): tests of views whose API is not in this build
-    yet skip with the reason."""
-    import httpx
-
-    return set(httpx.get(f"{live_server.base_url}/api/openapi.json", timeout=10).json()["paths"])
-
-
 @pytest.fixture
 def expected_console_errors() -> list[str]:
     """Regular expressions of the errors a test provokes on purpose. Each failed HTTP answer is listed as

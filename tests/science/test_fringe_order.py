@@ -1,4 +1,4 @@
-"""Fringe order found in every frame on its own (METHOD.md §5), on hard virtual tests at 512 × 480 (kodak).
+"""Fringe order found in every frame on its own (docs/method.md §5), on hard virtual tests at 512 × 480 (kodak).
 
 - fast: ~5 mm more deflection per frame (edges jump up to ~3 px, more than the old tracking followed near the
   punch), then an 18 mm hole and 6 mm of springback within one frame;
@@ -45,7 +45,7 @@ from fringelab.science.topography import (
 )
 
 N_FRAMES = 16
-RMS_LIMIT_MM = 0.05  # METHOD.md §7 asks 0.10 over the deforming plate; the issue keeps today's 0.05 at 512 × 480
+RMS_LIMIT_MM = 0.05  # docs/method.md §7 asks 0.10 over the deforming plate; the issue keeps today's 0.05 at 512 × 480
 EXCLUDED_MM = 15.0
 
 

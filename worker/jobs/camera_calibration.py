@@ -56,7 +56,7 @@ def camera_calibration_body(context: JobContext) -> dict[str, Any]:
     size = (calibration.camera.image_width_px, calibration.camera.image_height_px)
     row = record_calibration(
         context, kind="camera", camera_id=camera.id, recording_id=recording.id, name="camera.json",
-        image_size_px=size, summary=summary,
+        image_size_wh_px=size, summary=summary,
     )  # fmt: skip
     context.provenance.update({"science": calibration.provenance})
     context.log(

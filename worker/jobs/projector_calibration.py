@@ -46,10 +46,10 @@ def projector_calibration_body(context: JobContext) -> dict[str, Any]:
         "sensitivity_px_per_mm": float(qa.sensitivity_px_per_mm[1]),
         "fit_rms_mm": qa.fit_rms_mm,
     }
-    height, width = calibration.image_shape
+    height, width = calibration.image_shape_hw_px
     row = record_calibration(
         context, kind="projector", camera_id=camera.id, recording_id=recording.id, name="projector.h5",
-        image_size_px=(width, height), summary=summary,
+        image_size_wh_px=(width, height), summary=summary,
     )  # fmt: skip
     context.provenance.update({"science": calibration.provenance})
     context.log(

@@ -106,19 +106,6 @@ def test_profile_csv_round_trip(result_path: Path, tmp_path: Path) -> None:
         export_result(result_path, "xlsx", tmp_path / "x.xlsx")
 
 
-def test_frames_csv_errors_name_the_line() -> None:
-    table = read_frames_csv("frame,time_s,force_kN\n0,0.0,1.5\n1,0.5,\n")
-    np.testing.assert_array_equal(table.frame, [0, 1])
-    assert np.isnan(table.force_kN[1]) and table.punch_displacement_mm is None
-    assert np.all(np.isnan(table.rows([0, 1])["punch_displacement_mm"]))  # an absent column reads as not logged
-    with pytest.raises(ValueError, match="line 3, column time_s: .abc. is not a number"):
-        read_frames_csv("frame,time_s\n0,0\n1,abc\n")
-    with pytest.raises(ValueError, match="line 3: frame 0 appears twice"):
-        read_frames_csv("frame,time_s\n0,0\n0,1\n")
-    with pytest.raises(ValueError, match="unknown column"):
-        read_frames_csv("frame,speed\n0,1\n")
-
-
 def test_virtual_experiment_on_disk(tmp_path: Path) -> None:
     experiment = simulate_experiment(
         tmp_path / "exp", "kodak", n_test_frames=4, calibration_z_mm=[0.0, 2.0, 4.0], camera_z_mm=(-20.0, 40.0, 100.0),

@@ -1,4 +1,4 @@
-"""Projector calibration (METHOD.md §4): the look-up table, its checks and QA, lookups, files, bad input."""
+"""Projector calibration (docs/method.md §4): the look-up table, its checks and QA, lookups, files, bad input."""
 
 from __future__ import annotations
 

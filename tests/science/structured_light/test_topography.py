@@ -1,4 +1,4 @@
-"""The topography pipeline (METHOD.md §5–6): chunked runs, temporal smoothing, the result file, bad input."""
+"""The topography pipeline (docs/method.md §5–6): chunked runs, temporal smoothing, the result file, bad input."""
 
 from __future__ import annotations
 
