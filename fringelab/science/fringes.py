@@ -329,8 +329,9 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     line_kernel_period = np.ones((1, dark_window), np.uint8)
     stripe_max = cv2.dilate(scan, line_kernel_period)
     stripe_min = cv2.erode(scan, line_kernel_period)
-    lit = ~dark & (stripe_max > 0)
-    dark_share = float(np.median((stripe_min / np.maximum(stripe_max, 1e-3))[lit][::16])) if np.any(lit) else 0.0
+    sampled_max, sampled_min = stripe_max[::4, ::4], stripe_min[::4, ::4]
+    lit = ~dark[::4, ::4] & (sampled_max > 0)
+    dark_share = float(np.median(sampled_min[lit] / sampled_max[lit])) if np.any(lit) else 0.0
     dark_level = dark_share * stripe_max
     black = (scan < BLACK_FRACTION * dark_level) & (dark_level - scan > BLACK_MARGIN_GREY)
     # Beside a wide dark area (the clamp ring, a hole) the test above already rejects what must be: the rim of the
@@ -430,9 +431,10 @@ def _unusable_blocks(
     lit by the room but not by the projector); low contrast: neither, but the stripes' contrast is below
     min_contrast_grey or their bright side clipped.
     """
-    black_level = float(np.percentile(scan[::4, ::4], 1))
-    with np.errstate(invalid="ignore"):
-        stripes_dark = float(np.nanpercentile(np.where(dark, np.nan, scan)[::4, ::4], 10)) if not dark.all() else 0.0
+    sampled = scan[::4, ::4]
+    black_level = float(np.percentile(sampled, 1))
+    lit = sampled[~dark[::4, ::4]]
+    stripes_dark = float(np.percentile(lit, 10)) if lit.size else black_level
     margin = max(BLACK_MARGIN_GREY, 0.25 * (stripes_dark - black_level))
     reason: np.ndarray = np.zeros(scan.shape, np.uint8)
     with np.errstate(invalid="ignore"):
@@ -440,14 +442,13 @@ def _unusable_blocks(
     reason[faint] = UNUSABLE_LOW_CONTRAST
     reason[dark] = UNUSABLE_DARK
     reason[dark & (scan < black_level + margin)] = UNUSABLE_BLACK
-    # Edges are rejected near dark areas (see `locate_edges`): the area's reason reaches as far (the larger code
-    # wins, as in the blocks below).
-    reason = cv2.dilate(reason, grow)
     block = UNUSABLE_BLOCK_PX
     height, width = int(reason.shape[0]), int(reason.shape[1])
-    padded = np.zeros((-(-height // block) * block, -(-width // block) * block), np.uint8)
-    padded[:height, :width] = reason
-    return padded.reshape(padded.shape[0] // block, block, padded.shape[1] // block, block).max(axis=(1, 3))
+    # The worst reason in each block (a dilation by the block, then every block-th pixel), then as far as edges
+    # are rejected near dark areas (see `locate_edges`; the larger code wins), at the blocks' scale.
+    worst = cv2.dilate(reason, np.ones((block, block), np.uint8), anchor=(0, 0))[::block, ::block]
+    reach = np.ones((-(-grow.shape[0] // block) | 1, -(-grow.shape[1] // block) | 1), np.uint8)
+    return np.ascontiguousarray(cv2.dilate(worst, reach)[: -(-height // block), : -(-width // block)])
 
 
 def _subpixel_crossings(diff: np.ndarray, contrast: np.ndarray, line: np.ndarray, left: np.ndarray) -> np.ndarray:

@@ -24,6 +24,7 @@ continuity is no source here; `topography.py` may use it as a cross-check.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -101,6 +102,11 @@ class OrderReference:
     rim: np.ndarray
     rim_circle_mm: tuple[float, float, float]
     cell_area_mm2: np.ndarray
+
+    @functools.cached_property
+    def rim_t_px(self) -> np.ndarray:
+        """(K, S) reference positions on the rim band only, NaN elsewhere."""
+        return np.where(self.rim, self.reference_t_px, np.nan)
 
     @property
     def visible_area_mm2(self) -> float:
@@ -287,15 +293,13 @@ def order_frame(
     component = order.component[edges.chain]
     reason[relative < 0] = ORDER_CONFLICT
     n_conflicts = int(np.count_nonzero(order.index < 0))
-    # Rim votes: the nearest reference edge of the same polarity, if close, on the stationary band.
+    # Rim votes: the nearest reference edge of the same polarity on the stationary band, if close. (Edges of one
+    # polarity are a period apart, so a point within a third of a period of a rim edge has no nearer one.)
     k_near, distance = match_to_reference(
-        edges.line, edges.t_px, edges.polarity, reference.reference_t_px, projector.polarity,
-        n_samples=edges.n_samples,
-    )  # fmt: skip
-    line = edges.line.astype(np.int64)
+        edges.line, edges.t_px, edges.polarity, reference.rim_t_px, projector.polarity, n_samples=edges.n_samples
+    )
     near = (k_near >= 0) & (np.abs(distance) <= settings.anchor_tolerance_fraction * projector.period_px)
     on_rim = near & (relative >= 0)
-    on_rim[on_rim] = reference.rim[k_near[on_rim], line[on_rim]]
     n_groups = int(order.component.max()) + 1 if np.any(order.component >= 0) else 0
     if n_groups:
         offset_votes = k_near[on_rim] - relative[on_rim]
