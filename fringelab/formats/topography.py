@@ -457,7 +457,7 @@ class TopographyResult:
         names = ["measured_fraction", "visible_area_mm2", "measured_area_mm2", "n_order_conflicts"]
         names += ["peak_region_coverage"]
         names += [f"missing_{name}_mm2" for name in MISSING_REASONS]
-        qa = self.file["qa"]
+        qa = self.file.get("qa", {})  # a file may have no QA at all
         return {
             name: qa[name][()].astype(np.float64) if name in qa else np.full(self.n_frames, np.nan) for name in names
         }
