@@ -16,6 +16,7 @@ import h5py
 import numpy as np
 
 from fringelab.formats.topography import OutsideGrid, ResultUnavailable
+from fringelab.science.projector_quality import PROJECTOR_LIMITS, judge_projector, projector_maps
 
 
 def result_path(data_path: Path, relative: str) -> Path:
@@ -40,7 +41,7 @@ def read_json(data_path: Path, relative: str) -> dict[str, Any]:
 
 CAMERA_REPORT_KEYS = (
     "mode", "image_size_px", "sensor", "parameters", "opencv", "inverse_model", "rms_px", "residual_std_px",
-    "n_points", "converged", "frames", "residuals", "residual_map", "verdict", "board", "provenance",
+    "n_points", "converged", "frames", "residuals", "residual_map", "verdict", "board", "provenance", "pose",
 )  # fmt: skip
 
 
@@ -104,3 +105,49 @@ def projector_table(data_path: Path, relative: str, *, line: int | None, edges: 
             "curves": [{"edge": k, "polarity": int(polarity[k]), "t_px": rows[k]} for k in chosen],
             "qa": json.loads(file.attrs["qa_json"]),
         }
+
+
+def projector_report(data_path: Path, relative: str, *, cell_px: int) -> dict[str, Any]:
+    """The verdict of a projector table and its maps over the whole image: sensitivity (px/mm), the Z resolution
+    at the measured edge noise (mm), coverage over the image and over Z (`fringelab.science.projector_quality`).
+    Reads the (K, S) arrays of the table, not the table itself."""
+    path = result_path(data_path, relative)
+    try:
+        file = h5py.File(path, "r")
+    except OSError as error:
+        raise ResultUnavailable(f"{relative} is not readable ({error}); run the calibration again") from None
+    with file:
+        if file.attrs.get("schema") != PROJECTOR_SCHEMA:
+            raise ResultUnavailable(f"{relative} is not a projector calibration")
+        qa = json.loads(file.attrs["qa_json"])
+        image_shape = (int(file.attrs["image_height_px"]), int(file.attrs["image_width_px"]))
+        maps = projector_maps(
+            image_shape=image_shape,
+            axis=str(plain(file.attrs["axis"])),
+            reference_t_px=file["reference_t_px"][()],
+            sensitivity_px_per_mm=file["sensitivity_px_per_mm"][()],
+            z_mm=file["z_mm"][()],
+            z_lo_mm=file["z_lo_mm"][()],
+            z_hi_mm=file["z_hi_mm"][()],
+            edge_noise_px=float(qa["edge_noise_px"]),
+            cell_px=cell_px,
+        )
+    verdict = judge_projector(qa)
+    return {
+        "image_size_px": {"width": image_shape[1], "height": image_shape[0]},
+        "verdict": {
+            "level": verdict.level,
+            "reasons": list(verdict.reasons),
+            "checks": [check.__dict__ for check in verdict.checks],
+        },
+        "limits": {name: {"good": good, "bad": bad} for name, (good, bad) in PROJECTOR_LIMITS.items()},
+        "qa": qa,
+        "cell_px": maps.cell_px,
+        "cells_u": maps.cells_u,
+        "cells_v": maps.cells_v,
+        "sensitivity_px_per_mm": maps.sensitivity_px_per_mm,
+        "z_resolution_mm": maps.z_resolution_mm,
+        "coverage": maps.coverage,
+        "z_mm": maps.z_mm,
+        "coverage_z": maps.coverage_z,
+    }

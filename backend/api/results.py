@@ -22,7 +22,7 @@ from sqlalchemy import select
 
 from backend.api.deps import CurrentUser, SessionDep, StateDep, experiment_for
 from backend.api.jobs import ERRORS, JobDep
-from backend.results import camera_report, plain, projector_table, result_path
+from backend.results import camera_report, plain, projector_report, projector_table, result_path
 from backend.schemas.jobs import MAX_ID, CalibrationOut, ErrorOut
 from fringelab.core.accounts import readable_experiments
 from fringelab.core.errors import Conflict, Gone, Invalid, NotFound
@@ -132,6 +132,69 @@ def calibration_report(calibration: CalibrationDep, state: StateDep) -> Calibrat
     except ResultUnavailable as error:
         raise job_error(Gone, "result_missing", str(error)) from None
     return CalibrationReport(calibration=calibration_out(calibration), report=report)
+
+
+class VerdictCheckOut(BaseModel):
+    name: str
+    value: float | None = Field(description="null: not measured")
+    unit: str
+    good_limit: float
+    bad_limit: float
+    higher_is_better: bool
+    level: str
+    message: str
+
+
+class VerdictOut(BaseModel):
+    level: str = Field(description="good, check or bad: the worst of the checks.")
+    reasons: list[str]
+    checks: list[VerdictCheckOut]
+
+
+class ProjectorReport(BaseModel):
+    calibration: CalibrationOut
+    image_size_px: dict[str, int]
+    verdict: VerdictOut
+    limits: dict[str, dict[str, float]] = Field(description="Each rule's good and bad thresholds.")
+    qa: dict[str, Any]
+    cell_px: int = Field(description="Side of the square image cells of the maps, px.")
+    cells_u: int
+    cells_v: int
+    sensitivity_px_per_mm: list[list[float | None]] = Field(
+        description="(cells_v, cells_u) median |dt/dZ| of the table's entries in each cell; null: no entry."
+    )
+    z_resolution_mm: list[list[float | None]] = Field(
+        description="(cells_v, cells_u) the Z step the measured edge noise amounts to: edge_noise_px / sensitivity."
+    )
+    coverage: list[list[float | None]] = Field(
+        description="(cells_v, cells_u) share of the edges seen there on the flat plate that have a table entry."
+    )
+    z_mm: list[float | None] = Field(description="The calibration heights.")
+    coverage_z: list[float | None] = Field(description="Share of the entries whose fitted Z range holds each height.")
+
+
+@router.get("/calibrations/{calibration_id}/projector-report", response_model=ProjectorReport, responses=RESULT_ERRORS)
+def projector_calibration_report(
+    calibration: CalibrationDep,
+    state: StateDep,
+    cell_px: Annotated[int, Query(ge=4, le=256, description="Side of the maps' image cells, px.")] = 16,
+) -> ProjectorReport:
+    """A projector calibration's report, on a par with the camera's: the verdict with each rule's value,
+    thresholds and meaning, and maps over the whole image of the sensitivity (px per mm of Z), the Z resolution
+    it gives at the measured edge noise, and the table's coverage over the image and over Z."""
+    if calibration.kind != "projector":
+        raise job_error(NotFound, "no_report", f"calibration {calibration.id} is a {calibration.kind} calibration")
+    try:
+        report = projector_report(state.settings.data_path, calibration.path, cell_px=cell_px)
+    except ResultUnavailable as error:
+        raise job_error(Gone, "result_missing", str(error)) from None
+    for name in ("sensitivity_px_per_mm", "z_resolution_mm", "coverage"):
+        report[name] = _listed(report[name])
+    report["z_mm"] = _listed(report["z_mm"])
+    report["coverage_z"] = _listed(report["coverage_z"])
+    for check in report["verdict"]["checks"]:
+        check["value"] = check["value"] if math.isfinite(check["value"]) else None
+    return ProjectorReport(calibration=calibration_out(calibration), **report)
 
 
 class ProjectorTable(BaseModel):

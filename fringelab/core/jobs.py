@@ -259,6 +259,22 @@ def _calibration_ref(calibration: Calibration) -> dict[str, Any]:
     }
 
 
+def _check_export_frames(spec: dict[str, Any], source: Job) -> None:
+    """An export's frame range must hold frames of its result (the result says its first and last frame)."""
+    wanted = spec.get("frames")
+    held = (source.result or {}).get("frames")
+    if not wanted or not held:
+        return
+    first, last = wanted["first"], wanted["last"] if wanted.get("last") is not None else held[1]
+    if last < held[0] or first > held[1]:
+        raise job_error(
+            Invalid,
+            "frames_outside_result",
+            f"frames {first}…{last} hold no frame of topography job {source.id} (its frames are {held[0]}…{held[1]})",
+            field="frames",
+        )
+
+
 def prepare_job(session: Session, spec: dict[str, Any], *, authorize: Authorize = _nobody_checks) -> Prepared:
     """Check a (shape-valid) spec against the database; raise a `job_error` naming the field, or say what it uses.
     `authorize` is asked as soon as the experiment is known, before anything about its inputs is revealed."""
@@ -279,6 +295,7 @@ def prepare_job(session: Session, spec: dict[str, Any], *, authorize: Authorize 
             raise job_error(
                 Conflict, "job_not_succeeded", f"topography job {source.id} is {source.state}; export a succeeded one"
             )
+        _check_export_frames(spec, source)
         return Prepared(experiment_id=source.experiment_id, inputs=[{"job_id": source.id}])
     recording_kind = "test" if kind == "topography" else kind
     recording = _recording(

@@ -71,10 +71,18 @@ class Camera(Base):
     name: Mapped[str] = mapped_column(String(100))
     image_width_px: Mapped[int] = mapped_column(Integer)
     image_height_px: Mapped[int] = mapped_column(Integer)
+    # Pixel pitch along u (a row: the image's width) and along v (a column); v empty means square pixels.
     pixel_pitch_um: Mapped[float] = mapped_column(Float)
+    pixel_pitch_v_um: Mapped[float | None] = mapped_column(Float, nullable=True)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
 
     experiment: Mapped[Experiment] = relationship(back_populates="cameras")
+
+    @property
+    def pixel_pitch_uv_um(self) -> tuple[float, float]:
+        """(pitch along u, pitch along v) in µm: D_u = 1000 / pitch_u px/mm, D_v = 1000 / pitch_v px/mm."""
+        return self.pixel_pitch_um, self.pixel_pitch_v_um or self.pixel_pitch_um
+
     recordings: Mapped[list[Recording]] = relationship(back_populates="camera", cascade="all, delete-orphan")
 
 

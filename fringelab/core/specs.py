@@ -168,11 +168,22 @@ class ExportSpec(_Spec):
     line: tuple[float, float, float, float] | None = Field(
         None, description="X0, Y0, X1, Y1 in mm, for profile-csv; empty: along X through the punch axis."
     )
+    lines: list[tuple[float, float, float, float]] | None = Field(
+        None,
+        max_length=26,
+        description="Several lines X0, Y0, X1, Y1 in mm for profile-csv (the viewer's section lines), labelled "
+        "A, B, … in the file; instead of `line`.",
+    )
+    frames: FrameRange | None = Field(
+        None, description="Only these frames of the result (recording frame numbers); empty: every frame."
+    )
 
     @model_validator(mode="after")
     def _line_for_profiles(self) -> ExportSpec:
-        if self.line is not None and self.format != "profile-csv":
-            raise ValueError("line is only used by the profile-csv format")
+        if (self.line is not None or self.lines) and self.format != "profile-csv":
+            raise ValueError("line and lines are only used by the profile-csv format")
+        if self.line is not None and self.lines:
+            raise ValueError("give line or lines, not both")
         return self
 
 

@@ -5,6 +5,10 @@ containers    what an uploaded recording container is (ZIP, TIFF, video, .cine),
 recordings    frame sources of every container (lazy), and the sidecars z.csv, frames.csv, board.json
 previews      the preview store of a recording (previews.h5)
 topography    projector tables, topography results (writer and reader), exports, edge chunks
+simulations   opening a finite-element simulation (file or folder); one module per format: simulation_d3plot
+              (lasso-python), simulation_vtu (.pvd/.vtu), simulation_exodus, simulation_csv (nodal and punch CSV),
+              simulation_lsdyna_ascii (nodout, rcforc)
+comparison    the comparison of a topography with a simulation (writer, reader, exports)
 
 Modules the API imports (containers, previews, topography's reader) use numpy and h5py only; decoding frames
 (recordings) and the OpenCV YAML export need OpenCV and are used by the worker and the command line.
@@ -23,3 +27,6 @@ EXPORT_FILES: dict[str, tuple[str, str]] = {
     "mat": ("topography.mat", "application/x-matlab-data"),
     "vtk": ("topography-vtk.zip", "application/zip"),
 }
+# The exports of a comparison file, declared once.
+ComparisonExport = Literal["csv", "hdf5", "mat", "vtk", "profile-csv"]
+COMPARISON_EXPORTS: tuple[str, ...] = get_args(ComparisonExport)

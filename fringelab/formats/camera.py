@@ -10,6 +10,8 @@ Document (schema "fringelab.camera-calibration", version 1), angles in degrees a
   sensor {du_px_per_mm, dv_px_per_mm, pixel_pitch_um [u, v] | null, scale_on},
   parameters {name: {value, unit, standard_error}} for su, f_mm, u0_px, v0_px, k1_per_mm2, k2_per_mm4,
       p1_per_mm, p2_per_mm, x0_mm, y0_mm, z0_mm, omega_deg, phi_deg, kappa_deg,
+  pose {object_origin_in_camera_mm [x, y, z] (= x0, y0, z0), camera_centre_in_object_mm [X, Y, Z]} (derived; absent
+      in files written before it was added),
   correlation: 14 × 14 in that order,
   opencv {camera_matrix 3×3, dist_coeffs [k1, k2, p1, p2, k3], rvec_rad, tvec_mm (OpenCV's pose: plate -> camera),
          standard_errors {...}},
@@ -42,7 +44,7 @@ from fringelab.science.calibration import (
     Verdict,
     VerdictCheck,
 )
-from fringelab.science.camera import Camera, InverseModel
+from fringelab.science.camera import Camera, InverseModel, camera_centre_obj_mm
 from fringelab.science.chessboard import Board
 
 SCHEMA = "fringelab.camera-calibration"
@@ -93,6 +95,12 @@ def calibration_as_dict(calibration: CameraCalibration) -> dict[str, Any]:
             "scale_on": camera.scale_on,
         },
         "parameters": parameters,
+        # The pose read both ways: x0, y0, z0 are where the plate's origin lies in the camera frame; the camera's
+        # projection centre in the plate frame is C = −Mᵀ·[x0, y0, z0] (derived; no standard error given).
+        "pose": {
+            "object_origin_in_camera_mm": [float(v) for v in camera.translation_mm],
+            "camera_centre_in_object_mm": [float(v) for v in camera_centre_obj_mm(camera)],
+        },
         "correlation": _nested(calibration.correlation),
         "opencv": {
             "camera_matrix": opencv.camera_matrix.tolist(),

@@ -15,9 +15,11 @@ Topography result (schema "fringelab.topography", version 1); lengths in mm in t
                     camera_fingerprint, projector_json (its settings, QA, provenance, table size)
   /frames           index (n,) int64; time_s, punch_displacement_mm, force_kN (n,) float64, NaN if not logged
   /points           offsets (n + 1,) int64: frame i's points are rows offsets[i]:offsets[i+1] of
-                    x_mm, y_mm, z_mm (P,) float32, edge (P,) int32 (edge index k), line (P,) int32 (scan line)
+                    x_mm, y_mm, z_mm (P,) float32, edge (P,) int32 (edge index k), line (P,) int32 (scan line),
+                    sigma_w_mm (P,) float32: σ of each point's height (`science.uncertainty`), NaN where unknown
   /grid             x_mm (nx,), y_mm (ny,); z_mm (n, ny, nx) float32, chunked one frame per chunk, NaN outside
-                    the data
+                    the data; sigma_w_mm (n, ny, nx) float32, σ of the gridded height (interpolated like z)
+Files written before σ existed have no sigma_w_mm datasets; the reader then returns None for σ.
   /peak             w_mm, x_mm, y_mm (n,): the largest deflection of the grid and where; centre_x_mm,
                     centre_y_mm (n,): centroid of the area above half the peak (the punch axis), NaN early on
   /qa               n_points, n_tracks, n_ended, n_out_of_range, n_unmatched (n,) int64; edge_noise_px,
@@ -159,6 +161,7 @@ class TopographyWriter:
             ("z_mm", np.float32, "mm", "Z of each edge point (the deflection is z − z_flat_mm)"),
             ("edge", np.int32, "1", "edge index k in the projector table"),
             ("line", np.int32, "1", "scan line (image row for axis 'rows', column for 'cols')"),
+            ("sigma_w_mm", np.float32, "mm", "standard deviation of the point's height (edge noise, projector table)"),
         ):
             unit_dataset(
                 points,
@@ -188,6 +191,20 @@ class TopographyWriter:
             shuffle=True,
             fillvalue=np.nan,
         )
+        unit_dataset(
+            grid_group,
+            "sigma_w_mm",
+            np.zeros((0, ny, nx), np.float32),
+            unit="mm",
+            description="standard deviation of the gridded height [frame, iy, ix] (its corners' σ interpolated)",
+            maxshape=(None, ny, nx),
+            chunks=(1, ny, nx),
+            compression="gzip",
+            compression_opts=1,
+            shuffle=True,
+            fillvalue=np.nan,
+        )
+        self.max_edge_mm = max_edge_mm
         peak = file.create_group("peak")
         for name, description in (
             ("w_mm", "largest deflection w = z − z_flat of the grid"),
@@ -289,11 +306,16 @@ class TopographyWriter:
         self._append(file["points/z_mm"], points[:, 2].astype(np.float32))
         self._append(file["points/edge"], measurement.k.astype(np.int32))
         self._append(file["points/line"], measurement.line.astype(np.int32))
+        sigma = measurement.sigma_z_mm if measurement.sigma_z_mm is not None else np.full(len(points), np.nan)
+        self._append(file["points/sigma_w_mm"], sigma.astype(np.float32))
         self._n_points += len(points)
         self._append(file["points/offsets"], np.array([self._n_points]))
         grid_z = file["grid/z_mm"]
         grid_z.resize(self._n + 1, axis=0)
         grid_z[self._n] = z_grid_mm.astype(np.float32)
+        grid_sigma = file["grid/sigma_w_mm"]
+        grid_sigma.resize(self._n + 1, axis=0)
+        grid_sigma[self._n] = self._sigma_grid(measurement, sigma).astype(np.float32)
         for name in ("w_mm", "x_mm", "y_mm", "centre_x_mm", "centre_y_mm"):
             self._append(file[f"peak/{name}"], np.array([getattr(peak, name)]))
         nodes = int(np.count_nonzero(np.isfinite(z_grid_mm)))
@@ -322,6 +344,18 @@ class TopographyWriter:
         for name, value in qa.items():
             self._append(file[f"qa/{name}"], np.array([value]))
         self._n += 1
+
+    def _sigma_grid(self, measurement: FrameMeasurement, sigma: np.ndarray) -> np.ndarray:
+        """σ on the grid, on the same triangles as the heights (`science.uncertainty.grid_sigma_mm`)."""
+        from fringelab.science.uncertainty import grid_sigma_mm
+
+        if len(sigma) == 0 or not np.any(np.isfinite(sigma)):
+            return np.full(self.grid.shape, np.nan)
+        shape = (int(measurement.k.max()) + 1, int(measurement.line.max()) + 1)
+        x, y, _ = measurement.dense(shape)
+        dense_sigma = np.full(shape, np.nan)
+        dense_sigma[measurement.k, measurement.line] = sigma
+        return grid_sigma_mm(x, y, dense_sigma, self.grid, max_edge_mm=self.max_edge_mm)
 
     def close(self, summary: dict[str, Any]) -> Path:
         """Write the summary attributes, close the file and move it into place."""
@@ -446,6 +480,19 @@ class TopographyResult:
     def z_grid(self, i: int) -> np.ndarray:
         """Gridded Z (ny, nx) of frame position i (NaN outside the data)."""
         return self.file["grid/z_mm"][i].astype(np.float64)
+
+    def sigma_points(self, i: int) -> np.ndarray | None:
+        """σ_w (N,) of the points of frame position i; None for a file written before σ was stored."""
+        if "points/sigma_w_mm" not in self.file:
+            return None
+        lo, hi = int(self.offsets[i]), int(self.offsets[i + 1])
+        return self.file["points/sigma_w_mm"][lo:hi].astype(np.float64)
+
+    def sigma_grid(self, i: int) -> np.ndarray | None:
+        """σ_w (ny, nx) of the grid of frame position i; None for a file written before σ was stored."""
+        if "grid/sigma_w_mm" not in self.file:
+            return None
+        return self.file["grid/sigma_w_mm"][i].astype(np.float64)
 
     def w_grid(self, i: int) -> np.ndarray:
         """Gridded deflection w = z − z_flat (ny, nx) of frame position i."""

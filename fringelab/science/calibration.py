@@ -38,10 +38,10 @@ from .camera import (
     fit_inverse_model,
 )
 from .chessboard import Board
+from .verdict import VERDICT_LEVELS, YES_NO, Verdict, VerdictCheck, check, verdict_of  # noqa: F401 (re-exported)
 
 CalibrationMode = Literal["zstack", "poses"]  # a Z-stack of one board pose, or free poses
 MODES: tuple[str, ...] = get_args(CalibrationMode)
-VERDICT_LEVELS = ("good", "check", "bad")
 
 # The 14 estimated Heikkilä parameters, as `Camera` field names, in the order of `correlation`.
 CAMERA_PARAMETERS = (
@@ -127,29 +127,6 @@ class ResidualMap:
     rms_px: np.ndarray
     systematic_px: float
     coverage: float
-
-
-@dataclass(frozen=True)
-class VerdictCheck:
-    """One rule of the verdict: the value, its thresholds and the level it earned."""
-
-    name: str
-    value: float
-    unit: str
-    good_limit: float
-    bad_limit: float
-    higher_is_better: bool
-    level: str
-    message: str
-
-
-@dataclass(frozen=True)
-class Verdict:
-    """good / check / bad: the worst level of the checks, with the reasons for anything not good."""
-
-    level: str
-    reasons: tuple[str, ...]
-    checks: tuple[VerdictCheck, ...]
 
 
 @dataclass(frozen=True, eq=False)
@@ -500,14 +477,7 @@ def residual_map(q_px: np.ndarray, residual_px: np.ndarray, image_size_wh_px: tu
 
 def _check(name: str, value: float, unit: str, *, good: float, bad: float, higher_is_better: bool = False,
            what: str) -> VerdictCheck:  # fmt: skip
-    if higher_is_better:
-        level = "good" if value >= good else ("check" if value >= bad else "bad")
-        limits = f"good ≥ {good:g} {unit}, bad < {bad:g} {unit}"
-    else:
-        level = "good" if value <= good else ("check" if value <= bad else "bad")
-        limits = f"good ≤ {good:g} {unit}, bad > {bad:g} {unit}"
-    message = f"{what}: {value:.4g} {unit} ({limits})".replace(" )", ")")
-    return VerdictCheck(name, float(value), unit, good, bad, higher_is_better, level, message)
+    return check(name, value, unit, good=good, bad=bad, higher_is_better=higher_is_better, what=what)
 
 
 def judge_calibration(
@@ -523,8 +493,8 @@ def judge_calibration(
     worst_rms = float(frame_rms.max())
     worst_ratio = worst_rms / median_rms if worst_rms > OUTLIER_FLOOR_PX else 1.0
     checks = [
-        _check("solver", 1.0 if converged else 0.0, "", good=1.0, bad=1.0, higher_is_better=True,
-               what="Levenberg–Marquardt converged (1) or stopped at its iteration limit (0)"),
+        _check("solver", 1.0 if converged else 0.0, YES_NO, good=1.0, bad=1.0, higher_is_better=True,
+               what="Levenberg–Marquardt converged (no: it stopped at its iteration limit)"),
         _check("residual_std", residual_std_px, "px", good=0.2, bad=0.5,
                what="residual standard deviation per coordinate (Heikkilä: below 0.2 px)"),
         # A frame far worse than the others is a detection or Z error in that frame; below 0.2 px it is harmless.
@@ -543,9 +513,7 @@ def judge_calibration(
         _check("frames_lost", 100.0 * lost, "%", good=20.0, bad=50.0,
                what="frames skipped (no board) or rejected (outliers)"),
     ]  # fmt: skip
-    level = max((c.level for c in checks), key=VERDICT_LEVELS.index)
-    reasons = tuple(c.message for c in checks if c.level != "good") or ("all checks within their thresholds",)
-    return Verdict(level=level, reasons=reasons, checks=tuple(checks))
+    return verdict_of(checks)
 
 
 # --------------------------------------------------------------------------------------------------------------

@@ -27,6 +27,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
 
 from . import MeasurementError
+from .smoothing import edge_smoothing_weights
 
 Axis = Literal["rows", "cols"]
 AXIS_CHOICES = ("auto", "rows", "cols")
@@ -578,10 +579,7 @@ def _smooth_along_chains(line: np.ndarray, t_px: np.ndarray, chain: np.ndarray, 
 
     offsets = np.arange(-half, half + 1, dtype=np.float64)
     gauss = np.exp(-0.5 * (offsets / sigma_lines) ** 2)
-    moments = np.array([np.sum(gauss * offsets**m) for m in range(5)])
-    design = np.array([[moments[i + j] for j in range(3)] for i in range(3)])
-    # Row 0 of the inverse normal matrix times [1, d, d²]·g: the weights that give the fitted value at d = 0.
-    interior_weights = np.linalg.solve(design, np.eye(3))[0] @ np.vstack([gauss, gauss * offsets, gauss * offsets**2])
+    interior_weights = edge_smoothing_weights(sigma_lines)
     smoothed_sorted = ndimage.correlate1d(t_sorted, interior_weights, mode="nearest")
 
     near_end = np.flatnonzero((before < half) | (after < half))

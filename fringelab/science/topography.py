@@ -50,6 +50,7 @@ from .projector import (
     _scatter,
     camera_fingerprint,
 )
+from .uncertainty import edge_sigma_px, point_sigma_z_mm
 
 # The first test frame is the reference the order is anchored on (kept under its old name).
 FirstFrameNotFlatError = ReferenceNotFlatError
@@ -106,7 +107,9 @@ class FrameMeasurement:
     frame without an order; edge_noise_px: the frame's edge-location noise estimate; n_order_unresolved: edge
     points whose group no anchor reaches; n_order_conflict_points: edge points masked for a conflict of sources;
     n_order_conflicts: conflicts found (curves or groups); coverage: what of the plate was measured and what
-    is missing by reason (None for measurements stored without it).
+    is missing by reason (None for measurements stored without it). sigma_z_mm: (N,) σ of each
+    point's Z from the edge noise and the projector table (`uncertainty.point_sigma_z_mm`), None where not
+    computed.
     """
 
     frame: int
@@ -122,6 +125,7 @@ class FrameMeasurement:
     n_order_conflict_points: int = 0
     n_order_conflicts: int = 0
     coverage: FrameCoverage | None = None
+    sigma_z_mm: np.ndarray | None = None
 
     def dense(self, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """X, Y, Z as (K, S) arrays over (edge, line), NaN where not measured."""
@@ -432,6 +436,11 @@ def _measure(
     kk, ll, t, z = kk[ok], ll[ok], t[ok], z[ok]
     q_px = np.column_stack([t, ll] if projector.axis == "rows" else [ll, t]).astype(np.float64)
     points = backproject_to_z(camera_model.camera, q_px, z, inverse=camera_model.inverse)
+    sigma_z = point_sigma_z_mm(
+        sensitivity_px_per_mm=projector.sensitivity_px_per_mm[kk, ll], fit_rms_mm=projector.fit_rms_mm[kk, ll],
+        n_heights=np.count_nonzero(np.isfinite(projector.lut_t_px[kk, ll]), axis=-1),
+        n_coefficients=projector.coefficients.shape[-1], edge_sigma_px=edge_sigma_px(noise_px, projector.edges),
+    )  # fmt: skip
     return FrameMeasurement(
         frame=int(frame),
         k=kk.astype(np.int32),
@@ -446,6 +455,7 @@ def _measure(
         n_order_conflict_points=int(counts["n_order_conflict_points"]),
         n_order_conflicts=int(counts["n_order_conflicts"]),
         coverage=coverage,
+        sigma_z_mm=sigma_z,
     )
 
 

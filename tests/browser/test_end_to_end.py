@@ -83,7 +83,7 @@ def test_upload_calibrate_measure_and_explore(page, live_server, virtual_test, c
     cameras.get_by_label("Camera name").fill(PRESET)
     cameras.get_by_label("Image width (px)").fill(str(camera.image_width_px))
     cameras.get_by_label("Image height (px)").fill(str(camera.image_height_px))
-    cameras.get_by_label("Pixel pitch (µm)").fill(f"{1000 / camera.du_px_per_mm:.6f}")
+    cameras.get_by_label("Pixel pitch u (µm)").fill(f"{1000 / camera.du_px_per_mm:.6f}")
     cameras.get_by_role("button", name="Add camera").click()
     expect(page.get_by_role("region", name=f"Camera {PRESET}")).to_be_visible()
 

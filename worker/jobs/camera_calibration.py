@@ -20,19 +20,19 @@ def camera_calibration_body(context: JobContext) -> dict[str, Any]:
     if spec.get("board"):
         b = spec["board"]
         board = Board(b["cols"], b["rows"], b["square_mm"], origin=tuple(b["origin"]) if b.get("origin") else None)
-    pitch_um = camera.pixel_pitch_um
-    if not pitch_um > 0:
+    pitch_u_um, pitch_v_um = camera.pixel_pitch_uv_um
+    if not (pitch_u_um > 0 and pitch_v_um > 0):
         raise ValueError(f"camera {camera.name!r} has no pixel pitch; set it on the camera, then retry")
     context.log(f"calibrating camera {camera.name!r} from recording {recording.id} ({spec['mode']})")
     calibration = calibrate_camera_recording(
         open_recording(path),
         board=board,
         mode=spec["mode"],
-        du_px_per_mm=1000.0 / pitch_um,
-        dv_px_per_mm=1000.0 / pitch_um,
+        du_px_per_mm=1000.0 / pitch_u_um,
+        dv_px_per_mm=1000.0 / pitch_v_um,
         scale_on=spec["scale_on"],
         reject_outliers=spec["reject_outliers"],
-        pixel_pitch_um=(pitch_um, pitch_um),
+        pixel_pitch_um=(pitch_u_um, pitch_v_um),
         detector=spec["detector"],
         subpix_half_window_px=spec.get("subpix_window_px"),
         progress=context.progress,

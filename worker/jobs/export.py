@@ -21,12 +21,15 @@ def export_body(context: JobContext) -> dict[str, Any]:
         raise ValueError(f"topography job {spec['job_id']} has no result file any more; run it again")
     result_path = context.settings.data_path / entry["path"]
     line = tuple(spec["line"]) if spec.get("line") else None
+    lines = [tuple(one) for one in spec["lines"]] if spec.get("lines") else None
+    frames = spec.get("frames")
+    frame_range = (frames["first"], frames["last"] if frames.get("last") is not None else 2**31 - 1) if frames else None
     context.progress(0, 1, "exporting")
     fmt = spec["format"]
     if fmt == "vtk":  # a .pvd time series of .vtu files: one download as a ZIP
         work = context.directory / "vtk"
         shutil.rmtree(work, ignore_errors=True)  # a previous run's leftovers
-        export_result(result_path, fmt, work / "topography.pvd")
+        export_result(result_path, fmt, work / "topography.pvd", frames=frame_range)
         name, media = EXPORT_FILES[fmt]
         with (
             context.output(name, media_type=media) as temporary,
@@ -39,6 +42,6 @@ def export_body(context: JobContext) -> dict[str, Any]:
     else:
         name, media = EXPORT_FILES[fmt]
         with context.output(name, media_type=media) as temporary:
-            export_result(result_path, fmt, temporary, line=line)  # type: ignore[arg-type]
+            export_result(result_path, fmt, temporary, line=line, lines=lines, frames=frame_range)  # type: ignore[arg-type]
     context.progress(1, 1, "exporting")
-    return {"format": fmt, "file": name, "source_job_id": spec["job_id"]}
+    return {"format": fmt, "file": name, "source_job_id": spec["job_id"], "frames": frames, "lines": len(lines or [])}

@@ -220,7 +220,20 @@ def _check_sidecars(source: FrameSource, found: Inspection, *, kind: str) -> Boa
                     found.probe.fps = 1.0 / dt_s
                     found.notes.append("frame rate from the time_s column of frames.csv")
             else:
-                board = read_board_json(text)
+                try:
+                    board = read_board_json(text)
+                except ValueError as error:
+                    # A board file is a convenience, never a reason to refuse the recording: the board can be
+                    # given in the calibration job's form, or the file replaced on the recording's page.
+                    found.sidecar[name] = {"error": str(error)}
+                    found.warnings.append(
+                        QaWarning(
+                            "board_unreadable",
+                            f"{error}. The chessboard was not looked for: replace board.json on this page, or give "
+                            "the board in the camera calibration job's form",
+                        )
+                    )
+                    continue
                 found.sidecar[name] = {
                     "cols": board.cols, "rows": board.rows, "square_mm": board.square_mm,
                     "origin": list(board.origin) if board.origin else None,
@@ -231,7 +244,11 @@ def _check_sidecars(source: FrameSource, found: Inspection, *, kind: str) -> Boa
         found.warnings.append(QaWarning("missing_z", "missing Z values: no z.csv (a Z-stack calibration needs one)"))
     if kind == "camera_calibration" and board is None and "board.json" not in found.sidecar:
         found.warnings.append(
-            QaWarning("no_board", "no board.json: the chessboard was not looked for (add one to check the frames)")
+            QaWarning(
+                "no_board",
+                "no board.json: the chessboard was not looked for (add one on this page to check the frames, or "
+                "give the board in the camera calibration job's form)",
+            )
         )
     return board if kind == "camera_calibration" else None
 

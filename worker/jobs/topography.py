@@ -129,6 +129,11 @@ _MEASURE_COUNTS = (
 )  # fmt: skip
 
 
+def _sigma(measurement: Any) -> np.ndarray:
+    sigma = measurement.sigma_z_mm
+    return np.full(len(measurement.k), np.nan) if sigma is None else np.asarray(sigma, np.float64)
+
+
 def topography_measure(context: JobContext, first: int, stop: int) -> None:
     """Phase 0, any worker: frames [first, stop) measured and gridded, each on its own."""
     from fringelab.science.coverage import MISSING_REASONS
@@ -175,6 +180,7 @@ def topography_measure(context: JobContext, first: int, stop: int) -> None:
         points_obj_mm=np.concatenate([m.points_obj_mm for m in measurements]).reshape(-1, 3),
         edge_noise_px=np.array([m.edge_noise_px for m in measurements], np.float64),
         z_mm=np.array(grids), peak=np.array(peaks, np.float64),
+        sigma_z_mm=np.concatenate([_sigma(m) for m in measurements]),
         **{name: np.array([getattr(m, name) for m in measurements], np.int64) for name in _MEASURE_COUNTS},
         **{name: np.array(values, np.float64) for name, values in coverage.items()},
     )  # fmt: skip
@@ -199,6 +205,7 @@ def _load_frames(context: JobContext, first: int) -> tuple[list[Any], Any]:
                 missing_mm2={name: float(data[f"missing_{name}_mm2"][i]) for name in MISSING_REASONS},
                 n_order_conflicts=int(data["n_order_conflicts"][i]),
             ),
+            sigma_z_mm=data["sigma_z_mm"][lo:hi],
             **{name: int(data[name][i]) for name in _MEASURE_COUNTS},
         )  # fmt: skip
         for i, (frame, lo, hi) in enumerate(zip(data["frame"], offsets[:-1], offsets[1:], strict=True))
