@@ -14,11 +14,14 @@ topography (end to end). Then, for each worker count, it runs the same topograph
   frames      frames of the job, in chunks of --chunk-frames
   run s       from the job's start to its end (job record: started_at .. finished_at)
   frames/s    frames / run s
-  parallel s  of which the fan-outs ran (edge location, then gridding, in chunks on every process)
-  in order s  and the passes in frame order (tracking and Z; writing the file)
-  spread      frames whose edges each worker process located
+  parallel s  of which the reference (frame 0) and the fan-out ran (every frame measured on its own: edges,
+              fringe order, Z, X, Y, grid; in chunks on every process)
+  in order s  and the pass in frame order (writing the file)
+  spread      frames each worker process measured
 
-and the scaling efficiency, (frames/s with N) / (N x frames/s with 1). --kind selftest measures the job system
+and the scaling efficiency, (frames/s with N) / (N x frames/s with 1), and the job with one worker process
+against the science pipeline alone (`topography_recording` in this process, one thread, the same recording and
+calibrations): (job frames/s with 1) / (pipeline frames/s). --kind selftest measures the job system
 alone (synthetic frames, an FFT each; --frame-size-px sets the work per frame). On a machine whose cores are
 shared with other work the efficiency says so: `os.cpu_count()` and the load average are printed.
 """
@@ -187,6 +190,7 @@ def upload_virtual_experiment(bench: Bench, frames: int) -> dict[str, Any]:
         if recording["state"] != "ready":
             raise RuntimeError(f"the {kind} recording is {recording['state']}: {recording['error']}")
     ids["upload_s"] = time.perf_counter() - start
+    ids["test_path"] = virtual.test
     return ids
 
 
@@ -200,7 +204,30 @@ def calibrate(bench: Bench, ids: dict[str, Any]) -> tuple[dict[str, Any], float]
     spec = {"kind": "topography", "recording_id": ids["test"],
             "camera_calibration_id": camera["result"]["calibration_id"],
             "projector_calibration_id": projector["result"]["calibration_id"]}  # fmt: skip
+    results = bench.settings.data_path / "results" / "jobs"
+    ids["camera_json"] = results / camera["id"] / "camera.json"
+    ids["projector_h5"] = results / projector["id"] / "projector.h5"
     return spec, time.perf_counter() - start
+
+
+def pipeline_rate(ids: dict[str, Any], frames: int) -> float:
+    """Frames/s of the science pipeline alone, in this process with one thread: the job's reference figure."""
+    import cv2
+
+    from fringelab.formats.camera import read_camera_json
+    from fringelab.formats.projector import read_projector_calibration
+    from fringelab.formats.recordings import open_recording
+    from fringelab.pipelines.topography import topography_recording
+
+    cv2.setNumThreads(1)
+    camera, projector = read_camera_json(ids["camera_json"]), read_projector_calibration(ids["projector_h5"])
+    best = float("inf")
+    for attempt in range(2):
+        start = time.perf_counter()
+        topography_recording(open_recording(ids["test_path"]), camera, projector,
+                             out_path=Path(ids["camera_json"]).parent / f"pipeline-{attempt}.h5")  # fmt: skip
+        best = min(best, time.perf_counter() - start)
+    return frames / best
 
 
 def main() -> int:
@@ -216,6 +243,7 @@ def main() -> int:
     frames = args.frames or (40 if topography else 400)
     chunk_frames = args.chunk_frames or (5 if topography else 25)
 
+    science_rate = 0.0
     root = Path(tempfile.mkdtemp(prefix="fringelab-bench-jobs-"))
     bench = Bench(root, chunk_frames=chunk_frames)
     print(f"machine: {os.cpu_count()} CPU cores, load average {os.getloadavg()[0]:.2f}; scratch {root}")
@@ -256,6 +284,8 @@ def main() -> int:
             shares = " ".join(str(n) for n in sorted(spread.values(), reverse=True))
             print(f"{processes:>7} {frames:>7} {run_s:>8.2f} {rates[processes]:>9.2f} {parallel_s:>10.2f} "
                   f"{in_order_s:>10.2f}  {shares}")  # fmt: skip
+        if topography:
+            science_rate = pipeline_rate(ids, frames)
     finally:
         bench.close()
         if not args.keep:
@@ -263,6 +293,10 @@ def main() -> int:
     for processes, rate in rates.items():
         if processes > 1 and 1 in rates:
             print(f"\nscaling efficiency with {processes} processes: {rate / (processes * rates[1]):.2f}")
+    if science_rate and 1 in rates:
+        print(f"science pipeline alone (one process, one thread): {science_rate:.2f} frames/s; job with 1 worker "
+              f"process: {rates[1]:.2f} frames/s, ratio {rates[1] / science_rate:.2f}")  # fmt: skip
+    print(f"load average at the end {os.getloadavg()[0]:.2f}")
     return 0
 
 

@@ -264,6 +264,34 @@ export function mapTraces(field, { range = null, points = [], valueName = "w", u
   return traces;
 }
 
+/**
+ * Outlines of the regions of a field that are missing where a reference field (the flat first frame) had data:
+ * the plate there was not measured in this frame (its reasons are in the coverage plot). One contour line at the
+ * edge of the 0/1 mask; none when nothing is missing.
+ */
+export function missingOutlineTraces(field, reference) {
+  if (!reference || reference.x.length !== field.x.length || reference.y.length !== field.y.length) return [];
+  let any = false;
+  const mask = field.z.map((row, j) => Array.from(row, (v, i) => {
+    const missing = Number.isFinite(reference.z[j][i]) && !Number.isFinite(v);
+    any = any || missing;
+    return missing ? 1 : 0;
+  }));
+  if (!any) return [];
+  return [{
+    type: "contour",
+    name: "not measured",
+    x: field.x,
+    y: field.y,
+    z: mask,
+    showscale: false,
+    contours: { start: 0.5, end: 0.5, size: 1, coloring: "none" },
+    line: { color: "#111", width: 1.5, dash: "dot" },
+    hoverinfo: "skip",
+    showlegend: false,
+  }];
+}
+
 export function mapLayout({ lines = [], uirevision = "keep" } = {}) {
   return layout({
     uirevision,

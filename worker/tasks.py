@@ -37,10 +37,7 @@ PHASES: dict[str, list[tuple[ChunkBody, MergeBody]]] = {
         (selftest_job.selftest_compute, selftest_job.selftest_chain),
         (selftest_job.selftest_verify, selftest_job.selftest_write),
     ],
-    "topography": [
-        (topography_job.topography_locate, topography_job.topography_track),
-        (topography_job.topography_grid, topography_job.topography_write),
-    ],
+    "topography": [(topography_job.topography_measure, topography_job.topography_write)],
 }
 
 

@@ -30,6 +30,8 @@ from fringelab.core.jobs import as_utc, job_error
 from fringelab.core.models import Calibration, Camera, Experiment, Job
 from fringelab.formats.topography import (
     GRID_BUDGET_NODES,
+    MISSING_REASONS,
+    PEAK_REGION_MEASURED,
     FrameNotInResult,
     OutsideGrid,
     ResultUnavailable,
@@ -310,6 +312,17 @@ class TopographyOverview(BaseModel):
     peak_y_mm: list[float | None]
     grid: dict[str, float | int]
     summary: dict[str, Any]
+    measured_fraction: list[float | None] = Field(
+        description="Per frame: measured area / area of the plate the reference frame sees (null: not recorded)."
+    )
+    missing_mm2: dict[str, list[float | None]] = Field(
+        description="Per reason (hole, shadow, low_contrast, order_unresolved, order_conflict, out_of_range), the "
+        "area not measured in each frame, mm²."
+    )
+    n_order_conflicts: list[float | None] = Field(description="Per frame: conflicts between the order's sources.")
+    peak_measured: list[bool | None] = Field(
+        description="Per frame: whether the region around the punch, where the peak is, was measured (null: unknown)."
+    )
 
 
 @router.get("/jobs/{job_id}/topography", response_model=TopographyOverview, responses=RESULT_ERRORS)
@@ -319,6 +332,8 @@ def topography_overview(job: JobDep, state: StateDep) -> TopographyOverview:
     the result's summary."""
     with topography(job, state.settings.data_path) as reader:
         x, y = reader.x_mm, reader.y_mm
+        coverage = reader.coverage()
+        peak_region = coverage["peak_region_coverage"]
         return TopographyOverview(
             job_id=job.id,
             frames=reader.frames.astype(int).tolist(),
@@ -338,6 +353,10 @@ def topography_overview(job: JobDep, state: StateDep) -> TopographyOverview:
                 "step_mm": float(x[1] - x[0]) if x.size > 1 else 0.0,
             },  # fmt: skip
             summary={key: plain(value) for key, value in reader.summary().items()},
+            measured_fraction=_listed(coverage["measured_fraction"]),
+            missing_mm2={name: _listed(coverage[f"missing_{name}_mm2"], 1) for name in MISSING_REASONS},
+            n_order_conflicts=_listed(coverage["n_order_conflicts"], 0),
+            peak_measured=[None if not np.isfinite(c) else bool(c >= PEAK_REGION_MEASURED) for c in peak_region],
         )
 
 

@@ -135,6 +135,13 @@ def register(subparsers: Any) -> None:
     simulate.add_argument(
         "--z-step", type=float, default=2.0, metavar="MM", help="projector calibration step over 0 … 80 mm (default 2)"
     )
+    simulate.add_argument(
+        "--scenario",
+        default="quasi-static",
+        help="quasi-static: the paper's test; fast: large motion per frame, an 18 mm hole and 6 mm springback in "
+        "one frame; petals: fast, with radial cracks and petals; highlight: a specular highlight; shadow: the "
+        "punch comes through and shadows the stripes; hard: all at once",
+    )
     simulate.add_argument("--zip", action="store_true", help="write ZIPs instead of folders")
     simulate.add_argument("--seed", type=int, default=0, help="noise seed")
     add_output_options(simulate)
@@ -243,6 +250,7 @@ def simulate_command(args: argparse.Namespace) -> int:
                 calibration_z_mm=np.arange(0.0, 80.0 + 1e-9, args.z_step),
                 as_zip=args.zip,
                 seed=args.seed,
+                scenario=args.scenario,
                 progress=progress,
             )
     except (ValueError, OSError) as error:

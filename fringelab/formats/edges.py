@@ -48,6 +48,11 @@ def write_edges(path: str | Path, frames: Sequence[int], edges: Sequence[FrameEd
             for e in edges
         ]
         file.attrs["frames_json"] = json_text(meta)
+        if edges and all(e.unusable is not None for e in edges):
+            file.create_dataset(
+                "unusable", data=np.stack([np.asarray(e.unusable, np.uint8) for e in edges]),
+                compression="gzip", compression_opts=1,
+            )  # fmt: skip
     return path
 
 
@@ -60,6 +65,7 @@ def read_edges(path: str | Path) -> tuple[np.ndarray, list[FrameEdges]]:
         arrays = {name: file[name][()] for name in ("line", "t_px", "polarity", "chain")}
         meta = json.loads(file.attrs["frames_json"])
         frames = file["frames"][()]
+        unusable = file["unusable"][()] if "unusable" in file else None
     edges = []
     for i, m in enumerate(meta):
         lo, hi = offsets[i], offsets[i + 1]
@@ -75,6 +81,7 @@ def read_edges(path: str | Path) -> tuple[np.ndarray, list[FrameEdges]]:
                 noise_px=float("nan") if m["noise_px"] is None else float(m["noise_px"]),
                 saturated_fraction=float(m["saturated_fraction"]),
                 dark_fraction=float(m["dark_fraction"]),
+                unusable=None if unusable is None else unusable[i],
             )
         )
     return frames, edges

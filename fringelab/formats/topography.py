@@ -26,7 +26,13 @@ Files written before σ existed have no sigma_w_mm datasets; the reader then ret
   /peak             w_mm, x_mm, y_mm (n,): the largest deflection of the grid and where; centre_x_mm,
                     centre_y_mm (n,): centroid of the area above half the peak (the punch axis), NaN early on
   /qa               n_points, n_tracks, n_ended, n_out_of_range, n_unmatched (n,) int64; edge_noise_px,
-                    grid_coverage (n,) float64 (fraction of the first frame's grid area still with data)
+                    grid_coverage (n,) float64 (fraction of the first frame's grid area still with data);
+                    since the per-frame order (absent in older files, read as NaN): measured_fraction,
+                    visible_area_mm2, measured_area_mm2 and missing_<reason>_mm2 for every reason in
+                    MISSING_REASONS (n,) float64 (what of the plate the reference frame sees was measured, and
+                    what not, by reason); n_order_conflicts, n_order_unresolved (n,) int64; peak_region_coverage
+                    (n,) float64 (share of the grid nodes within PEAK_REGION_RADIUS_MM of the plate centre with
+                    data: below PEAK_REGION_MEASURED the frame's peak was not measured)
   /xdmf             nodes_xy_mm (ny·nx, 2), quads (M, 4), z_mm/<i> (ny, nx) virtual views of grid/z_mm[i]: what
                     the XDMF sidecar (`write_xdmf`, ParaView) points at; absent in older files
   grid/z_mm has HDF5 dimension scales: frames/index, grid/y_mm, grid/x_mm
@@ -49,12 +55,20 @@ import numpy as np
 
 from fringelab.formats.atomic import atomic_path, commit_partial, partial_path
 from fringelab.formats.hdf5 import SCHEMA_VERSION, require_schema, unit_dataset
+
+# MISSING_REASONS is re-exported for the API (it reads results through this module only).
+from fringelab.science.coverage import MISSING_DESCRIPTIONS
+from fringelab.science.coverage import MISSING_REASONS as MISSING_REASONS
 from fringelab.science.fields import Grid, Peak
 
 if TYPE_CHECKING:
     from fringelab.science.topography import FrameMeasurement
 
 TOPOGRAPHY_SCHEMA = "fringelab.topography"
+# The peak of a punch test is within this of the plate centre; a frame with less than PEAK_REGION_MEASURED of that
+# region measured has no peak to show (a gap, not a drop).
+PEAK_REGION_RADIUS_MM = 40.0
+PEAK_REGION_MEASURED = 0.5
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -86,8 +100,17 @@ class TopographyWriter:
         axis: str,
         attrs: dict[str, Any],
         calibration_attrs: dict[str, Any],
+        peak_region_mm: tuple[float, float, float] | None = None,
     ) -> None:
         self.path = Path(path)
+        # Grid nodes of the region around the punch (X, Y, radius), where the peak is: whether a frame measured it.
+        self._peak_nodes: np.ndarray | None = None
+        if peak_region_mm is not None and all(np.isfinite(peak_region_mm)):
+            px, py, radius = peak_region_mm
+            gx, gy = np.meshgrid(grid.x_mm, grid.y_mm)
+            self._peak_nodes = np.hypot(gx - px, gy - py) <= radius
+            if not np.any(self._peak_nodes):
+                self._peak_nodes = None
         self._temp = partial_path(self.path)
         self.grid = grid
         self.z_flat_mm = z_flat_mm
@@ -233,6 +256,37 @@ class TopographyWriter:
             maxshape=(None,),
             chunks=(1024,),
         )
+        coverage_columns = [
+            ("measured_fraction", "1", "measured area / area of the plate the reference frame sees"),
+            ("visible_area_mm2", "mm2", "area of the plate the reference frame sees"),
+            ("measured_area_mm2", "mm2", "area of that plate measured in this frame"),
+        ]
+        coverage_columns += [
+            (f"missing_{name}_mm2", "mm2", f"area not measured: {MISSING_DESCRIPTIONS[name]}")
+            for name in MISSING_REASONS
+        ]
+        for name, unit, description in coverage_columns:
+            unit_dataset(qa, name, np.zeros(0), unit=unit, description=description, maxshape=(None,), chunks=(1024,))
+        for name, description in (
+            ("n_order_conflicts", "conflicts between the sources of the fringe order (masked, never guessed)"),
+            ("n_order_unresolved", "edge points whose order no anchor reaches (masked)"),
+        ):
+            unit_dataset(
+                qa, name, np.zeros(0, np.int64), unit="1", description=description, maxshape=(None,), chunks=(1024,)
+            )
+        unit_dataset(
+            qa,
+            "peak_region_coverage",
+            np.zeros(0),
+            unit="1",
+            description="share of the grid nodes around the punch (attrs x_mm, y_mm, radius_mm) with data; NaN "
+            "where the region is unknown",
+            maxshape=(None,),
+            chunks=(1024,),
+        )
+        if peak_region_mm is not None:
+            for key, value in zip(("x_mm", "y_mm", "radius_mm"), peak_region_mm, strict=True):
+                qa["peak_region_coverage"].attrs[key] = float(value)
         unit_dataset(
             qa,
             "grid_coverage",
@@ -302,6 +356,17 @@ class TopographyWriter:
             "edge_noise_px": measurement.edge_noise_px,
             "grid_coverage": nodes / self._first_coverage_nodes,
         }
+        finite = np.isfinite(z_grid_mm)
+        peak_nodes = self._peak_nodes
+        qa["peak_region_coverage"] = np.mean(finite[peak_nodes]) if peak_nodes is not None else np.nan
+        coverage = measurement.coverage
+        qa["n_order_conflicts"] = measurement.n_order_conflicts
+        qa["n_order_unresolved"] = measurement.n_order_unresolved
+        qa["measured_fraction"] = coverage.measured_fraction if coverage else np.nan
+        qa["visible_area_mm2"] = coverage.visible_area_mm2 if coverage else np.nan
+        qa["measured_area_mm2"] = coverage.measured_area_mm2 if coverage else np.nan
+        for name in MISSING_REASONS:
+            qa[f"missing_{name}_mm2"] = coverage.missing_mm2[name] if coverage else np.nan
         for name, value in qa.items():
             self._append(file[f"qa/{name}"], np.array([value]))
         self._n += 1
@@ -556,6 +621,17 @@ class TopographyResult:
     def w_grid(self, i: int) -> np.ndarray:
         """Gridded deflection w = z − z_flat (ny, nx) of frame position i."""
         return self.z_grid(i) - self.z_flat_mm
+
+    def coverage(self) -> dict[str, np.ndarray]:
+        """Per frame: measured_fraction, visible_area_mm2, measured_area_mm2, missing_<reason>_mm2,
+        n_order_conflicts and peak_region_coverage (float; NaN in files written before they existed)."""
+        names = ["measured_fraction", "visible_area_mm2", "measured_area_mm2", "n_order_conflicts"]
+        names += ["peak_region_coverage"]
+        names += [f"missing_{name}_mm2" for name in MISSING_REASONS]
+        qa = self.file.get("qa", {})  # a file may have no QA at all
+        return {
+            name: qa[name][()].astype(np.float64) if name in qa else np.full(self.n_frames, np.nan) for name in names
+        }
 
     def summary(self) -> dict[str, Any]:
         """The /summary attributes as stored (NaN where a value was not measured)."""

@@ -18,7 +18,8 @@ from fringelab.formats.camera import write_camera_json
 from fringelab.formats.recordings import write_recording
 from fringelab.formats.sidecars import FrameTable, frames_csv_text, z_csv_text
 from fringelab.science.chessboard import Board
-from fringelab.science.simulate import FringeRenderer, Imaging, preset, punch_timeline, true_camera_calibration
+from fringelab.science.simulate import FringeRenderer, Imaging, preset, true_camera_calibration
+from fringelab.science.simulate import scenario as scenario_of
 from fringelab.science.synthetic import ChessboardRenderer, board_pose_at_z, zstack_board
 
 
@@ -44,6 +45,7 @@ def simulate_experiment(
     as_zip: bool = False,
     seed: int = 0,
     imaging: Imaging | None = None,
+    scenario: str = "quasi-static",
     progress: Callable[[int, int, str], None] | None = None,
 ) -> VirtualExperiment:
     """Write a whole virtual experiment for one camera in the recording formats, with ground truth beside it.
@@ -53,13 +55,13 @@ def simulate_experiment(
     out_dir/test  the punch test in n_test_frames (frames.csv: frame,time_s,punch_displacement_mm,force_kN)
     out_dir/truth/camera.json  the exact camera as a camera-calibration file
     out_dir/truth/experiment.json  camera, projector, scene, imaging, calibration heights and per-frame states
-    (folders, or .zip files with as_zip). Frames are rendered and written one at a time.
+    (folders, or .zip files with as_zip). Frames are rendered and written one at a time. scenario: one of
+    `simulate.SCENARIOS` (the paper's quasi-static test by default; "fast", "petals", "highlight", "shadow",
+    "hard" are harder tests, see `simulate.scenario`).
     """
 
-    setup = preset(preset_name, imaging=imaging)
+    setup, timeline = scenario_of(scenario, preset(preset_name, imaging=imaging), n_test_frames)
     z_cal = np.asarray(setup.calibration_z_mm if calibration_z_mm is None else calibration_z_mm, np.float64)
-    timeline = punch_timeline(n_test_frames, max_deflection_mm=setup.max_deflection_mm,
-                             punch_radius_mm=setup.scene.punch_radius_mm)  # fmt: skip
     root = Path(out_dir)
     root.mkdir(parents=True, exist_ok=True)
     suffix = ".zip" if as_zip else ""
@@ -113,11 +115,11 @@ def simulate_experiment(
         "camera_calibration_z_mm": list(map(float, camera_z_mm)),
         "projector_calibration_z_mm": z_cal.tolist(),
         "perforation_frame": timeline.perforation_frame,
-        "frames": [
-            {"frame": i, "w0_mm": s.w0_mm, "hole_radius_mm": s.hole_radius_mm} for i, s in enumerate(timeline.states)
-        ],
+        "frames": [{"frame": i, **asdict(s)} for i, s in enumerate(timeline.states)],
         "deflection": "w(r) = w0 ln(rho_R/rho)/ln(rho_R/b), rho = sqrt(r^2 + b^2), rho_R = sqrt(R^2 + b^2), "
-        "b = punch_radius_mm, R = clamp_radius_mm, r from scene.centre_xy_mm; no surface for r < hole_radius_mm",
+        "b = punch_radius_mm, R = clamp_radius_mm, r from scene.centre_xy_mm; no surface for r < hole_radius_mm; "
+        "petals and cracks as in fringelab.science.simulate.PlateScene.surface_mm",
+        "scenario": scenario,
         "seed": seed,
     }
     truth_json = write_json(root / "truth" / "experiment.json", truth)
@@ -153,9 +155,7 @@ def write_true_simulation(
     truth = json.loads(Path(truth_json).read_text())
     fields: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in truth["scene"].items()}
     scene = PlateScene(**fields)
-    setup = preset(truth["preset"])
-    timeline = punch_timeline(len(truth["frames"]), max_deflection_mm=setup.max_deflection_mm,
-                              punch_radius_mm=scene.punch_radius_mm)  # fmt: skip
+    _, timeline = scenario_of(truth.get("scenario", "quasi-static"), preset(truth["preset"]), len(truth["frames"]))
     punch = None if state_punch_mm is None else np.asarray(state_punch_mm, np.float64)
     model = true_plate_model(scene, timeline, state_punch_mm=punch, quarter=quarter, resolution=resolution)
     folder = Path(out)

@@ -7,6 +7,7 @@ result file is written by `fringelab.formats.topography`.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -17,7 +18,7 @@ import numpy as np
 from fringelab.formats.camera import calibration_as_dict
 from fringelab.formats.hdf5 import json_text
 from fringelab.formats.recordings import recording_log
-from fringelab.formats.topography import TopographyWriter, write_xdmf
+from fringelab.formats.topography import PEAK_REGION_RADIUS_MM, TopographyWriter, write_xdmf
 from fringelab.pipelines.provenance import code_versions
 from fringelab.science import Cancelled
 from fringelab.science.calibration import CameraCalibration, ProgressCallback
@@ -35,6 +36,8 @@ from fringelab.science.topography import (
     grid_for_first_frame,
     grid_measurement,
     locate_test_edges,
+    measure_frame,
+    reference_for,
     track_and_measure,
 )
 
@@ -69,9 +72,10 @@ def topography_recording(
     the tasks call.
 
     source: a frame source from `readers.open_recording` (frames.csv beside the frames, if any, is stored with
-    the result). frames: the frames to write (a contiguous range); identity is always fixed on frame 0, so the
-    sequential pass runs from frame 0 to the last frame written (plus the temporal smoothing half-width), and
-    the frames written are identical to those of a run over the whole recording. edges: already located edges
+    the result). frames: the frames to write (a contiguous range); the fringe order is anchored on frame 0 (the
+    flat reference) and found in every frame on its own, so only frame 0 and the frames written (plus the
+    temporal smoothing half-width either way) are read, and the frames written are identical to those of a run
+    over the whole recording. edges: already located edges
     of frames 0, 1, ... (e.g. from chunks run in parallel, see `topography_files.read_edges`); None locates
     them here. progress(done, total, stage) after every frame ("frames"), should_cancel() polled between frames
     (Cancelled; the partial file is removed).
@@ -83,66 +87,74 @@ def topography_recording(
     settings = TopographySettings() if settings is None else settings
     n_frames = len(source)
     wanted = frame_range(frames, n_frames)
-    stop = min(wanted.stop + settings.temporal_smoothing_frames, n_frames)
+    # Every frame is measured on its own against the reference (frame 0); only temporal smoothing looks h frames
+    # either way, so frames lo..stop − 1 are read besides frame 0.
+    h = settings.temporal_smoothing_frames
+    lo, stop = max(0, wanted.start - h), min(wanted.stop + h, n_frames)
     first_image = source[0]
     check_recording_against(np.shape(first_image)[:2], projector, camera_model)
     if edges is None:
         check_stripes_against(first_image, projector)
     # Frames the log does not list (or no log at all) get NaN; the time axis falls back on the container's.
     log = recording_log(source)
+    indices = ([0] if lo > 0 else []) + list(range(lo, stop))
 
     def located() -> Iterator[FrameEdges]:
         supplied = iter(edges) if edges is not None else None
-        for index in range(stop):
+        position = 0  # of the supplied edges (frames 0, 1, ...)
+        for done, index in enumerate(indices):
             if should_cancel is not None and should_cancel():
-                raise Cancelled(f"cancelled after {index} of {stop} frames")
+                raise Cancelled(f"cancelled after {done} of {len(indices)} frames")
             if supplied is not None:
                 try:
-                    frame_edges = next(supplied)
+                    while position <= index:
+                        frame_edges = next(supplied)
+                        position += 1
                 except StopIteration:
-                    raise ValueError(f"edges: {index} located frames given, {stop} needed") from None
+                    raise ValueError(f"edges: {position} located frames given, {stop} needed") from None
             else:
                 image = first_image if index == 0 else source[index]
                 frame_edges = next(locate_test_edges([image], projector))
             yield frame_edges
             if progress is not None:
-                progress(index + 1, stop, "frames")
+                progress(done + 1, len(indices), "frames")
 
     where = str(getattr(source, "path", "recording"))
     writer: TopographyWriter | None = None
-    grid: Grid | None = None
-    max_edge_mm = float("nan")
-    z_flat = float("nan")
-    flat_rms = float("nan")
-    clamp = (float("nan"),) * 3
-    n_first_tracks = 0
     tally = SummaryTally()
+    stream = located()
     try:
-        for measurement in track_and_measure(located(), projector, camera_model, settings=settings):
-            if measurement.frame == 0:
-                grid, max_edge_mm = grid_for_first_frame(measurement, projector, settings)
-                z = measurement.points_obj_mm[:, 2]
-                z_flat = float(np.median(z))
-                flat_rms = float(np.sqrt(np.mean((z - z_flat) ** 2)))
-                clamp = clamp_circle(measurement.points_obj_mm[:, :2])
-                n_first_tracks = measurement.n_tracks
-                writer = result_writer(
-                    out_path, grid=grid, max_edge_mm=max_edge_mm, z_flat_mm=z_flat, camera_model=camera_model,
-                    projector=projector, settings=settings, where=where, n_frames=n_frames, wanted=wanted,
-                    time_source=log.time_source,
-                )  # fmt: skip
+        reference_edges = next(stream)
+        reference = reference_for(reference_edges, projector, camera_model, settings)
+        # Frame 0 is never smoothed (no frame before it), so measured alone it is what the stream gives.
+        first = measure_frame(reference_edges, reference, projector, camera_model, frame=0, settings=settings)
+        grid, max_edge_mm = grid_for_first_frame(first, projector, settings)
+        z = first.points_obj_mm[:, 2]
+        z_flat = float(np.median(z))
+        flat_rms = float(np.sqrt(np.mean((z - z_flat) ** 2)))
+        clamp = clamp_circle(first.points_obj_mm[:, :2])
+        n_first_tracks = first.n_tracks
+        writer = result_writer(
+            out_path, grid=grid, max_edge_mm=max_edge_mm, z_flat_mm=z_flat, camera_model=camera_model,
+            projector=projector, settings=settings, where=where, n_frames=n_frames, wanted=wanted,
+            centre_xy_mm=(clamp[0], clamp[1]), time_source=log.time_source,
+        )  # fmt: skip
+        rest = itertools.chain([reference_edges], stream) if lo == 0 else stream
+        for measurement in track_and_measure(
+            rest, projector, camera_model, settings=settings, first_frame=lo, reference=reference
+        ):
             if measurement.frame not in wanted:
                 continue
-            assert writer is not None and grid is not None
             z_grid = grid_measurement(measurement, projector, grid, max_edge_mm=max_edge_mm)
             peak = field_peak(z_grid - z_flat, grid)
             writer.append(
                 measurement, z_grid, peak, log=log.row(measurement.frame),
                 camera_frame=int(log.camera_frame[measurement.frame]),
             )  # fmt: skip
-            tally.add(peak, n_out_of_range=measurement.n_out_of_range)
+            tally.add(peak, n_out_of_range=measurement.n_out_of_range, measurement=measurement)
         if writer is None:
             raise TopographyError(f"{where}: the recording has no frames")
+        tally.require_ordered(where)
         path = writer.close(tally.attrs(flat_rms_mm=flat_rms, n_tracks_first_frame=n_first_tracks, clamp=clamp))
         write_xdmf(path)  # the ParaView sidecar beside the result
     except BaseException:
@@ -174,6 +186,7 @@ def result_writer(
     n_frames: int,
     wanted: range,
     time_source: str = "",
+    centre_xy_mm: tuple[float, float] = (float("nan"), float("nan")),
 ) -> TopographyWriter:
     """The result file's writer with everything a result records of how it was made (settings, provenance,
     the calibrations it used)."""
@@ -192,6 +205,7 @@ def result_writer(
             "provenance_json": json_text({**provenance, **code_versions()}),
         },
         calibration_attrs=_calibration_attrs(camera_model, projector),
+        peak_region_mm=(centre_xy_mm[0], centre_xy_mm[1], PEAK_REGION_RADIUS_MM),
     )
 
 

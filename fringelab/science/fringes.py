@@ -39,6 +39,16 @@ MAX_PERIOD_PX = 80.0
 # Below this coherence of the structure tensor (1 = one gradient direction, 0 = isotropic) there is no stripe
 # pattern to speak of: noise, a chessboard or an empty frame.
 MIN_COHERENCE = 0.3
+# A pixel is black (a crack, a scratch, a gap narrower than a stripe) below this fraction of the level the dark
+# stripes have beside it and at least this many grey levels below it.
+BLACK_FRACTION = 0.6
+BLACK_MARGIN_GREY = 8.0
+# Why no edge can be located in a block of pixels (`FrameEdges.unusable`), in increasing precedence.
+UNUSABLE_NONE = 0
+UNUSABLE_LOW_CONTRAST = 1
+UNUSABLE_DARK = 2
+UNUSABLE_BLACK = 3
+UNUSABLE_BLOCK_PX = 4
 # Grey levels are expressed on the 8-bit scale whatever the bit depth, so settings read the same for 16-bit frames.
 FULL_SCALE = 255.0
 
@@ -144,6 +154,11 @@ class FrameEdges:
     noise_px: RMS of raw − smoothed positions (px), a per-frame estimate of the location noise.
     saturated_fraction: fraction of pixels at or above the saturation level.
     dark_fraction: fraction of pixels in the dark mask (clamp, hole, background).
+    unusable: shape (ceil(n_lines / 4), ceil(n_samples / 4)) uint8, why no edge can be located in each block of
+        4 × 4 px (scan frame: [line // 4, t // 4]): UNUSABLE_NONE, UNUSABLE_BLACK (as dark as the background: a
+        hole, a crack, something black in front), UNUSABLE_DARK (no projected light but not black: a shadow),
+        UNUSABLE_LOW_CONTRAST (stripes too faint, or clipped by a highlight); the worst in the block. None for
+        edges stored before it existed.
     """
 
     axis: Axis
@@ -156,6 +171,7 @@ class FrameEdges:
     noise_px: float
     saturated_fraction: float
     dark_fraction: float
+    unusable: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.line)
@@ -274,8 +290,9 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     of `window_periods` periods along each scan line; every sign change of I − mid is an edge candidate, placed
     by a probit fit to the four straddling pixels; candidates with low contrast, a clipped bright
     side or near a dark area are rejected, as are pairs closer than a quarter of the edge spacing (noise
-    glitches); the rest are linked line to line into curves (mutual nearest of the same polarity), short curves
-    are dropped and each curve is smoothed by a local quadratic fit of t against the line.
+    glitches) and both ends of a stripe less than half as wide as both its neighbours (a stripe cut by a crack
+    narrower than a stripe); the rest are linked line to line into curves (mutual nearest of the same polarity),
+    short curves are dropped and each curve is smoothed by a local quadratic fit of t against the line.
 
     Raises NoStripesError when the frame shows no stripes.
     """
@@ -304,6 +321,24 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     bright_level = float(np.percentile(scan[::4, ::4], 95))
     dark_window = _odd(period_px)
     dark = cv2.dilate(scan, np.ones((3, dark_window), np.uint8)) < settings.dark_fraction * bright_level
+    # Black: well below the dark stripes around it. A crack or a cut narrower than a stripe is not "dark" by the
+    # test above (bright stripes lie within half a period of it), but it is darker than any dark stripe, and
+    # an edge that touches it is the crack's rim, not a stripe edge. The margin of 8 grey levels keeps noise
+    # (σ ≈ 2, less after the smoothing along the stripes) out of it where the dark stripes are dim themselves.
+    # The dark stripes' level is a fixed share of the bright stripes' beside them (the projector's slide), whatever
+    # the shading, so it is expected from the brightest sample within a period along the line.
+    line_kernel_period = np.ones((1, dark_window), np.uint8)
+    stripe_max = cv2.dilate(scan, line_kernel_period)
+    stripe_min = cv2.erode(scan, line_kernel_period)
+    sampled_max, sampled_min = stripe_max[::4, ::4], stripe_min[::4, ::4]
+    lit = ~dark[::4, ::4] & (sampled_max > 0)
+    dark_share = float(np.median(sampled_min[lit] / sampled_max[lit])) if np.any(lit) else 0.0
+    dark_level = dark_share * stripe_max
+    black = (scan < BLACK_FRACTION * dark_level) & (dark_level - scan > BLACK_MARGIN_GREY)
+    # Beside a wide dark area (the clamp ring, a hole) the test above already rejects what must be: the rim of the
+    # area is black too, but counting it would reject a stripe more along the plate's edge.
+    beside_dark = cv2.dilate(dark.astype(np.uint8), np.ones((3, 2 * dark_window + 1), np.uint8)).astype(bool)
+    dark |= black & ~beside_dark
     dark_u8 = dark.astype(np.uint8)
     dark_area = cv2.dilate(dark_u8, np.ones((1, dark_window), np.uint8))
 
@@ -348,6 +383,8 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
 
     keep = _without_glitches(line, t_raw, min_gap_px=0.25 * 0.5 * period_px)
     line, t_raw, polarity = line[keep], t_raw[keep], polarity[keep]
+    keep = _without_slivers(line, t_raw)
+    line, t_raw, polarity = line[keep], t_raw[keep], polarity[keep]
 
     chain = _link_chains(line, t_raw, polarity, n_samples=n_samples, max_step_px=settings.max_link_step_px_per_line)
     lengths = np.bincount(chain, minlength=len(chain))
@@ -363,6 +400,7 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     else:
         t_px = t_raw
         noise_px = float("nan")
+    unusable = _unusable_blocks(scan, dark, contrast, local_max, grow, settings=settings)
     return FrameEdges(
         axis=axis,
         period_px=float(period_px),
@@ -374,7 +412,44 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
         noise_px=noise_px,
         saturated_fraction=float(np.mean(saturated)),
         dark_fraction=float(np.mean(dark)),
+        unusable=unusable,
     )
+
+
+def _unusable_blocks(
+    scan: np.ndarray,
+    dark: np.ndarray,
+    contrast: np.ndarray,
+    local_max: np.ndarray,
+    grow: np.ndarray,
+    *,
+    settings: EdgeSettings,
+) -> np.ndarray:
+    """Why no edge can be located, per block of UNUSABLE_BLOCK_PX² pixels (see `FrameEdges.unusable`).
+
+    Black: dark and within 8 grey levels (or a quarter of the way to the dark stripes) of the frame's black level
+    (its 1st percentile: the background beyond the clamp, a hole); dark but brighter than that: a shadow (the plate
+    lit by the room but not by the projector); low contrast: neither, but the stripes' contrast is below
+    min_contrast_grey or their bright side clipped.
+    """
+    sampled = scan[::4, ::4]
+    black_level = float(np.percentile(sampled, 1))
+    lit = sampled[~dark[::4, ::4]]
+    stripes_dark = float(np.percentile(lit, 10)) if lit.size else black_level
+    margin = max(BLACK_MARGIN_GREY, 0.25 * (stripes_dark - black_level))
+    reason: np.ndarray = np.zeros(scan.shape, np.uint8)
+    with np.errstate(invalid="ignore"):
+        faint = ~((contrast >= settings.min_contrast_grey) & (local_max < settings.saturation_grey))
+    reason[faint] = UNUSABLE_LOW_CONTRAST
+    reason[dark] = UNUSABLE_DARK
+    reason[dark & (scan < black_level + margin)] = UNUSABLE_BLACK
+    block = UNUSABLE_BLOCK_PX
+    height, width = int(reason.shape[0]), int(reason.shape[1])
+    # The worst reason in each block (a dilation by the block, then every block-th pixel), then as far as edges
+    # are rejected near dark areas (see `locate_edges`; the larger code wins), at the blocks' scale.
+    worst = cv2.dilate(reason, np.ones((block, block), np.uint8), anchor=(0, 0))[::block, ::block]
+    reach = np.ones((-(-grow.shape[0] // block) | 1, -(-grow.shape[1] // block) | 1), np.uint8)
+    return np.ascontiguousarray(cv2.dilate(worst, reach)[: -(-height // block), : -(-width // block)])
 
 
 def _subpixel_crossings(diff: np.ndarray, contrast: np.ndarray, line: np.ndarray, left: np.ndarray) -> np.ndarray:
@@ -412,6 +487,30 @@ def _without_glitches(line: np.ndarray, t_px: np.ndarray, *, min_gap_px: float) 
     close = (line[1:] == line[:-1]) & (np.diff(t_px) < min_gap_px)
     keep[:-1] &= ~close
     keep[1:] &= ~close
+    return keep
+
+
+def _without_slivers(line: np.ndarray, t_px: np.ndarray, *, ratio: float = 0.5) -> np.ndarray:
+    """Mask, shape (N,), dropping both ends of any stripe less than `ratio` times as wide as both its neighbours
+    on the line.
+
+    Stripes narrow gradually with slope and perspective, so neighbouring stripes are alike; a sliver next to
+    wider ones is a stripe cut by something narrower than a stripe (a crack, a scratch, the edge of a shadow),
+    and one of its ends is that cut, not a stripe edge.
+    """
+    keep = np.ones(len(line), bool)
+    if len(line) < 4:
+        return keep
+    gap = np.diff(t_px).astype(np.float64)
+    gap[line[1:] != line[:-1]] = np.inf  # no stripe across lines
+    previous = np.r_[np.inf, gap[:-1]]
+    following = np.r_[gap[1:], np.inf]
+    # A neighbour missing (line end, or another line) does not count against the stripe.
+    previous[~np.isfinite(previous)] = following[~np.isfinite(previous)]
+    following[~np.isfinite(following)] = previous[~np.isfinite(following)]
+    sliver = np.isfinite(gap) & (gap < ratio * previous) & (gap < ratio * following)
+    keep[:-1] &= ~sliver
+    keep[1:] &= ~sliver
     return keep
 
 
@@ -567,9 +666,13 @@ def order_edges(edges: FrameEdges, *, max_gap_periods: float = 0.8) -> EdgeOrder
         root = members[0]
         order, predecessors = breadth_first_order(tree, root, directed=False, return_predecessors=True)
         index[root] = 0
-        for node in order[1:]:
-            parent = predecessors[node]
-            index[node] = index[parent] + int(round(step[parent, node]))
+        # The step along each tree edge, looked up for all of them at once; then one pass in BFS order.
+        children = order[1:]
+        parents = predecessors[children]
+        steps = np.rint(np.asarray(step[parents, children]).ravel()).astype(np.int64).tolist()
+        values = index  # a local name for the loop
+        for node, parent, s in zip(children.tolist(), parents.tolist(), steps, strict=True):
+            values[node] = values[parent] + s
         component[members] = rank[group]
     # Check every statement against the assignment; leave out curves that are mostly contradicted.
     agrees = index[after] - index[before] == 1

@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 from scipy import special
 
-from .camera import Camera, backproject_to_z, fit_inverse_model, project_points
+from .camera import Camera, backproject_to_z, camera_centre_obj_mm, fit_inverse_model, project_points
 from .synthetic import reference_camera
 
 
@@ -168,6 +168,14 @@ class PlateScene:
     w(r) = w0 · ln(ρ_R/ρ) / ln(ρ_R/b), ρ = √(r² + b²), ρ_R = √(R² + b²), b the punch radius, r from the punch
     axis, R the clamp radius: flat-topped under the punch, zero at the clamp, logarithmic between (the shape of a
     membrane under a central load). After perforation a hole of radius hole_radius_mm opens on the punch axis.
+
+    Harder cases (all off by default): crack_count radial cracks (crack_width_mm wide, the first at
+    crack_angle_deg from +X) run from the hole out to the state's crack_length_mm beyond its rim; between them the
+    petals lift by petal_lift_mm[i] (cycled over the petals; + toward the camera) at the hole's rim, falling
+    quadratically to 0 at the crack tips, so w jumps across each crack. A specular highlight (a Gaussian spot of
+    the projector's light reflected straight into the camera, highlight_gain times the plate's diffuse level at
+    its centre) sits at highlight_xy_mm. room_light lights the scene evenly besides the projector (as a fraction
+    of the projector's light at the plate centre), so a shadow is dim, not black.
     """
 
     centre_xy_mm: tuple[float, float] = (8.0, -5.0)
@@ -178,6 +186,14 @@ class PlateScene:
     clamp_albedo: float = 0.06
     background_albedo: float = 0.02
     texture_amplitude: float = 0.02
+    crack_count: int = 0
+    crack_width_mm: float = 4.0
+    crack_angle_deg: float = 20.0
+    petal_lift_mm: tuple[float, ...] = ()
+    highlight_xy_mm: tuple[float, float] | None = None
+    highlight_sigma_mm: float = 10.0
+    highlight_gain: float = 1.5
+    room_light: float = 0.0
 
     def deflection_mm(self, x_mm: np.ndarray, y_mm: np.ndarray, w0_mm: float) -> tuple[np.ndarray, ...]:
         """w and its slopes ∂w/∂X, ∂w/∂Y at object points (zero outside the clamp circle)."""
@@ -195,13 +211,61 @@ class PlateScene:
     def radius_mm(self, x_mm: np.ndarray, y_mm: np.ndarray) -> np.ndarray:
         return np.hypot(x_mm - self.centre_xy_mm[0], y_mm - self.centre_xy_mm[1])
 
+    def surface_mm(self, x_mm: np.ndarray, y_mm: np.ndarray, state: PlateState) -> tuple[np.ndarray, ...]:
+        """w and its slopes at object points for a plate state, petals included (`deflection_mm` without them)."""
+        w, wx, wy = self.deflection_mm(x_mm, y_mm, state.w0_mm)
+        if not (self.crack_count and self.petal_lift_mm and state.crack_length_mm > 0 and state.hole_radius_mm > 0):
+            return w, wx, wy
+        dx, dy = x_mm - self.centre_xy_mm[0], y_mm - self.centre_xy_mm[1]
+        r = np.maximum(np.hypot(dx, dy), 1e-9)
+        span = state.crack_length_mm
+        tip = state.hole_radius_mm + span
+        petal = self.petal_index(x_mm, y_mm)
+        lift = np.asarray(self.petal_lift_mm, np.float64)[petal % len(self.petal_lift_mm)]
+        inside = (r < tip) & (r >= state.hole_radius_mm)
+        fall = np.where(inside, (tip - r) / span, 0.0)
+        extra = lift * fall**2
+        d_extra_dr = np.where(inside, -2.0 * lift * fall / span, 0.0)
+        return (
+            w + extra.astype(w.dtype),
+            wx + (d_extra_dr * dx / r).astype(w.dtype),
+            wy + (d_extra_dr * dy / r).astype(w.dtype),
+        )
+
+    def petal_index(self, x_mm: np.ndarray, y_mm: np.ndarray) -> np.ndarray:
+        """Which petal (0..crack_count−1) each point lies in, counted from the first crack anticlockwise."""
+        angle = np.arctan2(y_mm - self.centre_xy_mm[1], x_mm - self.centre_xy_mm[0]) - np.deg2rad(self.crack_angle_deg)
+        sector = 2.0 * np.pi / max(self.crack_count, 1)
+        return (np.mod(angle, 2.0 * np.pi) // sector).astype(np.int64)
+
+    def in_crack(self, x_mm: np.ndarray, y_mm: np.ndarray, state: PlateState) -> np.ndarray:
+        """Whether points lie in a crack (open, no surface) in this state."""
+        if not (self.crack_count and state.crack_length_mm > 0 and state.hole_radius_mm > 0):
+            return np.zeros(np.shape(x_mm), bool)
+        dx, dy = x_mm - self.centre_xy_mm[0], y_mm - self.centre_xy_mm[1]
+        r = np.hypot(dx, dy)
+        angle = np.arctan2(dy, dx) - np.deg2rad(self.crack_angle_deg)
+        sector = 2.0 * np.pi / self.crack_count
+        # Angle to the nearest crack line, then the distance across it.
+        off = np.mod(angle + 0.5 * sector, sector) - 0.5 * sector
+        across = r * np.abs(np.sin(off))
+        return (
+            (across < 0.5 * self.crack_width_mm)
+            & (np.cos(off) > 0)
+            & (r < state.hole_radius_mm + state.crack_length_mm)
+        )
+
 
 @dataclass(frozen=True)
 class PlateState:
-    """One instant of the test: central deflection w0 and the radius of the hole (0 before perforation)."""
+    """One instant of the test: central deflection w0, the radius of the hole (0 before perforation), how far the
+    cracks run beyond the hole's rim (0: none), and the height of the punch's nose once it has come through the
+    hole (NaN while it is behind the plate; a black punch that hides what is behind it and casts a shadow)."""
 
     w0_mm: float
     hole_radius_mm: float = 0.0
+    crack_length_mm: float = 0.0
+    punch_tip_z_mm: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -265,6 +329,7 @@ class FringeRenderer:
             self._y0[rows] = at_0[:, 1].reshape(shape)
             self._sx[rows] = ((at_100[:, 0] - at_0[:, 0]) / 100.0).reshape(shape)
             self._sy[rows] = ((at_100[:, 1] - at_0[:, 1]) / 100.0).reshape(shape)
+        self._camera_centre = camera_centre_obj_mm(camera)
         centre = np.asarray(preset.projector.centre_obj_mm)
         self._nominal_distance_mm = float(np.linalg.norm(centre - np.r_[preset.scene.centre_xy_mm, 0.0]))
 
@@ -309,13 +374,14 @@ class FringeRenderer:
         scene = self.preset.scene
         # Only rays that pass within the clamp circle below the highest point can meet the deflected plate;
         # elsewhere the surface is the plane Z = 0 (the clamp ring and what lies beyond).
-        reach = max(state.w0_mm, 0.0) * float(max(np.abs(sx).max(), np.abs(sy).max()))
+        highest = max(state.w0_mm, 0.0) + max((abs(v) for v in scene.petal_lift_mm), default=0.0)
+        reach = highest * float(max(np.abs(sx).max(), np.abs(sy).max()))
         candidates = np.flatnonzero(scene.radius_mm(x0, y0).ravel() < scene.clamp_radius_mm + reach + 1.0)
         x0c, y0c = x0.ravel()[candidates], y0.ravel()[candidates]
         sxc, syc = sx.ravel()[candidates], sy.ravel()[candidates]
-        zc, wx, wy = scene.deflection_mm(x0c, y0c, state.w0_mm)
+        zc, wx, wy = scene.surface_mm(x0c, y0c, state)
         for _ in range(8):
-            w, wx, wy = scene.deflection_mm(x0c + sxc * zc, y0c + syc * zc, state.w0_mm)
+            w, wx, wy = scene.surface_mm(x0c + sxc * zc, y0c + syc * zc, state)
             residual = zc - w
             zc = zc - residual / (1.0 - wx * sxc - wy * syc)
             if float(np.max(np.abs(residual), initial=0.0)) < 1e-4:
@@ -358,9 +424,46 @@ class FringeRenderer:
             albedo = np.where(r < scene.clamp_radius_mm, scene.plate_albedo * texture, scene.clamp_albedo)
             albedo = np.where(r < scene.clamp_outer_radius_mm, albedo, scene.background_albedo)
             albedo = np.where(r < state.hole_radius_mm, scene.background_albedo, albedo)
+            albedo = np.where(scene.in_crack(x, y, state), scene.background_albedo, albedo)
         light = np.maximum(cos_incidence, 0.0) * np.maximum(vignette, 0.0) * falloff
+        if state is not None and np.isfinite(state.punch_tip_z_mm):
+            # The punch's shadow (no projector light) and the punch itself (black) where it hides the plate.
+            light = np.where(self._behind_punch(x, y, z, projector.centre_obj_mm, state), 0.0, light)
+            albedo = np.where(self._behind_punch(x, y, z, self._camera_centre, state), 0.0, albedo)
+        if state is not None and scene.highlight_xy_mm is not None:
+            hx, hy = scene.highlight_xy_mm
+            spot = scene.highlight_gain * np.exp(-0.5 * ((x - hx) ** 2 + (y - hy) ** 2) / scene.highlight_sigma_mm**2)
+            light = light * (1.0 + spot / np.maximum(scene.plate_albedo, 1e-6))
         pattern = imaging.dark_stripe_fraction + (1.0 - imaging.dark_stripe_fraction) * stripes
+        if scene.room_light > 0:
+            # Room light adds to the projector's everywhere, shadows included: fold it into both factors.
+            total = light + scene.room_light
+            pattern = (light * pattern + scene.room_light) / total
+            light = total
         return (albedo * light).astype(np.float32), pattern.astype(np.float32)
+
+    def _behind_punch(
+        self, x: np.ndarray, y: np.ndarray, z: np.ndarray, eye_obj_mm: Any, state: PlateState
+    ) -> np.ndarray:
+        """Whether the segment from each surface point to `eye_obj_mm` passes through the punch: a cylinder of
+        the punch radius about the punch axis, from behind the plate up to state.punch_tip_z_mm."""
+        scene = self.preset.scene
+        cx, cy = scene.centre_xy_mm
+        ex, ey, ez = (float(v) for v in eye_obj_mm)
+        px, py = x - cx, y - cy
+        dx, dy, dz = ex - x, ey - y, ez - z
+        # |p + λ d|² = b² in the plate plane: a λ² + 2 β λ + c = 0.
+        a = dx * dx + dy * dy
+        beta = px * dx + py * dy
+        c = px * px + py * py - scene.punch_radius_mm**2
+        disc = beta * beta - a * c
+        root = np.sqrt(np.maximum(disc, 0.0))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            enter = (-beta - root) / a
+            leave = (-beta + root) / a
+        lam = np.maximum(enter, 0.0)
+        hit = (disc > 0) & (leave > 0) & (enter < 1.0) & (z + lam * dz <= state.punch_tip_z_mm)
+        return np.asarray(hit, bool)
 
 
 PRESETS = ("kodak", "phantom")
@@ -469,10 +572,99 @@ def punch_timeline(
     )
 
 
+def fast_timeline(
+    n_frames: int = 16,
+    *,
+    max_deflection_mm: float = 60.0,
+    hole_radius_mm: float = 9.0,
+    springback_mm: float = 6.0,
+    crack_length_mm: tuple[float, float] = (0.0, 0.0),
+    punch_protrusion_mm_per_frame: float = 0.0,
+    frame_interval_s: float = 2e-4,
+) -> PunchTimeline:
+    """A dynamic punch test filmed at a modest frame rate: large motion between frames, then perforation with
+    springback within one frame.
+
+    Frame 0 is flat; the centre then deflects in equal steps to max_deflection_mm at frame n − 4 (about 4.6 mm
+    per frame for 16 frames); in the next frame a hole of hole_radius_mm opens and the plate springs back by
+    springback_mm; it stays there for the last frames. Cracks, if any, run crack_length_mm[0] beyond the hole in
+    the first perforated frame, growing to crack_length_mm[1] in the last. With punch_protrusion_mm_per_frame > 0
+    the punch's nose comes through the hole (from the height of the plate's centre at perforation) by that much
+    per frame, casting a shadow.
+    """
+    if n_frames < 6:
+        raise ValueError(f"n_frames: expected ≥ 6, got {n_frames}")
+    peak = n_frames - 4
+    states = [PlateState(max_deflection_mm * i / peak) for i in range(peak + 1)]
+    after = max_deflection_mm - springback_mm
+    n_after = n_frames - 1 - peak
+    for j in range(n_after):
+        fraction = j / max(n_after - 1, 1)
+        crack = crack_length_mm[0] + fraction * (crack_length_mm[1] - crack_length_mm[0])
+        tip = (
+            max_deflection_mm + punch_protrusion_mm_per_frame * (j + 1) if punch_protrusion_mm_per_frame > 0 else np.nan
+        )
+        states.append(PlateState(after, hole_radius_mm=hole_radius_mm, crack_length_mm=crack, punch_tip_z_mm=tip))
+    w0 = np.array([s.w0_mm for s in states])
+    index = np.arange(n_frames)
+    punch = np.where(index <= peak, 1.02 * w0, 1.02 * max_deflection_mm + 8.0 * (index - peak))
+    force = np.where(index <= peak, 120.0 * (w0 / max_deflection_mm) ** 1.5, 120.0 * 0.1 ** (index - peak))
+    return PunchTimeline(
+        states=tuple(states),
+        time_s=index * frame_interval_s,
+        punch_displacement_mm=punch,
+        force_kN=force,
+        perforation_frame=peak + 1,
+    )
+
+
+SCENARIOS = ("quasi-static", "fast", "petals", "highlight", "shadow", "hard")
+
+
+def scenario(name: str, setup: Preset, n_frames: int) -> tuple[Preset, PunchTimeline]:
+    """A preset's scene and timeline for one of the virtual tests.
+
+    "quasi-static": the paper's test (`punch_timeline`). "fast": `fast_timeline` (large motion per frame, an
+    18 mm hole and 6 mm of springback within one frame). "petals": the fast test with four radial cracks growing
+    from 15 to 35 mm beyond the hole and petals lifting by different amounts, so w jumps across each crack.
+    "highlight": the quasi-static test with a specular highlight on the plate. "shadow": the fast test with the
+    punch coming through the hole, shadowing part of the stripes (dim room light, so the shadow is not black).
+    "hard": all of them at once.
+    """
+    scene = setup.scene
+    petals: dict[str, Any] = {"crack_count": 4, "petal_lift_mm": (5.0, -3.0, 4.0, -2.0)}
+    highlight: dict[str, Any] = {"highlight_xy_mm": (scene.centre_xy_mm[0] - 110.0, scene.centre_xy_mm[1] + 90.0)}
+    fast: dict[str, Any] = {"max_deflection_mm": setup.max_deflection_mm}
+    if name == "quasi-static":
+        timeline = punch_timeline(n_frames, max_deflection_mm=setup.max_deflection_mm,
+                                  punch_radius_mm=scene.punch_radius_mm)  # fmt: skip
+        return setup, timeline
+    if name == "fast":
+        return setup, fast_timeline(n_frames, **fast)
+    if name == "petals":
+        return replace(setup, scene=replace(scene, **petals)), fast_timeline(
+            n_frames, crack_length_mm=(15.0, 35.0), **fast
+        )
+    if name == "highlight":
+        timeline = punch_timeline(n_frames, max_deflection_mm=setup.max_deflection_mm,
+                                  punch_radius_mm=scene.punch_radius_mm)  # fmt: skip
+        return replace(setup, scene=replace(scene, **highlight)), timeline
+    if name == "shadow":
+        return replace(setup, scene=replace(scene, room_light=0.1)), fast_timeline(
+            n_frames, punch_protrusion_mm_per_frame=12.0, **fast
+        )
+    if name == "hard":
+        timeline = fast_timeline(n_frames, crack_length_mm=(15.0, 35.0), punch_protrusion_mm_per_frame=12.0, **fast)
+        return replace(setup, scene=replace(scene, room_light=0.1, **petals, **highlight)), timeline
+    raise ValueError(f"scenario: expected one of {SCENARIOS}, got {name!r}")
+
+
 def true_deflection_mm(scene: PlateScene, state: PlateState, x_mm: np.ndarray, y_mm: np.ndarray) -> np.ndarray:
-    """The true w at object points (NaN inside the hole)."""
-    w, _, _ = scene.deflection_mm(np.asarray(x_mm, np.float64), np.asarray(y_mm, np.float64), state.w0_mm)
-    return np.where(scene.radius_mm(x_mm, y_mm) < state.hole_radius_mm, np.nan, w)
+    """The true w at object points (NaN inside the hole and the cracks)."""
+    x, y = np.asarray(x_mm, np.float64), np.asarray(y_mm, np.float64)
+    w, _, _ = scene.surface_mm(x, y, state)
+    missing = (scene.radius_mm(x, y) < state.hole_radius_mm) | scene.in_crack(x, y, state)
+    return np.where(missing, np.nan, w)
 
 
 def true_camera_calibration(camera: Camera) -> Any:

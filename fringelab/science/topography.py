@@ -1,21 +1,21 @@
-"""Topography: edge identity through a test, Z from the projector table, X and Y by back-projection
-(docs/method.md §5–6).
+"""Topography: fringe order per frame, Z from the projector table, X and Y by back-projection (docs/method.md §5–6).
 
-Belongs here: identifying the edges of the first (flat) test frame against the projector calibration, tracking
-every (edge, scan line) point frame to frame and ending tracks that break, optional temporal smoothing, and
-turning tracked positions into 3-D points. The pipeline is split so that test recordings can be processed in
-parallel chunks with results identical to one run:
+Belongs here: the frame loop of a test. Every frame is measured on its own from its edges, the calibration and
+the reference (first, flat) frame: the order of its edges (`order.py`: anchored on the stationary rim, counted
+across scan lines and along edge curves, bounded by the table, checked for consistency), Z from the table, X and
+Y by back-projection; optional temporal smoothing of the ordered positions; gridding helpers. The pipeline is
+split so that test recordings can be processed in parallel chunks with results identical to one run:
 
 1. `locate_test_edges` / `fringes.locate_edges`: the expensive part, a pure function of one frame. Chunks of
-   frames can run on different workers; their `FrameEdges` can be stored (`fringelab.formats.topography.write_edges`).
-2. `track_and_measure`: a cheap sequential pass over the located edges in frame order, always from the first
-   frame (identity is fixed there), yielding one `FrameMeasurement` per frame. Temporal smoothing, if on, is a
-   centred window inside this pass, so it sees the same neighbours whatever the chunking.
+   frames can run on different workers; their `FrameEdges` can be stored (`fringelab.formats.edges`).
+2. `measure_frame`: order, Z, X, Y of one frame given the reference (`reference_for` of the first frame's
+   edges), a pure function of the frame too. `track_and_measure` runs it over frames in order, with temporal
+   smoothing (if on) as a centred window, so it sees the same neighbours whatever the chunking.
 3. Gridding (`fields.grid_edge_points`), a pure function of one measurement.
 
 `topography_recording` runs all three over a recording and streams the result into an HDF5 file. Not here: the
-edge locator (`fringes.py`), the table (`projector.py`), grids and profiles (`fields.py`), files
-(`fringelab.formats.topography.py`).
+edge locator (`fringes.py`), the order (`order.py`), the table (`projector.py`), grids and profiles
+(`fields.py`), files (`fringelab.formats.topography`).
 """
 
 from __future__ import annotations
@@ -29,20 +29,32 @@ import numpy as np
 
 from . import MeasurementError
 from .camera import backproject_to_z
+from .coverage import MISSING_REASONS, FrameCoverage
 from .fields import Grid, Peak, grid_covering, grid_edge_points, typical_edge_gap_mm
-from .fringes import FrameEdges, detect_stripes, locate_edges
+from .fringes import UNUSABLE_BLACK, UNUSABLE_BLOCK_PX, UNUSABLE_DARK, FrameEdges, detect_stripes, locate_edges
+from .order import (
+    ORDER_CONFLICT,
+    ORDER_UNRESOLVED,
+    OrderReference,
+    OrderSettings,
+    ReferenceNotFlatError,
+    clamp_circle,
+    identify_reference,
+    order_frame,
+    order_reference,
+)
 from .projector import (
     CalibrationMismatchError,
     CameraModel,
     ProjectorCalibration,
+    _scatter,
     camera_fingerprint,
-    match_to_reference,
 )
 from .uncertainty import edge_sigma_px, point_sigma_z_mm
 
-
-class FirstFrameNotFlatError(MeasurementError):
-    """The first test frame does not show the flat, undeformed plate the edge identity is fixed on."""
+# The first test frame is the reference the order is anchored on (kept under its old name).
+FirstFrameNotFlatError = ReferenceNotFlatError
+__all__ = ["FirstFrameNotFlatError", "clamp_circle"]
 
 
 class TopographyError(MeasurementError):
@@ -53,13 +65,12 @@ class TopographyError(MeasurementError):
 class TopographySettings:
     """Settings of the topography.
 
-    max_jump_fraction: a tracked edge may move at most this fraction of the stripe period from where its last
-        motion predicts it, or its track ends (never guessed across a gap); 0.3 period is well under the half
-        period at which it could take its neighbour's place.
+    max_jump_fraction: kept for settings files written before the order was found per frame; unused.
+    order: how the fringe order of every frame is anchored and checked (`order.OrderSettings`).
     temporal_smoothing_frames: half-width h of a centred quadratic (Savitzky–Golay) filter of each tracked edge
         position over 2h + 1 frames; 0 = off. Near the ends of a track the window shrinks symmetrically.
-    flat_tolerance_mm: the first frame is taken as flat when 90 % of its points lie within this of the
-        calibration's reference Z.
+    flat_tolerance_mm: the first (reference) frame is taken as flat when 90 % of its points lie within this of
+        the calibration's reference Z.
     grid_step_mm: spacing of the deflection grid.
     grid_max_edge_mm: longest triangle side of the gridding mesh; None = 3 × the median gap between neighbouring
         edges in the first frame (a missing edge between two measured ones is still bridged, a hole is not).
@@ -72,6 +83,7 @@ class TopographySettings:
     grid_step_mm: float = 2.0
     grid_max_edge_mm: float | None = None
     grid_margin_mm: float = 4.0
+    order: OrderSettings = field(default_factory=OrderSettings)
 
     def __post_init__(self) -> None:
         if not 0 < self.max_jump_fraction < 0.5:
@@ -86,14 +98,18 @@ class TopographySettings:
 
 @dataclass(frozen=True, eq=False)
 class FrameMeasurement:
-    """The 3-D points of one frame and how many of the tracked points made it.
+    """The 3-D points of one frame and what its order left out.
 
-    frame: index of the frame in the recording. k, line: (N,) edge index and scan line of each point;
-    points_obj_mm: (N, 3). n_tracks: tracked (edge, line) points in this frame (with or without Z); n_ended:
-    tracks that ended at this frame; n_out_of_range: tracked points outside the calibrated Z range of their
-    table entry (masked, never extrapolated); n_unmatched: edge points of the frame that belong to no track;
-    edge_noise_px: the frame's edge-location noise estimate. sigma_z_mm: (N,) σ of each point's Z from the edge
-    noise and the projector table (`uncertainty.point_sigma_z_mm`), None where not computed.
+    frame: index of the frame in the recording. k, line: (N,) edge order and scan line of each point;
+    points_obj_mm: (N, 3). n_tracks: ordered (edge, line) points in this frame (with or without Z); n_ended: 0
+    (the order is found per frame; kept for the worker's stored chunks); n_out_of_range: ordered points outside
+    the calibrated Z range of their table entry (masked, never extrapolated); n_unmatched: edge points of the
+    frame without an order; edge_noise_px: the frame's edge-location noise estimate; n_order_unresolved: edge
+    points whose group no anchor reaches; n_order_conflict_points: edge points masked for a conflict of sources;
+    n_order_conflicts: conflicts found (curves or groups); coverage: what of the plate was measured and what
+    is missing by reason (None for measurements stored without it). sigma_z_mm: (N,) σ of each
+    point's Z from the edge noise and the projector table (`uncertainty.point_sigma_z_mm`), None where not
+    computed.
     """
 
     frame: int
@@ -105,6 +121,10 @@ class FrameMeasurement:
     n_out_of_range: int
     n_unmatched: int
     edge_noise_px: float
+    n_order_unresolved: int = 0
+    n_order_conflict_points: int = 0
+    n_order_conflicts: int = 0
+    coverage: FrameCoverage | None = None
     sigma_z_mm: np.ndarray | None = None
 
     def dense(self, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -164,173 +184,144 @@ def locate_test_edges(frames: Iterable[np.ndarray], projector: ProjectorCalibrat
 
 
 # --------------------------------------------------------------------------------------------------------------
-# Identity and tracking
+# Order and measurement, frame by frame
+
+
+def reference_for(
+    first: FrameEdges, projector: ProjectorCalibration, camera_model: CameraModel, settings: TopographySettings
+) -> OrderReference:
+    """The anchor of a test's fringe order from its reference (first, flat) frame's edges."""
+    positions = identify_reference(first, projector, flat_tolerance_mm=settings.flat_tolerance_mm)
+    return order_reference(positions, projector, camera_model, settings=settings.order)
 
 
 def identify_first_frame(edges: FrameEdges, projector: ProjectorCalibration, *, flat_tolerance_mm: float) -> np.ndarray:
-    """Positions (K, S) of the projector's edges in the first (flat) test frame, NaN where not seen.
-
-    Each edge point is matched to the nearest table edge of the same polarity at the reference Z on its line;
-    an edge curve takes the index most of its points agree on (≥ 80 %, else it is left out). Raises
-    FirstFrameNotFlatError when the identified points do not lie at the reference Z, TopographyError when too
-    few are identified.
-    """
-    k_near, distance = match_to_reference(
-        edges.line, edges.t_px, edges.polarity, projector.reference_t_px, projector.polarity,
-        n_samples=edges.n_samples,
-    )  # fmt: skip
-    near = (k_near >= 0) & (np.abs(distance) <= 0.5 * projector.period_px)
-    n_chains = int(edges.chain.max()) + 1 if len(edges) else 0
-    k = np.full(len(edges), -1, np.int64)
-    if n_chains:
-        codes, counts = np.unique(edges.chain[near].astype(np.int64) * (projector.n_edges + 1) + k_near[near],
-                                  return_counts=True)  # fmt: skip
-        chain_of, k_of = codes // (projector.n_edges + 1), codes % (projector.n_edges + 1)
-        best = np.zeros(n_chains, np.int64)
-        best_k = np.full(n_chains, -1, np.int64)
-        order = np.argsort(counts, kind="stable")  # ascending, so the largest count per chain is written last
-        best[chain_of[order]] = counts[order]
-        best_k[chain_of[order]] = k_of[order]
-        length = np.bincount(edges.chain, minlength=n_chains)
-        chain_ok = best >= 0.8 * length
-        k = np.where(chain_ok[edges.chain], best_k[edges.chain], -1)
-    identified = k >= 0
-    if np.count_nonzero(identified) < max(50, 0.3 * len(edges)):
-        raise TopographyError(
-            f"only {np.count_nonzero(identified)} of {len(edges)} edge points of the first test frame match the "
-            "projector calibration's edges: the projector, the camera or the plate moved since the calibration"
-        )
-    z, status = projector.z_from_t(k[identified], edges.line[identified], edges.t_px[identified])
-    offset = np.abs(z[status == 0] - projector.reference_z_mm)
-    if len(offset) == 0 or np.percentile(offset, 90) > flat_tolerance_mm:
-        p90 = float(np.percentile(offset, 90)) if len(offset) else float("nan")
-        raise FirstFrameNotFlatError(
-            f"the first test frame is not the flat plate at Z = {projector.reference_z_mm:g} mm: 10 % of its edge "
-            f"points are more than {p90:.1f} mm from it (tolerance {flat_tolerance_mm:g} mm); the topography "
-            "fixes edge identity on an undeformed first frame, so start the recording before the punch touches"
-        )
-    positions = np.full((projector.n_edges, projector.n_lines), np.nan)
-    kk, ll = k[identified], edges.line[identified].astype(np.int64)
-    flat = kk * projector.n_lines + ll
-    counts = np.bincount(flat, minlength=positions.size)
-    single = counts[flat] == 1
-    positions.ravel()[flat[single]] = edges.t_px[identified][single]
-    # Without a table entry a track can never give Z.
-    positions[~projector.valid] = np.nan
-    return positions
+    """Positions (K, S) of the projector's edges in the first (flat) test frame (`order.identify_reference`)."""
+    return identify_reference(edges, projector, flat_tolerance_mm=flat_tolerance_mm)
 
 
-@dataclass
-class EdgeTracker:
-    """Tracks every (edge k, scan line s) point from frame to frame (docs/method.md §5).
+@dataclass(frozen=True, eq=False)
+class OrderedFrame:
+    """One frame's edge positions by order, and what the order left out.
 
-    positions: (K, S) current positions (NaN = no track); velocity: (K, S) last motion per frame.
-    A track follows the nearest edge point of its polarity on its line to where its last motion predicts it,
-    if that point is within max_jump_px, if the next point of that polarity is at least 1/ambiguity_ratio times
-    farther (unambiguous), and if the point's own nearest track is this one (mutual). Then an edge curve of the
-    frame may serve one edge only, and the order of the edges along each line must be kept. A track that fails
-    any of this ends for good: it is never guessed.
+    positions: (K, S) position of every ordered (edge, line) point, NaN where none; counts: per-frame numbers
+    (n_tracks: ordered points, n_order_unresolved, n_order_conflict_points, n_order_conflicts, n_unmatched:
+    edge points without an order).
     """
 
     positions: np.ndarray
-    polarity: np.ndarray
-    max_jump_px: float
-    ambiguity_ratio: float = 0.5
-    velocity: np.ndarray = field(init=False)
+    counts: dict[str, int]
+    coverage: FrameCoverage
 
-    def __post_init__(self) -> None:
-        self.velocity = np.zeros_like(self.positions)
 
-    def step(self, edges: FrameEdges) -> tuple[np.ndarray, int, int]:
-        """Advance to the next frame. Returns the new positions (K, S), the number of tracks ended and the number
-        of edge points of the frame that no track took."""
-        kk, ss = np.nonzero(np.isfinite(self.positions))
-        predicted = self.positions[kk, ss] + self.velocity[kk, ss]
-        predicted_table = np.full_like(self.positions, np.nan)
-        predicted_table[kk, ss] = predicted
-        n_samples = edges.n_samples
-        # Each edge point's nearest track (for the mutual check).
-        k_near, _ = match_to_reference(
-            edges.line, edges.t_px, edges.polarity, predicted_table, self.polarity, n_samples=n_samples
-        )
-        # Each track's nearest and second-nearest edge point of its polarity on its line.
-        stride = float(n_samples + 1000.0)
-        taken = np.full(len(kk), -1, np.int64)
-        for sign in (1, -1):
-            members = np.flatnonzero(edges.polarity == sign)
-            tracks = np.flatnonzero(self.polarity[kk] == sign)
-            if len(members) < 2 or len(tracks) == 0:
-                continue
-            keys = edges.line[members].astype(np.float64) * stride + edges.t_px[members]
-            query = ss[tracks].astype(np.float64) * stride + predicted[tracks]
-            pos = np.searchsorted(keys, query)
-            last = len(keys) - 1
-            lo, hi = np.clip(pos - 1, 0, last), np.minimum(pos, last)
-            d_lo, d_hi = np.abs(query - keys[lo]), np.abs(keys[hi] - query)
-            lower_nearer = d_lo <= d_hi
-            nearest = np.where(lower_nearer, lo, hi)
-            d1 = np.minimum(d_lo, d_hi)
-            # The runner-up is the other of the pair, or the next one out on the nearer side.
-            outer = np.where(lower_nearer, np.maximum(lo - 1, 0), np.minimum(hi + 1, last))
-            d_outer = np.abs(keys[outer] - query)
-            d_outer[outer == nearest] = np.inf
-            d_other = np.where(lower_nearer, d_hi, d_lo)
-            d_other[(lo == hi)] = np.inf
-            d2 = np.minimum(d_other, d_outer)
-            point = members[nearest]
-            ok = (d1 <= self.max_jump_px) & (d1 <= self.ambiguity_ratio * d2) & (k_near[point] == kk[tracks])
-            taken[tracks[ok]] = point[ok]
-        keep = taken >= 0
-        kk_t, ss_t, point_t = kk[keep], ss[keep], taken[keep]
-        keep_curve = self._one_edge_per_curve(kk_t, edges.chain[point_t], self.positions.shape[0])
-        kk_t, ss_t, point_t = kk_t[keep_curve], ss_t[keep_curve], point_t[keep_curve]
-        positions = np.full_like(self.positions, np.nan)
-        positions[kk_t, ss_t] = edges.t_px[point_t]
-        positions = self._keep_order(positions)
-        moved = np.isfinite(positions)
-        n_alive_before = len(kk)
-        self.velocity = np.where(moved, positions - self.positions, 0.0)
-        self.positions = positions
-        n_taken = int(np.count_nonzero(moved))
-        return positions, n_alive_before - n_taken, len(edges) - n_taken
+def order_positions(
+    edges: FrameEdges, reference: OrderReference, projector: ProjectorCalibration, settings: TopographySettings
+) -> OrderedFrame:
+    """The positions (K, S) of one frame's edges by their order (`order.order_frame`): a pure function of the
+    frame and the reference, so a frame ordered alone equals the same frame ordered within its sequence."""
+    frame_order = order_frame(edges, reference, projector, settings=settings.order)
+    ordered = frame_order.k >= 0
+    positions = _scatter(
+        frame_order.k[ordered], edges.line[ordered].astype(np.int64), edges.t_px[ordered].astype(np.float64),
+        (projector.n_edges, projector.n_lines),
+    )  # fmt: skip
+    # Without a table entry a point can never give Z.
+    positions[~projector.valid] = np.nan
+    n_ordered = int(np.count_nonzero(np.isfinite(positions)))
+    counts = {
+        "n_tracks": n_ordered,
+        "n_order_unresolved": int(np.count_nonzero(frame_order.reason == ORDER_UNRESOLVED)),
+        "n_order_conflict_points": int(np.count_nonzero(frame_order.reason == ORDER_CONFLICT)),
+        "n_order_conflicts": int(frame_order.n_conflicts),
+        "n_unmatched": len(edges) - n_ordered,
+    }
+    coverage = frame_coverage(edges, frame_order.k, frame_order.reason, positions, reference, projector)
+    coverage = FrameCoverage(
+        visible_area_mm2=coverage.visible_area_mm2, measured_area_mm2=coverage.measured_area_mm2,
+        missing_mm2=coverage.missing_mm2, n_order_conflicts=frame_order.n_conflicts,
+    )  # fmt: skip
+    return OrderedFrame(positions=positions, counts=counts, coverage=coverage)
 
-    @staticmethod
-    def _one_edge_per_curve(k: np.ndarray, chain: np.ndarray, n_edges: int) -> np.ndarray:
-        """Mask (N,) of the points to keep: an edge curve of the frame is one stripe edge, so where tracks of
-        different edges took points of the same curve, only the edge that took clearly most of them keeps its
-        points there (a tie keeps none). This catches a track that, its own edge gone (at a new hole), took up a
-        neighbouring edge that other tracks follow elsewhere along its length."""
-        if len(k) == 0:
-            return np.zeros(0, bool)
-        n_chains = int(chain.max()) + 1
-        counts = np.bincount(chain.astype(np.int64) * n_edges + k, minlength=n_chains * n_edges).reshape(
-            n_chains, n_edges
-        )
-        best = np.argmax(counts, axis=1)
-        best_count = counts[np.arange(n_chains), best]
-        counts[np.arange(n_chains), best] = 0
-        clear = best_count > counts.max(axis=1)
-        owner = np.where(clear, best, -1)
-        return owner[chain] == k
 
-    @staticmethod
-    def _keep_order(positions: np.ndarray) -> np.ndarray:
-        """End both tracks of any pair of consecutive tracked edges on a line that swapped order."""
-        valid = np.isfinite(positions)
-        index = np.where(valid, np.arange(positions.shape[0])[:, None], -1)
-        # The previous tracked edge on the same line, for every (k, s).
-        previous = np.maximum.accumulate(index, axis=0)
-        previous = np.vstack([np.full((1, positions.shape[1]), -1), previous[:-1]])
-        has_previous = valid & (previous >= 0)
-        kk, ss = np.nonzero(has_previous)
-        pk = previous[kk, ss]
-        swapped = positions[kk, ss] <= positions[pk, ss]
-        if not np.any(swapped):
-            return positions
-        out = positions.copy()
-        out[kk[swapped], ss[swapped]] = np.nan
-        out[pk[swapped], ss[swapped]] = np.nan
-        return out
+def frame_coverage(
+    edges: FrameEdges,
+    k: np.ndarray,
+    reason: np.ndarray,
+    positions: np.ndarray,
+    reference: OrderReference,
+    projector: ProjectorCalibration,
+) -> FrameCoverage:
+    """The measured and missing areas of one frame (`FrameCoverage`).
+
+    k, reason: (N,) order and reason of the frame's edge points (`order.order_frame`); positions: (K, S) the
+    ordered positions. Each reference point missing in the frame is placed where the frame's own measured
+    neighbours on its line say its edge now is (their displacement from the reference, interpolated in k along
+    the line); an unordered edge point found there lends it its reason, else the frame's `unusable` map there
+    does (a block with nothing wrong counts as low contrast: no edge was located).
+    """
+    area = reference.cell_area_mm2
+    seen = np.isfinite(reference.reference_t_px) & np.isfinite(area)
+    # The table's bounds, as `z_from_t` applies them (positions only exist where the table has an entry).
+    with np.errstate(invalid="ignore"):
+        inside = (positions >= projector.t_lo_px) & (positions <= projector.t_hi_px)
+    placed = np.isfinite(positions)
+    measured = placed & inside
+    beyond = placed & ~inside
+    missing = {name: 0.0 for name in MISSING_REASONS}
+    missing["out_of_range"] = float(np.sum(area[seen & beyond]))
+    rest = seen & ~measured & ~beyond
+    rk, rs = np.nonzero(rest)
+    if len(rk):
+        t_now = _displaced_reference(positions, reference.reference_t_px, rk, rs)
+        code = np.full(len(rk), -1, np.int64)
+        # Unordered edge points lend their reason to the missing point nearest them on their line.
+        unordered = np.flatnonzero(k < 0)
+        if len(unordered):
+            stride = float(edges.n_samples + 1000.0)
+            keys = rs.astype(np.float64) * stride + t_now
+            order = np.argsort(keys)
+            query = edges.line[unordered].astype(np.float64) * stride + edges.t_px[unordered]
+            pos = (
+                np.clip(np.searchsorted(keys[order], query), 1, len(order) - 1)
+                if len(order) > 1
+                else np.zeros(len(query), np.int64)
+            )
+            lo, hi = order[np.maximum(pos - 1, 0)], order[pos]
+            nearest = np.where(np.abs(keys[lo] - query) <= np.abs(keys[hi] - query), lo, hi)
+            close = np.abs(keys[nearest] - query) <= 0.25 * projector.period_px
+            code[nearest[close]] = np.where(reason[unordered[close]] == ORDER_CONFLICT, 4, 3)
+        if edges.unusable is not None:
+            block = UNUSABLE_BLOCK_PX
+            rows = np.clip(rs // block, 0, edges.unusable.shape[0] - 1)
+            cols = np.clip(np.round(t_now).astype(np.int64) // block, 0, edges.unusable.shape[1] - 1)
+            image_code = edges.unusable[rows, cols]
+            from_image = np.select([image_code == UNUSABLE_BLACK, image_code == UNUSABLE_DARK], [0, 1], default=2)
+        else:
+            from_image = np.full(len(rk), 2)
+        code = np.where(code >= 0, code, from_image)
+        for index, name in enumerate(MISSING_REASONS[:5]):
+            missing[name] = float(np.sum(area[rk[code == index], rs[code == index]]))
+    return FrameCoverage(
+        visible_area_mm2=float(np.sum(area[seen])),
+        measured_area_mm2=float(np.sum(area[seen & measured])),
+        missing_mm2=missing,
+        n_order_conflicts=0,
+    )
+
+
+def _displaced_reference(
+    positions: np.ndarray, reference_t_px: np.ndarray, kk: np.ndarray, ss: np.ndarray
+) -> np.ndarray:
+    """Where edges (kk, ss) are now: their reference position plus the displacement of the measured edges on
+    their line, interpolated linearly in k (held constant beyond the last one; zero on a line with none)."""
+    displacement = positions - reference_t_px
+    out = reference_t_px[kk, ss].copy()
+    for line in np.unique(ss):
+        known = np.flatnonzero(np.isfinite(displacement[:, line]))
+        on_line = ss == line
+        if len(known):
+            out[on_line] += np.interp(kk[on_line], known, displacement[known, line])
+    return out
 
 
 def savitzky_golay_centre_weights(half_width: int) -> np.ndarray:
@@ -393,41 +384,51 @@ def track_and_measure(
     *,
     settings: TopographySettings | None = None,
     first_frame: int = 0,
+    reference: OrderReference | None = None,
 ) -> Iterator[FrameMeasurement]:
-    """The sequential pass: identity, tracking, Z from the table, X and Y by back-projection (docs/method.md §5–6).
+    """Order, Z from the table, X and Y by back-projection of consecutive frames (docs/method.md §5–6).
 
-    edges: the located edges of consecutive frames in frame order, starting with the flat first frame of the
-    test (`first_frame` is its index in the recording). Yields one FrameMeasurement per frame, in order (with
-    temporal smoothing, h frames after their edges came in). Cheap next to edge location: it can be rerun over
-    stored edges, and a chunked run that feeds it the same edges gives identical results.
+    edges: the located edges of consecutive frames in frame order (`first_frame` is the index of the first in
+    the recording). reference: the anchor of the test's order (`reference_for` of its flat first frame); None
+    takes the first frame given as the reference. Every frame is ordered on its own (`order_positions`), so the
+    frames given may start anywhere when the reference is given; only temporal smoothing, if on, looks at the
+    neighbouring frames. Yields one FrameMeasurement per frame, in order (with temporal smoothing, h frames after
+    their edges came in).
     """
     settings = TopographySettings() if settings is None else settings
     iterator = iter(edges)
-    try:
-        first = next(iterator)
-    except StopIteration:
-        return
-    positions = identify_first_frame(first, projector, flat_tolerance_mm=settings.flat_tolerance_mm)
-    tracker = EdgeTracker(
-        positions=positions, polarity=projector.polarity, max_jump_px=settings.max_jump_fraction * projector.period_px
-    )
     smoother = _TemporalSmoother(settings.temporal_smoothing_frames)
-    n_first_unmatched = len(first) - int(np.count_nonzero(np.isfinite(positions)))
-    pending = ((first_frame, 0, n_first_unmatched, first.noise_px), positions)
-    for emitted in smoother.push(*pending):
-        yield _measure(emitted, projector, camera_model)
-    for offset, frame_edges in enumerate(iterator, start=1):
-        positions, n_ended, n_unmatched = tracker.step(frame_edges)
-        for emitted in smoother.push((first_frame + offset, n_ended, n_unmatched, frame_edges.noise_px), positions):
+    for offset, frame_edges in enumerate(iterator):
+        if reference is None:
+            reference = reference_for(frame_edges, projector, camera_model, settings)
+        ordered = order_positions(frame_edges, reference, projector, settings)
+        item = (first_frame + offset, ordered.counts, frame_edges.noise_px, ordered.coverage)
+        for emitted in smoother.push(item, ordered.positions):
             yield _measure(emitted, projector, camera_model)
     for emitted in smoother.flush():
         yield _measure(emitted, projector, camera_model)
 
 
+def measure_frame(
+    edges: FrameEdges,
+    reference: OrderReference,
+    projector: ProjectorCalibration,
+    camera_model: CameraModel,
+    *,
+    frame: int,
+    settings: TopographySettings | None = None,
+) -> FrameMeasurement:
+    """One frame measured alone (no temporal smoothing): equal to the same frame measured within its test."""
+    settings = TopographySettings() if settings is None else settings
+    ordered = order_positions(edges, reference, projector, settings)
+    item = (frame, ordered.counts, edges.noise_px, ordered.coverage)
+    return _measure((item, ordered.positions), projector, camera_model)
+
+
 def _measure(
     emitted: tuple[Any, np.ndarray], projector: ProjectorCalibration, camera_model: CameraModel
 ) -> FrameMeasurement:
-    (frame, n_ended, n_unmatched, noise_px), positions = emitted
+    (frame, counts, noise_px, coverage), positions = emitted
     kk, ll = np.nonzero(np.isfinite(positions))
     t = positions[kk, ll]
     z, status = projector.z_from_t(kk, ll, t)
@@ -446,10 +447,14 @@ def _measure(
         line=ll.astype(np.int32),
         points_obj_mm=points,
         n_tracks=int(len(status)),
-        n_ended=int(n_ended),
+        n_ended=0,
         n_out_of_range=int(np.count_nonzero(status == 1)),
-        n_unmatched=int(n_unmatched),
+        n_unmatched=int(counts["n_unmatched"]),
         edge_noise_px=float(noise_px),
+        n_order_unresolved=int(counts["n_order_unresolved"]),
+        n_order_conflict_points=int(counts["n_order_conflict_points"]),
+        n_order_conflicts=int(counts["n_order_conflicts"]),
+        coverage=coverage,
         sigma_z_mm=sigma_z,
     )
 
@@ -496,38 +501,6 @@ def frame_range(frames: Sequence[int] | range | None, n_frames: int) -> range:
     return chosen
 
 
-def clamp_circle(points_xy_mm: np.ndarray, *, n_sectors: int = 72) -> tuple[float, float, float]:
-    """Centre (x, y) and radius (mm) of the circle through the outermost points of the flat first frame.
-
-    The points end where the clamp ring hides the plate; the outermost point of each angular sector around
-    their centroid lies on that circle (a little inside it: edges within half a stripe of the ring are
-    rejected), so a least-squares (Kåsa) circle through them, refitted once without points more than 3 mm off,
-    gives the plate centre from the clamp (docs/method.md §2).
-    """
-    xy = points_xy_mm[np.all(np.isfinite(points_xy_mm), axis=1)]
-    if len(xy) < 3 * n_sectors:
-        return float("nan"), float("nan"), float("nan")
-    centroid = xy.mean(axis=0)
-    rel = xy - centroid
-    angle = np.arctan2(rel[:, 1], rel[:, 0])
-    radius = np.hypot(rel[:, 0], rel[:, 1])
-    sector = np.minimum(((angle + np.pi) / (2 * np.pi) * n_sectors).astype(np.int64), n_sectors - 1)
-    order = np.lexsort((radius, sector))
-    last = np.r_[sector[order][1:] != sector[order][:-1], True]
-    rim = xy[order[last]]
-    keep = np.ones(len(rim), bool)
-    cx = cy = r = float("nan")
-    for _ in range(2):
-        x, y = rim[keep, 0], rim[keep, 1]
-        design = np.column_stack([2 * x, 2 * y, np.ones(len(x))])
-        (cx, cy, c), *_ = np.linalg.lstsq(design, x * x + y * y, rcond=None)
-        r = float(np.sqrt(c + cx * cx + cy * cy))
-        keep = np.abs(np.hypot(rim[:, 0] - cx, rim[:, 1] - cy) - r) < 3.0
-        if np.count_nonzero(keep) < 8:
-            break
-    return float(cx), float(cy), r
-
-
 PUNCH_AXIS_MIN_PEAK_MM = 5.0  # frames whose peak is at least this deep locate the punch axis (shallower: noise)
 
 
@@ -539,12 +512,30 @@ class SummaryTally:
     peaks_w_mm: list[float] = field(default_factory=list)
     centres_xy_mm: list[tuple[float, float]] = field(default_factory=list)
     n_out_of_range: int = 0
+    n_after_first: int = 0
+    n_ordered_after_first: int = 0
+    n_unresolved_after_first: int = 0
 
-    def add(self, peak: Peak, *, n_out_of_range: int) -> None:
+    def add(self, peak: Peak, *, n_out_of_range: int, measurement: FrameMeasurement | None = None) -> None:
         self.peaks_w_mm.append(peak.w_mm)
         if np.isfinite(peak.centre_x_mm) and peak.w_mm >= PUNCH_AXIS_MIN_PEAK_MM:
             self.centres_xy_mm.append((peak.centre_x_mm, peak.centre_y_mm))
         self.n_out_of_range += n_out_of_range
+        if measurement is not None and measurement.frame > 0:
+            self.n_after_first += 1
+            self.n_ordered_after_first += len(measurement.k)
+            self.n_unresolved_after_first += measurement.n_order_unresolved
+
+    def require_ordered(self, where: str) -> None:
+        """TopographyError when no frame after the reference could be ordered anywhere: a result with nothing
+        measured after its first frame would look like a plate that vanished."""
+        if self.n_after_first > 0 and self.n_ordered_after_first == 0:
+            raise TopographyError(
+                f"{where}: the stripes could not be ordered in any frame after the first ({self.n_after_first} frames, "
+                f"{self.n_unresolved_after_first} edge points with no anchor): the clamped rim, which anchors the "
+                "fringe order, shows no stripes in them; check that the rim stays lit and in view, or set "
+                "rim_circle_mm to a region that stays still"
+            )
 
     @property
     def punch_axis_xy_mm(self) -> tuple[float, float]:

@@ -1,7 +1,8 @@
 // The topography viewer of a topography job: the deflection field of a frame as a 2-D map and a 3-D surface,
 // a frame slider with play/pause, section lines drawn on the map with their profiles for the chosen frames,
-// time histories of clicked points, peak deflection against punch displacement (force on a second axis), and
-// one camera against another. Every plot downloads its data (CSV) and its image (PNG).
+// time histories of clicked points, peak deflection against punch displacement (force on a second axis), what of
+// the plate each frame measured and why the rest is missing (outlined on the map too), and one camera against
+// another. Every plot downloads its data (CSV) and its image (PNG).
 import { getJSON } from "../api.js";
 import {
   COLORS,
@@ -16,6 +17,7 @@ import {
   listenToMap,
   mapLayout,
   mapTraces,
+  missingOutlineTraces,
   surfaceLayout,
   surfaceTraces,
   verticalMarker,
@@ -221,6 +223,7 @@ class Viewer {
       h("option", { value: "profile" }, "profile along the first section line, this frame"),
       h("option", { value: "map" }, "difference map, this frame"));
     this.compareWhat.addEventListener("change", () => this.drawComparison());
+    this.coverageFigure = new Figure({ name: "Coverage over time", filename: `topography-${this.job.id.slice(0, 8)}-coverage`, height: 340, csv: () => this.coverageCSV() });
     this.compareFigure = new Figure({ name: "Camera against camera", filename: `topography-${this.job.id.slice(0, 8)}-cameras`, height: 420, csv: () => this.compareCSV() });
 
     this.exports = exportPanel(this.job, { frames: this.frames, lines: () => this.lines, context: this.context });
@@ -260,6 +263,9 @@ class Viewer {
         h("div", {}, this.historyFigure.element, h("div", { class: "chip-row" }, h("span", {}, "Points: "), this.pointList),
           h("details", {}, h("summary", {}, "Type a point"), this.pointForm)),
         h("div", {}, this.peakFigure.element)),
+      h("div", { class: "plot-grid" },
+        h("div", {}, this.coverageFigure.element,
+          h("p", { class: "hint" }, "Share of the plate (as the first frame sees it) measured in each frame, and the area missing by reason; missing regions are outlined on the map."))),
       (this.compareSection = h("section", { "aria-label": "Camera against camera", hidden: true },
         h("h2", {}, "Camera against camera"),
         h("div", { class: "compare-controls" },
@@ -295,13 +301,14 @@ class Viewer {
       else if (zoomed && this.viewRangeBox.checked) this.drawField(); // the colours follow the zoom
     });
     await this.drawPeak();
+    await this.drawCoverage();
     this.findOtherCameras();
   }
 
   dispose() {
     this.playing = false;
     clearTimeout(this.timer);
-    for (const figure of [this.mapFigure, this.surfaceFigure, this.profileFigure, this.historyFigure, this.peakFigure, this.compareFigure]) figure.purge();
+    for (const figure of [this.mapFigure, this.surfaceFigure, this.profileFigure, this.historyFigure, this.peakFigure, this.coverageFigure, this.compareFigure]) figure.purge();
   }
 
   // ---- frames ----------------------------------------------------------------------------------------------
@@ -358,6 +365,7 @@ class Viewer {
       await Promise.all([
         this.drawHistories(),
         this.peakFigure.drawn ? this.drawPeak() : null,
+        this.coverageFigure.drawn ? this.drawCoverage() : null,
         this.compareFigure.drawn ? this.drawComparison() : null,
       ]);
     } catch (error) {
@@ -417,7 +425,7 @@ class Viewer {
   }
 
   /** Only the visible view is drawn on a frame switch; the other catches up when its tab is chosen. */
-  drawField() {
+  async drawField() {
     if (!this.current) return null;
     const own = this.viewRangeBox.checked;
     // The map's view is its zoom window; the surface shows the whole frame.
@@ -428,7 +436,9 @@ class Viewer {
       return this.surfaceFigure.react(surfaceTraces(this.current, { range, rangeNote }), surfaceLayout({ zRange: this.meta.w_range_mm }));
     }
     const lines = this.lines.map((line) => ({ ...line }));
-    return this.mapFigure.react(mapTraces(this.current, { range, points: this.points, rangeNote }), mapLayout({ lines }));
+    const reference = await this.field(this.frames[0]);
+    const traces = [...mapTraces(this.current, { range, points: this.points, rangeNote }), ...missingOutlineTraces(this.current, reference)];
+    return this.mapFigure.react(traces, mapLayout({ lines }));
   }
 
   /** Which grid the numbers of a field come from: the result's own, or the display grid of block averages. */
@@ -584,10 +594,18 @@ class Viewer {
     const havePunch = m.punch_displacement_mm.some(Number.isFinite);
     const xs = havePunch ? m.punch_displacement_mm : this.timeAxis().values;
     const xAxis = havePunch ? axis("punch displacement", "mm") : this.timeAxis().title;
-    const series = [{ name: "peak deflection", x: xs, y: m.peak_w_mm, color: COLORS[0], mode: "lines+markers" }];
+    // A frame whose peak region was not measured has no peak: a gap in the line and a mark on the axis, not a drop.
+    const unmeasured = this.meta.coverage.peak_measured.map((v) => v === false);
+    const peaks = m.peak_w_mm.map((w, k) => (unmeasured[k] ? NaN : w));
+    const series = [{ name: "peak deflection", x: xs, y: peaks, color: COLORS[0], mode: "lines+markers" }];
     if (haveForce) series.push({ name: "force", x: xs, y: m.force_kN, color: COLORS[1], yaxis: "y2", dash: "dot" });
     const traces = lineTraces(series);
-    traces.push({ type: "scatter", mode: "markers", name: "this frame", x: [xs[i]], y: [m.peak_w_mm[i]], marker: { size: 12, color: "#111", symbol: "circle-open", line: { width: 2 } } });
+    if (unmeasured.some(Boolean)) {
+      const gaps = xs.map((x, k) => (unmeasured[k] ? x : NaN));
+      traces.push({ type: "scatter", mode: "markers", name: "peak region not measured", x: gaps, y: gaps.map(() => 0),
+        marker: { size: 10, symbol: "x-thin-open", color: "#c2185b", line: { width: 2 } }, hovertemplate: "peak region not measured<extra></extra>" });
+    }
+    traces.push({ type: "scatter", mode: "markers", name: "this frame", x: [xs[i]], y: [peaks[i]], marker: { size: 12, color: "#111", symbol: "circle-open", line: { width: 2 } } });
     return this.peakFigure.react(traces, lineLayout({
       xAxis,
       yAxis: axis("peak deflection w", "mm"),
@@ -597,9 +615,42 @@ class Viewer {
 
   peakCSV() {
     const m = this.meta.frames;
+    const measured = this.meta.coverage.peak_measured;
     return {
-      columns: ["frame", "time_s", "punch_displacement_mm", "force_kN", "peak_w_mm", "grid", "grid_step_mm"],
-      rows: this.frames.map((frame, i) => [frame, m.time_s[i], m.punch_displacement_mm[i], m.force_kN[i], m.peak_w_mm[i], "result", this.meta.grid.step_mm]),
+      columns: ["frame", "time_s", "punch_displacement_mm", "force_kN", "peak_w_mm", "peak_region_measured", "grid", "grid_step_mm"],
+      rows: this.frames.map((frame, i) => [frame, m.time_s[i], m.punch_displacement_mm[i], m.force_kN[i], m.peak_w_mm[i], measured[i] ?? "", "result", this.meta.grid.step_mm]),
+    };
+  }
+
+  /** Measured share of the plate per frame (left axis, %) and the area missing by reason (stacked bars, right). */
+  drawCoverage() {
+    const c = this.meta.coverage;
+    const time = this.timeAxis();
+    const reasons = Object.keys(c.missing_mm2);
+    const traces = lineTraces([{ name: "measured", x: time.values, y: c.measured_fraction.map((f) => f * 100), color: COLORS[0], mode: "lines+markers" }]);
+    reasons.forEach((reason, k) => traces.push({
+      type: "bar", name: `missing: ${reason.replaceAll("_", " ")}`, x: time.values, y: c.missing_mm2[reason].map((a) => a / 100),
+      yaxis: "y2", marker: { color: COLORS[(k + 1) % COLORS.length] }, opacity: 0.6,
+      hovertemplate: `${reason.replaceAll("_", " ")} %{y:.2f} cm²<extra></extra>`,
+    }));
+    const known = c.measured_fraction.some(Number.isFinite);
+    const figureLayout = lineLayout({
+      xAxis: time.title,
+      yAxis: axis("measured share of the plate", "%", { range: [0, 101] }),
+      y2Axis: axis("area missing", "cm²"),
+      shapes: [verticalMarker(time.values[this.position])],
+      note: known ? null : "This result was written before coverage was recorded",
+    });
+    figureLayout.barmode = "stack";
+    return this.coverageFigure.react(traces, figureLayout);
+  }
+
+  coverageCSV() {
+    const c = this.meta.coverage;
+    const reasons = Object.keys(c.missing_mm2);
+    return {
+      columns: ["frame", "time_s", "measured_fraction", ...reasons.map((r) => `missing_${r}_mm2`), "n_order_conflicts"],
+      rows: this.frames.map((frame, i) => [frame, this.meta.frames.time_s[i], c.measured_fraction[i], ...reasons.map((r) => c.missing_mm2[r][i]), c.n_order_conflicts[i]]),
     };
   }
 

@@ -162,6 +162,19 @@ def test_upload_calibrate_measure_and_explore(page, live_server, virtual_test, c
             assert float(row["w_mm"]) == pytest.approx(w_mm, abs=1e-9)  # the same numbers, not a resampling
     assert any(w is not None and w > 1.0 for w in api_w), f"the last frame's profile shows the punch's dome: {api_w}"
 
+    # What each frame measured: the coverage plot, its CSV equal to the API's numbers, every frame of the virtual
+    # test measured almost whole and no order conflict.
+    coverage = page.get_by_role("img", name="Coverage over time")
+    coverage.scroll_into_view_if_needed()
+    expect(coverage).to_be_visible()
+    with page.expect_download() as download:
+        page.get_by_role("button", name="Download Coverage over time CSV").click()
+    coverage_rows = list(csv.DictReader(io.StringIO(download.value.path().read_text())))
+    overview = httpx.get(f"{live_server.base_url}/api/v1/jobs/{topography_job}/topography", timeout=30).json()
+    assert [float(row["measured_fraction"]) for row in coverage_rows] == pytest.approx(overview["measured_fraction"])
+    assert min(overview["measured_fraction"]) > 0.9 and not any(overview["n_order_conflicts"])
+    assert all(overview["peak_measured"])
+
     # Frame switches: fetch + decode + Plotly.react of the field and the profile, over SWITCHES moves.
     page.evaluate("() => { window.fringelab.frameSwitchMs = []; }")
     for i in range(SWITCHES):

@@ -97,7 +97,10 @@ def test_time_and_peak_alignment(measured, tmp_path) -> None:  # type: ignore[no
     for align in ("time", "peak"):
         summary = compare_result(measured.result, folder, tmp_path / f"{align}.h5", align=align)
         rows = {row["frame"]: row["rms_diff_mm"] for row in summary.frames}
-        assert rows[3] < 0.03, (align, rows)  # the right state: a wrong one is off by millimetres
+        # The right state: a wrong one is off by millimetres. Since the fringe order is found per frame, the steep
+        # dome within ~15 mm of the punch is measured too (it used to be lost), where the linear grid and the
+        # model's mesh both cut the curvature: 0.08 mm, not the 0.03 mm of the plate further out.
+        assert rows[3] < 0.08, (align, rows)
 
 
 def test_cli_compare_json_and_exports(measured, tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
@@ -106,7 +109,8 @@ def test_cli_compare_json_and_exports(measured, tmp_path, capsys) -> None:  # ty
     assert _run("compare", str(measured.result), str(folder), "-o", str(out), "--json") == 0
     printed = json.loads(capsys.readouterr().out)
     assert [row["frame"] for row in printed["frames"]] == list(range(8))
-    assert all(row["rms_diff_mm"] < 0.03 and row["max_diff_mm"] < 1.0 for row in printed["frames"])
+    # As above: the dome next to the punch is measured now, where grid and mesh are coarse for its curvature.
+    assert all(row["rms_diff_mm"] < 0.08 and row["max_diff_mm"] < 2.5 for row in printed["frames"]), printed["frames"]
     for fmt, name in zip(COMPARISON_EXPORTS, ("c.csv", "copy.h5", "c.mat", "c.pvd", "p.csv"), strict=True):
         assert _run("export-comparison", str(out), "--format", fmt, "-o", str(tmp_path / name)) == 0
     # a profile along any line (here a diagonal through the plate), every frame, points beyond 2σ marked

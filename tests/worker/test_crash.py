@@ -68,7 +68,7 @@ def test_a_worker_process_killed_mid_chunk_is_replaced_and_the_job_ends_once_com
     assert killed not in worker.pool_pids() and len(worker.pool_pids()) == 2
 
 
-def test_a_topography_whose_worker_process_is_killed_while_gridding_ends_identical_to_a_sequential_run(
+def test_a_topography_whose_worker_process_is_killed_while_measuring_ends_identical_to_a_sequential_run(
     settings, client, start_prefork_worker, virtual_experiment, tmp_path
 ):
     worker = start_prefork_worker(settings, concurrency=2)
@@ -88,11 +88,11 @@ def test_a_topography_whose_worker_process_is_killed_while_gridding_ends_identic
             "projector_calibration_id": projector["result"]["calibration_id"]}  # fmt: skip
     job_id = client.post("/api/v1/jobs", json=spec).json()["id"]
 
-    def a_gridding_chunk() -> dict | None:
+    def a_measuring_chunk() -> dict | None:
         chunks = client.get(f"/api/v1/jobs/{job_id}").json()["chunks"]
-        return next((c for c in chunks if c["phase"] == 1 and c["state"] == "running" and c["worker"]), None)
+        return next((c for c in chunks if c["phase"] == 0 and c["state"] == "running" and c["worker"]), None)
 
-    victim = wait_for(a_gridding_chunk, timeout_s=180, what="a gridding chunk to run", interval_s=0.02)
+    victim = wait_for(a_measuring_chunk, timeout_s=180, what="a measuring chunk to run", interval_s=0.02)
     killed = pid_of(victim["worker"])  # type: ignore[index]
     psutil.Process(killed).send_signal(signal.SIGKILL)
 

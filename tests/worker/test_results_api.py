@@ -69,6 +69,10 @@ def test_overview_lists_frames_with_the_test_log_and_peaks(client, job_id):
     assert body["grid"] == {"x_min_mm": -100.0, "x_max_mm": 100.0, "y_min_mm": -60.0, "y_max_mm": 60.0,
                             "nx": 101, "ny": 61, "step_mm": 2.0}  # fmt: skip
     assert body["summary"] == {"flat_rms_mm": 0.01}
+    # A result written without coverage (an older file): unknown, never "all measured".
+    assert body["measured_fraction"] == [None] * 4 and body["peak_measured"] == [None] * 4
+    assert set(body["missing_mm2"]) == {"hole", "shadow", "low_contrast", "order_unresolved", "order_conflict",
+                                        "out_of_range"}  # fmt: skip
 
 
 def test_a_grid_is_block_averaged_to_the_budget_and_a_window_is_full_resolution(client, job_id):

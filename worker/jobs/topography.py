@@ -1,16 +1,18 @@
 """The topography job: a test recording, a camera and a projector calibration in; the topography result out.
 
-Two fan-outs, each joined by a pass in frame order, computing exactly what
+One fan-out over the frames and a merge in frame order, computing exactly what
 `fringelab.pipelines.topography.topography_recording` computes in one sequential pass (a test holds them to the
-bit):
+bit, whatever the chunking):
 
-    phase 0, chunks:   edges of each frame (a pure function of the frame)        -> chunks/edges-<first>.h5
-    merge 0, in order: identity fixed on frame 0 and carried frame to frame;
-                       Z, X, Y of every point; the grid from frame 0             -> chunks/track.npz, measure-*.npz
-    phase 1, chunks:   the deflection grid and peak of each frame (pure again)   -> chunks/grid-<first>.npz
-    merge 1, in order: the result file (TopographyWriter) and its summary        -> topography.h5
+    entry:             the reference: frame 0's edges matched to the table, the rim that anchors the fringe
+                       order, frame 0 measured, the grid from it                    -> chunks/reference.npz
+    phase 0, chunks:   for each frame on its own: edges, fringe order, Z, X, Y, what is missing, the deflection
+                       grid and peak (with temporal smoothing, h frames either side are read too)
+                                                                                    -> chunks/frames-<first>.npz
+    merge 0, in order: the result file (TopographyWriter) and its summary           -> topography.h5
 
-Gridding is the largest part of the per-frame work, which is why it is not left in the sequential pass.
+No frame depends on the frames before it (the order is found per frame, anchored on the reference), so there is
+no long in-order phase: the merge only writes.
 """
 
 from __future__ import annotations
@@ -69,40 +71,62 @@ def _topography_inputs(context: JobContext) -> _TopographyInputs:
 
 
 def topography_entry(context: JobContext) -> Chunked:
-    from fringelab.science.topography import check_recording_against, check_stripes_against
+    """The reference (frame 0), then the frames to write in chunks on any worker."""
+    from fringelab.science.topography import (
+        check_recording_against,
+        check_stripes_against,
+        clamp_circle,
+        grid_for_first_frame,
+        locate_test_edges,
+        measure_frame,
+        reference_for,
+    )
 
     inputs = _topography_inputs(context)
     try:
         first_frame = inputs.source[0]
         check_recording_against(first_frame.shape[:2], inputs.projector, inputs.camera_model)
         check_stripes_against(first_frame, inputs.projector)
-        # identity is fixed on frame 0: edges are needed from there to the last frame written (+ the smoothing)
-        stop = min(inputs.wanted.stop + inputs.settings.temporal_smoothing_frames, len(inputs.source))
+        edges = next(iter(locate_test_edges([first_frame], inputs.projector)))
     finally:
         inputs.close()
-    context.log(f"topography of frames {inputs.wanted.start}..{inputs.wanted.stop - 1} (edges of 0..{stop - 1})")
-    return Chunked(frame_ranges(stop, chunk_frames_of(context.spec, context.settings)), stage="locating edges")
+    projector, settings = inputs.projector, inputs.settings
+    reference = reference_for(edges, projector, inputs.camera_model, settings)
+    # Frame 0 is never smoothed (its window has no frame before it), so measured alone it is what a run gives.
+    first = measure_frame(edges, reference, projector, inputs.camera_model, frame=0, settings=settings)
+    grid, max_edge_mm = grid_for_first_frame(first, projector, settings)
+    z = first.points_obj_mm[:, 2]
+    z_flat = float(np.median(z))
+    save_arrays(
+        context, "chunks/reference.npz",
+        reference_t_px=reference.reference_t_px, rim=reference.rim, rim_circle_mm=np.array(reference.rim_circle_mm),
+        cell_area_mm2=reference.cell_area_mm2, x_mm=grid.x_mm, y_mm=grid.y_mm, max_edge_mm=max_edge_mm,
+        z_flat_mm=z_flat, flat_rms_mm=float(np.sqrt(np.mean((z - z_flat) ** 2))),
+        clamp=np.array(clamp_circle(first.points_obj_mm[:, :2])), n_tracks_first_frame=first.n_tracks,
+    )  # fmt: skip
+    wanted = inputs.wanted
+    context.log(f"topography of frames {wanted.start}..{wanted.stop - 1}, each ordered on its own")
+    ranges = [(wanted.start + a, wanted.start + b) for a, b in frame_ranges(len(wanted), chunk_frames_of(
+        context.spec, context.settings))]  # fmt: skip
+    return Chunked(ranges, stage="measuring")
 
 
-def topography_locate(context: JobContext, first: int, stop: int) -> None:
-    """Phase 0, any worker: the edges of frames [first, stop)."""
-    from fringelab.formats.edges import write_edges
-    from fringelab.science.topography import locate_test_edges
+def _reference(context: JobContext) -> Any:
+    from fringelab.science.order import OrderReference
 
-    inputs = _topography_inputs(context)
-    try:
-        frames = (inputs.source[i] for i in range(first, stop))
-        edges = []
-        for done, frame_edges in enumerate(locate_test_edges(frames, inputs.projector)):
-            edges.append(frame_edges)
-            context.progress(done + 1, stop - first, "locating edges")
-    finally:
-        inputs.close()
-    with context.output(f"chunks/edges-{first:07d}.h5", publish=False) as temporary:
-        write_edges(temporary, list(range(first, stop)), edges)
+    data = load_arrays(context, "chunks/reference.npz")
+    reference = OrderReference(
+        reference_t_px=data["reference_t_px"], rim=data["rim"],
+        rim_circle_mm=tuple(float(v) for v in data["rim_circle_mm"]),  # type: ignore[arg-type]
+        cell_area_mm2=data["cell_area_mm2"],
+    )  # fmt: skip
+    return reference, data
 
 
-_MEASURE_COUNTS = ("n_tracks", "n_ended", "n_out_of_range", "n_unmatched")
+_MEASURE_COUNTS = (
+    "n_tracks", "n_ended", "n_out_of_range", "n_unmatched", "n_order_unresolved", "n_order_conflict_points",
+    "n_order_conflicts",
+)  # fmt: skip
 
 
 def _sigma(measurement: Any) -> np.ndarray:
@@ -110,104 +134,87 @@ def _sigma(measurement: Any) -> np.ndarray:
     return np.full(len(measurement.k), np.nan) if sigma is None else np.asarray(sigma, np.float64)
 
 
-def _save_measurements(context: JobContext, first: int, measurements: list[Any]) -> None:
+def topography_measure(context: JobContext, first: int, stop: int) -> None:
+    """Phase 0, any worker: frames [first, stop) measured and gridded, each on its own."""
+    from fringelab.science.coverage import MISSING_REASONS
+    from fringelab.science.fields import Grid, field_peak
+    from fringelab.science.topography import grid_measurement, locate_test_edges, track_and_measure
+
+    inputs = _topography_inputs(context)
+    projector, settings = inputs.projector, inputs.settings
+    reference, data = _reference(context)
+    grid, z_flat = Grid(x_mm=data["x_mm"], y_mm=data["y_mm"]), float(data["z_flat_mm"])
+    # Temporal smoothing looks h frames either way: read them too (the sequential pass reads no further).
+    h = settings.temporal_smoothing_frames
+    lo, hi = max(0, first - h), min(len(inputs.source), stop + h)
+    measurements, grids, peaks = [], [], []
+    try:
+        frames = (inputs.source[i] for i in range(lo, hi))
+        located = locate_test_edges(frames, projector)
+        for measurement in track_and_measure(
+            located, projector, inputs.camera_model, settings=settings, first_frame=lo, reference=reference
+        ):
+            if not first <= measurement.frame < stop:
+                continue
+            z_grid = grid_measurement(measurement, projector, grid, max_edge_mm=float(data["max_edge_mm"]))
+            measurements.append(measurement)
+            grids.append(z_grid)
+            peaks.append(list(vars(field_peak(z_grid - z_flat, grid)).values()))
+            context.progress(measurement.frame - first + 1, stop - first, "measuring")
+    finally:
+        inputs.close()
     sizes = [len(m.k) for m in measurements]
+    covered = [m.coverage for m in measurements if m.coverage is not None]
+    if len(covered) != len(measurements):
+        raise RuntimeError("a measurement came without its coverage")
+    coverage = {
+        "visible_area_mm2": [c.visible_area_mm2 for c in covered],
+        "measured_area_mm2": [c.measured_area_mm2 for c in covered],
+        **{f"missing_{name}_mm2": [c.missing_mm2[name] for c in covered] for name in MISSING_REASONS},
+    }
     save_arrays(
-        context, f"chunks/measure-{first:07d}.npz",
+        context, f"chunks/frames-{first:07d}.npz",
         frame=np.array([m.frame for m in measurements], np.int64),
         offsets=np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
         k=np.concatenate([m.k for m in measurements]), line=np.concatenate([m.line for m in measurements]),
         points_obj_mm=np.concatenate([m.points_obj_mm for m in measurements]).reshape(-1, 3),
         edge_noise_px=np.array([m.edge_noise_px for m in measurements], np.float64),
+        z_mm=np.array(grids), peak=np.array(peaks, np.float64),
         sigma_z_mm=np.concatenate([_sigma(m) for m in measurements]),
         **{name: np.array([getattr(m, name) for m in measurements], np.int64) for name in _MEASURE_COUNTS},
+        **{name: np.array(values, np.float64) for name, values in coverage.items()},
     )  # fmt: skip
 
 
-def _load_measurements(context: JobContext, first: int) -> list[Any]:
+def _load_frames(context: JobContext, first: int) -> tuple[list[Any], Any]:
+    from fringelab.science.coverage import MISSING_REASONS, FrameCoverage
     from fringelab.science.topography import FrameMeasurement
 
-    data = load_arrays(context, f"chunks/measure-{first:07d}.npz")
+    data = load_arrays(context, f"chunks/frames-{first:07d}.npz")
     offsets = data["offsets"]
-    return [
+    measurements = [
         FrameMeasurement(
             frame=int(frame),
             k=data["k"][lo:hi],
             line=data["line"][lo:hi],
             points_obj_mm=data["points_obj_mm"][lo:hi],
             edge_noise_px=float(data["edge_noise_px"][i]),
+            coverage=FrameCoverage(
+                visible_area_mm2=float(data["visible_area_mm2"][i]),
+                measured_area_mm2=float(data["measured_area_mm2"][i]),
+                missing_mm2={name: float(data[f"missing_{name}_mm2"][i]) for name in MISSING_REASONS},
+                n_order_conflicts=int(data["n_order_conflicts"][i]),
+            ),
             sigma_z_mm=data["sigma_z_mm"][lo:hi],
             **{name: int(data[name][i]) for name in _MEASURE_COUNTS},
         )  # fmt: skip
         for i, (frame, lo, hi) in enumerate(zip(data["frame"], offsets[:-1], offsets[1:], strict=True))
     ]
-
-
-def topography_track(context: JobContext, ranges: list[tuple[int, int]]) -> Chunked:
-    """Merge of phase 0, in frame order: identity, tracking and 3-D points over the stored edges; the grid comes
-    from the flat first frame. Then the gridding fans out over the frames to write."""
-    from fringelab.formats.edges import read_edges
-    from fringelab.science.topography import clamp_circle, grid_for_first_frame, track_and_measure
-
-    inputs = _topography_inputs(context)
-    inputs.close()  # only its length and path are used from here on
-    wanted, settings, projector = inputs.wanted, inputs.settings, inputs.projector
-    stop = ranges[-1][1]
-
-    def stored_edges() -> Any:
-        for first, chunk_stop in ranges:
-            path = context.directory / f"chunks/edges-{first:07d}.h5"
-            if not path.is_file():
-                raise RuntimeError(f"the located edges of frames {first}..{chunk_stop - 1} are missing")
-            frames, edges = read_edges(path)
-            if list(frames) != list(range(first, chunk_stop)):
-                raise RuntimeError(f"{path.name} holds frames {frames[0]}..{frames[-1]}, not {first}..{chunk_stop - 1}")
-            for done, frame_edges in zip(frames, edges, strict=True):
-                yield frame_edges
-                context.progress(int(done) + 1, stop, "tracking")
-
-    grid_ranges = [(wanted.start + a, wanted.start + b) for a, b in frame_ranges(len(wanted), chunk_frames_of(
-        context.spec, context.settings))]  # fmt: skip
-    pending: list[Any] = []
-    for measurement in track_and_measure(stored_edges(), projector, inputs.camera_model, settings=settings):
-        if measurement.frame == 0:
-            grid, max_edge_mm = grid_for_first_frame(measurement, projector, settings)
-            z = measurement.points_obj_mm[:, 2]
-            z_flat = float(np.median(z))
-            save_arrays(context, "chunks/track.npz", x_mm=grid.x_mm, y_mm=grid.y_mm, max_edge_mm=max_edge_mm,
-                  z_flat_mm=z_flat, flat_rms_mm=float(np.sqrt(np.mean((z - z_flat) ** 2))),
-                  clamp=np.array(clamp_circle(measurement.points_obj_mm[:, :2])),
-                  n_tracks_first_frame=measurement.n_tracks)  # fmt: skip
-        if measurement.frame not in wanted:
-            continue
-        pending.append(measurement)
-        first, chunk_stop = next(r for r in grid_ranges if r[0] <= measurement.frame < r[1])
-        if measurement.frame == chunk_stop - 1:
-            _save_measurements(context, first, pending)
-            pending = []
-    return Chunked(grid_ranges, stage="gridding")
-
-
-def topography_grid(context: JobContext, first: int, stop: int) -> None:
-    """Phase 1, any worker: the deflection grid and peak of frames [first, stop)."""
-    from fringelab.science.fields import Grid, field_peak
-    from fringelab.science.topography import grid_measurement
-
-    inputs = _topography_inputs(context)
-    inputs.close()
-    track = load_arrays(context, "chunks/track.npz")
-    grid, z_flat = Grid(x_mm=track["x_mm"], y_mm=track["y_mm"]), float(track["z_flat_mm"])
-    grids, peaks = [], []
-    for done, measurement in enumerate(_load_measurements(context, first)):
-        z_grid = grid_measurement(measurement, inputs.projector, grid, max_edge_mm=float(track["max_edge_mm"]))
-        grids.append(z_grid)
-        peaks.append(list(vars(field_peak(z_grid - z_flat, grid)).values()))
-        context.progress(done + 1, stop - first, "gridding")
-    save_arrays(context, f"chunks/grid-{first:07d}.npz", z_mm=np.array(grids), peak=np.array(peaks, np.float64))
+    return measurements, data
 
 
 def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict[str, Any]:
-    """Merge of phase 1, in frame order: the result file, as `topography_recording` writes it."""
+    """Merge of phase 0, in frame order: the result file, as `topography_recording` writes it."""
     from dataclasses import fields
 
     from fringelab.formats.recordings import recording_log
@@ -219,7 +226,7 @@ def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict
     log = recording_log(source)  # frames.csv, else the container's own times (a .cine's stamps)
     n_frames, where = len(source), str(source.path)
     inputs.close()
-    track = load_arrays(context, "chunks/track.npz")
+    _, track = _reference(context)
     z_flat, clamp = float(track["z_flat_mm"]), [float(v) for v in track["clamp"]]
     peak_names = [f.name for f in fields(Peak)]
     tally = SummaryTally()
@@ -228,16 +235,18 @@ def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict
             temporary, grid=Grid(x_mm=track["x_mm"], y_mm=track["y_mm"]), max_edge_mm=float(track["max_edge_mm"]),
             z_flat_mm=z_flat, camera_model=inputs.camera_model, projector=projector, settings=inputs.settings,
             where=where, n_frames=n_frames, wanted=wanted, time_source=log.time_source,
+            centre_xy_mm=(clamp[0], clamp[1]),
         )  # fmt: skip
         with writer:
             for first, _stop in ranges:
-                gridded = load_arrays(context, f"chunks/grid-{first:07d}.npz")
-                for i, measurement in enumerate(_load_measurements(context, first)):
+                measurements, gridded = _load_frames(context, first)
+                for i, measurement in enumerate(measurements):
                     peak = Peak(**dict(zip(peak_names, map(float, gridded["peak"][i]), strict=True)))
                     writer.append(measurement, gridded["z_mm"][i], peak, log=log.row(measurement.frame),
                                   camera_frame=int(log.camera_frame[measurement.frame]))  # fmt: skip
-                    tally.add(peak, n_out_of_range=measurement.n_out_of_range)
+                    tally.add(peak, n_out_of_range=measurement.n_out_of_range, measurement=measurement)
                     context.progress(measurement.frame - wanted.start + 1, len(wanted), "writing")
+            tally.require_ordered(where)
             writer.close(tally.attrs(flat_rms_mm=float(track["flat_rms_mm"]),
                                      n_tracks_first_frame=int(track["n_tracks_first_frame"]), clamp=clamp))  # fmt: skip
     with context.output("topography.xdmf", media_type="application/xml") as temporary:

@@ -1,0 +1,419 @@
+"""Fringe order of every edge point of one frame, from the frame itself and the calibration (docs/method.md §5).
+
+Belongs here: the reference that anchors the order (the flat reference frame matched to the projector table, and
+the stationary clamped rim found from it), and `order_frame`, a pure function of one frame's edges and that
+reference which gives every edge point its order k or the reason it has none. No frame depends on the frames
+before it, so frames can be ordered in any order, on any worker, and a frame ordered alone equals the same frame
+ordered within its sequence. Not here: locating edges (`fringes.py`), the table (`projector.py`), Z, X, Y and
+the frame loop (`topography.py`).
+
+Sources of the order, in the order they are trusted:
+1. Relative order: `fringes.order_edges` links the frame's edge curves by counting edges across scan lines
+   (consecutive edges of opposite polarity less than 0.8 period apart are neighbours), which fixes every curve's
+   place within a connected group; the order is constant along each curve.
+2. Anchor: the clamped rim does not move (w = 0), so there an edge point lies within a fraction of a period of
+   where the reference frame had the same edge; each rim point votes for the offset between its group's relative
+   count and that edge's order. A group takes the offset a clear majority of its rim votes agree on.
+3. Bounds: the projector table says over which positions each (edge, line) can lie within the calibrated Z range;
+   a curve whose points lie outside those bounds for the order it was given disagrees with the table.
+4. Consistency: neighbouring edges on a scan line are a fraction of a stripe's Z step apart on a smooth surface;
+   a wrong order shows as a jump of a whole step. A curve whose neighbours mostly disagree with it is masked.
+A group that reaches no rim is not guessed: its points are masked as "order unresolved". Frame-to-frame
+continuity is no source here; `topography.py` may use it as a cross-check.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import MeasurementError
+from .camera import backproject_to_z
+from .fringes import FrameEdges, order_edges
+from .projector import CameraModel, ProjectorCalibration, match_to_reference
+
+# Reasons an edge point of a frame has no order (per point, int8).
+ORDERED = 0
+ORDER_UNRESOLVED = 1  # its group reaches no rim, or the rim votes split: the order cannot be fixed
+ORDER_CONFLICT = 2  # its curve disagrees with its neighbours or with the table: masked, never guessed
+REASON_NAMES = {ORDERED: "ordered", ORDER_UNRESOLVED: "order unresolved", ORDER_CONFLICT: "order conflict"}
+
+
+class ReferenceFrameError(MeasurementError):
+    """The reference frame cannot anchor the fringe order (not flat, not matching the table, rim not visible)."""
+
+
+class ReferenceNotFlatError(ReferenceFrameError):
+    """The reference (first) test frame does not show the flat, undeformed plate the order is anchored on."""
+
+
+class RimNotVisibleError(ReferenceFrameError):
+    """The clamped rim, where w = 0 anchors the order, is not in view."""
+
+
+@dataclass(frozen=True)
+class OrderSettings:
+    """Settings of the per-frame order.
+
+    rim_width_mm: width of the band inside the clamp circle taken as stationary (w ≈ 0). The band must lie where
+        the deflection moves an edge by less than `anchor_tolerance_fraction` of a period: 15 mm keeps a 60 mm
+        membrane deflection under ~2 mm there.
+    rim_circle_mm: (X, Y, radius) of the circle where the plate is clamped, in mm; None finds it from the
+        outermost points of the reference frame (the clamp ring must be in view). Set it when the rim is not
+        visible in the frame, or when a stationary region other than the rim should anchor the order.
+    anchor_tolerance_fraction: a rim point votes for the edge of the reference frame nearest to it of the same
+        polarity when it lies within this fraction of a period of it (the next such edge is a whole period away).
+    min_anchor_points: fewest agreeing rim votes that fix a group's order.
+    min_anchor_agreement: share of a group's rim votes that must agree on one offset.
+    """
+
+    rim_width_mm: float = 15.0
+    rim_circle_mm: tuple[float, float, float] | None = None
+    anchor_tolerance_fraction: float = 0.3
+    min_anchor_points: int = 20
+    min_anchor_agreement: float = 0.8
+
+    def __post_init__(self) -> None:
+        if not self.rim_width_mm > 0:
+            raise ValueError(f"rim_width_mm: expected > 0, got {self.rim_width_mm}")
+        if self.rim_circle_mm is not None and (len(self.rim_circle_mm) != 3 or not self.rim_circle_mm[2] > 0):
+            raise ValueError(f"rim_circle_mm: expected (x_mm, y_mm, radius_mm > 0) or None, got {self.rim_circle_mm}")
+        if not 0 < self.anchor_tolerance_fraction < 0.5:
+            raise ValueError(f"anchor_tolerance_fraction: expected 0 < f < 0.5, got {self.anchor_tolerance_fraction}")
+        if self.min_anchor_points < 1:
+            raise ValueError(f"min_anchor_points: expected ≥ 1, got {self.min_anchor_points}")
+        if not 0.5 < self.min_anchor_agreement <= 1:
+            raise ValueError(f"min_anchor_agreement: expected 0.5 < a ≤ 1, got {self.min_anchor_agreement}")
+
+
+@dataclass(frozen=True, eq=False)
+class OrderReference:
+    """What anchors the order in every frame of a test.
+
+    reference_t_px: (K, S) positions of the table's edges in the reference frame, NaN where not seen.
+    rim: (K, S) bool, the (edge, line) points of the reference frame on the stationary rim band.
+    rim_circle_mm: (X, Y, radius) of the clamp circle used; cell_area_mm2: (K, S) area of the plate each
+        reference point stands for (edge spacing × line spacing at the reference Z), NaN where not seen.
+    """
+
+    reference_t_px: np.ndarray
+    rim: np.ndarray
+    rim_circle_mm: tuple[float, float, float]
+    cell_area_mm2: np.ndarray
+
+    @functools.cached_property
+    def rim_t_px(self) -> np.ndarray:
+        """(K, S) reference positions on the rim band only, NaN elsewhere."""
+        return np.where(self.rim, self.reference_t_px, np.nan)
+
+    @property
+    def visible_area_mm2(self) -> float:
+        """Area of the plate the reference frame sees."""
+        return float(np.nansum(self.cell_area_mm2))
+
+
+@dataclass(frozen=True, eq=False)
+class FrameOrder:
+    """The order of every edge point of one frame.
+
+    k: (N,) int64 order (−1 where none); reason: (N,) int8, ORDERED or why not (ORDER_UNRESOLVED, ORDER_CONFLICT);
+    n_conflicts: number of disagreements found (curves masked for disagreeing with their neighbours or the
+    table, groups whose rim votes split, curves `order_edges` left out).
+    """
+
+    k: np.ndarray
+    reason: np.ndarray
+    n_conflicts: int
+
+
+def identify_reference(edges: FrameEdges, projector: ProjectorCalibration, *, flat_tolerance_mm: float) -> np.ndarray:
+    """Positions (K, S) of the projector's edges in the reference (flat) frame, NaN where not seen.
+
+    Each edge point is matched to the nearest table edge of the same polarity at the reference Z on its line;
+    an edge curve takes the index most of its points agree on (≥ 80 %, else it is left out). Raises
+    ReferenceNotFlatError when the identified points do not lie at the reference Z, ReferenceFrameError when too
+    few are identified.
+    """
+    k_near, distance = match_to_reference(
+        edges.line, edges.t_px, edges.polarity, projector.reference_t_px, projector.polarity,
+        n_samples=edges.n_samples,
+    )  # fmt: skip
+    near = (k_near >= 0) & (np.abs(distance) <= 0.5 * projector.period_px)
+    n_chains = int(edges.chain.max()) + 1 if len(edges) else 0
+    k = np.full(len(edges), -1, np.int64)
+    if n_chains:
+        codes, counts = np.unique(edges.chain[near].astype(np.int64) * (projector.n_edges + 1) + k_near[near],
+                                  return_counts=True)  # fmt: skip
+        chain_of, k_of = codes // (projector.n_edges + 1), codes % (projector.n_edges + 1)
+        best = np.zeros(n_chains, np.int64)
+        best_k = np.full(n_chains, -1, np.int64)
+        order = np.argsort(counts, kind="stable")  # ascending, so the largest count per chain is written last
+        best[chain_of[order]] = counts[order]
+        best_k[chain_of[order]] = k_of[order]
+        length = np.bincount(edges.chain, minlength=n_chains)
+        chain_ok = best >= 0.8 * length
+        k = np.where(chain_ok[edges.chain], best_k[edges.chain], -1)
+    identified = k >= 0
+    if np.count_nonzero(identified) < max(50, 0.3 * len(edges)):
+        raise ReferenceFrameError(
+            f"only {np.count_nonzero(identified)} of {len(edges)} edge points of the reference (first) test frame "
+            "match the projector calibration's edges: the projector, the camera or the plate moved since the "
+            "calibration"
+        )
+    z, status = projector.z_from_t(k[identified], edges.line[identified], edges.t_px[identified])
+    offset = np.abs(z[status == 0] - projector.reference_z_mm)
+    if len(offset) == 0 or np.percentile(offset, 90) > flat_tolerance_mm:
+        p90 = float(np.percentile(offset, 90)) if len(offset) else float("nan")
+        raise ReferenceNotFlatError(
+            f"the reference (first) test frame is not the flat plate at Z = {projector.reference_z_mm:g} mm: 10 % of "
+            f"its edge points are more than {p90:.1f} mm from it (tolerance {flat_tolerance_mm:g} mm); the fringe "
+            "order is anchored on an undeformed reference frame, so start the recording before the punch touches"
+        )
+    positions = np.full((projector.n_edges, projector.n_lines), np.nan)
+    kk, ll = k[identified], edges.line[identified].astype(np.int64)
+    flat = kk * projector.n_lines + ll
+    counts = np.bincount(flat, minlength=positions.size)
+    single = counts[flat] == 1
+    positions.ravel()[flat[single]] = edges.t_px[identified][single]
+    # Without a table entry a point can never give Z.
+    positions[~projector.valid] = np.nan
+    return positions
+
+
+def order_reference(
+    positions: np.ndarray,
+    projector: ProjectorCalibration,
+    camera_model: CameraModel,
+    *,
+    settings: OrderSettings | None = None,
+) -> OrderReference:
+    """The anchor of a test from its identified reference frame (`identify_reference`), shape (K, S).
+
+    Raises RimNotVisibleError when no clamp circle is given and the reference frame's points do not end at a
+    clamp ring inside the image (they run into the image border instead).
+    """
+    settings = OrderSettings() if settings is None else settings
+    kk, ss = np.nonzero(np.isfinite(positions))
+    t = positions[kk, ss]
+    q_px = np.column_stack([t, ss] if projector.axis == "rows" else [ss, t]).astype(np.float64)
+    xy = backproject_to_z(camera_model.camera, q_px, projector.reference_z_mm, inverse=camera_model.inverse)[:, :2]
+    if settings.rim_circle_mm is not None:
+        cx, cy, radius = (float(v) for v in settings.rim_circle_mm)
+    else:
+        _require_rim_in_view(t, ss, projector)
+        cx, cy, radius = clamp_circle(xy)
+        if not np.isfinite(radius):
+            raise RimNotVisibleError(
+                "the clamped rim of the plate could not be found in the reference frame (too few points): set "
+                "rim_circle_mm (X, Y, radius of the clamp in mm) in the topography settings to anchor the order"
+            )
+    r = np.hypot(xy[:, 0] - cx, xy[:, 1] - cy)
+    rim = np.zeros(positions.shape, bool)
+    rim[kk, ss] = (r > radius - settings.rim_width_mm) & (r <= radius + 1.0)
+    if np.count_nonzero(rim) < 10 * settings.min_anchor_points:
+        raise RimNotVisibleError(
+            f"only {np.count_nonzero(rim)} edge points of the reference frame lie on the rim band "
+            f"({settings.rim_width_mm:g} mm inside the clamp circle of radius {radius:.0f} mm): the order cannot be "
+            "anchored; set rim_circle_mm (X, Y, radius of the clamp in mm) or widen rim_width_mm"
+        )
+    area = np.full(positions.shape, np.nan)
+    area[kk, ss] = _cell_area_mm2(positions, kk, ss, xy, projector, camera_model)
+    return OrderReference(reference_t_px=positions, rim=rim, rim_circle_mm=(cx, cy, radius), cell_area_mm2=area)
+
+
+def _require_rim_in_view(t: np.ndarray, line: np.ndarray, projector: ProjectorCalibration) -> None:
+    """RimNotVisibleError when the reference points reach the image border on most lines (no clamp in view)."""
+    if len(t) == 0:
+        raise RimNotVisibleError("the reference frame has no identified edge points")
+    margin = projector.period_px
+    n_samples = projector.image_shape_hw_px[1] if projector.axis == "rows" else projector.image_shape_hw_px[0]
+    lowest = np.full(projector.n_lines, np.inf)
+    highest = np.full(projector.n_lines, -np.inf)
+    np.minimum.at(lowest, line, t)
+    np.maximum.at(highest, line, t)
+    seen = np.isfinite(lowest)
+    at_border = seen & ((lowest < margin) | (highest > n_samples - 1 - margin))
+    if np.count_nonzero(at_border) > 0.5 * np.count_nonzero(seen):
+        raise RimNotVisibleError(
+            f"the plate runs into the image border on {np.count_nonzero(at_border)} of {np.count_nonzero(seen)} scan "
+            "lines of the reference frame, so the clamped rim (w = 0) that anchors the fringe order is not in view: "
+            "frame the camera to show the clamp ring, or set rim_circle_mm (X, Y, radius in mm of a region that "
+            "stays still) in the topography settings"
+        )
+
+
+def _cell_area_mm2(
+    positions: np.ndarray,
+    kk: np.ndarray,
+    ss: np.ndarray,
+    xy: np.ndarray,
+    projector: ProjectorCalibration,
+    camera_model: CameraModel,
+) -> np.ndarray:
+    """Plate area (mm²) each reference point stands for: half the distance to its neighbours along the line on
+    each side, times the line spacing, both at the reference Z (one period's worth at the ends of a run)."""
+    t = positions[kk, ss]
+    n_k = positions.shape[0]
+    before = positions[np.maximum(kk - 1, 0), ss]
+    after = positions[np.minimum(kk + 1, n_k - 1), ss]
+    half = 0.5 * projector.period_px
+    gap_before = np.where(np.isfinite(before) & (kk > 0), t - before, half)
+    gap_after = np.where(np.isfinite(after) & (kk < n_k - 1), after - t, half)
+    along_px = np.clip(0.5 * (np.abs(gap_before) + np.abs(gap_after)), 0.0, projector.period_px)
+    # mm per px along the line and across it, from back-projecting the neighbouring pixel.
+    step = np.array([1.0, 0.0]) if projector.axis == "rows" else np.array([0.0, 1.0])
+    q_px = np.column_stack([t, ss] if projector.axis == "rows" else [ss, t]).astype(np.float64)
+    along = backproject_to_z(camera_model.camera, q_px + step, projector.reference_z_mm, inverse=camera_model.inverse)
+    across = backproject_to_z(
+        camera_model.camera, q_px + step[::-1], projector.reference_z_mm, inverse=camera_model.inverse
+    )
+    mm_along = np.hypot(along[:, 0] - xy[:, 0], along[:, 1] - xy[:, 1])
+    mm_across = np.hypot(across[:, 0] - xy[:, 0], across[:, 1] - xy[:, 1])
+    return along_px * mm_along * mm_across
+
+
+def order_frame(
+    edges: FrameEdges,
+    reference: OrderReference,
+    projector: ProjectorCalibration,
+    *,
+    settings: OrderSettings | None = None,
+) -> FrameOrder:
+    """The order k of every edge point of one frame, or the reason it has none (see the module docstring)."""
+    settings = OrderSettings() if settings is None else settings
+    n = len(edges)
+    k = np.full(n, -1, np.int64)
+    reason = np.full(n, ORDER_UNRESOLVED, np.int8)
+    if n == 0:
+        return FrameOrder(k=k, reason=reason, n_conflicts=0)
+    order = order_edges(edges)
+    relative = order.crossing_index(edges)
+    component = order.component[edges.chain]
+    reason[relative < 0] = ORDER_CONFLICT
+    n_conflicts = int(np.count_nonzero(order.index < 0))
+    # Rim votes: the nearest reference edge of the same polarity on the stationary band, if close. (Edges of one
+    # polarity are a period apart, so a point within a third of a period of a rim edge has no nearer one.)
+    k_near, distance = match_to_reference(
+        edges.line, edges.t_px, edges.polarity, reference.rim_t_px, projector.polarity, n_samples=edges.n_samples
+    )
+    near = (k_near >= 0) & (np.abs(distance) <= settings.anchor_tolerance_fraction * projector.period_px)
+    on_rim = near & (relative >= 0)
+    n_groups = int(order.component.max()) + 1 if np.any(order.component >= 0) else 0
+    if n_groups:
+        offset_votes = k_near[on_rim] - relative[on_rim]
+        lowest = int(offset_votes.min()) if len(offset_votes) else 0
+        span = int(offset_votes.max()) - lowest + 1 if len(offset_votes) else 1
+        codes, counts = np.unique(component[on_rim] * span + (offset_votes - lowest), return_counts=True)
+        group_of, offset_of = codes // span, codes % span + lowest
+        total = np.bincount(group_of, weights=counts, minlength=n_groups)
+        best = np.zeros(n_groups, np.int64)
+        best_offset = np.zeros(n_groups, np.int64)
+        ascending = np.argsort(counts, kind="stable")  # the largest count per group is written last
+        best[group_of[ascending]] = counts[ascending]
+        best_offset[group_of[ascending]] = offset_of[ascending]
+        anchored = (best >= settings.min_anchor_points) & (best >= settings.min_anchor_agreement * total)
+        # A group whose rim votes split (a miscount somewhere in it) is a conflict, not a guess.
+        split = (total >= settings.min_anchor_points) & ~anchored
+        n_conflicts += int(np.count_nonzero(split))
+        inside = relative >= 0
+        take = inside.copy()
+        take[inside] = anchored[component[inside]]
+        k[take] = relative[take] + best_offset[component[take]]
+        reason[take] = ORDERED
+        split_points = inside.copy()
+        split_points[inside] = split[component[inside]]
+        reason[split_points] = ORDER_CONFLICT
+        # An order outside the table or of the wrong polarity is a miscount.
+        in_table = take & (k >= 0) & (k < projector.n_edges)
+        bad = take & ~in_table
+        bad[in_table] = projector.polarity[k[in_table]] != edges.polarity[in_table]
+    else:
+        bad = np.zeros(n, bool)
+    if np.any(bad):
+        bad_chains = np.unique(edges.chain[bad])
+        n_conflicts += len(bad_chains)
+        drop = np.isin(edges.chain, bad_chains)
+        k[drop] = -1
+        reason[drop] = ORDER_CONFLICT
+    masked_chains = _inconsistent_chains(edges, k, projector)
+    if len(masked_chains):
+        n_conflicts += len(masked_chains)
+        drop = np.isin(edges.chain, masked_chains)
+        k[drop] = -1
+        reason[drop] = ORDER_CONFLICT
+    return FrameOrder(k=k, reason=reason, n_conflicts=n_conflicts)
+
+
+def _inconsistent_chains(edges: FrameEdges, k: np.ndarray, projector: ProjectorCalibration) -> np.ndarray:
+    """Curves that disagree with the table or their neighbours (labels, sorted).
+
+    Table: a curve most of whose points lie outside the table's bounds for their order while both neighbouring
+    orders would put them inside disagrees with the table (a curve genuinely beyond the calibrated Z range lies
+    outside for its neighbours' orders too, on one side). Neighbours: consecutive ordered points on a scan line
+    of orders k and k + 1 lie less than half a stripe's Z step apart on a smooth surface; each pair votes for or
+    against both its curves, and a curve with more votes against than for is masked.
+    """
+    ordered = np.flatnonzero(k >= 0)
+    if len(ordered) == 0:
+        return np.zeros(0, np.int64)
+    n_chains = int(edges.chain.max()) + 1
+    chain = edges.chain[ordered].astype(np.int64)
+    line = edges.line[ordered].astype(np.int64)
+    t = edges.t_px[ordered].astype(np.float64)
+    kk = k[ordered]
+    z, status = projector.z_from_t(kk, line, t)
+    outside = np.flatnonzero(status == 1)
+    outside_near = np.zeros(len(ordered), bool)
+    for step in (-2, 2):
+        _, neighbour_status = projector.z_from_t(kk[outside] + step, line[outside], t[outside])
+        outside_near[outside] |= neighbour_status == 0
+    table_against = np.bincount(chain, weights=outside_near.astype(float), minlength=n_chains)
+    length = np.bincount(chain, minlength=n_chains)
+    against_table = table_against > 0.5 * np.maximum(length, 1)
+
+    # Neighbour pairs along scan lines (the edges are sorted by (line, t), so `ordered` is too).
+    pair = (line[1:] == line[:-1]) & (np.abs(kk[1:] - kk[:-1]) == 1) & (status[1:] == 0) & (status[:-1] == 0)
+    first, second = np.flatnonzero(pair), np.flatnonzero(pair) + 1
+    sensitivity = np.abs(projector.sensitivity_px_per_mm[kk[first], line[first]])
+    step_mm = projector.period_px / np.maximum(sensitivity, 1e-6)
+    agree = np.abs(z[second] - z[first]) < 0.5 * step_mm
+    cf, cs = chain[first], chain[second]
+    different = cf != cs
+    votes_for = np.bincount(np.r_[cf[different & agree], cs[different & agree]], minlength=n_chains)
+    votes_against = np.bincount(np.r_[cf[different & ~agree], cs[different & ~agree]], minlength=n_chains)
+    against_neighbours = votes_against > votes_for
+    return np.flatnonzero(against_table | against_neighbours)
+
+
+def clamp_circle(points_xy_mm: np.ndarray, *, n_sectors: int = 72) -> tuple[float, float, float]:
+    """Centre (x, y) and radius (mm) of the circle through the outermost points of the flat first frame.
+
+    The points end where the clamp ring hides the plate; the outermost point of each angular sector around
+    their centroid lies on that circle (a little inside it: edges within half a stripe of the ring are
+    rejected), so a least-squares (Kåsa) circle through them, refitted once without points more than 3 mm off,
+    gives the plate centre from the clamp (docs/method.md §2).
+    """
+    xy = points_xy_mm[np.all(np.isfinite(points_xy_mm), axis=1)]
+    if len(xy) < 3 * n_sectors:
+        return float("nan"), float("nan"), float("nan")
+    centroid = xy.mean(axis=0)
+    rel = xy - centroid
+    angle = np.arctan2(rel[:, 1], rel[:, 0])
+    radius = np.hypot(rel[:, 0], rel[:, 1])
+    sector = np.minimum(((angle + np.pi) / (2 * np.pi) * n_sectors).astype(np.int64), n_sectors - 1)
+    order = np.lexsort((radius, sector))
+    last = np.r_[sector[order][1:] != sector[order][:-1], True]
+    rim = xy[order[last]]
+    keep = np.ones(len(rim), bool)
+    cx = cy = r = float("nan")
+    for _ in range(2):
+        x, y = rim[keep, 0], rim[keep, 1]
+        design = np.column_stack([2 * x, 2 * y, np.ones(len(x))])
+        (cx, cy, c), *_ = np.linalg.lstsq(design, x * x + y * y, rcond=None)
+        r = float(np.sqrt(c + cx * cx + cy * cy))
+        keep = np.abs(np.hypot(rim[:, 0] - cx, rim[:, 1] - cy) - r) < 3.0
+        if np.count_nonzero(keep) < 8:
+            break
+    return float(cx), float(cy), r

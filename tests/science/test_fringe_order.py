@@ -1,0 +1,269 @@
+"""Fringe order found in every frame on its own (docs/method.md §5), on hard virtual tests at 512 × 480 (kodak).
+
+- fast: ~5 mm more deflection per frame (edges jump up to ~3 px, more than the old tracking followed near the
+  punch), then an 18 mm hole and 6 mm of springback within one frame;
+- petals: the same with four radial cracks 15 … 35 mm long and petals lifted by −3 … +5 mm, so w jumps across
+  each crack;
+- hard: petals, highlight and the punch's shadow at once.
+Rendered with one sample per pixel (the stripes' blur and pixel integration are analytic), 16 frames each, the
+projector calibration shared (it sees only the flat plate).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+import pytest
+
+from fringelab.science.fields import grid_covering
+from fringelab.science.fringes import FrameEdges
+from fringelab.science.order import OrderSettings, RimNotVisibleError
+from fringelab.science.projector import (
+    ExactCamera,
+    ProjectorCalibration,
+    build_projector_calibration,
+    exact_camera_model,
+)
+from fringelab.science.simulate import (
+    FringeRenderer,
+    Imaging,
+    Preset,
+    PunchTimeline,
+    preset,
+    scenario,
+    true_deflection_mm,
+)
+from fringelab.science.topography import (
+    FrameMeasurement,
+    TopographySettings,
+    grid_measurement,
+    locate_test_edges,
+    measure_frame,
+    reference_for,
+    track_and_measure,
+)
+
+N_FRAMES = 16
+RMS_LIMIT_MM = 0.05  # docs/method.md §7 asks 0.10 over the deforming plate; the issue keeps today's 0.05 at 512 × 480
+EXCLUDED_MM = 15.0
+
+
+@dataclass(frozen=True, eq=False)
+class Case:
+    preset: Preset
+    camera: ExactCamera
+    projector: ProjectorCalibration
+    timeline: PunchTimeline
+    frames: list[np.ndarray]
+    edges: list[FrameEdges]
+    measurements: list[FrameMeasurement]
+
+
+@pytest.fixture(scope="module")
+def calibration() -> tuple[ExactCamera, ProjectorCalibration]:
+    setup = preset("kodak", imaging=Imaging(supersample=1))
+    renderer = FringeRenderer(setup)
+    rng = np.random.default_rng(31)
+    z_mm = np.arange(0.0, 80.0 + 1e-9, 2.0)
+    camera = exact_camera_model(setup.camera)
+    return camera, build_projector_calibration([renderer.render_flat(z, rng=rng) for z in z_mm], z_mm, camera)
+
+
+def render_case(name: str, calibration: tuple[ExactCamera, ProjectorCalibration], seed: int) -> Case:
+    camera, projector = calibration
+    setup, timeline = scenario(name, preset("kodak", imaging=Imaging(supersample=1)), N_FRAMES)
+    renderer = FringeRenderer(setup)
+    rng = np.random.default_rng(seed)
+    frames = [renderer.render_test(state, rng=rng) for state in timeline.states]
+    edges = list(locate_test_edges(frames, projector))
+    measurements = list(track_and_measure(edges, projector, camera))
+    return Case(setup, camera, projector, timeline, frames, edges, measurements)
+
+
+@pytest.fixture(scope="module")
+def fast(calibration) -> Case:
+    return render_case("fast", calibration, seed=32)
+
+
+@pytest.fixture(scope="module")
+def petals(calibration) -> Case:
+    return render_case("petals", calibration, seed=33)
+
+
+def stripe_z_step_mm(projector: ProjectorCalibration) -> float:
+    """How far in Z a wrong order puts a point: one period over the edge's sensitivity (the smallest step)."""
+    return float(projector.period_px / np.nanpercentile(np.abs(projector.sensitivity_px_per_mm), 95))
+
+
+def errors(case: Case, measurement: FrameMeasurement) -> tuple[np.ndarray, np.ndarray]:
+    """w error of every point and the radius of the point from the punch axis."""
+    scene, state = case.preset.scene, case.timeline.states[measurement.frame]
+    p = measurement.points_obj_mm
+    return p[:, 2] - true_deflection_mm(scene, state, p[:, 0], p[:, 1]), scene.radius_mm(p[:, 0], p[:, 1])
+
+
+def test_fast_motion_and_springback_keep_the_surface(fast: Case) -> None:
+    scene, projector = fast.preset.scene, fast.projector
+    perforation = fast.timeline.perforation_frame
+    hole_radius = fast.timeline.states[perforation].hole_radius_mm
+    assert hole_radius == 9.0 and fast.timeline.states[perforation].w0_mm == 54.0  # 18 mm hole, 6 mm springback
+    # The measured area, on a 2 mm grid outside the hole and a 15 mm margin and inside the clamp.
+    grid = grid_covering(fast.measurements[0].points_obj_mm[:, :2], step_mm=2.0, margin_mm=4.0)
+    gx, gy = np.meshgrid(grid.x_mm, grid.y_mm)
+    r = scene.radius_mm(gx, gy)
+    region = (r > hole_radius + EXCLUDED_MM) & (r < scene.clamp_radius_mm - EXCLUDED_MM)
+
+    def measured_nodes(frame: int) -> int:
+        z = grid_measurement(fast.measurements[frame], projector, grid, max_edge_mm=21.0)
+        return int(np.count_nonzero(np.isfinite(z[region])))
+
+    before = measured_nodes(perforation - 1)
+    assert before > 0.95 * region.sum()
+    for frame in range(perforation, N_FRAMES):
+        assert measured_nodes(frame) >= 0.95 * before, f"frame {frame}: the measured area fell"
+    step = stripe_z_step_mm(projector)
+    for measurement in fast.measurements:
+        error, radius = errors(fast, measurement)
+        state = fast.timeline.states[measurement.frame]
+        # No wrong order anywhere: a wrong order is off by a whole stripe's Z step (~17 mm here).
+        assert np.all(np.abs(error[np.isfinite(error)]) < 0.25 * step), f"frame {measurement.frame}"
+        inside = (radius > max(scene.punch_radius_mm, state.hole_radius_mm) + EXCLUDED_MM) & (
+            radius < scene.clamp_radius_mm - EXCLUDED_MM
+        )
+        rms = float(np.sqrt(np.mean(error[inside] ** 2)))
+        assert rms <= RMS_LIMIT_MM, f"frame {measurement.frame}: RMS {rms:.4f} mm"
+        assert measurement.n_order_unresolved == 0 and measurement.n_order_conflicts == 0
+
+
+def test_a_frame_measured_alone_equals_the_same_frame_in_the_sequence(fast: Case) -> None:
+    reference = reference_for(fast.edges[0], fast.projector, fast.camera, TopographySettings())
+    for frame in (fast.timeline.perforation_frame, 7):
+        alone = measure_frame(fast.edges[frame], reference, fast.projector, fast.camera, frame=frame)
+        within = fast.measurements[frame]
+        np.testing.assert_array_equal(alone.k, within.k)
+        np.testing.assert_array_equal(alone.line, within.line)
+        np.testing.assert_array_equal(alone.points_obj_mm, within.points_obj_mm)
+    # And a sequence that starts after the first frame, given the reference, gives the same frames.
+    late = list(track_and_measure(fast.edges[10:], fast.projector, fast.camera, first_frame=10, reference=reference))
+    for measurement in late:
+        np.testing.assert_array_equal(measurement.points_obj_mm, fast.measurements[measurement.frame].points_obj_mm)
+
+
+def test_no_point_bridges_a_crack_and_both_sides_keep_their_order(petals: Case) -> None:
+    scene = petals.preset.scene
+    step = stripe_z_step_mm(petals.projector)
+    perforated = range(petals.timeline.perforation_frame, N_FRAMES)
+    for frame in perforated:
+        measurement, state = petals.measurements[frame], petals.timeline.states[frame]
+        p = measurement.points_obj_mm
+        error, radius = errors(petals, measurement)
+        # Nothing inside a crack or the hole (the truth there is NaN). 0.5 mm of X, Y error allowed at the rims,
+        # and 2 mm at a crack's tip, where it narrows to nothing within the blur of a pixel (~1 mm here).
+        near = scene.in_crack(p[:, 0], p[:, 1], state)
+        narrower = replace(scene, crack_width_mm=scene.crack_width_mm - 1.0)
+        shorter = replace(state, crack_length_mm=state.crack_length_mm - 2.0)
+        inside = narrower.in_crack(p[:, 0], p[:, 1], shorter)
+        assert np.count_nonzero(inside) == 0, f"frame {frame}: points in a crack"
+        assert np.count_nonzero(radius < state.hole_radius_mm - 0.5) == 0
+        finite = np.isfinite(error)
+        assert np.all(np.abs(error[finite]) < 0.25 * step), f"frame {frame}: a wrong order"
+        # Both sides of every crack are measured, each at its own height: points near the cracks on every petal,
+        # whose w differs from petal to petal by up to 8 mm at the hole's rim.
+        petal = scene.petal_index(p[:, 0], p[:, 1])
+        reach = state.hole_radius_mm + state.crack_length_mm + 10.0
+        beside = finite & ~near & (radius > state.hole_radius_mm + 3.0) & (radius < reach)
+        for index in range(scene.crack_count):
+            on_petal = beside & (petal == index)
+            assert np.count_nonzero(on_petal) > 20, f"frame {frame}: petal {index} not measured"
+            # Within 15 mm of the punch the surface is steep and the grid of edges coarse for it: 0.5 mm median
+            # error there, far below the ~17 mm of an order error or the petals' own offsets.
+            assert np.median(np.abs(error[on_petal])) < 0.5, f"frame {frame}: petal {index}"
+
+
+def test_hard_case_masks_rather_than_guesses(calibration) -> None:
+    case = render_case("hard", calibration, seed=34)
+    step = stripe_z_step_mm(case.projector)
+    for measurement in case.measurements:
+        error, _ = errors(case, measurement)
+        assert np.all(np.abs(error[np.isfinite(error)]) < 0.25 * step), f"frame {measurement.frame}"
+    last = case.measurements[-1]
+    assert len(last.k) > 0.9 * len(case.measurements[0].k)
+
+
+def test_stripes_that_cannot_be_ordered_are_masked_with_the_reason(fast: Case) -> None:
+    # Frames whose rim is hidden (a dark ring over the outer 60 mm of the plate): no anchor, nothing measured.
+    camera = fast.camera.camera
+    from fringelab.science.camera import project_points
+
+    scene = fast.preset.scene
+    centre = project_points(camera, np.array([[*scene.centre_xy_mm, 0.0]]))[0]
+    edge = project_points(camera, np.array([[scene.centre_xy_mm[0] + 190.0, scene.centre_xy_mm[1], 0.0]]))[0]
+    v, u = np.mgrid[0:480, 0:512]
+    hidden = np.hypot(u - centre[0], v - centre[1]) > np.hypot(*(edge - centre))
+    frame = fast.frames[8].copy()
+    frame[hidden] = 5
+    edges = next(iter(locate_test_edges([frame], fast.projector)))
+    reference = reference_for(fast.edges[0], fast.projector, fast.camera, TopographySettings())
+    measurement = measure_frame(edges, reference, fast.projector, fast.camera, frame=8)
+    assert len(measurement.k) == 0
+    assert measurement.n_order_unresolved > 10_000
+    assert measurement.n_unmatched == len(edges)
+
+
+def test_a_rim_out_of_view_is_refused_with_how_to_set_the_anchor(fast: Case) -> None:
+    # A camera zoomed in on the middle of the plate (focal length 34 mm instead of 17): no clamp ring in view.
+    setup = preset("kodak", imaging=Imaging(supersample=1))
+    setup = replace(setup, camera=replace(setup.camera, f_mm=34.0))
+    renderer = FringeRenderer(setup)
+    rng = np.random.default_rng(35)
+    z_mm = np.arange(0.0, 20.0 + 1e-9, 2.0)
+    camera = exact_camera_model(setup.camera)
+    projector = build_projector_calibration([renderer.render_flat(z, rng=rng) for z in z_mm], z_mm, camera)
+    flat = renderer.render_test(fast.timeline.states[0], rng=rng)
+    edges = next(iter(locate_test_edges([flat], projector)))
+    settings = TopographySettings()
+    with pytest.raises(RimNotVisibleError, match="rim_circle_mm"):
+        reference_for(edges, projector, camera, settings)
+    # Naming a region that stays still (here: the outer part of what is in view) anchors the order again.
+    scene = setup.scene
+    named = replace(settings, order=OrderSettings(rim_circle_mm=(*scene.centre_xy_mm, 130.0), rim_width_mm=30.0))
+    reference = reference_for(edges, projector, camera, named)
+    assert np.count_nonzero(reference.rim) > 1000
+
+
+def test_the_result_file_says_what_is_missing_and_refuses_a_recording_ordered_nowhere(fast: Case, tmp_path) -> None:
+    from fringelab.formats.topography import TopographyResult
+    from fringelab.pipelines.topography import topography_recording
+    from fringelab.science.topography import TopographyError
+
+    from .structured_light.conftest import MemorySource
+
+    perforation = fast.timeline.perforation_frame
+    frames = fast.frames[perforation - 2 : perforation + 2]
+    source = MemorySource([fast.frames[0], *frames], {})
+    summary = topography_recording(source, fast.camera, fast.projector, out_path=tmp_path / "r.h5")
+    with TopographyResult(summary.path) as result:
+        coverage = result.coverage()
+    fraction = coverage["measured_fraction"]
+    assert fraction[0] > 0.99 and np.all(fraction > 0.95)
+    # Before the hole nothing is dark; after it the hole (and the rejected band around it) is, by its reason.
+    hole = coverage["missing_hole_mm2"]
+    assert hole[3] > 300.0 > hole[2]  # the 18 mm hole is 254 mm², its rim loses half a stripe more
+    assert np.all(coverage["missing_order_unresolved_mm2"] == 0) and np.all(coverage["n_order_conflicts"] == 0)
+    total = coverage["measured_area_mm2"] + sum(coverage[k] for k in coverage if k.startswith("missing_"))
+    np.testing.assert_allclose(total, coverage["visible_area_mm2"], rtol=1e-9)  # every bit of the plate accounted
+
+    # The rim hidden in every frame after the first: the order is anchored nowhere, so nothing is written.
+    camera, scene = fast.camera.camera, fast.preset.scene
+    from fringelab.science.camera import project_points
+
+    centre = project_points(camera, np.array([[*scene.centre_xy_mm, 0.0]]))[0]
+    v, u = np.mgrid[0:480, 0:512]
+    hidden = np.hypot(u - centre[0], v - centre[1]) > 150.0
+    dimmed = [np.where(hidden, 5, frame).astype(np.uint8) for frame in frames]
+    with pytest.raises(TopographyError, match="could not be ordered in any frame"):
+        topography_recording(
+            MemorySource([fast.frames[0], *dimmed], {}), fast.camera, fast.projector, out_path=tmp_path / "x.h5"
+        )
+    assert not (tmp_path / "x.h5").exists()
