@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import lzma
 import os
-import struct
 import threading
 import zipfile
 import zlib
@@ -32,11 +31,16 @@ from fringelab.formats.containers import (
     CorruptRecording,
     UnsupportedRecording,
     ZipLimits,
+    check_video_container,
+    declared_image_size,
     inspect_zip,
     is_junk_entry,
     read_cine_header,
+    read_tiff_layout,
     sniff_format,
 )
+from fringelab.formats.sidecars import check_sidecar_size, read_sidecar_file
+from fringelab.formats.sidecars import sidecar_text as decode_sidecar
 from fringelab.science import natural_key
 
 if TYPE_CHECKING:
@@ -51,7 +55,6 @@ __all__ = [
     "write_frame_folder",
 ]
 
-MAX_SIDECAR_BYTES = 16 << 20
 MAX_FRAME_PIXELS = 1 << 27  # 134 Mpx; a high-speed camera frame is a few Mpx
 
 
@@ -81,24 +84,6 @@ def _looks_truncated(data: bytes, name: str) -> bool:
     return False
 
 
-def _declared_size(data: bytes) -> tuple[int, int] | None:
-    """(width, height) an image header declares, for PNG, BMP and JPEG; None when not found."""
-    if data.startswith(b"\x89PNG") and len(data) >= 24:
-        return struct.unpack(">II", data[16:24])
-    if data.startswith(b"BM") and len(data) >= 26:
-        width, height = struct.unpack("<ii", data[18:26])
-        return abs(width), abs(height)
-    if data.startswith(b"\xff\xd8"):
-        position = 2
-        while position + 9 <= len(data) and data[position] == 0xFF:
-            marker, length = data[position + 1], struct.unpack(">H", data[position + 2 : position + 4])[0]
-            if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):  # start of frame
-                height, width = struct.unpack(">HH", data[position + 5 : position + 9])
-                return width, height
-            position += 2 + length
-    return None
-
-
 def _check_pixels(width: int, height: int, *, name: str) -> None:
     if width * height > MAX_FRAME_PIXELS:
         raise ValueError(
@@ -109,7 +94,7 @@ def _check_pixels(width: int, height: int, *, name: str) -> None:
 def _decode(data: bytes, *, name: str) -> tuple[np.ndarray, bool]:
     if _looks_truncated(data, name):
         raise ValueError(f"{name}: the image is truncated")
-    declared = _declared_size(data)
+    declared = declared_image_size(data)
     if declared is not None:
         _check_pixels(*declared, name=name)  # a small file can declare a huge image: refuse before decoding
     image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)
@@ -178,7 +163,7 @@ class FrameSource(Sequence[np.ndarray]):
         """
         beside = self.path.parent / name
         if beside.is_file():
-            return _read_text_file(beside)
+            return read_sidecar_file(beside)
         return None
 
     def close(self) -> None:
@@ -192,15 +177,6 @@ class FrameSource(Sequence[np.ndarray]):
 
     def __repr__(self) -> str:
         return f"<{type(self).__name__} {self.format} {self.path.name}: {len(self)} frames>"
-
-
-def _read_text_file(path: Path) -> str:
-    if path.stat().st_size > MAX_SIDECAR_BYTES:
-        raise ValueError(f"{path.name}: larger than {MAX_SIDECAR_BYTES} bytes; not a sidecar")
-    try:
-        return path.read_text(encoding="utf-8-sig")
-    except UnicodeDecodeError:
-        raise ValueError(f"{path.name}: not UTF-8 text") from None
 
 
 class ImageFolder(FrameSource):
@@ -217,7 +193,7 @@ class ImageFolder(FrameSource):
 
     def sidecar_text(self, name: str) -> str | None:
         candidate = self.path / name
-        return _read_text_file(candidate) if candidate.is_file() else None
+        return read_sidecar_file(candidate) if candidate.is_file() else None
 
 
 class ImageZip(FrameSource):
@@ -251,12 +227,11 @@ class ImageZip(FrameSource):
         beside = super().sidecar_text(name)
         if beside is not None or name not in self._sidecar_names:
             return beside
+        entry = self._sidecar_names[name]
         with self._lock:
-            data = self.read_bytes(self._sidecar_names[name])
-        try:
-            return data.decode("utf-8-sig")
-        except UnicodeDecodeError:
-            raise ValueError(f"{name}: not UTF-8 text") from None
+            check_sidecar_size(self._open().getinfo(entry).file_size, name=name)  # before inflating a byte
+            data = self.read_bytes(entry)
+        return decode_sidecar(data, name=name)
 
     def close(self) -> None:
         if self._archive is not None:
@@ -272,6 +247,7 @@ class TiffStack(FrameSource):
     def __init__(self, path: Path):
         import tifffile
 
+        layout = read_tiff_layout(path)  # a truncated stack is refused here, not read as its first pages
         try:
             self._tiff = tifffile.TiffFile(path)
             pages = self._tiff.pages
@@ -279,8 +255,10 @@ class TiffStack(FrameSource):
             first = pages.first
         except (tifffile.TiffFileError, ValueError, OSError, IndexError) as error:
             raise CorruptRecording(f"{path.name}: not a readable TIFF ({error})") from None
-        if count == 0:
-            raise CorruptRecording(f"{path.name}: the TIFF has no pages")
+        if count != layout.frame_count:
+            raise CorruptRecording(
+                f"{path.name}: {count} pages readable of the {layout.frame_count} its page chain holds (damaged)"
+            )
         super().__init__(path, [f"page {i}" for i in range(count)], bit_depth=16 if first.bitspersample > 8 else 8)
 
     def _read(self, index: int) -> tuple[np.ndarray, bool]:
@@ -316,6 +294,7 @@ class VideoFrames(FrameSource):
 
     def __init__(self, path: Path, format: str):
         self.format = format
+        check_video_container(path, format)  # a video cut short decodes up to the cut; its container shows it
         self._capture = cv2.VideoCapture(str(path))
         if not self._capture.isOpened():
             raise CorruptRecording(f"{path.name}: OpenCV cannot open this {format.upper()} video (codec or damage)")
