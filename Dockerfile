@@ -5,6 +5,7 @@ ENV PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1 PIP_NO_CACHE_DIR=1
 RUN useradd --create-home --uid 1000 fringelab
 WORKDIR /app
 COPY pyproject.toml README.md ./
+COPY fringelab ./fringelab
 COPY backend ./backend
 COPY worker ./worker
 COPY frontend ./frontend

@@ -1,8 +1,6 @@
-"""fringelab's web side: FastAPI app, CLI, settings, database. Imports no Celery task code and no OpenCV."""
+"""The API: FastAPI app (routes over core services), its CLI and the serving of the dashboard. Imports no Celery task
+code and no OpenCV (tests/test_layers.py)."""
 
-from importlib.metadata import PackageNotFoundError, version
+from fringelab import __version__
 
-try:
-    __version__ = version("fringelab")
-except PackageNotFoundError:  # running from a source tree that was never installed
-    __version__ = "0.0.0+unknown"
+__all__ = ["__version__"]

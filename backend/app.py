@@ -5,20 +5,19 @@ from __future__ import annotations
 from contextlib import asynccontextmanager
 
 import anyio
-from fastapi import FastAPI, Request
-from fastapi.responses import JSONResponse
+from fastapi import FastAPI
 
 from backend import __version__
 from backend.api import auth, demo, experiments, health, jobs, recordings, results, uploads
-from backend.db import make_engine, make_sessionmaker
 from backend.errors import install_error_handlers
 from backend.frontend import mount_frontend
-from backend.jobs import JobError, reconcile_periodically, reconcile_quietly
 from backend.limits import BodySizeLimit
 from backend.openapi import install_openapi
-from backend.settings import Settings
-from backend.state import AppState
-from worker.celery_app import create_celery
+from fringelab.core.db import make_engine, make_sessionmaker
+from fringelab.core.jobs import reconcile_periodically, reconcile_quietly
+from fringelab.core.queue import create_celery
+from fringelab.core.settings import Settings
+from fringelab.core.state import AppState
 
 UPLOAD_PREFIXES = ("/api/v1/uploads",)
 
@@ -59,10 +58,6 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(jobs.router, prefix="/api/v1")
     app.include_router(results.router, prefix="/api/v1")
     app.include_router(demo.router, prefix="/api/v1")
-
-    @app.exception_handler(JobError)
-    async def _job_error(_request: Request, error: JobError) -> JSONResponse:  # an ApiError that names the field
-        return JSONResponse({"detail": error.detail, "code": error.code, "field": error.field}, error.status_code)
 
     install_openapi(app)
     mount_frontend(app)  # last: it serves every path the API does not

@@ -9,11 +9,12 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import subprocess
 import sys
 from collections.abc import Sequence
 
 from backend import __version__
-from backend.settings import Settings, SettingsError, load_settings
+from fringelab.core.settings import Settings, SettingsError, load_settings
 
 EXPECTED_ERRORS: tuple[type[Exception], ...] = (SettingsError,)
 
@@ -29,7 +30,7 @@ def cmd_version(_args: argparse.Namespace) -> int:
 
 
 def cmd_db_upgrade(_args: argparse.Namespace) -> int:
-    from backend.db import upgrade_database
+    from fringelab.core.db import upgrade_database
 
     settings = load_settings()
     upgrade_database(settings.resolved_database_url)
@@ -41,8 +42,8 @@ def cmd_api(_args: argparse.Namespace) -> int:
     import uvicorn
 
     from backend.app import create_app, uvicorn_options
-    from backend.db import upgrade_database
-    from backend.services import check_port_free, check_redis
+    from fringelab.core.db import upgrade_database
+    from fringelab.core.services import check_port_free, check_redis
 
     settings = load_settings()
     require_safe_binding(settings)
@@ -55,25 +56,16 @@ def cmd_api(_args: argparse.Namespace) -> int:
 
 
 def cmd_worker(_args: argparse.Namespace) -> int:
-    from backend.services import check_redis
-    from worker.celery_app import create_celery
+    """The worker is its own application (`python -m worker`): this process becomes it, so signals reach it."""
+    from fringelab.core.services import check_redis
 
     settings = load_settings()
     _require_redis_url(settings)
     check_redis(settings.redis_url)
-    app = create_celery(settings)
-    app.worker_main(
-        [
-            "worker",
-            "--pool=prefork",
-            f"--concurrency={settings.resolved_worker_concurrency}",
-            f"--loglevel={settings.log_level.upper()}",
-            f"--hostname=fringelab-{os.getpid()}@%h",
-            "--without-mingle",
-            "--without-gossip",
-        ]
-    )
-    return 0
+    command = [sys.executable, "-m", "worker"]
+    if os.name == "posix":
+        os.execv(sys.executable, command)
+    return subprocess.call(command)
 
 
 def cmd_health(args: argparse.Namespace) -> int:
@@ -87,9 +79,9 @@ def cmd_health(args: argparse.Namespace) -> int:
         print(response.text)
         return 0 if response.status_code == 200 else 1
 
-    from backend.db import make_engine
     from backend.health import system_health
-    from worker.celery_app import create_celery
+    from fringelab.core.db import make_engine
+    from fringelab.core.queue import create_celery
 
     settings = load_settings()
     _require_redis_url(settings)
@@ -114,7 +106,7 @@ def cmd_up(_args: argparse.Namespace) -> int:
 
 
 def require_safe_binding(settings: Settings) -> None:
-    from backend.services import ServiceError
+    from fringelab.core.services import ServiceError
 
     if not settings.auth_enabled and not settings.binds_loopback_only:
         raise ServiceError(
@@ -129,9 +121,9 @@ def cmd_user(args: argparse.Namespace) -> int:
 
     from sqlalchemy import select
 
-    from backend.auth import create_user
-    from backend.db import make_engine, make_sessionmaker, upgrade_database
-    from backend.models import User
+    from fringelab.core.accounts import create_user
+    from fringelab.core.db import make_engine, make_sessionmaker, upgrade_database
+    from fringelab.core.models import User
 
     settings = load_settings()
     upgrade_database(settings.resolved_database_url)
@@ -163,9 +155,9 @@ def cmd_token_create(args: argparse.Namespace) -> int:
 
     from sqlalchemy import select
 
-    from backend.auth import issue_token
-    from backend.db import make_engine, make_sessionmaker, upgrade_database
-    from backend.models import User
+    from fringelab.core.accounts import issue_token
+    from fringelab.core.db import make_engine, make_sessionmaker, upgrade_database
+    from fringelab.core.models import User
 
     settings = load_settings()
     upgrade_database(settings.resolved_database_url)
@@ -182,7 +174,7 @@ def cmd_token_create(args: argparse.Namespace) -> int:
 
 
 def _require_redis_url(settings: Settings) -> None:
-    from backend.services import ServiceError
+    from fringelab.core.services import ServiceError
 
     if not settings.redis_url:
         raise ServiceError("FRINGELAB_REDIS_URL is empty; set it, or run `fringelab up` to start Redis too")
@@ -245,8 +237,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from backend.db import DatabaseError
-    from backend.services import ServiceError
+    from fringelab.core.db import DatabaseError
+    from fringelab.core.services import ServiceError
 
     args = build_parser().parse_args(argv)
     try:

@@ -1,4 +1,5 @@
-"""Domain errors of the API and their JSON form `{"detail": ..., "code": ...}`; never a bare 500."""
+"""HTTP answers of errors: domain errors (`fringelab.core.errors`) to statuses and `{"detail", "code"}`; never a
+bare 500."""
 
 from __future__ import annotations
 
@@ -10,6 +11,20 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel
 from starlette.exceptions import HTTPException
 
+from fringelab.core.errors import (
+    Conflict,
+    DomainError,
+    Forbidden,
+    Gone,
+    Invalid,
+    NotFound,
+    RateLimited,
+    TooLarge,
+    Unauthorized,
+    Unavailable,
+    UnsupportedFormat,
+)
+
 log = logging.getLogger(__name__)
 
 
@@ -18,55 +33,42 @@ class ErrorBody(BaseModel):
     code: str
 
 
-class ApiError(Exception):
-    status_code = 400
-    code = "bad_request"
-
-    def __init__(self, detail: str, *, code: str | None = None, headers: dict[str, str] | None = None) -> None:
-        super().__init__(detail)
-        self.detail = detail
-        self.code = code or self.code
-        self.headers = headers
-
-
-class NotFound(ApiError):
-    status_code, code = 404, "not_found"
-
-
-class Conflict(ApiError):
-    status_code, code = 409, "conflict"
+# The one place where domain errors become HTTP statuses (the most specific class wins).
+HTTP_STATUS: dict[type[DomainError], int] = {
+    Unauthorized: 401,
+    Forbidden: 403,
+    NotFound: 404,
+    Conflict: 409,
+    Gone: 410,
+    TooLarge: 413,
+    UnsupportedFormat: 415,
+    Invalid: 422,
+    RateLimited: 429,
+    Unavailable: 503,
+    DomainError: 400,
+}
 
 
-class Unauthorized(ApiError):
-    status_code, code = 401, "unauthorized"
+def http_status(error: DomainError) -> int:
+    if isinstance(error, HTTPException):  # a domain error carried through a library that only passes these on
+        return error.status_code
+    return next(HTTP_STATUS[cls] for cls in type(error).__mro__ if cls in HTTP_STATUS)
 
 
-class Forbidden(ApiError):
-    status_code, code = 403, "forbidden"
+def error_headers(error: DomainError) -> dict[str, str] | None:
+    if isinstance(error, Unauthorized):
+        return {"WWW-Authenticate": "Bearer"}
+    if error.retry_after_s is not None:
+        return {"Retry-After": str(max(1, round(error.retry_after_s)))}
+    return None
 
 
-class Gone(ApiError):
-    status_code, code = 410, "gone"
-
-
-class PayloadTooLarge(ApiError):
-    status_code, code = 413, "payload_too_large"
-
-
-class UnsupportedMediaType(ApiError):
-    status_code, code = 415, "unsupported_media_type"
-
-
-class UnprocessableContent(ApiError):
-    status_code, code = 422, "unprocessable"
-
-
-class TooManyRequests(ApiError):
-    status_code, code = 429, "too_many_requests"
-
-
-class ServiceUnavailable(ApiError):
-    status_code, code = 503, "service_unavailable"
+def error_json(error: DomainError) -> JSONResponse:
+    """`{"detail", "code"}` (and `field` where the error names one) with the error's status."""
+    body: dict[str, str | None] = {"detail": error.detail, "code": error.code}
+    if error.names_field:
+        body["field"] = error.field
+    return JSONResponse(body, status_code=http_status(error), headers=error_headers(error))
 
 
 # Codes of HTTPExceptions raised by FastAPI, Starlette and tuspyserver (tus protocol errors).
@@ -89,11 +91,9 @@ def error_responses(*codes: int) -> dict[int | str, dict[str, object]]:
 
 
 def install_error_handlers(app: FastAPI) -> None:
-    @app.exception_handler(ApiError)
-    async def _api_error(_request: Request, error: ApiError) -> JSONResponse:
-        return JSONResponse(
-            {"detail": error.detail, "code": error.code}, status_code=error.status_code, headers=error.headers
-        )
+    @app.exception_handler(DomainError)
+    async def _domain_error(_request: Request, error: DomainError) -> JSONResponse:
+        return error_json(error)
 
     @app.exception_handler(HTTPException)
     async def _http_error(_request: Request, error: HTTPException) -> JSONResponse:

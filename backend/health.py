@@ -8,7 +8,7 @@ from pydantic import BaseModel
 from sqlalchemy import Engine
 
 from backend import __version__
-from backend.db import DatabaseError, check_database
+from fringelab.core.db import DatabaseError, check_database
 
 
 class PartHealth(BaseModel):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from backend.errors import PayloadTooLarge
+from fringelab.core.errors import TooLarge
 
 
 class BodySizeLimit:
@@ -28,7 +28,7 @@ class BodySizeLimit:
             message = await receive()
             received += len(message.get("body", b""))
             if received > self.max_bytes:
-                raise PayloadTooLarge(self._message())
+                raise TooLarge(self._message())
             return message
 
         await self.app(scope, counting_receive, send)

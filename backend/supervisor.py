@@ -23,9 +23,9 @@ from typing import IO
 
 import httpx
 
-from backend.db import upgrade_database
-from backend.services import ServiceError, check_port_free, check_redis, free_port
-from backend.settings import Settings
+from fringelab.core.db import upgrade_database
+from fringelab.core.services import ServiceError, check_port_free, check_redis, free_port
+from fringelab.core.settings import Settings
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 STARTUP_TIMEOUT_S = 120.0

@@ -36,13 +36,14 @@ from tuspyserver.lock import acquire_upload_lock
 from tuspyserver.storage import TusStorage
 
 from backend.api.deps import CurrentUser
-from backend.auth import Principal
-from backend.errors import ApiError, Conflict, Gone, NotFound, PayloadTooLarge, UnprocessableContent
-from backend.recordings import check_upload_request, recording_of_upload, register_upload
-from backend.schemas.recordings import RecordingOut
-from backend.settings import Settings
-from backend.state import AppState
-from backend.storage import (
+from backend.errors import error_headers, http_status
+from backend.schemas.recordings import RecordingOut, recording_out_by_id
+from fringelab.core.accounts import Principal
+from fringelab.core.errors import Conflict, DomainError, Gone, Invalid, NotFound, TooLarge
+from fringelab.core.recordings import check_upload_request, recording_of_upload, register_upload
+from fringelab.core.settings import Settings
+from fringelab.core.state import AppState
+from fringelab.core.storage import (
     InsufficientStorage,
     StreamingWriter,
     UploadTooLarge,
@@ -61,13 +62,13 @@ SWEEP_INTERVAL_S = 600.0
 _uploader: ContextVar[Principal | None] = ContextVar("uploader", default=None)
 
 
-class UploadRefused(ApiError, HTTPException):
-    """An ApiError raised from the storage while tuspyserver handles a PATCH, which only lets HTTPExceptions
+class UploadRefused(DomainError, HTTPException):
+    """A DomainError raised from the storage while tuspyserver handles a PATCH, which only lets HTTPExceptions
     through (anything else would be swallowed and the PATCH answered 204)."""
 
-    def __init__(self, error: ApiError) -> None:
-        HTTPException.__init__(self, status_code=error.status_code, detail=error.detail, headers=error.headers)
-        self.code = error.code
+    def __init__(self, error: DomainError) -> None:
+        HTTPException.__init__(self, status_code=http_status(error), detail=error.detail, headers=error_headers(error))
+        self.code, self.field, self.names_field, self.retry_after_s = error.code, None, False, error.retry_after_s
 
 
 class TusUploadStorage(TusStorage):
@@ -117,9 +118,9 @@ class TusUploadStorage(TusStorage):
         try:
             await writer.append(chunk)
         except UploadTooLarge as error:
-            raise UploadRefused(PayloadTooLarge(str(error), code="upload_too_large")) from None
+            raise UploadRefused(TooLarge(str(error), code="upload_too_large")) from None
         except InsufficientStorage as error:
-            raise UploadRefused(PayloadTooLarge(str(error), code="insufficient_storage")) from None
+            raise UploadRefused(TooLarge(str(error), code="insufficient_storage")) from None
 
     async def flush(self, uid: str) -> None:
         writer = self._writers.get(uid)
@@ -130,7 +131,7 @@ class TusUploadStorage(TusStorage):
         try:
             await writer.flush()
         except InsufficientStorage as error:
-            raise UploadRefused(PayloadTooLarge(str(error), code="insufficient_storage")) from None
+            raise UploadRefused(TooLarge(str(error), code="insufficient_storage")) from None
         self._hashers[uid] = (writer.hasher.copy(), writer.size)
 
     async def finalize(self, uid: str) -> None:
@@ -185,7 +186,7 @@ class TusUploadStorage(TusStorage):
             try:
                 atomic_write(self._info_path(uid), json.dumps(merged, default=str).encode())
             except OSError as error:  # a full disk: tell the client, keep the previous info
-                refused = PayloadTooLarge(f"cannot record the upload's progress: {error}", code="insufficient_storage")
+                refused = TooLarge(f"cannot record the upload's progress: {error}", code="insufficient_storage")
                 raise UploadRefused(refused) from None
 
     async def write_info(self, uid: str, data: dict[str, Any]) -> None:
@@ -312,22 +313,22 @@ def make_pre_create_dep(storage: TusUploadStorage) -> Callable[..., Any]:
 
         async def check(metadata: dict[str, str], upload_info: dict[str, Any]) -> None:
             if request.headers.get("upload-concat"):
-                raise ApiError("tus concatenation is not supported; send one upload", code="unsupported_extension")
+                raise DomainError("tus concatenation is not supported; send one upload", code="unsupported_extension")
             body_length = int(request.headers.get("content-length") or 0)
             if body_length > MAX_CREATION_BODY_BYTES:
-                raise PayloadTooLarge("send the bytes with PATCH requests", code="creation_body_too_large")
+                raise TooLarge("send the bytes with PATCH requests", code="creation_body_too_large")
             missing = [key for key in ("filename", "filetype", "camera_id", "kind") if not metadata.get(key)]
             if missing:
-                raise ApiError(
+                raise DomainError(
                     f"Upload-Metadata lacks {', '.join(missing)} (send filename, filetype, camera_id and kind)",
                     code="missing_metadata",
                 )
             if upload_info.get("size") is None:
-                raise ApiError("send Upload-Length (a deferred length is not supported)", code="length_required")
+                raise DomainError("send Upload-Length (a deferred length is not supported)", code="length_required")
             try:
                 camera_id = int(metadata["camera_id"])
             except ValueError:
-                raise UnprocessableContent("camera_id must be an integer", code="invalid_metadata") from None
+                raise Invalid("camera_id must be an integer", code="invalid_metadata") from None
             await run_in_threadpool(storage.sweep)
             reserved = await run_in_threadpool(storage.reserved_bytes)
             await run_in_threadpool(
@@ -373,10 +374,10 @@ def complete_upload(state: AppState, storage: TusUploadStorage, uid: str, princi
         known = recording_of_upload(state, uid)
         if known is None:
             raise Gone(f"the recording of upload {uid} has been deleted", code="recording_deleted")
-        return known
+        return recording_out_by_id(state, known)
     size = int(info.get("size") or 0)
     try:
-        recording = register_upload(
+        recording_id = register_upload(
             state,
             principal,
             staged=Path(storage.location(uid)),
@@ -387,10 +388,10 @@ def complete_upload(state: AppState, storage: TusUploadStorage, uid: str, princi
             size_bytes=size,
             upload_id=uid,
         )
-    except ApiError:
+    except DomainError:
         storage.delete_now(uid)  # a refused file cannot become acceptable by resuming it
         raise
-    info["metadata"] = {**metadata, "recording_id": str(recording.id)}
+    info["metadata"] = {**metadata, "recording_id": str(recording_id)}
     storage.write_info_now(uid, info)
     storage.forget(uid)
-    return recording
+    return recording_out_by_id(state, recording_id)

@@ -44,12 +44,12 @@ import redis  # noqa: E402
 from fastapi.testclient import TestClient  # noqa: E402
 
 from backend.app import create_app  # noqa: E402
-from backend.db import upgrade_database  # noqa: E402
-from backend.jobs import as_utc  # noqa: E402
-from backend.services import free_port  # noqa: E402
-from backend.settings import Settings  # noqa: E402
 from backend.supervisor import redis_server_binary  # noqa: E402
-from worker.celery_app import create_celery  # noqa: E402
+from fringelab.core.db import upgrade_database  # noqa: E402
+from fringelab.core.jobs import as_utc  # noqa: E402
+from fringelab.core.queue import create_celery  # noqa: E402
+from fringelab.core.services import free_port  # noqa: E402
+from fringelab.core.settings import Settings  # noqa: E402
 
 
 def wait(predicate: Any, *, timeout_s: float, what: str) -> Any:

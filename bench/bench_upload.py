@@ -36,8 +36,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from backend.services import free_port  # noqa: E402
 from backend.supervisor import redis_server_binary  # noqa: E402
+from fringelab.core.services import free_port  # noqa: E402
 
 READ_BLOCK = 1 << 20
 

@@ -10,10 +10,10 @@ import pytest
 from celery import Celery
 from celery.contrib.testing.worker import start_worker
 
-from backend.db import upgrade_database
-from backend.settings import Settings
+from fringelab.core.db import upgrade_database
+from fringelab.core.settings import Settings
 from tests.support import RedisServer
-from worker.celery_app import create_celery
+from worker.app import create_worker_app
 
 SHARED_DIR = Path(__file__).resolve().parents[1].parent / "shared"
 
@@ -48,7 +48,7 @@ def celery_worker(settings: Settings, redis_server: RedisServer) -> Iterator[Cel
     import redis
 
     redis.Redis.from_url(redis_server.url).flushdb()
-    app = create_celery(settings)
+    app = create_worker_app(settings)
     app.loader.import_default_modules()
     with start_worker(app, pool="threads", concurrency=2, perform_ping_check=False, shutdown_timeout=30):
         yield app

@@ -9,8 +9,8 @@ from pathlib import Path
 from celery import Celery
 from sqlalchemy.orm import Session, sessionmaker
 
-from backend.db import make_engine, make_sessionmaker
-from backend.settings import Settings
+from fringelab.core.db import make_engine, make_sessionmaker
+from fringelab.core.settings import Settings
 
 _sessions: dict[tuple[int, str], sessionmaker[Session]] = {}
 

@@ -10,9 +10,7 @@ from fastapi import APIRouter, Path, Query, Request, Response
 from sqlalchemy import select
 
 from backend.api.deps import SESSION_COOKIE, AdminUser, CurrentUser, SessionDep, StateDep
-from backend.auth import audit, create_user, issue_token, token_digest, verify_password
-from backend.errors import Conflict, NotFound, TooManyRequests, Unauthorized, error_responses
-from backend.models import ApiToken, AuditEvent, Group, GroupMember, User, utcnow
+from backend.errors import error_responses
 from backend.schemas.auth import (
     AuditOut,
     GroupIn,
@@ -27,6 +25,9 @@ from backend.schemas.auth import (
     UserPatch,
 )
 from backend.schemas.common import MAX_ID
+from fringelab.core.accounts import audit, create_user, issue_token, token_digest, verify_password
+from fringelab.core.errors import Conflict, NotFound, RateLimited, Unauthorized
+from fringelab.core.models import ApiToken, AuditEvent, Group, GroupMember, User, utcnow
 
 router = APIRouter(tags=["accounts"])
 
@@ -61,9 +62,7 @@ def login(body: LoginIn, request: Request, response: Response, state: StateDep, 
     client = request.client.host if request.client else "unknown"
     window = state.settings.login_window_s
     if _failures_so_far(state, client) >= state.settings.login_max_failures:
-        raise TooManyRequests(
-            f"too many failed logins from {client}; wait {window} s", headers={"Retry-After": str(window)}
-        )
+        raise RateLimited(f"too many failed logins from {client}; wait {window} s", retry_after_s=window)
     user = session.scalar(select(User).where(User.username == body.username))
     if user is None or user.disabled or not verify_password(user.password_hash, body.password):
         _count_failure(state, client)

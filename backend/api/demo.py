@@ -16,9 +16,10 @@ from kombu.exceptions import OperationalError
 from pydantic import BaseModel, Field
 
 from backend.api.deps import CurrentUser, SessionDep, StateDep
-from backend.auth import audit
-from backend.errors import ServiceUnavailable, error_responses
-from backend.models import Experiment
+from backend.errors import error_responses
+from fringelab.core.accounts import audit
+from fringelab.core.errors import Unavailable
+from fringelab.core.models import Experiment
 
 router = APIRouter(tags=["demo"])
 DEMO_TASK = "fringelab.demo"
@@ -69,5 +70,5 @@ def make_demo(
     try:
         state.celery.send_task(DEMO_TASK, args=[experiment.id, cameras, body.test_frames])
     except OperationalError as error:
-        raise ServiceUnavailable(f"the job queue (Redis) is unreachable: {error}; try again when it is back") from None
+        raise Unavailable(f"the job queue (Redis) is unreachable: {error}; try again when it is back") from None
     return DemoOut(experiment_id=experiment.id)

@@ -15,12 +15,12 @@ from fastapi import Depends, Path, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
 
-from backend.auth import LOCAL_ADMIN, AuthError, Principal, require_access, resolve_token
-from backend.errors import Forbidden, NotFound, Unauthorized
-from backend.models import Camera, Experiment, Recording
-from backend.recordings import camera_for, recording_for
 from backend.schemas.common import MAX_ID
-from backend.state import AppState
+from fringelab.core.accounts import LOCAL_ADMIN, AuthError, Principal, require_access, resolve_token
+from fringelab.core.errors import Forbidden, NotFound, Unauthorized
+from fringelab.core.models import Camera, Experiment, Recording
+from fringelab.core.recordings import camera_for, recording_for
+from fringelab.core.state import AppState
 
 SESSION_COOKIE = "fringelab_session"
 _bearer = HTTPBearer(auto_error=False, description="An API token (`flb_...`) or the browser's session cookie.")
@@ -49,14 +49,11 @@ def get_principal(
         return LOCAL_ADMIN
     secret = credentials.credentials if credentials else request.cookies.get(SESSION_COOKIE)
     if not secret:
-        raise Unauthorized(
-            "authentication required: send `Authorization: Bearer <token>` or log in",
-            headers={"WWW-Authenticate": "Bearer"},
-        )
+        raise Unauthorized("authentication required: send `Authorization: Bearer <token>` or log in")
     try:
         return resolve_token(session, secret)
     except AuthError as error:
-        raise Unauthorized(str(error), headers={"WWW-Authenticate": "Bearer"}) from None
+        raise Unauthorized(str(error)) from None
 
 
 CurrentUser = Annotated[Principal, Depends(get_principal)]

@@ -1,7 +1,7 @@
 """Experiments and their cameras: create, list, read, update, delete.
 
-Access follows the experiment (`backend.auth`): its owner, admins and its group; anyone else gets a 404, checked
-by the path dependencies of `backend.api.deps` before a body is validated. A delete removes the recordings'
+Access follows the experiment (`fringelab.core.accounts`): its owner, admins and its group; anyone else gets a
+404, checked by the path dependencies of `backend.api.deps` before a body is validated. A delete removes the recordings'
 files too, and is refused (409) while a job uses them.
 """
 
@@ -19,13 +19,14 @@ from backend.api.deps import (
     WritableCamera,
     WritableExperiment,
 )
-from backend.auth import readable_experiments
-from backend.errors import Conflict, error_responses
-from backend.models import Camera, Experiment
-from backend.recordings import delete_camera, delete_experiment, experiment_out, update_experiment
+from backend.errors import error_responses
 from backend.schemas.cameras import CameraCreate, CameraOut, CameraUpdate
 from backend.schemas.common import MAX_ID
-from backend.schemas.experiments import ExperimentCreate, ExperimentOut, ExperimentUpdate
+from backend.schemas.experiments import ExperimentCreate, ExperimentOut, ExperimentUpdate, experiment_out
+from fringelab.core.accounts import readable_experiments
+from fringelab.core.errors import Conflict
+from fringelab.core.models import Camera, Experiment
+from fringelab.core.recordings import delete_camera, delete_experiment, update_experiment
 
 router = APIRouter(tags=["experiments"])
 

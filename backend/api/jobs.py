@@ -1,8 +1,8 @@
 """`/api/v1/jobs`: start, list, watch (JSON and Server-Sent Events), read the log of, cancel, retry and download
-the files of jobs. Thin: the rules live in `backend.jobs`; errors are `backend.jobs.JobError` (4xx with
+the files of jobs. Thin: the rules live in `fringelab.core.jobs`; errors are `fringelab.core.jobs.job_error`s (4xx with
 `{"detail", "code", "field"}`).
 
-Access follows the job's experiment (`backend.auth`): reading needs read access, starting, cancelling and
+Access follows the job's experiment (`fringelab.core.accounts`): reading needs read access, starting, cancelling and
 retrying need write access; a job of an experiment one may not read is a 404. Jobs outside any experiment
 (selftest) are for admins."""
 
@@ -22,20 +22,6 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from backend.api.deps import CurrentUser, SessionDep, StateDep
-from backend.auth import Principal, access_level, audit, can_access, readable_experiments
-from backend.jobs import (
-    JobError,
-    NotVisible,
-    QueueUnavailable,
-    as_utc,
-    cancel_job,
-    create_job,
-    eta_seconds,
-    get_job,
-    retry_job,
-    terminate_unstopped,
-)
-from backend.models import Experiment, Job, JobChunk, JobLog, utcnow
 from backend.schemas.jobs import (
     MAX_ID,
     ChunkOut,
@@ -48,7 +34,22 @@ from backend.schemas.jobs import (
     LogLineOut,
     Progress,
 )
-from backend.state import AppState
+from fringelab.core.accounts import Principal, access_level, audit, can_access, readable_experiments
+from fringelab.core.errors import Forbidden, Gone, NotFound, Unavailable
+from fringelab.core.jobs import (
+    NotVisible,
+    QueueUnavailable,
+    as_utc,
+    cancel_job,
+    create_job,
+    eta_seconds,
+    get_job,
+    job_error,
+    retry_job,
+    terminate_unstopped,
+)
+from fringelab.core.models import Experiment, Job, JobChunk, JobLog, utcnow
+from fringelab.core.state import AppState
 
 router = APIRouter(tags=["jobs"])
 log = logging.getLogger(__name__)
@@ -137,10 +138,10 @@ def job_for(session: Session, principal: Principal, job_id: str, *, write: bool 
     """The job if `principal` may see it (or change it); otherwise a 404, as if it did not exist."""
     job = get_job(session, job_id)
     if not _allowed(session, principal, job.experiment_id, write=False):
-        raise JobError(404, "job_not_found", f"there is no job {job_id}")
+        raise job_error(NotFound, "job_not_found", f"there is no job {job_id}")
     if write and not _allowed(session, principal, job.experiment_id, write=True):
-        raise JobError(
-            403,
+        raise job_error(
+            Forbidden,
             "read_only",
             f"read-only access: you may read job {job_id} but not change it; ask the experiment's owner",
         )
@@ -170,15 +171,15 @@ def start_job(spec: Annotated[JobSpec, Body()], session: SessionDep, state: Stat
     def may_start(experiment_id: int | None) -> None:
         if experiment_id is None:
             if not principal.is_admin:
-                raise JobError(403, "forbidden", "jobs outside any experiment (selftest) need an admin account")
+                raise job_error(Forbidden, "forbidden", "jobs outside any experiment (selftest) need an admin account")
             return
         experiment = session.get(Experiment, experiment_id)
         level = access_level(session, principal, experiment) if experiment is not None else None
         if level is None:
             raise NotVisible  # the spec's ids are answered as if they did not exist
         if level == "read":
-            raise JobError(
-                403,
+            raise job_error(
+                Forbidden,
                 "read_only",
                 f"read-only access: experiment {experiment_id} is shared with your group for reading; "
                 "ask its owner for write access to start jobs",
@@ -187,7 +188,7 @@ def start_job(spec: Annotated[JobSpec, Body()], session: SessionDep, state: Stat
     try:
         job = create_job(session, state.celery, spec.model_dump(mode="json"), authorize=may_start)
     except QueueUnavailable as error:
-        raise JobError(503, "queue_unavailable", str(error)) from None
+        raise job_error(Unavailable, "queue_unavailable", str(error)) from None
     audit(session, principal, "start", "job", job.id, kind=job.kind)
     session.commit()
     return job_out(session, job)
@@ -307,7 +308,7 @@ def _terminate_later(state: AppState, job_id: str) -> None:
         try:
             with state.sessions() as session:
                 terminate_unstopped(session, state.celery, job_id, grace_s=grace_s)
-        except Exception:  # the next API start-up closes the job instead (backend.jobs.reconcile)
+        except Exception:  # the next API start-up closes the job instead (fringelab.core.jobs.reconcile)
             log.exception("could not terminate the task of cancelled job %s", job_id)
 
     timer = threading.Timer(grace_s, terminate)
@@ -321,7 +322,7 @@ def retry(writable: WritableJobDep, session: SessionDep, state: StateDep, princi
     try:
         job = retry_job(session, state.celery, writable.id)
     except QueueUnavailable as error:
-        raise JobError(503, "queue_unavailable", str(error)) from None
+        raise job_error(Unavailable, "queue_unavailable", str(error)) from None
     audit(session, principal, "retry", "job", job.id, retry_of=writable.id)
     session.commit()
     return job_out(session, job)
@@ -340,8 +341,8 @@ def download(job: JobDep, name: str, state: StateDep) -> FileResponse:
     """A result file of the job, streamed."""
     entry = next((f for f in job.files if f["name"] == name), None)
     if entry is None:
-        raise JobError(404, "file_not_found", f"job {job.id} has no file {name!r}; see its `files`")
+        raise job_error(NotFound, "file_not_found", f"job {job.id} has no file {name!r}; see its `files`")
     path = state.settings.data_path / entry["path"]
     if not path.is_file():
-        raise JobError(410, "file_missing", f"{name} of job {job.id} is no longer on disk; retry the job")
+        raise job_error(Gone, "file_missing", f"{name} of job {job.id} is no longer on disk; retry the job")
     return FileResponse(path, media_type=entry["media_type"], filename=path.name)

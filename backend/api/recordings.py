@@ -24,17 +24,7 @@ from backend.api.deps import (
     WritableRecording,
     WritableRecordingId,
 )
-from backend.auth import Principal, audit, readable_experiments
-from backend.errors import Conflict, NotFound, UnprocessableContent, error_responses
-from backend.models import Camera, Experiment, Recording
-from backend.recordings import (
-    delete_recording,
-    recording_for,
-    recording_out,
-    refuse_if_in_use,
-    start_ingest,
-    submit_ingest,
-)
+from backend.errors import error_responses
 from backend.schemas.common import MAX_ID
 from backend.schemas.recordings import (
     FrameQa,
@@ -44,8 +34,13 @@ from backend.schemas.recordings import (
     RecordingState,
     RecordingUpdate,
     SidecarName,
+    recording_out,
 )
-from backend.storage import recording_dir
+from fringelab.core.accounts import Principal, audit, readable_experiments
+from fringelab.core.errors import Conflict, Invalid, NotFound
+from fringelab.core.models import Camera, Experiment, Recording
+from fringelab.core.recordings import delete_recording, recording_for, refuse_if_in_use, start_ingest, submit_ingest
+from fringelab.core.storage import recording_dir
 from fringelab.formats.atomic import atomic_write
 from fringelab.formats.previews import PREVIEW_FILE, encode_png, read_preview, read_qa
 
@@ -154,7 +149,7 @@ def _store_sidecar(state: StateDep, principal: Principal, recording_id: int, nam
     try:
         data.decode("utf-8")
     except UnicodeDecodeError:
-        raise UnprocessableContent(f"{name}: not UTF-8 text", code="invalid_sidecar") from None
+        raise Invalid(f"{name}: not UTF-8 text", code="invalid_sidecar") from None
     with state.sessions() as session:
         recording = recording_for(session, principal, recording_id, write=True)
         refuse_if_in_use(session, f"recording {recording.id}", recording_ids=[recording.id])

@@ -21,10 +21,6 @@ from sqlalchemy import select
 
 from backend.api.deps import CurrentUser, SessionDep, StateDep, experiment_for
 from backend.api.jobs import ERRORS, JobDep
-from backend.auth import readable_experiments
-from backend.errors import NotFound
-from backend.jobs import JobError, as_utc
-from backend.models import Calibration, Camera, Experiment, Job
 from backend.results import (
     GRID_BUDGET_NODES,
     FrameNotInResult,
@@ -36,6 +32,10 @@ from backend.results import (
     result_path,
 )
 from backend.schemas.jobs import MAX_ID, CalibrationOut, ErrorOut
+from fringelab.core.accounts import readable_experiments
+from fringelab.core.errors import Conflict, Gone, Invalid, NotFound
+from fringelab.core.jobs import as_utc, job_error
+from fringelab.core.models import Calibration, Camera, Experiment, Job
 
 router = APIRouter(tags=["results"])
 RESULT_ERRORS: dict[int | str, dict[str, Any]] = {
@@ -74,7 +74,7 @@ def calibration_out(row: Calibration) -> CalibrationOut:
 def readable_calibration(
     calibration_id: Annotated[int, Path(ge=1, le=MAX_ID)], session: SessionDep, principal: CurrentUser
 ) -> Calibration:
-    missing = JobError(404, "calibration_not_found", f"there is no calibration {calibration_id}")
+    missing = job_error(NotFound, "calibration_not_found", f"there is no calibration {calibration_id}")
     row = session.get(Calibration, calibration_id)
     camera = session.get(Camera, row.camera_id) if row else None
     if row is None or camera is None:
@@ -125,11 +125,11 @@ def calibration_report(calibration: CalibrationDep, state: StateDep) -> Calibrat
     """A camera calibration's report: parameters ± standard errors, per-frame RMS, residual vectors over the
     image, the residual map and the verdict (the fields of `camera.json`, units in every name)."""
     if calibration.kind != "camera":
-        raise JobError(404, "no_report", f"calibration {calibration.id} is a {calibration.kind} calibration")
+        raise job_error(NotFound, "no_report", f"calibration {calibration.id} is a {calibration.kind} calibration")
     try:
         report = camera_report(state.settings.data_path, calibration.path)
     except ResultUnavailable as error:
-        raise JobError(410, "result_missing", str(error)) from None
+        raise job_error(Gone, "result_missing", str(error)) from None
     return CalibrationReport(calibration=calibration_out(calibration), report=report)
 
 
@@ -158,13 +158,13 @@ def projector_table_curves(
     """The curves of a projector calibration's look-up table: the position of each stripe edge along one scan
     line against the plate's Z (METHOD.md §4), with the table's QA."""
     if calibration.kind != "projector":
-        raise JobError(404, "no_table", f"calibration {calibration.id} is a {calibration.kind} calibration")
+        raise job_error(NotFound, "no_table", f"calibration {calibration.id} is a {calibration.kind} calibration")
     try:
         table = projector_table(state.settings.data_path, calibration.path, line=line, edges=edges)
     except OutsideGrid as error:
-        raise JobError(422, "outside_table", str(error)) from None
+        raise job_error(Invalid, "outside_table", str(error)) from None
     except ResultUnavailable as error:
-        raise JobError(410, "result_missing", str(error)) from None
+        raise job_error(Gone, "result_missing", str(error)) from None
     table["z_mm"] = _listed(table["z_mm"])
     for curve in table["curves"]:
         curve["t_px"] = _listed(curve["t_px"])
@@ -190,7 +190,7 @@ def calibration_file(calibration: CalibrationDep, state: StateDep) -> FileRespon
     try:
         path = result_path(state.settings.data_path, calibration.path)
     except ResultUnavailable as error:
-        raise JobError(410, "result_missing", str(error)) from None
+        raise job_error(Gone, "result_missing", str(error)) from None
     media_type = "application/json" if path.suffix == ".json" else "application/x-hdf5"
     return FileResponse(path, media_type=media_type, filename=f"calibration-{calibration.id}-{path.name}")
 
@@ -202,23 +202,25 @@ TOPOGRAPHY_FILE = "topography.h5"
 
 @contextmanager
 def topography(job: Job, data_path: Any) -> Iterator[TopographyReader]:
-    """The result of a succeeded topography job, open; JobError 409/410/422 with what to do otherwise."""
+    """The result of a succeeded topography job, open; a job error (409/410/422) with what to do otherwise."""
     if job.kind != "topography":
-        raise JobError(404, "not_topography", f"job {job.id} is a {job.kind} job, not a topography")
+        raise job_error(NotFound, "not_topography", f"job {job.id} is a {job.kind} job, not a topography")
     if job.state != "succeeded":
-        raise JobError(409, "job_not_succeeded", f"job {job.id} is {job.state}; its results come when it succeeds")
+        raise job_error(
+            Conflict, "job_not_succeeded", f"job {job.id} is {job.state}; its results come when it succeeds"
+        )
     entry = next((f for f in job.files if f["name"] == TOPOGRAPHY_FILE), None)
     if entry is None:
-        raise JobError(410, "result_missing", f"job {job.id} has no {TOPOGRAPHY_FILE}; retry the job")
+        raise job_error(Gone, "result_missing", f"job {job.id} has no {TOPOGRAPHY_FILE}; retry the job")
     try:
         with TopographyReader(result_path(data_path, entry["path"])) as reader:
             yield reader
     except FrameNotInResult as error:
-        raise JobError(422, "frame_not_in_result", str(error), field="frame") from None
+        raise job_error(Invalid, "frame_not_in_result", str(error), field="frame") from None
     except OutsideGrid as error:
-        raise JobError(422, "outside_grid", str(error)) from None
+        raise job_error(Invalid, "outside_grid", str(error)) from None
     except ResultUnavailable as error:
-        raise JobError(410, "result_missing", str(error)) from None
+        raise job_error(Gone, "result_missing", str(error)) from None
 
 
 class TopographyOverview(BaseModel):
@@ -299,7 +301,7 @@ def topography_grid(
     coordinates in the headers X-Grid-Shape (ny,nx), X-Grid-X-mm and X-Grid-Y-mm (first,step)."""
     bounds = (x_min, x_max, y_min, y_max)
     if any(b is None for b in bounds) and not all(b is None for b in bounds):
-        raise JobError(422, "incomplete_window", "give all of x_min, x_max, y_min, y_max, or none", field="x_min")
+        raise job_error(Invalid, "incomplete_window", "give all of x_min, x_max, y_min, y_max, or none", field="x_min")
     window = None if x_min is None else tuple(float(b) for b in bounds)  # type: ignore[arg-type]
     with topography(job, state.settings.data_path) as reader:
         cut = reader.grid(frame, budget=budget, window_mm=window)  # type: ignore[arg-type]

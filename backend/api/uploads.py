@@ -29,12 +29,13 @@ from starlette.requests import ClientDisconnect
 from tuspyserver import create_tus_router
 
 from backend.api.deps import CurrentUser, StateDep, WritableCameraId
-from backend.errors import ApiError, PayloadTooLarge, error_responses
-from backend.recordings import check_upload_request, register_upload
-from backend.schemas.recordings import RecordingKind, RecordingOut
-from backend.state import AppState
-from backend.storage import InsufficientStorage, StreamingWriter, UploadTooLarge, put_dir, tus_dir
+from backend.errors import error_responses
+from backend.schemas.recordings import RecordingKind, RecordingOut, recording_out_by_id
 from backend.uploads import TusUploadStorage, make_access_dep, make_complete_dep, make_pre_create_dep
+from fringelab.core.errors import DomainError, TooLarge
+from fringelab.core.recordings import check_upload_request, register_upload
+from fringelab.core.state import AppState
+from fringelab.core.storage import InsufficientStorage, StreamingWriter, UploadTooLarge, put_dir, tus_dir
 
 
 def create_router(state: AppState) -> APIRouter:
@@ -121,20 +122,20 @@ async def put_recording(
                 await writer.append(chunk)
             await writer.flush()
         except ClientDisconnect:
-            raise ApiError(
+            raise DomainError(
                 "the connection closed before the upload ended; nothing was kept", code="upload_interrupted"
             ) from None
         except UploadTooLarge as error:
-            raise PayloadTooLarge(str(error), code="upload_too_large") from None
+            raise TooLarge(str(error), code="upload_too_large") from None
         except InsufficientStorage as error:
-            raise PayloadTooLarge(str(error), code="insufficient_storage") from None
+            raise TooLarge(str(error), code="insufficient_storage") from None
         finally:
             await writer.close()
         if writer.size == 0:
-            raise ApiError("the upload is empty (0 bytes)", code="empty_upload")
+            raise DomainError("the upload is empty (0 bytes)", code="empty_upload")
         if length is not None and writer.size != length:
-            raise ApiError(f"received {writer.size} of {length} bytes", code="upload_incomplete")
-        recording = await run_in_threadpool(
+            raise DomainError(f"received {writer.size} of {length} bytes", code="upload_incomplete")
+        recording_id = await run_in_threadpool(
             register_upload,
             state,
             principal,
@@ -148,6 +149,7 @@ async def put_recording(
         )
     finally:
         staged.unlink(missing_ok=True)  # moved into its recording on success
+    recording = await run_in_threadpool(recording_out_by_id, state, recording_id)
     return JSONResponse(
         recording.model_dump(mode="json"),
         status_code=201,

@@ -5,8 +5,11 @@ from __future__ import annotations
 from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints
+from sqlalchemy.orm import Session
 
 from backend.schemas.common import MAX_ID, UtcDatetime
+from fringelab.core.accounts import Principal, access_level
+from fringelab.core.models import Experiment
 
 Name = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=200)]
 Label = Annotated[str, StringConstraints(strip_whitespace=True, max_length=200)]
@@ -78,3 +81,23 @@ class ExperimentOut(BaseModel):
     access: Access = Field(description="What you may do with it: admin or owner (everything), write, or read.")
     created_at: UtcDatetime
     updated_at: UtcDatetime
+
+
+def experiment_out(session: Session, principal: Principal, experiment: Experiment) -> ExperimentOut:
+    """The API's view of an experiment, with what the caller may do with it (call inside its session)."""
+    return ExperimentOut(
+        id=experiment.id,
+        name=experiment.name,
+        plate=experiment.plate,
+        punch=experiment.punch,
+        test_date=experiment.test_date,
+        notes=experiment.notes,
+        owner_id=experiment.owner_id,
+        owner=experiment.owner.username if experiment.owner else None,
+        group_id=experiment.group_id,
+        group=experiment.group.name if experiment.group else None,
+        group_access="write" if experiment.group_access == "write" else "read",
+        access=access_level(session, principal, experiment) or "read",
+        created_at=experiment.created_at,
+        updated_at=experiment.updated_at,
+    )

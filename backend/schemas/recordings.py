@@ -7,6 +7,8 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints
 
 from backend.schemas.common import UtcDatetime
+from fringelab.core.models import Recording
+from fringelab.core.state import AppState
 
 RecordingKind = Literal["camera_calibration", "projector_calibration", "test"]
 RecordingState = Literal["uploading", "ingesting", "ready", "invalid"]
@@ -77,3 +79,39 @@ class RecordingQa(BaseModel):
     notes: list[str]
     error: str
     frames: FrameQa
+
+
+def recording_out(recording: Recording) -> RecordingOut:
+    """The API's view of a recording (call inside the session that loaded it)."""
+    qa = recording.qa or {}
+    return RecordingOut(
+        id=recording.id,
+        camera_id=recording.camera_id,
+        experiment_id=recording.camera.experiment_id,
+        kind=recording.kind,  # type: ignore[arg-type]
+        state=recording.state,  # type: ignore[arg-type]
+        filename=recording.filename,
+        format=recording.format,
+        size_bytes=recording.size_bytes,
+        sha256=recording.sha256,
+        frame_count=recording.frame_count,
+        width_px=recording.width_px,
+        height_px=recording.height_px,
+        bit_depth=recording.bit_depth,
+        fps=recording.fps,
+        sidecars=dict(recording.sidecar or {}),
+        warnings=list(qa.get("warnings", [])),
+        notes=list(qa.get("notes", [])),
+        error=recording.error,
+        duplicate_of=recording.duplicate_of,
+        ingest_job_id=recording.ingest_job_id,
+        upload_id=recording.upload_id,
+        created_at=recording.created_at,
+    )
+
+
+def recording_out_by_id(state: AppState, recording_id: int) -> RecordingOut:
+    with state.sessions() as session:
+        recording = session.get(Recording, recording_id)
+        assert recording is not None  # the caller just registered or found it
+        return recording_out(recording)

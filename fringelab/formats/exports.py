@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal, get_args
 
 import numpy as np
 
@@ -15,7 +15,8 @@ if TYPE_CHECKING:
     pass
 
 
-EXPORT_FORMATS = ("points-csv", "grid-npz", "mat", "vtk", "profile-csv")
+ExportFormat = Literal["points-csv", "grid-npz", "mat", "vtk", "profile-csv"]
+EXPORT_FORMATS: tuple[str, ...] = get_args(ExportFormat)  # the one list of export formats
 
 
 def export_points_csv(result: TopographyResult, path: str | Path) -> Path:

@@ -13,5 +13,9 @@ class MeasurementError(Exception):
 
 
 def natural_key(name: str) -> list[object]:
-    """Sort key that orders frame2 before frame10."""
+    """Sort key that orders frame2 before frame10.
+
+    >>> sorted(["frame10.png", "frame2.png", "Frame1.png"], key=natural_key)
+    ['Frame1.png', 'frame2.png', 'frame10.png']
+    """
     return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", name)]

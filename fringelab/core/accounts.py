@@ -1,0 +1,178 @@
+"""Users, passwords, tokens and access to experiments.
+
+With auth off (the laptop default) every request acts as the built-in local admin. With auth on, a request
+carries a bearer token (`Authorization: Bearer flb_...`, for scripts) or the browser's session cookie; both are
+rows of `api_tokens`, of which only the SHA-256 is stored. Access to anything inside an experiment follows the
+experiment: its owner and admins may do everything, members of its group may read (or write, if granted);
+everyone else gets a 404, as if it did not exist.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import re
+import secrets
+from dataclasses import dataclass
+from datetime import UTC, datetime, timedelta
+from typing import Any, Literal
+
+from argon2 import PasswordHasher
+from argon2.exceptions import InvalidHashError, VerificationError
+from sqlalchemy import ColumnElement, or_, select, true
+from sqlalchemy.orm import Session
+
+from fringelab.core.errors import Forbidden, NotFound
+from fringelab.core.models import ApiToken, AuditEvent, Experiment, GroupMember, User, utcnow
+
+TOKEN_PREFIX = "flb_"
+USERNAME_PATTERN = re.compile(r"^[a-z0-9][a-z0-9._-]{1,63}$")
+MIN_PASSWORD_LENGTH = 8
+ROLES = ("admin", "member")
+_hasher = PasswordHasher()
+
+
+class AuthError(Exception):
+    """Authentication failed; the message says why (missing, unknown, expired, revoked token; disabled user)."""
+
+
+@dataclass(frozen=True)
+class Principal:
+    """Who is asking: a user, or the built-in local admin when auth is off."""
+
+    user_id: int | None
+    username: str
+    role: str
+
+    @property
+    def is_admin(self) -> bool:
+        return self.role == "admin"
+
+
+LOCAL_ADMIN = Principal(user_id=None, username="local", role="admin")
+
+
+def hash_password(password: str) -> str:
+    return _hasher.hash(password)
+
+
+def verify_password(password_hash: str, password: str) -> bool:
+    try:
+        return _hasher.verify(password_hash, password)
+    except (VerificationError, InvalidHashError):
+        return False
+
+
+def token_digest(token: str) -> str:
+    return hashlib.sha256(token.encode()).hexdigest()
+
+
+def create_user(session: Session, username: str, password: str, *, role: str = "member") -> User:
+    """Validate and add a user (not committed). Raises ValueError naming the problem."""
+    if not USERNAME_PATTERN.match(username):
+        raise ValueError("username: 2-64 characters, lower-case letters, digits, '.', '_' or '-'")
+    if len(password) < MIN_PASSWORD_LENGTH:
+        raise ValueError(f"password: at least {MIN_PASSWORD_LENGTH} characters")
+    if role not in ROLES:
+        raise ValueError(f"role: expected one of {', '.join(ROLES)}, got {role!r}")
+    if session.scalar(select(User).where(User.username == username)):
+        raise ValueError(f"username: {username!r} is taken")
+    user = User(username=username, password_hash=hash_password(password), role=role)
+    session.add(user)
+    session.flush()
+    return user
+
+
+def issue_token(
+    session: Session, user: User, *, name: str = "", kind: str = "api", ttl: timedelta | None = None
+) -> tuple[ApiToken, str]:
+    """A new token for `user` (not committed); the secret is returned once and never stored."""
+    secret = TOKEN_PREFIX + secrets.token_urlsafe(32)
+    row = ApiToken(
+        user_id=user.id,
+        name=name,
+        kind=kind,
+        token_hash=token_digest(secret),
+        prefix=secret[:10],
+        expires_at=(utcnow() + ttl) if ttl else None,
+    )
+    session.add(row)
+    session.flush()
+    return row, secret
+
+
+def _aware(moment: datetime) -> datetime:
+    return moment if moment.tzinfo else moment.replace(tzinfo=UTC)  # SQLite returns naive datetimes
+
+
+def resolve_token(session: Session, secret: str) -> Principal:
+    row = session.scalar(select(ApiToken).where(ApiToken.token_hash == token_digest(secret)))
+    if row is None:
+        raise AuthError("unknown token; create one in the dashboard or with `fringelab token create`")
+    if row.revoked_at is not None:
+        raise AuthError("this token was revoked; create a new one")
+    if row.expires_at is not None and _aware(row.expires_at) <= utcnow():
+        raise AuthError("this token has expired; log in again or create a new token")
+    user = session.get(User, row.user_id)
+    if user is None or user.disabled:
+        raise AuthError("this account is disabled; ask an admin")
+    row.last_used_at = utcnow()
+    session.commit()
+    return Principal(user_id=user.id, username=user.username, role=user.role)
+
+
+def readable_experiments(session: Session, principal: Principal) -> ColumnElement[bool]:
+    """A WHERE clause selecting the experiments `principal` may read."""
+    if principal.is_admin:
+        return true()
+    groups = select(GroupMember.group_id).where(GroupMember.user_id == principal.user_id)
+    return or_(Experiment.owner_id == principal.user_id, Experiment.group_id.in_(groups))
+
+
+Access = Literal["admin", "owner", "write", "read"]
+
+
+def access_level(session: Session, principal: Principal, experiment: Experiment) -> Access | None:
+    """What `principal` may do with `experiment`: everything (admin, owner), write or read (its group), or nothing."""
+    if principal.is_admin:
+        return "admin"
+    if experiment.owner_id is not None and experiment.owner_id == principal.user_id:
+        return "owner"
+    if experiment.group_id is None or session.get(GroupMember, (experiment.group_id, principal.user_id)) is None:
+        return None
+    return "write" if experiment.group_access == "write" else "read"
+
+
+def can_access(session: Session, principal: Principal, experiment: Experiment, *, write: bool) -> bool:
+    level = access_level(session, principal, experiment)
+    return level is not None and (level != "read" or not write)
+
+
+def require_access(session: Session, principal: Principal, experiment: Experiment, *, write: bool, what: str) -> None:
+    """Pass when `principal` may read `experiment` (or write it). Someone without access learns nothing: a 404
+    naming `what` (the object asked for), exactly as for an id that does not exist. A group member with read
+    access who tries to change something gets a 403 instead: they can see it, so hiding it would only confuse."""
+    level = access_level(session, principal, experiment)
+    if level is None:
+        raise NotFound(f"{what} not found")
+    if write and level == "read":
+        raise Forbidden(
+            f"read-only access: experiment {experiment.id} is shared with your group for reading; "
+            "ask its owner for write access",
+            code="read_only",
+        )
+
+
+def audit(
+    session: Session, principal: Principal, action: str, object_type: str, object_id: object, **detail: Any
+) -> None:
+    """Record who did what (not committed: it commits with the change it describes)."""
+    session.add(
+        AuditEvent(
+            user_id=principal.user_id,
+            username=principal.username,
+            action=action,
+            object_type=object_type,
+            object_id=str(object_id),
+            detail=detail,
+        )
+    )

@@ -1,0 +1,185 @@
+"""The JSON job spec: one model per job kind, told apart by `kind`; the same for the browser, scripts and the worker.
+
+Shapes and ranges are checked here (the API answers 422 naming the field); checks that need the database (is the
+recording ready, does the calibration belong to its camera, is the frame range inside the recording) live in
+`fringelab.core.jobs.prepare_job`.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from fringelab.formats.exports import ExportFormat
+
+MAX_ID = 2**31 - 1  # ids and frame numbers are 32-bit integers in the database
+
+
+class _Spec(BaseModel):
+    model_config = ConfigDict(extra="forbid")  # a misspelt parameter is a 422 naming it, not silently ignored
+
+
+class FrameRange(_Spec):
+    """Frames `first` to `last` (inclusive), numbered from 0 as in the recording."""
+
+    first: int = Field(0, ge=0, le=MAX_ID, description="First frame (0-based).")
+    last: int | None = Field(
+        None, ge=0, le=MAX_ID, description="Last frame, inclusive; empty means the recording's last."
+    )
+
+    @model_validator(mode="after")
+    def _ordered(self) -> FrameRange:
+        if self.last is not None and self.last < self.first:
+            raise ValueError(f"last ({self.last}) is before first ({self.first})")
+        return self
+
+
+class SelftestSpec(_Spec):
+    """A diagnostic of the job system itself, in the two fan-outs a topography uses: workers compute synthetic
+    frames (an FFT of a seeded random image each) into the shared data directory, a pass in frame order checks
+    that each came back once and chains them, other workers compute them again and compare, and the result file
+    is written. It measures frames/s and names the workers that took part (or that compute differently)."""
+
+    model_config = ConfigDict(
+        extra="forbid", json_schema_extra={"examples": [{"kind": "selftest", "frames": 200, "frame_size_px": 256}]}
+    )
+
+    kind: Literal["selftest"]
+    frames: int = Field(200, ge=1, le=100_000, description="Synthetic frames to compute.")
+    frame_size_px: int = Field(256, ge=16, le=4096, description="Side of each square frame; sets the work per frame.")
+    chunk_frames: int | None = Field(
+        None, ge=1, le=100_000, description="Frames per parallel chunk; empty means FRINGELAB_CHUNK_FRAMES."
+    )
+
+
+class BoardSpec(_Spec):
+    """The chessboard, when the recording has no `board.json` (or to override it)."""
+
+    cols: int = Field(ge=2, le=200, description="Inner corners along a row.")
+    rows: int = Field(ge=2, le=200, description="Inner corners along a column.")
+    square_mm: float = Field(gt=0, le=10_000, description="Side of a square, mm.")
+    origin: tuple[int, int] | None = Field(
+        None, description="Origin inner corner (i, j) along +X, +Y from the lower left; empty means the centre."
+    )
+
+
+class CameraCalibrationSpec(_Spec):
+    """Calibrate a camera (Heikkilä model, METHOD.md §3) from a ready camera-calibration recording: a chessboard
+    moved along Z (`zstack`, with z.csv) or free views of it (`poses`). Every frame is used; frames without the
+    board are skipped and listed. D_u, D_v come from the camera's pixel pitch."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [{"kind": "camera_calibration", "recording_id": 1, "mode": "zstack", "scale_on": "u"}]
+        },
+    )
+
+    kind: Literal["camera_calibration"]
+    recording_id: int = Field(ge=1, le=MAX_ID, description="A ready recording of kind camera_calibration.")
+    mode: Literal["zstack", "poses"] = Field("zstack", description="zstack (stage Z per frame) or poses (free).")
+    board: BoardSpec | None = Field(None, description="Empty means the recording's board.json.")
+    scale_on: Literal["u", "v"] = Field("u", description="Axis of the scale factor: u (Heikkilä) or v (the paper).")
+    reject_outliers: bool = Field(False, description="Drop frames whose RMS exceeds 3 × the median (and 0.2 px).")
+    detector: Literal["auto", "classic"] = Field("auto", description="Chessboard detector.")
+    subpix_window_px: int | None = Field(None, ge=1, le=50, description="cornerSubPix half-window; empty: auto.")
+
+
+class ProjectorCalibrationSpec(_Spec):
+    """Build the projector look-up table (METHOD.md §4) from a ready projector-calibration recording: the flat
+    plate moved along Z (with z.csv), filmed by the camera of `camera_calibration_id`."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [{"kind": "projector_calibration", "recording_id": 2, "camera_calibration_id": 1}]
+        },
+    )
+
+    kind: Literal["projector_calibration"]
+    recording_id: int = Field(ge=1, le=MAX_ID, description="A ready recording of kind projector_calibration.")
+    camera_calibration_id: int = Field(
+        ge=1, le=MAX_ID, description="A camera calibration of the same camera and image size."
+    )
+    axis: Literal["auto", "rows", "cols"] = Field(
+        "auto", description="Scan along image rows (vertical stripes) or columns; auto detects it."
+    )
+    reference_z_mm: float = Field(0.0, ge=-1000, le=1000, description="Z of the test plate at rest.")
+    poly_degree: int = Field(3, ge=1, le=5, description="Degree of Z(t) per edge and scan line.")
+
+
+class TopographySpec(_Spec):
+    """Deflection of every frame of a ready test recording, from a camera and a projector calibration. Edges are
+    located in parallel chunks on every worker; identity, Z and X, Y follow in one pass in frame order, so the
+    result does not depend on the chunking."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [
+                {
+                    "kind": "topography",
+                    "recording_id": 3,
+                    "camera_calibration_id": 1,
+                    "projector_calibration_id": 2,
+                    "frames": {"first": 0, "last": 99},
+                    "grid_step_mm": 2.0,
+                }
+            ]
+        },
+    )
+
+    kind: Literal["topography"]
+    recording_id: int = Field(ge=1, le=MAX_ID, description="A ready recording of kind test.")
+    camera_calibration_id: int = Field(
+        ge=1, le=MAX_ID, description="A camera calibration of the same camera and image size."
+    )
+    projector_calibration_id: int = Field(
+        ge=1, le=MAX_ID, description="A projector calibration of the same camera and size."
+    )
+    frames: FrameRange = Field(
+        default_factory=FrameRange,  # type: ignore[arg-type]
+        description="Frames to write; tracking always starts at frame 0 (flat plate).",
+    )
+    grid_step_mm: float = Field(2.0, ge=0.1, le=50, description="Spacing of the deflection grid, mm.")
+    temporal_smoothing_frames: int = Field(0, ge=0, le=50, description="Half-width of the temporal filter; 0: off.")
+    chunk_frames: int | None = Field(
+        None, ge=1, le=100_000, description="Frames per parallel chunk; empty means FRINGELAB_CHUNK_FRAMES."
+    )
+
+
+class ExportSpec(_Spec):
+    """Write a succeeded topography result in a format for other programs (a download when the job succeeds)."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [{"kind": "export", "job_id": "6f1c2b8e-2d4a-4f6e-9a51-3c7d0e9b2f10", "format": "grid-npz"}]
+        },
+    )
+
+    kind: Literal["export"]
+    job_id: str = Field(min_length=1, max_length=36, description="A succeeded topography job.")
+    format: ExportFormat = Field(
+        description="points-csv, grid-npz (numpy), mat (MATLAB), vtk (ParaView time series, zipped) or "
+        "profile-csv (a section along `line`)."
+    )
+    line: tuple[float, float, float, float] | None = Field(
+        None, description="X0, Y0, X1, Y1 in mm, for profile-csv; empty: along X through the punch axis."
+    )
+
+    @model_validator(mode="after")
+    def _line_for_profiles(self) -> ExportSpec:
+        if self.line is not None and self.format != "profile-csv":
+            raise ValueError("line is only used by the profile-csv format")
+        return self
+
+
+JobSpec = Annotated[
+    SelftestSpec | CameraCalibrationSpec | ProjectorCalibrationSpec | TopographySpec | ExportSpec,
+    Field(discriminator="kind"),
+]
+
+
+JobState = Literal["queued", "running", "succeeded", "failed", "cancelled"]

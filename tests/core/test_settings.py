@@ -1,0 +1,53 @@
+from pathlib import Path
+
+import pytest
+
+from fringelab.core.settings import Settings, SettingsError, load_settings, settings_table
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_defaults_are_the_embedded_laptop_setup(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    settings = load_settings()
+    assert (settings.host, settings.port) == ("127.0.0.1", 8000)
+    assert settings.redis_url == ""
+    assert settings.resolved_database_url == f"sqlite:///{tmp_path / 'var' / 'fringelab.db'}"
+    assert settings.resolved_worker_concurrency >= 1
+
+
+def test_environment_variables_use_the_prefix(monkeypatch, tmp_path):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("FRINGELAB_PORT", "8123")
+    monkeypatch.setenv("FRINGELAB_LOG_LEVEL", "DEBUG")
+    settings = load_settings()
+    assert settings.port == 8123
+    assert settings.log_level == "debug"
+
+
+@pytest.mark.parametrize(
+    ("variable", "value"),
+    [("FRINGELAB_PORT", "eighty"), ("FRINGELAB_PORT", "70000"), ("FRINGELAB_LOG_LEVEL", "loud")],
+)
+def test_an_invalid_value_names_its_variable(monkeypatch, tmp_path, variable, value):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv(variable, value)
+    with pytest.raises(SettingsError, match=variable):
+        load_settings()
+
+
+def test_every_setting_is_documented_in_readme_and_env_example():
+    readme = (ROOT / "README.md").read_text()
+    example = (ROOT / ".env.example").read_text()
+    for variable, _default, description in settings_table():
+        assert f"`{variable}`" in readme, f"{variable} missing from the README settings table"
+        assert f"{variable}=" in example, f"{variable} missing from .env.example"
+        assert description, f"{variable} has no description"
+
+
+def test_settings_are_read_when_built_not_at_import(monkeypatch, tmp_path):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("FRINGELAB_PORT", "9001")
+    assert Settings(_env_file=None).port == 9001  # type: ignore[call-arg]
+    monkeypatch.setenv("FRINGELAB_PORT", "9002")
+    assert Settings(_env_file=None).port == 9002  # type: ignore[call-arg]

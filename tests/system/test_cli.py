@@ -1,0 +1,85 @@
+"""The `fringelab` command: versions, and one-line errors for the start-up faults a user meets."""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+
+import pytest
+
+from backend import __version__
+from backend.cli import build_parser
+from fringelab.core.services import free_port
+
+
+def run_cli(*args: str, env: dict[str, str] | None = None, timeout: float = 60) -> subprocess.CompletedProcess[str]:
+    clean = {k: v for k, v in os.environ.items() if not k.startswith("FRINGELAB_")}
+    return subprocess.run(
+        [sys.executable, "-m", "backend.cli", *args],
+        env={**clean, **(env or {})},
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+def assert_one_line_error(result: subprocess.CompletedProcess[str], *needles: str) -> None:
+    assert result.returncode != 0
+    assert "Traceback" not in result.stderr
+    lines = [line for line in result.stderr.splitlines() if line.startswith("fringelab: error:")]
+    assert len(lines) == 1, result.stderr
+    for needle in needles:
+        assert needle in lines[0]
+
+
+def test_version():
+    result = run_cli("version")
+    assert result.returncode == 0
+    assert result.stdout.strip() == f"fringelab {__version__}"
+
+
+def test_every_process_command_exists():
+    parser = build_parser()
+    for argv in (["up"], ["api"], ["worker"], ["db", "upgrade"], ["version"], ["health"]):
+        assert callable(parser.parse_args(argv).handler)
+
+
+def test_unreachable_redis_is_named(tmp_path):
+    port = free_port()
+    env = {"FRINGELAB_REDIS_URL": f"redis://127.0.0.1:{port}/0", "FRINGELAB_DATA_DIR": str(tmp_path)}
+    for command in ("worker", "api"):
+        assert_one_line_error(run_cli(command, env=env), f"127.0.0.1:{port}", "FRINGELAB_REDIS_URL")
+
+
+def test_invalid_setting_is_named(tmp_path):
+    result = run_cli("api", env={"FRINGELAB_PORT": "not-a-port", "FRINGELAB_DATA_DIR": str(tmp_path)})
+    assert_one_line_error(result, "FRINGELAB_PORT")
+
+
+def test_unreachable_database_is_named(tmp_path):
+    result = run_cli("db", "upgrade", env={"FRINGELAB_DATABASE_URL": "postgresql+psycopg://x@127.0.0.1:1/db"})
+    assert_one_line_error(result, "127.0.0.1:1", "FRINGELAB_DATABASE_URL")
+
+
+def test_port_in_use_is_named(tmp_path, redis_server):
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        env = {
+            "FRINGELAB_REDIS_URL": redis_server.url,
+            "FRINGELAB_PORT": str(port),
+            "FRINGELAB_DATA_DIR": str(tmp_path),
+        }
+        for command in ("api", "up"):
+            assert_one_line_error(run_cli(command, env=env), f"port {port}", "FRINGELAB_PORT")
+
+
+@pytest.mark.integration
+def test_health_command_reports_missing_workers(settings):
+    env = {"FRINGELAB_REDIS_URL": settings.redis_url, "FRINGELAB_DATA_DIR": str(settings.data_dir)}
+    result = run_cli("health", env=env)
+    assert result.returncode == 1
+    assert '"failing":["workers"]' in result.stdout

@@ -1,0 +1,44 @@
+"""`fringelab up` as a user runs it: a subprocess on free ports, healthy with a live worker, a task end to end,
+and after SIGTERM no child left alive (checked by PID)."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+
+import psutil
+import pytest
+
+from fringelab.core.queue import create_celery
+from fringelab.core.settings import Settings
+from tests.support import UpProcess
+
+pytestmark = [pytest.mark.integration, pytest.mark.slow]
+
+
+def test_up_runs_everything_and_sigterm_leaves_no_child(tmp_path):
+    up = UpProcess(tmp_path / "var")
+    up.start()
+    try:
+        assert up.process is not None
+        children = psutil.Process(up.process.pid).children(recursive=True)
+        names = " ".join(" ".join(c.cmdline()) for c in children)
+        assert "redis-server" in names and " worker" in names and " api" in names
+        assert sum("worker" in " ".join(c.cmdline()) for c in children) >= 2  # the worker and its pool processes
+
+        redis_url = re.search(r"Redis (redis://\S+)\)", up.log()).group(1)  # type: ignore[union-attr]
+        assert redis_url != "redis://127.0.0.1:6379/0"  # its own Redis, not the user's
+        app = create_celery(Settings(_env_file=None, redis_url=redis_url))  # type: ignore[call-arg]
+        assert app.send_task("fringelab.ping", args=["end-to-end"]).get(timeout=30)["payload"] == "end-to-end"
+
+        second = subprocess.run(up.argv, env=up.env, capture_output=True, text=True, timeout=60)
+        assert second.returncode != 0
+        assert "already running" in second.stderr
+
+        assert up.stop() == 0
+        alive = [c.pid for c in children if c.is_running() and c.status() != psutil.STATUS_ZOMBIE]
+        assert alive == [], f"children left behind: {alive}"
+        assert "fringelab stopped." in up.log()
+    finally:
+        if up.process and up.process.poll() is None:
+            up.process.kill()

@@ -1,0 +1,134 @@
+"""The layers keep their one-way imports: read every import of the code (ast) and check who imports whom.
+
+    fringelab.science                       pure numpy/OpenCV/SciPy
+    fringelab.formats                       file formats           (may import science)
+    fringelab.pipelines, fringelab.core     whole runs; core        (may import formats and science; not each other)
+    fringelab.commands, fringelab.client    the command line's science commands; the Python client
+    backend (the API), worker               the applications        (may import fringelab; never each other)
+
+An import inside a function counts like one at the top of a module (it runs as soon as the function is called);
+one under `if TYPE_CHECKING:` does not (it never runs).
+"""
+
+from __future__ import annotations
+
+import ast
+from functools import cache
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGES = ("fringelab", "backend", "worker")
+
+# layer name -> the layers it may import (itself included)
+ALLOWED = {
+    "science": {"science"},
+    "formats": {"science", "formats"},
+    "pipelines": {"science", "formats", "pipelines"},
+    "core": {"science", "formats", "core"},
+    "commands": {"science", "formats", "pipelines", "commands"},
+    "client": {"client"},
+    "backend": {"science", "formats", "core", "commands", "backend"},
+    "worker": {"science", "formats", "pipelines", "core", "worker"},
+}
+
+
+def layer_of(module: str) -> str | None:
+    parts = module.split(".")
+    if parts[0] == "fringelab":
+        return parts[1] if len(parts) > 1 and parts[1] in ALLOWED else ("science" if len(parts) == 1 else None)
+    return parts[0] if parts[0] in ("backend", "worker") else None
+
+
+def _modules() -> dict[str, Path]:
+    found = {}
+    for package in PACKAGES:
+        for path in (ROOT / package).rglob("*.py"):
+            if "migrations" in path.parts:
+                continue
+            parts = list(path.relative_to(ROOT).with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            found[".".join(parts)] = path
+    return found
+
+
+MODULES = _modules()
+
+
+def _type_checking_only(node: ast.AST, parents: dict[ast.AST, ast.AST]) -> bool:
+    while node in parents:
+        node = parents[node]
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            return True
+    return False
+
+
+@cache
+def imports_of(module: str) -> frozenset[str]:
+    """Every module `module` imports when it runs (resolved to project modules where it names one)."""
+    path = MODULES[module]
+    tree = ast.parse(path.read_text(), str(path))
+    parents = {child: node for node in ast.walk(tree) for child in ast.iter_child_nodes(node)}
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    found: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import) and not _type_checking_only(node, parents):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and not _type_checking_only(node, parents):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")
+                anchor = anchor[: len(anchor) - (node.level - 1)]
+                base = ".".join([*anchor, *([base] if base else [])])
+            found.add(base)
+            found.update(f"{base}.{alias.name}" for alias in node.names if f"{base}.{alias.name}" in MODULES)
+    return frozenset(found)
+
+
+def closure(module: str) -> set[str]:
+    """`module` and everything it imports, transitively (third-party modules as named, not followed)."""
+    seen, todo = set(), [module]
+    while todo:
+        name = todo.pop()
+        if name in seen:
+            continue
+        seen.add(name)
+        if name in MODULES:
+            todo.extend(imports_of(name))
+    return seen
+
+
+def test_every_import_points_down_or_sideways_within_its_layer() -> None:
+    wrong = []
+    for module in sorted(MODULES):
+        layer = layer_of(module)
+        for target in imports_of(module):
+            target_layer = layer_of(target)
+            if layer and target_layer and target_layer not in ALLOWED[layer]:
+                wrong.append(f"{module} ({layer}) imports {target} ({target_layer})")
+    assert not wrong, "imports against the layers:\n" + "\n".join(wrong)
+
+
+def test_no_two_top_level_packages_import_each_other() -> None:
+    edges = {(m.split(".")[0], t.split(".")[0]) for m in MODULES for t in imports_of(m) if t.split(".")[0] in PACKAGES}
+    cycles = sorted({tuple(sorted(edge)) for edge in edges if edge[0] != edge[1] and edge[::-1] in edges})
+    assert not cycles, f"top-level packages importing each other: {cycles}"
+
+
+@pytest.mark.parametrize("entry", ["backend.app"])
+def test_the_api_imports_no_opencv_and_no_task_code(entry: str) -> None:
+    modules = closure(entry)
+    assert not {m for m in modules if m == "cv2" or m.startswith("cv2.")}, sorted(
+        m for m in modules if m in MODULES and "cv2" in imports_of(m)
+    )
+    assert not {m for m in modules if m.split(".")[0] == "worker"}
+    assert "celery" not in {m.split(".")[0] for m in modules if m in MODULES and m.startswith("worker")}
+
+
+def test_the_checker_sees_a_wrong_import() -> None:
+    """The rules above can fail: a science module importing the API would be caught."""
+    assert "backend" not in ALLOWED["science"] and layer_of("backend.app") == "backend"
+    assert layer_of("fringelab.science.fringes") == "science" and layer_of("fringelab.core.jobs") == "core"
+    assert "cv2" in closure("fringelab.science.fringes")

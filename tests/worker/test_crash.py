@@ -1,0 +1,213 @@
+"""Process behaviour with real prefork workers (`fringelab worker` subprocesses): a worker process SIGKILLed
+mid-job, a hard cancel, a Redis restart mid-queue, several jobs at once. Each job ends exactly once, with a
+complete result."""
+
+from __future__ import annotations
+
+import os
+import signal
+
+import h5py
+import numpy as np
+import psutil
+import pytest
+
+from fringelab.core.settings import Settings
+from tests.support import RedisServer, wait_for
+from tests.worker.conftest import (
+    datasets,
+    log_messages,
+    pid_of,
+    sequential_topography,
+    upload_virtual_experiment,
+    wait_job,
+)
+from worker.jobs.selftest import selftest_frame
+
+pytestmark = [pytest.mark.integration, pytest.mark.slow]
+
+
+def _settings(settings: Settings, **changes: object) -> Settings:
+    return settings.model_copy(update=changes)
+
+
+def assert_complete_selftest(client, job: dict, tmp_path) -> None:
+    """Succeeded once, and its file holds every frame once with the right content."""
+    assert job["state"] == "succeeded", job["error"]
+    messages = log_messages(client, job["id"])
+    assert sum(m.startswith("succeeded") for m in messages) == 1, messages
+    spec = job["spec"]
+    path = tmp_path / f"{job['id']}.h5"
+    path.write_bytes(client.get(job["files"][0]["url"]).content)
+    with h5py.File(path) as result:
+        assert result["frame"][:].tolist() == list(range(spec["frames"]))
+        expected = [selftest_frame(f, size_px=spec["frame_size_px"])[1].encode() for f in range(spec["frames"])]
+        assert result["digest"][:].tolist() == expected
+
+
+def test_a_worker_process_killed_mid_chunk_is_replaced_and_the_job_ends_once_complete(
+    settings, client, start_prefork_worker, tmp_path
+):
+    worker = start_prefork_worker(settings, concurrency=2)
+    spec = {"kind": "selftest", "frames": 120, "frame_size_px": 1024, "chunk_frames": 20}
+    job_id = client.post("/api/v1/jobs", json=spec).json()["id"]
+
+    def a_running_chunk() -> dict | None:
+        chunks = client.get(f"/api/v1/jobs/{job_id}").json()["chunks"]
+        return next((c for c in chunks if c["state"] == "running" and c["worker"]), None)
+
+    victim = wait_for(a_running_chunk, timeout_s=60, what="a chunk to run")
+    killed = pid_of(victim["worker"])  # type: ignore[index]
+    assert killed in worker.pool_pids()
+    psutil.Process(killed).send_signal(signal.SIGKILL)
+
+    job = wait_job(client, job_id, timeout_s=120)
+    assert_complete_selftest(client, job, tmp_path)
+    rerun = next(c for c in job["chunks"] if (c["phase"], c["index"]) == (victim["phase"], victim["index"]))  # type: ignore[index]
+    assert pid_of(rerun["worker"]) != killed
+    assert killed not in worker.pool_pids() and len(worker.pool_pids()) == 2
+
+
+def test_a_topography_whose_worker_process_is_killed_while_gridding_ends_identical_to_a_sequential_run(
+    settings, client, start_prefork_worker, virtual_experiment, tmp_path
+):
+    worker = start_prefork_worker(settings, concurrency=2)
+    ids = upload_virtual_experiment(client, virtual_experiment)
+
+    def succeeded(spec: dict) -> dict:
+        job = wait_job(client, client.post("/api/v1/jobs", json=spec).json()["id"], timeout_s=300)
+        assert job["state"] == "succeeded", job["error"]
+        return job
+
+    camera = succeeded({"kind": "camera_calibration", "recording_id": ids["camera_calibration"],
+                        "scale_on": ids["scale_on"]})  # fmt: skip
+    projector = succeeded({"kind": "projector_calibration", "recording_id": ids["projector_calibration"],
+                           "camera_calibration_id": camera["result"]["calibration_id"]})  # fmt: skip
+    spec = {"kind": "topography", "recording_id": ids["test"], "chunk_frames": 2,
+            "camera_calibration_id": camera["result"]["calibration_id"],
+            "projector_calibration_id": projector["result"]["calibration_id"]}  # fmt: skip
+    job_id = client.post("/api/v1/jobs", json=spec).json()["id"]
+
+    def a_gridding_chunk() -> dict | None:
+        chunks = client.get(f"/api/v1/jobs/{job_id}").json()["chunks"]
+        return next((c for c in chunks if c["phase"] == 1 and c["state"] == "running" and c["worker"]), None)
+
+    victim = wait_for(a_gridding_chunk, timeout_s=180, what="a gridding chunk to run", interval_s=0.02)
+    killed = pid_of(victim["worker"])  # type: ignore[index]
+    psutil.Process(killed).send_signal(signal.SIGKILL)
+
+    job = wait_job(client, job_id, timeout_s=300)
+    assert job["state"] == "succeeded", job["error"]
+    assert sum(m.startswith("succeeded") for m in log_messages(client, job_id)) == 1
+    assert killed not in worker.pool_pids()
+    result = datasets(settings.data_path / "results" / "jobs" / job_id / "topography.h5")
+    reference = datasets(
+        sequential_topography(settings, virtual_experiment.test, camera, projector, tmp_path / "sequential.h5")
+    )
+    assert result.keys() == reference.keys()
+    for name in result:
+        np.testing.assert_array_equal(result[name], reference[name], err_msg=name)
+
+
+def test_a_whole_worker_killed_mid_job_is_noticed_and_another_worker_finishes_the_job(
+    settings, start_prefork_worker, tmp_path
+):
+    """SIGKILL of the worker and its pool (a machine that dies): its delivered messages would only come back after
+    the visibility timeout (hours); the API's sweep notices the silence and re-queues what the job still needs."""
+    from fastapi.testclient import TestClient
+
+    from backend.app import create_app
+
+    quick = _settings(settings, worker_lost_after_s=3.0, reconcile_interval_s=1.0)
+    doomed = start_prefork_worker(quick, concurrency=1)
+    with TestClient(create_app(quick)) as client:
+        spec = {"kind": "selftest", "frames": 60, "frame_size_px": 1024, "chunk_frames": 20}
+        job_id = client.post("/api/v1/jobs", json=spec).json()["id"]
+
+        def a_running_chunk() -> bool:
+            return any(c["state"] == "running" for c in client.get(f"/api/v1/jobs/{job_id}").json()["chunks"])
+
+        wait_for(a_running_chunk, timeout_s=60, what="a chunk to run")
+        os.killpg(doomed.process.pid, signal.SIGKILL)
+        doomed.process.wait()
+        start_prefork_worker(quick, concurrency=1, flush=False)
+        job = wait_job(client, job_id, timeout_s=120)
+        assert_complete_selftest(client, job, tmp_path)
+        assert any("re-queued" in m for m in log_messages(client, job_id))
+
+
+def test_a_cancel_terminates_a_task_that_does_not_stop_on_its_own(settings, start_prefork_worker, tmp_path):
+    from fastapi.testclient import TestClient
+
+    from backend.app import create_app
+
+    impatient = _settings(settings, cancel_grace_s=0.0)
+    worker = start_prefork_worker(impatient, concurrency=1)
+    with TestClient(create_app(impatient)) as client:
+        # one 4096 px frame takes about a second: the cooperative check between frames would come too late
+        job_id = client.post("/api/v1/jobs", json={"kind": "selftest", "frames": 50, "frame_size_px": 4096}).json()[
+            "id"
+        ]
+
+        def running_chunk_pid() -> int | None:
+            chunks = client.get(f"/api/v1/jobs/{job_id}").json()["chunks"]
+            return next((pid_of(c["worker"]) for c in chunks if c["state"] == "running" and c["worker"]), None)
+
+        pid = wait_for(running_chunk_pid, timeout_s=60, what="the chunk to run")
+        assert client.post(f"/api/v1/jobs/{job_id}/cancel").status_code == 200
+        job = wait_job(client, job_id, timeout_s=30)
+        assert job["state"] == "cancelled"
+        wait_for(lambda: not psutil.pid_exists(pid) or psutil.Process(pid).status() == psutil.STATUS_ZOMBIE,
+                 timeout_s=30, what=f"process {pid} to be terminated")  # fmt: skip
+        assert "no worker confirmed the stop within 0 s; a process still running it was terminated" in log_messages(
+            client, job_id
+        )
+        wait_for(lambda: len(worker.pool_pids()) == 1, timeout_s=30, what="the pool to replace the process")
+
+        # the worker is still useful afterwards
+        after = client.post("/api/v1/jobs", json={"kind": "selftest", "frames": 5, "frame_size_px": 32}).json()
+        assert wait_job(client, after["id"], timeout_s=60)["state"] == "succeeded"
+
+
+def test_a_redis_restart_mid_queue_loses_no_job_and_runs_none_twice(settings, start_prefork_worker, tmp_path):
+    from fastapi.testclient import TestClient
+
+    from backend.app import create_app
+
+    server = RedisServer(tmp_path / "redis", appendonly=True)
+    (tmp_path / "redis").mkdir()
+    server.start()
+    try:
+        own = _settings(settings, redis_url=server.url)
+        start_prefork_worker(own, concurrency=1)
+        with TestClient(create_app(own)) as client:
+            ids = [
+                client.post(
+                    "/api/v1/jobs",
+                    json={"kind": "selftest", "frames": 40 + i, "frame_size_px": 1024, "chunk_frames": 20},
+                ).json()["id"]
+                for i in range(3)
+            ]
+            wait_job(client, ids[0], until=("running",), timeout_s=60)
+            server.stop()
+            server.start()
+            jobs = [wait_job(client, job_id, timeout_s=180) for job_id in ids]
+            for job in jobs:
+                assert_complete_selftest(client, job, tmp_path)
+    finally:
+        server.stop()
+
+
+def test_several_jobs_at_once_use_every_worker_process(settings, client, start_prefork_worker, tmp_path):
+    start_prefork_worker(settings, concurrency=2)
+    ids = [
+        client.post(
+            "/api/v1/jobs", json={"kind": "selftest", "frames": 30 + i, "frame_size_px": 512, "chunk_frames": 10}
+        ).json()["id"]
+        for i in range(3)
+    ]
+    jobs = [wait_job(client, job_id, timeout_s=120) for job_id in ids]
+    for job in jobs:
+        assert_complete_selftest(client, job, tmp_path)
+    processes = {pid_of(c["worker"]) for job in jobs for c in job["chunks"]}
+    assert len(processes) == 2, "the chunks did not spread over both worker processes"

@@ -1,0 +1,129 @@
+"""The topography results API on a result file in the documented layout (fringelab/science/topography_files.py),
+with a field whose answers are known exactly: a tilted plane rising frame by frame (bilinear interpolation of a
+plane is exact), and a hole without data."""
+
+from __future__ import annotations
+
+import math
+
+import h5py
+import numpy as np
+import pytest
+
+from fringelab.core.db import make_engine, make_sessionmaker
+from fringelab.core.models import Job
+
+Z_FLAT_MM = 1.5
+X_MM = np.arange(-100.0, 100.0 + 1e-9, 2.0)  # 101 nodes
+Y_MM = np.arange(-60.0, 60.0 + 1e-9, 2.0)  # 61 nodes
+FRAMES = np.array([10, 11, 12, 13])
+# float32 storage (≈ 4e-6 mm at these magnitudes) and the API's rounding to 1e-4 mm bound every comparison
+TOLERANCE_MM = 2e-4
+
+
+def plane_w_mm(frame: int, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    return 0.05 * (frame - 10) * (x + 100.0) + 0.01 * y
+
+
+def write_result(path) -> None:
+    y, x = np.meshgrid(Y_MM, X_MM, indexing="ij")
+    with h5py.File(path, "w") as out:
+        out.attrs["schema"] = "fringelab.topography"
+        out.attrs["z_flat_mm"] = Z_FLAT_MM
+        out["frames/index"] = FRAMES
+        out["frames/time_s"] = (FRAMES - 10) * 1e-3
+        out["frames/punch_displacement_mm"] = (FRAMES - 10) * 2.0
+        out["frames/force_kN"] = np.full(FRAMES.shape, np.nan)
+        out["grid/x_mm"], out["grid/y_mm"] = X_MM, Y_MM
+        z = np.stack([Z_FLAT_MM + plane_w_mm(f, x, y) for f in FRAMES]).astype(np.float32)
+        z[:, 30:34, 50:54] = np.nan  # a hole: nodes X, Y = 0..6 mm
+        out.create_dataset("grid/z_mm", data=z, chunks=(1, *z.shape[1:]))
+        out["peak/w_mm"] = np.nanmax(z.reshape(len(FRAMES), -1), axis=1) - Z_FLAT_MM
+        out["peak/x_mm"] = np.full(FRAMES.shape, 100.0)
+        out["peak/y_mm"] = np.full(FRAMES.shape, 60.0)
+        out.create_group("summary").attrs["flat_rms_mm"] = 0.01
+
+
+@pytest.fixture
+def job_id(settings) -> str:
+    directory = settings.data_path / "results" / "jobs" / "topo-1"
+    directory.mkdir(parents=True)
+    write_result(directory / "topography.h5")
+    engine = make_engine(settings.resolved_database_url)
+    with make_sessionmaker(engine)() as session:
+        entry = {"name": "topography.h5", "path": "results/jobs/topo-1/topography.h5", "size_bytes": 1,
+                 "sha256": "", "media_type": "application/x-hdf5"}  # fmt: skip
+        session.add(Job(id="topo-1", kind="topography", state="succeeded", files=[entry]))
+        session.add(Job(id="topo-2", kind="topography", state="running"))
+        session.commit()
+    engine.dispose()
+    return "topo-1"
+
+
+def test_overview_lists_frames_with_the_test_log_and_peaks(client, job_id):
+    body = client.get(f"/api/v1/jobs/{job_id}/topography").json()
+    assert body["frames"] == FRAMES.tolist()
+    assert body["punch_displacement_mm"] == [0.0, 2.0, 4.0, 6.0]
+    assert body["force_kN"] == [None] * 4  # not logged: null, not NaN
+    assert body["peak_w_mm"][-1] == pytest.approx(plane_w_mm(13, 100.0, 60.0), abs=TOLERANCE_MM)
+    assert body["grid"] == {"x_min_mm": -100.0, "x_max_mm": 100.0, "y_min_mm": -60.0, "y_max_mm": 60.0,
+                            "nx": 101, "ny": 61, "step_mm": 2.0}  # fmt: skip
+    assert body["summary"] == {"flat_rms_mm": 0.01}
+
+
+def test_a_grid_is_block_averaged_to_the_budget_and_a_window_is_full_resolution(client, job_id):
+    cut = client.get(f"/api/v1/jobs/{job_id}/topography/grid", params={"frame": 12, "budget": 25}).json()
+    assert cut["step"] == 5  # ceil(101 / 25)
+    w = np.array(cut["w_mm"], dtype=float)
+    assert w.shape == (13, 21)  # ceil(61 / 5), ceil(101 / 5)
+    y, x = np.meshgrid(Y_MM, X_MM, indexing="ij")
+    full = plane_w_mm(12, x, y)
+    full[30:34, 50:54] = np.nan
+    block = full[5:10, 10:15]  # the block mean of a plane is the plane at the block centre
+    assert w[1, 2] == pytest.approx(np.nanmean(block), abs=TOLERANCE_MM)
+    assert cut["x_mm"][2] == pytest.approx(X_MM[10:15].mean()) and cut["y_mm"][1] == pytest.approx(Y_MM[5:10].mean())
+    assert np.isfinite(w[6, 10])  # the 5 x 5 block holding part of the hole still has data
+
+    window = {"frame": 12, "x_min": 0, "x_max": 10, "y_min": 0, "y_max": 10}
+    zoom = client.get(f"/api/v1/jobs/{job_id}/topography/grid", params=window).json()
+    assert zoom["step"] == 1 and zoom["x_mm"] == [0, 2, 4, 6, 8, 10] and zoom["y_mm"] == [0, 2, 4, 6, 8, 10]
+    assert zoom["w_mm"][4][5] == pytest.approx(plane_w_mm(12, 10.0, 8.0), abs=TOLERANCE_MM)
+    assert zoom["w_mm"][1][1] is None  # node (2, 2) mm lies in the hole
+
+    raw = client.get(f"/api/v1/jobs/{job_id}/topography/grid", params=window | {"format": "f32"})
+    assert raw.headers["content-type"] == "application/octet-stream"
+    assert raw.headers["x-grid-shape"] == "6,6" and raw.headers["x-grid-x-mm"] == "0,2"
+    values = np.frombuffer(raw.content, dtype="<f4").reshape(6, 6)
+    assert np.isnan(values[1, 1])
+    np.testing.assert_allclose(values[4], zoom["w_mm"][4], atol=TOLERANCE_MM)
+
+
+def test_profiles_and_histories_sample_the_grid(client, job_id):
+    line = {"x0": -90.0, "y0": -50.0, "x1": 90.0, "y1": 40.0, "n_points": 7}
+    body = client.get(f"/api/v1/jobs/{job_id}/topography/profile", params=line | {"frames": [13, 11]}).json()
+    assert body["s_mm"][-1] == pytest.approx(math.hypot(180.0, 90.0))
+    assert [p["frame"] for p in body["profiles"]] == [13, 11]
+    x, y = np.array(body["x_mm"]), np.array(body["y_mm"])
+    np.testing.assert_allclose(body["profiles"][0]["w_mm"], plane_w_mm(13, x, y), atol=TOLERANCE_MM)
+
+    history = client.get(f"/api/v1/jobs/{job_id}/topography/history", params={"x_mm": 33.3, "y_mm": -7.1}).json()
+    assert history["frames"] == FRAMES.tolist() and history["time_s"] == [0.0, 0.001, 0.002, 0.003]
+    np.testing.assert_allclose(history["w_mm"], [plane_w_mm(f, 33.3, -7.1) for f in FRAMES], atol=TOLERANCE_MM)
+    in_hole = client.get(f"/api/v1/jobs/{job_id}/topography/history", params={"x_mm": 3.0, "y_mm": 1.0}).json()
+    assert in_hole["w_mm"] == [None] * 4
+
+
+def test_bad_result_requests_say_what_is_wrong(client, job_id):
+    base = f"/api/v1/jobs/{job_id}/topography"
+    missing_frame = client.get(f"{base}/grid", params={"frame": 3})
+    assert missing_frame.status_code == 422
+    assert missing_frame.json() == {"detail": "frame 3 is not in this result (frames 10..13)",
+                                    "code": "frame_not_in_result", "field": "frame"}  # fmt: skip
+    outside = client.get(f"{base}/history", params={"x_mm": 500, "y_mm": 0})
+    assert outside.status_code == 422 and outside.json()["code"] == "outside_grid"
+    assert "-100..100 mm" in outside.json()["detail"]
+    half_window = client.get(f"{base}/grid", params={"frame": 10, "x_min": 0})
+    assert half_window.status_code == 422 and half_window.json()["code"] == "incomplete_window"
+    running = client.get("/api/v1/jobs/topo-2/topography")
+    assert running.status_code == 409 and running.json()["code"] == "job_not_succeeded"
+    assert client.get("/api/v1/jobs/nope/topography").status_code == 404

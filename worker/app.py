@@ -1,0 +1,45 @@
+"""The worker process: the Celery app with fringelab's tasks, and `python -m worker` (what `fringelab worker` runs)."""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Sequence
+
+from celery import Celery
+
+from fringelab.core.queue import create_celery
+from fringelab.core.services import ServiceError, check_redis
+from fringelab.core.settings import Settings, SettingsError, load_settings
+
+TASK_MODULES = ("worker.tasks",)
+
+
+def create_worker_app(settings: Settings) -> Celery:
+    """The Celery app of a worker process: the shared queue settings plus every task."""
+    return create_celery(settings, include=TASK_MODULES)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Start a prefork worker, one process per core (FRINGELAB_WORKER_CONCURRENCY); exit 2 on a start-up fault."""
+    try:
+        settings = load_settings()
+        if not settings.redis_url:
+            raise ServiceError("FRINGELAB_REDIS_URL is not set; a worker needs the queue of a running fringelab")
+        check_redis(settings.redis_url)
+    except (SettingsError, ServiceError) as error:
+        print(f"fringelab worker: {error}", file=sys.stderr)
+        return 2
+    create_worker_app(settings).worker_main(
+        [
+            "worker",
+            "--pool=prefork",
+            f"--concurrency={settings.resolved_worker_concurrency}",
+            f"--loglevel={settings.log_level.upper()}",
+            f"--hostname=fringelab-{os.getpid()}@%h",
+            "--without-mingle",
+            "--without-gossip",
+            *(argv or ()),
+        ]
+    )
+    return 0
