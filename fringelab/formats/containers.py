@@ -33,11 +33,11 @@ from typing import BinaryIO
 
 import numpy as np
 
-from fringelab.formats.sidecars import check_sidecar_size
 from fringelab.science import natural_key
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".bmp", ".jpg", ".jpeg")
 SIDECAR_NAMES = ("z.csv", "frames.csv", "board.json")
+MAX_SIDECAR_BYTES = 16 << 20  # a frames.csv row is ~40 bytes: 16 MiB holds 400k frames
 # Single-file recordings by name; a ZIP holds frames. A folder of frames is read from disk, not uploaded.
 UPLOAD_SUFFIXES = {".zip": "zip", ".tif": "tiff", ".tiff": "tiff", ".avi": "avi", ".mp4": "mp4", ".cine": "cine"}
 FORMATS = ("folder", "zip", "tiff", "avi", "mp4", "cine")
@@ -60,6 +60,13 @@ class CorruptRecording(ValueError):
 
 class OverBudget(ValueError):
     """The recording would expand to more bytes than the per-upload cap or the free disk allow."""
+
+
+def check_sidecar_size(size_bytes: int, *, name: str) -> None:
+    """Refuse a sidecar by its size before reading it (from a ZIP directory, a file's stat, a request header).
+    The parsers in `sidecars` read only what passed here."""
+    if size_bytes > MAX_SIDECAR_BYTES:
+        raise ValueError(f"{name}: {size_bytes} bytes, larger than the {MAX_SIDECAR_BYTES} bytes a sidecar may have")
 
 
 def sniff_format(path: str | Path) -> str:

@@ -14,25 +14,17 @@ import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from fringelab.science.chessboard import Board  # OpenCV: imported where a board is built, not by the API
+from fringelab.formats.containers import MAX_SIDECAR_BYTES, check_sidecar_size
+from fringelab.science.chessboard import Board
 
 FRAMES_CSV_COLUMNS = ("time_s", "punch_displacement_mm", "force_kN")
-SIDECAR_NAMES = ("z.csv", "frames.csv", "board.json")
-MAX_SIDECAR_BYTES = 16 << 20  # a frames.csv of a million frames is ~50 MB; 16 MiB covers 300k rows
 MAX_FIELD_CHARS = 64  # a number or a frame id; longer is not a cell of these files
 MAX_JSON_DEPTH = 8  # board.json is one object holding one list
 _INT64_MAX = (1 << 63) - 1
-
-
-def check_sidecar_size(size_bytes: int, *, name: str) -> None:
-    """Refuse a sidecar by its size before reading it (from a ZIP directory, a file's stat, a request header)."""
-    if size_bytes > MAX_SIDECAR_BYTES:
-        raise ValueError(f"{name}: {size_bytes} bytes, larger than the {MAX_SIDECAR_BYTES} bytes a sidecar may have")
 
 
 def sidecar_text(data: bytes, *, name: str) -> str:
@@ -227,8 +219,6 @@ def read_board_json(text: str, *, name: str = "board.json") -> Board:
         if not valid:
             raise ValueError(f"{name}: origin must be [i, j] corner indices ≥ 0 or null, got {origin!r}")
         origin = (origin[0], origin[1])
-    from fringelab.science.chessboard import Board
-
     return Board(cols=cols, rows=rows, square_mm=float(square_mm), origin=origin)
 
 
