@@ -25,7 +25,7 @@ from backend.schemas.auth import (
     UserPatch,
 )
 from backend.schemas.common import MAX_ID
-from fringelab.core.accounts import audit, create_user, issue_token, token_digest, verify_password
+from fringelab.core.accounts import audit, authenticate, change_user, create_user, issue_token, token_digest
 from fringelab.core.errors import Conflict, NotFound, RateLimited, Unauthorized
 from fringelab.core.models import ApiToken, AuditEvent, Group, GroupMember, User, utcnow
 
@@ -63,21 +63,30 @@ def login(body: LoginIn, request: Request, response: Response, state: StateDep, 
     window = state.settings.login_window_s
     if _failures_so_far(state, client) >= state.settings.login_max_failures:
         raise RateLimited(f"too many failed logins from {client}; wait {window} s", retry_after_s=window)
-    user = session.scalar(select(User).where(User.username == body.username))
-    if user is None or user.disabled or not verify_password(user.password_hash, body.password):
+    user = authenticate(session, body.username, body.password)
+    if user is None:
         _count_failure(state, client)
         raise Unauthorized("wrong username or password, or the account is disabled")
     ttl = timedelta(hours=state.settings.session_ttl_h)
     _, secret = issue_token(session, user, name="browser session", kind="session", ttl=ttl)
     session.commit()
+    secure = state.settings.secure_cookies == "always" or (
+        state.settings.secure_cookies == "auto" and request.url.scheme == "https"
+    )
     response.set_cookie(
-        SESSION_COOKIE, secret, max_age=int(ttl.total_seconds()), httponly=True, samesite="strict", path="/"
+        SESSION_COOKIE,
+        secret,
+        max_age=int(ttl.total_seconds()),
+        httponly=True,
+        samesite="strict",
+        path="/",
+        secure=secure,
     )
     return Me(username=user.username, role=user.role, auth_enabled=True)
 
 
 @router.post("/auth/logout", status_code=204, responses=error_responses(401))
-def logout(request: Request, response: Response, session: SessionDep, principal: CurrentUser) -> None:
+def logout(request: Request, response: Response, session: SessionDep, state: StateDep, principal: CurrentUser) -> None:
     """End the browser session (its token is revoked)."""
     secret = request.cookies.get(SESSION_COOKIE)
     if secret:
@@ -85,6 +94,7 @@ def logout(request: Request, response: Response, session: SessionDep, principal:
         if row is not None and row.revoked_at is None:
             row.revoked_at = utcnow()
             session.commit()
+            state.tokens.forget()
     response.delete_cookie(SESSION_COOKIE, path="/")
 
 
@@ -126,7 +136,9 @@ def create_token(body: TokenIn, session: SessionDep, principal: CurrentUser) -> 
 
 
 @router.delete("/auth/tokens/{token_id}", status_code=204, responses=error_responses(401, 404))
-def revoke_token(token_id: Annotated[int, Path(ge=1, le=MAX_ID)], session: SessionDep, principal: CurrentUser) -> None:
+def revoke_token(
+    token_id: Annotated[int, Path(ge=1, le=MAX_ID)], session: SessionDep, state: StateDep, principal: CurrentUser
+) -> None:
     """Revoke one of your tokens; scripts using it get 401 from now on."""
     row = session.get(ApiToken, token_id)
     if row is None or (row.user_id != principal.user_id and not principal.is_admin):
@@ -135,6 +147,7 @@ def revoke_token(token_id: Annotated[int, Path(ge=1, le=MAX_ID)], session: Sessi
         row.revoked_at = utcnow()
         audit(session, principal, "revoke", "token", token_id)
         session.commit()
+        state.tokens.forget()
 
 
 @router.get("/users", response_model=list[UserOut], responses=error_responses(401, 403))
@@ -155,19 +168,23 @@ def add_user(body: UserIn, session: SessionDep, admin: AdminUser) -> User:
     return user
 
 
-@router.patch("/users/{user_id}", response_model=UserOut, responses=error_responses(401, 403, 404))
+@router.patch("/users/{user_id}", response_model=UserOut, responses=error_responses(401, 403, 404, 409))
 def update_user(
-    user_id: Annotated[int, Path(ge=1, le=MAX_ID)], body: UserPatch, session: SessionDep, admin: AdminUser
+    user_id: Annotated[int, Path(ge=1, le=MAX_ID)],
+    body: UserPatch,
+    session: SessionDep,
+    state: StateDep,
+    admin: AdminUser,
 ) -> User:
     """Change an account's role or disable it (admin); a disabled account's tokens stop working at once."""
     user = session.get(User, user_id)
     if user is None:
         raise NotFound(f"user {user_id} not found")
     changes = body.model_dump(exclude_none=True)
-    for field, value in changes.items():
-        setattr(user, field, value)
+    change_user(session, user, **changes)
     audit(session, admin, "update", "user", user_id, **changes)
     session.commit()
+    state.tokens.forget()
     return user
 
 
