@@ -289,6 +289,8 @@ def inspect_upload(path: Path, *, filename: str, settings: Settings) -> str:
         raise Invalid(_named(error, path, filename), code="unsafe_archive") from None
     except CorruptRecording as error:
         raise Invalid(_named(error, path, filename), code="corrupt_recording") from None
+    except ValueError as error:  # any other refusal of the format readers: the file's fault, never a 500
+        raise Invalid(_named(error, path, filename), code="invalid_recording") from None
     return format
 
 

@@ -221,7 +221,10 @@ def inspect_zip(path: str | Path, *, limits: ZipLimits | None = None) -> ZipCont
         if PurePosixPath(base).suffix.lower() in IMAGE_SUFFIXES:
             frames.append(info.filename)
         elif base in SIDECAR_NAMES:
-            check_sidecar_size(info.file_size, name=info.filename)
+            try:
+                check_sidecar_size(info.file_size, name=info.filename)
+            except ValueError as error:
+                raise UnsafeArchive(f"{path.name}: {error}; refused") from None
             sidecars.setdefault(base, info.filename)
     _refuse_overlapping_entries(path.name, infos)
     if not frames:
