@@ -141,7 +141,8 @@ def request_mix(job_id: str, running_job_ids: list[str], rng: random.Random) -> 
     if pick < 0.40:
         return "overview", f"/api/v1/jobs/{job_id}/topography", {}
     if pick < 0.50:
-        return "profile", f"/api/v1/jobs/{job_id}/topography/profile", {}
+        line = {"x0": -40.0, "y0": 0.0, "x1": 40.0, "y1": 0.0, "frames": [rng.randrange(0, 8)]}
+        return "profile", f"/api/v1/jobs/{job_id}/topography/profile", line
     if pick < 0.65:
         return "list", rng.choice(["/api/v1/jobs", "/api/v1/recordings", "/api/v1/experiments"]), {}
     if pick < 0.80:
