@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path as PathType
 from typing import Annotated, Any, Literal
 
 import numpy as np
@@ -21,6 +22,7 @@ from sqlalchemy import select
 
 from backend.api.deps import CurrentUser, SessionDep, StateDep, experiment_for
 from backend.api.jobs import ERRORS, JobDep
+from backend.cache import AnswerCache
 from backend.results import (
     GRID_BUDGET_NODES,
     FrameNotInResult,
@@ -36,6 +38,7 @@ from fringelab.core.accounts import readable_experiments
 from fringelab.core.errors import Conflict, Gone, Invalid, NotFound
 from fringelab.core.jobs import as_utc, job_error
 from fringelab.core.models import Calibration, Camera, Experiment, Job
+from fringelab.core.state import AppState
 
 router = APIRouter(tags=["results"])
 RESULT_ERRORS: dict[int | str, dict[str, Any]] = {
@@ -198,11 +201,12 @@ def calibration_file(calibration: CalibrationDep, state: StateDep) -> FileRespon
 # ---------------------------------------------------------------------------------------------- topography
 
 TOPOGRAPHY_FILE = "topography.h5"
+# Rendered grids, overviews and profiles of results (immutable once their job succeeded), shared by the viewers.
+ANSWERS = AnswerCache(max_bytes=16 * 2**20)
 
 
-@contextmanager
-def topography(job: Job, data_path: Any) -> Iterator[TopographyReader]:
-    """The result of a succeeded topography job, open; a job error (409/410/422) with what to do otherwise."""
+def topography_file(job: Job, data_path: Any) -> PathType:
+    """The result file of a succeeded topography job; a job error (404/409/410) with what to do otherwise."""
     if job.kind != "topography":
         raise job_error(NotFound, "not_topography", f"job {job.id} is a {job.kind} job, not a topography")
     if job.state != "succeeded":
@@ -213,7 +217,17 @@ def topography(job: Job, data_path: Any) -> Iterator[TopographyReader]:
     if entry is None:
         raise job_error(Gone, "result_missing", f"job {job.id} has no {TOPOGRAPHY_FILE}; retry the job")
     try:
-        with TopographyReader(result_path(data_path, entry["path"])) as reader:
+        return result_path(data_path, entry["path"])
+    except ResultUnavailable as error:
+        raise job_error(Gone, "result_missing", str(error)) from None
+
+
+@contextmanager
+def topography(job: Job, data_path: Any) -> Iterator[TopographyReader]:
+    """The result of a succeeded topography job, open; a job error (409/410/422) with what to do otherwise."""
+    path = topography_file(job, data_path)
+    try:
+        with TopographyReader(path) as reader:
             yield reader
     except FrameNotInResult as error:
         raise job_error(Invalid, "frame_not_in_result", str(error), field="frame") from None
@@ -241,6 +255,15 @@ def topography_overview(job: JobDep, state: StateDep) -> TopographyOverview:
     """The frames of a topography result with the test log and the peak deflection of each (for the frame
     slider and the plots of peak deflection against time, punch displacement and force), the grid's extent and
     the result's summary."""
+
+    def render() -> bytes:
+        return _overview(job, state).model_dump_json().encode()
+
+    body = ANSWERS.get_or_render(topography_file(job, state.settings.data_path), ("overview",), render)
+    return Response(body, media_type="application/json")  # type: ignore[return-value]
+
+
+def _overview(job: Job, state: AppState) -> TopographyOverview:
     with topography(job, state.settings.data_path) as reader:
         x, y = reader.x_mm, reader.y_mm
         return TopographyOverview(
@@ -303,6 +326,18 @@ def topography_grid(
     if any(b is None for b in bounds) and not all(b is None for b in bounds):
         raise job_error(Invalid, "incomplete_window", "give all of x_min, x_max, y_min, y_max, or none", field="x_min")
     window = None if x_min is None else tuple(float(b) for b in bounds)  # type: ignore[arg-type]
+    if format == "json":
+
+        def render() -> bytes:
+            with topography(job, state.settings.data_path) as reader:
+                cut = reader.grid(frame, budget=budget, window_mm=window)  # type: ignore[arg-type]
+            grid = GridOut(frame=cut.frame, step=cut.step, x_mm=_listed(cut.x_mm), y_mm=_listed(cut.y_mm),
+                           w_mm=_listed(cut.w_mm))  # fmt: skip
+            return grid.model_dump_json().encode()
+
+        key = ("grid", frame, budget, window)
+        body = ANSWERS.get_or_render(topography_file(job, state.settings.data_path), key, render)
+        return Response(body, media_type="application/json")
     with topography(job, state.settings.data_path) as reader:
         cut = reader.grid(frame, budget=budget, window_mm=window)  # type: ignore[arg-type]
     if format == "f32":
@@ -347,14 +382,24 @@ def topography_profile(
     n_points: Annotated[int, Query(ge=2, le=5000)] = 200,
 ) -> ProfileOut:
     """Deflection profiles w(s) along the segment (x0, y0) → (x1, y1) in mm, for the frames asked."""
-    with topography(job, state.settings.data_path) as reader:
-        cut = reader.profile(frames, (x0, y0, x1, y1), n_points=n_points)
-    return ProfileOut(
-        s_mm=_listed(cut["s_mm"]),
-        x_mm=_listed(cut["x_mm"]),
-        y_mm=_listed(cut["y_mm"]),
-        profiles=[{"frame": p["frame"], "w_mm": _listed(p["w_mm"])} for p in cut["profiles"]],
-    )
+
+    def render() -> bytes:
+        with topography(job, state.settings.data_path) as reader:
+            cut = reader.profile(frames, (x0, y0, x1, y1), n_points=n_points)
+        return (
+            ProfileOut(
+                s_mm=_listed(cut["s_mm"]),
+                x_mm=_listed(cut["x_mm"]),
+                y_mm=_listed(cut["y_mm"]),
+                profiles=[{"frame": p["frame"], "w_mm": _listed(p["w_mm"])} for p in cut["profiles"]],
+            )
+            .model_dump_json()
+            .encode()
+        )
+
+    key = ("profile", tuple(frames), x0, y0, x1, y1, n_points)
+    body = ANSWERS.get_or_render(topography_file(job, state.settings.data_path), key, render)
+    return Response(body, media_type="application/json")  # type: ignore[return-value]
 
 
 class HistoryOut(BaseModel):
