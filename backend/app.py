@@ -9,9 +9,9 @@ import anyio
 from fastapi import FastAPI
 
 from backend import __version__
-from backend.api import auth, demo, experiments, health, jobs, recordings, results, uploads
+from backend.api import auth, demo, docs, experiments, health, jobs, overview, recordings, results, uploads
 from backend.errors import install_error_handlers
-from backend.frontend import mount_frontend
+from backend.frontend import mount_docs, mount_frontend
 from backend.limits import BodySizeLimit, PlainJsonNumbers, UserRateLimiter
 from backend.openapi import install_openapi
 from backend.security import SecurityHeaders
@@ -53,8 +53,8 @@ def create_app(settings: Settings) -> FastAPI:
         title="fringelab",
         version=__version__,
         summary="Out-of-plane deformation of plates from structured light and photogrammetry.",
-        docs_url="/api/docs",
-        redoc_url="/api/redoc",
+        docs_url=None,  # served by mount_docs from the installed assets, not from a CDN
+        redoc_url=None,
         openapi_url="/api/openapi.json",
         lifespan=lifespan,
     )
@@ -74,8 +74,11 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(jobs.router, prefix="/api/v1")
     app.include_router(results.router, prefix="/api/v1")
     app.include_router(demo.router, prefix="/api/v1")
+    app.include_router(docs.router, prefix="/api/v1")
+    app.include_router(overview.router, prefix="/api/v1")
 
     install_openapi(app)
+    mount_docs(app)
     mount_frontend(app)  # last: it serves every path the API does not
     return app
 

@@ -90,8 +90,8 @@ def run_case(name, frames, names, board, *, mode, z_mm=None, du, dv, scale_on, r
         for n, c in detected
     ]
     ours_s, ours_min_s, ours = timed(
-        lambda: calibrate_from_views(views, mode=mode, image_size_px=(width, height), du_px_per_mm=du, dv_px_per_mm=dv,
-                                     scale_on=scale_on), repeats)  # fmt: skip
+        lambda: calibrate_from_views(views, mode=mode, image_size_wh_px=(width, height), du_px_per_mm=du,
+                                     dv_px_per_mm=dv, scale_on=scale_on), repeats)  # fmt: skip
     if mode == "zstack":
         # OpenCV's equivalent of the Z-stack: one non-planar view, which needs a starting camera matrix.
         planar = [[v.points_obj_mm * [1, 1, 0] for v in views], [v.q_px for v in views]]

@@ -112,7 +112,7 @@ def edge_bias_and_noise() -> dict[str, float]:
             normal = np.array([np.cos(theta), np.sin(theta)])
             for smoothing, sink in ((0.0, errors_raw), (3.0, errors)):
                 edges = locate_edges(image, EdgeSettings(axis="rows", period_px=10.0 / np.cos(theta),
-                                                         edge_smoothing_px=smoothing))  # fmt: skip
+                                                         edge_smoothing_lines=smoothing))  # fmt: skip
                 x = edges.q_px() @ normal - phase
                 sink.append(((x / 5.0 - np.round(x / 5.0)) * 5.0) / normal[0])
     raw, smooth = np.concatenate(errors_raw), np.concatenate(errors)

@@ -11,6 +11,8 @@ import { renderRecording } from "./views/recording.js";
 import { renderJob, renderJobs } from "./views/jobs.js";
 import { renderCalibration } from "./views/calibration.js";
 import { renderViewer } from "./views/viewer.js";
+import { renderHelp, renderHelpIndex } from "./views/help.js";
+import { renderQueue } from "./views/queue.js";
 
 const container = document.getElementById("view");
 
@@ -51,6 +53,9 @@ router
   .add("/jobs/:id", renderJob)
   .add("/jobs/:id/report", renderCalibration)
   .add("/jobs/:id/viewer", renderViewer)
+  .add("/queue", renderQueue)
+  .add("/help", renderHelpIndex)
+  .add("/help/:name", renderHelp)
   .add("/tokens", renderTokens)
   .add("/system", renderSystem);
 

@@ -104,9 +104,10 @@ export class Figure {
     this.drawn = true;
   }
 
+  /** `csv()` may name the file itself (`filename`, no extension), e.g. to say which grid it holds. */
   downloadCSV() {
-    const { columns, rows } = this.csv();
-    saveText(`${this.filename}.csv`, toCSV(columns, rows));
+    const { columns, rows, filename } = this.csv();
+    saveText(`${filename || this.filename}.csv`, toCSV(columns, rows));
   }
 
   downloadPNG() {
@@ -139,8 +140,66 @@ export function fieldRows(field) {
   return rows;
 }
 
+/**
+ * [min, max] of the finite values of a field inside an x, y window (mm; null: the whole field), or null when
+ * there are none: the colour range of what is in view.
+ */
+export function fieldRange(field, window = null) {
+  let lo = Infinity;
+  let hi = -Infinity;
+  const inX = field.x.map((x) => !window || (x >= window.x0 && x <= window.x1));
+  field.z.forEach((row, j) => {
+    const y = field.y[j];
+    if (window && (y < window.y0 || y > window.y1)) return;
+    for (let i = 0; i < row.length; i += 1) {
+      const w = row[i];
+      if (inX[i] && Number.isFinite(w)) {
+        if (w < lo) lo = w;
+        if (w > hi) hi = w;
+      }
+    }
+  });
+  if (lo > hi) return null;
+  return lo === hi ? [lo - 1e-3, hi + 1e-3] : [lo, hi];
+}
+
+/**
+ * `field` resampled at the nodes of `onto` (bilinear; NaN where a neighbour is unmeasured or the node is outside
+ * `field`): two cameras' results in the plate frame, compared node by node.
+ */
+export function resampleField(field, onto) {
+  const locate = (axisValues, v) => {
+    const n = axisValues.length;
+    if (n < 2) return null;
+    const step = axisValues[1] - axisValues[0];
+    const f = (v - axisValues[0]) / step;
+    if (f < 0 || f > n - 1) return null;
+    const i = Math.min(n - 2, Math.floor(f));
+    return [i, f - i];
+  };
+  const xs = onto.x.map((x) => locate(field.x, x));
+  return {
+    x: onto.x,
+    y: onto.y,
+    z: onto.y.map((y) => {
+      const row = new Float32Array(onto.x.length).fill(NaN);
+      const at = locate(field.y, y);
+      if (!at) return row;
+      const [j, fy] = at;
+      const a = field.z[j];
+      const b = field.z[j + 1];
+      xs.forEach((loc, k) => {
+        if (!loc) return;
+        const [i, fx] = loc;
+        row[k] = (a[i] * (1 - fx) + a[i + 1] * fx) * (1 - fy) + (b[i] * (1 - fx) + b[i + 1] * fx) * fy;
+      });
+      return row;
+    }),
+  };
+}
+
 /** The 3-D surface of a field. `range` = [min, max] fixes the colours across frames. */
-export function surfaceTraces(field, { range = null, valueName = "w", unit = "mm" } = {}) {
+export function surfaceTraces(field, { range = null, valueName = "w", unit = "mm", rangeNote = "" } = {}) {
   return [
     {
       type: "surface",
@@ -151,7 +210,7 @@ export function surfaceTraces(field, { range = null, valueName = "w", unit = "mm
       cmin: range ? range[0] : undefined,
       cmax: range ? range[1] : undefined,
       cmid: range ? undefined : 0,
-      colorbar: { title: { text: `${valueName} (${unit})` }, len: 0.8 },
+      colorbar: { title: { text: `${valueName} (${unit})${rangeNote}` }, len: 0.8 },
       hovertemplate: `x %{x:.2f} mm<br>y %{y:.2f} mm<br>${valueName} %{z:.3f} ${unit}<extra></extra>`,
     },
   ];
@@ -172,7 +231,7 @@ export function surfaceLayout({ zName = "deflection w", unit = "mm", zRange = nu
 }
 
 /** The 2-D map of a field, with section lines (labelled A, B, ...) and points (P1, P2, ...) drawn over it. */
-export function mapTraces(field, { range = null, points = [], valueName = "w", unit = "mm" } = {}) {
+export function mapTraces(field, { range = null, points = [], valueName = "w", unit = "mm", rangeNote = "" } = {}) {
   const traces = [
     {
       type: "heatmap",
@@ -184,7 +243,7 @@ export function mapTraces(field, { range = null, points = [], valueName = "w", u
       zmax: range ? range[1] : undefined,
       zmid: range ? undefined : 0,
       zsmooth: false,
-      colorbar: { title: { text: `${valueName} (${unit})` } },
+      colorbar: { title: { text: `${valueName} (${unit})${rangeNote}` } },
       hovertemplate: `x %{x:.2f} mm<br>y %{y:.2f} mm<br>${valueName} %{z:.3f} ${unit}<extra></extra>`,
     },
   ];
@@ -205,8 +264,9 @@ export function mapTraces(field, { range = null, points = [], valueName = "w", u
   return traces;
 }
 
-export function mapLayout({ lines = [] } = {}) {
+export function mapLayout({ lines = [], uirevision = "keep" } = {}) {
   return layout({
+    uirevision,
     margin: { l: 60, r: 10, t: 10, b: 50 },
     xaxis: axis("x", "mm", { constrain: "domain" }),
     yaxis: axis("y", "mm", { scaleanchor: "x", constrain: "domain" }),

@@ -62,7 +62,8 @@ function unpack(schema, root) {
   return { schema: resolved, nullable: false };
 }
 
-/** One input (or group of inputs) for a property; returns { element, value() } where value() is the JSON. */
+/** One input (or group of inputs) for a property; returns { element, value(), set(v) } where value() is the JSON
+ * and set(v) puts a value in (null empties it; an optional group is switched on or off). */
 function control(name, property, required, root, prefix, pickers) {
   const { schema, nullable } = unpack(property, root);
   const description = property.description || schema.description || "";
@@ -77,7 +78,7 @@ function control(name, property, required, root, prefix, pickers) {
   const choices = schema.enum || (schema.const !== undefined ? [schema.const] : null);
   if (choices) {
     const select = h("select", {}, choices.map((c) => h("option", { value: c, selected: c === fallback }, String(c))));
-    return { element: field(label, select, description).wrap, value: () => select.value };
+    return { element: field(label, select, description).wrap, value: () => select.value, set: (v) => { select.value = v ?? fallback; } };
   }
   if (schema.type === "boolean") {
     const id = newId("check");
@@ -85,6 +86,7 @@ function control(name, property, required, root, prefix, pickers) {
     return {
       element: h("div", { class: "field check-field" }, h("label", { for: id }, box, " ", label), description ? h("small", { class: "hint" }, description) : null),
       value: () => box.checked,
+      set: (v) => { box.checked = Boolean(v); },
     };
   }
   if (schema.type === "integer" || schema.type === "number") {
@@ -97,7 +99,7 @@ function control(name, property, required, root, prefix, pickers) {
       required: required && !nullable && fallback === undefined,
       placeholder: nullable ? "empty" : null,
     });
-    return { element: field(label, input, description).wrap, value: () => (input.value === "" ? null : Number(input.value)) };
+    return { element: field(label, input, description).wrap, value: () => (input.value === "" ? null : Number(input.value)), set: (v) => { input.value = v ?? ""; } };
   }
   if (schema.type === "array" && Array.isArray(schema.prefixItems)) {
     const inputs = schema.prefixItems.map((_, i) => h("input", { type: "number", step: "any", "aria-label": `${label}, value ${i + 1}` }));
@@ -105,13 +107,14 @@ function control(name, property, required, root, prefix, pickers) {
     return {
       element: h("div", { class: "field" }, h("span", { class: "label", id }, label), h("div", { class: "tuple", role: "group", "aria-labelledby": id }, inputs), description ? h("small", { class: "hint" }, description) : null),
       value: () => (inputs.every((i) => i.value === "") ? null : inputs.map((i) => Number(i.value))),
+      set: (v) => inputs.forEach((input, i) => { input.value = v ? v[i] ?? "" : ""; }),
     };
   }
   if (schema.type === "object" && schema.properties) {
     const inner = specControls(schema, root, path, pickers);
     const legend = h("legend", {}, label);
     const set = h("fieldset", { class: "sub-spec" }, legend, description ? h("small", { class: "hint" }, description) : null, inner.elements);
-    if (!nullable) return { element: set, value: inner.value };
+    if (!nullable) return { element: set, value: inner.value, set: inner.set };
     // An optional group (e.g. the board): off means null, the server's default.
     const id = newId("give");
     const give = h("input", { type: "checkbox", id });
@@ -123,10 +126,18 @@ function control(name, property, required, root, prefix, pickers) {
     give.addEventListener("change", toggle);
     legend.replaceChildren(h("label", { for: id }, give, " ", label));
     toggle();
-    return { element: set, value: () => (give.checked ? inner.value() : null) };
+    return {
+      element: set,
+      value: () => (give.checked ? inner.value() : null),
+      set: (v) => {
+        give.checked = v !== null && v !== undefined;
+        if (give.checked) inner.set(v);
+        toggle();
+      },
+    };
   }
   const input = h("input", { type: "text", value: fallback ?? null, maxlength: schema.maxLength });
-  return { element: field(label, input, description).wrap, value: () => (input.value === "" ? null : input.value) };
+  return { element: field(label, input, description).wrap, value: () => (input.value === "" ? null : input.value), set: (v) => { input.value = v ?? ""; } };
 }
 
 function specControls(schema, root, prefix, pickers) {
@@ -144,6 +155,9 @@ function specControls(schema, root, prefix, pickers) {
       }
       return out;
     },
+    set: (values) => {
+      for (const [name, c] of controls) if (values && name in values && c.set) c.set(values[name]);
+    },
   };
 }
 
@@ -155,5 +169,5 @@ export async function specInputs(kind, pickers = {}) {
   const root = await apiSchema();
   const schema = specSchema(root, kind);
   const controls = specControls(schema, root, "", pickers);
-  return { elements: controls.elements, spec: () => ({ kind, ...controls.value() }), description: schema.description || "" };
+  return { elements: controls.elements, spec: () => ({ kind, ...controls.value() }), set: controls.set, description: schema.description || "" };
 }

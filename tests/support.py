@@ -117,3 +117,8 @@ class UpProcess:
         except subprocess.TimeoutExpired:
             self.process.kill()
             raise
+
+
+def bearer(token: str) -> dict[str, str]:
+    """The header that authenticates a request with an API token."""
+    return {"Authorization": f"Bearer {token}"}

@@ -43,15 +43,11 @@ from fringelab.core.jobs import (
 from fringelab.core.models import Job, JobChunk, utcnow
 from fringelab.core.settings import Settings
 from fringelab.formats.atomic import atomic_path
-from fringelab.science import MeasurementError
+from fringelab.science import Cancelled, MeasurementError
 from worker.runtime import job_dir, sessions_of, settings_of
 
 log = logging.getLogger(__name__)
 PROGRESS_INTERVAL_S = 0.5
-
-
-class JobCancelled(Exception):
-    """Raised between frames when the job is no longer running (cancelled by the user, or failed elsewhere)."""
 
 
 @dataclass(frozen=True)
@@ -81,7 +77,7 @@ class JobContext:
 
     def progress(self, done: int, total: int, stage: str = "") -> None:
         """Record progress (throttled; a stage change and the last frame are always written) and raise
-        JobCancelled here if the job was cancelled."""
+        Cancelled here if the job was cancelled."""
         now = time.monotonic()
         new_stage = bool(stage) and stage != self._stage
         if not new_stage and done < total and now - self._last_progress < PROGRESS_INTERVAL_S:
@@ -90,7 +86,7 @@ class JobContext:
         with self.sessions() as session:
             job = session.get(Job, self.job_id)
             if job is None or job.state != "running":
-                raise JobCancelled("the job was cancelled" if job is None or job.state == "cancelled" else job.state)
+                raise Cancelled("the job was cancelled" if job is None or job.state == "cancelled" else job.state)
             moment = utcnow()
             if self.chunk is None:
                 job.progress_done, job.progress_total = done, total
@@ -182,7 +178,7 @@ def _run_guarded(context: JobContext, step: Callable[[], Any]) -> tuple[bool, An
     try:
         with _heartbeat(sessions, job_id, context.chunk, interval_s=heartbeat_interval_s(context.settings)):
             return True, step()
-    except JobCancelled:
+    except Cancelled:
         finish(sessions, job_id, state="cancelled")
     except (ValueError, MeasurementError) as error:
         finish(sessions, job_id, state="failed", error=str(error))

@@ -11,6 +11,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from fringelab.core.db import make_engine, make_sessionmaker
 from fringelab.core.settings import Settings
+from fringelab.core.storage import job_dir as storage_job_dir
 
 _sessions: dict[tuple[int, str], sessionmaker[Session]] = {}
 
@@ -29,5 +30,5 @@ def sessions_of(app: Celery) -> sessionmaker[Session]:
 
 
 def job_dir(settings: Settings, job_id: str) -> Path:
-    """`DATA_DIR/results/jobs/<job id>`: each job (and each retry, which is a new job) writes only here."""
-    return settings.data_path / "results" / "jobs" / job_id
+    """`DATA_DIR/results/jobs/<job id>` (the rule is `fringelab.core.storage.job_dir`, which deletes use too)."""
+    return storage_job_dir(settings.data_path, job_id)

@@ -17,6 +17,7 @@ from typing import Any
 from celery import Task, shared_task
 from sqlalchemy import select
 
+from fringelab.core.jobs import CHUNK_TASK, DEMO_ADVANCE_TASK, DEMO_TASK, MERGE_TASK, PING_TASK, TASK_NAMES
 from fringelab.core.models import Job
 from worker.jobs import camera_calibration as camera_calibration_job
 from worker.jobs import demo as demo_job
@@ -47,56 +48,56 @@ def _kind(task: Task, job_id: str) -> str | None:
         return session.scalar(select(Job.kind).where(Job.id == job_id))
 
 
-@shared_task(name="fringelab.ping")
+@shared_task(name=PING_TASK)
 def ping(payload: str = "pong") -> dict[str, object]:
     """A trivial end-to-end check of broker, worker and result backend."""
     return {"payload": payload, "worker_pid": os.getpid(), "host": socket.gethostname()}
 
 
-@shared_task(bind=True, name="fringelab.ingest")
+@shared_task(bind=True, name=TASK_NAMES["ingest"])
 def ingest(self: Task, job_id: str) -> dict[str, Any]:
     return run_job(self, job_id, ingest_job.ingest_recording)
 
 
-@shared_task(bind=True, name="fringelab.selftest", ignore_result=True)
+@shared_task(bind=True, name=TASK_NAMES["selftest"], ignore_result=True)
 def selftest(self: Task, job_id: str) -> dict[str, Any]:
     return run_job(self, job_id, selftest_job.selftest_entry)
 
 
-@shared_task(bind=True, name="fringelab.camera_calibration", ignore_result=True)
+@shared_task(bind=True, name=TASK_NAMES["camera_calibration"], ignore_result=True)
 def camera_calibration(self: Task, job_id: str) -> dict[str, Any]:
     return run_job(self, job_id, camera_calibration_job.camera_calibration_body)
 
 
-@shared_task(bind=True, name="fringelab.projector_calibration", ignore_result=True)
+@shared_task(bind=True, name=TASK_NAMES["projector_calibration"], ignore_result=True)
 def projector_calibration(self: Task, job_id: str) -> dict[str, Any]:
     return run_job(self, job_id, projector_calibration_job.projector_calibration_body)
 
 
-@shared_task(bind=True, name="fringelab.topography", ignore_result=True)
+@shared_task(bind=True, name=TASK_NAMES["topography"], ignore_result=True)
 def topography(self: Task, job_id: str) -> dict[str, Any]:
     return run_job(self, job_id, topography_job.topography_entry)
 
 
-@shared_task(bind=True, name="fringelab.export", ignore_result=True)
+@shared_task(bind=True, name=TASK_NAMES["export"], ignore_result=True)
 def export(self: Task, job_id: str) -> dict[str, Any]:
     return run_job(self, job_id, export_job.export_body)
 
 
-@shared_task(bind=True, name="fringelab.job_chunk", ignore_result=True)
+@shared_task(bind=True, name=CHUNK_TASK, ignore_result=True)
 def job_chunk(self: Task, job_id: str, phase: int, index: int) -> None:
     kind = _kind(self, job_id)
     if kind is not None:
         run_chunk(self, job_id, phase, index, PHASES[kind][phase][0])
 
 
-@shared_task(bind=True, name="fringelab.job_merge", ignore_result=True)
+@shared_task(bind=True, name=MERGE_TASK, ignore_result=True)
 def job_merge(self: Task, job_id: str, phase: int) -> dict[str, Any]:
     kind = _kind(self, job_id)
     return run_merge(self, job_id, phase, PHASES[kind][phase][1]) if kind is not None else {}
 
 
-@shared_task(bind=True, name="fringelab.demo", ignore_result=True)
+@shared_task(bind=True, name=DEMO_TASK, ignore_result=True)
 def demo(self: Task, experiment_id: int, presets: list[str], test_frames: int) -> None:
     def first_camera_ready() -> None:  # its jobs start while the next camera is simulated
         demo_advance.apply_async(args=[experiment_id, presets, time.time()], countdown=demo_job.ADVANCE_EVERY_S)
@@ -106,7 +107,7 @@ def demo(self: Task, experiment_id: int, presets: list[str], test_frames: int) -
     )
 
 
-@shared_task(bind=True, name="fringelab.demo_advance", ignore_result=True)
+@shared_task(bind=True, name=DEMO_ADVANCE_TASK, ignore_result=True)
 def demo_advance(self: Task, experiment_id: int, presets: list[str], started: float) -> None:
     state = demo_job.services_of(self.app)
     with state.sessions() as session:

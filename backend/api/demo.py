@@ -2,27 +2,22 @@
 
 It stores a new experiment (the caller's) and sends the `fringelab.demo` task by name; a worker adds the cameras,
 simulates their recordings (the `simulate` command's science) and starts their calibration and topography jobs
-(worker/demo.py). Thin: no science and no task code here. The cameras, recordings and jobs appear in the
+(worker/jobs/demo.py). Thin: no science and no task code here. The cameras, recordings and jobs appear in the
 experiment as they are made, and follow the same rules as uploaded ones.
 """
 
 from __future__ import annotations
 
-from datetime import date
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Body
-from kombu.exceptions import OperationalError
 from pydantic import BaseModel, Field
 
 from backend.api.deps import CurrentUser, SessionDep, StateDep
 from backend.errors import error_responses
-from fringelab.core.accounts import audit
-from fringelab.core.errors import Unavailable
-from fringelab.core.models import Experiment
+from fringelab.core.jobs import start_demo
 
 router = APIRouter(tags=["demo"])
-DEMO_TASK = "fringelab.demo"
 
 
 class DemoIn(BaseModel):
@@ -52,23 +47,4 @@ def make_demo(
     """Make a virtual experiment and measure it: simulated recordings, calibrations and topography."""
     body = body or DemoIn()
     cameras = list(dict.fromkeys(body.cameras))  # each camera once, in the order asked
-    today = date.today().isoformat()
-    experiment = Experiment(
-        name=f"Demo: virtual punch test ({today})",
-        plate="virtual plate, clamped (simulated)",
-        punch="hemispherical (simulated)",
-        test_date=today,
-        notes="Made by the dashboard's Load demo experiment button: the recordings of "
-        f"{', '.join(cameras)} are simulated (fringelab simulate), then checked, calibrated and measured by "
-        "the workers like uploaded ones.",
-        owner_id=principal.user_id,
-    )
-    session.add(experiment)
-    session.flush()
-    audit(session, principal, "create", "experiment", experiment.id, demo=True)
-    session.commit()
-    try:
-        state.celery.send_task(DEMO_TASK, args=[experiment.id, cameras, body.test_frames])
-    except OperationalError as error:
-        raise Unavailable(f"the job queue (Redis) is unreachable: {error}; try again when it is back") from None
-    return DemoOut(experiment_id=experiment.id)
+    return DemoOut(experiment_id=start_demo(session, state.celery, principal, cameras, body.test_frames))

@@ -22,8 +22,10 @@ from backend.api.deps import (
 from backend.errors import error_responses
 from backend.schemas.cameras import CameraCreate, CameraOut, CameraUpdate
 from backend.schemas.common import MAX_ID
+from backend.schemas.deletion import DeletionOut, deletion_out
 from backend.schemas.experiments import ExperimentCreate, ExperimentOut, ExperimentUpdate, experiment_out
 from fringelab.core.accounts import readable_experiments
+from fringelab.core.deletion import plan_camera, plan_experiment
 from fringelab.core.errors import Conflict
 from fringelab.core.models import Camera, Experiment
 from fringelab.core.recordings import delete_camera, delete_experiment, update_experiment
@@ -73,11 +75,20 @@ def patch_experiment(
     return experiment_out(session, principal, experiment)
 
 
+@router.get(
+    "/experiments/{experiment_id}/deletion", response_model=DeletionOut, responses=error_responses(401, 403, 404, 422)
+)
+def experiment_deletion(experiment: WritableExperiment, session: SessionDep, state: StateDep) -> DeletionOut:
+    """What deleting the experiment takes with it, and the jobs that stop it now (nothing is deleted)."""
+    return deletion_out(plan_experiment(session, state.settings, experiment))
+
+
 @router.delete("/experiments/{experiment_id}", status_code=204, responses=error_responses(401, 403, 404, 409, 422))
 def remove_experiment(
     experiment: WritableExperiment, session: SessionDep, state: StateDep, principal: CurrentUser
 ) -> Response:
-    """Deletes the experiment, its cameras and recordings with their files; 409 while a job uses any of them."""
+    """Deletes the experiment, its cameras and recordings with their files, and the finished jobs on them with
+    their results (see `.../deletion`); 409 `in_use` naming the jobs while a queued or running job uses any of it."""
     delete_experiment(session, state.settings, principal, experiment)
     return Response(status_code=204)
 
@@ -130,11 +141,23 @@ def update_camera(camera: WritableCamera, body: CameraUpdate, session: SessionDe
     return camera
 
 
+@router.get(
+    "/cameras/{camera_id}/deletion",
+    response_model=DeletionOut,
+    tags=["cameras"],
+    responses=error_responses(401, 403, 404, 422),
+)
+def camera_deletion(camera: WritableCamera, session: SessionDep, state: StateDep) -> DeletionOut:
+    """What deleting the camera takes with it, and the jobs that stop it now (nothing is deleted)."""
+    return deletion_out(plan_camera(session, state.settings, camera))
+
+
 @router.delete(
     "/cameras/{camera_id}", status_code=204, tags=["cameras"], responses=error_responses(401, 403, 404, 409, 422)
 )
 def remove_camera(camera: WritableCamera, session: SessionDep, state: StateDep, principal: CurrentUser) -> Response:
-    """Deletes the camera and its recordings with their files; 409 while a job uses any of them."""
+    """Deletes the camera, its recordings and calibrations with their files, and the finished jobs on them with
+    their results; 409 `in_use` naming the jobs while a queued or running job uses any of it."""
     delete_camera(session, state.settings, principal, camera)
     return Response(status_code=204)
 

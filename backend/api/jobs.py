@@ -8,6 +8,7 @@ retrying need write access; a job of an experiment one may not read is a 404. Jo
 
 from __future__ import annotations
 
+import json
 import logging
 import threading
 from collections.abc import AsyncIterator
@@ -15,7 +16,7 @@ from datetime import datetime
 from typing import Annotated, Any
 
 import anyio
-from fastapi import APIRouter, Body, Depends, Query, Request
+from fastapi import APIRouter, Body, Depends, Query, Request, Response
 from fastapi.responses import FileResponse
 from fastapi.security import HTTPAuthorizationCredentials
 from fastapi.sse import EventSourceResponse, ServerSentEvent
@@ -23,6 +24,8 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from backend.api.deps import CurrentUser, SessionDep, StateDep, bearer_scheme, principal_of, request_secret
+from backend.errors import error_responses
+from backend.schemas.deletion import DeletionOut, deletion_out
 from backend.schemas.jobs import (
     MAX_ID,
     ChunkOut,
@@ -35,18 +38,18 @@ from backend.schemas.jobs import (
     LogLineOut,
     Progress,
 )
-from fringelab.core.accounts import Principal, access_level, audit, can_access, readable_experiments
-from fringelab.core.errors import Forbidden, Gone, NotFound, Unauthorized, Unavailable
+from fringelab.core.accounts import Principal, audit, readable_experiments
+from fringelab.core.deletion import execute, plan_job
+from fringelab.core.errors import Gone, NotFound, Unauthorized, Unavailable
 from fringelab.core.jobs import (
-    NotVisible,
     QueueUnavailable,
     as_utc,
     cancel_job,
-    create_job,
     eta_seconds,
-    get_job,
     job_error,
+    job_for,
     retry_job,
+    start_job_as,
     terminate_unstopped,
 )
 from fringelab.core.models import Experiment, Job, JobChunk, JobLog, utcnow
@@ -129,27 +132,6 @@ def job_out(session: Session, job: Job, *, now: datetime | None = None) -> JobOu
     )
 
 
-def _allowed(session: Session, principal: Principal, experiment_id: int | None, *, write: bool) -> bool:
-    if experiment_id is None:
-        return principal.is_admin
-    experiment = session.get(Experiment, experiment_id)
-    return experiment is not None and can_access(session, principal, experiment, write=write)
-
-
-def job_for(session: Session, principal: Principal, job_id: str, *, write: bool = False) -> Job:
-    """The job if `principal` may see it (or change it); otherwise a 404, as if it did not exist."""
-    job = get_job(session, job_id)
-    if not _allowed(session, principal, job.experiment_id, write=False):
-        raise job_error(NotFound, "job_not_found", f"there is no job {job_id}")
-    if write and not _allowed(session, principal, job.experiment_id, write=True):
-        raise job_error(
-            Forbidden,
-            "read_only",
-            f"read-only access: you may read job {job_id} but not change it; ask the experiment's owner",
-        )
-    return job
-
-
 def readable_job(job_id: str, session: SessionDep, principal: CurrentUser) -> Job:
     return job_for(session, principal, job_id)
 
@@ -169,30 +151,7 @@ WRITE_ERRORS: dict[int | str, dict[str, Any]] = {
 @router.post("/jobs", status_code=201, response_model=JobOut, responses=WRITE_ERRORS)
 def start_job(spec: Annotated[JobSpec, Body()], session: SessionDep, state: StateDep, principal: CurrentUser) -> JobOut:
     """Check the spec against the recordings and calibrations it names, then queue the job."""
-
-    def may_start(experiment_id: int | None) -> None:
-        if experiment_id is None:
-            if not principal.is_admin:
-                raise job_error(Forbidden, "forbidden", "jobs outside any experiment (selftest) need an admin account")
-            return
-        experiment = session.get(Experiment, experiment_id)
-        level = access_level(session, principal, experiment) if experiment is not None else None
-        if level is None:
-            raise NotVisible  # the spec's ids are answered as if they did not exist
-        if level == "read":
-            raise job_error(
-                Forbidden,
-                "read_only",
-                f"read-only access: experiment {experiment_id} is shared with your group for reading; "
-                "ask its owner for write access to start jobs",
-            )
-
-    try:
-        job = create_job(session, state.celery, spec.model_dump(mode="json"), authorize=may_start)
-    except QueueUnavailable as error:
-        raise job_error(Unavailable, "queue_unavailable", str(error)) from None
-    audit(session, principal, "start", "job", job.id, kind=job.kind)
-    session.commit()
+    job = start_job_as(session, state.celery, principal, spec.model_dump(mode="json"))
     return job_out(session, job)
 
 
@@ -222,6 +181,53 @@ def list_jobs(
     jobs = session.scalars(query.order_by(Job.created_at.desc(), Job.id).limit(limit).offset(offset)).all()
     now = utcnow()
     return JobList(items=[job_out(session, job, now=now) for job in jobs], total=total)
+
+
+def _visible_jobs(session: Session, principal: Principal, experiment_id: int | None) -> Any:
+    query = select(Job.id, Job.state, Job.stage, Job.progress_done, Job.finished_at)
+    if not principal.is_admin:
+        query = query.where(
+            Job.experiment_id.in_(select(Experiment.id).where(readable_experiments(session, principal)))
+        )
+    if experiment_id is not None:
+        query = query.where(Job.experiment_id == experiment_id)
+    return query
+
+
+def _list_signature(state: AppState, principal: Principal, experiment_id: int | None) -> tuple[int, str, list[str]]:
+    """(count, newest id, ids of jobs that changed): cheap enough to ask twice a second."""
+    with state.sessions() as session:
+        rows = session.execute(_visible_jobs(session, principal, experiment_id)).all()
+    marks = {row.id: f"{row.state}|{row.stage}|{row.progress_done}|{row.finished_at}" for row in rows}
+    return len(rows), json.dumps(marks, sort_keys=True), sorted(marks)
+
+
+@router.get("/jobs/events", response_class=EventSourceResponse, responses=error_responses(401, 422))
+async def jobs_events(
+    state: StateDep,
+    principal: CurrentUser,
+    experiment_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
+) -> AsyncIterator[ServerSentEvent]:
+    """Changes of the jobs list as Server-Sent Events: `jobs` ({"changed": [ids], "total": n}) whenever a job the
+    caller may see (of `experiment_id`, or any) is added, moves on, ends or goes; the dashboard's lists and the
+    queue page refresh on it instead of polling. Comments keep it alive; it closes after FRINGELAB_LIST_EVENTS_S
+    and the browser's EventSource reconnects (the first event after a reconnect names every job)."""
+    last: dict[str, str] | None = None
+    idle_s = 0.0
+    ends = anyio.current_time() + state.settings.list_events_s  # then the browser reconnects (retry)
+    while anyio.current_time() < ends:
+        total, text, _ids = await anyio.to_thread.run_sync(_list_signature, state, principal, experiment_id)
+        marks = json.loads(text)
+        if marks != last:
+            changed = sorted(k for k in set(marks) | set(last or {}) if (last or {}).get(k) != marks.get(k))
+            last = marks
+            idle_s = 0.0
+            yield ServerSentEvent(event="jobs", data={"changed": changed, "total": total}, retry=2000)
+        elif idle_s >= 15.0:
+            idle_s = 0.0
+            yield ServerSentEvent(comment="keep-alive")
+        await anyio.sleep(EVENTS_POLL_S * 2)
+        idle_s += EVENTS_POLL_S * 2
 
 
 @router.get("/jobs/{job_id}", response_model=JobOut, responses=ERRORS)
@@ -313,6 +319,22 @@ def _snapshot(state: AppState, job_id: str, after: int) -> tuple[JobOut | None, 
         if job is None:
             return None, []
         return job_out(session, job), _log_lines(session, job_id, after=after)
+
+
+@router.get("/jobs/{job_id}/deletion", response_model=DeletionOut, responses=WRITE_ERRORS)
+def job_deletion(writable: WritableJobDep, session: SessionDep, state: StateDep) -> DeletionOut:
+    """What deleting the job takes with it (its files, log, calibration, exports), and the jobs that stop it now
+    (itself while queued or running, jobs using its calibration or result); nothing is deleted."""
+    return deletion_out(plan_job(session, state.settings, writable))
+
+
+@router.delete("/jobs/{job_id}", status_code=204, responses=WRITE_ERRORS)
+def remove_job(writable: WritableJobDep, session: SessionDep, state: StateDep, principal: CurrentUser) -> Response:
+    """Deletes a finished job with its result files, log, calibration and exports; 409 `in_use` while it is
+    queued or running (cancel it first) or a queued or running job uses its calibration or result."""
+    plan = plan_job(session, state.settings, writable)
+    execute(session, state.settings, principal, plan, kind="job", id=writable.id)
+    return Response(status_code=204)
 
 
 @router.post("/jobs/{job_id}/cancel", response_model=JobOut, responses=WRITE_ERRORS)

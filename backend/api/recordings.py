@@ -26,6 +26,7 @@ from backend.api.deps import (
 )
 from backend.errors import error_responses
 from backend.schemas.common import MAX_ID
+from backend.schemas.deletion import DeletionOut, deletion_out
 from backend.schemas.recordings import (
     FrameQa,
     RecordingKind,
@@ -37,6 +38,7 @@ from backend.schemas.recordings import (
     recording_out,
 )
 from fringelab.core.accounts import Principal, audit, readable_experiments
+from fringelab.core.deletion import plan_recording
 from fringelab.core.errors import Conflict, Invalid, NotFound
 from fringelab.core.models import Camera, Experiment, Recording
 from fringelab.core.recordings import delete_recording, recording_for, refuse_if_in_use, start_ingest, submit_ingest
@@ -103,11 +105,20 @@ def update_recording(
     return recording_out(recording)
 
 
+@router.get(
+    "/recordings/{recording_id}/deletion", response_model=DeletionOut, responses=error_responses(401, 403, 404, 422)
+)
+def recording_deletion(recording: WritableRecording, session: SessionDep, state: StateDep) -> DeletionOut:
+    """What deleting the recording takes with it, and the jobs that stop it now (nothing is deleted)."""
+    return deletion_out(plan_recording(session, state.settings, recording))
+
+
 @router.delete("/recordings/{recording_id}", status_code=204, responses=error_responses(401, 403, 404, 409, 422))
 def remove_recording(
     recording: WritableRecording, session: SessionDep, state: StateDep, principal: CurrentUser
 ) -> Response:
-    """Deletes the recording and its files; 409 while a job (its ingest too) uses it."""
+    """Deletes the recording and its files, and the finished jobs on it with their results; 409 `in_use` naming
+    the jobs while a queued or running job (its ingest too) uses it."""
     delete_recording(session, state.settings, principal, recording)
     return Response(status_code=204)
 

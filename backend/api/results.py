@@ -2,8 +2,9 @@
 what the dashboard draws (frame list and time histories, a frame's grid within a display budget, profiles,
 point histories).
 
-Thin: files are read through `backend.results`; access follows the experiment (of the calibration's camera, or
-of the job). Arrays come as JSON lists with null where there is no data, or, for a grid, as raw float32.
+Thin: files are read through `fringelab.formats` (`backend.results` for paths and reports); access follows the
+experiment (of the calibration's camera, or of the job). Arrays come as JSON lists with null where there is no
+data, or, for a grid, as raw float32.
 """
 
 from __future__ import annotations
@@ -23,22 +24,20 @@ from sqlalchemy import select
 from backend.api.deps import CurrentUser, SessionDep, StateDep, experiment_for
 from backend.api.jobs import ERRORS, JobDep
 from backend.cache import AnswerCache
-from backend.results import (
-    GRID_BUDGET_NODES,
-    FrameNotInResult,
-    OutsideGrid,
-    ResultUnavailable,
-    TopographyReader,
-    camera_report,
-    projector_table,
-    result_path,
-)
+from backend.results import camera_report, plain, projector_report, projector_table, result_path
 from backend.schemas.jobs import MAX_ID, CalibrationOut, ErrorOut
 from fringelab.core.accounts import readable_experiments
 from fringelab.core.errors import Conflict, Gone, Invalid, NotFound
 from fringelab.core.jobs import as_utc, job_error
 from fringelab.core.models import Calibration, Camera, Experiment, Job
 from fringelab.core.state import AppState
+from fringelab.formats.topography import (
+    GRID_BUDGET_NODES,
+    FrameNotInResult,
+    OutsideGrid,
+    ResultUnavailable,
+    TopographyResult,
+)
 
 router = APIRouter(tags=["results"])
 RESULT_ERRORS: dict[int | str, dict[str, Any]] = {
@@ -136,6 +135,69 @@ def calibration_report(calibration: CalibrationDep, state: StateDep) -> Calibrat
     return CalibrationReport(calibration=calibration_out(calibration), report=report)
 
 
+class VerdictCheckOut(BaseModel):
+    name: str
+    value: float | None = Field(description="null: not measured")
+    unit: str
+    good_limit: float
+    bad_limit: float
+    higher_is_better: bool
+    level: str
+    message: str
+
+
+class VerdictOut(BaseModel):
+    level: str = Field(description="good, check or bad: the worst of the checks.")
+    reasons: list[str]
+    checks: list[VerdictCheckOut]
+
+
+class ProjectorReport(BaseModel):
+    calibration: CalibrationOut
+    image_size_px: dict[str, int]
+    verdict: VerdictOut
+    limits: dict[str, dict[str, float]] = Field(description="Each rule's good and bad thresholds.")
+    qa: dict[str, Any]
+    cell_px: int = Field(description="Side of the square image cells of the maps, px.")
+    cells_u: int
+    cells_v: int
+    sensitivity_px_per_mm: list[list[float | None]] = Field(
+        description="(cells_v, cells_u) median |dt/dZ| of the table's entries in each cell; null: no entry."
+    )
+    z_resolution_mm: list[list[float | None]] = Field(
+        description="(cells_v, cells_u) the Z step the measured edge noise amounts to: edge_noise_px / sensitivity."
+    )
+    coverage: list[list[float | None]] = Field(
+        description="(cells_v, cells_u) share of the edges seen there on the flat plate that have a table entry."
+    )
+    z_mm: list[float | None] = Field(description="The calibration heights.")
+    coverage_z: list[float | None] = Field(description="Share of the entries whose fitted Z range holds each height.")
+
+
+@router.get("/calibrations/{calibration_id}/projector-report", response_model=ProjectorReport, responses=RESULT_ERRORS)
+def projector_calibration_report(
+    calibration: CalibrationDep,
+    state: StateDep,
+    cell_px: Annotated[int, Query(ge=4, le=256, description="Side of the maps' image cells, px.")] = 16,
+) -> ProjectorReport:
+    """A projector calibration's report, on a par with the camera's: the verdict with each rule's value,
+    thresholds and meaning, and maps over the whole image of the sensitivity (px per mm of Z), the Z resolution
+    it gives at the measured edge noise, and the table's coverage over the image and over Z."""
+    if calibration.kind != "projector":
+        raise job_error(NotFound, "no_report", f"calibration {calibration.id} is a {calibration.kind} calibration")
+    try:
+        report = projector_report(state.settings.data_path, calibration.path, cell_px=cell_px)
+    except ResultUnavailable as error:
+        raise job_error(Gone, "result_missing", str(error)) from None
+    for name in ("sensitivity_px_per_mm", "z_resolution_mm", "coverage"):
+        report[name] = _listed(report[name])
+    report["z_mm"] = _listed(report["z_mm"])
+    report["coverage_z"] = _listed(report["coverage_z"])
+    for check in report["verdict"]["checks"]:
+        check["value"] = check["value"] if math.isfinite(check["value"]) else None
+    return ProjectorReport(calibration=calibration_out(calibration), **report)
+
+
 class ProjectorTable(BaseModel):
     calibration: CalibrationOut
     axis: str
@@ -159,7 +221,7 @@ def projector_table_curves(
     ] = None,
 ) -> ProjectorTable:
     """The curves of a projector calibration's look-up table: the position of each stripe edge along one scan
-    line against the plate's Z (METHOD.md §4), with the table's QA."""
+    line against the plate's Z (docs/method.md §4), with the table's QA."""
     if calibration.kind != "projector":
         raise job_error(NotFound, "no_table", f"calibration {calibration.id} is a {calibration.kind} calibration")
     try:
@@ -223,11 +285,11 @@ def topography_file(job: Job, data_path: Any) -> PathType:
 
 
 @contextmanager
-def topography(job: Job, data_path: Any) -> Iterator[TopographyReader]:
+def topography(job: Job, data_path: Any) -> Iterator[TopographyResult]:
     """The result of a succeeded topography job, open; a job error (409/410/422) with what to do otherwise."""
     path = topography_file(job, data_path)
     try:
-        with TopographyReader(path) as reader:
+        with TopographyResult(path) as reader:
             yield reader
     except FrameNotInResult as error:
         raise job_error(Invalid, "frame_not_in_result", str(error), field="frame") from None
@@ -284,7 +346,7 @@ def _overview(job: Job, state: AppState) -> TopographyOverview:
                 "ny": int(y.size),
                 "step_mm": float(x[1] - x[0]) if x.size > 1 else 0.0,
             },  # fmt: skip
-            summary=reader.summary(),
+            summary={key: plain(value) for key, value in reader.summary().items()},
         )
 
 
@@ -330,7 +392,7 @@ def topography_grid(
 
         def render() -> bytes:
             with topography(job, state.settings.data_path) as reader:
-                cut = reader.grid(frame, budget=budget, window_mm=window)  # type: ignore[arg-type]
+                cut = reader.grid_cut(frame, budget=budget, window_mm=window)  # type: ignore[arg-type]
             grid = GridOut(frame=cut.frame, step=cut.step, x_mm=_listed(cut.x_mm), y_mm=_listed(cut.y_mm),
                            w_mm=_listed(cut.w_mm))  # fmt: skip
             return grid.model_dump_json().encode()
@@ -339,7 +401,7 @@ def topography_grid(
         body = ANSWERS.get_or_render(topography_file(job, state.settings.data_path), key, render)
         return Response(body, media_type="application/json")
     with topography(job, state.settings.data_path) as reader:
-        cut = reader.grid(frame, budget=budget, window_mm=window)  # type: ignore[arg-type]
+        cut = reader.grid_cut(frame, budget=budget, window_mm=window)  # type: ignore[arg-type]
     if format == "f32":
 
         def first_step(axis: np.ndarray) -> str:

@@ -4,13 +4,18 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from pydantic import BaseModel, ConfigDict, Field, StringConstraints
+from pydantic import BaseModel, ConfigDict, Field, StringConstraints, ValidationInfo, field_validator
 
 from backend.schemas.common import UtcDatetime
 
 CameraName = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=100)]
 Pixels = Annotated[int, Field(gt=0, le=100_000)]
 PitchUm = Annotated[float, Field(gt=0, le=1000, description="Pixel pitch in micrometres.")]
+PITCH_HELP = (
+    "Data sheets give the pixel pitch (also 'pixel size' or 'cell size') in µm: one number for square pixels, or "
+    "horizontal × vertical, which is u × v here. From the sensor size instead: pitch = sensor width (mm) × 1000 / "
+    "image width (px), and the same with the heights for v. D_u = 1000 / pitch_u px/mm."
+)
 
 
 class CameraCreate(BaseModel):
@@ -24,7 +29,10 @@ class CameraCreate(BaseModel):
     name: CameraName
     image_width_px: Pixels
     image_height_px: Pixels
-    pixel_pitch_um: PitchUm
+    pixel_pitch_um: PitchUm = Field(description=f"Pixel pitch along u (image rows, the width), µm. {PITCH_HELP}")
+    pixel_pitch_v_um: PitchUm | None = Field(
+        None, description="Pixel pitch along v (image columns, the height), µm; empty: square pixels (as along u)."
+    )
 
 
 class CameraUpdate(BaseModel):
@@ -36,6 +44,7 @@ class CameraUpdate(BaseModel):
     image_width_px: Pixels | None = None
     image_height_px: Pixels | None = None
     pixel_pitch_um: PitchUm | None = None
+    pixel_pitch_v_um: PitchUm | None = Field(None, description="Pitch along v, µm.")
 
 
 class CameraOut(BaseModel):
@@ -46,5 +55,11 @@ class CameraOut(BaseModel):
     name: str
     image_width_px: int
     image_height_px: int
-    pixel_pitch_um: float
+    pixel_pitch_um: float = Field(description="Pixel pitch along u (image rows), µm.")
+    pixel_pitch_v_um: float = Field(description="Pixel pitch along v (image columns), µm; as u for square pixels.")
     created_at: UtcDatetime
+
+    @field_validator("pixel_pitch_v_um", mode="before")
+    @classmethod
+    def _square_unless_given(cls, value: float | None, info: ValidationInfo) -> float:
+        return value if value is not None else info.data["pixel_pitch_um"]

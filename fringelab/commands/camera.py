@@ -35,7 +35,7 @@ def register(subparsers: Any) -> None:
     calibrate = subparsers.add_parser(
         "calibrate-camera",
         help="calibrate a camera from a chessboard recording (Z-stack or free poses)",
-        description="Calibrate a camera (Heikkilä model, METHOD.md §3) from a folder or ZIP of chessboard frames. "
+        description="Calibrate a camera (Heikkilä model, docs/method.md §3) from a folder or ZIP of chessboard frames. "
         "zstack: the board moved along Z, with z.csv (frame,z_mm); poses: free views of the board. "
         "board.json in the recording may replace the board flags.",
     )

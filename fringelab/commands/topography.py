@@ -11,6 +11,8 @@ import argparse
 import sys
 from typing import Any
 
+from fringelab.formats import EXPORT_FORMATS
+
 
 def _frames(text: str) -> slice:
     try:
@@ -35,7 +37,7 @@ def register(subparsers: Any) -> None:
     calibrate = subparsers.add_parser(
         "calibrate-projector",
         help="build the projector look-up table from a flat-plate Z-stack",
-        description="Projector calibration (METHOD.md §4): the position of every stripe edge against Z, from a "
+        description="Projector calibration (docs/method.md §4): the position of every stripe edge against Z, from a "
         "folder or ZIP of frames of the flat plate moved along Z, with z.csv (frame,z_mm).",
     )
     calibrate.add_argument("recording", help="folder or ZIP of frames with z.csv")
@@ -60,8 +62,8 @@ def register(subparsers: Any) -> None:
     topography = subparsers.add_parser(
         "topography",
         help="measure the deflection of every frame of a test",
-        description="Topography (METHOD.md §5–6): edges of every frame, identity from the flat first frame, Z from "
-        "the projector table, X and Y by back-projection, the gridded deflection field; written as HDF5.",
+        description="Topography (docs/method.md §5–6): edges of every frame, identity from the flat first frame, "
+        "Z from the projector table, X and Y by back-projection, the gridded deflection field; written as HDF5.",
     )
     topography.add_argument("recording", help="folder or ZIP of test frames (frames.csv beside them is kept)")
     topography.add_argument("--camera", required=True, help="camera.json")
@@ -87,7 +89,7 @@ def register(subparsers: Any) -> None:
         "(a .pvd time series of .vtu surfaces for ParaView) or profile-csv (a section along --line).",
     )
     export.add_argument("result", help="result .h5 written by `fringelab topography`")
-    export.add_argument("--format", required=True, choices=("points-csv", "grid-npz", "mat", "vtk", "profile-csv"))
+    export.add_argument("--format", required=True, choices=EXPORT_FORMATS)
     export.add_argument("-o", "--output", required=True, help="file to write (.csv, .npz, .mat, .pvd)")
     export.add_argument(
         "--line",

@@ -18,13 +18,15 @@ from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from typing import Any, Literal
 
+import redis
 from argon2 import PasswordHasher
 from argon2.exceptions import InvalidHashError, VerificationError
 from sqlalchemy import ColumnElement, or_, select, true, update
 from sqlalchemy.orm import Session, sessionmaker
 
-from fringelab.core.errors import Conflict, Forbidden, NotFound
-from fringelab.core.models import ApiToken, AuditEvent, Experiment, GroupMember, User, utcnow
+from fringelab.core.errors import Conflict, Forbidden, NotFound, RateLimited, Unauthorized
+from fringelab.core.models import ApiToken, AuditEvent, Experiment, Group, GroupMember, User, utcnow
+from fringelab.core.settings import Settings
 
 TOKEN_PREFIX = "flb_"
 USERNAME_PATTERN = re.compile(r"^[a-z0-9][a-z0-9._-]{1,63}$")
@@ -284,3 +286,157 @@ def audit(
             detail=detail,
         )
     )
+
+
+# ---------------------------------------------------------------------------------------------- logins
+
+
+def _failures_key(client: str) -> str:
+    return f"fringelab:login-failures:{client}"
+
+
+def _failed_logins(settings: Settings, client: str, *, count_one: bool) -> int:
+    """Failed logins of this client address in the current window (in Redis, shared by all API processes);
+    `count_one` adds the failure just seen. Without Redis there is no limit, and the login itself still works."""
+    try:
+        connection = redis.Redis.from_url(settings.redis_url, socket_timeout=2)
+        try:
+            if not count_one:
+                return int(connection.get(_failures_key(client)) or 0)
+            failures = int(connection.incr(_failures_key(client)))
+            if failures == 1:
+                connection.expire(_failures_key(client), settings.login_window_s)
+            return failures
+        finally:
+            connection.close()
+    except redis.RedisError:
+        return 0
+
+
+def log_in(
+    session: Session, settings: Settings, *, client: str, username: str, password: str
+) -> tuple[User, str, timedelta]:
+    """Check a username and password from `client` (an address) and open a browser session: the user, the session
+    token's secret and its lifetime (committed). RateLimited after too many failures from that address."""
+    window = settings.login_window_s
+    if _failed_logins(settings, client, count_one=False) >= settings.login_max_failures:
+        raise RateLimited(f"too many failed logins from {client}; wait {window} s", retry_after_s=window)
+    user = authenticate(session, username, password)  # as long for an unknown name as for a known one
+    if user is None:
+        _failed_logins(settings, client, count_one=True)
+        raise Unauthorized("wrong username or password, or the account is disabled")
+    ttl = timedelta(hours=settings.session_ttl_h)
+    _, secret = issue_token(session, user, name="browser session", kind="session", ttl=ttl)
+    session.commit()
+    return user, secret, ttl
+
+
+def log_out(session: Session, secret: str) -> None:
+    """Revoke the browser session whose token this is (nothing if it is unknown or already revoked)."""
+    row = session.scalar(select(ApiToken).where(ApiToken.token_hash == token_digest(secret)))
+    if row is not None and row.revoked_at is None:
+        row.revoked_at = utcnow()
+        session.commit()
+
+
+# ---------------------------------------------------------------------------------------------- tokens
+
+
+def _own_user(session: Session, principal: Principal) -> User:
+    if principal.user_id is None:
+        raise Conflict("API tokens need accounts: turn FRINGELAB_AUTH_ENABLED on and log in", code="auth_disabled")
+    user = session.get(User, principal.user_id)
+    if user is None:
+        raise NotFound("user not found")
+    return user
+
+
+def api_tokens_of(session: Session, principal: Principal) -> list[ApiToken]:
+    """The caller's API tokens (not browser sessions), oldest first."""
+    if principal.user_id is None:
+        return []
+    query = select(ApiToken).where(ApiToken.user_id == principal.user_id, ApiToken.kind == "api")
+    return list(session.scalars(query.order_by(ApiToken.id)))
+
+
+def create_api_token(
+    session: Session, principal: Principal, *, name: str, expires_in_days: int | None
+) -> tuple[ApiToken, str]:
+    """A new API token of the caller (committed); its secret is returned once."""
+    user = _own_user(session, principal)
+    ttl = timedelta(days=expires_in_days) if expires_in_days else None
+    row, secret = issue_token(session, user, name=name, kind="api", ttl=ttl)
+    audit(session, principal, "create", "token", row.id, name=name)
+    session.commit()
+    return row, secret
+
+
+def revoke_token(session: Session, principal: Principal, token_id: int) -> None:
+    """Revoke one of the caller's tokens (an admin: anyone's); scripts using it are refused from now on."""
+    row = session.get(ApiToken, token_id)
+    if row is None or (row.user_id != principal.user_id and not principal.is_admin):
+        raise NotFound(f"token {token_id} not found")
+    if row.revoked_at is None:
+        row.revoked_at = utcnow()
+        audit(session, principal, "revoke", "token", token_id)
+        session.commit()
+
+
+# ---------------------------------------------------------------------------------------------- users, groups
+
+
+def all_users(session: Session) -> list[User]:
+    return list(session.scalars(select(User).order_by(User.username)))
+
+
+def add_user(session: Session, admin: Principal, *, username: str, password: str, role: str) -> User:
+    """Create an account (committed); Conflict for a taken or invalid name."""
+    try:
+        user = create_user(session, username, password, role=role)
+    except ValueError as error:
+        raise Conflict(str(error)) from None
+    audit(session, admin, "create", "user", user.id, username=user.username, role=user.role)
+    session.commit()
+    return user
+
+
+def update_user(session: Session, admin: Principal, user_id: int, changes: dict[str, Any]) -> User:
+    """Change an account's role or disable it (committed); a disabled account's tokens stop working at once."""
+    user = session.get(User, user_id)
+    if user is None:
+        raise NotFound(f"user {user_id} not found")
+    change_user(session, user, **changes)
+    audit(session, admin, "update", "user", user_id, **changes)
+    session.commit()
+    return user
+
+
+def group_members(session: Session, group: Group) -> list[str]:
+    """Usernames of a group's members, sorted."""
+    query = select(User.username).join(GroupMember, GroupMember.user_id == User.id)
+    return sorted(session.scalars(query.where(GroupMember.group_id == group.id)))
+
+
+def all_groups(session: Session) -> list[Group]:
+    return list(session.scalars(select(Group).order_by(Group.name)))
+
+
+def add_group(session: Session, admin: Principal, *, name: str, members: list[str]) -> Group:
+    """Create a group with its members (committed); Conflict for a taken name or an unknown member."""
+    if session.scalar(select(Group).where(Group.name == name)):
+        raise Conflict(f"group {name!r} exists")
+    users = {u.username: u for u in session.scalars(select(User).where(User.username.in_(members)))}
+    if missing := sorted(set(members) - set(users)):
+        raise Conflict(f"members: no such user {', '.join(missing)}")
+    group = Group(name=name)
+    session.add(group)
+    session.flush()
+    session.add_all(GroupMember(group_id=group.id, user_id=user.id) for user in users.values())
+    audit(session, admin, "create", "group", group.id, name=name, members=members)
+    session.commit()
+    return group
+
+
+def audit_events(session: Session, *, limit: int) -> list[AuditEvent]:
+    """The audit trail, newest first."""
+    return list(session.scalars(select(AuditEvent).order_by(AuditEvent.id.desc()).limit(limit)))

@@ -29,7 +29,7 @@ import logging
 import uuid
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from datetime import UTC, datetime, timedelta
+from datetime import UTC, date, datetime, timedelta
 from typing import Any
 
 import redis
@@ -40,8 +40,9 @@ from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
 from fringelab import __version__
-from fringelab.core.errors import Conflict, DomainError, Invalid, NotFound
-from fringelab.core.models import Calibration, Camera, Job, JobChunk, JobLog, Recording, utcnow
+from fringelab.core.accounts import Principal, access_level, audit, can_access
+from fringelab.core.errors import Conflict, DomainError, Forbidden, Invalid, NotFound, Unavailable
+from fringelab.core.models import Calibration, Camera, Experiment, Job, JobChunk, JobLog, Recording, utcnow
 from fringelab.core.settings import Settings
 
 TASK_NAMES = {
@@ -54,6 +55,9 @@ TASK_NAMES = {
 }
 CHUNK_TASK = "fringelab.job_chunk"
 MERGE_TASK = "fringelab.job_merge"
+DEMO_TASK = "fringelab.demo"  # makes a virtual experiment; its jobs are ordinary jobs
+DEMO_ADVANCE_TASK = "fringelab.demo_advance"
+PING_TASK = "fringelab.ping"
 
 # How workers send the tasks that continue a job (chunks, merge): while Redis restarts they wait for it, up to
 # about two minutes, rather than drop the job's next step. The API does not wait: it answers 503 at once.
@@ -255,6 +259,22 @@ def _calibration_ref(calibration: Calibration) -> dict[str, Any]:
     }
 
 
+def _check_export_frames(spec: dict[str, Any], source: Job) -> None:
+    """An export's frame range must hold frames of its result (the result says its first and last frame)."""
+    wanted = spec.get("frames")
+    held = (source.result or {}).get("frames")
+    if not wanted or not held:
+        return
+    first, last = wanted["first"], wanted["last"] if wanted.get("last") is not None else held[1]
+    if last < held[0] or first > held[1]:
+        raise job_error(
+            Invalid,
+            "frames_outside_result",
+            f"frames {first}…{last} hold no frame of topography job {source.id} (its frames are {held[0]}…{held[1]})",
+            field="frames",
+        )
+
+
 def prepare_job(session: Session, spec: dict[str, Any], *, authorize: Authorize = _nobody_checks) -> Prepared:
     """Check a (shape-valid) spec against the database; raise a `job_error` naming the field, or say what it uses.
     `authorize` is asked as soon as the experiment is known, before anything about its inputs is revealed."""
@@ -275,6 +295,7 @@ def prepare_job(session: Session, spec: dict[str, Any], *, authorize: Authorize 
             raise job_error(
                 Conflict, "job_not_succeeded", f"topography job {source.id} is {source.state}; export a succeeded one"
             )
+        _check_export_frames(spec, source)
         return Prepared(experiment_id=source.experiment_id, inputs=[{"job_id": source.id}])
     recording_kind = "test" if kind == "topography" else kind
     recording = _recording(
@@ -334,6 +355,58 @@ def get_job(session: Session, job_id: str) -> Job:
     job = session.get(Job, job_id)
     if job is None:
         raise job_error(NotFound, "job_not_found", f"there is no job {job_id}")
+    return job
+
+
+def _allowed(session: Session, principal: Principal, experiment_id: int | None, *, write: bool) -> bool:
+    if experiment_id is None:
+        return principal.is_admin
+    experiment = session.get(Experiment, experiment_id)
+    return experiment is not None and can_access(session, principal, experiment, write=write)
+
+
+def job_for(session: Session, principal: Principal, job_id: str, *, write: bool = False) -> Job:
+    """The job if `principal` may see it (or change it); otherwise NotFound, as if it did not exist."""
+    job = get_job(session, job_id)
+    if not _allowed(session, principal, job.experiment_id, write=False):
+        raise job_error(NotFound, "job_not_found", f"there is no job {job_id}")
+    if write and not _allowed(session, principal, job.experiment_id, write=True):
+        raise job_error(
+            Forbidden,
+            "read_only",
+            f"read-only access: you may read job {job_id} but not change it; ask the experiment's owner",
+        )
+    return job
+
+
+def start_job_as(session: Session, celery: Celery, principal: Principal, spec: dict[str, Any]) -> Job:
+    """Start a job for `principal` (committed, audited): they need write access to the experiment its inputs
+    belong to, or to be an admin for a job outside any experiment (selftest). Inputs in experiments they cannot
+    see are answered as inputs that do not exist."""
+
+    def may_start(experiment_id: int | None) -> None:
+        if experiment_id is None:
+            if not principal.is_admin:
+                raise job_error(Forbidden, "forbidden", "jobs outside any experiment (selftest) need an admin account")
+            return
+        experiment = session.get(Experiment, experiment_id)
+        level = access_level(session, principal, experiment) if experiment is not None else None
+        if level is None:
+            raise NotVisible  # the spec's ids are answered as if they did not exist
+        if level == "read":
+            raise job_error(
+                Forbidden,
+                "read_only",
+                f"read-only access: experiment {experiment_id} is shared with your group for reading; "
+                "ask its owner for write access to start jobs",
+            )
+
+    try:
+        job = create_job(session, celery, spec, authorize=may_start)
+    except QueueUnavailable as error:
+        raise job_error(Unavailable, "queue_unavailable", str(error)) from None
+    audit(session, principal, "start", "job", job.id, kind=job.kind)
+    session.commit()
     return job
 
 
@@ -689,3 +762,28 @@ async def reconcile_periodically(sessions: sessionmaker[Session], celery: Celery
     while True:
         await anyio.sleep(settings.reconcile_interval_s)
         await anyio.to_thread.run_sync(reconcile_quietly, sessions, celery, settings)
+
+
+def start_demo(session: Session, celery: Celery, principal: Principal, cameras: list[str], test_frames: int) -> int:
+    """Store a new demo experiment of `principal` (committed, audited) and send the task that simulates its
+    cameras' recordings and starts their jobs; returns the experiment's id. Unavailable without the queue."""
+    today = date.today().isoformat()
+    experiment = Experiment(
+        name=f"Demo: virtual punch test ({today})",
+        plate="virtual plate, clamped (simulated)",
+        punch="hemispherical (simulated)",
+        test_date=today,
+        notes="Made by the dashboard's Load demo experiment button: the recordings of "
+        f"{', '.join(cameras)} are simulated (fringelab simulate), then checked, calibrated and measured by "
+        "the workers like uploaded ones.",
+        owner_id=principal.user_id,
+    )
+    session.add(experiment)
+    session.flush()
+    audit(session, principal, "create", "experiment", experiment.id, demo=True)
+    session.commit()
+    try:
+        celery.send_task(DEMO_TASK, args=[experiment.id, cameras, test_frames])
+    except OperationalError as error:
+        raise Unavailable(f"the job queue (Redis) is unreachable: {error}; try again when it is back") from None
+    return experiment.id

@@ -44,7 +44,7 @@ class Base(DeclarativeBase):
 
 class Experiment(Base):
     __tablename__ = "experiments"
-    __table_args__ = {"sqlite_autoincrement": True}  # ids never reused (migration 0005)
+    __table_args__ = {"sqlite_autoincrement": True}  # ids never reused (migration 0006)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     name: Mapped[str] = mapped_column(String(200))
@@ -66,23 +66,31 @@ class Experiment(Base):
 
 class Camera(Base):
     __tablename__ = "cameras"
-    __table_args__ = {"sqlite_autoincrement": True}  # ids never reused (migration 0005)
+    __table_args__ = {"sqlite_autoincrement": True}  # ids never reused (migration 0006)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     experiment_id: Mapped[int] = mapped_column(ForeignKey("experiments.id", ondelete="CASCADE"), index=True)
     name: Mapped[str] = mapped_column(String(100))
     image_width_px: Mapped[int] = mapped_column(Integer)
     image_height_px: Mapped[int] = mapped_column(Integer)
+    # Pixel pitch along u (a row: the image's width) and along v (a column); v empty means square pixels.
     pixel_pitch_um: Mapped[float] = mapped_column(Float)
+    pixel_pitch_v_um: Mapped[float | None] = mapped_column(Float, nullable=True)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
 
     experiment: Mapped[Experiment] = relationship(back_populates="cameras")
+
+    @property
+    def pixel_pitch_uv_um(self) -> tuple[float, float]:
+        """(pitch along u, pitch along v) in µm: D_u = 1000 / pitch_u px/mm, D_v = 1000 / pitch_v px/mm."""
+        return self.pixel_pitch_um, self.pixel_pitch_v_um or self.pixel_pitch_um
+
     recordings: Mapped[list[Recording]] = relationship(back_populates="camera", cascade="all, delete-orphan")
 
 
 class Recording(Base):
     __tablename__ = "recordings"
-    __table_args__ = {"sqlite_autoincrement": True}  # ids never reused (migration 0005)
+    __table_args__ = {"sqlite_autoincrement": True}  # ids never reused (migration 0006)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     camera_id: Mapped[int] = mapped_column(ForeignKey("cameras.id", ondelete="CASCADE"), index=True)
@@ -168,7 +176,7 @@ class JobLog(Base):
     """A line of a job's log, for people: what it did, what went wrong and what to do."""
 
     __tablename__ = "job_logs"
-    __table_args__ = {"sqlite_autoincrement": True}  # ids never reused (migration 0005)
+    __table_args__ = {"sqlite_autoincrement": True}  # ids never reused (migration 0006)
 
     id: Mapped[int] = mapped_column(primary_key=True, autoincrement=True)
     job_id: Mapped[str] = mapped_column(ForeignKey("jobs.id", ondelete="CASCADE"), index=True)
@@ -184,7 +192,7 @@ class Calibration(Base):
     # Versions count per camera and kind; the constraint makes two jobs finishing at once take different ones.
     __table_args__ = (
         UniqueConstraint("camera_id", "kind", "version", name="uq_calibrations_camera_kind_version"),
-        {"sqlite_autoincrement": True},  # ids never reused (migration 0005)
+        {"sqlite_autoincrement": True},  # ids never reused (migration 0006)
     )
 
     id: Mapped[int] = mapped_column(primary_key=True)
@@ -204,7 +212,7 @@ class Calibration(Base):
 
 class User(Base):
     __tablename__ = "users"
-    __table_args__ = {"sqlite_autoincrement": True}  # ids never reused (migration 0005)
+    __table_args__ = {"sqlite_autoincrement": True}  # ids never reused (migration 0006)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     username: Mapped[str] = mapped_column(String(64), unique=True)
@@ -216,7 +224,7 @@ class User(Base):
 
 class Group(Base):
     __tablename__ = "groups"
-    __table_args__ = {"sqlite_autoincrement": True}  # ids never reused (migration 0005)
+    __table_args__ = {"sqlite_autoincrement": True}  # ids never reused (migration 0006)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     name: Mapped[str] = mapped_column(String(64), unique=True)
@@ -233,7 +241,7 @@ class ApiToken(Base):
     """A bearer token (API token for scripts, or a browser session); only its SHA-256 is stored."""
 
     __tablename__ = "api_tokens"
-    __table_args__ = {"sqlite_autoincrement": True}  # ids never reused (migration 0005)
+    __table_args__ = {"sqlite_autoincrement": True}  # ids never reused (migration 0006)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     user_id: Mapped[int] = mapped_column(ForeignKey("users.id", ondelete="CASCADE"), index=True)
@@ -251,7 +259,7 @@ class AuditEvent(Base):
     """Who uploaded, started, cancelled or deleted what, and when."""
 
     __tablename__ = "audit_events"
-    __table_args__ = {"sqlite_autoincrement": True}  # ids never reused (migration 0005)
+    __table_args__ = {"sqlite_autoincrement": True}  # ids never reused (migration 0006)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow, index=True)

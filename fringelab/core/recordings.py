@@ -154,41 +154,32 @@ def refuse_if_in_use(session: Session, what: str, **inputs: Any) -> None:
 # ---------------------------------------------------------------------------------------------- deletes
 
 
-def _remove_recording_files(data_path: Path, recordings: Iterable[Recording]) -> None:
-    for recording in recordings:
-        remove_tree(data_path, recording_dir(data_path, recording.id))
-
-
 def delete_experiment(session: Session, settings: Settings, principal: Principal, experiment: Experiment) -> None:
-    recordings = [r for camera in experiment.cameras for r in camera.recordings]
-    refuse_if_in_use(
+    """The experiment with its cameras, recordings and their jobs' results (`fringelab.core.deletion`)."""
+    from fringelab.core.deletion import execute, plan_experiment
+
+    execute(
         session,
-        f"experiment {experiment.id}",
-        recording_ids=[r.id for r in recordings],
-        camera_ids=[c.id for c in experiment.cameras],
-        experiment_id=experiment.id,
+        settings,
+        principal,
+        plan_experiment(session, settings, experiment),
+        kind="experiment",
+        id=experiment.id,
     )
-    session.delete(experiment)
-    audit(session, principal, "delete", "experiment", experiment.id, name=experiment.name)
-    session.commit()
-    _remove_recording_files(settings.data_path, recordings)
 
 
 def delete_camera(session: Session, settings: Settings, principal: Principal, camera: Camera) -> None:
-    recordings = list(camera.recordings)
-    refuse_if_in_use(session, f"camera {camera.id}", recording_ids=[r.id for r in recordings], camera_ids=[camera.id])
-    session.delete(camera)
-    audit(session, principal, "delete", "camera", camera.id, name=camera.name)
-    session.commit()
-    _remove_recording_files(settings.data_path, recordings)
+    from fringelab.core.deletion import execute, plan_camera
+
+    execute(session, settings, principal, plan_camera(session, settings, camera), kind="camera", id=camera.id)
 
 
 def delete_recording(session: Session, settings: Settings, principal: Principal, recording: Recording) -> None:
-    refuse_if_in_use(session, f"recording {recording.id}", recording_ids=[recording.id])
-    session.delete(recording)
-    audit(session, principal, "delete", "recording", recording.id, filename=recording.filename)
-    session.commit()
-    _remove_recording_files(settings.data_path, [recording])
+    from fringelab.core.deletion import execute, plan_recording
+
+    execute(
+        session, settings, principal, plan_recording(session, settings, recording), kind="recording", id=recording.id
+    )
 
 
 # ---------------------------------------------------------------------------------------------- ingest

@@ -52,6 +52,11 @@ class Settings(BaseSettings):
     reconcile_interval_s: float = Field(
         30.0, ge=0, description="How often the API re-queues jobs the queue lost; 0 means only at start-up."
     )
+    list_events_s: float = Field(
+        300.0,
+        gt=0,
+        description="Lifetime of a jobs-list event stream (/jobs/events); the browser then reconnects by itself.",
+    )
     auth_enabled: bool = Field(
         False, description="Require a login or API token; must be on to bind an address other than loopback."
     )

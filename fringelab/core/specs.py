@@ -11,7 +11,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from fringelab.formats.exports import ExportFormat
+from fringelab.formats import ExportFormat
 
 MAX_ID = 2**31 - 1  # ids and frame numbers are 32-bit integers in the database
 
@@ -65,7 +65,7 @@ class BoardSpec(_Spec):
 
 
 class CameraCalibrationSpec(_Spec):
-    """Calibrate a camera (Heikkilä model, METHOD.md §3) from a ready camera-calibration recording: a chessboard
+    """Calibrate a camera (Heikkilä model, docs/method.md §3) from a ready camera-calibration recording: a chessboard
     moved along Z (`zstack`, with z.csv) or free views of it (`poses`). Every frame is used; frames without the
     board are skipped and listed. D_u, D_v come from the camera's pixel pitch."""
 
@@ -87,7 +87,7 @@ class CameraCalibrationSpec(_Spec):
 
 
 class ProjectorCalibrationSpec(_Spec):
-    """Build the projector look-up table (METHOD.md §4) from a ready projector-calibration recording: the flat
+    """Build the projector look-up table (docs/method.md §4) from a ready projector-calibration recording: the flat
     plate moved along Z (with z.csv), filmed by the camera of `camera_calibration_id`."""
 
     model_config = ConfigDict(
@@ -168,11 +168,22 @@ class ExportSpec(_Spec):
     line: tuple[float, float, float, float] | None = Field(
         None, description="X0, Y0, X1, Y1 in mm, for profile-csv; empty: along X through the punch axis."
     )
+    lines: list[tuple[float, float, float, float]] | None = Field(
+        None,
+        max_length=26,
+        description="Several lines X0, Y0, X1, Y1 in mm for profile-csv (the viewer's section lines), labelled "
+        "A, B, … in the file; instead of `line`.",
+    )
+    frames: FrameRange | None = Field(
+        None, description="Only these frames of the result (recording frame numbers); empty: every frame."
+    )
 
     @model_validator(mode="after")
     def _line_for_profiles(self) -> ExportSpec:
-        if self.line is not None and self.format != "profile-csv":
-            raise ValueError("line is only used by the profile-csv format")
+        if (self.line is not None or self.lines) and self.format != "profile-csv":
+            raise ValueError("line and lines are only used by the profile-csv format")
+        if self.line is not None and self.lines:
+            raise ValueError("give line or lines, not both")
         return self
 
 

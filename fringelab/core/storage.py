@@ -56,6 +56,11 @@ def recording_dir(data_path: Path, recording_id: int) -> Path:
     return data_path / "recordings" / str(recording_id)
 
 
+def job_dir(data_path: Path, job_id: str) -> Path:
+    """`DATA_DIR/results/jobs/<job id>`: each job (and each retry, which is a new job) writes only here."""
+    return data_path / "results" / "jobs" / job_id
+
+
 def recording_file_name(format: str) -> str:
     return RECORDING_FILE + SUFFIX_OF_FORMAT[format]
 

@@ -5,7 +5,28 @@ containers    what an uploaded recording container is (ZIP, TIFF, video, .cine),
 recordings    frame sources of every container (lazy), and the sidecars z.csv, frames.csv, board.json
 previews      the preview store of a recording (previews.h5)
 topography    projector tables, topography results (writer and reader), exports, edge chunks
+simulations   opening a finite-element simulation (file or folder); one module per format: simulation_d3plot
+              (lasso-python), simulation_vtu (.pvd/.vtu), simulation_exodus, simulation_csv (nodal and punch CSV),
+              simulation_lsdyna_ascii (nodout, rcforc)
+comparison    the comparison of a topography with a simulation (writer, reader, exports)
 
 Modules the API imports (containers, previews, topography's reader) use numpy and h5py only; decoding frames
 (recordings) and the OpenCV YAML export need OpenCV and are used by the worker and the command line.
 """
+
+from typing import Literal, get_args
+
+# The export formats, declared once (here, light to import: the command line's parser and the job spec use it).
+ExportFormat = Literal["points-csv", "grid-npz", "mat", "vtk", "profile-csv"]
+EXPORT_FORMATS: tuple[str, ...] = get_args(ExportFormat)
+# The file each export job hands out, and its media type (vtk: the .pvd and its .vtu files in one ZIP).
+EXPORT_FILES: dict[str, tuple[str, str]] = {
+    "points-csv": ("topography.csv", "text/csv"),
+    "profile-csv": ("topography-profile.csv", "text/csv"),
+    "grid-npz": ("topography.npz", "application/octet-stream"),
+    "mat": ("topography.mat", "application/x-matlab-data"),
+    "vtk": ("topography-vtk.zip", "application/zip"),
+}
+# The exports of a comparison file, declared once.
+ComparisonExport = Literal["csv", "hdf5", "mat", "vtk", "profile-csv"]
+COMPARISON_EXPORTS: tuple[str, ...] = get_args(ComparisonExport)

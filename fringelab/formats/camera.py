@@ -6,15 +6,18 @@ Belongs here: converting a `CameraCalibration` to and from its JSON document, an
 self-describing, with units in every name.
 
 Document (schema "fringelab.camera-calibration", version 1), angles in degrees as at every interface:
-  schema, schema_version, mode, image_size_px {width, height},
+  schema, schema_version, mode, image_size_wh_px {width, height},
   sensor {du_px_per_mm, dv_px_per_mm, pixel_pitch_um [u, v] | null, scale_on},
   parameters {name: {value, unit, standard_error}} for su, f_mm, u0_px, v0_px, k1_per_mm2, k2_per_mm4,
       p1_per_mm, p2_per_mm, x0_mm, y0_mm, z0_mm, omega_deg, phi_deg, kappa_deg,
+  pose {object_origin_in_camera_mm [x, y, z] (= x0, y0, z0), camera_centre_in_object_mm [X, Y, Z]} (derived; absent
+      in files written before it was added),
   correlation: 14 × 14 in that order,
-  opencv {camera_matrix 3×3, dist_coeffs [k1, k2, p1, p2, k3], rvec_rad, tvec_mm, standard_errors {...}},
+  opencv {camera_matrix 3×3, dist_coeffs [k1, k2, p1, p2, k3], rvec_rad, tvec_mm (OpenCV's pose: plate -> camera),
+         standard_errors {...}},
   inverse_model {a1..a8, residual_px, approximation_residual_px},
   rms_px (per corner, as cv2.calibrateCamera), residual_std_px (per coordinate), n_points, converged,
-  frames [{frame, status, reason, z_mm, n_corners, rms_px, max_px, rvec_rad, tvec_mm}],
+  frames [{frame, status, reason, z_mm, n_corners, rms_px, max_px, r_cam_from_obj_rad, t_cam_from_obj_mm}],
   residuals {frame_index, x_mm, y_mm, z_mm, u_px, v_px, du_px, dv_px} (observed − model),
   residual_map {cells_u, cells_v, count, mean_du_px, mean_dv_px, rms_px, systematic_px, coverage},
   verdict {level, reasons, checks [{name, value, unit, good_limit, bad_limit, higher_is_better, level, message}]},
@@ -41,7 +44,7 @@ from fringelab.science.calibration import (
     Verdict,
     VerdictCheck,
 )
-from fringelab.science.camera import Camera, InverseModel
+from fringelab.science.camera import Camera, InverseModel, camera_centre_obj_mm
 from fringelab.science.chessboard import Board
 
 SCHEMA = "fringelab.camera-calibration"
@@ -92,12 +95,18 @@ def calibration_as_dict(calibration: CameraCalibration) -> dict[str, Any]:
             "scale_on": camera.scale_on,
         },
         "parameters": parameters,
+        # The pose read both ways: x0, y0, z0 are where the plate's origin lies in the camera frame; the camera's
+        # projection centre in the plate frame is C = −Mᵀ·[x0, y0, z0] (derived; no standard error given).
+        "pose": {
+            "object_origin_in_camera_mm": [float(v) for v in camera.translation_mm],
+            "camera_centre_in_object_mm": [float(v) for v in camera_centre_obj_mm(camera)],
+        },
         "correlation": _nested(calibration.correlation),
         "opencv": {
             "camera_matrix": opencv.camera_matrix.tolist(),
             "dist_coeffs": opencv.dist_coeffs.tolist(),
-            "rvec_rad": list(opencv.rvec_rad),
-            "tvec_mm": list(opencv.tvec_mm),
+            "rvec_rad": list(opencv.r_cam_from_obj_rad),
+            "tvec_mm": list(opencv.t_cam_from_obj_mm),
             "standard_errors": dict(calibration.opencv_standard_errors),
         },
         "inverse_model": {
@@ -118,8 +127,8 @@ def calibration_as_dict(calibration: CameraCalibration) -> dict[str, Any]:
                 "n_corners": f.n_corners,
                 "rms_px": f.rms_px,
                 "max_px": f.max_px,
-                "rvec_rad": None if f.rvec_rad is None else list(f.rvec_rad),
-                "tvec_mm": None if f.tvec_mm is None else list(f.tvec_mm),
+                "rvec_rad": None if f.r_cam_from_obj_rad is None else list(f.r_cam_from_obj_rad),
+                "tvec_mm": None if f.t_cam_from_obj_mm is None else list(f.t_cam_from_obj_mm),
             }  # fmt: skip
             for f in calibration.frames
         ],
@@ -186,7 +195,7 @@ def calibration_from_dict(document: dict[str, Any], *, name: str = "camera.json"
             image_height_px=int(document["image_size_px"]["height"]),
             du_px_per_mm=float(sensor["du_px_per_mm"]),
             dv_px_per_mm=float(sensor["dv_px_per_mm"]),
-            scale_on=str(sensor["scale_on"]),
+            scale_on=sensor["scale_on"],  # Camera checks it is "u" or "v"
             **values,
         )
         inverse_doc = document["inverse_model"]
@@ -204,8 +213,8 @@ def calibration_from_dict(document: dict[str, Any], *, name: str = "camera.json"
                 n_corners=f["n_corners"],
                 rms_px=f["rms_px"],
                 max_px=f["max_px"],
-                rvec_rad=None if f["rvec_rad"] is None else tuple(f["rvec_rad"]),
-                tvec_mm=None if f["tvec_mm"] is None else tuple(f["tvec_mm"]),
+                r_cam_from_obj_rad=None if f["rvec_rad"] is None else tuple(f["rvec_rad"]),
+                t_cam_from_obj_mm=None if f["tvec_mm"] is None else tuple(f["tvec_mm"]),
             )  # fmt: skip
             for f in document["frames"]
         )
@@ -299,8 +308,8 @@ def write_opencv_yaml(calibration: CameraCalibration, path: str | Path) -> Path:
     storage.write("image_height", opencv.image_height_px)
     storage.write("camera_matrix", opencv.camera_matrix)
     storage.write("distortion_coefficients", opencv.dist_coeffs.reshape(-1, 1))
-    storage.write("rvec", np.array(opencv.rvec_rad).reshape(3, 1))
-    storage.write("tvec", np.array(opencv.tvec_mm).reshape(3, 1))
+    storage.write("rvec", np.array(opencv.r_cam_from_obj_rad).reshape(3, 1))
+    storage.write("tvec", np.array(opencv.t_cam_from_obj_mm).reshape(3, 1))
     storage.write("avg_reprojection_error", calibration.rms_px)
     storage.write("source", f"{SCHEMA} v{SCHEMA_VERSION}, mode {calibration.mode}, verdict {calibration.verdict.level}")
     atomic_write(path, storage.releaseAndGetString())

@@ -40,7 +40,7 @@ def write_edges(path: str | Path, frames: Sequence[int], edges: Sequence[FrameEd
             {
                 "axis": e.axis,
                 "period_px": e.period_px,
-                "image_shape": list(e.image_shape),
+                "image_shape": list(e.image_shape_hw_px),
                 "noise_px": e.noise_px,
                 "saturated_fraction": e.saturated_fraction,
                 "dark_fraction": e.dark_fraction,
@@ -67,7 +67,7 @@ def read_edges(path: str | Path) -> tuple[np.ndarray, list[FrameEdges]]:
             FrameEdges(
                 axis=m["axis"],
                 period_px=float(m["period_px"]),
-                image_shape=(int(m["image_shape"][0]), int(m["image_shape"][1])),
+                image_shape_hw_px=(int(m["image_shape"][0]), int(m["image_shape"][1])),
                 line=arrays["line"][lo:hi],
                 t_px=arrays["t_px"][lo:hi],
                 polarity=arrays["polarity"][lo:hi],

@@ -44,9 +44,12 @@ def json_text(value: Any) -> str:
     return json.dumps(clean(value))
 
 
-def require_schema(file: h5py.File, schema: str, path: Path) -> None:
+def require_schema(file: h5py.File, schema: str, path: Path, *, version_optional: bool = False) -> None:
+    """ValueError unless `file` is a `schema` file of a version this code reads (`version_optional`: files
+    written before versions were recorded count as version 1)."""
     found = file.attrs.get("schema")
     if found != schema:
         raise ValueError(f"{path}: not a {schema} file (schema {found!r})")
-    if int(file.attrs.get("schema_version", -1)) != SCHEMA_VERSION:
-        raise ValueError(f"{path}: schema version {file.attrs.get('schema_version')} is not supported (expected 1)")
+    version = file.attrs.get("schema_version", SCHEMA_VERSION if version_optional else None)
+    if version is None or int(version) != SCHEMA_VERSION:
+        raise ValueError(f"{path}: schema version {version} is not supported (expected {SCHEMA_VERSION})")

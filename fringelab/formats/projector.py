@@ -43,7 +43,7 @@ def write_projector_calibration(calibration: ProjectorCalibration, path: str | P
         file.attrs["schema"] = PROJECTOR_SCHEMA
         file.attrs["schema_version"] = SCHEMA_VERSION
         file.attrs["created_utc"] = datetime.now(UTC).isoformat(timespec="seconds")
-        file.attrs["image_height_px"], file.attrs["image_width_px"] = calibration.image_shape
+        file.attrs["image_height_px"], file.attrs["image_width_px"] = calibration.image_shape_hw_px
         file.attrs["axis"] = calibration.axis
         file.attrs["period_px"] = calibration.period_px
         file.attrs["reference_z_mm"] = calibration.reference_z_mm
@@ -52,7 +52,7 @@ def write_projector_calibration(calibration: ProjectorCalibration, path: str | P
         file.attrs["qa_json"] = json_text(asdict(calibration.qa))
         file.attrs["provenance_json"] = json_text(calibration.provenance)
         file.attrs["description"] = (
-            "Projector look-up table (METHOD.md §4): lut_t_px[k, s, j] is the position (px, along scan line s) of "
+            "Projector look-up table (docs/method.md §4): lut_t_px[k, s, j] is the position (px, along scan line s) of "
             "stripe edge k on the flat plate at Z = z_mm[j]; Z(t) = Σ_i coefficients[k, s, i]·τ^i with "
             "τ = (t − t_centre_px)/t_scale_px for t_lo_px ≤ t ≤ t_hi_px. axis 'rows': scan lines are image rows and "
             "t the column; 'cols': scan lines are columns and t the row."
@@ -105,8 +105,8 @@ def read_projector_calibration(path: str | Path) -> ProjectorCalibration:
             }
             arrays = {name: file[name][()] for name in _PROJECTOR_ARRAYS}
             return ProjectorCalibration(
-                image_shape=(int(file.attrs["image_height_px"]), int(file.attrs["image_width_px"])),
-                edges=EdgeSettings(**json.loads(file.attrs["edge_settings_json"])),
+                image_shape_hw_px=(int(file.attrs["image_height_px"]), int(file.attrs["image_width_px"])),
+                edges=EdgeSettings.from_dict(json.loads(file.attrs["edge_settings_json"])),
                 reference_z_mm=float(file.attrs["reference_z_mm"]),
                 z_mm=file["z_mm"][()],
                 polarity=file["polarity"][()],

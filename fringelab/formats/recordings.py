@@ -52,7 +52,7 @@ __all__ = [
     "decode_grey",
     "natural_key",
     "open_recording",
-    "write_frame_folder",
+    "write_recording",
 ]
 
 MAX_FRAME_PIXELS = 1 << 27  # 134 Mpx; a high-speed camera frame is a few Mpx
@@ -401,23 +401,6 @@ def open_recording(path: str | Path, *, zip_limits: ZipLimits | None = None) -> 
 
 
 # ---------------------------------------------------------------------------------------------------- sidecars
-
-
-def write_frame_folder(
-    path: str | Path, frames: Sequence[np.ndarray], *, sidecars: dict[str, str] | None = None
-) -> Path:
-    """Write frames as frame0000.png, frame0001.png, ... and sidecar texts (e.g. {"z.csv": ...}) into a folder.
-
-    For synthetic recordings and tests; the folder is readable with `open_recording`.
-    """
-    path = Path(path)
-    path.mkdir(parents=True, exist_ok=True)
-    for index, frame in enumerate(frames):
-        if not cv2.imwrite(str(path / f"frame{index:04d}.png"), frame):
-            raise ValueError(f"{path}: could not write frame {index} (dtype {frame.dtype}, shape {frame.shape})")
-    for name, text in (sidecars or {}).items():
-        (path / name).write_text(text)
-    return path
 
 
 def write_recording(

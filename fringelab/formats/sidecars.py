@@ -11,6 +11,7 @@ import csv
 import io
 import json
 import math
+import re
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -188,38 +189,111 @@ def read_z_csv(text: str, *, name: str = "z.csv") -> dict[int, float]:
     return z_by_frame
 
 
+# The spellings of board.json keys met in the wild (OpenCV samples, MATLAB's Camera Calibrator, lab scripts), each
+# mapped onto ours after normalising (camelCase → snake_case, lower case, "-" and " " → "_"). Counts of squares
+# are one more than counts of inner corners.
+_BOARD_COLS = ("cols", "columns", "n_cols", "num_cols", "inner_cols", "corners_x", "inner_corners_x", "nx",
+               "board_width", "width", "pattern_width")  # fmt: skip
+_BOARD_ROWS = ("rows", "n_rows", "num_rows", "inner_rows", "corners_y", "inner_corners_y", "ny", "board_height",
+               "height", "pattern_height")  # fmt: skip
+_BOARD_SQUARES_X = ("squares_x", "n_squares_x", "squares_cols", "square_cols")
+_BOARD_SQUARES_Y = ("squares_y", "n_squares_y", "squares_rows", "square_rows")
+_BOARD_PAIRS = ("inner_corners", "pattern_size", "board_size", "corners", "size")  # [cols, rows] of inner corners
+_BOARD_SQUARE_UNITS = {  # key → factor to mm
+    **dict.fromkeys(("square_mm", "square_size_mm", "square_length_mm", "square_side_mm", "size_mm"), 1.0),
+    **dict.fromkeys(("square_size", "square_length", "square", "square_side", "checker_size", "spacing"), None),
+    **dict.fromkeys(("square_m", "square_size_m", "square_length_m"), 1000.0),
+    **dict.fromkeys(("square_cm", "square_size_cm", "square_length_cm"), 10.0),
+}
+_UNIT_TO_MM = {"mm": 1.0, "millimeter": 1.0, "millimeters": 1.0, "millimetre": 1.0, "millimetres": 1.0,
+               "cm": 10.0, "m": 1000.0, "meter": 1000.0, "meters": 1000.0, "metre": 1000.0, "metres": 1000.0,
+               "in": 25.4, "inch": 25.4, "inches": 25.4}  # fmt: skip
+_BOARD_ORIGIN = ("origin", "origin_corner", "origin_ij", "origin_index")
+BOARD_JSON_EXAMPLE = '{"cols": 9, "rows": 6, "square_mm": 25.0, "origin": null}'
+
+
+def _normal_key(key: str) -> str:
+    snake = re.sub(r"(?<=[a-z0-9])([A-Z])", r"_\1", key.strip())
+    return re.sub(r"[\s\-]+", "_", snake).lower()
+
+
+def _first(data: dict[str, Any], keys: Sequence[str]) -> tuple[str, Any] | None:
+    for key in keys:
+        if key in data:
+            return key, data[key]
+    return None
+
+
 def read_board_json(text: str, *, name: str = "board.json") -> Board:
     """Parse a chessboard description: {"cols": 9, "rows": 6, "square_mm": 25.0, "origin": [4, 2] or null}.
 
-    cols × rows count inner corners; `"inner_corners": [cols, rows]` may replace cols and rows.
+    cols × rows count inner corners. Common other spellings are accepted: `columns`, `nx`, `width`, camelCase
+    (`squareSize`), a pair `"inner_corners"` or `"pattern_size": [cols, rows]`, counts of squares (`squares_x`,
+    `squares_y`: one more than inner corners), the square in m or cm (`square_size_m`) or with a `"unit"`
+    (`"square_size": 0.025, "unit": "m"`; without one, mm). Errors say what was expected.
     """
     if _json_depth(text) > MAX_JSON_DEPTH:
         raise ValueError(f"{name}: nested deeper than {MAX_JSON_DEPTH} levels; expected one flat object")
     try:
-        data: Any = json.loads(text, parse_constant=_no_constant)
+        raw: Any = json.loads(text, parse_constant=_no_constant)
     except ValueError as error:  # JSONDecodeError, or NaN/Infinity
         raise ValueError(f"{name}: not valid JSON ({error})") from None
-    if not isinstance(data, dict):
-        raise ValueError(f"{name}: expected a JSON object, got {type(data).__name__}")
-    if "inner_corners" in data:
-        corners = data["inner_corners"]
-        if not (isinstance(corners, list) and len(corners) == 2):
-            raise ValueError(f"{name}: inner_corners must be [cols, rows]")
-        data = {**data, "cols": corners[0], "rows": corners[1]}
-    missing = [key for key in ("cols", "rows", "square_mm") if key not in data]
-    if missing:
-        raise ValueError(f"{name}: missing {', '.join(missing)} (expected cols, rows, square_mm, optional origin)")
-    cols, rows, square_mm, origin = data["cols"], data["rows"], data["square_mm"], data.get("origin")
-    if not (isinstance(cols, int) and isinstance(rows, int) and cols >= 2 and rows >= 2):
-        raise ValueError(f"{name}: needs at least 2 × 2 inner corners (integers), got {cols!r} × {rows!r}")
-    if isinstance(square_mm, bool) or not isinstance(square_mm, int | float) or not 0 < square_mm < math.inf:
-        raise ValueError(f"{name}: square_mm must be a positive number, got {square_mm!r}")
+    if not isinstance(raw, dict):
+        raise ValueError(f"{name}: expected a JSON object like {BOARD_JSON_EXAMPLE}, got {type(raw).__name__}")
+    data = {_normal_key(str(key)): value for key, value in raw.items()}
+    cols = _first(data, _BOARD_COLS)
+    rows = _first(data, _BOARD_ROWS)
+    if cols is None and rows is None:
+        pair = _first(data, _BOARD_PAIRS)
+        squares_x, squares_y = _first(data, _BOARD_SQUARES_X), _first(data, _BOARD_SQUARES_Y)
+        if pair is not None:
+            if not (isinstance(pair[1], list | dict) and len(pair[1]) == 2):
+                raise ValueError(f"{name}: {pair[0]} must be [cols, rows] of inner corners, got {pair[1]!r}")
+            values = list(pair[1].values()) if isinstance(pair[1], dict) else pair[1]
+            cols, rows = (pair[0], values[0]), (pair[0], values[1])
+        elif squares_x is not None and squares_y is not None:
+            cols = (squares_x[0], squares_x[1] - 1 if _is_int(squares_x[1]) else squares_x[1])
+            rows = (squares_y[0], squares_y[1] - 1 if _is_int(squares_y[1]) else squares_y[1])
+    square = _first(data, tuple(_BOARD_SQUARE_UNITS))
+    if cols is None or rows is None or square is None:
+        missing = [what for what, found in (("cols", cols), ("rows", rows), ("square_mm", square)) if found is None]
+        raise ValueError(
+            f"{name}: missing {', '.join(missing)} (none of the keys {sorted(raw)} names it; expected e.g. "
+            f"{BOARD_JSON_EXAMPLE}: cols × rows inner corners, the square's side in mm)"
+        )
+    if not (_is_int(cols[1]) and _is_int(rows[1]) and cols[1] >= 2 and rows[1] >= 2):
+        raise ValueError(f"{name}: needs at least 2 × 2 inner corners (integers), got {cols[1]!r} × {rows[1]!r}")
+    square_key, square_value = square
+    if not _is_number(square_value) or not 0 < square_value < math.inf:
+        raise ValueError(f"{name}: {square_key} must be a positive number, got {square_value!r}")
+    factor = _BOARD_SQUARE_UNITS[square_key]
+    if factor is None:
+        unit = data.get("unit", data.get("units", data.get("square_unit", "mm")))
+        if not isinstance(unit, str) or unit.strip().lower() not in _UNIT_TO_MM:
+            raise ValueError(f"{name}: unit must be one of {', '.join(sorted(_UNIT_TO_MM))}, got {unit!r}")
+        factor = _UNIT_TO_MM[unit.strip().lower()]
+    origin_found = _first(data, _BOARD_ORIGIN)
+    origin = origin_found[1] if origin_found else None
     if origin is not None:
-        valid = isinstance(origin, list) and len(origin) == 2 and all(isinstance(v, int) and v >= 0 for v in origin)
+        valid = isinstance(origin, list) and len(origin) == 2 and all(_is_int(v) and v >= 0 for v in origin)
         if not valid:
             raise ValueError(f"{name}: origin must be [i, j] corner indices ≥ 0 or null, got {origin!r}")
         origin = (origin[0], origin[1])
-    return Board(cols=cols, rows=rows, square_mm=float(square_mm), origin=origin)
+    return Board(cols=cols[1], rows=rows[1], square_mm=float(square_value) * factor, origin=origin)
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def board_json_text(board: Board) -> str:
+    """board.json in our own spelling (what `read_board_json` reads back to the same board)."""
+    origin = list(board.origin) if board.origin is not None else None
+    return json.dumps({"cols": board.cols, "rows": board.rows, "square_mm": board.square_mm, "origin": origin}) + "\n"
 
 
 def _json_depth(text: str) -> int:

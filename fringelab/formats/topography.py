@@ -6,7 +6,7 @@ series for ParaView, profile CSV), stored edges of frame chunks for parallel run
 and writing frame recordings (folder or ZIP of PNG) for the virtual experiment. Every file is written to a
 temporary name beside its target and renamed when complete.
 
-Topography result (schema "fringelab.topography", version 1); lengths in mm in the object frame (METHOD.md §2:
+Topography result (schema "fringelab.topography", version 1); lengths in mm in the object frame (docs/method.md §2:
 +Z toward the camera), frames are recording frame indices; every dataset has `unit` and `description` attrs:
   /                 attrs: schema, schema_version, created_utc, n_frames, z_flat_mm (median Z of the first frame:
                     w = z − z_flat), grid_step_mm, grid_max_edge_mm, axis, settings_json, edge_settings_json,
@@ -15,9 +15,11 @@ Topography result (schema "fringelab.topography", version 1); lengths in mm in t
                     camera_fingerprint, projector_json (its settings, QA, provenance, table size)
   /frames           index (n,) int64; time_s, punch_displacement_mm, force_kN (n,) float64, NaN if not logged
   /points           offsets (n + 1,) int64: frame i's points are rows offsets[i]:offsets[i+1] of
-                    x_mm, y_mm, z_mm (P,) float32, edge (P,) int32 (edge index k), line (P,) int32 (scan line)
+                    x_mm, y_mm, z_mm (P,) float32, edge (P,) int32 (edge index k), line (P,) int32 (scan line),
+                    sigma_w_mm (P,) float32: σ of each point's height (`science.uncertainty`), NaN where unknown
   /grid             x_mm (nx,), y_mm (ny,); z_mm (n, ny, nx) float32, chunked one frame per chunk, NaN outside
-                    the data
+                    the data; sigma_w_mm (n, ny, nx) float32, σ of the gridded height (interpolated like z)
+Files written before σ existed have no sigma_w_mm datasets; the reader then returns None for σ.
   /peak             w_mm, x_mm, y_mm (n,): the largest deflection of the grid and where; centre_x_mm,
                     centre_y_mm (n,): centroid of the area above half the peak (the punch axis), NaN early on
   /qa               n_points, n_tracks, n_ended, n_out_of_range, n_unmatched (n,) int64; edge_noise_px,
@@ -29,7 +31,10 @@ Topography result (schema "fringelab.topography", version 1); lengths in mm in t
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
 from datetime import UTC, datetime
+from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -88,7 +93,7 @@ class TopographyWriter:
         file.attrs["schema_version"] = SCHEMA_VERSION
         file.attrs["created_utc"] = datetime.now(UTC).isoformat(timespec="seconds")
         file.attrs["length_unit"] = "mm"
-        file.attrs["object_frame"] = "X, Y in the plate plane, +Z toward the camera (METHOD.md §2)"
+        file.attrs["object_frame"] = "X, Y in the plate plane, +Z toward the camera (docs/method.md §2)"
         file.attrs["z_flat_mm"] = z_flat_mm
         file.attrs["grid_step_mm"] = grid.step_mm
         file.attrs["grid_max_edge_mm"] = max_edge_mm
@@ -133,6 +138,7 @@ class TopographyWriter:
             ("z_mm", np.float32, "mm", "Z of each edge point (the deflection is z − z_flat_mm)"),
             ("edge", np.int32, "1", "edge index k in the projector table"),
             ("line", np.int32, "1", "scan line (image row for axis 'rows', column for 'cols')"),
+            ("sigma_w_mm", np.float32, "mm", "standard deviation of the point's height (edge noise, projector table)"),
         ):
             unit_dataset(
                 points,
@@ -162,6 +168,20 @@ class TopographyWriter:
             shuffle=True,
             fillvalue=np.nan,
         )
+        unit_dataset(
+            grid_group,
+            "sigma_w_mm",
+            np.zeros((0, ny, nx), np.float32),
+            unit="mm",
+            description="standard deviation of the gridded height [frame, iy, ix] (its corners' σ interpolated)",
+            maxshape=(None, ny, nx),
+            chunks=(1, ny, nx),
+            compression="gzip",
+            compression_opts=1,
+            shuffle=True,
+            fillvalue=np.nan,
+        )
+        self.max_edge_mm = max_edge_mm
         peak = file.create_group("peak")
         for name, description in (
             ("w_mm", "largest deflection w = z − z_flat of the grid"),
@@ -232,11 +252,16 @@ class TopographyWriter:
         self._append(file["points/z_mm"], points[:, 2].astype(np.float32))
         self._append(file["points/edge"], measurement.k.astype(np.int32))
         self._append(file["points/line"], measurement.line.astype(np.int32))
+        sigma = measurement.sigma_z_mm if measurement.sigma_z_mm is not None else np.full(len(points), np.nan)
+        self._append(file["points/sigma_w_mm"], sigma.astype(np.float32))
         self._n_points += len(points)
         self._append(file["points/offsets"], np.array([self._n_points]))
         grid_z = file["grid/z_mm"]
         grid_z.resize(self._n + 1, axis=0)
         grid_z[self._n] = z_grid_mm.astype(np.float32)
+        grid_sigma = file["grid/sigma_w_mm"]
+        grid_sigma.resize(self._n + 1, axis=0)
+        grid_sigma[self._n] = self._sigma_grid(measurement, sigma).astype(np.float32)
         for name in ("w_mm", "x_mm", "y_mm", "centre_x_mm", "centre_y_mm"):
             self._append(file[f"peak/{name}"], np.array([getattr(peak, name)]))
         nodes = int(np.count_nonzero(np.isfinite(z_grid_mm)))
@@ -255,6 +280,18 @@ class TopographyWriter:
             self._append(file[f"qa/{name}"], np.array([value]))
         self._n += 1
 
+    def _sigma_grid(self, measurement: FrameMeasurement, sigma: np.ndarray) -> np.ndarray:
+        """σ on the grid, on the same triangles as the heights (`science.uncertainty.grid_sigma_mm`)."""
+        from fringelab.science.uncertainty import grid_sigma_mm
+
+        if len(sigma) == 0 or not np.any(np.isfinite(sigma)):
+            return np.full(self.grid.shape, np.nan)
+        shape = (int(measurement.k.max()) + 1, int(measurement.line.max()) + 1)
+        x, y, _ = measurement.dense(shape)
+        dense_sigma = np.full(shape, np.nan)
+        dense_sigma[measurement.k, measurement.line] = sigma
+        return grid_sigma_mm(x, y, dense_sigma, self.grid, max_edge_mm=self.max_edge_mm)
+
     def close(self, summary: dict[str, Any]) -> Path:
         """Write the summary attributes, close the file and move it into place."""
         file = self._file
@@ -272,11 +309,41 @@ class TopographyWriter:
             self._temp.unlink(missing_ok=True)
 
 
-class TopographyResult:
-    """A topography result file opened for reading; frames are read one at a time.
+GRID_BUDGET_NODES = 250  # per side: a 250 × 250 float32 frame is 250 kB, what a browser redraws smoothly
 
-    Use as a context manager or call `close()`. Frame positions i are 0..n_frames−1 (the order in the file);
-    `frames` holds their recording indices.
+
+class ResultUnavailable(ValueError):
+    """A result file is missing, unreadable or incomplete; the message says which and what to do."""
+
+
+class FrameNotInResult(ResultUnavailable):
+    """The frame asked for was not computed."""
+
+
+class OutsideGrid(ResultUnavailable):
+    """A point, line or window lies outside the result's grid."""
+
+
+@dataclass(frozen=True)
+class GridCut:
+    """A frame's deflection w = z − z_flat on (part of) the grid: w_mm (ny, nx) float32, NaN where no data;
+    x_mm (nx,), y_mm (ny,) the node (or block-centre) coordinates; step: grid nodes per returned node."""
+
+    frame: int
+    x_mm: np.ndarray
+    y_mm: np.ndarray
+    w_mm: np.ndarray
+    step: int
+
+
+class TopographyResult:
+    """A topography result file opened read-only: the one reader, for the API, the worker and scripts.
+
+    Reads are windowed: one frame's grid (or a window of it), one frame's points, the 2 × 2 nodes around a point
+    in every frame; memory does not grow with the number of frames. Use as a context manager or call `close()`.
+    Frame positions i are 0..n_frames−1 (the order in the file); `frames` holds their recording indices, and the
+    methods taking `frame` name a frame by that index. Raises ResultUnavailable (a ValueError) for a file that is
+    not a complete result.
     """
 
     def __init__(self, path: str | Path) -> None:
@@ -284,16 +351,18 @@ class TopographyResult:
         try:
             self.file = h5py.File(self.path, "r")
         except OSError as error:
-            raise ValueError(f"{self.path}: not a readable HDF5 file ({error})") from None
+            raise ResultUnavailable(f"{self.path.name}: not a readable HDF5 file ({error})") from None
         try:
-            require_schema(self.file, TOPOGRAPHY_SCHEMA, self.path)
-        except ValueError:
+            require_schema(self.file, TOPOGRAPHY_SCHEMA, self.path, version_optional=True)
+            self.grid = Grid(x_mm=self.file["grid/x_mm"][()], y_mm=self.file["grid/y_mm"][()])
+            self.frames = self.file["frames/index"][()]
+            self.z_flat_mm = float(self.file.attrs["z_flat_mm"])
+        except ValueError as error:
             self.file.close()
-            raise
-        self.grid = Grid(x_mm=self.file["grid/x_mm"][()], y_mm=self.file["grid/y_mm"][()])
-        self.frames = self.file["frames/index"][()]
-        self.offsets = self.file["points/offsets"][()]
-        self.z_flat_mm = float(self.file.attrs["z_flat_mm"])
+            raise ResultUnavailable(str(error)) from None
+        except KeyError as error:
+            self.file.close()
+            raise ResultUnavailable(f"{self.path.name} is not a complete topography result ({error})") from None
 
     def __enter__(self) -> TopographyResult:
         return self
@@ -308,9 +377,30 @@ class TopographyResult:
     def n_frames(self) -> int:
         return len(self.frames)
 
+    @property
+    def x_mm(self) -> np.ndarray:
+        return self.grid.x_mm
+
+    @property
+    def y_mm(self) -> np.ndarray:
+        return self.grid.y_mm
+
+    def position(self, frame: int) -> int:
+        """The position in the file of recording frame `frame`; FrameNotInResult if it was not computed."""
+        found = np.flatnonzero(self.frames == frame)
+        if found.size == 0:
+            span = f"{self.frames[0]}..{self.frames[-1]}" if self.frames.size else "none"
+            raise FrameNotInResult(f"frame {frame} is not in this result (frames {span})")
+        return int(found[0])
+
     def column(self, name: str) -> np.ndarray:
-        """A per-frame dataset, e.g. "frames/time_s", "peak/w_mm", "qa/n_points"."""
-        return self.file[name][()]
+        """A per-frame dataset, e.g. "frames/time_s", "peak/w_mm", "qa/n_points" (NaN where a file lacks it)."""
+        return self.file[name][()] if name in self.file else np.full(self.frames.shape, np.nan)
+
+    @cached_property
+    def offsets(self) -> np.ndarray:
+        """Frame position i's points are rows offsets[i]:offsets[i + 1] of the /points datasets."""
+        return self.file["points/offsets"][()]
 
     def points(self, i: int) -> np.ndarray:
         """The 3-D points (N, 3) of frame position i."""
@@ -326,32 +416,119 @@ class TopographyResult:
         """Gridded Z (ny, nx) of frame position i (NaN outside the data)."""
         return self.file["grid/z_mm"][i].astype(np.float64)
 
+    def sigma_points(self, i: int) -> np.ndarray | None:
+        """σ_w (N,) of the points of frame position i; None for a file written before σ was stored."""
+        if "points/sigma_w_mm" not in self.file:
+            return None
+        lo, hi = int(self.offsets[i]), int(self.offsets[i + 1])
+        return self.file["points/sigma_w_mm"][lo:hi].astype(np.float64)
+
+    def sigma_grid(self, i: int) -> np.ndarray | None:
+        """σ_w (ny, nx) of the grid of frame position i; None for a file written before σ was stored."""
+        if "grid/sigma_w_mm" not in self.file:
+            return None
+        return self.file["grid/sigma_w_mm"][i].astype(np.float64)
+
     def w_grid(self, i: int) -> np.ndarray:
         """Gridded deflection w = z − z_flat (ny, nx) of frame position i."""
         return self.z_grid(i) - self.z_flat_mm
 
     def summary(self) -> dict[str, Any]:
+        """The /summary attributes as stored (NaN where a value was not measured)."""
         return dict(self.file["summary"].attrs) if "summary" in self.file else {}
 
-    def history(self, x_mm: float, y_mm: float) -> np.ndarray:
-        """w(t) at one object point over all frames (bilinear on the grid; NaN where it has no data)."""
-        from fringelab.science.fields import sample_field
-
-        return np.array(
-            [
-                sample_field(self.w_grid(i), self.grid, np.array([x_mm]), np.array([y_mm]))[0]
-                for i in range(self.n_frames)
-            ]
+    def grid_cut(
+        self,
+        frame: int,
+        *,
+        budget: int = GRID_BUDGET_NODES,
+        window_mm: tuple[float, float, float, float] | None = None,
+    ) -> GridCut:
+        """w of one frame, block-averaged (NaN-aware) to at most `budget` nodes per side; `window_mm`
+        (x_min, x_max, y_min, y_max) cuts a zoom window first, at full resolution when it fits the budget."""
+        i = self.position(frame)
+        ix = np.arange(self.x_mm.size)
+        iy = np.arange(self.y_mm.size)
+        if window_mm is not None:
+            x_min, x_max, y_min, y_max = window_mm
+            ix = np.flatnonzero((self.x_mm >= x_min) & (self.x_mm <= x_max))
+            iy = np.flatnonzero((self.y_mm >= y_min) & (self.y_mm <= y_max))
+            if ix.size == 0 or iy.size == 0:
+                raise OutsideGrid(
+                    f"the window holds no grid node; the grid spans X {self.x_mm[0]:g}..{self.x_mm[-1]:g} mm, "
+                    f"Y {self.y_mm[0]:g}..{self.y_mm[-1]:g} mm"
+                )
+        rows, cols = slice(iy[0], iy[-1] + 1), slice(ix[0], ix[-1] + 1)
+        w = self.file["grid/z_mm"][i, rows, cols].astype(np.float32) - np.float32(self.z_flat_mm)
+        step = max(1, math.ceil(max(w.shape) / budget))
+        return GridCut(
+            frame=frame,
+            x_mm=_block_mean(self.x_mm[cols][None, :], step)[0],
+            y_mm=_block_mean(self.y_mm[rows][:, None], step)[:, 0],
+            w_mm=_block_mean(w, step).astype(np.float32),
+            step=step,
         )
 
+    def profile(self, frames: list[int], line_mm: tuple[float, float, float, float], *, n_points: int) -> dict:
+        """w along the segment (x0, y0) → (x1, y1) for each frame, bilinear between grid nodes (NaN when a
+        neighbouring node has no data); s_mm is the distance from (x0, y0)."""
+        x0, y0, x1, y1 = line_mm
+        t = np.linspace(0.0, 1.0, n_points)
+        x, y = x0 + t * (x1 - x0), y0 + t * (y1 - y0)
+        weights = self._bilinear(x, y)
+        profiles = []
+        for frame in frames:
+            z = self.file["grid/z_mm"][self.position(frame)].astype(np.float64)
+            profiles.append({"frame": frame, "w_mm": _sample(z, weights) - self.z_flat_mm})
+        return {"s_mm": t * math.hypot(x1 - x0, y1 - y0), "x_mm": x, "y_mm": y, "profiles": profiles}
 
-# --------------------------------------------------------------------------------------------------------------
-# Exports
+    def history(self, x_mm: float, y_mm: float) -> np.ndarray:
+        """w(t) at one object point over every frame of the result (bilinear; NaN where it has no data). Reads
+        only the 2 × 2 nodes around the point from each frame; OutsideGrid for a point outside the grid."""
+        (iy, ix, wy, wx) = self._bilinear(np.array([x_mm]), np.array([y_mm]))
+        rows, cols = slice(int(iy[0]), int(iy[0]) + 2), slice(int(ix[0]), int(ix[0]) + 2)
+        block = self.file["grid/z_mm"][:, rows, cols].astype(np.float64)
+        w = (
+            block[:, 0, 0] * (1 - wy[0]) * (1 - wx[0])
+            + block[:, 0, 1] * (1 - wy[0]) * wx[0]
+            + block[:, 1, 0] * wy[0] * (1 - wx[0])
+            + block[:, 1, 1] * wy[0] * wx[0]
+        )
+        return w - self.z_flat_mm
+
+    def _bilinear(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Lower-left node indices and fractional weights of points on the (regular, increasing) grid."""
+        for name, values, axis in (("X", x, self.x_mm), ("Y", y, self.y_mm)):
+            if np.any(values < axis[0]) or np.any(values > axis[-1]):
+                raise OutsideGrid(f"{name} must lie within the grid, {axis[0]:g}..{axis[-1]:g} mm")
+        fx = np.interp(x, self.x_mm, np.arange(self.x_mm.size, dtype=np.float64))
+        fy = np.interp(y, self.y_mm, np.arange(self.y_mm.size, dtype=np.float64))
+        ix = np.minimum(np.floor(fx).astype(int), max(self.x_mm.size - 2, 0))
+        iy = np.minimum(np.floor(fy).astype(int), max(self.y_mm.size - 2, 0))
+        return iy, ix, fy - iy, fx - ix
 
 
-# --------------------------------------------------------------------------------------------------------------
-# Edges of frame chunks (for parallel runs)
+def _sample(z: np.ndarray, weights: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
+    iy, ix, wy, wx = weights
+    return (
+        z[iy, ix] * (1 - wy) * (1 - wx)
+        + z[iy, ix + 1] * (1 - wy) * wx
+        + z[iy + 1, ix] * wy * (1 - wx)
+        + z[iy + 1, ix + 1] * wy * wx
+    )
 
 
-# --------------------------------------------------------------------------------------------------------------
-# Recordings (for the virtual experiment)
+def _block_mean(values: np.ndarray, step: int) -> np.ndarray:
+    """Mean over step × step blocks, ignoring NaN (a block without data stays NaN); the last blocks may be
+    smaller."""
+    if step == 1:
+        return values
+    ny, nx = values.shape
+    pad_y, pad_x = (-ny) % step, (-nx) % step
+    padded = np.pad(values.astype(np.float64), ((0, pad_y), (0, pad_x)), constant_values=np.nan)
+    blocks = padded.reshape(padded.shape[0] // step, step, padded.shape[1] // step, step)
+    finite = np.isfinite(blocks)
+    count = finite.sum(axis=(1, 3))
+    total = np.where(finite, blocks, 0.0).sum(axis=(1, 3))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(count > 0, total / count, np.nan)

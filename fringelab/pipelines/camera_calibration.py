@@ -1,4 +1,4 @@
-"""Camera calibration of a whole recording: frames and sidecars in, a `CameraCalibration` out (METHOD.md §3).
+"""Camera calibration of a whole recording: frames and sidecars in, a `CameraCalibration` out (docs/method.md §3).
 
 What the command line and the worker's camera-calibration job call. The science stages (corner detection, the
 solver) live in `fringelab.science`; the sidecars are parsed by `fringelab.formats.recordings`.
@@ -14,9 +14,10 @@ import numpy as np
 
 from fringelab.formats.sidecars import read_board_json, read_z_csv
 from fringelab.pipelines.provenance import code_versions
+from fringelab.science import Cancelled
 from fringelab.science.calibration import (
     MODES,
-    CalibrationCancelled,
+    CalibrationMode,
     CameraCalibration,
     CornerView,
     FrameResult,
@@ -24,21 +25,22 @@ from fringelab.science.calibration import (
     calibrate_from_views,
     zstack_heights_mm,
 )
-from fringelab.science.chessboard import Board, BoardNotFoundError, detect_board
+from fringelab.science.camera import ScaleAxis
+from fringelab.science.chessboard import Board, BoardNotFoundError, Detector, detect_board
 
 
 def calibrate_camera_recording(
     source: Any,
     *,
     board: Board | None = None,
-    mode: str = "zstack",
+    mode: CalibrationMode = "zstack",
     du_px_per_mm: float,
     dv_px_per_mm: float,
-    scale_on: str = "u",
+    scale_on: ScaleAxis = "u",
     origin: tuple[int, int] | None = None,
     reject_outliers: bool = False,
     pixel_pitch_um: tuple[float, float] | None = None,
-    detector: str = "auto",
+    detector: Detector = "auto",
     subpix_half_window_px: int | None = None,
     progress: ProgressCallback | None = None,
     should_cancel: Callable[[], bool] | None = None,
@@ -51,7 +53,7 @@ def calibrate_camera_recording(
     detector and subpix_half_window_px are passed to `chessboard.detect_board` ("classic" and 11 reproduce
     OpenCV's calibration sample). progress(done, total, stage) is called with stage "corners" after each
     frame, "solving" before the solver and "done" at the end (total = frames + 2); should_cancel() is polled
-    between frames and before the solver, and CalibrationCancelled is raised when it returns True.
+    between frames and before the solver, and Cancelled is raised when it returns True.
 
     Frames without the board are skipped and listed with the reason. Raises ValueError for malformed input
     (z.csv, board.json, mixed image sizes) and BoardNotFoundError / CalibrationError for what the user must fix.
@@ -85,7 +87,7 @@ def calibrate_camera_recording(
     image_size: tuple[int, int] | None = None
     for i, name in enumerate(names):
         if should_cancel is not None and should_cancel():
-            raise CalibrationCancelled(f"cancelled after {i} of {n_frames} frames")
+            raise Cancelled(f"cancelled after {i} of {n_frames} frames")
         image = source[i]
         digest.update(f"{name}:{image.shape}:{image.dtype}".encode())
         digest.update(np.ascontiguousarray(image).data)
@@ -120,7 +122,7 @@ def calibrate_camera_recording(
         )
     assert image_size is not None  # at least one frame was read
     if should_cancel is not None and should_cancel():
-        raise CalibrationCancelled(f"cancelled after corner extraction of {n_frames} frames")
+        raise Cancelled(f"cancelled after corner extraction of {n_frames} frames")
     if progress is not None:
         progress(n_frames + 1, total, "solving")
     settings = {
@@ -131,7 +133,7 @@ def calibrate_camera_recording(
         "pixel_pitch_um": None if pixel_pitch_um is None else list(pixel_pitch_um),
     }  # fmt: skip
     calibration = calibrate_from_views(
-        views, image_size_px=image_size, mode=mode, du_px_per_mm=du_px_per_mm, dv_px_per_mm=dv_px_per_mm,
+        views, image_size_wh_px=image_size, mode=mode, du_px_per_mm=du_px_per_mm, dv_px_per_mm=dv_px_per_mm,
         scale_on=scale_on, reject_outliers=reject_outliers, skipped=skipped, board=board,
         pixel_pitch_um=pixel_pitch_um,
         provenance={"input": where, "input_sha256": digest.hexdigest(), "n_frames": n_frames, "settings": settings,

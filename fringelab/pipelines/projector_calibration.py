@@ -1,4 +1,4 @@
-"""Projector calibration of a whole recording: a flat-plate Z-stack in, the look-up table out (METHOD.md §4).
+"""Projector calibration of a whole recording: a flat-plate Z-stack in, the look-up table out (docs/method.md §4).
 
 What the command line and the worker's projector-calibration job call; the table itself is built by
 `fringelab.science.projector.build_projector_calibration`.
@@ -37,7 +37,7 @@ def calibrate_projector_recording(
     source: a frame source from `readers.open_recording` (a sequence of grey frames with `sidecar_text`), with
     `z.csv` (frame,z_mm). camera_model: the camera calibration (`camera_files.read_camera_json` gives one) of
     the camera that took the frames. progress(done, total, stage) is called after each frame ("edges") and at
-    the end ("done"); should_cancel() is polled between frames (CalibrationCancelled).
+    the end ("done"); should_cancel() is polled between frames (Cancelled).
 
     Raises ValueError for malformed input (z.csv), CalibrationMismatchError for frames of another size than the
     camera's, NoStripesError, ProjectorCalibrationError for a table that cannot be built.

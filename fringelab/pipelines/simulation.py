@@ -9,10 +9,17 @@ import json
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from fringelab.formats.atomic import write_json
+from fringelab.formats.camera import write_camera_json
+from fringelab.formats.recordings import write_recording
+from fringelab.formats.sidecars import FrameTable, frames_csv_text, z_csv_text
+from fringelab.science.chessboard import Board
 from fringelab.science.simulate import FringeRenderer, Imaging, preset, punch_timeline, true_camera_calibration
+from fringelab.science.synthetic import ChessboardRenderer, board_pose_at_z, zstack_board
 
 
 @dataclass(frozen=True)
@@ -48,11 +55,6 @@ def simulate_experiment(
     out_dir/truth/experiment.json  camera, projector, scene, imaging, calibration heights and per-frame states
     (folders, or .zip files with as_zip). Frames are rendered and written one at a time.
     """
-    from fringelab.formats.atomic import write_json
-    from fringelab.formats.recordings import write_recording
-    from fringelab.formats.sidecars import FrameTable, frames_csv_text, z_csv_text
-    from fringelab.science.chessboard import Board
-    from fringelab.science.synthetic import ChessboardRenderer, board_pose_at_z, zstack_board
 
     setup = preset(preset_name, imaging=imaging)
     z_cal = np.asarray(setup.calibration_z_mm if calibration_z_mm is None else calibration_z_mm, np.float64)
@@ -99,7 +101,6 @@ def simulate_experiment(
         sidecars={"frames.csv": frames_csv_text(table)},
         as_zip=as_zip,
     )
-    from fringelab.formats.camera import write_camera_json
 
     camera_json = write_camera_json(true_camera_calibration(setup.camera), root / "truth" / "camera.json")
     truth = {
@@ -121,3 +122,75 @@ def simulate_experiment(
     }
     truth_json = write_json(root / "truth" / "experiment.json", truth)
     return VirtualExperiment(root, camera_path, projector_path, test_path, camera_json, truth_json)
+
+
+SIMULATION_WRITERS = ("csv", "vtu", "exodus", "d3plot")
+
+
+def write_true_simulation(
+    truth_json: str | Path,
+    out: str | Path,
+    *,
+    kind: str,
+    state_punch_mm: Sequence[float] | np.ndarray | None = None,
+    quarter: bool = False,
+    length_unit: str = "mm",
+    resolution: float = 0.04,
+) -> Path:
+    """The virtual experiment's true surface written as a finite-element simulation (a folder, returned).
+
+    kind: "csv" (nodal table + punch CSV with force and punch travel), "vtu" (.pvd series), "exodus" or "d3plot"
+    (the last three with an LS-DYNA nodout of the punch node and an rcforc of the punch force). The states are
+    the test's frames, or the punch displacements state_punch_mm. quarter: a quarter model about the plate
+    centre (origin there). length_unit "m" writes metres (and N in rcforc); the CSV is always mm.
+    """
+    from fringelab.formats.simulation_csv import write_nodes_csv, write_punch_csv
+    from fringelab.formats.simulation_lsdyna_ascii import write_nodout, write_rcforc
+    from fringelab.science.simulate import PlateScene, true_plate_model
+
+    if kind not in SIMULATION_WRITERS:
+        raise ValueError(f"kind: expected one of {SIMULATION_WRITERS}, got {kind!r}")
+    truth = json.loads(Path(truth_json).read_text())
+    fields: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in truth["scene"].items()}
+    scene = PlateScene(**fields)
+    setup = preset(truth["preset"])
+    timeline = punch_timeline(len(truth["frames"]), max_deflection_mm=setup.max_deflection_mm,
+                              punch_radius_mm=scene.punch_radius_mm)  # fmt: skip
+    punch = None if state_punch_mm is None else np.asarray(state_punch_mm, np.float64)
+    model = true_plate_model(scene, timeline, state_punch_mm=punch, quarter=quarter, resolution=resolution)
+    folder = Path(out)
+    folder.mkdir(parents=True, exist_ok=True)
+    n_nodes = len(model.node_xyz_mm)
+    ids = np.arange(1, n_nodes + 1)
+    if kind == "csv":
+        write_nodes_csv(folder / "plate.csv", node_ids=ids, node_xyz_mm=model.node_xyz_mm, time_s=model.time_s,
+                        displacement_mm=model.displacement_mm)  # fmt: skip
+        write_punch_csv(folder / "punch.csv", time_s=model.time_s, force_kN=model.force_kN,
+                        punch_displacement_mm=model.punch_displacement_mm)  # fmt: skip
+        return folder
+    scale = {"mm": 1.0, "m": 1e-3}[length_unit]
+    xyz, displacement = scale * model.node_xyz_mm, scale * model.displacement_mm
+    if kind == "vtu":
+        from fringelab.formats.simulation_vtu import write_vtu_series
+
+        write_vtu_series(folder, node_xyz=xyz, cells=[("triangle", model.triangles)], time=model.time_s,
+                         displacement=displacement, node_ids=ids)  # fmt: skip
+    elif kind == "exodus":
+        from fringelab.formats.simulation_exodus import write_exodus
+
+        write_exodus(folder / "plate.e", node_xyz=xyz, cells=[("triangle", model.triangles)], time=model.time_s,
+                     displacement=displacement, node_ids=ids)  # fmt: skip
+    else:
+        from fringelab.formats.simulation_d3plot import write_d3plot
+
+        shells = np.column_stack([model.triangles, model.triangles[:, 2]])
+        write_d3plot(folder / "d3plot", node_xyz=xyz, shells=shells, time=model.time_s, displacement=displacement,
+                     node_ids=ids)  # fmt: skip
+    punch = np.zeros((len(model.time_s), 1, 3))
+    punch[:, 0, 2] = scale * model.punch_displacement_mm
+    write_nodout(folder / "nodout", time=model.time_s, node_ids=np.array([n_nodes + 1]), displacement=punch,
+                 coordinates=np.zeros((1, 3)))  # fmt: skip
+    force = np.zeros((len(model.time_s), 3))
+    force[:, 2] = model.force_kN * (1.0 if length_unit == "mm" else 1000.0)
+    write_rcforc(folder / "rcforc", time=model.time_s, force=force)
+    return folder

@@ -1,4 +1,4 @@
-"""Topography of a whole test recording into its result file (METHOD.md §5–6).
+"""Topography of a whole test recording into its result file (docs/method.md §5–6).
 
 What the command line calls, and the sequential reference the worker's frame-parallel topography job must equal
 bit for bit. The stages (edges, identity, Z, X and Y, gridding) live in `fringelab.science.topography`; the
@@ -14,12 +14,18 @@ from typing import Any
 
 import numpy as np
 
-from fringelab.science.calibration import ProgressCallback
-from fringelab.science.fields import Grid
+from fringelab.formats.camera import calibration_as_dict
+from fringelab.formats.hdf5 import json_text
+from fringelab.formats.sidecars import FrameTable, read_frames_csv
+from fringelab.formats.topography import TopographyWriter
+from fringelab.pipelines.provenance import code_versions
+from fringelab.science import Cancelled
+from fringelab.science.calibration import CameraCalibration, ProgressCallback
+from fringelab.science.fields import Grid, field_peak
 from fringelab.science.fringes import FrameEdges
 from fringelab.science.projector import CameraModel, ProjectorCalibration, camera_fingerprint
 from fringelab.science.topography import (
-    TopographyCancelled,
+    SummaryTally,
     TopographyError,
     TopographySettings,
     check_recording_against,
@@ -68,16 +74,11 @@ def topography_recording(
     the frames written are identical to those of a run over the whole recording. edges: already located edges
     of frames 0, 1, ... (e.g. from chunks run in parallel, see `topography_files.read_edges`); None locates
     them here. progress(done, total, stage) after every frame ("frames"), should_cancel() polled between frames
-    (TopographyCancelled; the partial file is removed).
+    (Cancelled; the partial file is removed).
 
     Memory does not grow with the number of frames: frames are read, located, tracked, gridded and written one
     at a time.
     """
-    from fringelab.formats.hdf5 import json_text
-    from fringelab.formats.sidecars import FrameTable, read_frames_csv
-    from fringelab.formats.topography import TopographyWriter
-    from fringelab.pipelines.provenance import code_versions
-    from fringelab.science.fields import field_peak
 
     settings = TopographySettings() if settings is None else settings
     n_frames = len(source)
@@ -96,7 +97,7 @@ def topography_recording(
         supplied = iter(edges) if edges is not None else None
         for index in range(stop):
             if should_cancel is not None and should_cancel():
-                raise TopographyCancelled(f"cancelled after {index} of {stop} frames")
+                raise Cancelled(f"cancelled after {index} of {stop} frames")
             if supplied is not None:
                 try:
                     frame_edges = next(supplied)
@@ -117,9 +118,7 @@ def topography_recording(
     flat_rms = float("nan")
     clamp = (float("nan"),) * 3
     n_first_tracks = 0
-    centres: list[tuple[float, float]] = []
-    peaks: list[float] = []
-    n_out_of_range = 0
+    tally = SummaryTally()
     try:
         for measurement in track_and_measure(located(), projector, camera_model, settings=settings):
             if measurement.frame == 0:
@@ -129,19 +128,9 @@ def topography_recording(
                 flat_rms = float(np.sqrt(np.mean((z - z_flat) ** 2)))
                 clamp = clamp_circle(measurement.points_obj_mm[:, :2])
                 n_first_tracks = measurement.n_tracks
-                writer = TopographyWriter(
-                    out_path,
-                    grid=grid,
-                    max_edge_mm=max_edge_mm,
-                    z_flat_mm=z_flat,
-                    axis=projector.axis,
-                    attrs={
-                        "settings_json": json_text(asdict(settings)),
-                        "edge_settings_json": json_text(asdict(projector.edges)),
-                        "provenance_json": json_text({"input": where, "n_frames_in_recording": n_frames,
-                                                  "frames_written": [wanted.start, wanted.stop], **code_versions()}),
-                    },
-                    calibration_attrs=_calibration_attrs(camera_model, projector),
+                writer = result_writer(
+                    out_path, grid=grid, max_edge_mm=max_edge_mm, z_flat_mm=z_flat, camera_model=camera_model,
+                    projector=projector, settings=settings, where=where, n_frames=n_frames, wanted=wanted,
                 )  # fmt: skip
             if measurement.frame not in wanted:
                 continue
@@ -150,19 +139,10 @@ def topography_recording(
             peak = field_peak(z_grid - z_flat, grid)
             time_s, punch_mm, force_kn = (float(log[name][measurement.frame]) for name in FrameTable.COLUMNS)
             writer.append(measurement, z_grid, peak, log=(time_s, punch_mm, force_kn))
-            peaks.append(peak.w_mm)
-            if np.isfinite(peak.centre_x_mm) and peak.w_mm >= 5.0:
-                centres.append((peak.centre_x_mm, peak.centre_y_mm))
-            n_out_of_range += measurement.n_out_of_range
+            tally.add(peak, n_out_of_range=measurement.n_out_of_range)
         if writer is None:
             raise TopographyError(f"{where}: the recording has no frames")
-        axis_xy = tuple(np.median(np.array(centres), axis=0)) if centres else (float("nan"), float("nan"))
-        summary = {
-            "flat_rms_mm": flat_rms, "n_tracks_first_frame": n_first_tracks, "clamp_centre_x_mm": clamp[0],
-            "clamp_centre_y_mm": clamp[1], "clamp_radius_mm": clamp[2], "punch_axis_x_mm": axis_xy[0],
-            "punch_axis_y_mm": axis_xy[1], "n_out_of_range_total": n_out_of_range,
-        }  # fmt: skip
-        path = writer.close(summary)
+        path = writer.close(tally.attrs(flat_rms_mm=flat_rms, n_tracks_first_frame=n_first_tracks, clamp=clamp))
     except BaseException:
         if writer is not None:
             writer.abort()
@@ -171,26 +151,55 @@ def topography_recording(
         path=path,
         frames=wanted,
         flat_rms_mm=flat_rms,
-        max_peak_w_mm=float(np.nanmax(peaks)) if peaks and np.any(np.isfinite(peaks)) else float("nan"),
-        n_out_of_range_total=n_out_of_range,
+        max_peak_w_mm=tally.max_peak_w_mm,
+        n_out_of_range_total=tally.n_out_of_range,
         clamp_centre_xy_mm=(clamp[0], clamp[1]),
         clamp_radius_mm=clamp[2],
-        punch_axis_xy_mm=(float(axis_xy[0]), float(axis_xy[1])),
+        punch_axis_xy_mm=tally.punch_axis_xy_mm,
+    )
+
+
+def result_writer(
+    path: str | Path,
+    *,
+    grid: Grid,
+    max_edge_mm: float,
+    z_flat_mm: float,
+    camera_model: CameraModel,
+    projector: ProjectorCalibration,
+    settings: TopographySettings,
+    where: str,
+    n_frames: int,
+    wanted: range,
+) -> TopographyWriter:
+    """The result file's writer with everything a result records of how it was made (settings, provenance,
+    the calibrations it used)."""
+
+    provenance = {"input": where, "n_frames_in_recording": n_frames, "frames_written": [wanted.start, wanted.stop]}
+    return TopographyWriter(
+        path,
+        grid=grid,
+        max_edge_mm=max_edge_mm,
+        z_flat_mm=z_flat_mm,
+        axis=projector.axis,
+        attrs={
+            "settings_json": json_text(asdict(settings)),
+            "edge_settings_json": json_text(asdict(projector.edges)),
+            "provenance_json": json_text({**provenance, **code_versions()}),
+        },
+        calibration_attrs=_calibration_attrs(camera_model, projector),
     )
 
 
 def _calibration_attrs(camera_model: CameraModel, projector: ProjectorCalibration) -> dict[str, Any]:
     """What the result records of the calibrations it used (provenance)."""
-    from fringelab.formats.camera import calibration_as_dict
-    from fringelab.formats.hdf5 import json_text
-    from fringelab.science.calibration import CameraCalibration
 
     if isinstance(camera_model, CameraCalibration):
         camera_json = json_text(calibration_as_dict(camera_model))
     else:
         camera_json = json_text(asdict(camera_model.camera))
     projector_doc = {
-        "image_shape": list(projector.image_shape), "axis": projector.axis, "period_px": projector.period_px,
+        "image_shape": list(projector.image_shape_hw_px), "axis": projector.axis, "period_px": projector.period_px,
         "reference_z_mm": projector.reference_z_mm, "z_mm": projector.z_mm, "n_edges": projector.n_edges,
         "edges": asdict(projector.edges), "qa": asdict(projector.qa), "provenance": projector.provenance,
     }  # fmt: skip

@@ -1,11 +1,16 @@
 """The measurement science of fringelab: camera and projector calibration, fringe edges, topography.
 
-Pure: arrays and frozen dataclasses in and out, units and frames in names (METHOD.md). Nothing here imports
+Pure: arrays and frozen dataclasses in and out, units and frames in names (docs/method.md). Nothing here imports
 web, queue or database code, configures logging or reads the environment; file I/O lives only in the
 file formats (`fringelab.formats`).
 """
 
 import re
+
+
+class Cancelled(Exception):
+    """The caller asked to stop (its `should_cancel()` returned True, or its job ended): not a failure. The one
+    cancellation exception of fringelab, from the science up to the worker's job runner."""
 
 
 class MeasurementError(Exception):

@@ -1,4 +1,4 @@
-"""Camera calibration from chessboard corners (METHOD.md §3.1): Z-stack (the paper) and free poses (Zhang).
+"""Camera calibration from chessboard corners (docs/method.md §3.1): Z-stack (the paper) and free poses (Zhang).
 
 Belongs here: the solver (3-D DLT start, Levenberg–Marquardt, covariance), per-frame statistics, outlier-frame
 rejection, the residual map, the verdict, the `CameraCalibration` result, and `calibrate_camera_recording`, the
@@ -7,7 +7,7 @@ one entry point the CLI and the Celery task call. Not here: the camera model (`c
 
 The Levenberg–Marquardt runs over an equivalent, well-conditioned form of the same model: OpenCV's intrinsics
 (fx, fy, cx, cy, k1..p2 on normalised coordinates), a Rodrigues vector and a translation per pose. With D_u, D_v
-fixed this is a one-to-one reparametrisation of the 14 Heikkilä parameters (METHOD.md §3), so the minimum is the
+fixed this is a one-to-one reparametrisation of the 14 Heikkilä parameters (docs/method.md §3), so the minimum is the
 same; cv2.projectPoints supplies the analytic Jacobian, the Euler angles' gimbal lock is avoided, and the
 covariance is carried over to the Heikkilä parameters with the Jacobian of the exact conversion.
 """
@@ -17,7 +17,7 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal, get_args
 
 import cv2
 import numpy as np
@@ -31,15 +31,17 @@ from .camera import (
     Camera,
     InverseModel,
     OpenCVCamera,
+    ScaleAxis,
     angles_from_rotation,
     camera_as_opencv,
     camera_from_opencv,
     fit_inverse_model,
 )
 from .chessboard import Board
+from .verdict import VERDICT_LEVELS, YES_NO, Verdict, VerdictCheck, check, verdict_of  # noqa: F401 (re-exported)
 
-MODES = ("zstack", "poses")
-VERDICT_LEVELS = ("good", "check", "bad")
+CalibrationMode = Literal["zstack", "poses"]  # a Z-stack of one board pose, or free poses
+MODES: tuple[str, ...] = get_args(CalibrationMode)
 
 # The 14 estimated Heikkilä parameters, as `Camera` field names, in the order of `correlation`.
 CAMERA_PARAMETERS = (
@@ -63,10 +65,6 @@ RESIDUAL_MAP_MIN_COUNT = 3
 
 class CalibrationError(MeasurementError):
     """Calibration cannot be done from what was given: too few usable frames or Z levels, no convergence."""
-
-
-class CalibrationCancelled(Exception):
-    """Raised when the caller's `should_cancel()` returned True; not a failure of the measurement."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -98,8 +96,8 @@ class FrameResult:
     n_corners: int = 0
     rms_px: float | None = None
     max_px: float | None = None
-    rvec_rad: tuple[float, float, float] | None = None
-    tvec_mm: tuple[float, float, float] | None = None
+    r_cam_from_obj_rad: tuple[float, float, float] | None = None
+    t_cam_from_obj_mm: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -131,36 +129,13 @@ class ResidualMap:
     coverage: float
 
 
-@dataclass(frozen=True)
-class VerdictCheck:
-    """One rule of the verdict: the value, its thresholds and the level it earned."""
-
-    name: str
-    value: float
-    unit: str
-    good_limit: float
-    bad_limit: float
-    higher_is_better: bool
-    level: str
-    message: str
-
-
-@dataclass(frozen=True)
-class Verdict:
-    """good / check / bad: the worst level of the checks, with the reasons for anything not good."""
-
-    level: str
-    reasons: tuple[str, ...]
-    checks: tuple[VerdictCheck, ...]
-
-
 @dataclass(frozen=True, eq=False)
 class CameraCalibration:
     """A calibrated camera with its quality numbers; `read_camera_json` / `write_camera_json` store it."""
 
     camera: Camera
     inverse: InverseModel
-    mode: str
+    mode: CalibrationMode
     rms_px: float
     residual_std_px: float
     n_points: int
@@ -237,18 +212,18 @@ def _pose_vector(rotation: np.ndarray, t_mm: np.ndarray) -> np.ndarray:
 
 
 def _initial_intrinsics(fx: float, fy: float, cx: float, cy: float, *, du: float, dv: float, scale_on: str) -> list:
-    # METHOD.md §3.1: the scale factor starts at 1 and the distortion at 0; f comes from the axis without s.
+    # docs/method.md §3.1: the scale factor starts at 1 and the distortion at 0; f comes from the axis without s.
     f_px_per_mm = fy / dv if scale_on == "u" else fx / du
     return [f_px_per_mm * du, f_px_per_mm * dv, cx, cy, 0.0, 0.0, 0.0, 0.0]
 
 
 def _initial_zstack_dlt(
-    views: Sequence[CornerView], image_size_px: tuple[int, int], *, du: float, dv: float, scale_on: str
+    views: Sequence[CornerView], image_size_wh_px: tuple[int, int], *, du: float, dv: float, scale_on: str
 ) -> np.ndarray:
     points = np.vstack([v.points_obj_mm for v in views])
     q = np.vstack([v.q_px for v in views])
     k, r, t = decompose_camera_matrix(dlt_camera_matrix(points, q))
-    width, height = image_size_px
+    width, height = image_size_wh_px
     if not (-0.5 <= k[0, 2] <= width - 0.5 and -0.5 <= k[1, 2] <= height - 0.5):
         raise CalibrationError(f"the DLT put the principal point outside the image ({k[0, 2]:.0f}, {k[1, 2]:.0f})")
     intrinsics = _initial_intrinsics(k[0, 0], k[1, 1], k[0, 2], k[1, 2], du=du, dv=dv, scale_on=scale_on)
@@ -259,12 +234,12 @@ def _initial_zstack_dlt(
 
 
 def _initial_planar_intrinsics(
-    views: Sequence[CornerView], image_size_px: tuple[int, int], *, du: float, dv: float, scale_on: str
+    views: Sequence[CornerView], image_size_wh_px: tuple[int, int], *, du: float, dv: float, scale_on: str
 ) -> list:
     """Zhang-style start: the camera matrix from the homographies of planar views (principal point at the centre)."""
     object_points = [v.points_obj_mm.astype(np.float32) for v in views]
     image_points = [v.q_px.astype(np.float32) for v in views]
-    k = cv2.initCameraMatrix2D(object_points, image_points, image_size_px)
+    k = cv2.initCameraMatrix2D(object_points, image_points, image_size_wh_px)
     return _initial_intrinsics(k[0, 0], k[1, 1], k[0, 2], k[1, 2], du=du, dv=dv, scale_on=scale_on)
 
 
@@ -420,12 +395,13 @@ def _covariance(normal: np.ndarray, sigma2: float) -> np.ndarray:
     return sigma2 * inverse / np.outer(norms, norms)
 
 
-def _opencv_camera_from_vector(x: np.ndarray, image_size_px: tuple[int, int]) -> OpenCVCamera:
+def _opencv_camera_from_vector(x: np.ndarray, image_size_wh_px: tuple[int, int]) -> OpenCVCamera:
     return OpenCVCamera(
-        image_width_px=image_size_px[0], image_height_px=image_size_px[1],
+        image_width_px=image_size_wh_px[0], image_height_px=image_size_wh_px[1],
         fx_px=float(x[0]), fy_px=float(x[1]), cx_px=float(x[2]), cy_px=float(x[3]),
         k1=float(x[4]), k2=float(x[5]), p1=float(x[6]), p2=float(x[7]),
-        rvec_rad=(float(x[8]), float(x[9]), float(x[10])), tvec_mm=(float(x[11]), float(x[12]), float(x[13])),
+        r_cam_from_obj_rad=(float(x[8]), float(x[9]), float(x[10])),
+        t_cam_from_obj_mm=(float(x[11]), float(x[12]), float(x[13])),
     )  # fmt: skip
 
 
@@ -463,14 +439,14 @@ def _heikkila_from_opencv_jacobian(x14: np.ndarray, *, du: float, dv: float, sca
     return jacobian
 
 
-def residual_map(q_px: np.ndarray, residual_px: np.ndarray, image_size_px: tuple[int, int], *, sigma_px: float,
+def residual_map(q_px: np.ndarray, residual_px: np.ndarray, image_size_wh_px: tuple[int, int], *, sigma_px: float,
                  cells: tuple[int, int] = RESIDUAL_MAP_CELLS) -> ResidualMap:  # fmt: skip
     """Bin residuals, shape (N, 2), at pixels q_px, shape (N, 2), into cells_u × cells_v cells over the image.
 
     sigma_px: the per-coordinate residual standard deviation, to remove the noise part from `systematic_px`.
     """
     cells_u, cells_v = cells
-    width, height = image_size_px
+    width, height = image_size_wh_px
     cu = np.clip(((q_px[:, 0] + 0.5) * cells_u / width).astype(int), 0, cells_u - 1)
     cv_ = np.clip(((q_px[:, 1] + 0.5) * cells_v / height).astype(int), 0, cells_v - 1)
     flat = cv_ * cells_u + cu
@@ -501,14 +477,7 @@ def residual_map(q_px: np.ndarray, residual_px: np.ndarray, image_size_px: tuple
 
 def _check(name: str, value: float, unit: str, *, good: float, bad: float, higher_is_better: bool = False,
            what: str) -> VerdictCheck:  # fmt: skip
-    if higher_is_better:
-        level = "good" if value >= good else ("check" if value >= bad else "bad")
-        limits = f"good ≥ {good:g} {unit}, bad < {bad:g} {unit}"
-    else:
-        level = "good" if value <= good else ("check" if value <= bad else "bad")
-        limits = f"good ≤ {good:g} {unit}, bad > {bad:g} {unit}"
-    message = f"{what}: {value:.4g} {unit} ({limits})".replace(" )", ")")
-    return VerdictCheck(name, float(value), unit, good, bad, higher_is_better, level, message)
+    return check(name, value, unit, good=good, bad=bad, higher_is_better=higher_is_better, what=what)
 
 
 def judge_calibration(
@@ -524,8 +493,8 @@ def judge_calibration(
     worst_rms = float(frame_rms.max())
     worst_ratio = worst_rms / median_rms if worst_rms > OUTLIER_FLOOR_PX else 1.0
     checks = [
-        _check("solver", 1.0 if converged else 0.0, "", good=1.0, bad=1.0, higher_is_better=True,
-               what="Levenberg–Marquardt converged (1) or stopped at its iteration limit (0)"),
+        _check("solver", 1.0 if converged else 0.0, YES_NO, good=1.0, bad=1.0, higher_is_better=True,
+               what="Levenberg–Marquardt converged (no: it stopped at its iteration limit)"),
         _check("residual_std", residual_std_px, "px", good=0.2, bad=0.5,
                what="residual standard deviation per coordinate (Heikkilä: below 0.2 px)"),
         # A frame far worse than the others is a detection or Z error in that frame; below 0.2 px it is harmless.
@@ -544,9 +513,7 @@ def judge_calibration(
         _check("frames_lost", 100.0 * lost, "%", good=20.0, bad=50.0,
                what="frames skipped (no board) or rejected (outliers)"),
     ]  # fmt: skip
-    level = max((c.level for c in checks), key=VERDICT_LEVELS.index)
-    reasons = tuple(c.message for c in checks if c.level != "good") or ("all checks within their thresholds",)
-    return Verdict(level=level, reasons=reasons, checks=tuple(checks))
+    return verdict_of(checks)
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -559,11 +526,11 @@ ProgressCallback = Callable[[int, int, str], None]
 def calibrate_from_views(
     views: Sequence[CornerView],
     *,
-    image_size_px: tuple[int, int],
-    mode: str,
+    image_size_wh_px: tuple[int, int],
+    mode: CalibrationMode,
     du_px_per_mm: float,
     dv_px_per_mm: float,
-    scale_on: str = "u",
+    scale_on: ScaleAxis = "u",
     reject_outliers: bool = False,
     skipped: Sequence[FrameResult] = (),
     board: Board | None = None,
@@ -572,7 +539,7 @@ def calibrate_from_views(
 ) -> CameraCalibration:
     """Calibrate a camera from corners: 3-D DLT (zstack) or Zhang (poses) start, then Levenberg–Marquardt.
 
-    image_size_px: (width, height). In `poses` mode the returned camera carries the pose of the first used view.
+    image_size_wh_px: (width, height). In `poses` mode the returned camera carries the pose of the first used view.
     `skipped` frames (board not found) are listed in the result. Raises CalibrationError when fewer views than
     the mode needs remain.
     """
@@ -588,7 +555,7 @@ def calibrate_from_views(
 
     active = list(range(len(views)))
     rejected: dict[int, str] = {}
-    candidates = _initial_candidates(views, image_size_px, mode=mode, du=du, dv=dv, scale_on=scale_on)
+    candidates = _initial_candidates(views, image_size_wh_px, mode=mode, du=du, dv=dv, scale_on=scale_on)
     problem = _build_problem(views, mode=mode)
     fits = [(name, *_levenberg_marquardt(problem, start)) for name, start in candidates]
     costs = [float(np.sum(problem.residual(x) ** 2)) for _, x, _ in fits]
@@ -620,7 +587,7 @@ def calibrate_from_views(
     covariance_o = _covariance(normal, sigma2)
     reference = np.r_[0:14]
     x14 = x[reference]
-    opencv_camera = _opencv_camera_from_vector(x14, image_size_px)
+    opencv_camera = _opencv_camera_from_vector(x14, image_size_wh_px)
     camera = camera_from_opencv(opencv_camera, du_px_per_mm=du, dv_px_per_mm=dv, scale_on=scale_on)
     cov14 = covariance_o[np.ix_(reference, reference)]
     conversion = _heikkila_from_opencv_jacobian(x14, du=du, dv=dv, scale_on=scale_on)
@@ -633,7 +600,7 @@ def calibrate_from_views(
     frames, residual_vectors = _frame_results(views, active, rejected, skipped, problem, x, residual, mode)
     rms_px = float(np.sqrt(residual @ residual / n_points))
     residual_std_px = float(np.sqrt(sigma2))
-    rmap = residual_map(residual_vectors.q_px, residual_vectors.residual_px, image_size_px, sigma_px=residual_std_px)
+    rmap = residual_map(residual_vectors.q_px, residual_vectors.residual_px, image_size_wh_px, sigma_px=residual_std_px)
     inverse = fit_inverse_model(camera)
     verdict = judge_calibration(
         residual_std_px=residual_std_px, frames=frames, residual_map=rmap, inverse=inverse,
@@ -676,7 +643,7 @@ def _require_enough(views: Sequence[CornerView], *, mode: str, skipped: Sequence
             )
 
 
-def _initial_candidates(views, image_size_px, *, mode, du, dv, scale_on) -> list[tuple[str, np.ndarray]]:
+def _initial_candidates(views, image_size_wh_px, *, mode, du, dv, scale_on) -> list[tuple[str, np.ndarray]]:
     """Starting points for LM, each named. poses: Zhang's (initCameraMatrix2D, then PnP per view). zstack: the
     paper's 3-D DLT and a planar start (initCameraMatrix2D on the Z levels, then PnP on all points).
 
@@ -688,7 +655,7 @@ def _initial_candidates(views, image_size_px, *, mode, du, dv, scale_on) -> list
     planar_views = [
         CornerView(v.frame, np.column_stack([v.points_obj_mm[:, :2], np.zeros(len(v.q_px))]), v.q_px) for v in views
     ]
-    intrinsics = _initial_planar_intrinsics(planar_views, image_size_px, du=du, dv=dv, scale_on=scale_on)
+    intrinsics = _initial_planar_intrinsics(planar_views, image_size_wh_px, du=du, dv=dv, scale_on=scale_on)
     if mode == "poses":
         poses = [_solve_pose(v.points_obj_mm, v.q_px, np.array(intrinsics), None, planar=True) for v in views]
         return [("zhang", np.concatenate([intrinsics, *poses]))]
@@ -697,7 +664,7 @@ def _initial_candidates(views, image_size_px, *, mode, du, dv, scale_on) -> list
     candidates = [("planar", np.concatenate([intrinsics, _solve_pose(points, q, np.array(intrinsics), None)]))]
     # A degenerate DLT (nearly coplanar points) leaves the planar start alone.
     with contextlib.suppress(CalibrationError, cv2.error, np.linalg.LinAlgError):
-        candidates.insert(0, ("dlt", _initial_zstack_dlt(views, image_size_px, du=du, dv=dv, scale_on=scale_on)))
+        candidates.insert(0, ("dlt", _initial_zstack_dlt(views, image_size_wh_px, du=du, dv=dv, scale_on=scale_on)))
     return candidates
 
 
@@ -730,8 +697,8 @@ def _frame_results(views, active, rejected, skipped, problem, x, residual, mode)
         by_view[i] = FrameResult(
             frame=view.frame, status="used", z_mm=view.z_mm, n_corners=len(view.q_px),
             rms_px=float(np.sqrt(np.mean(distance**2))), max_px=float(np.max(distance)),
-            rvec_rad=None if pose is None else (float(pose[0]), float(pose[1]), float(pose[2])),
-            tvec_mm=None if pose is None else (float(pose[3]), float(pose[4]), float(pose[5])),
+            r_cam_from_obj_rad=None if pose is None else (float(pose[0]), float(pose[1]), float(pose[2])),
+            t_cam_from_obj_mm=None if pose is None else (float(pose[3]), float(pose[4]), float(pose[5])),
         )  # fmt: skip
         p_list.append(view.points_obj_mm)
         q_list.append(view.q_px)

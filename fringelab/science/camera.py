@@ -1,10 +1,10 @@
-"""Heikkilä camera model (METHOD.md §3): forward projection, inverse model, back-projection, OpenCV interop.
+"""Heikkilä camera model (docs/method.md §3): forward projection, inverse model, back-projection, OpenCV interop.
 
 Belongs here: the `Camera`, `InverseModel` and `OpenCVCamera` dataclasses and pure functions on them.
 Not here: estimating a camera from corners (`calibration.py`), finding corners (`chessboard.py`), files
 (`fringelab.formats.camera.py`).
 
-Conventions (METHOD.md §2-3): object frame X, Y in the plate plane, +Z toward the camera, mm. The camera frame
+Conventions (docs/method.md §2-3): object frame X, Y in the plate plane, +Z toward the camera, mm. The camera frame
 has z along the optical axis. `M = Rz(κ)·Ry(φ)·Rx(ω)` takes object to camera coordinates and
 `[x0, y0, z0]` is the object origin seen from the camera. Ideal sensor coordinates (ũ, ṽ) are in mm; pixels
 (u, v) = (column, row) with (0, 0) the centre of the top-left pixel. The scale factor `su` multiplies u
@@ -14,15 +14,17 @@ has z along the optical axis. `M = Rz(κ)·Ry(φ)·Rx(ω)` takes object to camer
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal, get_args
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .arrays import checked_array
 
-SCALE_ON_CHOICES = ("u", "v")
+ScaleAxis = Literal["u", "v"]  # the image axis whose pixel pitch fixes the scale (the other is fitted)
+SCALE_ON_CHOICES: tuple[str, ...] = get_args(ScaleAxis)
 
-# The inverse model is fitted on a 45 × 45 grid covering 110 % of the image (METHOD.md §3.2).
+# The inverse model is fitted on a 45 × 45 grid covering 110 % of the image (docs/method.md §3.2).
 INVERSE_GRID_POINTS = 45
 INVERSE_GRID_COVERAGE = 1.10
 # Newton refinement stops when the forward model reproduces the input pixel to this; the acceptance number is
@@ -53,7 +55,7 @@ class Camera:
     omega_rad: float
     phi_rad: float
     kappa_rad: float
-    scale_on: str = "u"
+    scale_on: ScaleAxis = "u"
 
     def __post_init__(self) -> None:
         if self.scale_on not in SCALE_ON_CHOICES:
@@ -83,7 +85,7 @@ class Camera:
 
 @dataclass(frozen=True)
 class InverseModel:
-    """Heikkilä's 8-parameter inverse model (pixels → ideal sensor mm), METHOD.md §3.2.
+    """Heikkilä's 8-parameter inverse model (pixels → ideal sensor mm), docs/method.md §3.2.
 
     `approximation_residual_px` is the largest error of the 8-parameter model alone over the fitting grid;
     `residual_px` the largest error after Newton refinement on the forward model (the QA number).
@@ -122,8 +124,8 @@ class OpenCVCamera:
     k2: float
     p1: float
     p2: float
-    rvec_rad: tuple[float, float, float]
-    tvec_mm: tuple[float, float, float]
+    r_cam_from_obj_rad: tuple[float, float, float]  # OpenCV rvec: rotation vector, plate (object) -> camera
+    t_cam_from_obj_mm: tuple[float, float, float]  # OpenCV tvec: the plate origin in camera coordinates
     k3: float = 0.0
 
     @property
@@ -348,7 +350,7 @@ def backproject_to_z(
 
 
 def camera_as_opencv(camera: Camera) -> OpenCVCamera:
-    """The same camera in OpenCV's form (METHOD.md §3): exact, k3 = 0."""
+    """The same camera in OpenCV's form (docs/method.md §3): exact, k3 = 0."""
     f = camera.f_mm
     sx, sy = camera.pixels_per_mm
     rvec = Rotation.from_matrix(camera.rotation).as_rotvec()
@@ -363,13 +365,13 @@ def camera_as_opencv(camera: Camera) -> OpenCVCamera:
         k2=camera.k2_per_mm4 * f**4,
         p1=camera.p1_per_mm * f,
         p2=camera.p2_per_mm * f,
-        rvec_rad=(float(rvec[0]), float(rvec[1]), float(rvec[2])),
-        tvec_mm=(camera.x0_mm, camera.y0_mm, camera.z0_mm),
+        r_cam_from_obj_rad=(float(rvec[0]), float(rvec[1]), float(rvec[2])),
+        t_cam_from_obj_mm=(camera.x0_mm, camera.y0_mm, camera.z0_mm),
     )
 
 
 def camera_from_opencv(
-    opencv_camera: OpenCVCamera, *, du_px_per_mm: float, dv_px_per_mm: float, scale_on: str = "u"
+    opencv_camera: OpenCVCamera, *, du_px_per_mm: float, dv_px_per_mm: float, scale_on: ScaleAxis = "u"
 ) -> Camera:
     """The Heikkilä camera of an OpenCV one, given D_u, D_v; f follows from the axis without the scale factor.
 
@@ -385,9 +387,9 @@ def camera_from_opencv(
     else:
         f_mm = opencv_camera.fx_px / du_px_per_mm
         su = opencv_camera.fy_px / (f_mm * dv_px_per_mm)
-    rotation = Rotation.from_rotvec(np.asarray(opencv_camera.rvec_rad, dtype=np.float64)).as_matrix()
+    rotation = Rotation.from_rotvec(np.asarray(opencv_camera.r_cam_from_obj_rad, dtype=np.float64)).as_matrix()
     omega, phi, kappa = angles_from_rotation(rotation)
-    x0, y0, z0 = (float(t) for t in opencv_camera.tvec_mm)
+    x0, y0, z0 = (float(t) for t in opencv_camera.t_cam_from_obj_mm)
     return Camera(
         image_width_px=opencv_camera.image_width_px,
         image_height_px=opencv_camera.image_height_px,

@@ -1,8 +1,8 @@
-"""Chessboard inner corners: detection, sub-pixel refinement and consistent labelling (METHOD.md §3.1).
+"""Chessboard inner corners: detection, sub-pixel refinement and consistent labelling (docs/method.md §3.1).
 
 Belongs here: the `Board` description, finding its inner corners in one grey image with OpenCV
 (findChessboardCornersSB, falling back to findChessboardCorners), refining them with cornerSubPix, and
-labelling them by the rule of METHOD.md §3.1 so a board moved along Z keeps its origin in every frame.
+labelling them by the rule of docs/method.md §3.1 so a board moved along Z keeps its origin in every frame.
 Not here: reading frames (`fringelab.formats.recordings.py`) and using the corners (`calibration.py`).
 
 Labelling rule: +X is the board direction closest to image right, +Y the one closest to image up, so +Z points
@@ -13,6 +13,7 @@ image; the origin is the centre inner corner ((n − 1) // 2 along each axis) un
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal, get_args
 
 import cv2
 import numpy as np
@@ -83,7 +84,8 @@ def _as_uint8(image: np.ndarray) -> np.ndarray:
     return np.clip(scaled, 0, 255).astype(np.uint8)
 
 
-DETECTORS = ("auto", "classic")
+Detector = Literal["auto", "classic"]
+DETECTORS: tuple[str, ...] = get_args(Detector)
 
 
 def _detect_grid(image_u8: np.ndarray, pattern: tuple[int, int], detector: str) -> tuple[np.ndarray | None, str]:
@@ -136,7 +138,7 @@ def find_board_corners(
     *,
     board: Board,
     frame: str = "image",
-    detector: str = "auto",
+    detector: Detector = "auto",
     subpix_half_window_px: int | None = None,
 ) -> tuple[np.ndarray, str]:
     """Sub-pixel inner corners of `board` in a grey image, shape (H, W): grid (n_a, n_b, 2) in detector order.
@@ -182,7 +184,7 @@ def _found_size(image_u8: np.ndarray) -> tuple[int, int] | None:
 
 
 def label_board_corners(grid_px: np.ndarray, *, board: Board) -> BoardCorners:
-    """Label a corner grid, shape (n_a, n_b, 2), by the rule of METHOD.md §3.1 (see the module docstring)."""
+    """Label a corner grid, shape (n_a, n_b, 2), by the rule of docs/method.md §3.1 (see the module docstring)."""
     grid = np.asarray(grid_px, dtype=np.float64)
     if grid.ndim != 3 or grid.shape[2] != 2 or min(grid.shape[:2]) < 2:
         raise ValueError(f"grid_px: expected shape (n_a, n_b, 2) with n_a, n_b ≥ 2, got {grid.shape}")
@@ -223,12 +225,12 @@ def detect_board(
     *,
     board: Board,
     frame: str = "image",
-    detector: str = "auto",
+    detector: Detector = "auto",
     subpix_half_window_px: int | None = None,
 ) -> BoardCorners:
     """Find, refine and label the inner corners of `board` in a grey image, shape (H, W) (see find_board_corners)."""
-    grid, detector = find_board_corners(
+    grid, used = find_board_corners(
         image, board=board, frame=frame, detector=detector, subpix_half_window_px=subpix_half_window_px
     )
     labelled = label_board_corners(grid, board=board)
-    return BoardCorners(labelled.q_px, labelled.ij, labelled.points_board_mm, detector)
+    return BoardCorners(labelled.q_px, labelled.ij, labelled.points_board_mm, used)

@@ -1,4 +1,5 @@
-"""Stripe edges of one image: orientation and period, sub-pixel edge location, linking and smoothing (METHOD.md §5).
+"""Stripe edges of one image: orientation and period, sub-pixel edge location, linking and smoothing
+(docs/method.md §5).
 
 Belongs here: finding the stripe direction and period of an image (`detect_stripes`), and `locate_edges`, a pure
 function of one frame that returns every dark/bright transition at sub-pixel accuracy, linked into edge curves
@@ -17,7 +18,7 @@ then at most √2 times wider than across the stripe. An edge point is ``(line, 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import cv2
 import numpy as np
@@ -26,6 +27,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
 
 from . import MeasurementError
+from .smoothing import edge_smoothing_weights
 
 Axis = Literal["rows", "cols"]
 AXIS_CHOICES = ("auto", "rows", "cols")
@@ -74,30 +76,44 @@ class EdgeSettings:
         them once, from the projector calibration, so every frame is processed alike).
     window_periods: the window (in stripe periods along the scan line) over which the local minimum and maximum
         set the mid-level (I_max + I_min)/2; > 1 so a stripe stretched by a slope still shows both levels.
-    min_contrast: grey levels (8-bit scale) of I_max − I_min below which a transition is rejected.
-    saturation_level: grey level (8-bit scale) at or above which a transition's bright side counts as clipped.
+    min_contrast_grey: grey levels (8-bit scale) of I_max − I_min below which a transition is rejected.
+    saturation_grey: grey level (8-bit scale) at or above which a transition's bright side counts as clipped.
     dark_fraction: pixels whose neighbourhood (one period) never rises above this fraction of the frame's bright
         level are "dark" (clamp ring, hole, background); transitions within half a period of them are rejected,
         because there the mid-level is set by the dark area, not by the stripes.
     presmooth_px: Gaussian σ (px) of smoothing along the stripes before locating; it averages noise without
         moving an edge that runs along the smoothing direction.
-    edge_smoothing_px: Gaussian σ (lines) of the local quadratic fit of t against the line along each edge
+    edge_smoothing_lines: Gaussian σ (lines) of the local quadratic fit of t against the line along each edge
         (the paper's spatial low-pass filter); 0 keeps the raw positions.
-    min_edge_length_px: linked edges shorter than this (lines) are dropped as noise.
-    max_link_step_px: largest change of t between neighbouring lines for two transitions to belong to one edge
+    min_edge_length_lines: linked edges shorter than this (lines) are dropped as noise.
+    max_link_step_px_per_line: largest change of t between neighbouring lines for two transitions to belong to one edge
         (1 px per line is a 45° edge).
     """
 
     axis: str = "auto"
     period_px: float | None = None
     window_periods: float = 1.5
-    min_contrast: float = 20.0
-    saturation_level: float = 250.0
+    min_contrast_grey: float = 20.0
+    saturation_grey: float = 250.0
     dark_fraction: float = 0.3
     presmooth_px: float = 1.0
-    edge_smoothing_px: float = 3.0
-    min_edge_length_px: int = 8
-    max_link_step_px: float = 1.5
+    edge_smoothing_lines: float = 3.0
+    min_edge_length_lines: int = 8
+    max_link_step_px_per_line: float = 1.5
+
+    # Names these settings had in files written before they carried their units (still read).
+    _FORMER_NAMES = {
+        "min_contrast": "min_contrast_grey",
+        "saturation_level": "saturation_grey",
+        "edge_smoothing_px": "edge_smoothing_lines",
+        "min_edge_length_px": "min_edge_length_lines",
+        "max_link_step_px": "max_link_step_px_per_line",
+    }
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]) -> EdgeSettings:
+        """Settings from a stored document (JSON in a result file), also one written under the former names."""
+        return cls(**{cls._FORMER_NAMES.get(name, name): value for name, value in values.items()})
 
     def __post_init__(self) -> None:
         if self.axis not in AXIS_CHOICES:
@@ -106,13 +122,13 @@ class EdgeSettings:
             raise ValueError(f"period_px: expected {MIN_PERIOD_PX}..{MAX_PERIOD_PX} px or None, got {self.period_px}")
         if not self.window_periods >= 1.0:
             raise ValueError(f"window_periods: expected ≥ 1, got {self.window_periods}")
-        for name in ("min_contrast", "presmooth_px", "edge_smoothing_px", "dark_fraction"):
+        for name in ("min_contrast_grey", "presmooth_px", "edge_smoothing_lines", "dark_fraction"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name}: expected ≥ 0, got {getattr(self, name)}")
-        if not self.max_link_step_px > 0:
-            raise ValueError(f"max_link_step_px: expected > 0, got {self.max_link_step_px}")
-        if self.min_edge_length_px < 1:
-            raise ValueError(f"min_edge_length_px: expected ≥ 1, got {self.min_edge_length_px}")
+        if not self.max_link_step_px_per_line > 0:
+            raise ValueError(f"max_link_step_px_per_line: expected > 0, got {self.max_link_step_px_per_line}")
+        if self.min_edge_length_lines < 1:
+            raise ValueError(f"min_edge_length_lines: expected ≥ 1, got {self.min_edge_length_lines}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -120,7 +136,7 @@ class FrameEdges:
     """The stripe edges of one frame, sorted by (line, t_px).
 
     axis, period_px: the scan geometry used (see the module docstring).
-    image_shape: (height, width) of the frame.
+    image_shape_hw_px: (height, width) of the frame.
     line: shape (N,) int32, scan-line index of each edge point.
     t_px: shape (N,) float32, sub-pixel position along the line, smoothed along the edge.
     polarity: shape (N,) int8, +1 dark → bright with increasing t, −1 bright → dark.
@@ -132,7 +148,7 @@ class FrameEdges:
 
     axis: Axis
     period_px: float
-    image_shape: tuple[int, int]
+    image_shape_hw_px: tuple[int, int]
     line: np.ndarray
     t_px: np.ndarray
     polarity: np.ndarray
@@ -147,12 +163,12 @@ class FrameEdges:
     @property
     def n_lines(self) -> int:
         """Number of scan lines (image rows for "rows", columns for "cols")."""
-        return self.image_shape[0] if self.axis == "rows" else self.image_shape[1]
+        return self.image_shape_hw_px[0] if self.axis == "rows" else self.image_shape_hw_px[1]
 
     @property
     def n_samples(self) -> int:
         """Length of a scan line (px)."""
-        return self.image_shape[1] if self.axis == "rows" else self.image_shape[0]
+        return self.image_shape_hw_px[1] if self.axis == "rows" else self.image_shape_hw_px[0]
 
     def q_px(self) -> np.ndarray:
         """Edge points as pixels (u, v), shape (N, 2)."""
@@ -254,7 +270,7 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     image: shape (H, W), uint8, uint16 or float grey levels (float on the 8-bit scale).
 
     A pure function of the frame and the settings, so frames can be processed in any order and on any worker.
-    Steps (METHOD.md §5): Gaussian smoothing along the stripes; local mid-level (I_max + I_min)/2 over a window
+    Steps (docs/method.md §5): Gaussian smoothing along the stripes; local mid-level (I_max + I_min)/2 over a window
     of `window_periods` periods along each scan line; every sign change of I − mid is an edge candidate, placed
     by a probit fit to the four straddling pixels; candidates with low contrast, a clipped bright
     side or near a dark area are rejected, as are pairs closer than a quarter of the edge spacing (noise
@@ -272,7 +288,7 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     else:
         axis = settings.axis  # type: ignore[assignment]
         period_px = settings.period_px
-    image_shape = image.shape
+    image_shape_hw_px = image.shape
     # Transposing before the conversion to float moves a quarter of the bytes.
     scan = _grey_image(image if axis == "rows" else np.ascontiguousarray(image.T))
     n_lines, n_samples = scan.shape
@@ -311,9 +327,9 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     # smoothing along the stripes, which mixes dark lines into their neighbours) are rejected: their stripe is cut.
     grow = np.ones((2 * half + 3, 2 * dark_window - 1), np.uint8)
     near_dark = cv2.dilate(dark_u8, grow).astype(bool)
-    saturated = scan >= settings.saturation_level
+    saturated = scan >= settings.saturation_grey
     with np.errstate(invalid="ignore"):
-        usable = (contrast >= settings.min_contrast) & ~near_dark & (local_max < settings.saturation_level)
+        usable = (contrast >= settings.min_contrast_grey) & ~near_dark & (local_max < settings.saturation_grey)
 
     with np.errstate(invalid="ignore"):
         positive = diff > 0
@@ -333,16 +349,16 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     keep = _without_glitches(line, t_raw, min_gap_px=0.25 * 0.5 * period_px)
     line, t_raw, polarity = line[keep], t_raw[keep], polarity[keep]
 
-    chain = _link_chains(line, t_raw, polarity, n_samples=n_samples, max_step_px=settings.max_link_step_px)
+    chain = _link_chains(line, t_raw, polarity, n_samples=n_samples, max_step_px=settings.max_link_step_px_per_line)
     lengths = np.bincount(chain, minlength=len(chain))
-    long_enough = lengths[chain] >= settings.min_edge_length_px
+    long_enough = lengths[chain] >= settings.min_edge_length_lines
     line, t_raw, polarity, chain = line[long_enough], t_raw[long_enough], polarity[long_enough], chain[long_enough]
     # Renumber the surviving curves 0..n−1 (labels are crossing indices, so at most N of them).
     renumber = np.cumsum(np.bincount(chain, minlength=len(long_enough)) > 0) - 1
     chain = renumber[chain].astype(np.int32)
 
-    if settings.edge_smoothing_px > 0 and len(line):
-        t_px = _smooth_along_chains(line, t_raw, chain, sigma_lines=settings.edge_smoothing_px)
+    if settings.edge_smoothing_lines > 0 and len(line):
+        t_px = _smooth_along_chains(line, t_raw, chain, sigma_lines=settings.edge_smoothing_lines)
         noise_px = float(np.sqrt(np.mean((t_raw - t_px) ** 2)))
     else:
         t_px = t_raw
@@ -350,7 +366,7 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     return FrameEdges(
         axis=axis,
         period_px=float(period_px),
-        image_shape=(int(image_shape[0]), int(image_shape[1])),
+        image_shape_hw_px=(int(image_shape_hw_px[0]), int(image_shape_hw_px[1])),
         line=line,
         t_px=t_px.astype(np.float32),
         polarity=polarity,
@@ -464,10 +480,7 @@ def _smooth_along_chains(line: np.ndarray, t_px: np.ndarray, chain: np.ndarray, 
 
     offsets = np.arange(-half, half + 1, dtype=np.float64)
     gauss = np.exp(-0.5 * (offsets / sigma_lines) ** 2)
-    moments = np.array([np.sum(gauss * offsets**m) for m in range(5)])
-    design = np.array([[moments[i + j] for j in range(3)] for i in range(3)])
-    # Row 0 of the inverse normal matrix times [1, d, d²]·g: the weights that give the fitted value at d = 0.
-    interior_weights = np.linalg.solve(design, np.eye(3))[0] @ np.vstack([gauss, gauss * offsets, gauss * offsets**2])
+    interior_weights = edge_smoothing_weights(sigma_lines)
     smoothed_sorted = ndimage.correlate1d(t_sorted, interior_weights, mode="nearest")
 
     near_end = np.flatnonzero((before < half) | (after < half))
@@ -513,7 +526,7 @@ class EdgeOrder:
 
 
 def order_edges(edges: FrameEdges, *, max_gap_periods: float = 0.8) -> EdgeOrder:
-    """Put the edge curves of a frame in stripe order (METHOD.md §5: the basis of edge identity).
+    """Put the edge curves of a frame in stripe order (docs/method.md §5: the basis of edge identity).
 
     Two edge points that follow each other on a scan line with opposite polarities, less than max_gap_periods
     stripe periods apart (a stripe is half a period wide, so a gap of more than ~0.8 period means a missed

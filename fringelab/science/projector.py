@@ -1,4 +1,4 @@
-"""Projector calibration: the look-up table of every stripe edge's image position against Z (METHOD.md §4).
+"""Projector calibration: the look-up table of every stripe edge's image position against Z (docs/method.md §4).
 
 Belongs here: building the table from a flat-plate Z-stack (edge identity kept consistent over all Z steps),
 checking it (monotonic in Z, sensitive enough, covering the field), fitting Z as a low-order polynomial of the
@@ -23,8 +23,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from . import MeasurementError
-from .calibration import CalibrationCancelled, ProgressCallback
+from . import Cancelled, MeasurementError
+from .calibration import ProgressCallback
 from .camera import Camera, InverseModel, backproject_to_z, fit_inverse_model
 from .fringes import EdgeSettings, FrameEdges, detect_stripes, locate_edges, order_edges
 
@@ -155,7 +155,7 @@ class ProjectorCalibration:
     sensitivity_px_per_mm, fit_rms_mm: (K, S), NaN where there is no entry.
     """
 
-    image_shape: tuple[int, int]
+    image_shape_hw_px: tuple[int, int]
     edges: EdgeSettings
     reference_z_mm: float
     z_mm: np.ndarray
@@ -335,7 +335,7 @@ def build_projector_calibration(
     progress: ProgressCallback | None = None,
     should_cancel: Callable[[], bool] | None = None,
 ) -> ProjectorCalibration:
-    """The look-up table of a flat-plate Z-stack (METHOD.md §4).
+    """The look-up table of a flat-plate Z-stack (docs/method.md §4).
 
     frames: the grey frames in recording order (read one at a time); z_mm: the stage Z of each frame, strictly
     monotonic. camera_model: the camera the frames were taken with (image size check, object-space QA, and a
@@ -400,7 +400,7 @@ def build_projector_calibration(
     n_lines = expected_shape[0] if edge_settings.axis == "rows" else expected_shape[1]
     for done, j in enumerate(visit):
         if should_cancel is not None and should_cancel():
-            raise CalibrationCancelled(f"cancelled after {done} of {n_frames} frames")
+            raise Cancelled(f"cancelled after {done} of {n_frames} frames")
         image = reference_image if j == j_ref else frame_at(j)
         edges = locate_edges(image, edge_settings)
         noise.append(edges.noise_px)
@@ -467,7 +467,7 @@ def build_projector_calibration(
         j_ref=j_ref,
         settings=settings,
         edge_settings=edge_settings,
-        image_shape=expected_shape,
+        image_shape_hw_px=expected_shape,
         camera_model=camera_model,
         noise_px=float(np.nanmedian(noise)) if noise else float("nan"),
         max_step_shift=float(max(step_shifts, default=0.0)),
@@ -586,7 +586,7 @@ def _fit_table(
     j_ref: int,
     settings: ProjectorSettings,
     edge_settings: EdgeSettings,
-    image_shape: tuple[int, int],
+    image_shape_hw_px: tuple[int, int],
     camera_model: CameraModel,
     noise_px: float,
     max_step_shift: float,
@@ -665,7 +665,7 @@ def _fit_table(
         xy_extent_mm=extent,
     )
     return ProjectorCalibration(
-        image_shape=image_shape,
+        image_shape_hw_px=image_shape_hw_px,
         edges=edge_settings,
         reference_z_mm=float(z_sorted[j_ref]),
         z_mm=z_sorted,

@@ -364,7 +364,7 @@ class FringeRenderer:
 
 
 PRESETS = ("kodak", "phantom")
-# Stripe period in the image near the plate centre, as in METHOD.md §7 ("stripes ~10 px per period").
+# Stripe period in the image near the plate centre, as in docs/method.md §7 ("stripes ~10 px per period").
 TARGET_PERIOD_PX = 10.0
 # The paper's projector: an 85 mm Kodak Retinar lens about 2 m from the plate.
 PROJECTOR_F_MM = 85.0
@@ -490,7 +490,7 @@ def true_camera_calibration(camera: Camera) -> Any:
         views.append(CornerView(f"z={z:g}", points, project_points(camera, points), z))
     calibration = calibrate_from_views(
         views,
-        image_size_px=(camera.image_width_px, camera.image_height_px),
+        image_size_wh_px=(camera.image_width_px, camera.image_height_px),
         mode="zstack",
         du_px_per_mm=camera.du_px_per_mm,
         dv_px_per_mm=camera.dv_px_per_mm,
@@ -498,3 +498,76 @@ def true_camera_calibration(camera: Camera) -> Any:
         provenance={"input": "virtual experiment (exact camera)"},
     )
     return replace(calibration, camera=camera, inverse=fit_inverse_model(camera))
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# The true surface as a finite-element model (to test the comparison with simulations)
+
+
+@dataclass(frozen=True, eq=False)
+class TruePlateModel:
+    """The virtual plate's true surface as a shell model in the plate frame (mm): nodes (N, 3) at Z = 0,
+    triangles (T, 3), and per state (S,) the displacement (S, N, 3) (only Z: the renderer's plate moves along Z),
+    the punch travel and force of each state, and the punch node's travel."""
+
+    node_xyz_mm: np.ndarray
+    triangles: np.ndarray
+    time_s: np.ndarray
+    displacement_mm: np.ndarray
+    punch_displacement_mm: np.ndarray
+    force_kN: np.ndarray
+
+
+def true_plate_model(
+    scene: PlateScene,
+    timeline: PunchTimeline,
+    *,
+    state_punch_mm: np.ndarray | None = None,
+    quarter: bool = False,
+    resolution: float = 0.06,
+) -> TruePlateModel:
+    """A triangulated disc over the clamp circle carrying the true deflection at chosen punch displacements.
+
+    Nodes lie on rings whose spacing and in-ring spacing are `resolution` × √(r² + b²) (b the punch radius):
+    w'' scales as 1/(r² + b²), so linear interpolation on the triangles is off by about resolution²·w0/(8·ln(ρ_R/b))
+    everywhere, 0.01 mm at 60 mm for 0.06, well under the measurement's noise. States: the timeline's frames, or
+    the punch displacements `state_punch_mm` (w0, time and force interpolated from the timeline; deflection is
+    linear in w0, so a state between two frames is exactly the blend of theirs). quarter: only X ≥ 0, Y ≥ 0 about
+    the plate centre, with the centre as origin (a quarter model); otherwise in plate coordinates. The hole
+    after perforation is not cut: the measurement has no data there, so nothing is compared.
+    """
+    from scipy.spatial import Delaunay
+
+    b = scene.punch_radius_mm
+    radius = scene.clamp_radius_mm
+    rings = [0.0]
+    while rings[-1] < radius:
+        rings.append(min(rings[-1] + resolution * np.hypot(rings[-1], b), radius))
+    points = [(0.0, 0.0)]
+    for r in rings[1:]:
+        n = max(int(np.ceil(2.0 * np.pi * r / (resolution * np.hypot(r, b)))), 8)
+        n = int(np.ceil(n / 4.0)) * 4  # the quarter's edges then lie on the axes
+        angles = 2.0 * np.pi * np.arange(n) / n
+        if quarter:
+            angles = angles[angles <= 0.5 * np.pi + 1e-12]
+        points += [(r * np.cos(a), r * np.sin(a)) for a in angles]
+    local = np.array(points)
+    triangles = Delaunay(local).simplices.astype(np.int64)
+    xy = local if quarter else local + np.asarray(scene.centre_xy_mm)
+    frame_punch = timeline.punch_displacement_mm
+    w0_frames = np.array([s.w0_mm for s in timeline.states])
+    punch = frame_punch if state_punch_mm is None else np.asarray(state_punch_mm, np.float64)
+    w0 = np.interp(punch, frame_punch, w0_frames)
+    time_s = np.interp(punch, frame_punch, timeline.time_s)
+    # Beyond the last frame the punch goes on at its last speed (states there keep distinct times).
+    speed = (frame_punch[-1] - frame_punch[-2]) / (timeline.time_s[-1] - timeline.time_s[-2])
+    time_s = np.where(punch > frame_punch[-1], timeline.time_s[-1] + (punch - frame_punch[-1]) / speed, time_s)
+    force = np.interp(punch, frame_punch, timeline.force_kN)
+    plate_xy = local + np.asarray(scene.centre_xy_mm)
+    shape, _, _ = scene.deflection_mm(plate_xy[:, 0], plate_xy[:, 1], 1.0)
+    displacement = np.zeros((len(punch), len(xy), 3))
+    displacement[:, :, 2] = w0[:, None] * shape[None, :]
+    return TruePlateModel(
+        node_xyz_mm=np.column_stack([xy, np.zeros(len(xy))]), triangles=triangles, time_s=time_s,
+        displacement_mm=displacement, punch_displacement_mm=punch, force_kN=force,
+    )  # fmt: skip

@@ -1,4 +1,5 @@
-"""Topography: edge identity through a test, Z from the projector table, X and Y by back-projection (METHOD.md §5–6).
+"""Topography: edge identity through a test, Z from the projector table, X and Y by back-projection
+(docs/method.md §5–6).
 
 Belongs here: identifying the edges of the first (flat) test frame against the projector calibration, tracking
 every (edge, scan line) point frame to frame and ending tracks that break, optional temporal smoothing, and
@@ -28,7 +29,7 @@ import numpy as np
 
 from . import MeasurementError
 from .camera import backproject_to_z
-from .fields import Grid, grid_covering, grid_edge_points, typical_edge_gap_mm
+from .fields import Grid, Peak, grid_covering, grid_edge_points, typical_edge_gap_mm
 from .fringes import FrameEdges, detect_stripes, locate_edges
 from .projector import (
     CalibrationMismatchError,
@@ -37,6 +38,7 @@ from .projector import (
     camera_fingerprint,
     match_to_reference,
 )
+from .uncertainty import edge_sigma_px, point_sigma_z_mm
 
 
 class FirstFrameNotFlatError(MeasurementError):
@@ -45,10 +47,6 @@ class FirstFrameNotFlatError(MeasurementError):
 
 class TopographyError(MeasurementError):
     """The topography cannot be computed from this recording (too few edges identified, ...)."""
-
-
-class TopographyCancelled(Exception):
-    """Raised when the caller's `should_cancel()` returned True; not a failure of the measurement."""
 
 
 @dataclass(frozen=True)
@@ -94,7 +92,8 @@ class FrameMeasurement:
     points_obj_mm: (N, 3). n_tracks: tracked (edge, line) points in this frame (with or without Z); n_ended:
     tracks that ended at this frame; n_out_of_range: tracked points outside the calibrated Z range of their
     table entry (masked, never extrapolated); n_unmatched: edge points of the frame that belong to no track;
-    edge_noise_px: the frame's edge-location noise estimate.
+    edge_noise_px: the frame's edge-location noise estimate. sigma_z_mm: (N,) σ of each point's Z from the edge
+    noise and the projector table (`uncertainty.point_sigma_z_mm`), None where not computed.
     """
 
     frame: int
@@ -106,6 +105,7 @@ class FrameMeasurement:
     n_out_of_range: int
     n_unmatched: int
     edge_noise_px: float
+    sigma_z_mm: np.ndarray | None = None
 
     def dense(self, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """X, Y, Z as (K, S) arrays over (edge, line), NaN where not measured."""
@@ -116,20 +116,21 @@ class FrameMeasurement:
 
 
 def check_recording_against(
-    image_shape: tuple[int, int], projector: ProjectorCalibration, camera_model: CameraModel
+    image_shape_hw_px: tuple[int, int], projector: ProjectorCalibration, camera_model: CameraModel
 ) -> None:
     """Raise CalibrationMismatchError when a recording's frames, the camera and the projector table disagree."""
     camera = camera_model.camera
     camera_shape = (camera.image_height_px, camera.image_width_px)
-    if tuple(image_shape) != tuple(projector.image_shape):
+    table_h, table_w = projector.image_shape_hw_px
+    if tuple(image_shape_hw_px) != (table_h, table_w):
         raise CalibrationMismatchError(
-            f"the test frames are {image_shape[1]} × {image_shape[0]} px but the projector calibration is for "
-            f"{projector.image_shape[1]} × {projector.image_shape[0]} px: use the calibrations of this camera"
+            f"the test frames are {image_shape_hw_px[1]} × {image_shape_hw_px[0]} px but the projector calibration is "
+            f"for {table_w} × {table_h} px: use the calibrations of this camera"
         )
-    if camera_shape != tuple(projector.image_shape):
+    if camera_shape != (table_h, table_w):
         raise CalibrationMismatchError(
             f"the camera calibration is for {camera_shape[1]} × {camera_shape[0]} px but the projector calibration "
-            f"for {projector.image_shape[1]} × {projector.image_shape[0]} px: they come from different cameras"
+            f"for {table_w} × {table_h} px: they come from different cameras"
         )
     if camera_fingerprint(camera) != projector.camera_fingerprint:
         raise CalibrationMismatchError(
@@ -153,11 +154,11 @@ def check_stripes_against(first_frame: np.ndarray, projector: ProjectorCalibrati
 def locate_test_edges(frames: Iterable[np.ndarray], projector: ProjectorCalibration) -> Iterator[FrameEdges]:
     """`fringes.locate_edges` with the projector calibration's edge settings, frame by frame (lazy)."""
     for image in frames:
-        if tuple(np.shape(image)[:2]) != tuple(projector.image_shape):
+        if tuple(np.shape(image)[:2]) != tuple(projector.image_shape_hw_px):
             shape = np.shape(image)
             raise CalibrationMismatchError(
                 f"a test frame is {shape[1]} × {shape[0]} px but the projector calibration is for "
-                f"{projector.image_shape[1]} × {projector.image_shape[0]} px"
+                f"{projector.image_shape_hw_px[1]} × {projector.image_shape_hw_px[0]} px"
             )
         yield locate_edges(image, projector.edges)
 
@@ -221,7 +222,7 @@ def identify_first_frame(edges: FrameEdges, projector: ProjectorCalibration, *, 
 
 @dataclass
 class EdgeTracker:
-    """Tracks every (edge k, scan line s) point from frame to frame (METHOD.md §5).
+    """Tracks every (edge k, scan line s) point from frame to frame (docs/method.md §5).
 
     positions: (K, S) current positions (NaN = no track); velocity: (K, S) last motion per frame.
     A track follows the nearest edge point of its polarity on its line to where its last motion predicts it,
@@ -393,7 +394,7 @@ def track_and_measure(
     settings: TopographySettings | None = None,
     first_frame: int = 0,
 ) -> Iterator[FrameMeasurement]:
-    """The sequential pass: identity, tracking, Z from the table, X and Y by back-projection (METHOD.md §5–6).
+    """The sequential pass: identity, tracking, Z from the table, X and Y by back-projection (docs/method.md §5–6).
 
     edges: the located edges of consecutive frames in frame order, starting with the flat first frame of the
     test (`first_frame` is its index in the recording). Yields one FrameMeasurement per frame, in order (with
@@ -434,6 +435,11 @@ def _measure(
     kk, ll, t, z = kk[ok], ll[ok], t[ok], z[ok]
     q_px = np.column_stack([t, ll] if projector.axis == "rows" else [ll, t]).astype(np.float64)
     points = backproject_to_z(camera_model.camera, q_px, z, inverse=camera_model.inverse)
+    sigma_z = point_sigma_z_mm(
+        sensitivity_px_per_mm=projector.sensitivity_px_per_mm[kk, ll], fit_rms_mm=projector.fit_rms_mm[kk, ll],
+        n_heights=np.count_nonzero(np.isfinite(projector.lut_t_px[kk, ll]), axis=-1),
+        n_coefficients=projector.coefficients.shape[-1], edge_sigma_px=edge_sigma_px(noise_px, projector.edges),
+    )  # fmt: skip
     return FrameMeasurement(
         frame=int(frame),
         k=kk.astype(np.int32),
@@ -444,6 +450,7 @@ def _measure(
         n_out_of_range=int(np.count_nonzero(status == 1)),
         n_unmatched=int(n_unmatched),
         edge_noise_px=float(noise_px),
+        sigma_z_mm=sigma_z,
     )
 
 
@@ -495,7 +502,7 @@ def clamp_circle(points_xy_mm: np.ndarray, *, n_sectors: int = 72) -> tuple[floa
     The points end where the clamp ring hides the plate; the outermost point of each angular sector around
     their centroid lies on that circle (a little inside it: edges within half a stripe of the ring are
     rejected), so a least-squares (Kåsa) circle through them, refitted once without points more than 3 mm off,
-    gives the plate centre from the clamp (METHOD.md §2).
+    gives the plate centre from the clamp (docs/method.md §2).
     """
     xy = points_xy_mm[np.all(np.isfinite(points_xy_mm), axis=1)]
     if len(xy) < 3 * n_sectors:
@@ -519,3 +526,44 @@ def clamp_circle(points_xy_mm: np.ndarray, *, n_sectors: int = 72) -> tuple[floa
         if np.count_nonzero(keep) < 8:
             break
     return float(cx), float(cy), r
+
+
+PUNCH_AXIS_MIN_PEAK_MM = 5.0  # frames whose peak is at least this deep locate the punch axis (shallower: noise)
+
+
+@dataclass
+class SummaryTally:
+    """The headline numbers of a topography run (its /summary), tallied frame by frame in frame order: the one
+    rule for the command line's sequential run and the worker's parallel job."""
+
+    peaks_w_mm: list[float] = field(default_factory=list)
+    centres_xy_mm: list[tuple[float, float]] = field(default_factory=list)
+    n_out_of_range: int = 0
+
+    def add(self, peak: Peak, *, n_out_of_range: int) -> None:
+        self.peaks_w_mm.append(peak.w_mm)
+        if np.isfinite(peak.centre_x_mm) and peak.w_mm >= PUNCH_AXIS_MIN_PEAK_MM:
+            self.centres_xy_mm.append((peak.centre_x_mm, peak.centre_y_mm))
+        self.n_out_of_range += n_out_of_range
+
+    @property
+    def punch_axis_xy_mm(self) -> tuple[float, float]:
+        """Median of the peak centres of the deep frames; NaN before the plate is deep enough anywhere."""
+        if not self.centres_xy_mm:
+            return float("nan"), float("nan")
+        x, y = np.median(np.array(self.centres_xy_mm), axis=0)
+        return float(x), float(y)
+
+    @property
+    def max_peak_w_mm(self) -> float:
+        finite = [w for w in self.peaks_w_mm if np.isfinite(w)]
+        return max(finite) if finite else float("nan")
+
+    def attrs(self, *, flat_rms_mm: float, n_tracks_first_frame: int, clamp: Sequence[float]) -> dict[str, Any]:
+        """The /summary attributes of the result file."""
+        axis_x, axis_y = self.punch_axis_xy_mm
+        return {
+            "flat_rms_mm": flat_rms_mm, "n_tracks_first_frame": n_tracks_first_frame,
+            "clamp_centre_x_mm": clamp[0], "clamp_centre_y_mm": clamp[1], "clamp_radius_mm": clamp[2],
+            "punch_axis_x_mm": axis_x, "punch_axis_y_mm": axis_y, "n_out_of_range_total": self.n_out_of_range,
+        }  # fmt: skip

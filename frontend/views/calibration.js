@@ -1,7 +1,10 @@
 // The calibration report of a calibration job. Camera: the verdict with its reasons, the parameters with
 // ± standard errors and units, per-frame RMS bars and the residual vectors drawn over the image area, from
 // GET /calibrations/{id}/report (the fields of the camera-calibration document, units in every name).
-// Projector: the look-up table's curves and its sensitivity map.
+// Projector: the verdict with its thresholds, the look-up table's curves, and maps over the whole image of its
+// sensitivity, the Z resolution that gives at the measured edge noise, and its coverage (over the image and Z),
+// from GET /calibrations/{id}/projector-report. Every check and quantity links to the section of docs/method.md
+// that explains it (the help pages).
 import { getJSON } from "../api.js";
 import { Figure, axis, barTraces, imageLayout, layout, vectorTraces } from "../plots.js";
 import { attempt, field, h, num, page, showError, table } from "../ui.js";
@@ -16,14 +19,21 @@ const PARAMETER_NAMES = {
   k2_per_mm4: "radial distortion k₂",
   p1_per_mm: "tangential distortion p₁",
   p2_per_mm: "tangential distortion p₂",
-  x0_mm: "camera centre X₀",
-  y0_mm: "camera centre Y₀",
-  z0_mm: "camera centre Z₀",
+  x0_mm: "plate origin in camera coordinates x₀",
+  y0_mm: "plate origin in camera coordinates y₀",
+  z0_mm: "plate origin in camera coordinates z₀",
   omega_deg: "rotation ω",
   phi_deg: "rotation φ",
   kappa_deg: "rotation κ",
 };
 const FRAME_COLORS = { used: "#1f77b4", rejected: "#d62728", skipped: "#9aa4b1" };
+
+/** A link to where docs/method.md explains `term` (its section, and the term found and marked there). */
+export function explained(text, section, term = null) {
+  const search = new URLSearchParams({ section });
+  if (term) search.set("find", term);
+  return h("a", { href: `#/help/method?${search}`, class: "explained", title: "What this means (method documentation)" }, text);
+}
 
 /** A value and its standard error with digits that suit the error: 12.3456 ± 0.0012. */
 export function plusMinus(value, error) {
@@ -35,7 +45,11 @@ export function plusMinus(value, error) {
   return `${value.toFixed(digits)} ± ${error.toFixed(digits)}`;
 }
 
-function verdictBox(verdict) {
+/** A check that holds or does not (the solver converged): shown as yes/no, not as 1.000 (older reports have no
+ * unit for it). */
+const yesNo = (check) => check.unit === "yes/no" || (check.name === "solver" && !check.unit);
+
+function verdictBox(verdict, section) {
   return h(
     "section",
     { class: `card verdict verdict-${verdict.level}`, "aria-label": "Verdict" },
@@ -44,10 +58,10 @@ function verdictBox(verdict) {
     table(
       "Verdict checks",
       [
-        { title: "Check", value: (c) => c.name },
-        { title: "Value", value: (c) => `${num(c.value, 3)} ${c.unit}`, class: "num" },
-        { title: "Good if", value: (c) => `${c.higher_is_better ? "≥" : "≤"} ${c.good_limit} ${c.unit}`, class: "num" },
-        { title: "Bad if", value: (c) => `${c.higher_is_better ? "<" : ">"} ${c.bad_limit} ${c.unit}`, class: "num" },
+        { title: "Check", value: (c) => explained(c.name, section, c.name) },
+        { title: "Value", value: (c) => (yesNo(c) ? (c.value >= c.good_limit ? "yes" : "no") : `${num(c.value, 3)} ${c.unit}`), class: "num" },
+        { title: "Good if", value: (c) => (yesNo(c) ? "yes" : `${c.higher_is_better ? "≥" : "≤"} ${c.good_limit} ${c.unit}`), class: "num" },
+        { title: "Bad if", value: (c) => (yesNo(c) ? "no" : `${c.higher_is_better ? "<" : ">"} ${c.bad_limit} ${c.unit}`), class: "num" },
         { title: "Level", value: (c) => h("span", { class: `level-${c.level}` }, c.level) },
         { title: "Meaning", value: (c) => c.message },
       ],
@@ -61,12 +75,24 @@ function parametersTable(document) {
   return table(
     "Camera parameters",
     [
-      { title: "Parameter", value: (p) => PARAMETER_NAMES[p.name] || p.name },
+      { title: "Parameter", value: (p) => explained(PARAMETER_NAMES[p.name] || p.name, "3-camera-model") },
       { title: "Value ± standard error", value: (p) => plusMinus(p.value, p.standard_error), class: "num" },
       { title: "Unit", value: (p) => (p.unit === "1" ? "–" : p.unit.replace(/\^-(\d)/, (_, d) => `⁻${"⁰¹²³⁴⁵⁶⁷⁸⁹"[d]}`)) },
     ],
     rows,
   );
+}
+
+/** The pose read both ways, each named for what it is (older files lack it: say so). */
+function poseFacts(document) {
+  const xyz = (v) => `(${v.map((c) => num(c, 1)).join(", ")}) mm`;
+  if (!document.pose) {
+    return [["Camera centre in plate coordinates", "not in this calibration file (made before it was added); run the calibration again to see it"]];
+  }
+  return [
+    [explained("Plate origin in camera coordinates", "2-conventions"), `${xyz(document.pose.object_origin_in_camera_mm)}: x₀, y₀, z₀ above, where the plate's origin lies seen from the camera`],
+    [explained("Camera centre in plate coordinates", "2-conventions"), `${xyz(document.pose.camera_centre_in_object_mm)}: where the camera's projection centre is, in the plate's X, Y, Z`],
+  ];
 }
 
 function summary(document, job) {
@@ -84,6 +110,7 @@ function summary(document, job) {
       ["Residual standard deviation", `${num(document.residual_std_px, 4)} px per coordinate`],
       ["Systematic residual", `${num(document.residual_map.systematic_px, 4)} px (image coverage ${num(100 * document.residual_map.coverage, 0)} %)`],
       ["Converged", document.converged ? "yes" : "NO"],
+      ...poseFacts(document),
     ].map(([term, value]) => [h("dt", {}, term), h("dd", {}, value)]),
   );
 }
@@ -162,7 +189,7 @@ async function cameraReport(container, job, context) {
     container,
     `Camera calibration ${calibration.id} (version ${calibration.version})`,
     h("p", {}, h("a", { href: `#/jobs/${job.id}` }, jobName(job)), " · ", h("a", { href: file.url, download: file.name }, `Download ${file.name}`)),
-    verdictBox(document.verdict),
+    verdictBox(document.verdict, "3-1-calibration"),
     h(
       "div",
       { class: "two-columns" },
@@ -193,7 +220,6 @@ export async function renderCalibration(container, { id }, context) {
   page(container, "Calibration report", h("p", {}, `${jobName(job)} is not a calibration.`));
 }
 
-const MAP_LINES = 16; // scan lines sampled for the sensitivity map (one request each)
 const CURVES = 24; // edges drawn on the curves plot
 
 /** Least-squares slope of t against z over the finite samples (px/mm), or NaN with fewer than 2. */
@@ -276,43 +302,68 @@ async function projectorReport(container, job, context) {
     await drawCurves();
   });
 
-  // Sensitivity dt/dZ of every edge on MAP_LINES scan lines spread over the image: a map of how far an edge
-  // moves per mm of height (higher is more sensitive).
+  // Maps over the whole image from the server (every entry of the table, binned in square cells): sensitivity,
+  // the Z resolution it gives at the measured edge noise, coverage; and the coverage over Z.
+  const report = await attempt("read the projector report", () => getJSON(`calibrations/${calibrationId}/projector-report`));
+  if (!report || !context.current()) return;
+  const size = { widthPx: report.image_size_px.width, heightPx: report.image_size_px.height };
+  const centres = (n) => Array.from({ length: n }, (_, i) => (i + 0.5) * report.cell_px - 0.5);
+  const mapKinds = {
+    sensitivity: { name: "|dt/dZ|", unit: "px/mm", values: report.sensitivity_px_per_mm, scale: "Viridis", title: "sensitivity: edge shift per mm of Z" },
+    resolution: { name: "Z resolution", unit: "mm", values: report.z_resolution_mm, scale: "Viridis", reverse: true, title: `Z resolution at the measured edge noise (${num(report.qa.edge_noise_px, 4)} px)` },
+    coverage: { name: "coverage", unit: "share", values: report.coverage, scale: "Greens", title: "share of the edges seen that have a table entry" },
+  };
+  const mapKind = field("Map of", h("select", {}, Object.entries(mapKinds).map(([value, k]) => h("option", { value }, k.title))));
   const map = new Figure({
     name: "Sensitivity map",
-    filename: `${name}-sensitivity`,
+    filename: `${name}-maps`,
     height: 420,
-    csv: () => ({ columns: ["line", "edge", "t_px", "sensitivity_px_per_mm"], rows: mapRows }),
+    csv: () => ({
+      columns: ["u_px", "v_px", "cell_px", "sensitivity_px_per_mm", "z_resolution_mm", "coverage"],
+      rows: report.sensitivity_px_per_mm.flatMap((row, j) => row.map((value, i) => [centres(report.cells_u)[i], centres(report.cells_v)[j], report.cell_px, value, report.z_resolution_mm[j][i], report.coverage[j][i]])),
+    }),
   });
-  let mapRows = [];
-  const mapNote = h("p", { class: "hint" }, `Reading ${MAP_LINES} scan lines of the table for the map…`);
-  const drawMap = async () => {
-    const lines = Array.from({ length: MAP_LINES }, (_, i) => Math.round(((i + 0.5) * first.n_lines) / MAP_LINES));
-    const tables = await Promise.all(lines.map((line) => getJSON(`calibrations/${calibrationId}/table?line=${line}`)));
-    if (!context.current()) return;
-    mapRows = tables.flatMap((t) => t.curves.map((c) => [t.line, c.edge, tAtReference(t, c), slope(numbersOf(t.z_mm), numbersOf(c.t_px))]));
-    const shown = mapRows.filter((r) => Number.isFinite(r[2]) && Number.isFinite(r[3]));
-    const [u, v] = first.axis === "rows" ? [(r) => r[2], (r) => r[0]] : [(r) => r[0], (r) => r[2]];
-    await map.react(
+  const drawMap = () => {
+    const kind = mapKinds[mapKind.input.value];
+    return map.react(
       [{
-        type: "scatter",
-        mode: "markers",
-        x: shown.map(u),
-        y: shown.map(v),
-        marker: { size: 6, color: shown.map((r) => Math.abs(r[3])), colorscale: "Viridis", colorbar: { title: { text: "|dt/dZ| (px/mm)" } } },
-        customdata: shown.map((r) => [r[1], r[3]]),
-        hovertemplate: "edge %{customdata[0]}<br>u %{x:.0f} px, v %{y:.0f} px<br>dt/dZ %{customdata[1]:.3f} px/mm<extra></extra>",
+        type: "heatmap",
+        x: centres(report.cells_u),
+        y: centres(report.cells_v),
+        z: kind.values.map((row) => row.map((v) => (v === null ? NaN : v))),
+        colorscale: kind.scale,
+        reversescale: Boolean(kind.reverse),
+        colorbar: { title: { text: `${kind.name} (${kind.unit})` } },
+        hovertemplate: `u %{x:.0f} px, v %{y:.0f} px<br>${kind.name} %{z:.4f} ${kind.unit}<extra></extra>`,
       }],
-      layout({ xaxis: axis("u", "px"), yaxis: axis("v", "px", { autorange: "reversed", scaleanchor: "x" }) }),
+      { ...imageLayout(size), showlegend: false },
     );
-    mapNote.textContent = `|dt/dZ| of every edge on ${MAP_LINES} scan lines spread over the image (a straight-line fit over Z).`;
   };
+  mapKind.input.addEventListener("change", drawMap);
+  const resolutions = report.z_resolution_mm.flat().filter((v) => v !== null).sort((a, b) => a - b);
+  const mapNote = h("p", { class: "hint", "aria-label": "About the sensitivity map" },
+    `Over the whole ${size.widthPx} × ${size.heightPx} px image in ${report.cell_px} px cells (each the median of the table's entries there; blank: no edge seen). `,
+    `At the measured edge noise of ${num(report.qa.edge_noise_px, 4)} px the table's sensitivity gives a Z resolution of ${num(resolutions[Math.floor(resolutions.length / 2)], 4)} mm (median cell), ${num(resolutions[resolutions.length - 1], 4)} mm in the least sensitive cell. `,
+    explained("How the sensitivity is found", "4-projector-calibration-look-up-table", "sensitivity"));
+  const zCoverage = new Figure({
+    name: "Coverage over Z",
+    filename: `${name}-coverage-z`,
+    height: 260,
+    csv: () => ({ columns: ["z_mm", "share_of_entries"], rows: report.z_mm.map((z, i) => [z, report.coverage_z[i]]) }),
+  });
+  const drawZ = () => zCoverage.react(
+    [{ type: "bar", x: report.z_mm, y: report.coverage_z.map((v) => (v === null ? NaN : 100 * v)), marker: { color: "#2ca02c" }, hovertemplate: "Z %{x:.1f} mm: %{y:.1f} %<extra></extra>" }],
+    layout({ xaxis: axis("plate height Z", "mm"), yaxis: axis("entries whose fitted range holds Z", "%", { range: [0, 100] }), showlegend: false }),
+  );
 
   const qa = Object.entries(first.qa || {}).filter(([, v]) => v === null || ["number", "string", "boolean"].includes(typeof v));
+  const limits = Object.entries(report.limits).map(([key, l]) => `${key}: good ${l.good}, bad ${l.bad}`).join("; ");
   page(
     container,
     `Projector calibration ${calibration.id} (version ${calibration.version})`,
     h("p", {}, h("a", { href: `#/jobs/${job.id}` }, jobName(job)), " · ", h("a", { href: calibration.file_url }, "Download the table (HDF5)")),
+    verdictBox(report.verdict, "4-projector-calibration-look-up-table"),
+    h("p", { class: "hint" }, "Thresholds, with units as in the table above: ", limits, ". ", explained("What the table's numbers mean", "4-projector-calibration-look-up-table")),
     h("div", { class: "two-columns" },
       h("dl", { class: "facts" }, [
         ["Scan", first.axis === "rows" ? "along image rows (vertical stripes)" : "along image columns (horizontal stripes)"],
@@ -321,16 +372,19 @@ async function projectorReport(container, job, context) {
         ["Table", `${first.n_edges} edges × ${first.n_lines} scan lines × ${first.z_mm.length} heights (${num(first.z_mm[0], 1)} … ${num(first.z_mm[first.z_mm.length - 1], 1)} mm)`],
       ].map(([term, value]) => [h("dt", {}, term), h("dd", {}, value)])),
       table("Projector table QA", [
-        { title: "Check", value: (r) => r[0] },
+        { title: "Quantity", value: (r) => explained(r[0], "4-projector-calibration-look-up-table", r[0]) },
         { title: "Value", value: (r) => (typeof r[1] === "number" ? String(Number(r[1].toPrecision(6))) : String(r[1])) },
       ], qa)),
     h("div", { class: "plot-controls" }, lineInput.wrap),
-    h("div", { class: "plot-grid" }, curves.element, h("div", {}, map.element, mapNote)),
+    h("div", { class: "plot-grid" }, curves.element, h("div", {}, h("div", { class: "plot-controls" }, mapKind.wrap), map.element, mapNote)),
+    zCoverage.element,
   );
   context.onLeave(() => {
     curves.purge();
     map.purge();
+    zCoverage.purge();
   });
   await drawCurves();
-  await attempt("draw the sensitivity map", drawMap);
+  await attempt("draw the maps", drawMap);
+  await attempt("draw the coverage over Z", drawZ);
 }

@@ -4,13 +4,16 @@ import { apiUrl, getJSON, postJSON } from "../api.js";
 import { attempt, field, fill, formatBytes, formatTime, h, page, say, showError, table } from "../ui.js";
 import { Uploader } from "../upload.js";
 import { jobsPanel } from "./jobs.js";
+import { deleteButton } from "./deletion.js";
+
+/** Show the current route again (after a delete changed what it lists). */
+const reshow = () => window.dispatchEvent(new HashChangeEvent("hashchange"));
 
 export const KIND_NAMES = {
   camera_calibration: "Camera calibration",
   projector_calibration: "Projector calibration",
   test: "Test",
 };
-const BUSY_STATES = ["uploading", "ingesting"];
 
 // ---- the list -----------------------------------------------------------------------------------------------------
 
@@ -64,11 +67,11 @@ export async function renderExperiments(container, _params, context) {
       class: "primary",
       onclick: async () => {
         demo.disabled = true;
-        say("Making the demo experiment: simulating recordings…");
         try {
-          const made = await postJSON("demo", { cameras: demoCameras.input.value.split(",") });
-          say(`Demo experiment ${made.experiment_id} made; its jobs are running.`);
-          window.location.hash = `#/experiments/${made.experiment_id}`;
+          const cameras = demoCameras.input.value;
+          const made = await postJSON("demo", { cameras: cameras.split(",") });
+          // The experiment page shows the demo's steps at once, from the first second.
+          window.location.hash = `#/experiments/${made.experiment_id}?demo=${cameras}&since=${Date.now()}`;
         } catch (error) {
           showError(error, "make the demo experiment");
           demo.disabled = false;
@@ -102,6 +105,7 @@ export async function renderExperiments(container, _params, context) {
         { title: "Punch", value: (e) => e.punch },
         { title: "Test date", value: (e) => e.test_date },
         { title: "Created", value: (e) => formatTime(e.created_at) },
+        { title: "", value: (e) => deleteButton(`experiments/${e.id}`, `experiment ${e.name}`, reshow) },
       ],
       experiments,
       { empty: "No experiments yet: create one below, or load the demo." },
@@ -120,7 +124,7 @@ function recordingState(recording) {
   return h("span", { class: "busy" }, `${recording.state}…`);
 }
 
-function recordingsTable(camera, recordings) {
+function recordingsTable(camera, recordings, onDeleted) {
   return table(
     `Recordings of ${camera.name}`,
     [
@@ -129,6 +133,7 @@ function recordingsTable(camera, recordings) {
       { title: "State", value: recordingState },
       { title: "Frames", value: (r) => (r.frame_count ? `${r.frame_count} × ${r.width_px}×${r.height_px} px, ${r.bit_depth} bit` : "–") },
       { title: "Size", value: (r) => formatBytes(r.size_bytes) },
+      { title: "", value: (r) => deleteButton(`recordings/${r.id}`, `recording ${r.id} ${r.filename}`, onDeleted) },
     ],
     recordings,
     { empty: "No recordings yet." },
@@ -139,7 +144,10 @@ function cameraForm(experimentId, onAdded) {
   const name = field("Camera name", h("input", { type: "text", required: true, maxlength: 100, placeholder: "left" }));
   const width = field("Image width (px)", h("input", { type: "number", required: true, min: 1, step: 1, value: 1024 }));
   const height = field("Image height (px)", h("input", { type: "number", required: true, min: 1, step: 1, value: 1024 }));
-  const pitch = field("Pixel pitch (µm)", h("input", { type: "number", required: true, min: 0.01, step: "any", value: 20 }));
+  const pitch = field("Pixel pitch u (µm)", h("input", { type: "number", required: true, min: 0.01, step: "any", value: 20 }),
+    "Along a row (the image's width). Data sheets give the pixel pitch (or pixel size, cell size) in µm: one number for square pixels, or horizontal × vertical = u × v.");
+  const pitchV = field("Pixel pitch v (µm)", h("input", { type: "number", min: 0.01, step: "any", placeholder: "as u" }),
+    "Along a column (the height); empty for square pixels. From a sensor size instead: pitch = sensor width (mm) × 1000 / width (px), and with the heights for v.");
   return h(
     "form",
     {
@@ -153,6 +161,7 @@ function cameraForm(experimentId, onAdded) {
             image_width_px: Number(width.input.value),
             image_height_px: Number(height.input.value),
             pixel_pitch_um: Number(pitch.input.value),
+            pixel_pitch_v_um: pitchV.input.value === "" ? null : Number(pitchV.input.value),
           });
           say(`Camera ${camera.name} added.`);
           name.input.value = "";
@@ -167,12 +176,14 @@ function cameraForm(experimentId, onAdded) {
     width.wrap,
     height.wrap,
     pitch.wrap,
+    pitchV.wrap,
     h("div", { class: "actions" }, h("button", { type: "submit" }, "Add camera")),
   );
 }
 
-/** A camera's box: its facts, its recordings (refreshed while any is busy) and an upload control. */
-function cameraSection(camera, context, onRecordingsChanged) {
+/** A camera's box: its facts, its recordings and an upload control. `refreshers` gets its refresh, which the
+ * page calls when the jobs' event stream says something changed (an ingest moved on: a recording's state). */
+function cameraSection(camera, context, onRecordingsChanged, refreshers) {
   const recordingsBox = h("div", {}, h("p", {}, "Loading…"));
   const kind = field(
     `Kind of the recordings to upload to ${camera.name}`,
@@ -187,13 +198,14 @@ function cameraSection(camera, context, onRecordingsChanged) {
     const signature = JSON.stringify(recordings.map((r) => [r.id, r.state, r.frame_count, r.warnings.length, r.filename]));
     if (signature !== shown) {
       shown = signature;
-      fill(recordingsBox, recordingsTable(camera, recordings));
+      fill(recordingsBox, recordingsTable(camera, recordings, refresh));
       onRecordingsChanged(camera, recordings);
     }
-    // Quickly while a recording is being checked; slowly otherwise, so that recordings uploaded by scripts or
-    // made by the demo appear too.
-    timer = setTimeout(refresh, recordings.some((r) => BUSY_STATES.includes(r.state)) ? 1500 : 5000);
+    // Each upload starts an ingest job, whose events refresh this list; a recording still uploading (no job
+    // yet) is looked at again in a moment.
+    if (recordings.some((r) => r.state === "uploading")) timer = setTimeout(refresh, 2000);
   };
+  refreshers.set(camera.id, refresh);
   context.onLeave(() => clearTimeout(timer));
   const uploader = new Uploader({
     endpoint: apiUrl("uploads"),
@@ -209,11 +221,14 @@ function cameraSection(camera, context, onRecordingsChanged) {
   return h(
     "section",
     { class: "card camera", "aria-label": `Camera ${camera.name}` },
-    h("h3", {}, `Camera ${camera.name}`),
+    h("div", { class: "camera-head" }, h("h3", {}, `Camera ${camera.name}`), deleteButton(`cameras/${camera.id}`, `camera ${camera.name}`, reshow)),
     h(
       "p",
       { class: "facts" },
-      `${camera.image_width_px} × ${camera.image_height_px} px, pixel pitch ${Number(camera.pixel_pitch_um.toPrecision(6))} µm`,
+      `${camera.image_width_px} × ${camera.image_height_px} px, pixel pitch `,
+      camera.pixel_pitch_v_um && camera.pixel_pitch_v_um !== camera.pixel_pitch_um
+        ? `${Number(camera.pixel_pitch_um.toPrecision(6))} × ${Number(camera.pixel_pitch_v_um.toPrecision(6))} µm (u × v)`
+        : `${Number(camera.pixel_pitch_um.toPrecision(6))} µm (square pixels)`,
     ),
     recordingsBox,
     h("div", { class: "upload-kind" }, kind.wrap),
@@ -229,7 +244,25 @@ export async function renderExperiment(container, { id }, context) {
   }
   const camerasBox = h("div", { class: "cameras" });
   const recordingsByCamera = new Map();
-  const jobs = jobsPanel({ experimentId: experiment.id, context, recordings: () => [...recordingsByCamera.values()].flat() });
+  const demoCameras = (context.query.get("demo") || "").split(",").filter(Boolean);
+  const demo = demoCameras.length ? new DemoProgress(demoCameras, Number(context.query.get("since")) || Date.now(), context) : null;
+  const refreshers = new Map(); // camera id → refresh of its recordings
+  const jobs = jobsPanel({
+    experimentId: experiment.id,
+    context,
+    recordings: () => [...recordingsByCamera.values()].flat(),
+    // The jobs' event stream drives this page: a job added, moving on or ending may mean new cameras or
+    // recordings (the demo's worker) or a recording's new state (its ingest).
+    onJobs: (items) => {
+      if (demo) demo.jobsChanged(items);
+      const signature = JSON.stringify(items.map((j) => [j.id, j.state]));
+      if (signature === lastJobs) return;
+      lastJobs = signature;
+      loadCameras();
+      for (const refresh of refreshers.values()) refresh();
+    },
+  });
+  let lastJobs = null;
   // Cameras made elsewhere (a script, the demo's worker) appear too: new ones are added, shown ones (and their
   // uploads in progress) stay as they are.
   const sections = new Map();
@@ -246,16 +279,23 @@ export async function renderExperiment(container, { id }, context) {
       const section = cameraSection(camera, context, (cam, recordings) => {
         recordingsByCamera.set(cam.id, recordings.map((r) => ({ ...r, camera_name: cam.name })));
         jobs.recordingsChanged();
-      });
+        if (demo) demo.recordingsChanged(cam, recordings);
+      }, refreshers);
       sections.set(camera.id, section);
       camerasBox.append(section);
     }
-    camerasTimer = setTimeout(loadCameras, 5000);
+    if (demo) demo.camerasChanged(cameras);
+    // The demo's worker adds its cameras before any of their jobs exist: look every second until they are all
+    // here. Otherwise new cameras come with jobs' events, or from this page's form.
+    if (demo && !demo.allCameras()) camerasTimer = setTimeout(loadCameras, 1000);
   };
   context.onLeave(() => clearTimeout(camerasTimer));
   page(
     container,
     experiment.name,
+    h("p", {}, deleteButton(`experiments/${experiment.id}`, `experiment ${experiment.name}`, () => {
+      window.location.hash = "#/experiments";
+    }, { small: false })),
     h(
       "dl",
       { class: "facts" },
@@ -268,8 +308,106 @@ export async function renderExperiment(container, { id }, context) {
       h("dt", {}, "Notes"),
       h("dd", {}, experiment.notes || "–"),
     ),
+    demo ? demo.element : null,
     h("section", { "aria-labelledby": "cameras-title" }, h("h2", { id: "cameras-title" }, "Cameras and recordings"), camerasBox, cameraForm(experiment.id, loadCameras)),
     jobs.element,
   );
   await loadCameras();
+}
+
+// ---- the demo's progress -------------------------------------------------------------------------------------------
+
+const DEMO_STEPS = [
+  ["camera", "camera added"],
+  ["simulated", "recordings simulated"],
+  ["ingested", "recordings checked"],
+  ["camera_calibration", "camera calibration"],
+  ["projector_calibration", "projector calibration"],
+  ["topography", "topography"],
+];
+
+/**
+ * What the demo's worker has done for each virtual camera, shown from the first second after the click (the
+ * simulation itself takes tens of seconds before anything else appears): a step list per camera with the time
+ * since the click, drawn from the cameras, recordings and jobs the page reads anyway.
+ */
+class DemoProgress {
+  constructor(cameras, since, context) {
+    this.names = cameras;
+    this.since = since;
+    this.state = Object.fromEntries(cameras.map((name) => [name, { camera: null, recordings: [], jobs: [] }]));
+    this.cameraIds = new Map();
+    this.list = h("ul", { class: "demo-steps", "aria-label": "Demo progress" });
+    this.clock = h("span", { class: "facts" });
+    this.title = h("span", {}, "Demo in progress ");
+    this.element = h("section", { class: "card demo-progress", "aria-labelledby": "demo-title" },
+      h("h2", { id: "demo-title" }, this.title, this.clock), this.list);
+    this.timer = setInterval(() => this.draw(), 1000);
+    context.onLeave(() => clearInterval(this.timer));
+    this.draw();
+  }
+
+  allCameras() {
+    return this.names.every((name) => this.state[name].camera);
+  }
+
+  camerasChanged(cameras) {
+    for (const camera of cameras) {
+      if (!this.state[camera.name]) continue;
+      this.state[camera.name].camera = camera;
+      this.cameraIds.set(camera.id, camera.name);
+    }
+    this.draw();
+  }
+
+  recordingsChanged(camera, recordings) {
+    if (this.state[camera.name]) this.state[camera.name].recordings = recordings;
+    this.draw();
+  }
+
+  jobsChanged(jobs) {
+    this.jobs = jobs;
+    this.draw();
+  }
+
+  /** [step, "done" | "doing" | "waiting" | "failed", detail] for one camera. */
+  steps(name) {
+    const { camera, recordings } = this.state[name];
+    const ids = new Set(recordings.map((r) => r.id));
+    const jobs = (this.jobs || []).filter((job) => ids.has(job.spec && job.spec.recording_id));
+    const jobOf = (kind) => jobs.find((job) => job.kind === kind);
+    const out = [];
+    let before = "done";
+    const push = (key, status, detail = "") => {
+      const shown = before === "done" ? status : "waiting";
+      out.push([key, shown, detail]);
+      before = shown;
+    };
+    push("camera", camera ? "done" : "doing");
+    push("simulated", recordings.length >= 3 ? "done" : "doing", recordings.length ? `${recordings.length} of 3` : "");
+    const ready = recordings.filter((r) => r.state === "ready").length;
+    const invalid = recordings.some((r) => r.state === "invalid");
+    push("ingested", invalid ? "failed" : recordings.length >= 3 && ready === recordings.length ? "done" : "doing", `${ready} of 3`);
+    for (const kind of ["camera_calibration", "projector_calibration", "topography"]) {
+      const job = jobOf(kind);
+      const status = !job ? "doing" : job.state === "succeeded" ? "done" : ["failed", "cancelled"].includes(job.state) ? "failed" : "doing";
+      const percent = job && job.progress && Number.isFinite(job.progress.fraction) ? `${Math.floor(100 * job.progress.fraction)} %` : "";
+      push(kind, status, job && status === "doing" ? percent : "");
+    }
+    return out;
+  }
+
+  draw() {
+    const seconds = Math.max(0, Math.round((Date.now() - this.since) / 1000));
+    const finished = this.names.every((name) => this.steps(name).every(([, status]) => status === "done"));
+    this.title.textContent = finished ? "Demo done " : "Demo in progress ";
+    this.clock.textContent = finished ? `· in about ${seconds} s` : `· ${seconds} s since the click`;
+    if (finished) clearInterval(this.timer);
+    const labels = Object.fromEntries(DEMO_STEPS);
+    const mark = { done: "✓", doing: "…", waiting: "·", failed: "✗" };
+    fill(this.list, this.names.map((name) => h("li", {}, h("strong", {}, `Camera ${name}: `),
+      this.steps(name).map(([key, status, detail], i) => [i ? " → " : "",
+        h("span", { class: `demo-step demo-${status}`, "data-step": key, "data-status": status },
+          `${mark[status]} ${labels[key]}${detail ? ` (${detail})` : ""}`)]))));
+  }
 }

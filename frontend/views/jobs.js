@@ -3,6 +3,8 @@
 // its files and links to its report or viewer.
 import { getJSON, postJSON, query, subscribe } from "../api.js";
 import { specInputs } from "../specform.js";
+import { exportPanel } from "./exports.js";
+import { deleteButton } from "./deletion.js";
 import { attempt, field, fill, formatBytes, formatDuration, formatTime, h, page, say, showError, table } from "../ui.js";
 
 export const JOB_KIND_NAMES = {
@@ -14,15 +16,22 @@ export const JOB_KIND_NAMES = {
   selftest: "Self-test",
 };
 const ACTIVE = ["queued", "running"];
-const MAX_STREAMS = 3; // a browser keeps 6 connections per server: leave room for the page's own requests
+const MAX_STREAMS = 2; // a browser keeps 6 connections per server: the list's own stream, uploads and requests need the rest
 
 export const shortId = (id) => id.slice(0, 8);
 export const jobName = (job) => `${JOB_KIND_NAMES[job.kind] || job.kind} ${shortId(job.id)}`;
 const isActive = (job) => ACTIVE.includes(job.state) || job.stopping;
 
-/** Where a finished job's results are shown. */
+/** Download links of a succeeded job's files (an export's files, wherever the job is listed). */
+export function downloadLinks(job) {
+  if (job.state !== "succeeded" || !job.files || !job.files.length) return null;
+  return job.files.map((file, i) => [i ? " " : "", h("a", { href: file.url, download: file.name, class: "download" }, `Download ${file.name}`)]);
+}
+
+/** Where a finished job's results are shown: its report, its viewer, or (an export) its files. */
 export function resultLink(job) {
   if (job.state !== "succeeded") return null;
+  if (job.kind === "export") return downloadLinks(job);
   if (job.kind === "camera_calibration" || job.kind === "projector_calibration") {
     return h("a", { href: `#/jobs/${job.id}/report` }, "Calibration report");
   }
@@ -72,8 +81,9 @@ export class JobProgress {
     const percent = job.state === "succeeded" ? 100 : p.fraction !== null && p.fraction !== undefined ? Math.floor(p.fraction * 100) : null;
     const parts = [];
     if (percent !== null) parts.push(`${percent} %`);
-    if (p.stage) parts.push(p.stage);
-    if (p.total) parts.push(`${p.done}/${p.total}`);
+    // The stage and the count say what a running job is doing; a finished one is not "writing" any more.
+    if (p.stage && isActive(job)) parts.push(p.stage);
+    if (p.total && isActive(job)) parts.push(`${p.done}/${p.total}`);
     if (isActive(job) && p.eta_s !== null && p.eta_s !== undefined) parts.push(`${formatDuration(p.eta_s)} left`);
     if (!isActive(job) && job.duration_s !== null && job.duration_s !== undefined) parts.push(`took ${formatDuration(job.duration_s)}`);
     this.text.textContent = parts.join(" · ");
@@ -117,8 +127,9 @@ export function followJob(jobId, { onJob, onLog = () => {}, onEnd = () => {} }) 
 // ---- the list of jobs (of an experiment, or all) ------------------------------------------------------------------
 
 /**
- * A table of jobs that stays live: active jobs follow their event streams (at most MAX_STREAMS at once; the rest,
- * and jobs started elsewhere, are picked up by a slower poll of the list).
+ * A table of jobs that stays live without polling: the list's event stream (GET /jobs/events) says when a job is
+ * added, moves on, ends or goes, and the list is read again then; active jobs also follow their own streams (at
+ * most MAX_STREAMS at once) for their progress and log.
  */
 export class JobList {
   constructor({ experimentId = null, context, label = "Jobs", onRefresh = () => {} }) {
@@ -133,30 +144,45 @@ export class JobList {
     this.table = h(
       "table",
       { "aria-label": label, class: "jobs", hidden: true },
-      h("thead", {}, h("tr", {}, ["Job", "Input", "Progress", "Started", "Results"].map((t) => h("th", { scope: "col" }, t)))),
+      h("thead", {}, h("tr", {}, ["Job", "Input", "Progress", "Started", "Results", ""].map((t) => h("th", { scope: "col" }, t)))),
       this.tbody,
     );
     this.element = h("div", {}, this.empty, this.table);
     this.timer = null;
+    this.closeList = null;
     context.onLeave(() => this.stop());
   }
 
   stop() {
     clearTimeout(this.timer);
+    if (this.closeList) this.closeList();
     for (const close of this.streams.values()) close();
     this.streams.clear();
   }
 
+  /** Read the list again whenever the jobs' event stream says something changed (at most every 500 ms). */
+  listen() {
+    if (this.closeList) return;
+    this.closeList = subscribe(`jobs/events${query({ experiment_id: this.experimentId })}`, {
+      jobs: () => {
+        if (this.timer) return;
+        this.timer = setTimeout(() => {
+          this.timer = null;
+          this.refresh();
+        }, 500);
+      },
+    });
+  }
+
   async refresh() {
-    clearTimeout(this.timer);
     const jobs = await attempt("list the jobs", () => getJSON(`jobs${query({ experiment_id: this.experimentId, limit: 200 })}`));
     if (!this.context.current()) return;
     if (jobs) {
+      this.latest = jobs.items;
       this.show(jobs.items.filter((job) => job.kind !== "ingest" || isActive(job)));
       this.onRefresh(jobs.items);
     }
-    const anyActive = jobs && jobs.items.some(isActive);
-    this.timer = setTimeout(() => this.refresh(), anyActive ? 2000 : 10000);
+    this.listen();
   }
 
   show(jobs) {
@@ -168,6 +194,7 @@ export class JobList {
       if (!entry) {
         const progress = new JobProgress(job, { onRetried: () => this.refresh() });
         const results = h("td");
+        const actions = h("td");
         const row = h(
           "tr",
           { "data-job": job.id },
@@ -176,12 +203,18 @@ export class JobList {
           h("td", {}, progress.element),
           h("td", {}, formatTime(job.created_at)),
           results,
+          actions,
         );
-        entry = { progress, row, results };
+        entry = { progress, row, results, actions };
         this.rows.set(job.id, entry);
       }
       if (!this.streams.has(job.id)) entry.progress.update(job);
       fill(entry.results, resultLink(entry.progress.job));
+      // Finished jobs can go (with their results); a queued or running one is cancelled first.
+      fill(entry.actions, isActive(entry.progress.job) ? null : deleteButton(`jobs/${job.id}`, jobName(job), () => {
+        this.rows.delete(job.id);
+        this.refresh();
+      }));
       ordered.push(entry.row);
       if (isActive(job) && !this.streams.has(job.id) && this.streams.size < MAX_STREAMS) this.follow(job.id, entry);
     }
@@ -193,6 +226,11 @@ export class JobList {
       onJob: (job) => {
         entry.progress.update(job);
         fill(entry.results, resultLink(job));
+        // Who listens to the list hears of each live change too, not only of the next refresh.
+        if (this.latest) {
+          this.latest = this.latest.map((known) => (known.id === job.id ? job : known));
+          this.onRefresh(this.latest);
+        }
       },
       onEnd: () => {
         this.streams.delete(jobId);
@@ -253,8 +291,30 @@ export function jobForm({ recordings, calibrations, onStarted }) {
     fill(select, items.length ? items.map((item) => h("option", { value: item.id }, item.label)) : h("option", { value: "" }, emptyText));
     if (items.some((item) => String(item.id) === previous)) select.value = previous;
   };
+  const boardNote = h("p", { class: "hint wide-row", "aria-label": "Where the board comes from" });
+  /** A camera calibration's board, prefilled from the recording's board.json when it has a readable one. */
+  let prefilledFor = null; // the recording (and kind) last prefilled: a later refresh keeps what the user typed
+  const prefillBoard = (chosen) => {
+    const key = chosen ? `${kind.input.value}:${chosen.id}:${JSON.stringify(chosen.sidecars || {})}` : null;
+    if (key === prefilledFor) return;
+    prefilledFor = key;
+    boardNote.textContent = "";
+    if (!current || kind.input.value !== "camera_calibration" || !chosen) return;
+    const board = chosen.sidecars && chosen.sidecars["board.json"];
+    if (board && Number.isInteger(board.cols)) {
+      current.set({ board: { cols: board.cols, rows: board.rows, square_mm: board.square_mm, origin: board.origin } });
+      boardNote.textContent = `Board from the recording's board.json: ${board.cols} × ${board.rows} inner corners, ${board.square_mm} mm squares; change it here if it is wrong.`;
+    } else {
+      current.set({ board: null });
+      boardNote.textContent = board && board.error
+        ? `The recording's board.json could not be read (${board.error}): give the board here (tick Board).`
+        : "The recording has no board.json: give the board here (tick Board), or add board.json on the recording's page.";
+    }
+    showSpec();
+  };
   const refreshCalibrations = async () => {
     const chosen = recordings().find((r) => String(r.id) === pickers.recording_id.select.value);
+    prefillBoard(chosen);
     if (chosen) {
       const [cameraCals, projectorCals] = await Promise.all([calibrations(chosen.camera_id, "camera"), calibrations(chosen.camera_id, "projector")]);
       options(pickers.camera_calibration_id.select, cameraCals, "no camera calibration yet");
@@ -285,8 +345,9 @@ export function jobForm({ recordings, calibrations, onStarted }) {
     busy(async () => {
       try {
         current = await specInputs(kind.input.value, pickers);
+        prefilledFor = null;
         about.textContent = current.description;
-        inputs.replaceChildren(...current.elements);
+        inputs.replaceChildren(...current.elements, boardNote);
         for (const picker of Object.values(pickers)) picker.select.closest(".field")?.classList.add("wide");
         await refreshRecordings();
       } catch (error) {
@@ -340,7 +401,7 @@ async function calibrationsOf(experimentId, cameraId, kind) {
 }
 
 /** The jobs section of an experiment page: the live list and the form. */
-export function jobsPanel({ experimentId, context, recordings }) {
+export function jobsPanel({ experimentId, context, recordings, onJobs = () => {} }) {
   let form = null;
   let succeeded = -1;
   const list = new JobList({
@@ -349,6 +410,7 @@ export function jobsPanel({ experimentId, context, recordings }) {
     label: "Jobs of this experiment",
     // A calibration that has just succeeded becomes a choice of the form.
     onRefresh: (jobs) => {
+      onJobs(jobs);
       const now = jobs.filter((job) => job.state === "succeeded").length;
       if (now !== succeeded && form) form.refresh();
       succeeded = now;
@@ -406,6 +468,9 @@ function chunksView(chunks) {
 function logLine(line) {
   return h("div", { class: `log-${line.level}` }, `${formatTime(line.at)}  ${line.level.padEnd(7)} ${line.message}`);
 }
+
+/** [first, …, last] frame numbers from a result's [first, last]. */
+const rangeOf = ([first, last]) => Array.from({ length: last - first + 1 }, (_, i) => first + i);
 
 export async function renderJob(container, { id }, context) {
   const job = await attempt("open the job", () => getJSON(`jobs/${id}`));
@@ -466,6 +531,9 @@ export async function renderJob(container, { id }, context) {
   page(
     container,
     jobName(job),
+    isActive(job) ? null : h("p", {}, deleteButton(`jobs/${job.id}`, jobName(job), () => {
+      window.location.hash = job.experiment_id ? `#/experiments/${job.experiment_id}` : "#/jobs";
+    }, { small: false })),
     progress.element,
     links,
     facts,
@@ -474,6 +542,9 @@ export async function renderJob(container, { id }, context) {
     h("details", { class: "spec-box" }, h("summary", {}, "Spec and provenance"), h("pre", {}, JSON.stringify({ spec: job.spec, provenance: job.provenance }, null, 2))),
     h("h2", {}, "Files"),
     files,
+    job.kind === "topography" && job.state === "succeeded" && job.result && Array.isArray(job.result.frames)
+      ? exportPanel(job, { frames: rangeOf(job.result.frames), context }).element
+      : null,
     h("h2", {}, "Log"),
     logBox,
   );

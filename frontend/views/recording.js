@@ -1,8 +1,8 @@
 // A recording: its facts, the QA warnings (each naming its frames), a frame scrubber over the previews, and the
 // per-frame QA (grey level, saturation, contrast, board detection) with the current frame marked.
-import { apiUrl, getJSON } from "../api.js";
+import { apiUrl, getJSON, putText } from "../api.js";
 import { Figure, axis, lineLayout, lineTraces, verticalMarker } from "../plots.js";
-import { attempt, formatBytes, formatTime, h, page } from "../ui.js";
+import { attempt, field, formatBytes, formatTime, h, page, say, showError } from "../ui.js";
 import { KIND_NAMES } from "./experiments.js";
 
 const BOARD_TEXT = { true: "board found", false: "board NOT found", null: "board not checked" };
@@ -14,12 +14,67 @@ function facts(recording) {
     ["File", `${recording.filename} (${recording.format || "?"}, ${formatBytes(recording.size_bytes)})`],
     ["Frames", recording.frame_count ? `${recording.frame_count} × ${recording.width_px}×${recording.height_px} px, ${recording.bit_depth} bit` : "–"],
     ["Frame rate", recording.fps ? `${recording.fps} frames/s` : "–"],
-    ["Sidecars", Object.keys(recording.sidecars || {}).join(", ") || "none"],
+    ["Sidecars", Object.entries(recording.sidecars || {}).map(([name, found]) => (found && found.error ? `${name} (unreadable)` : name)).join(", ") || "none"],
     ["SHA-256", h("code", {}, recording.sha256 || "–")],
     ["Uploaded", formatTime(recording.created_at)],
   ];
   if (recording.duplicate_of) rows.push(["Same bytes as", h("a", { href: `#/recordings/${recording.duplicate_of}` }, `recording ${recording.duplicate_of}`)]);
   return h("dl", { class: "facts" }, rows.map(([term, value]) => [h("dt", {}, term), h("dd", {}, value)]));
+}
+
+const SIDECARS = {
+  "z.csv": "z.csv: the stage Z of each frame (frame,z_mm)",
+  "frames.csv": "frames.csv: the test log (frame,time_s,punch_displacement_mm,force_kN)",
+  "board.json": 'board.json: the chessboard ({"cols": 9, "rows": 6, "square_mm": 25})',
+};
+
+/** Add or replace a sidecar (PUT .../sidecars/{name}); the ingest runs again and the page shows its outcome. */
+function sidecarForm(recording, context) {
+  const name = field("Sidecar", h("select", {}, Object.entries(SIDECARS).map(([value, text]) => h("option", { value }, text))));
+  const file = field("Sidecar file", h("input", { type: "file", accept: ".csv,.json,text/plain,application/json" }));
+  const submit = h("button", { type: "submit" }, "Replace the sidecar");
+  const outcome = h("p", { class: "hint", "aria-live": "polite" });
+  const settle = async () => {
+    for (let i = 0; i < 240 && context.current(); i += 1) {
+      const now = await getJSON(`recordings/${recording.id}`);
+      if (!["ingesting", "uploading"].includes(now.state)) return now;
+      await new Promise((resolve) => setTimeout(resolve, 500));
+    }
+    return null;
+  };
+  return h(
+    "form",
+    {
+      class: "card grid-form",
+      "aria-label": "Replace a sidecar",
+      onsubmit: async (event) => {
+        event.preventDefault();
+        const chosen = file.input.files[0];
+        if (!chosen) return showError("choose the file first", "replace the sidecar");
+        submit.disabled = true;
+        try {
+          await putText(`recordings/${recording.id}/sidecars/${name.input.value}`, await chosen.text());
+          outcome.textContent = `${name.input.value} stored; checking the recording again…`;
+          const now = await settle();
+          if (now && context.current()) {
+            // Shown again first (a new view clears the status line), then the outcome is said.
+            window.dispatchEvent(new HashChangeEvent("hashchange"));
+            say(`${name.input.value} replaced: the recording is ${now.state}.`);
+          }
+        } catch (error) {
+          showError(error, `replace ${name.input.value}`);
+        } finally {
+          submit.disabled = false;
+        }
+      },
+    },
+    h("h2", {}, "Sidecars"),
+    h("p", { class: "hint wide-row" }, "A sidecar stored here wins over one inside the recording's ZIP; the frames are checked again with it."),
+    name.wrap,
+    file.wrap,
+    h("div", { class: "actions" }, submit),
+    outcome,
+  );
 }
 
 export async function renderRecording(container, { id }, context) {
@@ -29,7 +84,10 @@ export async function renderRecording(container, { id }, context) {
   if (recording.state !== "ready") {
     page(container, `Recording ${recording.id}: ${recording.filename}`, back, facts(recording),
       h("p", { class: recording.state === "invalid" ? "bad" : "busy" },
-        recording.state === "invalid" ? "This recording cannot be used; upload it again once the reason above is fixed." : "Its frames are being checked; reload in a moment."));
+        recording.state === "invalid"
+          ? "This recording cannot be used as it is. When the reason above is a sidecar (z.csv, frames.csv, board.json), replace it below; else upload the recording again."
+          : "Its frames are being checked; reload in a moment."),
+      recording.state === "invalid" ? sidecarForm(recording, context) : null);
     return;
   }
   const qa = await attempt("read the recording's QA", () => getJSON(`recordings/${id}/qa`));
@@ -144,8 +202,10 @@ export async function renderRecording(container, { id }, context) {
     h("div", { class: "two-columns" },
       h("div", {}, facts(recording),
         h("h2", {}, "QA warnings"),
-        recording.warnings.length ? warnings : h("p", { class: "ok" }, "No warnings."),
-        recording.notes.length ? h("ul", { class: "notes" }, recording.notes.map((n) => h("li", {}, n))) : null),
+        recording.warnings.length ? warnings : h("p", { class: "ok" }, "No QA warnings."),
+        // Notes are facts about the file (a duplicate, colour converted to grey), not warnings: a heading of
+        // their own, so that "No QA warnings" is never followed by something that reads like one.
+        recording.notes.length ? [h("h2", {}, "Notes"), h("ul", { class: "notes", "aria-label": "Notes" }, recording.notes.map((n) => h("li", {}, n)))] : null),
       h("section", { "aria-label": "Frames", class: "scrubber-box" },
         h("div", { class: "frame-box" }, image),
         h("div", { class: "scrubber-row" }, stepButton("Previous frame", -1), slider, stepButton("Next frame", 1), number),
@@ -153,6 +213,7 @@ export async function renderRecording(container, { id }, context) {
         boardStrip),
     ),
     qaFrames ? qaFigure.element : null,
+    sidecarForm(recording, context),
   );
   context.onLeave(() => qaFigure.purge());
   if (qaFrames) await qaFigure.react(qaTraces(), qaLayout());

@@ -55,7 +55,9 @@ export class TopographySource {
       x: axisFrom(headers.get("X-Grid-X-mm"), nx),
       y: axisFrom(headers.get("X-Grid-Y-mm"), ny),
       z: Array.from({ length: ny }, (_, j) => values.subarray(j * nx, (j + 1) * nx)),
+      // step: result-grid nodes per side of one shown node (1: the result grid itself); stepMm: their spacing.
       step: Number(headers.get("X-Grid-Step") || 1),
+      stepMm: Number(headers.get("X-Grid-X-mm").split(",")[1]),
     };
   }
 

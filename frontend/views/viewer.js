@@ -6,6 +6,8 @@ import { getJSON } from "../api.js";
 import {
   COLORS,
   Figure,
+  fieldRange,
+  resampleField,
   MARK_COLORS,
   axis,
   fieldRows,
@@ -20,6 +22,7 @@ import {
 } from "../plots.js";
 import { attempt, field, fill, h, num, page, say, showError } from "../ui.js";
 import { TopographySource } from "./topography-source.js";
+import { exportPanel } from "./exports.js";
 import { jobName } from "./jobs.js";
 
 const LINE_LABELS = "ABCDEFGHIJKLMNOPQRSTUVWXYZ";
@@ -64,6 +67,18 @@ export async function renderViewer(container, { id }, context) {
     window.fringelab.viewer = null;
   });
   await viewer.start();
+}
+
+/** y at x by linear interpolation between the samples (xs increasing); NaN outside them or next to a gap. */
+function interpolate(xs, ys, x) {
+  if (!Number.isFinite(x)) return NaN;
+  for (let i = 0; i + 1 < xs.length; i += 1) {
+    if (x >= xs[i] && x <= xs[i + 1]) {
+      const f = xs[i + 1] === xs[i] ? 0 : (x - xs[i]) / (xs[i + 1] - xs[i]);
+      return ys[i] * (1 - f) + ys[i + 1] * f;
+    }
+  }
+  return xs.length === 1 && xs[0] === x ? ys[0] : NaN;
 }
 
 class Viewer {
@@ -146,6 +161,10 @@ class Viewer {
     this.surfaceFigure.element.id = "field-surface";
     this.mapFigure.element.setAttribute("role", "tabpanel");
     this.surfaceFigure.element.setAttribute("role", "tabpanel");
+    // Off: one colour range for every frame (the whole test's); on: the range of what is in view, so that a
+    // zoomed area is not one colour.
+    this.viewRangeBox = h("input", { type: "checkbox", id: "view-colour-range" });
+    this.viewRangeBox.addEventListener("change", () => this.drawField());
     this.fullRes = h("input", { type: "checkbox", id: "full-resolution" });
     this.fullRes.addEventListener("change", () => {
       this.fullResolution = this.fullRes.checked;
@@ -199,10 +218,12 @@ class Viewer {
     this.compareSelect.addEventListener("change", () => this.loadComparison());
     this.compareWhat = h("select", { id: "compare-what" },
       h("option", { value: "peak" }, "peak deflection over time"),
-      h("option", { value: "profile" }, "profile along the first section line, this frame"));
+      h("option", { value: "profile" }, "profile along the first section line, this frame"),
+      h("option", { value: "map" }, "difference map, this frame"));
     this.compareWhat.addEventListener("change", () => this.drawComparison());
-    this.compareFigure = new Figure({ name: "Camera against camera", filename: `topography-${this.job.id.slice(0, 8)}-cameras`, height: 340, csv: () => this.compareCSV() });
+    this.compareFigure = new Figure({ name: "Camera against camera", filename: `topography-${this.job.id.slice(0, 8)}-cameras`, height: 420, csv: () => this.compareCSV() });
 
+    this.exports = exportPanel(this.job, { frames: this.frames, lines: () => this.lines, context: this.context });
     const m = this.meta;
     this.element = h(
       "div",
@@ -221,7 +242,9 @@ class Viewer {
       this.frameFacts,
       h("div", { class: "plot-grid" },
         h("div", {},
-          h("div", { class: "tabs", role: "tablist", "aria-label": "Field view" }, this.tabs.map, this.tabs.surface,
+          h("div", { class: "tabs" },
+            h("div", { class: "tab-list", role: "tablist", "aria-label": "Field view" }, this.tabs.map, this.tabs.surface),
+            h("label", { class: "check" }, this.viewRangeBox, " Colour range of this view"),
             h("label", { class: "check" }, this.fullRes, " Full resolution for the zoomed region")),
           this.mapFigure.element,
           this.surfaceFigure.element,
@@ -242,7 +265,9 @@ class Viewer {
         h("div", { class: "compare-controls" },
           h("div", { class: "field inline" }, h("label", { for: "compare-with" }, "Compare with the topography of"), this.compareSelect),
           h("div", { class: "field inline" }, h("label", { for: "compare-what" }, "Compare"), this.compareWhat)),
+        (this.compareStats = h("p", { class: "facts", "aria-label": "Difference between the cameras" })),
         this.compareFigure.element)),
+      this.exports.element,
     );
   }
 
@@ -260,11 +285,14 @@ class Viewer {
     this.frameNumber.value = this.frames[start];
     this.drawChips();
     await this.showFrame(start);
+    // Left already (the page changed while the first frame loaded): nothing to listen to.
+    if (!this.context.current() || !this.mapFigure.drawn) return;
     // Plotly adds its event methods to the plot once it has drawn it.
     listenToMap(this.mapFigure, { onLine: (line) => this.addLine(line), onPoint: (point) => this.addPoint(point) });
     this.mapFigure.plot.on("plotly_relayout", (update) => {
       const zoomed = Object.keys(update).some((key) => key.startsWith("xaxis.") || key.startsWith("yaxis."));
       if (zoomed && this.fullResolution) this.redraw(); // fetch the new window at full resolution
+      else if (zoomed && this.viewRangeBox.checked) this.drawField(); // the colours follow the zoom
     });
     await this.drawPeak();
     this.findOtherCameras();
@@ -391,16 +419,32 @@ class Viewer {
   /** Only the visible view is drawn on a frame switch; the other catches up when its tab is chosen. */
   drawField() {
     if (!this.current) return null;
-    const range = this.colorRange;
+    const own = this.viewRangeBox.checked;
+    // The map's view is its zoom window; the surface shows the whole frame.
+    const range = own ? fieldRange(this.current, this.fieldView === "map" ? this.zoomRegion() : null) || this.colorRange : this.colorRange;
+    this.shownColorRange = range;
+    const rangeNote = own ? ", this view" : "";
     if (this.fieldView === "surface") {
-      return this.surfaceFigure.react(surfaceTraces(this.current, { range }), surfaceLayout({ zRange: this.meta.w_range_mm }));
+      return this.surfaceFigure.react(surfaceTraces(this.current, { range, rangeNote }), surfaceLayout({ zRange: this.meta.w_range_mm }));
     }
     const lines = this.lines.map((line) => ({ ...line }));
-    return this.mapFigure.react(mapTraces(this.current, { range, points: this.points }), mapLayout({ lines }));
+    return this.mapFigure.react(mapTraces(this.current, { range, points: this.points, rangeNote }), mapLayout({ lines }));
+  }
+
+  /** Which grid the numbers of a field come from: the result's own, or the display grid of block averages. */
+  gridOf(field) {
+    const resultStep = this.meta.grid.step_mm;
+    if (!field || field.step === 1) return { grid: "result", step_mm: resultStep, name: `result-grid-${num(resultStep, 2)}mm` };
+    return { grid: `display (${field.step} × ${field.step} block averages of the ${num(resultStep, 2)} mm result grid)`, step_mm: field.stepMm, name: `display-grid-${num(field.stepMm, 2)}mm` };
   }
 
   fieldCSV() {
-    return { columns: ["frame", "x_mm", "y_mm", "w_mm"], rows: fieldRows(this.current).map((row) => [this.frame, ...row]) };
+    const grid = this.gridOf(this.current);
+    return {
+      filename: `topography-${this.job.id.slice(0, 8)}-frame${this.frame}-${grid.name}`,
+      columns: ["frame", "x_mm", "y_mm", "w_mm", "grid", "grid_step_mm"],
+      rows: fieldRows(this.current).map((row) => [this.frame, ...row, grid.grid, grid.step_mm]),
+    };
   }
 
   // ---- section lines and their profiles --------------------------------------------------------------------
@@ -427,6 +471,7 @@ class Viewer {
   }
 
   drawChips() {
+    if (this.exports) this.exports.describe();
     const chip = (text, color, remove, name) =>
       h("li", {}, h("span", { class: "swatch", style: `background:${color}` }), text,
         h("button", { type: "button", class: "link", "aria-label": `Remove ${name}`, onclick: remove }, "×"));
@@ -469,7 +514,9 @@ class Viewer {
     for (const { line, frame, profile } of this.shownProfiles || []) {
       for (let i = 0; i < profile.s.length; i += 1) rows.push([line.label, frame, profile.s[i], profile.x[i], profile.y[i], profile.w[i]]);
     }
-    return { columns: ["line", "frame", "s_mm", "x_mm", "y_mm", "w_mm"], rows };
+    // Profiles are sampled (bilinear) from the result grid on the server, whatever the map shows.
+    const step = this.meta.grid.step_mm;
+    return { columns: ["line", "frame", "s_mm", "x_mm", "y_mm", "w_mm", "grid", "grid_step_mm"], rows: rows.map((r) => [...r, "result", step]) };
   }
 
   // ---- points and their histories -------------------------------------------------------------------------
@@ -524,7 +571,8 @@ class Viewer {
     for (const p of this.points.filter((q) => q.history)) {
       p.history.frame.forEach((frame, i) => rows.push([p.label, p.x, p.y, frame, p.history.time_s[i], p.history.w[i]]));
     }
-    return { columns: ["point", "x_mm", "y_mm", "frame", "time_s", "w_mm"], rows };
+    const step = this.meta.grid.step_mm;
+    return { columns: ["point", "x_mm", "y_mm", "frame", "time_s", "w_mm", "grid", "grid_step_mm"], rows: rows.map((r) => [...r, "result", step]) };
   }
 
   // ---- peak against punch and force; cameras --------------------------------------------------------------
@@ -550,8 +598,8 @@ class Viewer {
   peakCSV() {
     const m = this.meta.frames;
     return {
-      columns: ["frame", "time_s", "punch_displacement_mm", "force_kN", "peak_w_mm"],
-      rows: this.frames.map((frame, i) => [frame, m.time_s[i], m.punch_displacement_mm[i], m.force_kN[i], m.peak_w_mm[i]]),
+      columns: ["frame", "time_s", "punch_displacement_mm", "force_kN", "peak_w_mm", "grid", "grid_step_mm"],
+      rows: this.frames.map((frame, i) => [frame, m.time_s[i], m.punch_displacement_mm[i], m.force_kN[i], m.peak_w_mm[i], "result", this.meta.grid.step_mm]),
     };
   }
 
@@ -592,42 +640,111 @@ class Viewer {
     return other.frames.index[best];
   }
 
-  /** Both cameras: peak deflection against time (or frame), or the first line's profile at this instant. */
+  /**
+   * Both cameras: peak deflection against time (or frame), or the first line's profile at this instant, each with
+   * the difference (this − other) on a second axis; or the difference map of this frame. Line styles differ
+   * (solid, dashed with other markers, dotted difference) so that curves that coincide are still both seen.
+   */
   async drawComparison() {
     const other = this.comparison && this.comparison.meta ? this.comparison : null;
+    const mine = this.label || "this camera";
+    const styles = {
+      mine: { color: COLORS[0], dash: "solid" },
+      theirs: { color: COLORS[1], dash: "dash" },
+      difference: { color: "#111111", dash: "dot", yaxis: "y2" },
+    };
+    const differenceAxis = axis("difference w (this − other)", "mm");
+    const show = (series, differences, xAxis, yAxis, extra = {}) => {
+      const traces = lineTraces(series);
+      traces.forEach((trace, i) => {
+        if (i === 1) trace.marker = { size: 7, symbol: "x" };
+      });
+      const finite = differences.filter(Number.isFinite);
+      const rms = finite.length ? Math.sqrt(finite.reduce((a, d) => a + d * d, 0) / finite.length) : NaN;
+      this.compareStats.textContent = other
+        ? `Difference this − other: RMS ${num(rms, 3)} mm, largest ${num(finite.length ? Math.max(...finite.map(Math.abs)) : NaN, 3)} mm over ${finite.length} points where both measured.`
+        : "Choose another camera to see the difference.";
+      return this.compareFigure.react(traces, { ...lineLayout({ xAxis, yAxis, y2Axis: other ? differenceAxis : null, ...extra }), uirevision: this.compareWhat.value });
+    };
+    if (this.compareWhat.value === "map") return this.drawDifferenceMap(other);
+    if (this.compareWhat.value === "profile" && !this.lines.length) {
+      this.comparedSeries = null;
+      this.compareStats.textContent = "";
+      return this.compareFigure.react([], { ...lineLayout({ xAxis: axis("distance along the line", "mm"), yAxis: axis("deflection w", "mm"), note: "Draw a section line on the map first" }), uirevision: "profile" });
+    }
     if (this.compareWhat.value === "profile" && this.lines.length) {
       const line = this.lines[0];
-      const [mine] = await this.source.profiles([this.frame], line);
-      const series = [{ name: `${this.label || "this camera"}, frame ${this.frame}`, x: mine.s, y: mine.w, color: COLORS[0] }];
+      const [ours] = await this.source.profiles([this.frame], line);
+      const series = [{ name: `${mine}, frame ${this.frame}`, x: ours.s, y: ours.w, ...styles.mine }];
+      let differences = [];
       const frame = other ? this.otherFrame(other.meta) : null;
       if (frame !== null) {
         const [theirs] = await other.source.profiles([frame], line);
-        series.push({ name: `${other.label}, frame ${frame}`, x: theirs.s, y: theirs.w, color: COLORS[1] });
+        // Both profiles are sampled at the same points of the same line: subtract point by point.
+        differences = ours.w.map((w, i) => w - theirs.w[i]);
+        series.push({ name: `${other.label}, frame ${frame}`, x: theirs.s, y: theirs.w, mode: "lines+markers", ...styles.theirs });
+        series.push({ name: "difference (this − other)", x: ours.s, y: differences, ...styles.difference });
       }
-      this.comparedSeries = { columns: ["camera", "s_mm", "w_mm"], series };
-      return this.compareFigure.react(lineTraces(series), lineLayout({ xAxis: axis(`distance along line ${line.label}`, "mm"), yAxis: axis("deflection w", "mm") }));
+      this.comparedSeries = { columns: ["series", "s_mm", "w_mm", "grid", "grid_step_mm"], series, grid: "result" };
+      return show(series, differences, axis(`distance along line ${line.label}`, "mm"), axis("deflection w", "mm"));
     }
     const time = this.timeAxis();
-    const series = [{ name: this.label || "this camera", x: time.values, y: this.meta.frames.peak_w_mm, color: COLORS[0], mode: "lines+markers" }];
+    const series = [{ name: mine, x: time.values, y: this.meta.frames.peak_w_mm, mode: "lines+markers", ...styles.mine }];
+    let differences = [];
     if (other) {
       const t = other.meta.frames.time_s;
-      series.push({
-        name: other.label,
-        x: time.key === "time" && t.every(Number.isFinite) ? t.map((v) => v * time.scale) : other.meta.frames.index,
-        y: other.meta.frames.peak_w_mm,
-        color: COLORS[1],
-        mode: "lines+markers",
-      });
+      const byTime = time.key === "time" && t.every(Number.isFinite);
+      const x = byTime ? t.map((v) => v * time.scale) : other.meta.frames.index;
+      const y = other.meta.frames.peak_w_mm;
+      series.push({ name: other.label, x, y, mode: "lines+markers", ...styles.theirs });
+      // The other camera's peak at this camera's instants (linear in time; by frame number without times).
+      differences = time.values.map((v, i) => this.meta.frames.peak_w_mm[i] - interpolate(x, y, v));
+      series.push({ name: "difference (this − other)", x: time.values, y: differences, ...styles.difference });
     }
-    this.comparedSeries = { columns: ["camera", time.key === "time" ? `time_${time.unit}` : "frame", "peak_w_mm"], series };
-    const traces = lineTraces(series);
-    return this.compareFigure.react(traces, lineLayout({ xAxis: time.title, yAxis: axis("peak deflection w", "mm"), shapes: [verticalMarker(time.values[this.position])] }));
+    this.comparedSeries = { columns: ["series", time.key === "time" ? `time_${time.unit}` : "frame", "peak_w_mm", "grid", "grid_step_mm"], series, grid: "result" };
+    await show(series, differences, time.title, axis("peak deflection w", "mm"), { shapes: [verticalMarker(time.values[this.position])] });
+    // Each peak is the largest w over that camera's own measured area: say so, since areas differ.
+    if (other) this.compareStats.append(" Each peak is taken over that camera's own measured area; the difference map compares the same points.");
+    return null;
+  }
+
+  /** This frame's field minus the other camera's (its frame nearest in time), on this field's nodes. */
+  async drawDifferenceMap(other) {
+    const frame = other ? this.otherFrame(other.meta) : null;
+    if (!other || frame === null || !this.current) {
+      this.compareStats.textContent = other ? `${other.label} has no frame at this instant.` : "Choose another camera to see the difference.";
+      this.comparedSeries = null;
+      return this.compareFigure.react([], { ...lineLayout({ xAxis: axis("x", "mm"), yAxis: axis("y", "mm"), note: this.compareStats.textContent }), uirevision: "map" });
+    }
+    const region = this.fullResolution ? this.zoomRegion() : null;
+    const theirs = resampleField(await other.source.field(frame, region), this.current);
+    const difference = { x: this.current.x, y: this.current.y, z: this.current.z.map((row, j) => row.map((w, i) => w - theirs.z[j][i])) };
+    const range = fieldRange(difference);
+    const reach = range ? Math.max(Math.abs(range[0]), Math.abs(range[1])) : 1;
+    const values = difference.z.flatMap((row) => Array.from(row).filter(Number.isFinite));
+    const rms = values.length ? Math.sqrt(values.reduce((a, d) => a + d * d, 0) / values.length) : NaN;
+    this.compareStats.textContent = `Difference map this − ${other.label} (frame ${this.frame} − frame ${frame}): RMS ${num(rms, 3)} mm, largest ${num(reach, 3)} mm over ${values.length} nodes where both measured; the other field is interpolated (bilinear) at this field's nodes.`;
+    this.comparedSeries = { map: { difference, theirs, frame, grid: this.gridOf(this.current) } };
+    const traces = mapTraces(difference, { range: [-reach, reach], valueName: "Δw", rangeNote: " this − other" });
+    return this.compareFigure.react(traces, { ...mapLayout({ uirevision: "map" }), dragmode: "zoom" });
   }
 
   compareCSV() {
-    const { columns, series } = this.comparedSeries || { columns: ["camera", "x", "y"], series: [] };
+    const compared = this.comparedSeries;
+    if (compared && compared.map) {
+      const { difference, theirs, frame, grid } = compared.map;
+      const rows = [];
+      difference.z.forEach((row, j) => row.forEach((d, i) => rows.push([this.frame, frame, difference.x[i], difference.y[j], this.current.z[j][i], theirs.z[j][i], d, grid.grid, grid.step_mm])));
+      return {
+        filename: `topography-${this.job.id.slice(0, 8)}-difference-frame${this.frame}-${grid.name}`,
+        columns: ["frame", "other_frame", "x_mm", "y_mm", "w_mm", "other_w_mm", "difference_w_mm", "grid", "grid_step_mm"],
+        rows,
+      };
+    }
+    const { columns, series } = compared || { columns: ["series", "x", "y", "grid", "grid_step_mm"], series: [] };
     const rows = [];
-    for (const one of series) one.x.forEach((x, i) => rows.push([one.name, x, one.y[i]]));
+    for (const one of series) one.x.forEach((x, i) => rows.push([one.name, x, one.y[i], "result", this.meta.grid.step_mm]));
     return { columns, rows };
   }
+
 }

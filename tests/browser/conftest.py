@@ -7,15 +7,19 @@ from __future__ import annotations
 
 import re
 import shutil
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import httpx
 import pytest
 
 from tests.support import UpProcess
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 SCREENSHOTS = Path(__file__).resolve().parents[2] / "test-artifacts" / "screenshots"
+DEMO_FRAMES = 6
+DEMO_TIMEOUT_S = 900  # both cameras on a loaded 2-core machine: about 3 minutes alone, much more when shared
 CHROMIUM_ARGS = [
     "--headless",
     "--no-sandbox",
@@ -49,12 +53,31 @@ def browser() -> Iterator[object]:
 
 
 @pytest.fixture(scope="session")
-def api_paths(live_server: UpProcess) -> set[str]:
-    """The paths of the server's API (from its OpenAPI document): tests of views whose API is not in this build
-    yet skip with the reason."""
-    import httpx
-
-    return set(httpx.get(f"{live_server.base_url}/api/openapi.json", timeout=10).json()["paths"])
+def demo(live_server):  # type: ignore[no-untyped-def]
+    """A demo experiment with both virtual cameras measured by the real worker, made once per session and shared
+    by the tests that read results: {experiment_id, base (API URL), jobs: {(kind, camera name): job}}."""
+    base = f"{live_server.base_url}/api/v1"
+    made = httpx.post(f"{base}/demo", json={"cameras": ["kodak", "phantom"], "test_frames": DEMO_FRAMES}, timeout=30)
+    assert made.status_code == 202, made.text
+    experiment_id = made.json()["experiment_id"]
+    deadline = time.monotonic() + DEMO_TIMEOUT_S
+    while True:
+        jobs = httpx.get(f"{base}/jobs", params={"experiment_id": experiment_id, "limit": 100}, timeout=30).json()
+        failed = [job for job in jobs["items"] if job["state"] in ("failed", "cancelled")]
+        assert not failed, f"demo jobs failed: {[(job['kind'], job['error']) for job in failed]}"
+        topographies = [job for job in jobs["items"] if job["kind"] == "topography" and job["state"] == "succeeded"]
+        if len(topographies) == 2:
+            break
+        assert time.monotonic() < deadline, f"the demo did not finish in {DEMO_TIMEOUT_S} s: {jobs['items']}"
+        time.sleep(2)
+    cameras = {c["id"]: c["name"] for c in httpx.get(f"{base}/experiments/{experiment_id}/cameras", timeout=30).json()}
+    found = {}
+    for job in jobs["items"]:
+        if job["state"] != "succeeded" or job["kind"] == "ingest":
+            continue
+        recording = httpx.get(f"{base}/recordings/{job['spec']['recording_id']}", timeout=30).json()
+        found[(job["kind"], cameras[recording["camera_id"]])] = job
+    return {"experiment_id": experiment_id, "jobs": found, "base": base}
 
 
 @pytest.fixture
@@ -95,8 +118,8 @@ def page(browser, live_server: UpProcess, expected_console_errors: list[str]) ->
     assert unexpected == [], f"errors in the browser: {unexpected}"
 
 
-def screenshot(page, name: str) -> Path:  # type: ignore[no-untyped-def]
+def screenshot(page, name: str, *, full_page: bool = True) -> Path:  # type: ignore[no-untyped-def]
     SCREENSHOTS.mkdir(parents=True, exist_ok=True)
     path = SCREENSHOTS / f"{name}.png"
-    page.screenshot(path=str(path), full_page=True)
+    page.screenshot(path=str(path), full_page=full_page)
     return path

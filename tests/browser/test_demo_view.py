@@ -14,12 +14,6 @@ from tests.browser.conftest import screenshot
 pytestmark = [pytest.mark.browser, pytest.mark.integration, pytest.mark.slow]
 
 
-@pytest.fixture(autouse=True)
-def _demo_api(api_paths):
-    if "/api/v1/demo" not in api_paths:
-        pytest.skip("this build has no demo endpoint (/api/v1/demo) yet: it needs the jobs API")
-
-
 def test_load_demo_experiment_to_the_topography_viewer(page, capsys):
     page.goto("/#/experiments")
     page.get_by_label("Virtual cameras").select_option(label="Kodak only (under a minute)")

@@ -25,14 +25,10 @@ SWITCHES = 20
 
 
 @pytest.fixture(scope="module")
-def virtual_test(api_paths, tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
+def virtual_test(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
     """The recordings of a virtual punch test (the `simulate` command's output), as ZIP files."""
-    needed = ("/api/v1/experiments", "/api/v1/jobs", "/api/v1/jobs/{job_id}/topography/profile")
-    missing = [path for path in needed if path not in api_paths]
-    if missing:
-        pytest.skip(f"this build lacks {', '.join(missing)}")
-    simulate = pytest.importorskip("fringelab.science.simulate", reason="this build has no simulate yet")
-    preset, simulate_experiment = simulate.preset, simulate.simulate_experiment
+    from fringelab.pipelines.simulation import simulate_experiment
+    from fringelab.science.simulate import preset
 
     # Fewer calibration frames than the command's defaults keep the test quick: the board at 7 heights, the flat
     # plate every 4 mm (edges move ~0.6 px/mm on this camera: 4 mm is a quarter period, well inside what the
@@ -87,7 +83,7 @@ def test_upload_calibrate_measure_and_explore(page, live_server, virtual_test, c
     cameras.get_by_label("Camera name").fill(PRESET)
     cameras.get_by_label("Image width (px)").fill(str(camera.image_width_px))
     cameras.get_by_label("Image height (px)").fill(str(camera.image_height_px))
-    cameras.get_by_label("Pixel pitch (µm)").fill(f"{1000 / camera.du_px_per_mm:.6f}")
+    cameras.get_by_label("Pixel pitch u (µm)").fill(f"{1000 / camera.du_px_per_mm:.6f}")
     cameras.get_by_role("button", name="Add camera").click()
     expect(page.get_by_role("region", name=f"Camera {PRESET}")).to_be_visible()
 

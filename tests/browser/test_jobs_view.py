@@ -13,12 +13,6 @@ from tests.browser.conftest import screenshot
 pytestmark = [pytest.mark.browser, pytest.mark.integration]
 
 
-@pytest.fixture(autouse=True)
-def _jobs_api(api_paths):
-    if "/api/v1/jobs" not in api_paths:
-        pytest.skip("this build has no jobs API (/api/v1/jobs) yet")
-
-
 def run_selftest(page, *, frames: int, size_px: int) -> None:
     page.goto("/#/system")
     form = page.get_by_role("form", name="Self-test of the workers")

@@ -49,14 +49,6 @@ def new_experiment_with_camera(page, name: str) -> None:
     expect(page.get_by_role("region", name="Camera left")).to_be_visible()
 
 
-@pytest.fixture(autouse=True)
-def _recordings_api(api_paths, expected_console_errors):
-    if "/api/v1/experiments" not in api_paths:
-        pytest.skip("this build has no recordings API (/api/v1/experiments) yet")
-    if "/api/v1/jobs" not in api_paths:  # the experiment page lists its jobs; that API is not in this build yet
-        expected_console_errors.append(r"^404 GET .*/api/v1/jobs\?")
-
-
 def test_upload_through_the_page_then_scrub_the_recording(page, tmp_path, expected_console_errors):
     expected_console_errors.append(r"^415 (POST|PATCH) .*/api/v1/uploads")  # the file the server refuses, on purpose
     recording = stripe_zip(tmp_path / "punch_test.zip", n_frames=12)

@@ -36,7 +36,7 @@ def test_the_id_of_a_deleted_row_is_not_given_again(tmp_path):
 
 def test_the_migration_keeps_rows_and_their_children(tmp_path):
     url = f"sqlite:///{tmp_path / 'fringelab.db'}"
-    upgrade_database(url, "0004")
+    upgrade_database(url, "0005_i14_pixel_pitch")
     engine = make_engine(url)
     sessions = make_sessionmaker(engine)
     kept, kept_camera = _add_experiment(sessions, "kept")

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fringelab.formats.recordings import open_recording, write_frame_folder
+from fringelab.formats.recordings import open_recording, write_recording
 from fringelab.formats.sidecars import z_csv_text
 from fringelab.pipelines.camera_calibration import calibrate_camera_recording
 from fringelab.science.camera import Camera
@@ -32,7 +32,7 @@ def render_zstack(path: Path, size: str, z_mm: np.ndarray, *, seed: int) -> Synt
     camera = reference_camera(size)
     board = zstack_board(camera)
     frames = render_zstack_frames(camera, board, z_mm, rng=np.random.default_rng(seed))
-    write_frame_folder(path, frames, sidecars={"z.csv": z_csv_text(z_mm)})
+    write_recording(path, frames, sidecars={"z.csv": z_csv_text(z_mm)})
     return SyntheticZStack(path=path, camera=camera, board=board, z_mm=z_mm)
 
 

@@ -46,7 +46,7 @@ def test_default_pipeline_matches_opencv(reference):
     print(f"default corners: RMS {calibration.rms_px:.4f} px (OpenCV {reference['rms_reprojection_error_px']:.4f})")
     for name, value in intrinsics(calibration).items():
         print(f"  {name} {value:.3f} (OpenCV {reference[name]:.3f})")
-        assert value == pytest.approx(reference[name], rel=0.01)  # METHOD.md §7: 1 %
+        assert value == pytest.approx(reference[name], rel=0.01)  # docs/method.md §7: 1 %
     # Our corner window is sized to the squares; OpenCV's fixed 23 × 23 px window reaches the neighbouring
     # corners on left02's small squares (its 1.22 px outlier). So our RMS is lower, never higher.
     assert calibration.rms_px < reference["rms_reprojection_error_px"] * 1.05
@@ -84,14 +84,14 @@ def test_reference_corners_give_opencvs_camera(reference):
         for name in reference["images_found"]
     ]
     calibration = calibrate_from_views(
-        views, image_size_px=IMAGE_SIZE, mode="poses", du_px_per_mm=1.0, dv_px_per_mm=1.0
+        views, image_size_wh_px=IMAGE_SIZE, mode="poses", du_px_per_mm=1.0, dv_px_per_mm=1.0
     )
     k = np.array([[reference["fx"], 0, reference["cx"]], [0, reference["fy"], reference["cy"]], [0, 0, 1]])
     dist = np.array([reference[name] for name in ("k1", "k2", "p1", "p2", "k3")])
     worst_px = 0.0
     for frame, per_image in zip(calibration.frames, reference["per_image"], strict=True):
         ours = calibration.camera.__class__(
-            **{**calibration.camera.__dict__, **_pose_fields(frame.rvec_rad, frame.tvec_mm)}
+            **{**calibration.camera.__dict__, **_pose_fields(frame.r_cam_from_obj_rad, frame.t_cam_from_obj_mm)}
         )
         theirs, _ = cv2.projectPoints(board_points, np.array(per_image["rvec"]), np.array(per_image["tvec"]), k, dist)
         worst_px = max(worst_px, float(np.max(np.abs(project_points(ours, board_points) - theirs.reshape(-1, 2)))))
@@ -101,9 +101,9 @@ def test_reference_corners_give_opencvs_camera(reference):
     assert calibration.rms_px == pytest.approx(reference["rms_reprojection_error_px"], rel=2e-5)
 
 
-def _pose_fields(rvec_rad, tvec_mm) -> dict[str, float]:
+def _pose_fields(r_cam_from_obj_rad, t_cam_from_obj_mm) -> dict[str, float]:
     from fringelab.science.camera import angles_from_rotation
 
-    omega, phi, kappa = angles_from_rotation(Rotation.from_rotvec(rvec_rad).as_matrix())
-    return {"omega_rad": omega, "phi_rad": phi, "kappa_rad": kappa, "x0_mm": tvec_mm[0], "y0_mm": tvec_mm[1],
-            "z0_mm": tvec_mm[2]}  # fmt: skip
+    omega, phi, kappa = angles_from_rotation(Rotation.from_rotvec(r_cam_from_obj_rad).as_matrix())
+    x0, y0, z0 = t_cam_from_obj_mm
+    return {"omega_rad": omega, "phi_rad": phi, "kappa_rad": kappa, "x0_mm": x0, "y0_mm": y0, "z0_mm": z0}

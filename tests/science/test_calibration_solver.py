@@ -59,7 +59,7 @@ def _with_rotation(camera: Camera, rotation: np.ndarray) -> Camera:
 
 def calibrate(views, camera, **options):
     return calibrate_from_views(
-        views, image_size_px=(camera.image_width_px, camera.image_height_px), du_px_per_mm=camera.du_px_per_mm,
+        views, image_size_wh_px=(camera.image_width_px, camera.image_height_px), du_px_per_mm=camera.du_px_per_mm,
         dv_px_per_mm=camera.dv_px_per_mm, scale_on=camera.scale_on, **options,
     )  # fmt: skip
 
@@ -213,11 +213,13 @@ def test_covariance_conversion_jacobian(scale_on):
     from fringelab.science.camera import OpenCVCamera, camera_from_opencv
 
     o = camera_as_opencv(dataclasses.replace(reference_camera("1024x1024"), scale_on=scale_on))
-    x14 = np.array([o.fx_px, o.fy_px, o.cx_px, o.cy_px, o.k1, o.k2, o.p1, o.p2, *o.rvec_rad, *o.tvec_mm])
+    x14 = np.array(
+        [o.fx_px, o.fy_px, o.cx_px, o.cy_px, o.k1, o.k2, o.p1, o.p2, *o.r_cam_from_obj_rad, *o.t_cam_from_obj_mm]
+    )
 
     def heikkila(x):
         camera = camera_from_opencv(
-            OpenCVCamera(1024, 1024, *x[:8], rvec_rad=tuple(x[8:11]), tvec_mm=tuple(x[11:])),
+            OpenCVCamera(1024, 1024, *x[:8], r_cam_from_obj_rad=tuple(x[8:11]), t_cam_from_obj_mm=tuple(x[11:])),
             du_px_per_mm=212.59, dv_px_per_mm=212.59, scale_on=scale_on,
         )  # fmt: skip
         return np.array([getattr(camera, name) for name in CAMERA_PARAMETERS])

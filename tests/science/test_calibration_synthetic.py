@@ -1,4 +1,4 @@
-"""Z-stack calibration of rendered chessboard recordings against the known camera (METHOD.md §7)."""
+"""Z-stack calibration of rendered chessboard recordings against the known camera (docs/method.md §7)."""
 
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ def test_corners_backprojected_at_true_z(size, calibrations, zstack_recordings):
     back = backproject_to_z(calibration.camera, q_true_px, points_obj_mm[:, 2], inverse=calibration.inverse)
     rms_mm = np.sqrt(np.mean(np.sum((back - points_obj_mm) ** 2, axis=1)))
     print(f"{size}: back-projection RMS {rms_mm:.5f} mm")
-    assert rms_mm < 0.02  # METHOD.md §7: 0.02 mm at 2 m
+    assert rms_mm < 0.02  # docs/method.md §7: 0.02 mm at 2 m
 
 
 @pytest.mark.parametrize("size", SIZES)

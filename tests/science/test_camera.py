@@ -1,4 +1,4 @@
-"""Heikkilä camera model: forward projection, OpenCV round trip, inverse model, back-projection (METHOD.md §3)."""
+"""Heikkilä camera model: forward projection, OpenCV round trip, inverse model, back-projection (docs/method.md §3)."""
 
 from __future__ import annotations
 
@@ -56,7 +56,11 @@ def test_projection_agrees_with_opencv(size):
     points_obj_mm = plate_points_mm(np.random.default_rng(1), 500)
     opencv = camera_as_opencv(camera)
     q_cv, _ = cv2.projectPoints(
-        points_obj_mm, np.array(opencv.rvec_rad), np.array(opencv.tvec_mm), opencv.camera_matrix, opencv.dist_coeffs
+        points_obj_mm,
+        np.array(opencv.r_cam_from_obj_rad),
+        np.array(opencv.t_cam_from_obj_mm),
+        opencv.camera_matrix,
+        opencv.dist_coeffs,
     )
     q_px = project_points(camera, points_obj_mm)
     assert np.max(np.abs(q_px - q_cv.reshape(-1, 2))) < 1e-9  # 1e-9 px: round-off of ~1e3 px values in float64
@@ -71,7 +75,7 @@ def test_opencv_round_trip(size, scale_on):
     )
     points_obj_mm = plate_points_mm(np.random.default_rng(2), 1000)
     error_px = np.abs(project_points(back, points_obj_mm) - project_points(camera, points_obj_mm))
-    assert np.max(error_px) < 1e-9  # METHOD.md §7 acceptance number
+    assert np.max(error_px) < 1e-9  # docs/method.md §7 acceptance number
     for field in dataclasses.fields(Camera):
         a, b = getattr(camera, field.name), getattr(back, field.name)
         if isinstance(a, float):
@@ -88,7 +92,7 @@ def test_opencv_mapping_formulas():
     assert opencv.k2 == pytest.approx(camera.k2_per_mm4 * f**4, rel=1e-15)
     assert opencv.p1 == pytest.approx(camera.p1_per_mm * f, rel=1e-15)
     assert opencv.p2 == pytest.approx(camera.p2_per_mm * f, rel=1e-15)
-    np.testing.assert_allclose(cv2.Rodrigues(np.array(opencv.rvec_rad))[0], camera.rotation, atol=1e-14)
+    np.testing.assert_allclose(cv2.Rodrigues(np.array(opencv.r_cam_from_obj_rad))[0], camera.rotation, atol=1e-14)
 
 
 def test_k3_is_refused():
@@ -106,7 +110,7 @@ def test_rotation_convention_and_angles():
 
 
 def test_camera_sits_on_the_positive_z_side():
-    # +Z points from the plate toward the camera (METHOD.md §2).
+    # +Z points from the plate toward the camera (docs/method.md §2).
     centre = camera_centre_obj_mm(reference_camera())
     assert 1500 < centre[2] < 2000
 
@@ -117,7 +121,7 @@ def test_inverse_model_over_the_whole_image(size):
     inverse = fit_inverse_model(camera)
     # The paper-sized decentring makes the 8-parameter model alone err by a visible fraction of a pixel...
     assert 1e-3 < inverse.approximation_residual_px < 2.0
-    # ...and the Newton refinement brings it below the 0.001 px acceptance number (METHOD.md §3.2).
+    # ...and the Newton refinement brings it below the 0.001 px acceptance number (docs/method.md §3.2).
     assert inverse.residual_px < 1e-3
     q_px = image_grid_px(camera, 7.3)
     ut, vt = ideal_from_pixels(camera, q_px, inverse=inverse)
@@ -125,7 +129,7 @@ def test_inverse_model_over_the_whole_image(size):
     ray_points = np.column_stack([ut, vt, np.full_like(ut, camera.f_mm)])
     identity = dataclasses.replace(camera, x0_mm=0.0, y0_mm=0.0, z0_mm=0.0, omega_rad=0.0, phi_rad=0.0, kappa_rad=0.0)
     error_px = np.hypot(*(project_points(identity, ray_points) - q_px).T)
-    assert np.max(error_px) < 1e-3  # METHOD.md §7 acceptance number
+    assert np.max(error_px) < 1e-3  # docs/method.md §7 acceptance number
 
 
 @pytest.mark.parametrize("size", SIZES)

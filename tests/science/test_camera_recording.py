@@ -12,10 +12,11 @@ import pytest
 
 from fringelab.commands import camera as camera_commands
 from fringelab.formats.camera import read_camera_json, write_camera_json
-from fringelab.formats.recordings import open_recording, write_frame_folder
+from fringelab.formats.recordings import open_recording, write_recording
 from fringelab.formats.sidecars import z_csv_text
 from fringelab.pipelines.camera_calibration import calibrate_camera_recording
-from fringelab.science.calibration import CalibrationCancelled, CalibrationError
+from fringelab.science import Cancelled
+from fringelab.science.calibration import CalibrationError
 from fringelab.science.camera import project_points
 from fringelab.science.chessboard import Board, BoardNotFoundError
 
@@ -98,7 +99,7 @@ def test_progress_and_board_json(small_stack, tmp_path):
     )  # fmt: skip
     assert calibration.board == board
     assert calls[0] == (1, 7, "corners") and calls[-2] == (6, 7, "solving") and calls[-1] == (7, 7, "done")
-    with pytest.raises(CalibrationCancelled):
+    with pytest.raises(Cancelled):
         calibrate_camera_recording(open_recording(path), du_px_per_mm=96, dv_px_per_mm=96, should_cancel=lambda: True)
 
 
@@ -127,7 +128,7 @@ def test_too_few_frames_after_skipping(small_stack, tmp_path):
 
 
 def test_no_board_anywhere(tmp_path):
-    path = write_frame_folder(
+    path = write_recording(
         tmp_path / "blank", [np.full((48, 64), 90, np.uint8)] * 3, sidecars={"z.csv": z_csv_text([0, 1, 2])}
     )
     with pytest.raises(BoardNotFoundError, match=r"blank: no 9 × 6 chessboard found in any of the 3 frames$"):

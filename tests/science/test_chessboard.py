@@ -1,4 +1,4 @@
-"""Chessboard corners: detection accuracy, the labelling rule of METHOD.md §3.1, wrong or missing boards."""
+"""Chessboard corners: detection accuracy, the labelling rule of docs/method.md §3.1, wrong or missing boards."""
 
 from __future__ import annotations
 

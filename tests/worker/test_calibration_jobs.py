@@ -9,7 +9,7 @@ import pytest
 
 from fringelab.core.db import make_engine, make_sessionmaker
 from fringelab.core.models import Camera, Experiment, Recording
-from fringelab.formats.recordings import write_frame_folder
+from fringelab.formats.recordings import write_recording
 from fringelab.formats.sidecars import z_csv_text
 from fringelab.science.synthetic import reference_camera, render_zstack_frames, zstack_board
 from tests.worker.conftest import log_messages, wait_job
@@ -31,7 +31,7 @@ def add_recording(settings, zstack_frames, *, name: str = "zstack") -> dict[str,
     camera, board, frames = zstack_frames
     relative = Path("recordings") / name
     board_json = f'{{"cols": {board.cols}, "rows": {board.rows}, "square_mm": {board.square_mm}}}'
-    write_frame_folder(
+    write_recording(
         settings.data_path / relative, frames, sidecars={"z.csv": z_csv_text(Z_MM), "board.json": board_json}
     )
     engine = make_engine(settings.resolved_database_url)

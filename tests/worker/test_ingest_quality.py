@@ -122,6 +122,17 @@ def test_the_ingest_looks_for_the_board_in_every_frame_of_a_camera_calibration(s
     assert list(arrays["board_found"]) == [1] * 17 + [0] + [1] * 2
     no_board = write_zip(tmp_path / "nb.zip", frames[:2])
     assert "no_board" in {w.code for w in inspect(no_board, settings, "camera_calibration").warnings}
+    # Another lab's spelling is read as the same board; a file that cannot be read is one warning (not a second,
+    # contradictory "no board.json"), and never a reason to refuse the recording.
+    other_spelling = json.dumps({"boardWidth": 8, "boardHeight": 6, "squareSize": 0.01, "unit": "m"})
+    spelled = inspect(write_zip(tmp_path / "os.zip", frames[:2], sidecars={"board.json": other_spelling}), settings,
+                      "camera_calibration")  # fmt: skip
+    assert spelled.reasons == [] and spelled.sidecar["board.json"]["square_mm"] == pytest.approx(10.0)
+    odd = inspect(write_zip(tmp_path / "odd.zip", frames[:2], sidecars={"board.json": '{"pattern": "chess"}'}),
+                  settings, "camera_calibration")  # fmt: skip
+    codes = [w.code for w in odd.warnings]
+    assert odd.reasons == [] and "board_unreadable" in codes and "no_board" not in codes
+    assert "board.json: missing cols, rows, square_mm" in odd.sidecar["board.json"]["error"]
 
 
 def test_previews_are_display_size_8_bit_with_thumbnails(settings, tmp_path):

@@ -5,14 +5,13 @@ from __future__ import annotations
 from typing import Any
 
 from worker.jobs.inputs import record_calibration, recording_input
-from worker.runner import JobCancelled, JobContext
+from worker.runner import JobContext
 
 
 def camera_calibration_body(context: JobContext) -> dict[str, Any]:
     from fringelab.formats.camera import write_camera_json
     from fringelab.formats.recordings import open_recording
     from fringelab.pipelines.camera_calibration import calibrate_camera_recording
-    from fringelab.science.calibration import CalibrationCancelled
     from fringelab.science.chessboard import Board
 
     spec = context.spec
@@ -21,27 +20,24 @@ def camera_calibration_body(context: JobContext) -> dict[str, Any]:
     if spec.get("board"):
         b = spec["board"]
         board = Board(b["cols"], b["rows"], b["square_mm"], origin=tuple(b["origin"]) if b.get("origin") else None)
-    pitch_um = camera.pixel_pitch_um
-    if not pitch_um > 0:
+    pitch_u_um, pitch_v_um = camera.pixel_pitch_uv_um
+    if not (pitch_u_um > 0 and pitch_v_um > 0):
         raise ValueError(f"camera {camera.name!r} has no pixel pitch; set it on the camera, then retry")
     context.log(f"calibrating camera {camera.name!r} from recording {recording.id} ({spec['mode']})")
-    try:
-        calibration = calibrate_camera_recording(
-            open_recording(path),
-            board=board,
-            mode=spec["mode"],
-            du_px_per_mm=1000.0 / pitch_um,
-            dv_px_per_mm=1000.0 / pitch_um,
-            scale_on=spec["scale_on"],
-            reject_outliers=spec["reject_outliers"],
-            pixel_pitch_um=(pitch_um, pitch_um),
-            detector=spec["detector"],
-            subpix_half_window_px=spec.get("subpix_window_px"),
-            progress=context.progress,
-            should_cancel=context.should_cancel,
-        )
-    except CalibrationCancelled as error:
-        raise JobCancelled(str(error)) from None
+    calibration = calibrate_camera_recording(
+        open_recording(path),
+        board=board,
+        mode=spec["mode"],
+        du_px_per_mm=1000.0 / pitch_u_um,
+        dv_px_per_mm=1000.0 / pitch_v_um,
+        scale_on=spec["scale_on"],
+        reject_outliers=spec["reject_outliers"],
+        pixel_pitch_um=(pitch_u_um, pitch_v_um),
+        detector=spec["detector"],
+        subpix_half_window_px=spec.get("subpix_window_px"),
+        progress=context.progress,
+        should_cancel=context.should_cancel,
+    )
     with context.output("camera.json", media_type="application/json") as temporary:
         write_camera_json(calibration, temporary)
     for frame in calibration.frames:
@@ -60,7 +56,7 @@ def camera_calibration_body(context: JobContext) -> dict[str, Any]:
     size = (calibration.camera.image_width_px, calibration.camera.image_height_px)
     row = record_calibration(
         context, kind="camera", camera_id=camera.id, recording_id=recording.id, name="camera.json",
-        image_size_px=size, summary=summary,
+        image_size_wh_px=size, summary=summary,
     )  # fmt: skip
     context.provenance.update({"science": calibration.provenance})
     context.log(

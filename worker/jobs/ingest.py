@@ -26,7 +26,7 @@ from fringelab.formats.containers import RecordingLayout
 from fringelab.formats.previews import PREVIEW_FILE, THUMBNAIL_PX, PreviewWriter
 from fringelab.formats.recordings import FrameSource, open_recording
 from fringelab.formats.sidecars import frame_indices, read_board_json, read_frames_csv, read_z_csv
-from fringelab.science import MeasurementError
+from fringelab.science import Cancelled, MeasurementError
 from fringelab.science.chessboard import Board
 from fringelab.science.quality import (
     FrameStats,
@@ -41,7 +41,7 @@ from fringelab.science.quality import (
     saturated_pct,
     to_uint8,
 )
-from worker.runner import JobCancelled, JobContext
+from worker.runner import JobContext
 
 MAX_REASONS = 10
 PROBE_FRAMES = 5
@@ -94,7 +94,7 @@ def ingest_recording(context: JobContext) -> dict[str, Any]:
             progress=context.progress,
             on_probe=on_probe,
         )
-    except JobCancelled:
+    except Cancelled:
         _update(context, recording_id, state="invalid", error="the ingest was cancelled; run it again to check it")
         raise
     except (ValueError, MeasurementError) as error:
@@ -139,7 +139,7 @@ def _update(context: JobContext, recording_id: int, **fields: Any) -> None:
     with context.sessions() as session:
         recording = session.get(Recording, recording_id)
         if recording is None:
-            raise JobCancelled(f"recording {recording_id} was deleted")
+            raise Cancelled(f"recording {recording_id} was deleted")
         for name, value in fields.items():
             setattr(recording, name, value)
         session.commit()
@@ -225,7 +225,20 @@ def _check_sidecars(source: FrameSource, found: Inspection, *, kind: str) -> Boa
                     found.probe.fps = 1.0 / dt_s
                     found.notes.append("frame rate from the time_s column of frames.csv")
             else:
-                board = read_board_json(text)
+                try:
+                    board = read_board_json(text)
+                except ValueError as error:
+                    # A board file is a convenience, never a reason to refuse the recording: the board can be
+                    # given in the calibration job's form, or the file replaced on the recording's page.
+                    found.sidecar[name] = {"error": str(error)}
+                    found.warnings.append(
+                        QaWarning(
+                            "board_unreadable",
+                            f"{error}. The chessboard was not looked for: replace board.json on this page, or give "
+                            "the board in the camera calibration job's form",
+                        )
+                    )
+                    continue
                 found.sidecar[name] = {
                     "cols": board.cols, "rows": board.rows, "square_mm": board.square_mm,
                     "origin": list(board.origin) if board.origin else None,
@@ -236,7 +249,11 @@ def _check_sidecars(source: FrameSource, found: Inspection, *, kind: str) -> Boa
         found.warnings.append(QaWarning("missing_z", "missing Z values: no z.csv (a Z-stack calibration needs one)"))
     if kind == "camera_calibration" and board is None and "board.json" not in found.sidecar:
         found.warnings.append(
-            QaWarning("no_board", "no board.json: the chessboard was not looked for (add one to check the frames)")
+            QaWarning(
+                "no_board",
+                "no board.json: the chessboard was not looked for (add one on this page to check the frames, or "
+                "give the board in the camera calibration job's form)",
+            )
         )
     return board if kind == "camera_calibration" else None
 

@@ -31,7 +31,7 @@ def record_calibration(
     camera_id: int,
     recording_id: int,
     name: str,
-    image_size_px: tuple[int, int],
+    image_size_wh_px: tuple[int, int],
     summary: dict[str, Any],
 ) -> Calibration:
     """The versioned Calibration row of this job's file `name` (one per job: a second run finds the first).
@@ -56,8 +56,8 @@ def record_calibration(
                 version=(latest or 0) + 1,
                 path=str(path.relative_to(context.settings.data_path)),
                 summary=summary,
-                image_width_px=image_size_px[0],
-                image_height_px=image_size_px[1],
+                image_width_px=image_size_wh_px[0],
+                image_height_px=image_size_wh_px[1],
                 sha256=digest,
             )
             session.add(row)

@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 from worker.jobs.inputs import calibration_file, record_calibration, recording_input
-from worker.runner import JobCancelled, JobContext
+from worker.runner import JobContext
 
 
 def projector_calibration_body(context: JobContext) -> dict[str, Any]:
@@ -14,7 +14,7 @@ def projector_calibration_body(context: JobContext) -> dict[str, Any]:
     from fringelab.formats.recordings import open_recording
     from fringelab.pipelines.projector_calibration import calibrate_projector_recording
     from fringelab.science.fringes import EdgeSettings
-    from fringelab.science.projector import CalibrationCancelled, ProjectorSettings
+    from fringelab.science.projector import ProjectorSettings
 
     spec = context.spec
     recording, camera, path = recording_input(context)
@@ -26,16 +26,13 @@ def projector_calibration_body(context: JobContext) -> dict[str, Any]:
         min_z_samples=max(6, spec["poly_degree"] + 2),
     )
     context.log(f"projector calibration of camera {camera.name!r} from recording {recording.id}")
-    try:
-        calibration = calibrate_projector_recording(
-            open_recording(path),
-            camera_model,
-            settings=settings,
-            progress=context.progress,
-            should_cancel=context.should_cancel,
-        )
-    except CalibrationCancelled as error:
-        raise JobCancelled(str(error)) from None
+    calibration = calibrate_projector_recording(
+        open_recording(path),
+        camera_model,
+        settings=settings,
+        progress=context.progress,
+        should_cancel=context.should_cancel,
+    )
     with context.output("projector.h5", media_type="application/x-hdf5") as temporary:
         write_projector_calibration(calibration, temporary)
     qa = calibration.qa
@@ -49,10 +46,10 @@ def projector_calibration_body(context: JobContext) -> dict[str, Any]:
         "sensitivity_px_per_mm": float(qa.sensitivity_px_per_mm[1]),
         "fit_rms_mm": qa.fit_rms_mm,
     }
-    height, width = calibration.image_shape
+    height, width = calibration.image_shape_hw_px
     row = record_calibration(
         context, kind="projector", camera_id=camera.id, recording_id=recording.id, name="projector.h5",
-        image_size_px=(width, height), summary=summary,
+        image_size_wh_px=(width, height), summary=summary,
     )  # fmt: skip
     context.provenance.update({"science": calibration.provenance})
     context.log(

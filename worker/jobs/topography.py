@@ -20,6 +20,8 @@ from typing import Any
 
 import numpy as np
 
+from fringelab.pipelines.topography import result_writer
+from fringelab.science.topography import SummaryTally
 from worker.jobs.inputs import calibration_file, recording_input
 from worker.runner import (
     Chunked,
@@ -103,6 +105,11 @@ def topography_locate(context: JobContext, first: int, stop: int) -> None:
 _MEASURE_COUNTS = ("n_tracks", "n_ended", "n_out_of_range", "n_unmatched")
 
 
+def _sigma(measurement: Any) -> np.ndarray:
+    sigma = measurement.sigma_z_mm
+    return np.full(len(measurement.k), np.nan) if sigma is None else np.asarray(sigma, np.float64)
+
+
 def _save_measurements(context: JobContext, first: int, measurements: list[Any]) -> None:
     sizes = [len(m.k) for m in measurements]
     save_arrays(
@@ -112,6 +119,7 @@ def _save_measurements(context: JobContext, first: int, measurements: list[Any])
         k=np.concatenate([m.k for m in measurements]), line=np.concatenate([m.line for m in measurements]),
         points_obj_mm=np.concatenate([m.points_obj_mm for m in measurements]).reshape(-1, 3),
         edge_noise_px=np.array([m.edge_noise_px for m in measurements], np.float64),
+        sigma_z_mm=np.concatenate([_sigma(m) for m in measurements]),
         **{name: np.array([getattr(m, name) for m in measurements], np.int64) for name in _MEASURE_COUNTS},
     )  # fmt: skip
 
@@ -128,6 +136,7 @@ def _load_measurements(context: JobContext, first: int) -> list[Any]:
             line=data["line"][lo:hi],
             points_obj_mm=data["points_obj_mm"][lo:hi],
             edge_noise_px=float(data["edge_noise_px"][i]),
+            sigma_z_mm=data["sigma_z_mm"][lo:hi],
             **{name: int(data[name][i]) for name in _MEASURE_COUNTS},
         )  # fmt: skip
         for i, (frame, lo, hi) in enumerate(zip(data["frame"], offsets[:-1], offsets[1:], strict=True))
@@ -199,13 +208,9 @@ def topography_grid(context: JobContext, first: int, stop: int) -> None:
 
 def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict[str, Any]:
     """Merge of phase 1, in frame order: the result file, as `topography_recording` writes it."""
-    from dataclasses import asdict, fields
+    from dataclasses import fields
 
-    from fringelab.formats.hdf5 import json_text
     from fringelab.formats.sidecars import FrameTable, read_frames_csv
-    from fringelab.formats.topography import TopographyWriter
-    from fringelab.pipelines.provenance import code_versions
-    from fringelab.pipelines.topography import _calibration_attrs
     from fringelab.science.fields import Grid, Peak
 
     inputs = _topography_inputs(context)
@@ -217,18 +222,12 @@ def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict
     track = load_arrays(context, "chunks/track.npz")
     z_flat, clamp = float(track["z_flat_mm"]), [float(v) for v in track["clamp"]]
     peak_names = [f.name for f in fields(Peak)]
-    centres: list[tuple[float, float]] = []
-    peaks: list[float] = []
-    n_out_of_range = 0
+    tally = SummaryTally()
     with context.output("topography.h5", media_type="application/x-hdf5") as temporary:
-        writer = TopographyWriter(
+        writer = result_writer(
             temporary, grid=Grid(x_mm=track["x_mm"], y_mm=track["y_mm"]), max_edge_mm=float(track["max_edge_mm"]),
-            z_flat_mm=z_flat, axis=projector.axis,
-            attrs={"settings_json": json_text(asdict(inputs.settings)),
-                   "edge_settings_json": json_text(asdict(projector.edges)),
-                   "provenance_json": json_text({"input": where, "n_frames_in_recording": n_frames,
-                                             "frames_written": [wanted.start, wanted.stop], **code_versions()})},
-            calibration_attrs=_calibration_attrs(inputs.camera_model, projector),
+            z_flat_mm=z_flat, camera_model=inputs.camera_model, projector=projector, settings=inputs.settings,
+            where=where, n_frames=n_frames, wanted=wanted,
         )  # fmt: skip
         with writer:
             for first, _stop in ranges:
@@ -237,25 +236,17 @@ def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict
                     peak = Peak(**dict(zip(peak_names, map(float, gridded["peak"][i]), strict=True)))
                     row = tuple(float(log[name][measurement.frame]) for name in FrameTable.COLUMNS)
                     writer.append(measurement, gridded["z_mm"][i], peak, log=row)  # type: ignore[arg-type]
-                    peaks.append(peak.w_mm)
-                    if np.isfinite(peak.centre_x_mm) and peak.w_mm >= 5.0:
-                        centres.append((peak.centre_x_mm, peak.centre_y_mm))
-                    n_out_of_range += measurement.n_out_of_range
+                    tally.add(peak, n_out_of_range=measurement.n_out_of_range)
                     context.progress(measurement.frame - wanted.start + 1, len(wanted), "writing")
-            axis_xy = tuple(np.median(np.array(centres), axis=0)) if centres else (float("nan"), float("nan"))
-            writer.close({
-                "flat_rms_mm": float(track["flat_rms_mm"]), "n_tracks_first_frame": int(track["n_tracks_first_frame"]),
-                "clamp_centre_x_mm": clamp[0], "clamp_centre_y_mm": clamp[1], "clamp_radius_mm": clamp[2],
-                "punch_axis_x_mm": axis_xy[0], "punch_axis_y_mm": axis_xy[1], "n_out_of_range_total": n_out_of_range,
-            })  # fmt: skip
+            writer.close(tally.attrs(flat_rms_mm=float(track["flat_rms_mm"]),
+                                     n_tracks_first_frame=int(track["n_tracks_first_frame"]), clamp=clamp))  # fmt: skip
     remove_chunk_files(context.directory)
-    finite = [p for p in peaks if np.isfinite(p)]
     result = {
         "frames": [wanted.start, wanted.stop - 1],
         "flat_rms_mm": float(track["flat_rms_mm"]),
-        "max_peak_w_mm": max(finite) if finite else None,
-        "n_out_of_range_total": n_out_of_range,
-        "punch_axis_xy_mm": [float(v) for v in axis_xy],
+        "max_peak_w_mm": tally.max_peak_w_mm,
+        "n_out_of_range_total": tally.n_out_of_range,
+        "punch_axis_xy_mm": list(tally.punch_axis_xy_mm),
         "clamp_centre_xy_mm": clamp[:2],
         "clamp_radius_mm": clamp[2],
     }

@@ -34,7 +34,3 @@ def accounts(auth_settings: Settings) -> dict[str, str]:
 def client(auth_settings: Settings) -> Iterator[TestClient]:
     with TestClient(create_app(auth_settings)) as made:
         yield made
-
-
-def bearer(token: str) -> dict[str, str]:
-    return {"Authorization": f"Bearer {token}"}

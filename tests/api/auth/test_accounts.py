@@ -11,8 +11,7 @@ import redis
 from fastapi.testclient import TestClient
 
 from backend.app import create_app
-from tests.api.auth.conftest import bearer
-from tests.support import wait_for
+from tests.support import bearer, wait_for
 
 
 @pytest.fixture(autouse=True)

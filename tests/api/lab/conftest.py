@@ -47,10 +47,6 @@ def lab_client(lab_settings: Settings) -> Iterator[TestClient]:
         yield client
 
 
-def bearer(token: str) -> dict[str, str]:
-    return {"Authorization": f"Bearer {token}"}
-
-
 @contextlib.contextmanager
 def serve_app(app: Any, **options: Any) -> Iterator[str]:
     """An ASGI app on a uvicorn server in a thread of this process, on a free loopback port; yields its URL."""

@@ -32,11 +32,10 @@ from backend.app import create_app
 from fringelab.core.accounts import create_user, issue_token
 from fringelab.core.db import make_engine, make_sessionmaker, upgrade_database
 from fringelab.core.models import Calibration, Job, JobLog, utcnow
-from fringelab.core.queue import create_celery
 from fringelab.core.settings import Settings
-from tests.api.lab.conftest import bearer
 from tests.formats.recording_files import stripe_frames, write_zip
-from tests.support import wait_for
+from tests.support import bearer, wait_for
+from worker.app import create_worker_app
 
 pytestmark = pytest.mark.integration
 
@@ -161,7 +160,7 @@ def template(tmp_path_factory: pytest.TempPathFactory, redis_server) -> Iterator
     engine.dispose()
     zip_bytes = write_zip(tmp_path_factory.mktemp("zip") / "r.zip", stripe_frames(3)).read_bytes()
     ids["zip_bytes"] = zip_bytes
-    celery = create_celery(settings)
+    celery = create_worker_app(settings)
     celery.loader.import_default_modules()
     ada = bearer(tokens["ada"])
     with (

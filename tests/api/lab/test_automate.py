@@ -112,7 +112,7 @@ def test_the_round_trip_with_a_dropped_upload(server, virtual, tmp_path):
     topography = next(job for job in summary["jobs"] if job["kind"] == "topography")
     overview = api.get(f"/api/v1/jobs/{topography['id']}/topography").json()
     assert overview["peak_w_mm"] == summary["peak_w_mm"]
-    assert overview["summary"]["flat_rms_mm"] < 0.05  # METHOD.md's target on the flat plate
+    assert overview["summary"]["flat_rms_mm"] < 0.05  # the target on the flat plate, docs/method.md §7
     for frame in truth["frames"]:
         i = frame["frame"]
         x, y = overview["peak_x_mm"][i], overview["peak_y_mm"][i]

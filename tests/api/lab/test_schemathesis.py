@@ -53,7 +53,8 @@ CHECKS = [
 def mode(request, lab_settings) -> Iterator[tuple[Settings, dict[str, str], Callable[[], None]]]:  # type: ignore[no-untyped-def]
     """Settings, headers and a reset to run before each request. On the lab server the headers carry an admin's
     token, and the reset undoes what a generated request may do to it (disable, demote, revoke)."""
-    settings = lab_settings.model_copy(update={"reconcile_interval_s": 0.0})  # no background sweep mid-test
+    # No background sweep mid-test; a jobs-list event stream (which only ends when its lifetime is up) ends soon.
+    settings = lab_settings.model_copy(update={"reconcile_interval_s": 0.0, "list_events_s": 0.3})
     if request.param == "laptop":
         yield settings.model_copy(update={"auth_enabled": False}), {}, lambda: None
         return

@@ -7,7 +7,7 @@ from sqlalchemy import select
 
 from fringelab.core.db import make_engine, make_sessionmaker
 from fringelab.core.models import AuditEvent
-from tests.api.lab.conftest import bearer
+from tests.support import bearer
 
 
 def tus_creation(camera_id: int, *, size: int) -> dict[str, str]:

@@ -90,9 +90,9 @@ def test_vtk_time_series_round_trip(result_path: Path, tmp_path: Path) -> None:
 
 def test_profile_csv_round_trip(result_path: Path, tmp_path: Path) -> None:
     line = (-200.0, -5.0, 200.0, 40.0)
-    rows = np.loadtxt(
-        export_result(result_path, "profile-csv", tmp_path / "p.csv", line=line), delimiter=",", skiprows=1
-    )
+    path = export_result(result_path, "profile-csv", tmp_path / "p.csv", line=line)
+    assert path.read_text().splitlines()[0] == "line,frame,time_s,s_mm,x_mm,y_mm,z_mm,w_mm"
+    rows = np.loadtxt(path, delimiter=",", skiprows=1, usecols=range(1, 8))  # after the line's label
     with TopographyResult(result_path) as result:
         for i, frame in enumerate(result.frames):
             block = rows[rows[:, 0] == frame]
@@ -104,19 +104,6 @@ def test_profile_csv_round_trip(result_path: Path, tmp_path: Path) -> None:
         export_result(result_path, "mat", tmp_path / "x.mat", line=line)
     with pytest.raises(ValueError, match="format: expected one of"):
         export_result(result_path, "xlsx", tmp_path / "x.xlsx")
-
-
-def test_frames_csv_errors_name_the_line() -> None:
-    table = read_frames_csv("frame,time_s,force_kN\n0,0.0,1.5\n1,0.5,\n")
-    np.testing.assert_array_equal(table.frame, [0, 1])
-    assert np.isnan(table.force_kN[1]) and table.punch_displacement_mm is None
-    assert np.all(np.isnan(table.rows([0, 1])["punch_displacement_mm"]))  # an absent column reads as not logged
-    with pytest.raises(ValueError, match="line 3, column time_s: .abc. is not a number"):
-        read_frames_csv("frame,time_s\n0,0\n1,abc\n")
-    with pytest.raises(ValueError, match="line 3: frame 0 appears twice"):
-        read_frames_csv("frame,time_s\n0,0\n0,1\n")
-    with pytest.raises(ValueError, match="unknown column"):
-        read_frames_csv("frame,speed\n0,1\n")
 
 
 def test_virtual_experiment_on_disk(tmp_path: Path) -> None:
@@ -190,3 +177,36 @@ def test_cli_simulate_then_measure(tmp_path: Path, capsys) -> None:
     with TopographyResult(out / "result.h5") as result:
         peak = result.column("peak/w_mm")
         assert result.n_frames == 40 and 57.0 < np.nanmax(peak) < 61.0
+
+
+def test_exports_take_a_frame_range_and_several_lines(result_path: Path, tmp_path: Path) -> None:
+    """Every format holds only the frames of the range asked for; the profile CSV labels each line as the viewer
+    does (A, B, …) and samples the result grid exactly as one line alone does."""
+    with TopographyResult(result_path) as result:
+        frames = result.frames.copy()
+    first, last = int(frames[1]), int(frames[-2])
+    wanted = frames[(frames >= first) & (frames <= last)]
+    npz = np.load(export_result(result_path, "grid-npz", tmp_path / "g.npz", frames=(first, last)))
+    np.testing.assert_array_equal(npz["frames"], wanted)
+    assert npz["z_mm"].shape[0] == len(wanted)
+    points = np.loadtxt(export_result(result_path, "points-csv", tmp_path / "p.csv", frames=(first, last)),
+                        delimiter=",", skiprows=1)  # fmt: skip
+    np.testing.assert_array_equal(np.unique(points[:, 0]), wanted)
+    mat = loadmat(export_result(result_path, "mat", tmp_path / "r.mat", frames=(first, last)))
+    np.testing.assert_array_equal(mat["frames"].ravel(), wanted)
+    assert len(read_pvd(export_result(result_path, "vtk", tmp_path / "r.pvd", frames=(first, last)))) == len(wanted)
+
+    lines = [(-200.0, -5.0, 200.0, 40.0), (0.0, -150.0, 0.0, 150.0)]
+    both = tmp_path / "both.csv"
+    export_result(result_path, "profile-csv", both, lines=lines, frames=(first, first))
+    labels = [row.split(",", 1)[0] for row in both.read_text().splitlines()[1:]]
+    assert labels[0] == "A" and labels[-1] == "B" and set(labels) == {"A", "B"}
+    values = np.loadtxt(both, delimiter=",", skiprows=1, usecols=range(1, 8))
+    one = export_result(result_path, "profile-csv", tmp_path / "b.csv", line=lines[1], frames=(first, first))
+    alone = np.loadtxt(one, delimiter=",", skiprows=1, usecols=range(1, 8))
+    np.testing.assert_array_equal(values[np.array(labels) == "B"], alone)  # the same numbers, written the same way
+    assert set(values[:, 0]) == {first}
+    with pytest.raises(ValueError, match="no frame of the result lies in"):
+        export_result(result_path, "grid-npz", tmp_path / "none.npz", frames=(10_000, 10_001))
+    with pytest.raises(ValueError, match="comes after the last"):
+        export_result(result_path, "grid-npz", tmp_path / "none.npz", frames=(last, first))

@@ -1,4 +1,4 @@
-"""Stripe edges of one frame (METHOD.md §5): direction, period, sub-pixel location, polarity, masks, errors."""
+"""Stripe edges of one frame (docs/method.md §5): direction, period, sub-pixel location, polarity, masks, errors."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Projector calibration (METHOD.md §4): the look-up table, its checks and QA, lookups, files, bad input."""
+"""Projector calibration (docs/method.md §4): the look-up table, its checks and QA, lookups, files, bad input."""
 
 from __future__ import annotations
 
@@ -11,13 +11,9 @@ import pytest
 from fringelab.formats.projector import read_projector_calibration, write_projector_calibration
 from fringelab.formats.sidecars import z_csv_text
 from fringelab.pipelines.projector_calibration import calibrate_projector_recording
+from fringelab.science import Cancelled
 from fringelab.science.fringes import NoStripesError
-from fringelab.science.projector import (
-    CalibrationCancelled,
-    CalibrationMismatchError,
-    ProjectorCalibrationError,
-    build_projector_calibration,
-)
+from fringelab.science.projector import CalibrationMismatchError, ProjectorCalibrationError, build_projector_calibration
 
 from .conftest import MemorySource, RenderedExperiment
 
@@ -93,7 +89,7 @@ def test_recording_entry_point_reads_z_csv_reports_progress_and_provenance(kodak
     assert len(table.provenance["input_sha256"]) == 64
     with pytest.raises(ValueError, match="z.csv missing"):
         calibrate_projector_recording(MemorySource(frames, {}), kodak.camera)
-    with pytest.raises(CalibrationCancelled):
+    with pytest.raises(Cancelled):
         calibrate_projector_recording(
             MemorySource(frames, {"z.csv": z_csv_text(z)}), kodak.camera, should_cancel=lambda: True
         )

@@ -1,4 +1,4 @@
-"""The topography pipeline (METHOD.md §5–6): chunked runs, temporal smoothing, the result file, bad input."""
+"""The topography pipeline (docs/method.md §5–6): chunked runs, temporal smoothing, the result file, bad input."""
 
 from __future__ import annotations
 
@@ -11,12 +11,12 @@ import pytest
 from fringelab.formats.edges import read_edges, write_edges
 from fringelab.formats.topography import TopographyResult
 from fringelab.pipelines.topography import topography_recording
+from fringelab.science import Cancelled
 from fringelab.science.fringes import NoStripesError
 from fringelab.science.projector import CalibrationMismatchError, exact_camera_model
 from fringelab.science.simulate import PlateState, true_deflection_mm
 from fringelab.science.topography import (
     FirstFrameNotFlatError,
-    TopographyCancelled,
     TopographySettings,
     check_stripes_against,
     locate_test_edges,
@@ -129,7 +129,7 @@ def test_cancel_removes_the_partial_file(kodak: RenderedExperiment, tmp_path: Pa
         calls.append(1)
         return len(calls) > 3
 
-    with pytest.raises(TopographyCancelled):
+    with pytest.raises(Cancelled):
         topography_recording(
             source_of(kodak), kodak.camera, kodak.projector, out_path=tmp_path / "c.h5", should_cancel=should_cancel
         )

@@ -6,16 +6,16 @@ are left alone. Each table is rebuilt (SQLite cannot add AUTOINCREMENT in place)
 dropping the old table cascades nowhere; the copied rows keep their ids and `sqlite_sequence` starts above them
 (an id deleted above the highest remaining one before this migration can still be given once more).
 
-Revision ID: 0005_i16_autoincrement
-Revises: 0004
+Revision ID: 0006_i16_autoincrement
+Revises: 0005_i14_pixel_pitch
 """
 
 from __future__ import annotations
 
 from alembic import op
 
-revision = "0005_i16_autoincrement"
-down_revision = "0004"
+revision = "0006_i16_autoincrement"
+down_revision = "0005_i14_pixel_pitch"
 branch_labels = None
 depends_on = None
 

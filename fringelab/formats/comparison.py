@@ -1,0 +1,332 @@
+"""The comparison file (HDF5): a measured topography against a finite-element simulation, with its exports.
+
+Schema "fringelab.comparison", version 1; lengths in mm in the plate frame of the measurement (METHOD.md §2),
+w = deflection toward the cameras; every dataset has `unit` and `description` attrs; NaN marks what was not
+compared, and /frames/reason says why for a frame without a simulation partner:
+  /            attrs: schema, schema_version, created_utc, result (the topography file), simulation (what was
+               read), simulation_kind, alignment ("displacement", "time" or "peak"), mapping_json (every mapping
+               choice, those detected listed in "detected", with notes), n_frames
+  /grid        x_mm (nx,), y_mm (ny,): the measurement's grid
+  /frames      index (n,) recording frame; time_s, punch_displacement_mm, force_kN (n,) as measured;
+               peak_w_mm (n,) measured; state_lo (n,) int64 (−1: no partner), state_fraction (n,): the
+               simulation at state_lo + fraction; reason (n,) str ("" when compared); sim_time_s,
+               sim_punch_displacement_mm, sim_force_kN, sim_peak_w_mm (n,) of that blend; rms_diff_mm,
+               max_diff_mm, mean_diff_mm (n,), n_nodes (n,) int64, fraction_beyond_2sigma (n,)
+  /fields      w_meas_mm, w_sim_mm, diff_mm (= w_meas − w_sim), sigma_w_mm (n, ny, nx) float32, one frame a chunk
+  /profiles    through the punch axis along X and Y: {x,y}/s_mm (M,), {x,y}/x_mm, y_mm (M,), {x,y}/measured_mm,
+               simulated_mm, sigma_mm (n, M)
+  /simulation  time_s, punch_displacement_mm, force_kN, peak_w_mm (S,) per simulation state (NaN where the
+               simulation has none)
+Exports (COMPARISON_EXPORTS): "csv" (per-frame table), "hdf5" (this file), "mat" (MATLAB), "vtk" (ParaView
+time series of the difference map), "profile-csv" (measured, simulated and σ along any line, every frame, with
+the points beyond 2σ marked).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+from fringelab.formats import COMPARISON_EXPORTS
+from fringelab.formats.atomic import atomic_path, commit_partial, partial_path
+from fringelab.formats.hdf5 import SCHEMA_VERSION, json_text, require_schema, unit_dataset
+from fringelab.science.fields import Grid
+
+COMPARISON_SCHEMA = "fringelab.comparison"
+
+FRAME_COLUMNS: tuple[tuple[str, str, str], ...] = (
+    ("time_s", "s", "time of the frame (frames.csv)"),
+    ("punch_displacement_mm", "mm", "punch displacement (frames.csv)"),
+    ("force_kN", "kN", "punch force (frames.csv)"),
+    ("peak_w_mm", "mm", "largest measured deflection"),
+    ("state_fraction", "1", "the simulation compared is state_lo + this fraction toward the next state"),
+    ("sim_time_s", "s", "simulation time of the compared blend"),
+    ("sim_punch_displacement_mm", "mm", "simulated punch displacement of the compared blend"),
+    ("sim_force_kN", "kN", "simulated punch force of the compared blend"),
+    ("sim_peak_w_mm", "mm", "largest simulated deflection on the grid"),
+    ("rms_diff_mm", "mm", "RMS of w_meas − w_sim over the nodes with both"),
+    ("max_diff_mm", "mm", "largest |w_meas − w_sim| over the nodes with both"),
+    ("mean_diff_mm", "mm", "mean of w_meas − w_sim over the nodes with both"),
+    ("fraction_beyond_2sigma", "1", "share of the compared nodes where |w_meas − w_sim| > 2 σ_w"),
+)
+FIELDS = (
+    ("w_meas_mm", "measured deflection"),
+    ("w_sim_mm", "simulated deflection sampled on the grid"),
+    ("diff_mm", "w_meas − w_sim, NaN where either is missing"),
+    ("sigma_w_mm", "σ of the measured deflection (edge noise, projector table, camera calibration)"),
+)
+PROFILE_AXES = ("x", "y")
+SIMULATION_COLUMNS = (
+    ("time_s", "s", "time of the state (in s)"),
+    ("punch_displacement_mm", "mm", "punch displacement of the state"),
+    ("force_kN", "kN", "punch force at the state"),
+    ("peak_w_mm", "mm", "largest deflection of the model's surface at the state"),
+)
+
+
+class ComparisonWriter:
+    """Streams a comparison into HDF5, one frame at a time; `close()` moves it into place, an exception removes it."""
+
+    def __init__(self, path: str | Path, *, grid: Grid, profile_s_mm: dict[str, np.ndarray],
+                 profile_xy_mm: dict[str, tuple[np.ndarray, np.ndarray]], attrs: dict[str, Any]) -> None:  # fmt: skip
+        self.path = Path(path)
+        self._temp = partial_path(self.path)
+        self._n = 0
+        file = self._file = h5py.File(self._temp, "w")
+        file.attrs["schema"] = COMPARISON_SCHEMA
+        file.attrs["schema_version"] = SCHEMA_VERSION
+        file.attrs["created_utc"] = datetime.now(UTC).isoformat(timespec="seconds")
+        file.attrs["length_unit"] = "mm"
+        for key, value in attrs.items():
+            file.attrs[key] = value
+        group = file.create_group("grid")
+        unit_dataset(group, "x_mm", grid.x_mm, unit="mm", description="X of the grid nodes")
+        unit_dataset(group, "y_mm", grid.y_mm, unit="mm", description="Y of the grid nodes")
+        frames = file.create_group("frames")
+        growing = {"maxshape": (None,), "chunks": (1024,)}
+        unit_dataset(frames, "index", np.zeros(0, np.int64), unit="1", description="recording frame", **growing)
+        unit_dataset(frames, "state_lo", np.zeros(0, np.int64), unit="1",
+                     description="simulation state compared (−1: none, see reason)", **growing)  # fmt: skip
+        unit_dataset(frames, "n_nodes", np.zeros(0, np.int64), unit="1", description="nodes compared", **growing)
+        unit_dataset(frames, "reason", np.zeros(0, h5py.string_dtype()), unit="1",
+                     description="why the frame was not compared (empty when it was)", **growing)  # fmt: skip
+        for name, unit, description in FRAME_COLUMNS:
+            unit_dataset(frames, name, np.zeros(0), unit=unit, description=description, **growing)
+        ny, nx = grid.shape
+        fields = file.create_group("fields")
+        for name, description in FIELDS:
+            unit_dataset(fields, name, np.zeros((0, ny, nx), np.float32), unit="mm", description=description,
+                         maxshape=(None, ny, nx), chunks=(1, ny, nx), compression="gzip", compression_opts=1,
+                         shuffle=True, fillvalue=np.nan)  # fmt: skip
+        profiles = file.create_group("profiles")
+        for axis in PROFILE_AXES:
+            group = profiles.create_group(axis)
+            s = profile_s_mm[axis]
+            unit_dataset(group, "s_mm", s, unit="mm", description=f"distance along the line through the axis ({axis})")
+            unit_dataset(group, "x_mm", profile_xy_mm[axis][0], unit="mm", description="X of the profile points")
+            unit_dataset(group, "y_mm", profile_xy_mm[axis][1], unit="mm", description="Y of the profile points")
+            for name, description in (("measured_mm", "measured w"), ("simulated_mm", "simulated w"),
+                                      ("sigma_mm", "σ of the measured w")):  # fmt: skip
+                unit_dataset(group, name, np.zeros((0, len(s))), unit="mm", description=description,
+                             maxshape=(None, len(s)), chunks=(1, len(s)))  # fmt: skip
+
+    def __enter__(self) -> ComparisonWriter:
+        return self
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        if exc_type is not None:
+            self.abort()
+
+    @staticmethod
+    def _append(dataset: h5py.Dataset, value: Any) -> None:
+        n = dataset.shape[0]
+        dataset.resize(n + 1, axis=0)
+        dataset[n] = value
+
+    def append(self, *, frame: int, state_lo: int, n_nodes: int, reason: str, columns: dict[str, float],
+               fields: dict[str, np.ndarray], profiles: dict[str, dict[str, np.ndarray]]) -> None:  # fmt: skip
+        """Add one frame: its row (every FRAME_COLUMNS name), its fields (FIELDS) and profiles (per axis:
+        measured_mm, simulated_mm, sigma_mm)."""
+        file = self._file
+        self._append(file["frames/index"], frame)
+        self._append(file["frames/state_lo"], state_lo)
+        self._append(file["frames/n_nodes"], n_nodes)
+        self._append(file["frames/reason"], reason)
+        for name, _, _ in FRAME_COLUMNS:
+            self._append(file[f"frames/{name}"], float(columns[name]))
+        for name, _ in FIELDS:
+            self._append(file[f"fields/{name}"], np.asarray(fields[name], np.float32))
+        for axis in PROFILE_AXES:
+            for name in ("measured_mm", "simulated_mm", "sigma_mm"):
+                self._append(file[f"profiles/{axis}/{name}"], profiles[axis][name])
+        self._n += 1
+
+    def close(self, simulation: dict[str, np.ndarray]) -> Path:
+        """Write the per-state simulation curves (SIMULATION_COLUMNS), close and move the file into place."""
+        file = self._file
+        group = file.create_group("simulation")
+        for name, unit, description in SIMULATION_COLUMNS:
+            unit_dataset(group, name, np.asarray(simulation[name], np.float64), unit=unit, description=description)
+        file.attrs["n_frames"] = self._n
+        file.close()
+        return commit_partial(self._temp, self.path)
+
+    def abort(self) -> None:
+        try:
+            self._file.close()
+        finally:
+            self._temp.unlink(missing_ok=True)
+
+
+class ComparisonResult:
+    """A comparison file opened read-only (a context manager); frames are read one at a time."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        try:
+            self.file = h5py.File(self.path, "r")
+        except OSError as error:
+            raise ValueError(f"{self.path.name}: not a readable HDF5 file ({error})") from None
+        try:
+            require_schema(self.file, COMPARISON_SCHEMA, self.path)
+            self.grid = Grid(x_mm=self.file["grid/x_mm"][()], y_mm=self.file["grid/y_mm"][()])
+            self.frames = self.file["frames/index"][()]
+        except (ValueError, KeyError) as error:
+            self.file.close()
+            raise ValueError(f"{self.path.name}: not a complete comparison file ({error})") from None
+
+    def __enter__(self) -> ComparisonResult:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self.file.close()
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.frames)
+
+    @property
+    def mapping(self) -> dict[str, Any]:
+        return dict(json.loads(self.file.attrs["mapping_json"]))
+
+    def column(self, name: str) -> np.ndarray:
+        """A per-frame column ("rms_diff_mm", "state_lo", …) or a per-state one ("simulation/peak_w_mm")."""
+        if name == "reason":
+            return np.array([r.decode() if isinstance(r, bytes) else str(r) for r in self.file["frames/reason"][()]])
+        return self.file[name if "/" in name else f"frames/{name}"][()]
+
+    def field(self, name: str, i: int) -> np.ndarray:
+        """One of FIELDS (ny, nx) of frame position i."""
+        return self.file[f"fields/{name}"][i].astype(np.float64)
+
+    def profile(self, axis: str, i: int) -> dict[str, np.ndarray]:
+        group = self.file[f"profiles/{axis}"]
+        out = {name: group[name][()] for name in ("s_mm", "x_mm", "y_mm")}
+        out.update({name: group[name][i] for name in ("measured_mm", "simulated_mm", "sigma_mm")})
+        return out
+
+    def frames_table(self) -> dict[str, Any]:
+        """Every per-frame column as lists (for JSON)."""
+        table: dict[str, Any] = {"frame": self.frames.tolist(), "state_lo": self.column("state_lo").tolist()}
+        table.update(n_nodes=self.column("n_nodes").tolist(), reason=self.column("reason").tolist())
+        for name, _, _ in FRAME_COLUMNS:
+            table[name] = json.loads(json_text(self.column(name)))
+        return table
+
+
+def export_comparison(
+    comparison: str | Path, fmt: str, out: str | Path, *, line: tuple[float, float, float, float] | None = None
+) -> Path:
+    """Write an export of a comparison file: "csv" (per-frame table), "hdf5" (a copy), "mat", "vtk" (.pvd), or
+    "profile-csv" along `line` (X0, Y0, X1, Y1 in mm; default along X through the grid's middle row)."""
+    if fmt not in COMPARISON_EXPORTS:
+        raise ValueError(f"format: expected one of {COMPARISON_EXPORTS}, got {fmt!r}")
+    if line is not None and fmt != "profile-csv":
+        raise ValueError("line is only used by the profile-csv format")
+    out = Path(out)
+    if fmt == "hdf5":
+        with ComparisonResult(comparison):
+            pass  # refuse to copy what is not a comparison file
+        with atomic_path(out) as temp:
+            shutil.copyfile(comparison, temp)
+        return out
+    with ComparisonResult(comparison) as result:
+        if fmt == "csv":
+            names = ["frame", "state_lo", "n_nodes"] + [name for name, _, _ in FRAME_COLUMNS]
+            rows = [result.frames, result.column("state_lo"), result.column("n_nodes")]
+            rows += [result.column(name) for name, _, _ in FRAME_COLUMNS]
+            reasons = result.column("reason")
+            with atomic_path(out) as temp, open(temp, "w", newline="") as handle:
+                handle.write(",".join(names) + ",reason\n")
+                for i in range(result.n_frames):
+                    cells = [f"{rows[c][i]:.6g}" if np.isfinite(rows[c][i]) else "" for c in range(len(names))]
+                    handle.write(",".join(cells) + "," + reasons[i].replace(",", ";") + "\n")
+            return out
+        if fmt == "profile-csv":
+            return _export_profile(result, out, line)
+        if fmt == "mat":
+            from scipy.io import savemat
+
+            data: dict[str, Any] = {"x_mm": result.grid.x_mm, "y_mm": result.grid.y_mm,
+                                    "frames": result.frames.astype(np.float64)}  # fmt: skip
+            for name, _, _ in FRAME_COLUMNS:
+                data[name] = result.column(name)
+            data["state_lo"] = result.column("state_lo").astype(np.float64)
+            for name, _ in FIELDS:
+                data[name] = result.file[f"fields/{name}"][()].astype(np.float64)
+            for name, _, _ in SIMULATION_COLUMNS:
+                data[f"sim_state_{name}"] = result.column(f"simulation/{name}")
+            data["mapping_json"] = result.file.attrs["mapping_json"]
+            with atomic_path(out) as temp, open(temp, "wb") as handle:
+                savemat(handle, data, do_compression=True)
+            return out
+        return _export_vtk(result, out)
+
+
+def _export_profile(result: ComparisonResult, path: Path, line: tuple[float, float, float, float] | None) -> Path:
+    """CSV frame,s_mm,x_mm,y_mm,w_meas_mm,w_sim_mm,diff_mm,sigma_w_mm,beyond_2sigma along a line, every frame
+    (empty cells where there is no value; beyond_2sigma is 1 where |diff| > 2σ, 0 where not, empty unknown)."""
+    from fringelab.science.fields import line_profile
+
+    grid = result.grid
+    if line is None:
+        middle = float(grid.y_mm[len(grid.y_mm) // 2])
+        line = (float(grid.x_mm[0]), middle, float(grid.x_mm[-1]), middle)
+    names = ("w_meas_mm", "w_sim_mm", "diff_mm", "sigma_w_mm")
+    with atomic_path(path) as temp, open(temp, "w", newline="") as handle:
+        handle.write("frame,s_mm,x_mm,y_mm," + ",".join(names) + ",beyond_2sigma\n")
+        for i, frame in enumerate(result.frames):
+            stack = np.stack([result.field(name, i) for name in names])
+            profile = line_profile(stack, grid, line[:2], line[2:])
+            meas, sim, diff, sigma = profile.values
+            with np.errstate(invalid="ignore"):
+                beyond = np.where(np.isfinite(diff) & np.isfinite(sigma), np.abs(diff) > 2 * sigma, np.nan)
+            for j in range(len(profile.s_mm)):
+                cells = [profile.s_mm[j], profile.x_mm[j], profile.y_mm[j], meas[j], sim[j], diff[j], sigma[j]]
+                text = ",".join(f"{v:.5f}" if np.isfinite(v) else "" for v in cells)
+                flag = "" if np.isnan(beyond[j]) else str(int(beyond[j]))
+                handle.write(f"{int(frame)},{text},{flag}\n")
+    return path
+
+
+def _export_vtk(result: ComparisonResult, path: Path) -> Path:
+    """ParaView time series: one .vtu per frame (the measured surface, quads between nodes with data) carrying
+    w_meas_mm, w_sim_mm, diff_mm and sigma_w_mm, listed in `path` (.pvd)."""
+    import meshio
+
+    folder = path.parent / f"{path.stem}_vtu"
+    folder.mkdir(parents=True, exist_ok=True)
+    gx, gy = np.meshgrid(result.grid.x_mm, result.grid.y_mm)
+    ny, nx = result.grid.shape
+    node = np.arange(ny * nx).reshape(ny, nx)
+    quads_all = np.column_stack([node[:-1, :-1].ravel(), node[:-1, 1:].ravel(), node[1:, 1:].ravel(),
+                                 node[1:, :-1].ravel()])  # fmt: skip
+    times = result.column("time_s")
+    entries = []
+    for i, frame in enumerate(result.frames):
+        w = result.field("w_meas_mm", i).ravel()
+        quads = quads_all[np.all(np.isfinite(w)[quads_all], axis=1)]
+        used = np.unique(quads)
+        renumber = np.full(ny * nx, -1)
+        renumber[used] = np.arange(len(used))
+        points = np.column_stack([gx.ravel()[used], gy.ravel()[used], w[used]])
+        data = {name: result.field(name, i).ravel()[used] for name, _ in FIELDS}
+        name = f"frame_{int(frame):06d}.vtu"
+        with atomic_path(folder / name) as temp:
+            meshio.write(temp, meshio.Mesh(points, [("quad", renumber[quads])], point_data=data), file_format="vtu")
+        time = float(times[i]) if np.isfinite(times[i]) else float(frame)
+        entries.append(f'    <DataSet timestep="{time!r}" part="0" file="{folder.name}/{name}"/>')
+    text = ('<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">\n'
+            "  <Collection>\n" + "\n".join(entries) + "\n  </Collection>\n</VTKFile>\n")  # fmt: skip
+    with atomic_path(path) as temp:
+        temp.write_text(text)
+    return path

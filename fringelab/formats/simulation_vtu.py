@@ -1,0 +1,179 @@
+"""Simulations as VTK time series: a ParaView .pvd collection of .vtu files, or a folder of .vtu files.
+
+Each .vtu holds the mesh at its reference coordinates and a point-data vector of the displacement (named
+`displacement`, `Displacement`, `DISP`, `U` or `u`), optionally a point-data `thickness` (shells). The .pvd's
+`timestep` attributes give the times (a bare folder: the field `TimeValue` of each file, else 0, 1, 2, ... in
+natural name order). Read through meshio, one file per state when it is asked for, so a long series is never
+in memory at once.
+"""
+
+from __future__ import annotations
+
+import re
+import warnings
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+
+from fringelab.formats.atomic import atomic_path
+from fringelab.science.fe_results import FEResults
+
+DISPLACEMENT_NAMES = ("displacement", "Displacement", "DISPLACEMENT", "DISP", "disp", "U", "u")
+SHELL_TYPES = {"triangle": 3, "quad": 4}
+SOLID_TYPES = {"tetra": 4, "wedge": 6, "hexahedron": 8}
+
+
+def _natural_key(path: Path) -> list[object]:
+    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", path.name)]
+
+
+def _read_mesh(path: Path):
+    import meshio
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return meshio.vtu.read(str(path))  # not meshio.read, which exits the process on a bad file
+    except Exception as error:  # meshio raises many kinds for a file it cannot parse
+        raise ValueError(f"{path.name}: not a readable mesh file ({type(error).__name__}: {error})") from None
+
+
+def displacement_field(point_data: dict[str, np.ndarray], where: str) -> np.ndarray:
+    """The displacement vectors (N, 3) among a mesh's point data (ValueError naming the names found)."""
+    for name in DISPLACEMENT_NAMES:
+        if name in point_data:
+            values = np.asarray(point_data[name], np.float64)
+            if values.ndim == 2 and values.shape[1] in (2, 3):
+                return values if values.shape[1] == 3 else np.column_stack([values, np.zeros(len(values))])
+    raise ValueError(
+        f"{where}: no displacement vector in the point data (found {sorted(point_data) or 'none'}; "
+        f"expected one of {', '.join(DISPLACEMENT_NAMES)})"
+    )
+
+
+def mesh_cells(cells: list, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """Shells (E, 4) and solids (F, 8|6|4) of meshio cell blocks (triangles pad their last corner; vertices and
+    lines are left out). Mixed solid kinds are refused."""
+    shells, solids = [], []
+    for block in cells:
+        data = np.asarray(block.data, np.int64)
+        if block.type in SHELL_TYPES:
+            shells.append(data if data.shape[1] == 4 else np.column_stack([data, data[:, 2]]))
+        elif block.type in SOLID_TYPES:
+            solids.append(data)
+    if len({s.shape[1] for s in solids}) > 1:
+        raise ValueError(f"{where}: mixed solid element kinds; export the plate part with one kind")
+    return (
+        np.concatenate(shells) if shells else np.zeros((0, 4), np.int64),
+        np.concatenate(solids) if solids else np.zeros((0, 8), np.int64),
+    )
+
+
+def read_pvd(path: str | Path) -> list[tuple[float, Path]]:
+    """(time, file) of every data set of a .pvd collection, in time order."""
+    path = Path(path)
+    try:
+        root = ET.parse(path).getroot()
+    except ET.ParseError as error:
+        raise ValueError(f"{path.name}: not a readable .pvd file ({error})") from None
+    entries = []
+    for item in root.iter("DataSet"):
+        name = item.get("file")
+        if name is None:
+            raise ValueError(f"{path.name}: a DataSet without a file attribute")
+        try:
+            time = float(item.get("timestep", "nan"))
+        except ValueError:
+            raise ValueError(
+                f"{path.name}: DataSet {name}: timestep {item.get('timestep')!r} is not a number"
+            ) from None
+        entries.append((time, path.parent / name))
+    if not entries:
+        raise ValueError(f"{path.name}: the collection lists no DataSet")
+    for _, file in entries:
+        if not file.is_file():
+            raise ValueError(f"{path.name}: lists {file.name}, which is not there")
+    return sorted(entries, key=lambda entry: entry[0])
+
+
+def read_vtu_series(path: str | Path) -> FEResults:
+    """A .pvd collection or a folder of .vtu files (or one .vtu) as `FEResults` (length and time units not
+    declared)."""
+    path = Path(path)
+    if path.is_dir():
+        pvds = sorted(path.glob("*.pvd"))
+        if pvds:
+            return read_vtu_series(pvds[0])
+        files = sorted(path.glob("*.vtu"), key=_natural_key)
+        if not files:
+            raise ValueError(f"{path.name}: no .pvd or .vtu file in the folder")
+        entries = [(float("nan"), f) for f in files]
+    elif path.suffix.lower() == ".pvd":
+        entries = read_pvd(path)
+    else:
+        entries = [(float("nan"), path)]
+    first = _read_mesh(entries[0][1])
+    where = entries[0][1].name
+    shells, solids = mesh_cells(first.cells, where)
+    times = np.array([t for t, _ in entries])
+    if np.any(np.isnan(times)):
+        values = []
+        for index, (_, file) in enumerate(entries):
+            mesh = first if index == 0 else _read_mesh(file)
+            value = mesh.field_data.get("TimeValue")
+            values.append(float(np.ravel(value)[0]) if value is not None else float(index))
+        times = np.array(values)
+    n_nodes = len(first.points)
+    thickness = first.point_data.get("thickness")
+    files = [f for _, f in entries]
+    displacement_field(first.point_data, where)  # fails early on a file without one
+
+    def displacement(i: int) -> np.ndarray:
+        mesh = first if i == 0 else _read_mesh(files[i])
+        if len(mesh.points) != n_nodes:
+            raise ValueError(f"{files[i].name}: {len(mesh.points)} nodes, the first file has {n_nodes}")
+        return displacement_field(mesh.point_data, files[i].name)
+
+    ids = first.point_data.get("node_id")
+    return FEResults(
+        source=str(path), kind="vtu", node_ids=np.arange(1, n_nodes + 1) if ids is None else np.asarray(ids, np.int64),
+        node_xyz=np.asarray(first.points, np.float64), shells=shells, solids=solids,
+        shell_thickness=None if thickness is None else np.asarray(thickness, np.float64), time=times,
+        displacement=displacement,
+    )  # fmt: skip
+
+
+def write_vtu_series(
+    folder: str | Path,
+    *,
+    node_xyz: np.ndarray,
+    cells: list[tuple[str, np.ndarray]],
+    time: np.ndarray,
+    displacement: np.ndarray,
+    node_ids: np.ndarray | None = None,
+    thickness: np.ndarray | None = None,
+    name: str = "plate",
+) -> Path:
+    """Write states (S, N, 3) as folder/name_0000.vtu … and the collection folder/name.pvd (returned)."""
+    import meshio
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    entries = []
+    for s in range(len(time)):
+        point_data: dict[str, np.ndarray] = {"displacement": np.asarray(displacement[s], np.float64)}
+        if thickness is not None:
+            point_data["thickness"] = np.asarray(thickness, np.float64)
+        if node_ids is not None:
+            point_data["node_id"] = np.asarray(node_ids, np.int64)
+        file = folder / f"{name}_{s:04d}.vtu"
+        with atomic_path(file) as partial:
+            meshio.write(partial, meshio.Mesh(node_xyz, cells, point_data=point_data), file_format="vtu")
+        entries.append(f'    <DataSet timestep="{float(time[s])!r}" part="0" file="{file.name}"/>')
+    text = '<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n  <Collection>\n'
+    text += "\n".join(entries) + "\n  </Collection>\n</VTKFile>\n"
+    pvd = folder / f"{name}.pvd"
+    with atomic_path(pvd) as partial:
+        partial.write_text(text, encoding="utf-8")
+    return pvd

@@ -1,0 +1,102 @@
+"""Opening a simulation, whatever form it comes in: one file or a folder of them.
+
+A folder holds one model (a d3plot family, a .pvd or .vtu series, an Exodus file, or the nodal CSV) and, beside
+it, what gives the punch: an LS-DYNA `nodout` (the punch node's travel), `rcforc` (the contact force) or a punch
+CSV (`time_s,force_kN[,punch_displacement_mm]`). Each format has its own module (`simulation_*`); this one only
+recognises them and puts the pieces into one `FEResults`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from fringelab.science.fe_results import FEResults, with_updates
+
+SIMULATION_FORMATS = ("d3plot", "vtu", "pvd", "exodus", "csv", "nodout", "rcforc")
+
+
+def _kind(path: Path) -> str | None:
+    from fringelab.formats.simulation_csv import csv_header
+    from fringelab.formats.simulation_exodus import EXODUS_SUFFIXES
+
+    name, suffix = path.name.lower(), path.suffix.lower()
+    if name == "d3plot" or suffix == ".d3plot":
+        return "d3plot"
+    if suffix in (".pvd", ".vtu"):
+        return suffix[1:]
+    if suffix in EXODUS_SUFFIXES:
+        return "exodus"
+    if name.startswith("nodout"):
+        return "nodout"
+    if name.startswith("rcforc"):
+        return "rcforc"
+    if suffix == ".csv":
+        return "punch-csv" if "force_kN" in csv_header(path) else "nodes-csv"
+    return None
+
+
+def open_simulation(
+    path: str | Path, *, punch_node: int | None = None, contact_interface: int | None = None
+) -> FEResults:
+    """Read a simulation (file or folder) into `FEResults`, with its punch travel and force where it has them.
+
+    punch_node: the node whose travel is the punch displacement (a nodout node, or a mesh node); None: nodout's
+    only node, or none. contact_interface: the rcforc interface of the punch; None: the one with the largest force.
+    """
+    from fringelab.formats import simulation_csv, simulation_lsdyna_ascii
+
+    path = Path(path)
+    if not path.exists():
+        raise ValueError(f"{path}: no such file or folder")
+    files = sorted(p for p in path.iterdir() if p.is_file()) if path.is_dir() else [path]
+    kinds: dict[str, list[Path]] = {}
+    for file in files:
+        kind = _kind(file)
+        if kind is not None:
+            kinds.setdefault(kind, []).append(file)
+    model_kinds = [k for k in ("d3plot", "pvd", "vtu", "exodus", "nodes-csv") if k in kinds]
+    if not model_kinds:
+        found = ", ".join(p.name for p in files[:10]) or "nothing"
+        raise ValueError(
+            f"{path.name}: no simulation model found ({found}); expected a d3plot family, a .pvd/.vtu series, "
+            "an Exodus file (.e, .exo) or a CSV with columns " + ",".join(simulation_csv.NODES_COLUMNS)
+        )
+    kind = model_kinds[0]
+    if kind == "d3plot":
+        from fringelab.formats.simulation_d3plot import read_d3plot
+
+        results = read_d3plot(kinds["d3plot"][0])
+    elif kind in ("pvd", "vtu"):
+        from fringelab.formats.simulation_vtu import read_vtu_series
+
+        results = read_vtu_series(kinds["pvd"][0] if kind == "pvd" else (path if path.is_dir() else path))
+    elif kind == "exodus":
+        from fringelab.formats.simulation_exodus import read_exodus
+
+        results = read_exodus(kinds["exodus"][0])
+    else:
+        results = simulation_csv.read_nodes_csv(kinds["nodes-csv"][0])
+    updates: dict[str, object] = {}
+    if "nodout" in kinds:
+        histories = simulation_lsdyna_ascii.read_nodout(kinds["nodout"][0])
+        if punch_node is None or punch_node in histories.node_ids:
+            travel = histories.punch_travel(punch_node, where=kinds["nodout"][0].name)
+            updates.update(punch_time=histories.time, punch_displacement=travel)
+    if "rcforc" in kinds:
+        forces = simulation_lsdyna_ascii.read_rcforc(kinds["rcforc"][0])
+        time, force, _ = forces.punch_force(contact_interface, where=kinds["rcforc"][0].name)
+        updates.update(force_time=time, force=force, force_unit_kN=None)
+    if "punch-csv" in kinds:
+        table = simulation_csv.read_punch_csv(kinds["punch-csv"][0])
+        updates.update(force_time=table["time_s"], force=table["force_kN"], force_unit_kN=1.0)
+        if "punch_displacement_mm" in table and "punch_displacement" not in updates:
+            updates.update(
+                punch_time=table["time_s"], punch_displacement=table["punch_displacement_mm"], punch_in_mm=True
+            )
+    if punch_node is not None and "punch_displacement" not in updates:
+        index = results.node_index(punch_node)
+        travel = np.array([np.linalg.norm(results.displacement(i)[index]) for i in range(results.n_states)])
+        updates.update(punch_time=results.time, punch_displacement=travel)
+    return with_updates(results, **updates) if updates else results

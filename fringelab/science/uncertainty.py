@@ -1,0 +1,111 @@
+"""Height uncertainty σ_w of measured points and grid nodes (METHOD.md §5–6 error budget).
+
+Belongs here (pure): the standard deviation of a measured height from what the measurement itself knows.
+1. Edge location in the test frame: each frame's `noise_px` is the RMS of raw − smoothed edge positions. The
+   locator presmooths the image along the stripes (Gaussian σ_p px), which correlates the raw noise of
+   neighbouring scan lines as exp(−d²/4σ_p²), then smooths along each edge with fixed weights w; the σ of a
+   smoothed position is then noise_px · √(wᵀCw / (e₀−w)ᵀC(e₀−w)) (`smoothing.smoothed_noise_ratio`). Through
+   the projector table's sensitivity (px per mm of Z) it is σ_Z,edge = σ_t / |dt/dZ|.
+2. The table itself: each (edge, line) polynomial of D + 1 coefficients fitted to J calibration heights with
+   residual RMS r has a prediction error of about r·√((D + 1)/J) (the average over the fitted range).
+3. The camera calibration: its parameter covariance (standard errors and correlations) moves where a pixel's
+   ray meets the plane by δX, δY (the forward model's Jacobians); that changes w by ∇w·(δX, δY).
+The first two are independent and add in quadrature per point (`point_sigma_z_mm`). A grid node is interpolated
+linearly from the three corners of its triangle, which lie on two neighbouring edges (k and k + 1): errors of one
+edge on neighbouring lines are nearly fully correlated (the smoothing along the edge, the table fitted to
+smoothed calibration edges), errors of different edges independent, so σ_node² = (Σ_k λσ)² + (Σ_k+1 λσ)²
+(`grid_sigma_mm`). The camera term is a field over the plate (`camera_sigma_xy_mm`), applied with
+the surface's slope (`with_camera_term`). Not here: where the numbers are stored (`fringelab.formats.topography`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .camera import Camera, project_points
+from .fields import Grid, grid_edge_points
+from .smoothing import smoothed_noise_ratio
+
+if TYPE_CHECKING:
+    from .fringes import EdgeSettings
+
+
+def edge_sigma_px(noise_px: float, edges: EdgeSettings) -> float:
+    """σ (px) of a smoothed edge position in a frame whose raw − smoothed RMS is noise_px."""
+    return float(noise_px) * smoothed_noise_ratio(edges.edge_smoothing_lines, presmooth_px=edges.presmooth_px)
+
+
+def point_sigma_z_mm(
+    *,
+    sensitivity_px_per_mm: np.ndarray,
+    fit_rms_mm: np.ndarray,
+    n_heights: np.ndarray,
+    n_coefficients: int,
+    edge_sigma_px: float,
+) -> np.ndarray:
+    """σ_Z (N,) of points from the edge noise and the table fit, given per point the table's sensitivity,
+    fit RMS and number of calibration heights used (NaN where the table has no such entry)."""
+    sensitivity = np.abs(np.asarray(sensitivity_px_per_mm, np.float64))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        edge = edge_sigma_px / sensitivity
+        table = np.asarray(fit_rms_mm, np.float64) * np.sqrt(n_coefficients / np.asarray(n_heights, np.float64))
+    return np.hypot(edge, table)
+
+
+def grid_sigma_mm(
+    x_mm: np.ndarray, y_mm: np.ndarray, sigma_mm: np.ndarray, grid: Grid, *, max_edge_mm: float
+) -> np.ndarray:
+    """σ (ny, nx) of the gridded heights from the points' σ, all (K, S) over (edge, line) (NaN = not measured):
+    the interpolation weights summed per edge, edges independent (see the module docstring)."""
+    edge = np.arange(sigma_mm.shape[0])[:, None]
+    even = grid_edge_points(x_mm, y_mm, np.where(edge % 2 == 0, sigma_mm, 0.0), grid, max_edge_mm=max_edge_mm)
+    odd = grid_edge_points(x_mm, y_mm, np.where(edge % 2 == 1, sigma_mm, 0.0), grid, max_edge_mm=max_edge_mm)
+    return np.hypot(even, odd)
+
+
+def camera_sigma_xy_mm(
+    camera: Camera,
+    points_obj_mm: np.ndarray,
+    *,
+    standard_errors: dict[str, float],
+    correlation: np.ndarray,
+    parameters: tuple[str, ...],
+) -> np.ndarray:
+    """Covariance (N, 2, 2) of where the camera's rays meet the planes Z of points (N, 3), from the camera
+    parameters' covariance (standard errors by name, correlation in `parameters` order).
+
+    A parameter change δp moves the image point by J_p δp; the object point that keeps the pixel moves by
+    δX = −A⁻¹ J_p δp on its plane, A = ∂q/∂(X, Y) (2 × 2). Both Jacobians by central differences.
+    """
+    points = np.asarray(points_obj_mm, np.float64)
+    n = len(points)
+    se = np.array([float(standard_errors.get(name, 0.0)) for name in parameters])
+    if n == 0 or not np.any(se > 0):
+        return np.zeros((n, 2, 2))
+    covariance = np.asarray(correlation, np.float64) * np.outer(se, se)
+    step_mm = 0.5
+    a = np.empty((n, 2, 2))
+    for axis in range(2):
+        delta = np.zeros(3)
+        delta[axis] = step_mm
+        a[:, :, axis] = (project_points(camera, points + delta) - project_points(camera, points - delta)) / (
+            2 * step_mm
+        )
+    moves = np.empty((len(parameters), n, 2))
+    for j, name in enumerate(parameters):
+        h = se[j] if se[j] > 0 else 1e-6
+        plus = project_points(replace(camera, **{name: getattr(camera, name) + h}), points)
+        minus = project_points(replace(camera, **{name: getattr(camera, name) - h}), points)
+        dq = (plus - minus) / (2 * h)
+        moves[j] = -np.linalg.solve(a, dq[..., None])[..., 0]
+    per_point = moves.transpose(1, 2, 0)  # (N, 2, P)
+    return np.asarray(per_point @ covariance @ per_point.transpose(0, 2, 1))
+
+
+def with_camera_term(sigma_w_mm: np.ndarray, slope_xy: np.ndarray, covariance_xy_mm2: np.ndarray) -> np.ndarray:
+    """σ_w with the camera term added in quadrature: sigma_w (...,), slopes (..., 2) of w, covariance (..., 2, 2)."""
+    variance = np.einsum("...a,...ab,...b->...", slope_xy, covariance_xy_mm2, slope_xy)
+    return np.sqrt(np.asarray(sigma_w_mm, np.float64) ** 2 + np.maximum(variance, 0.0))
