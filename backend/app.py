@@ -109,5 +109,8 @@ def uvicorn_options(settings: Settings) -> dict[str, object]:
         "log_level": settings.log_level,
         "root_path": settings.root_path,
         "proxy_headers": bool(proxies),
+        # Longer than clients keep idle connections (httpx 5 s, browsers ~60 s): a server that closes first races
+        # a request sent on the closing connection, which the client sees as a dropped connection.
+        "timeout_keep_alive": 75,
         "forwarded_allow_ips": ",".join(proxies) if proxies else "",
     }
