@@ -1,7 +1,7 @@
 # One image for the web server and the workers of a lab server (see docker-compose.yml).
 FROM python:3.11-slim
 
-ENV PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1 PIP_NO_CACHE_DIR=1
+ENV PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1 PIP_NO_CACHE_DIR=1 MALLOC_ARENA_MAX=2
 RUN useradd --create-home --uid 1000 fringelab
 WORKDIR /app
 COPY pyproject.toml README.md ./

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from contextlib import asynccontextmanager
 
 import anyio
@@ -24,8 +25,10 @@ from backend.api import (
 )
 from backend.errors import install_error_handlers
 from backend.frontend import mount_docs, mount_frontend
-from backend.limits import BodySizeLimit
+from backend.limits import BodySizeLimit, PlainJsonNumbers, UserRateLimiter
 from backend.openapi import install_openapi, operation_id
+from backend.security import SecurityHeaders
+from fringelab.core.accounts import TokenCache
 from fringelab.core.db import make_engine, make_sessionmaker
 from fringelab.core.jobs import reconcile_periodically, reconcile_quietly
 from fringelab.core.queue import create_celery
@@ -36,19 +39,27 @@ UPLOAD_PREFIXES = ("/api/v1/uploads",)
 
 
 def create_app(settings: Settings) -> FastAPI:
-    engine = make_engine(settings.resolved_database_url)
+    engine = make_engine(settings.resolved_database_url, pool_size=settings.resolved_db_pool_size)
     state = AppState(
-        settings=settings, engine=engine, sessions=make_sessionmaker(engine), celery=create_celery(settings)
+        settings=settings,
+        engine=engine,
+        sessions=make_sessionmaker(engine),
+        celery=create_celery(settings),
+        tokens=TokenCache(ttl_s=settings.token_cache_s),
     )
 
     @asynccontextmanager
     async def lifespan(_app: FastAPI):  # type: ignore[no-untyped-def]
+        # Blocking routes run in this many threads; the database pool holds a connection for each.
+        anyio.to_thread.current_default_thread_limiter().total_tokens = settings.api_threads
         reconcile_quietly(state.sessions, state.celery, settings)  # jobs the queue lost while the API was down
         async with anyio.create_task_group() as background:
             if settings.reconcile_interval_s > 0:
                 background.start_soon(reconcile_periodically, state.sessions, state.celery, settings)
+            background.start_soon(_flush_token_uses_periodically, state)
             yield
             background.cancel_scope.cancel()
+        state.tokens.flush_last_used(state.sessions)
         engine.dispose()
 
     app = FastAPI(
@@ -62,8 +73,13 @@ def create_app(settings: Settings) -> FastAPI:
         generate_unique_id_function=operation_id,
     )
     app.state.fringelab = state
+    app.state.user_limiter = UserRateLimiter(rate_per_s=settings.user_requests_per_s, burst=settings.user_request_burst)
     install_error_handlers(app)
+    app.add_middleware(PlainJsonNumbers, exempt_prefixes=UPLOAD_PREFIXES)  # runs after the size cap below
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_json_bytes, exempt_prefixes=UPLOAD_PREFIXES)
+    app.add_middleware(
+        SecurityHeaders, allowed_origins=settings.allowed_origin_list, docs_prefixes=("/api/docs", "/api/redoc")
+    )
     app.include_router(health.router, prefix="/api/v1")
     app.include_router(auth.router, prefix="/api/v1")
     app.include_router(experiments.router, prefix="/api/v1")
@@ -83,13 +99,34 @@ def create_app(settings: Settings) -> FastAPI:
     return app
 
 
+TOKEN_USE_FLUSH_S = 10.0
+
+
+async def _flush_token_uses_periodically(state: AppState) -> None:
+    """Write the tokens' `last_used_at` in one transaction every TOKEN_USE_FLUSH_S, never per request."""
+    while True:
+        await anyio.sleep(TOKEN_USE_FLUSH_S)
+        try:
+            await anyio.to_thread.run_sync(state.tokens.flush_last_used, state.sessions)
+        except Exception:  # a busy or unreachable database: the uses are dropped, the next flush writes newer ones
+            logging.getLogger(__name__).warning("could not record the tokens' last use", exc_info=True)
+
+
 def uvicorn_options(settings: Settings) -> dict[str, object]:
     """How `fringelab api` serves the app. Behind a reverse proxy at a sub-path (FRINGELAB_ROOT_PATH, the proxy
     strips the prefix), the server's root path makes the docs, the OpenAPI `servers` and every URL the API
-    builds (tus `Location`) carry the prefix."""
+    builds (tus `Location`) carry the prefix. X-Forwarded-For and -Proto are believed only from the proxies named
+    in FRINGELAB_TRUSTED_PROXIES (uvicorn's default trusts them from any loopback client, which let anyone on
+    this machine pick the client address the login rate limit counts)."""
+    proxies = settings.trusted_proxy_list
     return {
         "host": settings.host,
         "port": settings.port,
         "log_level": settings.log_level,
         "root_path": settings.root_path,
+        "proxy_headers": bool(proxies),
+        # Longer than clients keep idle connections (httpx 5 s, browsers ~60 s): a server that closes first races
+        # a request sent on the closing connection, which the client sees as a dropped connection.
+        "timeout_keep_alive": 75,
+        "forwarded_allow_ips": ",".join(proxies) if proxies else "",
     }

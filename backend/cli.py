@@ -121,8 +121,9 @@ def cmd_user(args: argparse.Namespace) -> int:
 
     from sqlalchemy import select
 
-    from fringelab.core.accounts import create_user
+    from fringelab.core.accounts import change_user, create_user
     from fringelab.core.db import make_engine, make_sessionmaker, upgrade_database
+    from fringelab.core.errors import Conflict
     from fringelab.core.models import User
 
     settings = load_settings()
@@ -144,7 +145,16 @@ def cmd_user(args: argparse.Namespace) -> int:
             user = session.scalar(select(User).where(User.username == args.username))
             if user is None:
                 return _fail(f"no user {args.username!r}")
-            user.disabled = args.user_command == "disable"
+            change = {
+                "disable": {"disabled": True},
+                "enable": {"disabled": False},
+                "promote": {"role": "admin"},
+                "demote": {"role": "member"},
+            }[args.user_command]
+            try:
+                change_user(session, user, **change)  # type: ignore[arg-type]
+            except Conflict as error:
+                return _fail(error.detail)
             session.commit()
             print(f"{args.user_command}d {user.username}")
     return 0
@@ -171,6 +181,17 @@ def cmd_token_create(args: argparse.Namespace) -> int:
         session.commit()
     print(secret)
     return 0
+
+
+def _days(text: str) -> int:
+    """A token lifetime in days: 0 (never expires) to 3650; a negative one would make a token already expired."""
+    try:
+        days = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number of days, got {text!r}") from None
+    if not 0 <= days <= 3650:
+        raise argparse.ArgumentTypeError(f"expected 0 (never expires) to 3650 days, got {days}")
+    return days
 
 
 def _require_redis_url(settings: Settings) -> None:
@@ -208,15 +229,21 @@ def build_parser() -> argparse.ArgumentParser:
     add.add_argument("--admin", action="store_true", help="give the admin role")
     add.add_argument("--password-stdin", action="store_true", help="read the password from standard input")
     user_commands.add_parser("list", help="list the accounts")
-    for verb in ("disable", "enable"):
-        user_commands.add_parser(verb, help=f"{verb} an account").add_argument("username")
+    verbs = (
+        ("disable", "disable an account"),
+        ("enable", "enable an account"),
+        ("promote", "give an account the admin role"),
+        ("demote", "make an admin a member (not the last active admin)"),
+    )
+    for verb, what in verbs:
+        user_commands.add_parser(verb, help=what).add_argument("username")
     user.set_defaults(handler=cmd_user)
     token = commands.add_parser("token", help="API tokens for scripts")
     token_commands = token.add_subparsers(dest="token_command", required=True, metavar="TOKEN_COMMAND")
     create = token_commands.add_parser("create", help="create a token for a user and print it")
     create.add_argument("username")
     create.add_argument("--name", default="cli", help="what the token is for")
-    create.add_argument("--days", type=int, default=0, help="days until it expires (0: never)")
+    create.add_argument("--days", type=_days, default=0, help="days until it expires (0: never)")
     create.set_defaults(handler=cmd_token_create)
     health = commands.add_parser("health", help="check database, Redis and workers; exit 1 when one is down")
     health.add_argument("--url", help="ask a running web server instead (e.g. http://127.0.0.1:8000)")

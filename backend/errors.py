@@ -4,11 +4,13 @@ bare 500."""
 from __future__ import annotations
 
 import logging
+import math
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, Field
+from sqlalchemy.exc import DataError
 from starlette.exceptions import HTTPException
 
 from fringelab.core.errors import (
@@ -118,6 +120,17 @@ def install_error_handlers(app: FastAPI) -> None:
             status_code=422,
         )
 
+    @app.exception_handler(OverflowError)
+    @app.exception_handler(DataError)
+    async def _out_of_range(request: Request, error: Exception) -> JSONResponse:
+        # A number the database cannot hold (an id beyond its integer type) that no validator caught: the
+        # request is wrong, not the server.
+        log.warning("number out of range on %s %s: %s", request.method, request.url.path, error)
+        return JSONResponse(
+            {"detail": "a number in the request is out of range for the database", "code": "out_of_range"},
+            status_code=422,
+        )
+
     @app.exception_handler(Exception)
     async def _unexpected(request: Request, error: Exception) -> JSONResponse:
         log.exception("unexpected error on %s %s", request.method, request.url.path)
@@ -128,6 +141,26 @@ def install_error_handlers(app: FastAPI) -> None:
 
 
 def jsonable(errors: object) -> object:
+    """Validation errors as JSON that can always be written: the inputs they quote may hold NaN, Infinity,
+    bytes or huge integers, which JSON cannot (writing them raised inside this very handler, a 500)."""
     from fastapi.encoders import jsonable_encoder
 
-    return jsonable_encoder(errors, custom_encoder={Exception: str})
+    return _finite(jsonable_encoder(errors, custom_encoder={Exception: str, bytes: _bytes_text}))
+
+
+def _bytes_text(data: bytes) -> str:
+    return data[:200].decode("utf-8", "replace")
+
+
+def _finite(value: object) -> object:
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) > 2**53:
+        return str(value)
+    if isinstance(value, dict):
+        return {str(key): _finite(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(item) for item in value]
+    if isinstance(value, str) and len(value) > 1000:
+        return value[:1000] + "…"
+    return value

@@ -1,6 +1,10 @@
-"""A cap on request bodies (413), except on the upload routes, which stream to disk under their own limit."""
+"""Limits of the web server: a cap on request bodies (413, except on the upload routes, which stream to disk under
+their own limit), and a request rate per user (429)."""
 
 from __future__ import annotations
+
+import threading
+import time
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
@@ -43,3 +47,118 @@ class BodySizeLimit:
         headers = [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode())]
         await send({"type": "http.response.start", "status": 413, "headers": headers})
         await send({"type": "http.response.body", "body": body})
+
+
+class UserRateLimiter:
+    """A token bucket per user of this API process: `rate_per_s` requests per second on average, `burst` at once.
+
+    One user's script cannot starve everyone else: beyond its rate it gets a 429 with Retry-After, while other
+    users' requests are served. (Per process: several API processes behind a proxy each allow the rate.)
+    """
+
+    MAX_USERS = 100_000
+
+    def __init__(self, *, rate_per_s: float, burst: int) -> None:
+        self.rate_per_s = rate_per_s
+        self.burst = burst
+        self._buckets: dict[object, tuple[float, float]] = {}  # user -> (tokens, at monotonic s)
+        self._lock = threading.Lock()
+
+    def take(self, user: object) -> float:
+        """Take one request from `user`'s bucket: 0 when allowed, else the seconds until one is."""
+        now = time.monotonic()
+        with self._lock:
+            tokens, at = self._buckets.get(user, (float(self.burst), now))
+            tokens = min(float(self.burst), tokens + (now - at) * self.rate_per_s)
+            if tokens < 1.0:
+                self._buckets[user] = (tokens, now)
+                return (1.0 - tokens) / self.rate_per_s
+            if len(self._buckets) >= self.MAX_USERS:
+                self._buckets.clear()
+            self._buckets[user] = (tokens - 1.0, now)
+            return 0.0
+
+
+INT64_MAX = (1 << 63) - 1
+
+
+class _NotPlainJson(ValueError):
+    pass
+
+
+def _refuse_constant(name: str) -> object:
+    raise _NotPlainJson(f"{name} is not a JSON number; send finite numbers only")
+
+
+def _checked_int(text: str) -> int:
+    if len(text.lstrip("-")) > 19 or abs(int(text)) > INT64_MAX:
+        raise _NotPlainJson(f"the integer {text[:24]}{'…' if len(text) > 24 else ''} is out of range (|n| < 2**63)")
+    return int(text)
+
+
+class PlainJsonNumbers:
+    """Refuse (422) a JSON request body holding NaN, Infinity or an integer beyond 64 bits, before any route or
+    validator sees it. Python's JSON parser accepts these; a validator then reports them back in its 422, which
+    cannot be serialised (500), and a huge integer overflows in the database driver (500). Bodies are capped by
+    BodySizeLimit before this runs; upload routes (no JSON) are exempt."""
+
+    def __init__(self, app: ASGIApp, *, exempt_prefixes: tuple[str, ...]) -> None:
+        self.app = app
+        self.exempt_prefixes = exempt_prefixes
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        content_type = dict(scope.get("headers", [])).get(b"content-type", b"")
+        if (
+            scope["type"] != "http"
+            or scope["path"].startswith(self.exempt_prefixes)
+            or b"json" not in content_type.lower()
+        ):
+            await self.app(scope, receive, send)
+            return
+        chunks = []
+        more = True
+        while more:
+            message = await receive()
+            if message["type"] != "http.request":
+                await self.app(scope, _replay([message]), send)
+                return
+            chunks.append(message.get("body", b""))
+            more = message.get("more_body", False)
+        body = b"".join(chunks)
+        problem = _number_problem(body)
+        if problem:
+            import json
+
+            payload = json.dumps({"detail": f"body: {problem}", "code": "invalid_number"}).encode()
+            headers = [(b"content-type", b"application/json"), (b"content-length", str(len(payload)).encode())]
+            await send({"type": "http.response.start", "status": 422, "headers": headers})
+            await send({"type": "http.response.body", "body": payload})
+            return
+        await self.app(scope, _replay([{"type": "http.request", "body": body, "more_body": False}], then=receive), send)
+
+
+def _number_problem(body: bytes) -> str:
+    import json
+
+    try:
+        json.loads(body, parse_constant=_refuse_constant, parse_int=_checked_int)
+    except _NotPlainJson as error:
+        return str(error)
+    except RecursionError:
+        return "nested too deeply"
+    except ValueError:
+        return ""  # not JSON at all: the route's own validation answers with its 422
+    return ""
+
+
+def _replay(messages: list[Message], then: Receive | None = None) -> Receive:
+    pending = list(messages)
+
+    async def receive() -> Message:
+        if pending:
+            return pending.pop(0)
+        if then is not None:
+            return await then()
+        return {"type": "http.disconnect"}
+
+    return receive

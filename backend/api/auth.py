@@ -38,18 +38,28 @@ def login(body: LoginIn, request: Request, response: Response, state: StateDep, 
     user, secret, ttl = accounts.log_in(
         session, state.settings, client=client, username=body.username, password=body.password
     )
+    secure = state.settings.secure_cookies == "always" or (
+        state.settings.secure_cookies == "auto" and request.url.scheme == "https"
+    )
     response.set_cookie(
-        SESSION_COOKIE, secret, max_age=int(ttl.total_seconds()), httponly=True, samesite="strict", path="/"
+        SESSION_COOKIE,
+        secret,
+        max_age=int(ttl.total_seconds()),
+        httponly=True,
+        samesite="strict",
+        path="/",
+        secure=secure,
     )
     return Me(username=user.username, role=user.role, auth_enabled=True)
 
 
 @router.post("/auth/logout", status_code=204, responses=error_responses(401))
-def logout(request: Request, response: Response, session: SessionDep, principal: CurrentUser) -> None:
+def logout(request: Request, response: Response, session: SessionDep, state: StateDep, principal: CurrentUser) -> None:
     """End the browser session (its token is revoked)."""
     secret = request.cookies.get(SESSION_COOKIE)
     if secret:
         accounts.log_out(session, secret)
+        state.tokens.forget()
     response.delete_cookie(SESSION_COOKIE, path="/")
 
 
@@ -73,9 +83,13 @@ def create_token(body: TokenIn, session: SessionDep, principal: CurrentUser) -> 
 
 
 @router.delete("/auth/tokens/{token_id}", status_code=204, responses=error_responses(401, 404))
-def revoke_token(token_id: Annotated[int, Path(ge=1, le=MAX_ID)], session: SessionDep, principal: CurrentUser) -> None:
-    """Revoke one of your tokens; scripts using it get 401 from now on."""
+def revoke_token(
+    token_id: Annotated[int, Path(ge=1, le=MAX_ID)], session: SessionDep, state: StateDep, principal: CurrentUser
+) -> None:
+    """Revoke one of your tokens; scripts using it get 401 from now on (from other API processes within
+    FRINGELAB_TOKEN_CACHE_S)."""
     accounts.revoke_token(session, principal, token_id)
+    state.tokens.forget()
 
 
 @router.get("/users", response_model=list[UserOut], responses=error_responses(401, 403))
@@ -90,12 +104,19 @@ def add_user(body: UserIn, session: SessionDep, admin: AdminUser) -> User:
     return accounts.add_user(session, admin, username=body.username, password=body.password, role=body.role)
 
 
-@router.patch("/users/{user_id}", response_model=UserOut, responses=error_responses(401, 403, 404))
+@router.patch("/users/{user_id}", response_model=UserOut, responses=error_responses(401, 403, 404, 409))
 def update_user(
-    user_id: Annotated[int, Path(ge=1, le=MAX_ID)], body: UserPatch, session: SessionDep, admin: AdminUser
+    user_id: Annotated[int, Path(ge=1, le=MAX_ID)],
+    body: UserPatch,
+    session: SessionDep,
+    state: StateDep,
+    admin: AdminUser,
 ) -> User:
-    """Change an account's role or disable it (admin); a disabled account's tokens stop working at once."""
-    return accounts.update_user(session, admin, user_id, body.model_dump(exclude_none=True))
+    """Change an account's role or disable it (admin); a disabled account's tokens stop working at once (in
+    other API processes within FRINGELAB_TOKEN_CACHE_S). The last active admin is neither demoted nor disabled (409)."""
+    user = accounts.update_user(session, admin, user_id, body.model_dump(exclude_none=True))
+    state.tokens.forget()
+    return user
 
 
 def _group_out(session: SessionDep, group: Group) -> GroupOut:

@@ -16,14 +16,16 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
 
 from backend.schemas.common import MAX_ID
-from fringelab.core.accounts import LOCAL_ADMIN, AuthError, Principal, require_access, resolve_token
-from fringelab.core.errors import Forbidden, NotFound, Unauthorized
+from fringelab.core.accounts import LOCAL_ADMIN, AuthError, Principal, require_access
+from fringelab.core.errors import Forbidden, NotFound, RateLimited, Unauthorized
 from fringelab.core.models import Camera, Experiment, Recording
 from fringelab.core.recordings import camera_for, recording_for
 from fringelab.core.state import AppState
 
 SESSION_COOKIE = "fringelab_session"
-_bearer = HTTPBearer(auto_error=False, description="An API token (`flb_...`) or the browser's session cookie.")
+bearer_scheme = _bearer = HTTPBearer(
+    auto_error=False, description="An API token (`flb_...`) or the browser's session cookie."
+)
 
 
 def get_state(request: Request) -> AppState:
@@ -39,21 +41,37 @@ StateDep = Annotated[AppState, Depends(get_state)]
 SessionDep = Annotated[Session, Depends(get_session)]
 
 
-def get_principal(
-    request: Request,
-    state: StateDep,
-    session: SessionDep,
-    credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
-) -> Principal:
+def request_secret(request: Request, credentials: HTTPAuthorizationCredentials | None) -> str | None:
+    return credentials.credentials if credentials else request.cookies.get(SESSION_COOKIE)
+
+
+def principal_of(request: Request, state: AppState, secret: str | None, *, count: bool = True) -> Principal:
+    """Who sends the request (from the token cache; no database write), counted against their request rate
+    (`count`: an open event stream's re-checks are not requests)."""
     if not state.settings.auth_enabled:
         return LOCAL_ADMIN
-    secret = credentials.credentials if credentials else request.cookies.get(SESSION_COOKIE)
     if not secret:
         raise Unauthorized("authentication required: send `Authorization: Bearer <token>` or log in")
     try:
-        return resolve_token(session, secret)
+        principal = state.tokens.resolve(state.sessions, secret)
     except AuthError as error:
         raise Unauthorized(str(error)) from None
+    wait_s = request.app.state.user_limiter.take(principal.user_id) if count else 0.0
+    if wait_s > 0:
+        raise RateLimited(
+            f"too many requests from {principal.username} (over {state.settings.user_requests_per_s:g}/s); "
+            "slow down and retry",
+            retry_after_s=wait_s,
+        )
+    return principal
+
+
+def get_principal(
+    request: Request,
+    state: StateDep,
+    credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
+) -> Principal:
+    return principal_of(request, state, request_secret(request, credentials))
 
 
 CurrentUser = Annotated[Principal, Depends(get_principal)]

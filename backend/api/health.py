@@ -23,5 +23,6 @@ def health(state: StateDep) -> JSONResponse:
         redis_url=state.settings.redis_url,
         celery=state.celery,
         worker_timeout_s=state.settings.health_worker_timeout_s,
+        data_path=state.settings.data_path,
     )
     return JSONResponse(body.model_dump(), status_code=200 if body.ok else 503)

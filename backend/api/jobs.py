@@ -16,13 +16,14 @@ from datetime import datetime
 from typing import Annotated, Any
 
 import anyio
-from fastapi import APIRouter, Body, Depends, Query, Response
+from fastapi import APIRouter, Body, Depends, Query, Request, Response
 from fastapi.responses import FileResponse
+from fastapi.security import HTTPAuthorizationCredentials
 from fastapi.sse import EventSourceResponse, ServerSentEvent
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from backend.api.deps import CurrentUser, SessionDep, StateDep
+from backend.api.deps import CurrentUser, SessionDep, StateDep, bearer_scheme, principal_of, request_secret
 from backend.errors import error_responses
 from backend.schemas.deletion import DeletionOut, deletion_out
 from backend.schemas.jobs import (
@@ -39,7 +40,7 @@ from backend.schemas.jobs import (
 )
 from fringelab.core.accounts import Principal, audit, readable_experiments
 from fringelab.core.deletion import execute, plan_job
-from fringelab.core.errors import Gone, NotFound, Unavailable
+from fringelab.core.errors import Gone, NotFound, Unauthorized, Unavailable
 from fringelab.core.jobs import (
     QueueUnavailable,
     as_utc,
@@ -57,6 +58,7 @@ from fringelab.core.state import AppState
 router = APIRouter(tags=["jobs"])
 log = logging.getLogger(__name__)
 EVENTS_POLL_S = 0.25
+EVENTS_ACCESS_CHECK_S = 2.0  # an open event stream checks its reader's token and access this often
 ERRORS: dict[int | str, dict[str, Any]] = {
     status: {"model": ErrorOut, "description": description}
     for status, description in (
@@ -262,14 +264,27 @@ def _streamable_job_id(job_id: str, state: StateDep, principal: CurrentUser) -> 
 
 @router.get("/jobs/{job_id}/events", response_class=EventSourceResponse, responses=ERRORS)
 async def job_events(
-    job_id: Annotated[str, Depends(_streamable_job_id)], state: StateDep
+    job_id: Annotated[str, Depends(_streamable_job_id)],
+    state: StateDep,
+    request: Request,
+    credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer_scheme)],
 ) -> AsyncIterator[ServerSentEvent]:
     """Live progress as Server-Sent Events: `job` (the job as `GET /jobs/{id}` shows it) whenever it changes,
-    `log` for each new log line, and `end` once the job has ended; then the stream closes."""
+    `log` for each new log line, and `end` once the job has ended; then the stream closes. Access is checked
+    again every few seconds while the stream is open: a revoked token, a disabled account or a lost share ends
+    it with an `end` event whose error says so."""
+    secret = request_secret(request, credentials)
     last_view: dict[str, Any] | None = None
     last_line = 0
     sequence = 0
+    checked_at_s = anyio.current_time()
     while True:
+        if anyio.current_time() - checked_at_s >= EVENTS_ACCESS_CHECK_S:
+            checked_at_s = anyio.current_time()
+            refusal = await anyio.to_thread.run_sync(_access_refusal, request, state, secret, job_id)
+            if refusal:
+                yield ServerSentEvent(event="end", data={"state": "forbidden", "error": refusal})
+                return
         view, lines = await anyio.to_thread.run_sync(_snapshot, state, job_id, last_line)
         if view is None:
             return
@@ -285,6 +300,17 @@ async def job_events(
             yield ServerSentEvent(event="end", data={"state": view.state, "error": view.error})
             return
         await anyio.sleep(EVENTS_POLL_S)
+
+
+def _access_refusal(request: Request, state: AppState, secret: str | None, job_id: str) -> str:
+    """Why the stream's reader may no longer see the job ("" while they may)."""
+    try:
+        principal = principal_of(request, state, secret, count=False)
+        with state.sessions() as session:
+            job_for(session, principal, job_id)
+    except (Unauthorized, NotFound) as error:
+        return f"access ended: {error.detail}"
+    return ""
 
 
 def _snapshot(state: AppState, job_id: str, after: int) -> tuple[JobOut | None, list[LogLineOut]]:

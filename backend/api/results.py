@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path as PathType
 from typing import Annotated, Any, Literal
 
 import numpy as np
@@ -22,12 +23,14 @@ from sqlalchemy import select
 
 from backend.api.deps import CurrentUser, SessionDep, StateDep, experiment_for
 from backend.api.jobs import ERRORS, JobDep
+from backend.cache import AnswerCache
 from backend.results import camera_report, plain, projector_report, projector_table, result_path
 from backend.schemas.jobs import MAX_ID, CalibrationOut, ErrorOut
 from fringelab.core.accounts import readable_experiments
 from fringelab.core.errors import Conflict, Gone, Invalid, NotFound
 from fringelab.core.jobs import as_utc, job_error
 from fringelab.core.models import Calibration, Camera, Experiment, Job
+from fringelab.core.state import AppState
 from fringelab.formats.topography import (
     GRID_BUDGET_NODES,
     MISSING_REASONS,
@@ -276,11 +279,12 @@ def calibration_file(calibration: CalibrationDep, state: StateDep) -> FileRespon
 # ---------------------------------------------------------------------------------------------- topography
 
 TOPOGRAPHY_FILE = "topography.h5"
+# Rendered grids, overviews and profiles of results (immutable once their job succeeded), shared by the viewers.
+ANSWERS = AnswerCache(max_bytes=16 * 2**20)
 
 
-@contextmanager
-def topography(job: Job, data_path: Any) -> Iterator[TopographyResult]:
-    """The result of a succeeded topography job, open; a job error (409/410/422) with what to do otherwise."""
+def topography_file(job: Job, data_path: Any) -> PathType:
+    """The result file of a succeeded topography job; a job error (404/409/410) with what to do otherwise."""
     if job.kind != "topography":
         raise job_error(NotFound, "not_topography", f"job {job.id} is a {job.kind} job, not a topography")
     if job.state != "succeeded":
@@ -291,7 +295,17 @@ def topography(job: Job, data_path: Any) -> Iterator[TopographyResult]:
     if entry is None:
         raise job_error(Gone, "result_missing", f"job {job.id} has no {TOPOGRAPHY_FILE}; retry the job")
     try:
-        with TopographyResult(result_path(data_path, entry["path"])) as reader:
+        return result_path(data_path, entry["path"])
+    except ResultUnavailable as error:
+        raise job_error(Gone, "result_missing", str(error)) from None
+
+
+@contextmanager
+def topography(job: Job, data_path: Any) -> Iterator[TopographyResult]:
+    """The result of a succeeded topography job, open; a job error (409/410/422) with what to do otherwise."""
+    path = topography_file(job, data_path)
+    try:
+        with TopographyResult(path) as reader:
             yield reader
     except FrameNotInResult as error:
         raise job_error(Invalid, "frame_not_in_result", str(error), field="frame") from None
@@ -330,6 +344,15 @@ def topography_overview(job: JobDep, state: StateDep) -> TopographyOverview:
     """The frames of a topography result with the test log and the peak deflection of each (for the frame
     slider and the plots of peak deflection against time, punch displacement and force), the grid's extent and
     the result's summary."""
+
+    def render() -> bytes:
+        return _overview(job, state).model_dump_json().encode()
+
+    body = ANSWERS.get_or_render(topography_file(job, state.settings.data_path), ("overview",), render)
+    return Response(body, media_type="application/json")  # type: ignore[return-value]
+
+
+def _overview(job: Job, state: AppState) -> TopographyOverview:
     with topography(job, state.settings.data_path) as reader:
         x, y = reader.x_mm, reader.y_mm
         coverage = reader.coverage()
@@ -398,6 +421,18 @@ def topography_grid(
     if any(b is None for b in bounds) and not all(b is None for b in bounds):
         raise job_error(Invalid, "incomplete_window", "give all of x_min, x_max, y_min, y_max, or none", field="x_min")
     window = None if x_min is None else tuple(float(b) for b in bounds)  # type: ignore[arg-type]
+    if format == "json":
+
+        def render() -> bytes:
+            with topography(job, state.settings.data_path) as reader:
+                cut = reader.grid_cut(frame, budget=budget, window_mm=window)  # type: ignore[arg-type]
+            grid = GridOut(frame=cut.frame, step=cut.step, x_mm=_listed(cut.x_mm), y_mm=_listed(cut.y_mm),
+                           w_mm=_listed(cut.w_mm))  # fmt: skip
+            return grid.model_dump_json().encode()
+
+        key = ("grid", frame, budget, window)
+        body = ANSWERS.get_or_render(topography_file(job, state.settings.data_path), key, render)
+        return Response(body, media_type="application/json")
     with topography(job, state.settings.data_path) as reader:
         cut = reader.grid_cut(frame, budget=budget, window_mm=window)  # type: ignore[arg-type]
     if format == "f32":
@@ -450,14 +485,24 @@ def topography_profile(
     Points and lines take the same style everywhere: `x_mm, y_mm` for a point (history), `x0_mm, y0_mm, x1_mm,
     y1_mm` for a line. The old names `x0, y0, x1, y1` still work and are deprecated."""
     line = _line_mm((x0_mm, y0_mm, x1_mm, y1_mm), (x0, y0, x1, y1))
-    with topography(job, state.settings.data_path) as reader:
-        cut = reader.profile(frames, line, n_points=n_points)
-    return ProfileOut(
-        s_mm=_listed(cut["s_mm"]),
-        x_mm=_listed(cut["x_mm"]),
-        y_mm=_listed(cut["y_mm"]),
-        profiles=[{"frame": p["frame"], "w_mm": _listed(p["w_mm"])} for p in cut["profiles"]],
-    )
+
+    def render() -> bytes:
+        with topography(job, state.settings.data_path) as reader:
+            cut = reader.profile(frames, line, n_points=n_points)
+        return (
+            ProfileOut(
+                s_mm=_listed(cut["s_mm"]),
+                x_mm=_listed(cut["x_mm"]),
+                y_mm=_listed(cut["y_mm"]),
+                profiles=[{"frame": p["frame"], "w_mm": _listed(p["w_mm"])} for p in cut["profiles"]],
+            )
+            .model_dump_json()
+            .encode()
+        )
+
+    key = ("profile", tuple(frames), *line, n_points)
+    body = ANSWERS.get_or_render(topography_file(job, state.settings.data_path), key, render)
+    return Response(body, media_type="application/json")  # type: ignore[return-value]
 
 
 class HistoryOut(BaseModel):

@@ -12,6 +12,8 @@ from __future__ import annotations
 import hashlib
 import re
 import secrets
+import threading
+import time
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from typing import Any, Literal
@@ -19,8 +21,8 @@ from typing import Any, Literal
 import redis
 from argon2 import PasswordHasher
 from argon2.exceptions import InvalidHashError, VerificationError
-from sqlalchemy import ColumnElement, or_, select, true
-from sqlalchemy.orm import Session
+from sqlalchemy import ColumnElement, or_, select, true, update
+from sqlalchemy.orm import Session, sessionmaker
 
 from fringelab.core.errors import Conflict, Forbidden, NotFound, RateLimited, Unauthorized
 from fringelab.core.models import ApiToken, AuditEvent, Experiment, Group, GroupMember, User, utcnow
@@ -55,6 +57,39 @@ LOCAL_ADMIN = Principal(user_id=None, username="local", role="admin")
 
 def hash_password(password: str) -> str:
     return _hasher.hash(password)
+
+
+_DUMMY_HASH = _hasher.hash(secrets.token_urlsafe(16))  # what an unknown user's password is checked against
+
+
+def authenticate(session: Session, username: str, password: str) -> User | None:
+    """The active user with this username and password, or None. Takes one password check whether or not the
+    user exists (an unknown name is checked against a dummy hash), so the time does not tell names apart."""
+    user = session.scalar(select(User).where(User.username == username))
+    matches = verify_password(user.password_hash if user else _DUMMY_HASH, password)
+    return user if user is not None and matches and not user.disabled else None
+
+
+def change_user(session: Session, user: User, *, role: str | None = None, disabled: bool | None = None) -> None:
+    """Change an account's role or state (not committed). The last active admin can be neither demoted nor
+    disabled, by anyone including itself: a lab server without an admin could not be administered any more."""
+    if role is not None and role not in ROLES:
+        raise ValueError(f"role: expected one of {', '.join(ROLES)}, got {role!r}")
+    loses_admin = user.role == "admin" and not user.disabled and (role == "member" or disabled is True)
+    if loses_admin:
+        others = session.scalars(
+            select(User.id).where(User.role == "admin", User.disabled.is_(False), User.id != user.id)
+        ).first()
+        if others is None:
+            raise Conflict(
+                f"{user.username} is the last active admin; promote another account first "
+                "(`fringelab user promote NAME`)",
+                code="last_admin",
+            )
+    if role is not None:
+        user.role = role
+    if disabled is not None:
+        user.disabled = disabled
 
 
 def verify_password(password_hash: str, password: str) -> bool:
@@ -107,6 +142,11 @@ def _aware(moment: datetime) -> datetime:
 
 
 def resolve_token(session: Session, secret: str) -> Principal:
+    """Who a token belongs to, read from the database (no write: last uses are recorded by `TokenCache`)."""
+    return _lookup_token(session, secret)[0]
+
+
+def _lookup_token(session: Session, secret: str) -> tuple[Principal, int, datetime | None]:
     row = session.scalar(select(ApiToken).where(ApiToken.token_hash == token_digest(secret)))
     if row is None:
         raise AuthError("unknown token; create one in the dashboard or with `fringelab token create`")
@@ -117,9 +157,77 @@ def resolve_token(session: Session, secret: str) -> Principal:
     user = session.get(User, row.user_id)
     if user is None or user.disabled:
         raise AuthError("this account is disabled; ask an admin")
-    row.last_used_at = utcnow()
-    session.commit()
-    return Principal(user_id=user.id, username=user.username, role=user.role)
+    expires_at = _aware(row.expires_at) if row.expires_at is not None else None
+    return Principal(user_id=user.id, username=user.username, role=user.role), row.id, expires_at
+
+
+@dataclass(frozen=True)
+class _Known:
+    principal: Principal | None
+    error: str
+    token_id: int
+    expires_at: datetime | None
+    checked_at_s: float
+
+
+class TokenCache:
+    """Tokens this API process has checked, trusted for `ttl_s` seconds without asking the database again.
+
+    Authentication is on every request: a database read (and, before, a write of `last_used_at`) each time
+    made 200 requests/s exhaust the connection pool. Here a token costs one read per `ttl_s`; refusals are
+    remembered as well (a flood of bad tokens costs no more). `last_used_at` is kept in memory and written by
+    `flush_last_used` in one transaction (the API calls it every few seconds and at shutdown). A revocation,
+    a disabled account or a changed role calls `forget()` in this process; another process sees it within `ttl_s`.
+    """
+
+    MAX_ENTRIES = 10_000
+
+    def __init__(self, ttl_s: float) -> None:
+        self.ttl_s = ttl_s
+        self._known: dict[str, _Known] = {}
+        self._last_used: dict[int, datetime] = {}
+        self._lock = threading.Lock()
+
+    def resolve(self, sessions: sessionmaker[Session], secret: str) -> Principal:
+        digest = token_digest(secret)
+        now_s = time.monotonic()
+        known = self._known.get(digest)
+        if known is None or now_s - known.checked_at_s >= self.ttl_s:
+            with sessions() as session:
+                try:
+                    principal, token_id, expires_at = _lookup_token(session, secret)
+                    known = _Known(principal, "", token_id, expires_at, now_s)
+                except AuthError as error:
+                    known = _Known(None, str(error), 0, None, now_s)
+            with self._lock:
+                if len(self._known) >= self.MAX_ENTRIES:
+                    self._known.clear()
+                self._known[digest] = known
+        if known.principal is None:
+            raise AuthError(known.error)
+        now = utcnow()
+        if known.expires_at is not None and known.expires_at <= now:
+            raise AuthError("this token has expired; log in again or create a new token")
+        with self._lock:
+            self._last_used[known.token_id] = now
+        return known.principal
+
+    def forget(self) -> None:
+        """Drop every checked token (after a revocation, a disabled user, a role change)."""
+        with self._lock:
+            self._known.clear()
+
+    def flush_last_used(self, sessions: sessionmaker[Session]) -> int:
+        """Write the last uses seen since the previous flush; returns how many tokens were written."""
+        with self._lock:
+            pending, self._last_used = self._last_used, {}
+        if not pending:
+            return 0
+        with sessions() as session:
+            for token_id, moment in pending.items():
+                session.execute(update(ApiToken).where(ApiToken.id == token_id).values(last_used_at=moment))
+            session.commit()
+        return len(pending)
 
 
 def readable_experiments(session: Session, principal: Principal) -> ColumnElement[bool]:
@@ -213,8 +321,8 @@ def log_in(
     window = settings.login_window_s
     if _failed_logins(settings, client, count_one=False) >= settings.login_max_failures:
         raise RateLimited(f"too many failed logins from {client}; wait {window} s", retry_after_s=window)
-    user = session.scalar(select(User).where(User.username == username))
-    if user is None or user.disabled or not verify_password(user.password_hash, password):
+    user = authenticate(session, username, password)  # as long for an unknown name as for a known one
+    if user is None:
         _failed_logins(settings, client, count_one=True)
         raise Unauthorized("wrong username or password, or the account is disabled")
     ttl = timedelta(hours=settings.session_ttl_h)
@@ -297,8 +405,7 @@ def update_user(session: Session, admin: Principal, user_id: int, changes: dict[
     user = session.get(User, user_id)
     if user is None:
         raise NotFound(f"user {user_id} not found")
-    for field, value in changes.items():
-        setattr(user, field, value)
+    change_user(session, user, **changes)
     audit(session, admin, "update", "user", user_id, **changes)
     session.commit()
     return user

@@ -21,12 +21,17 @@ class DatabaseError(Exception):
     """The database cannot be reached or migrated; the message says how to fix it."""
 
 
-def make_engine(url: str) -> Engine:
+def make_engine(url: str, *, pool_size: int = 5) -> Engine:
+    """An engine with `pool_size` connections kept (and as many again on demand): the web server passes one
+    per thread that may run a route, so that no request waits for a connection another holds."""
+    pool: dict[str, int] = {"pool_size": pool_size, "max_overflow": pool_size, "pool_timeout": 30}
     if url.startswith("sqlite"):
         path = url.split("///", 1)[-1]
         if path and path != ":memory:":
             Path(path).parent.mkdir(parents=True, exist_ok=True)
-        engine = create_engine(url, connect_args={"check_same_thread": False, "timeout": 30})
+        if not path or path == ":memory:":
+            pool = {}  # one in-memory database per connection: SQLAlchemy's own single-thread pool
+        engine = create_engine(url, connect_args={"check_same_thread": False, "timeout": 30}, **pool)
 
         @event.listens_for(engine, "connect")
         def _sqlite_pragmas(dbapi_connection, _record) -> None:
@@ -37,7 +42,7 @@ def make_engine(url: str) -> Engine:
             cursor.close()
 
         return engine
-    return create_engine(url, pool_pre_ping=True)
+    return create_engine(url, pool_pre_ping=True, **pool)
 
 
 def make_sessionmaker(engine: Engine) -> sessionmaker[Session]:

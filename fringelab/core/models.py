@@ -44,6 +44,7 @@ class Base(DeclarativeBase):
 
 class Experiment(Base):
     __tablename__ = "experiments"
+    __table_args__ = {"sqlite_autoincrement": True}  # ids never reused (migration 0006)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     name: Mapped[str] = mapped_column(String(200))
@@ -66,6 +67,7 @@ class Experiment(Base):
 
 class Camera(Base):
     __tablename__ = "cameras"
+    __table_args__ = {"sqlite_autoincrement": True}  # ids never reused (migration 0006)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     experiment_id: Mapped[int] = mapped_column(ForeignKey("experiments.id", ondelete="CASCADE"), index=True)
@@ -89,6 +91,7 @@ class Camera(Base):
 
 class Recording(Base):
     __tablename__ = "recordings"
+    __table_args__ = {"sqlite_autoincrement": True}  # ids never reused (migration 0006)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     camera_id: Mapped[int] = mapped_column(ForeignKey("cameras.id", ondelete="CASCADE"), index=True)
@@ -122,6 +125,7 @@ class Simulation(Base):
     `fringelab.formats.simulations.open_simulation` before it is registered: a row exists only for a readable one."""
 
     __tablename__ = "simulations"
+    __table_args__ = {"sqlite_autoincrement": True}  # ids never reused (migration 0006)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     experiment_id: Mapped[int] = mapped_column(ForeignKey("experiments.id", ondelete="CASCADE"), index=True)
@@ -195,6 +199,7 @@ class JobLog(Base):
     """A line of a job's log, for people: what it did, what went wrong and what to do."""
 
     __tablename__ = "job_logs"
+    __table_args__ = {"sqlite_autoincrement": True}  # ids never reused (migration 0006)
 
     id: Mapped[int] = mapped_column(primary_key=True, autoincrement=True)
     job_id: Mapped[str] = mapped_column(ForeignKey("jobs.id", ondelete="CASCADE"), index=True)
@@ -208,7 +213,10 @@ class Calibration(Base):
 
     __tablename__ = "calibrations"
     # Versions count per camera and kind; the constraint makes two jobs finishing at once take different ones.
-    __table_args__ = (UniqueConstraint("camera_id", "kind", "version", name="uq_calibrations_camera_kind_version"),)
+    __table_args__ = (
+        UniqueConstraint("camera_id", "kind", "version", name="uq_calibrations_camera_kind_version"),
+        {"sqlite_autoincrement": True},  # ids never reused (migration 0006)
+    )
 
     id: Mapped[int] = mapped_column(primary_key=True)
     kind: Mapped[str] = mapped_column(String(32))  # camera | projector
@@ -227,6 +235,7 @@ class Calibration(Base):
 
 class User(Base):
     __tablename__ = "users"
+    __table_args__ = {"sqlite_autoincrement": True}  # ids never reused (migration 0006)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     username: Mapped[str] = mapped_column(String(64), unique=True)
@@ -238,6 +247,7 @@ class User(Base):
 
 class Group(Base):
     __tablename__ = "groups"
+    __table_args__ = {"sqlite_autoincrement": True}  # ids never reused (migration 0006)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     name: Mapped[str] = mapped_column(String(64), unique=True)
@@ -254,6 +264,7 @@ class ApiToken(Base):
     """A bearer token (API token for scripts, or a browser session); only its SHA-256 is stored."""
 
     __tablename__ = "api_tokens"
+    __table_args__ = {"sqlite_autoincrement": True}  # ids never reused (migration 0006)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     user_id: Mapped[int] = mapped_column(ForeignKey("users.id", ondelete="CASCADE"), index=True)
@@ -271,6 +282,7 @@ class AuditEvent(Base):
     """Who uploaded, started, cancelled or deleted what, and when."""
 
     __tablename__ = "audit_events"
+    __table_args__ = {"sqlite_autoincrement": True}  # ids never reused (migration 0006)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow, index=True)

@@ -34,6 +34,7 @@ from fringelab.core.state import AppState
 from fringelab.core.storage import (
     InsufficientStorage,
     check_room,
+    free_disk_bytes,
     place_file,
     recording_dir,
     recording_file_name,
@@ -44,13 +45,15 @@ from fringelab.core.storage import (
 from fringelab.formats.containers import (
     UPLOAD_SUFFIXES,
     CorruptRecording,
+    OverBudget,
+    RecordingLayout,
     UnsafeArchive,
     UnsupportedRecording,
     ZipLimits,
-    inspect_zip,
-    read_cine_header,
-    sniff_format,
+    check_ingest_budget,
+    recording_layout,
 )
+from fringelab.formats.previews import THUMBNAIL_PX
 
 KINDS = ("camera_calibration", "projector_calibration", "test")
 
@@ -264,21 +267,41 @@ def check_upload_size(settings: Settings, length: int, *, reserved_bytes: int = 
 def inspect_upload(path: Path, *, filename: str, settings: Settings) -> str:
     """The format of a received file after checking its container; DomainError 415/422 when it is no recording."""
     try:
-        format = sniff_format(path)
-        if format == "zip":
-            limits = ZipLimits(max_total_bytes=settings.zip_max_uncompressed_bytes, max_ratio=settings.zip_max_ratio)
-            inspect_zip(path, limits=limits)
-        elif format == "cine":
-            read_cine_header(path)
-        elif format == "folder":
+        layout = recording_layout(path, zip_limits=zip_limits(settings))
+        if layout.format == "folder":
             raise UnsupportedRecording(f"{filename}: a folder cannot be uploaded; zip it")
+        check_budget(layout, settings, name=filename)
+        format = layout.format
+    except OverBudget as error:
+        raise TooLarge(_named(error, path, filename), code="over_budget") from None
     except UnsupportedRecording as error:
         raise UnsupportedFormat(_named(error, path, filename), code="unsupported_format") from None
     except UnsafeArchive as error:
         raise Invalid(_named(error, path, filename), code="unsafe_archive") from None
     except CorruptRecording as error:
         raise Invalid(_named(error, path, filename), code="corrupt_recording") from None
+    except ValueError as error:  # any other refusal of the format readers: the file's fault, never a 500
+        raise Invalid(_named(error, path, filename), code="invalid_recording") from None
     return format
+
+
+def zip_limits(settings: Settings) -> ZipLimits:
+    return ZipLimits(max_total_bytes=settings.zip_max_uncompressed_bytes, max_ratio=settings.zip_max_ratio)
+
+
+def check_budget(layout: RecordingLayout, settings: Settings, *, name: str) -> None:
+    """The ingest budget of a recording (frames × frame size against FRINGELAB_MAX_FRAMES_BYTES, its previews
+    against the free disk less FRINGELAB_MIN_FREE_DISK_BYTES), checked at upload and again by the ingest before
+    it writes anything. Raises OverBudget."""
+    check_ingest_budget(
+        layout,
+        name=name,
+        max_frames_bytes=settings.max_frames_bytes,
+        free_bytes=free_disk_bytes(settings.data_path),
+        reserve_bytes=settings.min_free_disk_bytes,
+        preview_size_px=settings.preview_size_px,
+        thumbnail_px=THUMBNAIL_PX,
+    )
 
 
 def _named(error: Exception, path: Path, filename: str) -> str:

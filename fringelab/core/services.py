@@ -4,8 +4,23 @@ from __future__ import annotations
 
 import errno
 import socket
+from urllib.parse import urlsplit, urlunsplit
 
 import redis
+
+
+def redacted_url(url: str) -> str:
+    """A service URL safe to print, log or return: any password (and user name) replaced by ***.
+
+    Every message that names a Redis or database URL goes through this; a URL is never shown raw."""
+    parts = urlsplit(url)
+    if parts.password is None and parts.username is None:
+        return url
+    host = parts.hostname or ""
+    if ":" in host:
+        host = f"[{host}]"
+    netloc = f"***@{host}" + (f":{parts.port}" if parts.port else "")
+    return urlunsplit((parts.scheme, netloc, parts.path, parts.query, parts.fragment))
 
 
 class ServiceError(Exception):
@@ -19,7 +34,7 @@ def check_redis(url: str, *, timeout_s: float = 3.0) -> None:
         client.close()
     except redis.RedisError as error:
         raise ServiceError(
-            f"Redis at {url} is unreachable ({error}); start it, fix FRINGELAB_REDIS_URL, "
+            f"Redis at {redacted_url(url)} is unreachable ({error}); start it, fix FRINGELAB_REDIS_URL, "
             "or leave FRINGELAB_REDIS_URL empty so that `fringelab up` starts its own"
         ) from None
 

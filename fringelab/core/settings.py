@@ -64,6 +64,32 @@ class Settings(BaseSettings):
     login_max_failures: int = Field(10, ge=1, description="Failed logins per client address before a 429.")
     login_window_s: int = Field(300, ge=1, description="Window in which failed logins are counted.")
     max_json_bytes: int = Field(1_048_576, ge=1024, description="Largest accepted non-upload request body.")
+    trusted_proxies: str = Field(
+        "",
+        description="Comma-separated addresses of reverse proxies whose X-Forwarded-For/-Proto headers are believed "
+        "(e.g. 127.0.0.1 when nginx runs on this machine); empty: forwarded headers are ignored.",
+    )
+    secure_cookies: Literal["auto", "always", "never"] = Field(
+        "auto", description="Mark the session cookie Secure: auto does so when the request came over HTTPS."
+    )
+    allowed_origins: str = Field(
+        "",
+        description="Comma-separated extra origins (https://host:port) allowed to send state-changing requests "
+        "with the session cookie; the server's own origin always is.",
+    )
+    api_threads: int = Field(
+        40, ge=4, le=1000, description="Threads that run the web server's blocking routes (database, files)."
+    )
+    db_pool_size: int = Field(
+        0, ge=0, description="Database connections of one web server; 0 means one per API thread (+ 10)."
+    )
+    token_cache_s: float = Field(
+        5.0, ge=0, le=300, description="How long a checked token is trusted without asking the database again."
+    )
+    user_requests_per_s: float = Field(
+        100.0, gt=0, description="Requests per second one user may send on average (a 429 beyond)."
+    )
+    user_request_burst: int = Field(300, ge=1, description="Requests one user may send at once above that rate.")
     log_level: Literal["debug", "info", "warning", "error"] = Field("info", description="Log level.")
     max_upload_bytes: int = Field(64 * 2**30, ge=1, description="Largest recording one upload may be, in bytes.")
     min_free_disk_bytes: int = Field(
@@ -73,6 +99,12 @@ class Settings(BaseSettings):
     )
     upload_expiry_days: int = Field(
         5, ge=1, description="An unfinished resumable upload is deleted after this many days."
+    )
+    max_frames_bytes: int = Field(
+        256 * 2**30,
+        ge=1,
+        description="A recording whose frames decode to more bytes than this (frames × frame size, from its "
+        "headers) is refused before its ingest writes anything.",
     )
     zip_max_uncompressed_bytes: int = Field(
         256 * 2**30, ge=1, description="A ZIP whose entries expand to more than this in total is refused."
@@ -110,6 +142,18 @@ class Settings(BaseSettings):
     @property
     def resolved_database_url(self) -> str:
         return self.database_url or f"sqlite:///{self.data_path / 'fringelab.db'}"
+
+    @property
+    def trusted_proxy_list(self) -> list[str]:
+        return [address.strip() for address in self.trusted_proxies.split(",") if address.strip()]
+
+    @property
+    def allowed_origin_list(self) -> list[str]:
+        return [origin.strip().rstrip("/") for origin in self.allowed_origins.split(",") if origin.strip()]
+
+    @property
+    def resolved_db_pool_size(self) -> int:
+        return self.db_pool_size or self.api_threads + 10
 
     @property
     def resolved_worker_concurrency(self) -> int:

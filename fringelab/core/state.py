@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from celery import Celery
 from sqlalchemy import Engine
 from sqlalchemy.orm import Session, sessionmaker
 
+from fringelab.core.accounts import TokenCache
 from fringelab.core.settings import Settings
 
 
@@ -17,3 +18,4 @@ class AppState:
     engine: Engine
     sessions: sessionmaker[Session]
     celery: Celery
+    tokens: TokenCache = field(default_factory=lambda: TokenCache(ttl_s=5.0))

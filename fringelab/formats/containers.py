@@ -12,10 +12,16 @@ can refuse a bad upload at once and the readers can trust what they open. Decodi
   (a truncated .cine is refused here); `unpack_cine_pixels` turns one stored image into an array.
 - `read_mraw_header(path)`: a Photron .cih/.cihx header and its .mraw checked against each other (8-, 12- and
   16-bit mono); `unpack_mraw_pixels` turns one stored frame into an array.
+- `read_tiff_layout(path)`: the page chain of a (multi-page) TIFF, every IFD and every strip or tile checked
+  against the file size (a truncated TIFF is refused, not read as its first pages).
+- `check_video_container(path, format)`: the RIFF chunks of an AVI or the top-level boxes of an MP4 checked
+  against the file size, and the frame count and size their headers declare.
+- `recording_layout(path)` and `check_ingest_budget(...)`: frames × frame size from the headers alone, held
+  against a per-upload cap and the free disk before the ingest writes anything.
 
 Errors are `ValueError` subclasses that say what is wrong with the file: `UnsupportedRecording` (a format
-fringelab does not read), `UnsafeArchive` (a ZIP that must not be opened) and `CorruptRecording` (damaged or
-truncated).
+fringelab does not read), `UnsafeArchive` (a ZIP that must not be opened), `CorruptRecording` (damaged or
+truncated) and `OverBudget` (it would expand to more than the data volume or the per-upload cap allows).
 """
 
 from __future__ import annotations
@@ -34,6 +40,7 @@ from fringelab.science import natural_key
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".bmp", ".jpg", ".jpeg")
 SIDECAR_NAMES = ("z.csv", "frames.csv", "board.json")
+MAX_SIDECAR_BYTES = 16 << 20  # a frames.csv row is ~40 bytes: 16 MiB holds 400k frames
 # Single-file recordings by name; a ZIP holds frames. A folder of frames is read from disk, not uploaded.
 UPLOAD_SUFFIXES = {".zip": "zip", ".tif": "tiff", ".tiff": "tiff", ".avi": "avi", ".mp4": "mp4", ".cine": "cine"}
 FORMATS = ("folder", "zip", "tiff", "avi", "mp4", "cine", "mraw")
@@ -54,6 +61,17 @@ class UnsafeArchive(ValueError):
 
 class CorruptRecording(ValueError):
     """The file is damaged or truncated."""
+
+
+class OverBudget(ValueError):
+    """The recording would expand to more bytes than the per-upload cap or the free disk allow."""
+
+
+def check_sidecar_size(size_bytes: int, *, name: str) -> None:
+    """Refuse a sidecar by its size before reading it (from a ZIP directory, a file's stat, a request header).
+    The parsers in `sidecars` read only what passed here."""
+    if size_bytes > MAX_SIDECAR_BYTES:
+        raise ValueError(f"{name}: {size_bytes} bytes, larger than the {MAX_SIDECAR_BYTES} bytes a sidecar may have")
 
 
 def sniff_format(path: str | Path) -> str:
@@ -112,8 +130,9 @@ class ZipLimits:
     """Bounds on what a ZIP of frames may expand to; a ZIP beyond any of them is refused as a bomb.
 
     max_total_bytes: sum of the uncompressed sizes of all entries. max_entry_bytes: one entry (one frame).
-    max_ratio: uncompressed / compressed size of one entry (entries under 1 MiB are not held to it; deflate
-    alone cannot pass ~1030, so a higher ratio means bzip2/LZMA tricks).
+    max_ratio: uncompressed / compressed size of one entry over 1 MiB, and of the whole archive once it
+    expands to more than 1 MiB (deflate alone cannot pass ~1030, so a higher ratio means bzip2/LZMA tricks; the
+    total keeps many entries each just under 1 MiB from passing one by one).
     """
 
     max_total_bytes: int = 256 * GiB
@@ -164,7 +183,7 @@ def inspect_zip(path: str | Path, *, limits: ZipLimits | None = None) -> ZipCont
             infos = archive.infolist()
     except (zipfile.BadZipFile, zipfile.LargeZipFile, OSError, EOFError) as error:
         raise CorruptRecording(f"{path.name}: not a readable ZIP archive ({error})") from None
-    total = 0
+    total = compressed = 0
     frames: list[str] = []
     sidecars: dict[str, str] = {}
     for info in infos:
@@ -192,6 +211,12 @@ def inspect_zip(path: str | Path, *, limits: ZipLimits | None = None) -> ZipCont
                 "refused as a ZIP bomb"
             )
         total += info.file_size
+        compressed += info.compress_size
+        if total > MiB and total > limits.max_ratio * max(compressed, 1):
+            raise UnsafeArchive(
+                f"{path.name}: its entries expand {total / max(compressed, 1):.0f}× in total (limit "
+                f"{limits.max_ratio:.0f}×); refused as a ZIP bomb"
+            )
         if total > limits.max_total_bytes:
             raise UnsafeArchive(
                 f"{path.name}: expands to more than {limits.max_total_bytes} bytes in total; refused as a ZIP bomb"
@@ -204,6 +229,10 @@ def inspect_zip(path: str | Path, *, limits: ZipLimits | None = None) -> ZipCont
         if PurePosixPath(base).suffix.lower() in IMAGE_SUFFIXES:
             frames.append(info.filename)
         elif base in SIDECAR_NAMES:
+            try:
+                check_sidecar_size(info.file_size, name=info.filename)
+            except ValueError as error:
+                raise UnsafeArchive(f"{path.name}: {error}; refused") from None
             sidecars.setdefault(base, info.filename)
     _refuse_overlapping_entries(path.name, infos)
     if not frames:
@@ -435,13 +464,20 @@ def _check_cine_frames_fit(path: Path, header: CineHeader, size: int) -> None:
     offsets = header.image_offsets
     if (offsets < CINE_HEADER_SIZE).any():
         raise CorruptRecording(f"{path.name}: a frame offset points into the file header (damaged)")
-    if header.frame_count > 1 and (np.diff(offsets) < header.frame_bytes + 8).any():
-        raise CorruptRecording(f"{path.name}: frame offsets overlap (damaged header)")
     last = int(offsets.max())
     if last + 8 > size:
         raise CorruptRecording(
             f"{path.name}: frame {header.frame_count - 1} starts past the end of the file ({size} bytes); "
             "the .cine is truncated"
+        )
+    # Frames follow each other without overlap: offsets pointing at one frame would make a small file decode
+    # to any number of frames (the ingest would write previews for each).
+    gaps = np.diff(offsets)
+    if (gaps < 8 + header.frame_bytes).any():
+        first_bad = int(np.flatnonzero(gaps < 8 + header.frame_bytes)[0])
+        raise CorruptRecording(
+            f"{path.name}: frames {first_bad} and {first_bad + 1} overlap (offsets {int(offsets[first_bad])} and "
+            f"{int(offsets[first_bad + 1])}, a frame is {header.frame_bytes} bytes); the .cine is damaged"
         )
     with path.open("rb") as handle:
         annotation = struct.unpack("<I", _read_at(handle, last, 4))[0]
@@ -668,3 +704,293 @@ def _unpack_12bit_big_endian(data: bytes) -> np.ndarray:
     pixels[:, 0] = (b[:, 0] << 4) | (b[:, 1] >> 4)
     pixels[:, 1] = ((b[:, 1] & 0x0F) << 8) | b[:, 2]
     return pixels.ravel()
+
+
+# ---------------------------------------------------------------------------------------------------- TIFF
+
+MAX_TIFF_PAGES = 1_000_000
+_TIFF_TYPE_SIZES = {1: 1, 3: 2, 4: 4, 13: 4, 16: 8}  # the integer types _TIFF_INT_CODES reads
+_TIFF_INT_CODES = {1: "B", 3: "H", 4: "I", 13: "I", 16: "Q"}
+_TAG_WIDTH, _TAG_HEIGHT, _TAG_BITS, _TAG_SAMPLES = 256, 257, 258, 277
+_TAG_STRIP_OFFSETS, _TAG_STRIP_BYTES, _TAG_TILE_OFFSETS, _TAG_TILE_BYTES = 273, 279, 324, 325
+
+
+@dataclass(frozen=True)
+class TiffLayout:
+    """What the IFD chain of a TIFF says: pages and the size and sample depth of the first."""
+
+    frame_count: int
+    width_px: int
+    height_px: int
+    bytes_per_sample: int
+
+
+def read_tiff_layout(path: str | Path) -> TiffLayout:
+    """Walk the IFD chain of a classic or Big TIFF; refuse a chain or strip that runs past the end of the file.
+
+    A truncated multi-page TIFF still opens (its first pages are whole), so the chain itself is the only
+    witness: an IFD offset, or a strip's offset + byte count, beyond the file size means bytes are missing.
+    """
+    path = Path(path)
+    size = path.stat().st_size
+    with path.open("rb") as handle:
+        head = handle.read(16)
+        order = "<" if head[:2] == b"II" else ">"
+        if len(head) < 8 or head[:2] not in (b"II", b"MM"):
+            raise CorruptRecording(f"{path.name}: shorter than a TIFF header")
+        version = struct.unpack_from(order + "H", head, 2)[0]
+        big = version == 43
+        if big and len(head) < 16:
+            raise CorruptRecording(f"{path.name}: shorter than a BigTIFF header")
+        count_code, offset_code, entry_size = ("Q", "Q", 20) if big else ("H", "I", 12)
+        offset_size = 8 if big else 4
+        next_ifd = struct.unpack_from(order + offset_code, head, 8 if big else 4)[0]
+        pages = 0
+        first: dict[int, list[int]] = {}
+        seen: set[int] = set()
+        while next_ifd:
+            if next_ifd in seen:
+                raise CorruptRecording(f"{path.name}: the TIFF's page chain loops back to offset {next_ifd}")
+            seen.add(next_ifd)
+            if pages >= MAX_TIFF_PAGES:
+                raise UnsupportedRecording(f"{path.name}: more than {MAX_TIFF_PAGES} pages")
+            count_bytes = struct.calcsize(count_code)
+            if next_ifd + count_bytes > size:
+                raise CorruptRecording(
+                    f"{path.name}: page {pages + 1} starts past the end of the file ({size} bytes); the TIFF is "
+                    f"truncated after {pages} pages"
+                )
+            entry_count = struct.unpack(order + count_code, _read_at(handle, next_ifd, count_bytes))[0]
+            table_end = next_ifd + count_bytes + entry_count * entry_size + offset_size
+            if table_end > size:
+                raise CorruptRecording(
+                    f"{path.name}: the directory of page {pages + 1} runs past the end of the file; the TIFF is "
+                    f"truncated after {pages} pages"
+                )
+            table = _read_at(handle, next_ifd + count_bytes, entry_count * entry_size + offset_size)
+            tags = _tiff_tags(handle, table, entry_count, order=order, big=big, size=size, name=path.name)
+            _check_tiff_data(tags, page=pages, size=size, name=path.name)
+            if pages == 0:
+                first = tags
+            pages += 1
+            next_ifd = struct.unpack_from(order + offset_code, table, entry_count * entry_size)[0]
+    if pages == 0 or _TAG_WIDTH not in first or _TAG_HEIGHT not in first:
+        raise CorruptRecording(f"{path.name}: the TIFF has no readable page")
+    bits = max(first.get(_TAG_BITS, [8]))
+    samples = first.get(_TAG_SAMPLES, [1])[0]
+    return TiffLayout(pages, first[_TAG_WIDTH][0], first[_TAG_HEIGHT][0], max(1, bits // 8) * max(1, samples))
+
+
+def _tiff_tags(
+    handle: BinaryIO, table: bytes, entry_count: int, *, order: str, big: bool, size: int, name: str
+) -> dict[int, list[int]]:
+    """The integer tags a layout needs (size, depth, strips and tiles) of one IFD."""
+    wanted = (_TAG_WIDTH, _TAG_HEIGHT, _TAG_BITS, _TAG_SAMPLES, _TAG_STRIP_OFFSETS, _TAG_STRIP_BYTES,
+              _TAG_TILE_OFFSETS, _TAG_TILE_BYTES)  # fmt: skip
+    entry = struct.Struct(order + ("HHQ8s" if big else "HHI4s"))
+    inline = 8 if big else 4
+    tags: dict[int, list[int]] = {}
+    for i in range(entry_count):
+        tag, kind, count, value = entry.unpack_from(table, i * entry.size)
+        if tag not in wanted or kind not in _TIFF_INT_CODES:
+            continue
+        length = count * _TIFF_TYPE_SIZES[kind]
+        if length > inline:
+            offset = struct.unpack(order + ("Q" if big else "I"), value)[0]
+            if offset + length > size:
+                raise CorruptRecording(f"{name}: tag {tag} lies past the end of the file; the TIFF is truncated")
+            value = _read_at(handle, offset, length)
+        tags[tag] = list(struct.unpack_from(f"{order}{count}{_TIFF_INT_CODES[kind]}", value))
+    return tags
+
+
+def _check_tiff_data(tags: dict[int, list[int]], *, page: int, size: int, name: str) -> None:
+    for offsets_tag, counts_tag in ((_TAG_STRIP_OFFSETS, _TAG_STRIP_BYTES), (_TAG_TILE_OFFSETS, _TAG_TILE_BYTES)):
+        for offset, length in zip(tags.get(offsets_tag, []), tags.get(counts_tag, []), strict=False):
+            if offset + length > size:
+                raise CorruptRecording(
+                    f"{name}: the pixels of page {page + 1} run past the end of the file ({size} bytes); the TIFF "
+                    f"is truncated after {page} whole pages"
+                )
+
+
+# ---------------------------------------------------------------------------------------------------- video
+
+
+@dataclass(frozen=True)
+class VideoLayout:
+    """Frame count and size a video's headers declare (0 where they do not say)."""
+
+    frame_count: int
+    width_px: int
+    height_px: int
+
+
+def check_video_container(path: str | Path, format: str) -> VideoLayout:
+    """Check the outer structure of an AVI (RIFF chunks) or MP4 (top-level boxes) against the file size.
+
+    A video cut short still decodes up to the cut, so only its container shows that the end is missing.
+    """
+    path = Path(path)
+    if format == "avi":
+        return _check_avi(path)
+    if format == "mp4":
+        return _check_mp4(path)
+    raise ValueError(f"{path.name}: {format!r} is not a video format (expected avi or mp4)")
+
+
+def _check_avi(path: Path) -> VideoLayout:
+    size = path.stat().st_size
+    layout = VideoLayout(0, 0, 0)
+    with path.open("rb") as handle:
+        position = 0
+        while position + 8 <= size:
+            kind, length = struct.unpack("<4sI", _read_at(handle, position, 8))
+            if kind != b"RIFF" and position > 0:
+                break  # trailing bytes after the last RIFF list (junk some writers leave) are not our business
+            if position + 8 + length > size:
+                raise CorruptRecording(
+                    f"{path.name}: the AVI declares {position + 8 + length} bytes but the file has {size}; it is "
+                    "truncated"
+                )
+            if position == 0:
+                avih = _read_at(handle, 12, 64)
+                if avih[:4] == b"LIST" and avih[8:12] == b"hdrl" and avih[12:16] == b"avih":
+                    (frames,) = struct.unpack_from("<I", avih, 20 + 16)  # MainAVIHeader.dwTotalFrames
+                    width, height = struct.unpack_from("<II", avih, 20 + 32)  # dwWidth, dwHeight
+                    layout = VideoLayout(int(frames), int(width), int(height))
+            position += 8 + length + (length & 1)
+    return layout
+
+
+def _check_mp4(path: Path) -> VideoLayout:
+    size = path.stat().st_size
+    position = 0
+    found_moov = False
+    with path.open("rb") as handle:
+        while position < size:
+            head = _read_at(handle, position, 16)
+            if len(head) < 8:
+                raise CorruptRecording(f"{path.name}: a box header is cut at byte {position}; the MP4 is truncated")
+            length, kind = struct.unpack_from(">I4s", head)
+            if length == 1:
+                if len(head) < 16:
+                    raise CorruptRecording(f"{path.name}: a box header is cut at byte {position}; truncated")
+                length = struct.unpack_from(">Q", head, 8)[0]
+            elif length == 0:
+                length = size - position  # the last box runs to the end of the file
+            if length < 8 or position + length > size:
+                raise CorruptRecording(
+                    f"{path.name}: the {kind.decode('latin-1')!r} box ends at byte {position + length} but the file "
+                    f"has {size}; the MP4 is truncated"
+                )
+            found_moov |= kind == b"moov"
+            position += length
+    if not found_moov:
+        raise CorruptRecording(f"{path.name}: the MP4 has no 'moov' box (an unfinished recording?)")
+    return VideoLayout(0, 0, 0)
+
+
+# ---------------------------------------------------------------------------------------------------- images
+
+
+def declared_image_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) the header of a PNG, BMP or JPEG declares; None when not found in `data`."""
+    if data.startswith(b"\x89PNG") and len(data) >= 24:
+        width, height = struct.unpack(">II", data[16:24])
+        return int(width), int(height)
+    if data.startswith(b"BM") and len(data) >= 26:
+        width, height = struct.unpack("<ii", data[18:26])
+        return abs(width), abs(height)
+    if data.startswith(b"\xff\xd8"):
+        position = 2
+        while position + 9 <= len(data) and data[position] == 0xFF:
+            marker, length = data[position + 1], struct.unpack(">H", data[position + 2 : position + 4])[0]
+            if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):  # start of frame
+                height, width = struct.unpack(">HH", data[position + 5 : position + 9])
+                return int(width), int(height)
+            position += 2 + length
+    if data.startswith((b"II*\x00", b"MM\x00*")):
+        return None  # a TIFF frame: its IFD may lie anywhere; the ingest checks it when decoding
+    return None
+
+
+# ---------------------------------------------------------------------------------------------------- budget
+
+
+@dataclass(frozen=True)
+class RecordingLayout:
+    """Frames × frame size as the container's headers state them, without decoding.
+
+    frame_count, width_px and height_px are 0 when the headers do not say (a video without counts, a frame
+    format whose size is not in its first bytes); the budget then rests on what is known.
+    """
+
+    format: str
+    frame_count: int
+    width_px: int
+    height_px: int
+    bytes_per_pixel: int = 1
+
+    @property
+    def frames_bytes(self) -> int:
+        """Bytes of every frame decoded at full size."""
+        return self.frame_count * self.width_px * self.height_px * self.bytes_per_pixel
+
+    def preview_bytes(self, preview_size_px: int, thumbnail_px: int) -> int:
+        """Bytes the ingest's preview store will hold: every frame at display size and as a thumbnail (uint8)."""
+        longer = max(self.width_px, self.height_px, 1)
+        display = min(1.0, preview_size_px / longer) ** 2 * self.width_px * self.height_px
+        thumbnail = min(1.0, thumbnail_px / longer) ** 2 * self.width_px * self.height_px
+        return int(self.frame_count * (display + thumbnail))
+
+
+def recording_layout(path: str | Path, *, zip_limits: ZipLimits | None = None) -> RecordingLayout:
+    """The layout of a recording file from its headers (for ZIP, the first frame's header), checking its
+    container on the way: raises UnsupportedRecording, UnsafeArchive or CorruptRecording like the readers."""
+    path = Path(path)
+    format = sniff_format(path)
+    if format == "zip":
+        contents = inspect_zip(path, limits=zip_limits)
+        with zipfile.ZipFile(path) as archive, archive.open(contents.frame_names[0]) as entry:
+            declared = declared_image_size(entry.read(64 * 1024))
+        width, height = declared or (0, 0)
+        return RecordingLayout(format, len(contents.frame_names), width, height)
+    if format == "cine":
+        cine = read_cine_header(path)
+        return RecordingLayout(
+            format, cine.frame_count, cine.width_px, cine.height_px, cine.channels * cine.dtype.itemsize
+        )
+    if format == "tiff":
+        tiff = read_tiff_layout(path)
+        return RecordingLayout(format, tiff.frame_count, tiff.width_px, tiff.height_px, tiff.bytes_per_sample)
+    if format in ("avi", "mp4"):
+        video = check_video_container(path, format)
+        return RecordingLayout(format, video.frame_count, video.width_px, video.height_px)
+    return RecordingLayout(format, 0, 0, 0)
+
+
+def check_ingest_budget(
+    layout: RecordingLayout,
+    *,
+    name: str,
+    max_frames_bytes: int,
+    free_bytes: int,
+    reserve_bytes: int,
+    preview_size_px: int,
+    thumbnail_px: int,
+) -> None:
+    """Refuse a recording whose frames would decode to more than `max_frames_bytes`, or whose preview store
+    would leave less than `reserve_bytes` free on the data volume. Raises OverBudget saying which and by how much."""
+    if layout.frames_bytes > max_frames_bytes:
+        raise OverBudget(
+            f"{name}: {layout.frame_count} frames of {layout.width_px} × {layout.height_px} px decode to "
+            f"{layout.frames_bytes} bytes, over the {max_frames_bytes}-byte limit of one recording "
+            "(FRINGELAB_MAX_FRAMES_BYTES)"
+        )
+    previews = layout.preview_bytes(preview_size_px, thumbnail_px)
+    if previews > free_bytes - reserve_bytes:
+        raise OverBudget(
+            f"{name}: its previews need {previews} bytes and the data volume has {free_bytes} free, of which "
+            f"{reserve_bytes} are kept in reserve (FRINGELAB_MIN_FREE_DISK_BYTES); free some space"
+        )

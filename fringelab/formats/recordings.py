@@ -16,14 +16,13 @@ from __future__ import annotations
 
 import lzma
 import os
-import struct
 import threading
 import zipfile
 import zlib
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
-from typing import TYPE_CHECKING, Any, BinaryIO, overload
+from typing import TYPE_CHECKING, BinaryIO, overload
 
 import cv2
 import numpy as np
@@ -35,17 +34,21 @@ from fringelab.formats.containers import (
     MrawHeader,
     UnsupportedRecording,
     ZipLimits,
+    check_video_container,
+    declared_image_size,
     inspect_zip,
     is_junk_entry,
     mraw_header_from,
     read_cine_header,
     read_mraw_header,
+    read_tiff_layout,
     sniff_format,
     unpack_cine_pixels,
     unpack_mraw_pixels,
     zip_entry_data_offset,
 )
-from fringelab.formats.sidecars import FRAMES_CSV_COLUMNS
+from fringelab.formats.sidecars import FRAMES_CSV_COLUMNS, check_sidecar_size, read_sidecar_file
+from fringelab.formats.sidecars import sidecar_text as decode_sidecar
 from fringelab.science import natural_key
 
 if TYPE_CHECKING:
@@ -60,7 +63,6 @@ __all__ = [
     "write_recording",
 ]
 
-MAX_SIDECAR_BYTES = 16 << 20
 MAX_FRAME_PIXELS = 1 << 27  # 134 Mpx; a high-speed camera frame is a few Mpx
 
 
@@ -90,24 +92,6 @@ def _looks_truncated(data: bytes, name: str) -> bool:
     return False
 
 
-def _declared_size(data: bytes) -> tuple[int, int] | None:
-    """(width, height) an image header declares, for PNG, BMP and JPEG; None when not found."""
-    if data.startswith(b"\x89PNG") and len(data) >= 24:
-        return struct.unpack(">II", data[16:24])
-    if data.startswith(b"BM") and len(data) >= 26:
-        width, height = struct.unpack("<ii", data[18:26])
-        return abs(width), abs(height)
-    if data.startswith(b"\xff\xd8"):
-        position = 2
-        while position + 9 <= len(data) and data[position] == 0xFF:
-            marker, length = data[position + 1], struct.unpack(">H", data[position + 2 : position + 4])[0]
-            if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):  # start of frame
-                height, width = struct.unpack(">HH", data[position + 5 : position + 9])
-                return width, height
-            position += 2 + length
-    return None
-
-
 def _check_pixels(width: int, height: int, *, name: str) -> None:
     if width * height > MAX_FRAME_PIXELS:
         raise ValueError(
@@ -118,7 +102,7 @@ def _check_pixels(width: int, height: int, *, name: str) -> None:
 def _decode(data: bytes, *, name: str) -> tuple[np.ndarray, bool]:
     if _looks_truncated(data, name):
         raise ValueError(f"{name}: the image is truncated")
-    declared = _declared_size(data)
+    declared = declared_image_size(data)
     if declared is not None:
         _check_pixels(*declared, name=name)  # a small file can declare a huge image: refuse before decoding
     image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)
@@ -194,7 +178,7 @@ class FrameSource(Sequence[np.ndarray]):
         """
         beside = self.path.parent / name
         if beside.is_file():
-            return _read_text_file(beside)
+            return read_sidecar_file(beside)
         return None
 
     def close(self) -> None:
@@ -208,15 +192,6 @@ class FrameSource(Sequence[np.ndarray]):
 
     def __repr__(self) -> str:
         return f"<{type(self).__name__} {self.format} {self.path.name}: {len(self)} frames>"
-
-
-def _read_text_file(path: Path) -> str:
-    if path.stat().st_size > MAX_SIDECAR_BYTES:
-        raise ValueError(f"{path.name}: larger than {MAX_SIDECAR_BYTES} bytes; not a sidecar")
-    try:
-        return path.read_text(encoding="utf-8-sig")
-    except UnicodeDecodeError:
-        raise ValueError(f"{path.name}: not UTF-8 text") from None
 
 
 class ImageFolder(FrameSource):
@@ -233,7 +208,7 @@ class ImageFolder(FrameSource):
 
     def sidecar_text(self, name: str) -> str | None:
         candidate = self.path / name
-        return _read_text_file(candidate) if candidate.is_file() else None
+        return read_sidecar_file(candidate) if candidate.is_file() else None
 
 
 class ImageZip(FrameSource):
@@ -267,12 +242,11 @@ class ImageZip(FrameSource):
         beside = super().sidecar_text(name)
         if beside is not None or name not in self._sidecar_names:
             return beside
+        entry = self._sidecar_names[name]
         with self._lock:
-            data = self.read_bytes(self._sidecar_names[name])
-        try:
-            return data.decode("utf-8-sig")
-        except UnicodeDecodeError:
-            raise ValueError(f"{name}: not UTF-8 text") from None
+            check_sidecar_size(self._open().getinfo(entry).file_size, name=name)  # before inflating a byte
+            data = self.read_bytes(entry)
+        return decode_sidecar(data, name=name)
 
     def close(self) -> None:
         if self._archive is not None:
@@ -288,6 +262,7 @@ class TiffStack(FrameSource):
     def __init__(self, path: Path):
         import tifffile
 
+        layout = read_tiff_layout(path)  # a truncated stack is refused here, not read as its first pages
         try:
             self._tiff = tifffile.TiffFile(path)
             pages = self._tiff.pages
@@ -295,9 +270,10 @@ class TiffStack(FrameSource):
             first = pages.first
         except (tifffile.TiffFileError, ValueError, OSError, IndexError) as error:
             raise CorruptRecording(f"{path.name}: not a readable TIFF ({error})") from None
-        if count == 0:
-            raise CorruptRecording(f"{path.name}: the TIFF has no pages")
-        _refuse_truncated_tiff(self._tiff, path, count)
+        if count != layout.frame_count:
+            raise CorruptRecording(
+                f"{path.name}: {count} pages readable of the {layout.frame_count} its page chain holds (damaged)"
+            )
         super().__init__(path, [f"page {i}" for i in range(count)], bit_depth=16 if first.bitspersample > 8 else 8)
 
     def _read(self, index: int) -> tuple[np.ndarray, bool]:
@@ -328,28 +304,12 @@ class TiffStack(FrameSource):
         self._tiff.close()
 
 
-def _refuse_truncated_tiff(tiff: Any, path: Path, count: int) -> None:
-    """tifffile stops at the first page it cannot read, so a truncated stack would open with fewer pages: the
-    last page read must end the page chain (next-page offset 0) and its data must lie inside the file."""
-    header = tiff.tiff
-    last = tiff.pages[count - 1]
-    size = path.stat().st_size
-    position = last.offset + header.tagnosize + len(last.tags) * header.tagsize
-    tiff.filehandle.seek(position)
-    raw = tiff.filehandle.read(header.offsetsize)
-    following = struct.unpack(tiff.byteorder + header.offsetformat[-1], raw)[0] if len(raw) == header.offsetsize else 1
-    ends = [int(o) + int(n) for o, n in zip(last.dataoffsets, last.databytecounts, strict=False)]
-    if following != 0 or (ends and max(ends) > size):
-        raise CorruptRecording(
-            f"{path.name}: the TIFF is truncated after page {count - 1} ({size} bytes); upload the whole file"
-        )
-
-
 class VideoFrames(FrameSource):
     """Frames of an AVI or MP4 video decoded by OpenCV (8-bit); sequential reading avoids seeking."""
 
     def __init__(self, path: Path, format: str):
         self.format = format
+        check_video_container(path, format)  # a video cut short decodes up to the cut; its container shows it
         self._capture = cv2.VideoCapture(str(path))
         if not self._capture.isOpened():
             raise CorruptRecording(f"{path.name}: OpenCV cannot open this {format.upper()} video (codec or damage)")

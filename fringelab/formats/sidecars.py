@@ -1,7 +1,9 @@
 """The sidecars of a recording: z.csv (stage Z per frame), frames.csv (the test log), board.json (the chessboard).
 
-One parser per sidecar, used wherever the sidecar comes from (inside a ZIP, beside the frames, uploaded on its own).
-Errors are ValueError naming the file and the line."""
+One reader and one parser per sidecar, used wherever the sidecar comes from (inside a ZIP, beside the frames,
+uploaded on its own): `check_sidecar_size` refuses a sidecar over MAX_SIDECAR_BYTES before a byte of it is read,
+`sidecar_text` decodes it, and the parsers refuse cells over MAX_FIELD_CHARS, frame ids outside int64, non-finite
+numbers and JSON nested deeper than MAX_JSON_DEPTH. Errors are ValueError naming the file and the line."""
 
 from __future__ import annotations
 
@@ -12,13 +14,34 @@ import math
 import re
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from fringelab.formats.containers import MAX_SIDECAR_BYTES, check_sidecar_size
 from fringelab.science.chessboard import Board
 
 FRAMES_CSV_COLUMNS = ("time_s", "punch_displacement_mm", "force_kN")
+MAX_FIELD_CHARS = 64  # a number or a frame id; longer is not a cell of these files
+MAX_JSON_DEPTH = 8  # board.json is one object holding one list
+_INT64_MAX = (1 << 63) - 1
+
+
+def sidecar_text(data: bytes, *, name: str) -> str:
+    """The text of a sidecar's bytes (UTF-8, a BOM allowed), size-checked."""
+    check_sidecar_size(len(data), name=name)
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        raise ValueError(f"{name}: not UTF-8 text") from None
+
+
+def read_sidecar_file(path: Path) -> str:
+    """The text of a sidecar file on disk; its size is checked before it is read."""
+    check_sidecar_size(path.stat().st_size, name=path.name)
+    with path.open("rb") as handle:
+        return sidecar_text(handle.read(MAX_SIDECAR_BYTES + 1), name=path.name)
 
 
 @dataclass(frozen=True, eq=False)
@@ -105,6 +128,15 @@ def _rows(
     text: str, *, name: str, required: tuple[str, ...], allowed: set[str]
 ) -> Iterator[tuple[int, dict[str, str]]]:
     reader = csv.DictReader(io.StringIO(text))
+    try:
+        yield from _checked_rows(reader, name=name, required=required, allowed=allowed)
+    except csv.Error as error:  # a NUL byte, a field over csv's own limit: malformed input, not a crash
+        raise ValueError(f"{name} line {reader.line_num}: not a CSV row ({error})") from None
+
+
+def _checked_rows(
+    reader: csv.DictReader[str], *, name: str, required: tuple[str, ...], allowed: set[str]
+) -> Iterator[tuple[int, dict[str, str]]]:
     columns = [f.strip() for f in reader.fieldnames or []]
     if not set(required) <= set(columns):
         raise ValueError(f"{name}: expected columns '{','.join(required)}', got {reader.fieldnames}")
@@ -114,7 +146,13 @@ def _rows(
     for line_no, row in enumerate(reader, start=2):
         if None in row or any(value is None for value in row.values()):
             raise ValueError(f"{name} line {line_no}: expected {len(columns)} values")
-        yield line_no, {k.strip(): (v or "").strip() for k, v in row.items()}
+        cells = {k.strip(): (v or "").strip() for k, v in row.items()}
+        for column, value in cells.items():
+            if len(value) > MAX_FIELD_CHARS:
+                raise ValueError(
+                    f"{name} line {line_no}, column {column}: {len(value)} characters; a cell holds one number"
+                )
+        yield line_no, cells
 
 
 def _number(row: dict[str, str], column: str, *, name: str, line_no: int) -> float:
@@ -129,9 +167,12 @@ def _number(row: dict[str, str], column: str, *, name: str, line_no: int) -> flo
 
 def _frame_id(row: dict[str, str], *, name: str, line_no: int) -> int:
     try:
-        return int(row["frame"])
+        frame = int(row["frame"])
     except ValueError:
         raise ValueError(f"{name} line {line_no}, column frame: {row['frame']!r} is not an integer") from None
+    if not 0 <= frame <= _INT64_MAX:
+        raise ValueError(f"{name} line {line_no}, column frame: {frame} is not a frame number (0 or more)")
+    return frame
 
 
 def read_z_csv(text: str, *, name: str = "z.csv") -> dict[int, float]:
@@ -191,9 +232,11 @@ def read_board_json(text: str, *, name: str = "board.json") -> Board:
     `squares_y`: one more than inner corners), the square in m or cm (`square_size_m`) or with a `"unit"`
     (`"square_size": 0.025, "unit": "m"`; without one, mm). Errors say what was expected.
     """
+    if _json_depth(text) > MAX_JSON_DEPTH:
+        raise ValueError(f"{name}: nested deeper than {MAX_JSON_DEPTH} levels; expected one flat object")
     try:
-        raw: Any = json.loads(text)
-    except json.JSONDecodeError as error:
+        raw: Any = json.loads(text, parse_constant=_no_constant)
+    except ValueError as error:  # JSONDecodeError, or NaN/Infinity
         raise ValueError(f"{name}: not valid JSON ({error})") from None
     if not isinstance(raw, dict):
         raise ValueError(f"{name}: expected a JSON object like {BOARD_JSON_EXAMPLE}, got {type(raw).__name__}")
@@ -251,6 +294,32 @@ def board_json_text(board: Board) -> str:
     """board.json in our own spelling (what `read_board_json` reads back to the same board)."""
     origin = list(board.origin) if board.origin is not None else None
     return json.dumps({"cols": board.cols, "rows": board.rows, "square_mm": board.square_mm, "origin": origin}) + "\n"
+
+
+def _json_depth(text: str) -> int:
+    """The deepest nesting of brackets outside strings (json.loads would recurse that deep)."""
+    depth = deepest = 0
+    in_string = escaped = False
+    for char in text:
+        if in_string:
+            if escaped:
+                escaped = False
+            elif char == "\\":
+                escaped = True
+            elif char == '"':
+                in_string = False
+        elif char == '"':
+            in_string = True
+        elif char in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif char in "]}":
+            depth -= 1
+    return deepest
+
+
+def _no_constant(constant: str) -> Any:
+    raise ValueError(f"{constant} is not a JSON number")
 
 
 def frame_indices(frame_ids: Sequence[int] | np.ndarray, frame_count: int, *, name: str) -> np.ndarray:

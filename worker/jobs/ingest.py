@@ -19,9 +19,10 @@ from typing import Any
 import numpy as np
 
 from fringelab.core.models import Recording
+from fringelab.core.recordings import check_budget, zip_limits
 from fringelab.core.settings import Settings
 from fringelab.core.storage import recording_dir
-from fringelab.formats.containers import STATES_BIT_DEPTH, ZipLimits
+from fringelab.formats.containers import STATES_BIT_DEPTH, RecordingLayout
 from fringelab.formats.previews import PREVIEW_FILE, THUMBNAIL_PX, PreviewWriter
 from fringelab.formats.recordings import FrameSource, open_recording
 from fringelab.formats.sidecars import frame_indices, read_board_json, read_frames_csv, read_z_csv
@@ -155,13 +156,17 @@ def inspect_recording(
 ) -> Inspection:
     """Probe and check a recording frame by frame, writing its preview store. Raises ValueError when it cannot
     be opened at all; frame-level faults (corrupt frame, mixed sizes, bad sidecar) become `reasons`."""
-    limits = ZipLimits(max_total_bytes=settings.zip_max_uncompressed_bytes, max_ratio=settings.zip_max_ratio)
-    with open_recording(path, zip_limits=limits) as source:
+    with open_recording(path, zip_limits=zip_limits(settings)) as source:
         first = source[0]
         if first.size == 0:
             raise ValueError("frame 0 is empty (0 × 0 px)")
         found = Inspection(probe=_probe(source, first))
         on_probe(found.probe)
+        # Before the preview store is created: the frames the decoder found (a video's may differ from its
+        # header's) against the cap and the disk as it is now, not as it was at upload.
+        layout = RecordingLayout(source.format, len(source), found.probe.width_px, found.probe.height_px,
+                                 first.dtype.itemsize)  # fmt: skip
+        check_budget(layout, settings, name=path.name)
         board = _check_sidecars(source, found, kind=kind)
         writer = PreviewWriter(preview_path, frame_count=len(source))
         try:

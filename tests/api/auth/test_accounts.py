@@ -11,7 +11,7 @@ import redis
 from fastapi.testclient import TestClient
 
 from backend.app import create_app
-from tests.support import bearer
+from tests.support import bearer, wait_for
 
 
 @pytest.fixture(autouse=True)
@@ -139,8 +139,16 @@ def test_admin_cli_adds_lists_disables_users_and_creates_tokens(tmp_path, client
     assert client.get("/api/v1/auth/me", headers=bearer(token)).json()["username"] == "dora"
     short = _cli("user", "add", "eve", "--password-stdin", env=env, stdin="short\n")
     assert short.returncode == 2 and "at least 8" in short.stderr
+    last = _cli("user", "disable", "dora", env=env)
+    assert last.returncode == 2 and "last active admin" in last.stderr  # a server without an admin is lost
+    assert _cli("user", "add", "erin", "--password-stdin", env=env, stdin="erin-password\n").returncode == 0
+    assert _cli("user", "promote", "erin", env=env).returncode == 0
     assert _cli("user", "disable", "dora", env=env).returncode == 0
-    assert client.get("/api/v1/auth/me", headers=bearer(token)).status_code == 401
+    # Another process changed the account: this API sees it once its token cache (FRINGELAB_TOKEN_CACHE_S) expires.
+    wait_for(lambda: client.get("/api/v1/auth/me", headers=bearer(token)).status_code == 401,
+             timeout_s=auth_settings.token_cache_s + 5, what="the disabled account's token to be refused")  # fmt: skip
+    expired = _cli("token", "create", "erin", "--days", "-1", env=env)
+    assert expired.returncode == 2 and "0 (never expires) to 3650" in expired.stderr
 
 
 def test_refuses_a_network_address_with_auth_off(tmp_path):

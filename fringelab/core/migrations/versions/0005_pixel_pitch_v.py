@@ -1,6 +1,6 @@
 """cameras: the pixel pitch along v (image rows) beside the one along u; empty means square pixels
 
-Revision ID: 0005_i14_pixel_pitch
+Revision ID: 0005
 Revises: 0004
 Create Date: 2026-11-23 04:35:00
 """
@@ -8,7 +8,7 @@ Create Date: 2026-11-23 04:35:00
 import sqlalchemy as sa
 from alembic import op
 
-revision = "0005_i14_pixel_pitch"
+revision = "0005"
 down_revision = "0004"
 branch_labels = None
 depends_on = None

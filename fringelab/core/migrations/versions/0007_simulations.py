@@ -1,15 +1,15 @@
 """simulations: finite-element results uploaded into an experiment, for comparison jobs
 
-Revision ID: 0005_i13_simulations
-Revises: 0005_i14_pixel_pitch
+Revision ID: 0007
+Revises: 0006
 Create Date: 2026-11-23 05:30:00
 """
 
 import sqlalchemy as sa
 from alembic import op
 
-revision = "0005_i13_simulations"
-down_revision = "0005_i14_pixel_pitch"
+revision = "0007"
+down_revision = "0006"
 branch_labels = None
 depends_on = None
 
@@ -35,6 +35,7 @@ def upgrade() -> None:
             ondelete="CASCADE",
         ),
         sa.PrimaryKeyConstraint("id", name=op.f("pk_simulations")),
+        sqlite_autoincrement=True,  # ids never reused, like every table since 0006
     )
     with op.batch_alter_table("simulations", schema=None) as batch_op:
         batch_op.create_index(batch_op.f("ix_simulations_experiment_id"), ["experiment_id"], unique=False)

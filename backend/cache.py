@@ -1,0 +1,42 @@
+"""Rendered answers of immutable results, kept in memory: the same grid, overview or profile asked by many
+viewers (or by a dashboard polling) is cut and serialised once.
+
+A result file never changes once its job succeeded; the key holds its path, size and modification time, so a
+job run again (a new file) is never answered from the old one. Bounded by bytes (least recently used first out),
+so the cache cannot grow the API process by more than `max_bytes`.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+from collections.abc import Callable, Hashable
+from pathlib import Path
+
+
+class AnswerCache:
+    def __init__(self, *, max_bytes: int) -> None:
+        self.max_bytes = max_bytes
+        self._answers: OrderedDict[Hashable, bytes] = OrderedDict()
+        self._bytes = 0
+        self._lock = threading.Lock()
+
+    def get_or_render(self, path: Path, key: Hashable, render: Callable[[], bytes]) -> bytes:
+        """The answer for `key` about the file at `path`, rendered by `render()` when not kept."""
+        stat = path.stat()
+        full_key = (str(path), stat.st_size, stat.st_mtime_ns, key)
+        with self._lock:
+            kept = self._answers.get(full_key)
+            if kept is not None:
+                self._answers.move_to_end(full_key)
+                return kept
+        answer = render()
+        if len(answer) <= self.max_bytes // 8:  # one huge answer must not flush everything else
+            with self._lock:
+                if full_key not in self._answers:
+                    self._answers[full_key] = answer
+                    self._bytes += len(answer)
+                while self._bytes > self.max_bytes:
+                    _, dropped = self._answers.popitem(last=False)
+                    self._bytes -= len(dropped)
+        return answer
