@@ -25,6 +25,7 @@ import {
 import { attempt, field, fill, h, num, page, say, showError } from "../ui.js";
 import { TopographySource } from "./topography-source.js";
 import { exportPanel } from "./exports.js";
+import { explained } from "./calibration.js";
 import { jobName } from "./jobs.js";
 
 const LINE_LABELS = "ABCDEFGHIJKLMNOPQRSTUVWXYZ";
@@ -234,7 +235,8 @@ class Viewer {
       h("p", { class: "facts" },
         h("a", { href: `#/jobs/${this.job.id}` }, jobName(this.job)), " · ",
         `${this.frames.length} frames · grid ${m.grid.nx} × ${m.grid.ny} nodes, ${num(m.grid.step_mm, 2)} mm apart · `,
-        `peak deflection up to ${num(m.w_range_mm[1], 2)} mm`),
+        `peak deflection up to ${num(m.w_range_mm[1], 2)} mm · `,
+        explained("how w is measured and what is left unmeasured", "6-topography-and-results")),
       h("div", { class: "player", role: "group", "aria-label": "Frames" },
         this.playButton,
         h("button", { type: "button", class: "small", "aria-label": "Previous frame", onclick: () => this.goTo(this.position - 1) }, "◀"),

@@ -25,7 +25,9 @@ def zstack_frames():
     return camera, board, render_zstack_frames(camera, board, Z_MM, rng=np.random.default_rng(5))
 
 
-def add_recording(settings, zstack_frames, *, name: str = "zstack") -> dict[str, int]:
+def add_recording(
+    settings, zstack_frames, *, name: str = "zstack", pitch_v_ratio: float | None = None
+) -> dict[str, int]:
     """A ready camera-calibration recording (folder of PNGs with z.csv and board.json) of a camera `left` in an
     experiment of its own."""
     camera, board, frames = zstack_frames
@@ -37,8 +39,10 @@ def add_recording(settings, zstack_frames, *, name: str = "zstack") -> dict[str,
     engine = make_engine(settings.resolved_database_url)
     with make_sessionmaker(engine)() as session:
         experiment = Experiment(name=f"plate {name}")
+        pitch_um = 1000.0 / camera.du_px_per_mm
         row = Camera(experiment=experiment, name="left", image_width_px=512, image_height_px=480,
-                     pixel_pitch_um=1000.0 / camera.du_px_per_mm)  # fmt: skip
+                     pixel_pitch_um=pitch_um,
+                     pixel_pitch_v_um=None if pitch_v_ratio is None else pitch_um * pitch_v_ratio)  # fmt: skip
         recording = Recording(camera=row, kind="camera_calibration", state="ready", path=str(relative),
                               frame_count=len(frames), width_px=512, height_px=480, sha256="cd" * 32)  # fmt: skip
         session.add_all([experiment, row, recording])
@@ -119,3 +123,20 @@ def test_jobs_of_several_experiments_at_once_each_end_with_their_own_results(
         assert (calibration["job_id"], calibration["version"]) == (job["id"], 1)
     listed = client.get("/api/v1/jobs", params={"experiment_id": experiments[1]["experiment"]}).json()
     assert [j["id"] for j in listed["items"]] == [ids[1]]
+
+
+def test_the_pixel_pitch_along_v_sets_d_v(client, celery_worker, settings, zstack_frames):
+    """A camera entered with pixels 5 % taller than wide: the calibration takes D_v = 1000 / pitch_v px/mm, and
+    the scale factor on v takes up the difference (the image itself is the same), so s_v grows by 5 %."""
+    camera = zstack_frames[0]
+    ids = add_recording(settings, zstack_frames, name="tall-pixels", pitch_v_ratio=1.05)
+    spec = {"kind": "camera_calibration", "recording_id": ids["recording"], "scale_on": "v"}
+    job = wait_job(client, client.post("/api/v1/jobs", json=spec).json()["id"], timeout_s=120)
+    assert job["state"] == "succeeded", job["error"]
+    report = client.get(f"/api/v1/calibrations/{job['result']['calibration_id']}/report").json()["report"]
+    pitch_u_um = 1000.0 / camera.du_px_per_mm
+    assert report["sensor"]["pixel_pitch_um"] == pytest.approx([pitch_u_um, 1.05 * pitch_u_um], rel=1e-12)
+    assert report["sensor"]["dv_px_per_mm"] == pytest.approx(camera.dv_px_per_mm / 1.05, rel=1e-12)
+    assert report["sensor"]["du_px_per_mm"] == pytest.approx(camera.du_px_per_mm, rel=1e-12)
+    # D_v·s_v is what the image fixes: s_v = 1.05 × the truth's, to 0.1 % (its standard error is about 1e-4).
+    assert report["parameters"]["su"]["value"] == pytest.approx(1.05 * camera.su, rel=1e-3)
