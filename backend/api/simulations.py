@@ -8,21 +8,18 @@ nothing behind. Access follows the experiment (write access to upload or delete)
 
 from __future__ import annotations
 
-import hashlib
-import uuid
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, Path, Request, Response
 from fastapi.responses import JSONResponse
 from sqlalchemy import select
 from starlette.concurrency import run_in_threadpool
-from starlette.requests import ClientDisconnect
 
 from backend.api.deps import CurrentUser, ExperimentId, ReadableExperiment, SessionDep, StateDep
 from backend.errors import error_responses
 from backend.schemas.common import MAX_ID
 from backend.schemas.simulations import SimulationOut
-from fringelab.core.errors import DomainError, TooLarge
+from backend.streaming import declared_length, staged_body
 from fringelab.core.models import Simulation
 from fringelab.core.simulations import (
     check_simulation_request,
@@ -30,7 +27,6 @@ from fringelab.core.simulations import (
     register_simulation,
     simulation_for,
 )
-from fringelab.core.storage import InsufficientStorage, StreamingWriter, UploadTooLarge, put_dir
 
 router = APIRouter(tags=["simulations"])
 
@@ -94,51 +90,23 @@ async def put_simulation(
     .e/.exo) or a ZIP of a folder (a d3plot family with nodout/rcforc, a .pvd with its .vtu files, a nodal CSV
     with its punch CSV). Within FRINGELAB_MAX_UPLOAD_BYTES and the free disk; read before it is registered."""
     settings = state.settings
-    header = request.headers.get("content-length")
-    length = int(header) if header and header.isdigit() else None
+    length = declared_length(request)
     await run_in_threadpool(
         lambda: check_simulation_request(
             state, principal, experiment_id=experiment_id, filename=filename, length=length
         )
     )
-    staged = put_dir(settings.data_path) / f"{uuid.uuid4().hex}.part"
-    writer = StreamingWriter(
-        staged,
-        hasher=hashlib.sha256(),
-        limit_bytes=min(length or settings.max_upload_bytes, settings.max_upload_bytes),
-        reserve_bytes=settings.min_free_disk_bytes,
-    )
-    try:
-        try:
-            async for chunk in request.stream():
-                await writer.append(chunk)
-            await writer.flush()
-        except ClientDisconnect:
-            raise DomainError(
-                "the connection closed before the upload ended; nothing was kept", code="upload_interrupted"
-            ) from None
-        except UploadTooLarge as error:
-            raise TooLarge(str(error), code="upload_too_large") from None
-        except InsufficientStorage as error:
-            raise TooLarge(str(error), code="insufficient_storage") from None
-        finally:
-            await writer.close()
-        if writer.size == 0:
-            raise DomainError("the upload is empty (0 bytes)", code="empty_upload")
-        if length is not None and writer.size != length:
-            raise DomainError(f"received {writer.size} of {length} bytes", code="upload_incomplete")
+    async with staged_body(request, settings, length) as body:
         simulation_id = await run_in_threadpool(
             register_simulation,
             state,
             principal,
-            staged=staged,
+            staged=body.path,
             experiment_id=experiment_id,
             filename=filename,
-            sha256=writer.hasher.hexdigest(),
-            size_bytes=writer.size,
+            sha256=body.sha256,
+            size_bytes=body.size_bytes,
         )
-    finally:
-        staged.unlink(missing_ok=True)
 
     def out() -> SimulationOut:
         with state.sessions() as session:

@@ -18,24 +18,21 @@ or `invalid`.
 
 from __future__ import annotations
 
-import hashlib
-import uuid
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
-from starlette.requests import ClientDisconnect
 from tuspyserver import create_tus_router
 
 from backend.api.deps import CurrentUser, StateDep, WritableCameraId
 from backend.errors import error_responses
 from backend.schemas.recordings import RecordingKind, RecordingOut, recording_out_by_id
+from backend.streaming import declared_length, staged_body
 from backend.uploads import TusUploadStorage, make_access_dep, make_complete_dep, make_pre_create_dep
-from fringelab.core.errors import DomainError, TooLarge
 from fringelab.core.recordings import check_upload_request, register_upload
 from fringelab.core.state import AppState
-from fringelab.core.storage import InsufficientStorage, StreamingWriter, UploadTooLarge, put_dir, tus_dir
+from fringelab.core.storage import tus_dir
 
 
 def create_router(state: AppState) -> APIRouter:
@@ -104,51 +101,23 @@ async def put_recording(
 ) -> JSONResponse:
     """Upload a recording in one streamed request (e.g. `curl -T plate.cine URL?kind=test`)."""
     settings = state.settings
-    header = request.headers.get("content-length")
-    length = int(header) if header and header.isdigit() else None
+    length = declared_length(request)
     await run_in_threadpool(
         lambda: check_upload_request(state, principal, camera_id=camera_id, kind=kind, filename=filename, length=length)
     )
-    staged = put_dir(settings.data_path) / f"{uuid.uuid4().hex}.part"
-    writer = StreamingWriter(
-        staged,
-        hasher=hashlib.sha256(),
-        limit_bytes=min(length or settings.max_upload_bytes, settings.max_upload_bytes),
-        reserve_bytes=settings.min_free_disk_bytes,
-    )
-    try:
-        try:
-            async for chunk in request.stream():
-                await writer.append(chunk)
-            await writer.flush()
-        except ClientDisconnect:
-            raise DomainError(
-                "the connection closed before the upload ended; nothing was kept", code="upload_interrupted"
-            ) from None
-        except UploadTooLarge as error:
-            raise TooLarge(str(error), code="upload_too_large") from None
-        except InsufficientStorage as error:
-            raise TooLarge(str(error), code="insufficient_storage") from None
-        finally:
-            await writer.close()
-        if writer.size == 0:
-            raise DomainError("the upload is empty (0 bytes)", code="empty_upload")
-        if length is not None and writer.size != length:
-            raise DomainError(f"received {writer.size} of {length} bytes", code="upload_incomplete")
+    async with staged_body(request, settings, length) as body:
         recording_id = await run_in_threadpool(
             register_upload,
             state,
             principal,
-            staged=staged,
+            staged=body.path,
             camera_id=camera_id,
             kind=kind,
             filename=filename,
-            sha256=writer.hasher.hexdigest(),
-            size_bytes=writer.size,
+            sha256=body.sha256,
+            size_bytes=body.size_bytes,
             upload_id=None,
         )
-    finally:
-        staged.unlink(missing_ok=True)  # moved into its recording on success
     recording = await run_in_threadpool(recording_out_by_id, state, recording_id)
     return JSONResponse(
         recording.model_dump(mode="json"),

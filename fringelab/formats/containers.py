@@ -687,6 +687,19 @@ def mraw_header_from(
     return header
 
 
+def mraw_header_in_zip(path: Path, entries: tuple[str, str]) -> MrawHeader:
+    """The header of a Photron recording uploaded as one ZIP (`ZipContents.mraw_entries`), checked against the
+    stored .mraw entry, whose frames are read where they lie in the ZIP file."""
+    header_name, data_name = entries
+    with zipfile.ZipFile(path) as archive:
+        header_bytes = archive.read(header_name)
+        data_info = archive.getinfo(data_name)
+    return mraw_header_from(
+        PurePosixPath(header_name), header_bytes, data_path=path, data_name=data_name,
+        data_offset=zip_entry_data_offset(path, data_info), data_bytes=data_info.file_size,
+    )  # fmt: skip
+
+
 def unpack_mraw_pixels(data: bytes, header: MrawHeader) -> np.ndarray:
     """One MRAW frame's bytes as a (rows, cols) array: uint8, or uint16 for 12-bit (unpacked) and 16-bit data."""
     shape = (header.height_px, header.width_px)
@@ -952,6 +965,8 @@ def recording_layout(path: str | Path, *, zip_limits: ZipLimits | None = None) -
     format = sniff_format(path)
     if format == "zip":
         contents = inspect_zip(path, limits=zip_limits)
+        if contents.mraw_entries is not None:
+            return _mraw_layout(format, mraw_header_in_zip(path, contents.mraw_entries))
         with zipfile.ZipFile(path) as archive, archive.open(contents.frame_names[0]) as entry:
             declared = declared_image_size(entry.read(64 * 1024))
         width, height = declared or (0, 0)
@@ -961,6 +976,8 @@ def recording_layout(path: str | Path, *, zip_limits: ZipLimits | None = None) -
         return RecordingLayout(
             format, cine.frame_count, cine.width_px, cine.height_px, cine.channels * cine.dtype.itemsize
         )
+    if format == "mraw":
+        return _mraw_layout(format, read_mraw_header(path))
     if format == "tiff":
         tiff = read_tiff_layout(path)
         return RecordingLayout(format, tiff.frame_count, tiff.width_px, tiff.height_px, tiff.bytes_per_sample)
@@ -968,6 +985,10 @@ def recording_layout(path: str | Path, *, zip_limits: ZipLimits | None = None) -
         video = check_video_container(path, format)
         return RecordingLayout(format, video.frame_count, video.width_px, video.height_px)
     return RecordingLayout(format, 0, 0, 0)
+
+
+def _mraw_layout(format: str, header: MrawHeader) -> RecordingLayout:
+    return RecordingLayout(format, header.frame_count, header.width_px, header.height_px, 1 if header.bits == 8 else 2)
 
 
 def check_ingest_budget(

@@ -21,7 +21,7 @@ import zipfile
 import zlib
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 from typing import TYPE_CHECKING, BinaryIO, overload
 
 import cv2
@@ -38,14 +38,13 @@ from fringelab.formats.containers import (
     declared_image_size,
     inspect_zip,
     is_junk_entry,
-    mraw_header_from,
+    mraw_header_in_zip,
     read_cine_header,
     read_mraw_header,
     read_tiff_layout,
     sniff_format,
     unpack_cine_pixels,
     unpack_mraw_pixels,
-    zip_entry_data_offset,
 )
 from fringelab.formats.sidecars import FRAMES_CSV_COLUMNS, check_sidecar_size, read_sidecar_file
 from fringelab.formats.sidecars import sidecar_text as decode_sidecar
@@ -446,15 +445,7 @@ class MrawFrames(FrameSource):
 def _mraw_in_zip(path: Path, entries: tuple[str, str]) -> MrawFrames:
     """A Photron recording uploaded as one ZIP: its header read from the archive, its frames read where the
     stored .mraw lies in the ZIP file."""
-    header_name, data_name = entries
-    with zipfile.ZipFile(path) as archive:
-        header_bytes = archive.read(header_name)
-        data_info = archive.getinfo(data_name)
-    header = mraw_header_from(
-        PurePosixPath(header_name), header_bytes, data_path=path, data_name=data_name,
-        data_offset=zip_entry_data_offset(path, data_info), data_bytes=data_info.file_size,
-    )  # fmt: skip
-    return MrawFrames(path, header=header)
+    return MrawFrames(path, header=mraw_header_in_zip(path, entries))
 
 
 def open_recording(path: str | Path, *, zip_limits: ZipLimits | None = None) -> FrameSource:
