@@ -177,7 +177,10 @@ OPERATIONS = _operations()
 def template(tmp_path_factory: pytest.TempPathFactory, redis_server) -> Iterator[World]:  # type: ignore[no-untyped-def]
     """ada's world, built once through the API (and a real ingest), copied for every case."""
     data_dir = tmp_path_factory.mktemp("access") / "var"
-    settings = Settings(_env_file=None, data_dir=data_dir, redis_url=redis_server.url, auth_enabled=True)  # type: ignore[call-arg]
+    # Event streams of lists end soon (they otherwise stay open for minutes; the browser reconnects).
+    settings = Settings(
+        _env_file=None, data_dir=data_dir, redis_url=redis_server.url, auth_enabled=True, list_events_s=0.5
+    )  # type: ignore[call-arg]
     upgrade_database(settings.resolved_database_url)
     redis.Redis.from_url(redis_server.url).flushdb()
     engine = make_engine(settings.resolved_database_url)
