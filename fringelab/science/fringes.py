@@ -21,10 +21,8 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 import cv2
+import numba
 import numpy as np
-from scipy import ndimage, special
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
 
 from . import MeasurementError
 from .smoothing import edge_smoothing_weights
@@ -349,37 +347,20 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     line_kernel = np.ones((1, window), np.uint8)
     local_max = cv2.dilate(scan, line_kernel)
     local_min = cv2.erode(np.where(dark_area, np.float32(4.0 * FULL_SCALE), scan), line_kernel)
-    valid = 1.0 - dark_area.astype(np.float32)
-    weight = cv2.blur(valid, (window, 1))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        max_smooth = cv2.blur(local_max * valid, (window, 1)) / weight
-        min_smooth = cv2.blur(local_min * valid, (window, 1)) / weight
-    mid = 0.5 * (max_smooth + min_smooth)
-    contrast = max_smooth - min_smooth
-    diff = scan - mid
+    mid, contrast = _mid_and_contrast(local_max, local_min, dark_area, window)
 
     # Transitions within half a period of a dark area (along the lines; across them, within the reach of the
     # smoothing along the stripes, which mixes dark lines into their neighbours) are rejected: their stripe is cut.
     grow = np.ones((2 * half + 3, 2 * dark_window - 1), np.uint8)
-    near_dark = cv2.dilate(dark_u8, grow).astype(bool)
+    near_dark = cv2.dilate(dark_u8, grow)
     saturated = scan >= settings.saturation_grey
-    with np.errstate(invalid="ignore"):
-        usable = (contrast >= settings.min_contrast_grey) & ~near_dark & (local_max < settings.saturation_grey)
-
-    with np.errstate(invalid="ignore"):
-        positive = diff > 0
-    crossing = (positive[:, 1:] != positive[:, :-1]) & usable[:, 1:] & usable[:, :-1]
-    if settings.presmooth_px > 0:
-        # Near the first and last lines the smoothing mirrors the image, which bends an inclined edge.
-        crossing[:half] = False
-        crossing[-half:] = False
-    # The sub-pixel fit needs one sample either side of the straddling pair.
-    crossing[:, 0] = False
-    crossing[:, -1] = False
-    line, left = np.nonzero(crossing)
-    line = line.astype(np.int32)
-    t_raw = _subpixel_crossings(diff, contrast, line, left)
-    polarity = np.where(diff[line, left + 1] > diff[line, left], 1, -1).astype(np.int8)
+    # Near the first and last lines the smoothing along the stripes mirrors the image, which bends an inclined
+    # edge: no crossings there.
+    margin_lines = half if settings.presmooth_px > 0 else 0
+    line, t_raw, polarity = _crossings(
+        scan, mid, contrast, local_max, near_dark, min_contrast_grey=float(settings.min_contrast_grey),
+        saturation_grey=float(settings.saturation_grey), margin_lines=margin_lines,
+    )  # fmt: skip
 
     keep = _without_glitches(line, t_raw, min_gap_px=0.25 * 0.5 * period_px)
     line, t_raw, polarity = line[keep], t_raw[keep], polarity[keep]
@@ -416,6 +397,59 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     )
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _mid_and_contrast(
+    local_max: np.ndarray, local_min: np.ndarray, dark_area: np.ndarray, window: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The envelopes averaged over `window` samples along each line, dark-area samples left out, as the
+    mid-level (I_max + I_min)/2 and the contrast I_max − I_min, each (S, T) float32 (NaN where the whole
+    window is dark). The window is mirrored at the line ends without repeating the end sample (OpenCV's
+    BORDER_REFLECT_101)."""
+    n_lines, n_samples = local_max.shape
+    half = window // 2
+    mid = np.empty((n_lines, n_samples), np.float32)
+    contrast = np.empty((n_lines, n_samples), np.float32)
+    for i in range(n_lines):
+        count = 0.0
+        sum_max = 0.0
+        sum_min = 0.0
+        for j in range(-half, half):
+            k = _reflect_101(j, n_samples)
+            if dark_area[i, k] == 0:
+                count += 1.0
+                sum_max += local_max[i, k]
+                sum_min += local_min[i, k]
+        for j in range(n_samples):
+            entering = _reflect_101(j + half, n_samples)
+            if dark_area[i, entering] == 0:
+                count += 1.0
+                sum_max += local_max[i, entering]
+                sum_min += local_min[i, entering]
+            if count > 0:
+                high, low = sum_max / count, sum_min / count
+                mid[i, j] = 0.5 * (high + low)
+                contrast[i, j] = high - low
+            else:
+                mid[i, j] = contrast[i, j] = np.nan
+                sum_max = sum_min = 0.0  # no rounding residue carried past a dark stretch
+            leaving = _reflect_101(j - half, n_samples)
+            if dark_area[i, leaving] == 0:
+                count -= 1.0
+                sum_max -= local_max[i, leaving]
+                sum_min -= local_min[i, leaving]
+    return mid, contrast
+
+
+@numba.njit(cache=True, nogil=True)
+def _reflect_101(index: int, n: int) -> int:
+    """The sample an index beyond a line of n samples mirrors to (…, 2, 1 | 0, 1, …, n − 1 | n − 2, …)."""
+    if n == 1:
+        return 0
+    while index < 0 or index >= n:
+        index = -index if index < 0 else 2 * (n - 1) - index
+    return index
+
+
 def _unusable_blocks(
     scan: np.ndarray,
     dark: np.ndarray,
@@ -437,25 +471,64 @@ def _unusable_blocks(
     lit = sampled[~dark[::4, ::4]]
     stripes_dark = float(np.percentile(lit, 10)) if lit.size else black_level
     margin = max(BLACK_MARGIN_GREY, 0.25 * (stripes_dark - black_level))
-    reason: np.ndarray = np.zeros(scan.shape, np.uint8)
-    with np.errstate(invalid="ignore"):
-        faint = ~((contrast >= settings.min_contrast_grey) & (local_max < settings.saturation_grey))
-    reason[faint] = UNUSABLE_LOW_CONTRAST
-    reason[dark] = UNUSABLE_DARK
-    reason[dark & (scan < black_level + margin)] = UNUSABLE_BLACK
     block = UNUSABLE_BLOCK_PX
-    height, width = int(reason.shape[0]), int(reason.shape[1])
-    # The worst reason in each block (a dilation by the block, then every block-th pixel), then as far as edges
-    # are rejected near dark areas (see `locate_edges`; the larger code wins), at the blocks' scale.
-    worst = cv2.dilate(reason, np.ones((block, block), np.uint8), anchor=(0, 0))[::block, ::block]
+    # The worst reason in each block, then as far as edges are rejected near dark areas (see `locate_edges`; the
+    # larger code wins), at the blocks' scale.
+    worst = _worst_reason_per_block(
+        scan, dark, contrast, local_max, float(settings.min_contrast_grey), float(settings.saturation_grey),
+        black_level + margin, block,
+    )  # fmt: skip
     reach = np.ones((-(-grow.shape[0] // block) | 1, -(-grow.shape[1] // block) | 1), np.uint8)
-    return np.ascontiguousarray(cv2.dilate(worst, reach)[: -(-height // block), : -(-width // block)])
+    return np.ascontiguousarray(cv2.dilate(worst, reach))
 
 
-def _subpixel_crossings(diff: np.ndarray, contrast: np.ndarray, line: np.ndarray, left: np.ndarray) -> np.ndarray:
-    """Mid-level crossing between samples `left` and `left + 1` of each line, shape (N,) float64.
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _worst_reason_per_block(
+    scan: np.ndarray,
+    dark: np.ndarray,
+    contrast: np.ndarray,
+    local_max: np.ndarray,
+    min_contrast: float,
+    saturation: float,
+    black_below: float,
+    block: int,
+) -> np.ndarray:
+    """The largest UNUSABLE_* code of the pixels of each block × block block, shape (⌈H/block⌉, ⌈W/block⌉)."""
+    height, width = scan.shape
+    worst = np.zeros(((height + block - 1) // block, (width + block - 1) // block), np.uint8)
+    for y in range(height):
+        for x in range(width):
+            if dark[y, x]:
+                code = UNUSABLE_BLACK if scan[y, x] < black_below else UNUSABLE_DARK
+            elif not (contrast[y, x] >= min_contrast and local_max[y, x] < saturation):
+                code = UNUSABLE_LOW_CONTRAST
+            else:
+                continue
+            if code > worst[y // block, x // block]:
+                worst[y // block, x // block] = code
+    return worst
 
-    Probit chord: the two straddling samples, normalised by their local envelope to
+
+def _crossings(
+    scan: np.ndarray,
+    mid: np.ndarray,
+    contrast: np.ndarray,
+    local_max: np.ndarray,
+    near_dark: np.ndarray,
+    *,
+    min_contrast_grey: float,
+    saturation_grey: float,
+    margin_lines: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every mid-level crossing of the scan lines between two usable samples, sorted by (line, t): line (N,)
+    int32, t (N,) float64 px and polarity (N,) int8 (+1 where the grey level rises along +t).
+
+    scan, mid, contrast, local_max: (S, T) float32; near_dark: (S, T) uint8, non-zero where edges are rejected.
+    A sample is usable where the contrast reaches min_contrast_grey, the window's brightest sample stays below
+    saturation_grey and no dark area is near. The first and last `margin_lines` lines and the first and last
+    sample of every line give none (the sub-pixel fit needs a sample either side of the straddling pair).
+
+    Sub-pixel position, the probit chord: the two straddling samples, normalised by their local envelope to
     y = (I − I_min)/(I_max − I_min) = 1/2 + (I − mid)/contrast, become z = Φ⁻¹(y), which is a straight line in
     position for a Gaussian-blurred step; the crossing is where the chord through them meets z = 0 (y = 1/2).
     The plain chord between the intensities bends with the S-shaped edge and leaves a bias that depends on the
@@ -463,16 +536,77 @@ def _subpixel_crossings(diff: np.ndarray, contrast: np.ndarray, line: np.ndarray
     σ ≥ 0.5 px at the same noise. Each sample is normalised by its own envelope, so the two are on either side of
     1/2 exactly when the crossing test found them to be.
     """
-    n_samples = diff.shape[1]
-    flat = line.astype(np.int64) * n_samples + left
-    d, c = diff.ravel(), contrast.ravel()
-    y0 = np.clip(0.5 + d[flat] / c[flat], 0.005, 0.995)
-    y1 = np.clip(0.5 + d[flat + 1] / c[flat + 1], 0.005, 0.995)
-    z0 = special.ndtri(y0.astype(np.float64))
-    z1 = special.ndtri(y1.astype(np.float64))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        x = z0 / (z0 - z1)
-    return left + np.clip(np.nan_to_num(x, nan=0.5), 0.0, 1.0)
+    return _crossings_kernel(scan, mid, contrast, local_max, near_dark, min_contrast_grey, saturation_grey,
+                             margin_lines)  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _probit(y: float) -> float:
+    """Φ⁻¹(y) for 0.005 ≤ y ≤ 0.995: Wichura's AS241 (PPND16), accurate to about 1e-16 (its central and
+    intermediate-tail branches; |Φ⁻¹| ≤ 2.58 needs no other)."""
+    q = y - 0.5
+    if abs(q) <= 0.425:
+        r = 0.180625 - q * q
+        num = (((((((2.5090809287301226727e3 * r + 3.3430575583588128105e4) * r + 6.7265770927008700853e4) * r
+                   + 4.5921953931549871457e4) * r + 1.3731693765509461125e4) * r + 1.9715909503065514427e3) * r
+                + 1.3314166789178437745e2) * r + 3.3871328727963666080e0)  # fmt: skip
+        den = (((((((5.2264952788528545610e3 * r + 2.8729085735721942674e4) * r + 3.9307895800092710610e4) * r
+                   + 2.1213794301586595867e4) * r + 5.3941960214247511077e3) * r + 6.8718700749205790830e2) * r
+                + 4.2313330701600911252e1) * r + 1.0)  # fmt: skip
+        return q * num / den
+    r = np.sqrt(-np.log(y if q < 0 else 1.0 - y)) - 1.6
+    num = (((((((7.74545014278341407640e-4 * r + 2.27238449892691845833e-2) * r + 2.41780725177450611770e-1) * r
+               + 1.27045825245236838258e0) * r + 3.64784832476320460504e0) * r + 5.76949722146069140550e0) * r
+            + 4.63033784615654529590e0) * r + 1.42343711074968357734e0)  # fmt: skip
+    den = (((((((1.05075007164441684324e-9 * r + 5.47593808499534494600e-4) * r + 1.51986665636164571966e-2) * r
+               + 1.48103976427480074590e-1) * r + 6.89767334985100004550e-1) * r + 1.67638483018380384940e0) * r
+            + 2.05319162663775882187e0) * r + 1.0)  # fmt: skip
+    value = num / den
+    return -value if q < 0 else value
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _crossings_kernel(
+    scan: np.ndarray,
+    mid: np.ndarray,
+    contrast: np.ndarray,
+    local_max: np.ndarray,
+    near_dark: np.ndarray,
+    min_contrast: float,
+    saturation: float,
+    margin_lines: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    n_lines, n_samples = scan.shape
+    # np.empty only maps memory: the pages the crossings are written to are the only ones touched.
+    capacity = n_lines * n_samples
+    line_out = np.empty(capacity, np.int32)
+    t_out = np.empty(capacity, np.float64)
+    polarity_out = np.empty(capacity, np.int8)
+    m = 0
+    for i in range(margin_lines, n_lines - margin_lines):
+        # usable(j + 1) and diff(j + 1) carried over to the next sample.
+        next_usable = False
+        next_diff = 0.0
+        for j in range(n_samples - 1):
+            here_usable, here_diff = next_usable, next_diff
+            c = contrast[i, j + 1]
+            next_diff = scan[i, j + 1] - mid[i, j + 1]
+            next_usable = c >= min_contrast and local_max[i, j + 1] < saturation and near_dark[i, j + 1] == 0
+            if j == 0 or j == n_samples - 2 or not (here_usable and next_usable):
+                continue
+            if (here_diff > 0) == (next_diff > 0):
+                continue
+            y0 = min(max(0.5 + here_diff / contrast[i, j], 0.005), 0.995)
+            y1 = min(max(0.5 + next_diff / c, 0.005), 0.995)
+            z0, z1 = _probit(y0), _probit(y1)
+            x = z0 / (z0 - z1)
+            if not np.isfinite(x):
+                x = 0.5
+            line_out[m] = i
+            t_out[m] = j + min(max(x, 0.0), 1.0)
+            polarity_out[m] = 1 if next_diff > here_diff else -1
+            m += 1
+    return line_out[:m].copy(), t_out[:m].copy(), polarity_out[:m].copy()
 
 
 def _without_glitches(line: np.ndarray, t_px: np.ndarray, *, min_gap_px: float) -> np.ndarray:
@@ -520,87 +654,134 @@ def _link_chains(
     """Label, shape (N,), of the edge curve of each crossing, input sorted by (line, t).
 
     Two crossings on adjacent lines belong to one curve when each is the other's nearest crossing of the same
-    polarity on that line and they are at most max_step_px apart. A curve is thus a run over consecutive lines
-    with one crossing per line; labels are the index of the curve's first crossing.
+    polarity on that line (the nearer on the lower t when two are as near) and they are at most max_step_px
+    apart. A curve is thus a run over consecutive lines with one crossing per line; labels are the index of the
+    curve's first crossing. `n_samples` is the length of a line (positions lie in [0, n_samples)).
     """
-    n = len(line)
-    if n == 0:
+    if len(line) == 0:
         return np.zeros(0, np.int64)
-    stride = float(n_samples + 4.0 * max_step_px + 8.0)
-    key = line.astype(np.float64) * stride + t_px
-    forward = np.full(n, -1, np.int64)
-    backward = np.full(n, -1, np.int64)
-    for sign in (1, -1):
-        members = np.flatnonzero(polarity == sign)
-        if len(members) == 0:
+    if n_samples <= 0:
+        raise ValueError(f"n_samples: expected > 0, got {n_samples}")
+    line = np.ascontiguousarray(line, np.int64)
+    starts = np.searchsorted(line, np.arange(int(line[-1]) + 3))
+    return _link_chains_kernel(line, np.ascontiguousarray(t_px, np.float64), np.ascontiguousarray(polarity, np.int8),
+                               starts, float(max_step_px))  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _nearest_same_polarity(
+    t: np.ndarray, polarity: np.ndarray, lo: int, hi: int, query: float, sign: int, max_step: float
+) -> int:
+    """Index in [lo, hi) of the crossing of polarity `sign` nearest to `query` (lower t on a tie), or −1 when
+    none lies within max_step. Crossings in [lo, hi) are sorted by t."""
+    a, b = lo, hi
+    while a < b:  # first index with t >= query
+        mid = (a + b) // 2
+        if t[mid] < query:
+            a = mid + 1
+        else:
+            b = mid
+    below = a - 1
+    while below >= lo and polarity[below] != sign:
+        below -= 1
+    above = a
+    while above < hi and polarity[above] != sign:
+        above += 1
+    best = -1
+    best_gap = np.inf
+    if below >= lo:
+        best, best_gap = below, query - t[below]
+    if above < hi and t[above] - query < best_gap:
+        best, best_gap = above, t[above] - query
+    return best if best_gap <= max_step else -1
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _link_chains_kernel(
+    line: np.ndarray, t: np.ndarray, polarity: np.ndarray, starts: np.ndarray, max_step: float
+) -> np.ndarray:
+    n = len(line)
+    label = np.arange(n)
+    for i in range(n):
+        previous_line = line[i] - 1
+        if previous_line < 0:
             continue
-        keys = key[members]
-        for direction, out in ((1.0, forward), (-1.0, backward)):
-            query = keys + direction * stride
-            pos = np.searchsorted(keys, query)
-            lo = np.clip(pos - 1, 0, len(keys) - 1)
-            hi = np.minimum(pos, len(keys) - 1)
-            nearest = np.where(np.abs(keys[lo] - query) <= np.abs(keys[hi] - query), lo, hi)
-            ok = np.abs(keys[nearest] - query) <= max_step_px
-            out[members[ok]] = members[nearest[ok]]
-    # Keep mutual links only; then every crossing has at most one predecessor, and pointer jumping to the
-    # first crossing of the run labels the curves in log2(run length) passes.
-    predecessor = backward.copy()
-    has_pred = predecessor >= 0
-    predecessor[has_pred & (forward[np.maximum(predecessor, 0)] != np.arange(n))] = -1
-    label = np.where(predecessor >= 0, predecessor, np.arange(n))
-    while True:
-        jumped = label[label]
-        if np.array_equal(jumped, label):
-            return label
-        label = jumped
+        j = _nearest_same_polarity(t, polarity, starts[previous_line], starts[line[i]], t[i], polarity[i], max_step)
+        # Mutual: i must be j's nearest on i's line too; then j's label, set before (lines in order), runs on.
+        if (
+            j >= 0
+            and _nearest_same_polarity(t, polarity, starts[line[i]], starts[line[i] + 1], t[j], polarity[j], max_step)
+            == i
+        ):
+            label[i] = label[j]
+    return label
 
 
 def _smooth_along_chains(line: np.ndarray, t_px: np.ndarray, chain: np.ndarray, *, sigma_lines: float) -> np.ndarray:
     """t smoothed along each chain by a Gaussian-weighted local quadratic fit in the line index, shape (N,).
 
-    Each chain covers consecutive lines (links join adjacent lines only), so after sorting by (chain, line) the
-    chains lie end to end in one 1-D array. Away from a chain's ends the local quadratic fit is a fixed linear
-    filter (a Gaussian-weighted Savitzky–Golay filter); within a kernel half-width of an end the fit is solved
-    with the points that are there.
+    line, t_px, chain: shape (N,), sorted by (line, t); chain labels 0..n_chains − 1, each chain covering
+    consecutive lines (links join adjacent lines only) with one point per line. Away from a chain's ends the local
+    quadratic fit is a fixed linear filter (a Gaussian-weighted Savitzky–Golay filter, `edge_smoothing_weights`);
+    within a kernel half-width of an end the fit is solved with the points that are there, and where a one-sided
+    quadratic on a few points would amplify noise (less than 2/3 of a half-width on the short side and a short
+    chain on the other, i.e. an ill-conditioned fit) the local weighted mean is taken instead.
     """
     half = max(1, int(np.ceil(3.0 * sigma_lines)))
-    n_lines = int(line.max()) + 1
-    order = np.argsort(chain.astype(np.int64) * n_lines + line, kind="stable")
-    t_sorted = t_px[order].astype(np.float64)
-    sorted_chain = chain[order]
-    n = len(order)
-    is_start = np.r_[True, sorted_chain[1:] != sorted_chain[:-1]]
-    start_index = np.maximum.accumulate(np.where(is_start, np.arange(n), 0))
-    is_end = np.r_[sorted_chain[1:] != sorted_chain[:-1], True]
-    end_index = np.minimum.accumulate(np.where(is_end, np.arange(n), n)[::-1])[::-1]
-    before = np.arange(n) - start_index
-    after = end_index - np.arange(n)
-
     offsets = np.arange(-half, half + 1, dtype=np.float64)
     gauss = np.exp(-0.5 * (offsets / sigma_lines) ** 2)
-    interior_weights = edge_smoothing_weights(sigma_lines)
-    smoothed_sorted = ndimage.correlate1d(t_sorted, interior_weights, mode="nearest")
+    return _smooth_along_chains_kernel(
+        np.ascontiguousarray(t_px, np.float64), np.ascontiguousarray(chain, np.int64),
+        edge_smoothing_weights(sigma_lines), gauss, float(sigma_lines),
+    )  # fmt: skip
 
-    near_end = np.flatnonzero((before < half) | (after < half))
-    if len(near_end):
-        idx = near_end[:, None] + offsets.astype(np.int64)[None, :]
-        inside = (offsets[None, :] >= -before[near_end, None]) & (offsets[None, :] <= after[near_end, None])
-        w = np.where(inside, gauss[None, :], 0.0)
-        values = np.where(inside, t_sorted[np.clip(idx, 0, n - 1)], 0.0)
-        s = [np.sum(w * offsets**m, axis=1) for m in range(5)]
-        r = [np.sum(w * values * offsets**m, axis=1) for m in range(3)]
-        det = s[0] * (s[2] * s[4] - s[3] ** 2) - s[1] * (s[1] * s[4] - s[3] * s[2]) + s[2] * (s[1] * s[3] - s[2] ** 2)
-        num = r[0] * (s[2] * s[4] - s[3] ** 2) - s[1] * (r[1] * s[4] - s[3] * r[2]) + s[2] * (r[1] * s[3] - s[2] * r[2])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            quadratic = num / det
-        # A one-sided quadratic on a few points would amplify noise: use it only with ≥ 2/3 of a half-width
-        # on the short side or when the chain is long on the other; else the local mean.
-        mean = r[0] / s[0]
-        well_posed = np.isfinite(quadratic) & (np.abs(det) > 1e-9 * s[0] ** 3 * sigma_lines**6)
-        smoothed_sorted[near_end] = np.where(well_posed, quadratic, mean)
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _smooth_along_chains_kernel(
+    t: np.ndarray, chain: np.ndarray, interior: np.ndarray, gauss: np.ndarray, sigma_lines: float
+) -> np.ndarray:
+    n = len(t)
+    half = len(gauss) // 2
+    n_chains = chain.max() + 1
+    # Counting sort by chain: a chain's points stay in line order (the input is sorted by line).
+    first = np.zeros(n_chains + 1, np.int64)
+    for i in range(n):
+        first[chain[i] + 1] += 1
+    for c in range(n_chains):
+        first[c + 1] += first[c]
+    order = np.empty(n, np.int64)
+    fill = first[:-1].copy()
+    for i in range(n):
+        order[fill[chain[i]]] = i
+        fill[chain[i]] += 1
     smoothed = np.empty(n)
-    smoothed[order] = smoothed_sorted
+    for c in range(n_chains):
+        lo, hi = first[c], first[c + 1]
+        for p in range(lo, hi):
+            before, after = p - lo, hi - 1 - p
+            if before >= half and after >= half:
+                value = 0.0
+                for m in range(2 * half + 1):
+                    value += interior[m] * t[order[p - half + m]]
+                smoothed[order[p]] = value
+                continue
+            s0 = s1 = s2 = s3 = s4 = r0 = r1 = r2 = 0.0
+            for m in range(max(-half, -before), min(half, after) + 1):
+                w = gauss[m + half]
+                d = float(m)
+                v = t[order[p + m]]
+                s0 += w
+                s1 += w * d
+                s2 += w * d * d
+                s3 += w * d * d * d
+                s4 += w * d * d * d * d
+                r0 += w * v
+                r1 += w * v * d
+                r2 += w * v * d * d
+            det = s0 * (s2 * s4 - s3 * s3) - s1 * (s1 * s4 - s3 * s2) + s2 * (s1 * s3 - s2 * s2)
+            num = r0 * (s2 * s4 - s3 * s3) - s1 * (r1 * s4 - s3 * r2) + s2 * (r1 * s3 - s2 * r2)
+            quadratic = num / det if abs(det) > 1e-9 * s0**3 * sigma_lines**6 else np.nan
+            smoothed[order[p]] = quadratic if np.isfinite(quadratic) else r0 / s0
     return smoothed
 
 
@@ -634,46 +815,25 @@ def order_edges(edges: FrameEdges, *, max_gap_periods: float = 0.8) -> EdgeOrder
     curves whose statements mostly disagree with that are left out.
     """
     n_chains = int(edges.chain.max()) + 1 if len(edges) else 0
-    index = np.full(n_chains, -1, np.int64)
-    component = np.full(n_chains, -1, np.int64)
     if n_chains == 0:
-        return EdgeOrder(index=index, component=component, conflicts=0)
-    same_line = edges.line[1:] == edges.line[:-1]
-    alternating = edges.polarity[1:] != edges.polarity[:-1]
-    close = np.diff(edges.t_px) < max_gap_periods * edges.period_px
-    pair = same_line & alternating & close
-    first = edges.chain[:-1][pair].astype(np.int64)
-    second = edges.chain[1:][pair].astype(np.int64)
-    different = first != second
-    codes, support = np.unique(first[different] * n_chains + second[different], return_counts=True)
-    before, after = codes // n_chains, codes % n_chains
-    # Undirected graph with cost 1/support, so the spanning tree keeps the best-supported statements.
-    graph = coo_matrix(
-        (np.r_[1.0 / support, 1.0 / support], (np.r_[before, after], np.r_[after, before])), shape=(n_chains, n_chains)
-    ).tocsr()
-    tree = minimum_spanning_tree(graph)
-    tree = tree + tree.T
-    step = coo_matrix(
-        (np.r_[np.ones(len(before)), -np.ones(len(before))], (np.r_[before, after], np.r_[after, before])),
-        shape=(n_chains, n_chains),
-    ).tocsr()
-    n_groups, labels = connected_components(tree, directed=False)
-    sizes = np.bincount(labels, weights=np.bincount(edges.chain, minlength=n_chains), minlength=n_groups)
-    rank = np.empty(n_groups, np.int64)
-    rank[np.argsort(-sizes, kind="stable")] = np.arange(n_groups)
-    for group in range(n_groups):
-        members = np.flatnonzero(labels == group)
-        root = members[0]
-        order, predecessors = breadth_first_order(tree, root, directed=False, return_predecessors=True)
-        index[root] = 0
-        # The step along each tree edge, looked up for all of them at once; then one pass in BFS order.
-        children = order[1:]
-        parents = predecessors[children]
-        steps = np.rint(np.asarray(step[parents, children]).ravel()).astype(np.int64).tolist()
-        values = index  # a local name for the loop
-        for node, parent, s in zip(children.tolist(), parents.tolist(), steps, strict=True):
-            values[node] = values[parent] + s
-        component[members] = rank[group]
+        return EdgeOrder(index=np.zeros(0, np.int64), component=np.zeros(0, np.int64), conflicts=0)
+    chain = np.ascontiguousarray(edges.chain, np.int64)
+    before, after, support = _order_statements(
+        np.ascontiguousarray(edges.line, np.int64), np.ascontiguousarray(edges.t_px, np.float64),
+        np.ascontiguousarray(edges.polarity, np.int8), chain, n_chains, float(max_gap_periods * edges.period_px),
+    )  # fmt: skip
+    # The best-supported statements first (ties in a fixed order), each kept when it joins two groups: a
+    # maximum-support spanning forest, which gives every curve its place relative to its group's root.
+    tree_order = np.lexsort((before * n_chains + after, -support))
+    index, root = _spanning_forest(before[tree_order], after[tree_order], n_chains)
+    # Groups numbered by their size in edge points, largest first (ties: the group of the lowest curve first).
+    roots, group = np.unique(root, return_inverse=True)
+    sizes = np.bincount(group, weights=np.bincount(chain, minlength=n_chains))
+    lowest_curve = np.full(len(roots), n_chains)
+    np.minimum.at(lowest_curve, group, np.arange(n_chains))
+    rank = np.empty(len(roots), np.int64)
+    rank[np.lexsort((lowest_curve, -sizes))] = np.arange(len(roots))
+    component = rank[group]
     # Check every statement against the assignment; leave out curves that are mostly contradicted.
     agrees = index[after] - index[before] == 1
     bad = np.bincount(np.r_[before[~agrees], after[~agrees]], weights=np.r_[support[~agrees], support[~agrees]],
@@ -686,7 +846,79 @@ def order_edges(edges: FrameEdges, *, max_gap_periods: float = 0.8) -> EdgeOrder
     # Count each group from 0 at its first curve along +t.
     kept = component >= 0
     if np.any(kept):
-        lowest = np.full(n_groups, np.iinfo(np.int64).max)
+        lowest = np.full(len(roots), np.iinfo(np.int64).max)
         np.minimum.at(lowest, component[kept], index[kept])
         index[kept] -= lowest[component[kept]]
     return EdgeOrder(index=index, component=component, conflicts=int(np.count_nonzero(~agrees)))
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _order_statements(
+    line: np.ndarray, t: np.ndarray, polarity: np.ndarray, chain: np.ndarray, n_chains: int, max_gap_px: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The distinct statements "curve `after` comes one place after curve `before`" of a frame and how many
+    neighbouring pairs of edge points on scan lines make each (see `order_edges`); sorted by (before, after)."""
+    codes = np.empty(max(len(line) - 1, 0), np.int64)
+    m = 0
+    for i in range(len(line) - 1):
+        if (
+            line[i + 1] == line[i]
+            and polarity[i + 1] != polarity[i]
+            and t[i + 1] - t[i] < max_gap_px
+            and chain[i + 1] != chain[i]
+        ):
+            codes[m] = chain[i] * n_chains + chain[i + 1]
+            m += 1
+    codes = np.sort(codes[:m])
+    n_distinct = 0
+    for i in range(m):
+        if i == 0 or codes[i] != codes[i - 1]:
+            n_distinct += 1
+    before = np.empty(n_distinct, np.int64)
+    after = np.empty(n_distinct, np.int64)
+    support = np.zeros(n_distinct, np.int64)
+    j = -1
+    for i in range(m):
+        if i == 0 or codes[i] != codes[i - 1]:
+            j += 1
+            before[j] = codes[i] // n_chains
+            after[j] = codes[i] % n_chains
+        support[j] += 1
+    return before, after, support
+
+
+@numba.njit(cache=True, nogil=True)
+def _find(parent: np.ndarray, offset: np.ndarray, node: int) -> tuple[int, int]:
+    """Root of a node and the node's place relative to it, compressing the path on the way."""
+    root, place = node, 0
+    while parent[root] != root:
+        place += offset[root]
+        root = parent[root]
+    # Second pass: point every node on the path at the root with its place relative to it.
+    remaining = place
+    while parent[node] != node:
+        following, step = parent[node], offset[node]
+        parent[node], offset[node] = root, remaining
+        remaining -= step
+        node = following
+    return root, place
+
+
+@numba.njit(cache=True, nogil=True)
+def _spanning_forest(before: np.ndarray, after: np.ndarray, n_chains: int) -> tuple[np.ndarray, np.ndarray]:
+    """Place of every curve relative to the root of its group, and that root, from statements taken in the
+    order given, each kept when it joins two groups (union–find with offsets)."""
+    parent = np.arange(n_chains)
+    offset = np.zeros(n_chains, np.int64)
+    for e in range(len(before)):
+        root_a, place_a = _find(parent, offset, before[e])
+        root_b, place_b = _find(parent, offset, after[e])
+        if root_a != root_b:
+            # place(after) = place(before) + 1
+            parent[root_b] = root_a
+            offset[root_b] = place_a + 1 - place_b
+    index = np.empty(n_chains, np.int64)
+    root = np.empty(n_chains, np.int64)
+    for node in range(n_chains):
+        root[node], index[node] = _find(parent, offset, node)
+    return index, root

@@ -32,7 +32,7 @@ import numpy as np
 from . import MeasurementError
 from .camera import backproject_to_z
 from .fringes import FrameEdges, order_edges
-from .projector import CameraModel, ProjectorCalibration, match_to_reference
+from .projector import CameraModel, EdgeLines, ProjectorCalibration, match_to_reference
 
 # Reasons an edge point of a frame has no order (per point, int8).
 ORDERED = 0
@@ -108,6 +108,11 @@ class OrderReference:
         """(K, S) reference positions on the rim band only, NaN elsewhere."""
         return np.where(self.rim, self.reference_t_px, np.nan)
 
+    @functools.cached_property
+    def rim_lines(self) -> EdgeLines:
+        """The rim positions line by line (`match_to_reference`)."""
+        return EdgeLines.from_positions(self.rim_t_px)
+
     @property
     def visible_area_mm2(self) -> float:
         """Area of the plate the reference frame sees."""
@@ -137,9 +142,8 @@ def identify_reference(edges: FrameEdges, projector: ProjectorCalibration, *, fl
     few are identified.
     """
     k_near, distance = match_to_reference(
-        edges.line, edges.t_px, edges.polarity, projector.reference_t_px, projector.polarity,
-        n_samples=edges.n_samples,
-    )  # fmt: skip
+        edges.line, edges.t_px, edges.polarity, projector.reference_lines, projector.polarity
+    )
     near = (k_near >= 0) & (np.abs(distance) <= 0.5 * projector.period_px)
     n_chains = int(edges.chain.max()) + 1 if len(edges) else 0
     k = np.full(len(edges), -1, np.int64)
@@ -296,7 +300,7 @@ def order_frame(
     # Rim votes: the nearest reference edge of the same polarity on the stationary band, if close. (Edges of one
     # polarity are a period apart, so a point within a third of a period of a rim edge has no nearer one.)
     k_near, distance = match_to_reference(
-        edges.line, edges.t_px, edges.polarity, reference.rim_t_px, projector.polarity, n_samples=edges.n_samples
+        edges.line, edges.t_px, edges.polarity, reference.rim_lines, projector.polarity
     )
     near = (k_near >= 0) & (np.abs(distance) <= settings.anchor_tolerance_fraction * projector.period_px)
     on_rim = near & (relative >= 0)

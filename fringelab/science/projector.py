@@ -16,17 +16,19 @@ out.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Protocol
 
+import numba
 import numpy as np
 
 from . import Cancelled, MeasurementError
 from .calibration import ProgressCallback
 from .camera import Camera, InverseModel, backproject_to_z, fit_inverse_model
-from .fringes import EdgeSettings, FrameEdges, detect_stripes, locate_edges, order_edges
+from .fringes import Axis, EdgeSettings, FrameEdges, detect_stripes, locate_edges, order_edges
 
 
 class ProjectorCalibrationError(MeasurementError):
@@ -176,8 +178,8 @@ class ProjectorCalibration:
     provenance: dict[str, Any] = field(default_factory=dict)
 
     @property
-    def axis(self) -> str:
-        return self.edges.axis
+    def axis(self) -> Axis:
+        return "rows" if self.edges.axis == "rows" else "cols"  # fixed at calibration: never "auto"
 
     @property
     def period_px(self) -> float:
@@ -192,6 +194,16 @@ class ProjectorCalibration:
     def n_lines(self) -> int:
         return int(self.lut_t_px.shape[1])
 
+    @functools.cached_property
+    def n_heights(self) -> np.ndarray:
+        """(K, S) int: the number of calibration heights each table entry was fitted on."""
+        return np.count_nonzero(np.isfinite(self.lut_t_px), axis=-1)
+
+    @functools.cached_property
+    def reference_lines(self) -> EdgeLines:
+        """The reference positions line by line (`match_to_reference`)."""
+        return EdgeLines.from_positions(self.reference_t_px)
+
     @property
     def valid(self) -> np.ndarray:
         """(K, S) bool: where the table has an entry."""
@@ -203,77 +215,137 @@ class ProjectorCalibration:
         Returns z_mm (NaN where not looked up) and status (int8): 0 looked up, 1 outside the calibrated range of
         that (edge, line) (never extrapolated), 2 no table entry for that (edge, line).
         """
-        k = np.asarray(k, np.int64)
-        line = np.asarray(line, np.int64)
-        t = np.asarray(t_px, np.float64)
-        z = np.full(len(t), np.nan)
-        status = np.full(len(t), 2, np.int8)
-        known = np.flatnonzero((k >= 0) & (k < self.n_edges) & (line >= 0) & (line < self.n_lines))
-        flat = k[known] * self.n_lines + line[known]
-        t_known = t[known]
-        lo, hi = self.t_lo_px.ravel().take(flat), self.t_hi_px.ravel().take(flat)
-        has_entry = np.isfinite(lo)
-        in_range = has_entry & (t_known >= lo) & (t_known <= hi)
-        status[known] = np.where(in_range, 0, np.where(has_entry, 1, 2))
-        idx, flat = known[in_range], flat[in_range]
-        tau = (t[idx] - self.t_centre_px.ravel().take(flat)) / self.t_scale_px.ravel().take(flat)
-        coefficients = self.coefficients.reshape(-1, self.coefficients.shape[-1])[flat]
-        value = coefficients[:, -1].copy()
-        for i in range(coefficients.shape[1] - 2, -1, -1):
-            value = value * tau + coefficients[:, i]
-        z[idx] = value
-        return z, status
+        return _z_from_t_kernel(
+            np.ascontiguousarray(k, np.int64), np.ascontiguousarray(line, np.int64),
+            np.ascontiguousarray(t_px, np.float64), self._flat_table,
+        )  # fmt: skip
+
+    @functools.cached_property
+    def _flat_table(self) -> tuple[np.ndarray, ...]:
+        """The table's bounds, centres, scales (K·S,) and coefficients (K·S, D+1), flat for the look-up."""
+        return (
+            np.ascontiguousarray(self.t_lo_px, np.float64).ravel(),
+            np.ascontiguousarray(self.t_hi_px, np.float64).ravel(),
+            np.ascontiguousarray(self.t_centre_px, np.float64).ravel(),
+            np.ascontiguousarray(self.t_scale_px, np.float64).ravel(),
+            np.ascontiguousarray(self.coefficients, np.float64).reshape(-1, self.coefficients.shape[-1]),
+            np.array([self.n_edges, self.n_lines], np.int64),
+        )  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _z_from_t_kernel(
+    k: np.ndarray, line: np.ndarray, t: np.ndarray, table: tuple[np.ndarray, ...]
+) -> tuple[np.ndarray, np.ndarray]:
+    t_lo, t_hi, t_centre, t_scale, coefficients, shape = table
+    n_edges, n_lines = shape[0], shape[1]
+    n_terms = coefficients.shape[1]
+    z = np.full(len(t), np.nan)
+    status = np.full(len(t), 2, np.int8)
+    for i in range(len(t)):
+        if k[i] < 0 or k[i] >= n_edges or line[i] < 0 or line[i] >= n_lines:
+            continue
+        flat = k[i] * n_lines + line[i]
+        lo, hi = t_lo[flat], t_hi[flat]
+        if not np.isfinite(lo):
+            continue
+        if not (lo <= t[i] <= hi):
+            status[i] = 1
+            continue
+        status[i] = 0
+        tau = (t[i] - t_centre[flat]) / t_scale[flat]
+        value = coefficients[flat, n_terms - 1]
+        for j in range(n_terms - 2, -1, -1):
+            value = value * tau + coefficients[flat, j]
+        z[i] = value
+    return z, status
 
 
 # --------------------------------------------------------------------------------------------------------------
 # Building the table
 
 
-def _key(line: np.ndarray, t_px: np.ndarray, stride: float) -> np.ndarray:
-    return line.astype(np.float64) * stride + t_px
+@dataclass(frozen=True, eq=False)
+class EdgeLines:
+    """Edge positions (K, S) rearranged line by line in t order, for nearest-edge look-ups.
+
+    start: (S + 1,) where each line's entries begin; t_px, k: (M,) the finite positions and their edge index.
+    """
+
+    start: np.ndarray
+    t_px: np.ndarray
+    k: np.ndarray
+
+    @classmethod
+    def from_positions(cls, positions_t_px: np.ndarray) -> EdgeLines:
+        """From positions (K, S) (NaN = none)."""
+        kk, ss = np.nonzero(np.isfinite(positions_t_px))
+        t = positions_t_px[kk, ss].astype(np.float64)
+        order = np.lexsort((t, ss))
+        start = np.searchsorted(ss[order], np.arange(positions_t_px.shape[1] + 1))
+        return cls(start=start.astype(np.int64), t_px=np.ascontiguousarray(t[order]), k=kk[order].astype(np.int64))
 
 
 def match_to_reference(
     line: np.ndarray,
     t_px: np.ndarray,
     polarity: np.ndarray,
-    reference_t_px: np.ndarray,
+    reference: EdgeLines,
     reference_polarity: np.ndarray,
-    *,
-    n_samples: int,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """For each edge point, the nearest reference edge of the same polarity on the same line.
+    """For each edge point, the nearest reference edge of the same polarity on the same line (the one at lower t
+    when two are as near).
 
-    line, t_px, polarity: shape (N,) edge points. reference_t_px: (K, S) positions (NaN = none);
+    line, t_px, polarity: shape (N,) edge points; reference: the reference edges (`EdgeLines.from_positions`);
     reference_polarity: (K,). Returns k (N,) (−1 where the line has no reference edge of that polarity) and the
-    signed distance t − reference (N,) in px.
+    signed distance t − reference (N,) in px (NaN where k is −1).
     """
-    k_out = np.full(len(line), -1, np.int64)
-    distance = np.full(len(line), np.nan)
-    stride = float(n_samples + 1000.0)
-    for sign in (1, -1):
-        ks = np.flatnonzero(reference_polarity == sign)
-        if len(ks) == 0:
+    return _match_kernel(
+        np.ascontiguousarray(line, np.int64), np.ascontiguousarray(t_px, np.float64),
+        np.ascontiguousarray(polarity, np.int8), reference.start, reference.t_px,
+        np.ascontiguousarray(reference_polarity, np.int8)[reference.k], reference.k,
+    )  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _match_kernel(
+    line: np.ndarray,
+    t: np.ndarray,
+    polarity: np.ndarray,
+    start: np.ndarray,
+    ref_t: np.ndarray,
+    ref_polarity: np.ndarray,
+    ref_k: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    n = len(line)
+    k_out = np.full(n, -1, np.int64)
+    distance = np.full(n, np.nan)
+    n_lines = len(start) - 1
+    for i in range(n):
+        if line[i] < 0 or line[i] >= n_lines:
             continue
-        ref = reference_t_px[ks]  # (Ks, S)
-        kk, ss = np.nonzero(np.isfinite(ref))
-        keys = _key(ss, ref[kk, ss], stride)
-        # Runs of increasing keys per edge (tracks keep their order along a line): the stable sort (timsort)
-        # merges them in N log K.
-        order = np.argsort(keys, kind="stable")
-        keys, kk = keys[order], ks[kk[order]]
-        members = np.flatnonzero(polarity == sign)
-        if len(members) == 0 or len(keys) == 0:
-            continue
-        query = _key(line[members], t_px[members].astype(np.float64), stride)
-        pos = np.searchsorted(keys, query)
-        lo = np.clip(pos - 1, 0, len(keys) - 1)
-        hi = np.minimum(pos, len(keys) - 1)
-        nearest = np.where(np.abs(keys[lo] - query) <= np.abs(keys[hi] - query), lo, hi)
-        gap = query - keys[nearest]
-        same_line = np.abs(gap) < 0.5 * stride
-        k_out[members[same_line]] = kk[nearest[same_line]]
-        distance[members[same_line]] = gap[same_line]
+        lo, hi = start[line[i]], start[line[i] + 1]
+        a, b = lo, hi
+        while a < b:  # first entry with t >= the point's
+            mid = (a + b) // 2
+            if ref_t[mid] < t[i]:
+                a = mid + 1
+            else:
+                b = mid
+        below = a - 1
+        while below >= lo and ref_polarity[below] != polarity[i]:
+            below -= 1
+        above = a
+        while above < hi and ref_polarity[above] != polarity[i]:
+            above += 1
+        best = -1
+        if below >= lo:
+            best = below
+        if above < hi and (best < 0 or ref_t[above] - t[i] < t[i] - ref_t[below]):
+            best = above
+        if best >= 0:
+            k_out[i] = ref_k[best]
+            distance[i] = t[i] - ref_t[best]
     return k_out, distance
 
 
@@ -292,7 +364,7 @@ def _assign_by_votes(
     relative = order.crossing_index(edges)
     component = order.component[edges.chain] if len(edges) else np.zeros(0, np.int64)
     k_near, distance = match_to_reference(
-        edges.line, edges.t_px, edges.polarity, predicted_t_px, polarity, n_samples=edges.n_samples
+        edges.line, edges.t_px, edges.polarity, EdgeLines.from_positions(predicted_t_px), polarity
     )
     votes_ok = (k_near >= 0) & (relative >= 0)
     k = np.full(len(edges), -1, np.int64)

@@ -20,15 +20,16 @@ edge locator (`fringes.py`), the order (`order.py`), the table (`projector.py`),
 
 from __future__ import annotations
 
+import functools
 from collections import deque
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
 from . import MeasurementError
-from .camera import backproject_to_z
+from .camera import Camera, InverseModel, ScanRays, scan_rays
 from .coverage import MISSING_REASONS, FrameCoverage
 from .fields import Grid, Peak, grid_covering, grid_edge_points, typical_edge_gap_mm
 from .fringes import UNUSABLE_BLACK, UNUSABLE_BLOCK_PX, UNUSABLE_DARK, FrameEdges, detect_stripes, locate_edges
@@ -425,6 +426,16 @@ def measure_frame(
     return _measure((item, ordered.positions), projector, camera_model)
 
 
+@functools.lru_cache(maxsize=2)
+def _scan_rays(camera: Camera, inverse: InverseModel, axis: Literal["rows", "cols"]) -> ScanRays:
+    return scan_rays(camera, inverse, axis=axis)
+
+
+def pixel_rays(camera_model: CameraModel, axis: Literal["rows", "cols"]) -> ScanRays:
+    """The camera's `ScanRays` along the projector's scan lines, built once per process and camera."""
+    return _scan_rays(camera_model.camera, camera_model.inverse, axis)
+
+
 def _measure(
     emitted: tuple[Any, np.ndarray], projector: ProjectorCalibration, camera_model: CameraModel
 ) -> FrameMeasurement:
@@ -434,11 +445,10 @@ def _measure(
     z, status = projector.z_from_t(kk, ll, t)
     ok = status == 0
     kk, ll, t, z = kk[ok], ll[ok], t[ok], z[ok]
-    q_px = np.column_stack([t, ll] if projector.axis == "rows" else [ll, t]).astype(np.float64)
-    points = backproject_to_z(camera_model.camera, q_px, z, inverse=camera_model.inverse)
+    points = pixel_rays(camera_model, projector.axis).backproject_to_z(ll, t, z)
     sigma_z = point_sigma_z_mm(
         sensitivity_px_per_mm=projector.sensitivity_px_per_mm[kk, ll], fit_rms_mm=projector.fit_rms_mm[kk, ll],
-        n_heights=np.count_nonzero(np.isfinite(projector.lut_t_px[kk, ll]), axis=-1),
+        n_heights=projector.n_heights[kk, ll],
         n_coefficients=projector.coefficients.shape[-1], edge_sigma_px=edge_sigma_px(noise_px, projector.edges),
     )  # fmt: skip
     return FrameMeasurement(
