@@ -118,11 +118,13 @@ def test_no_two_top_level_packages_import_each_other() -> None:
 
 
 @pytest.mark.parametrize("entry", ["backend.app"])
-def test_the_api_imports_no_opencv_and_no_task_code(entry: str) -> None:
+def test_the_api_imports_no_opencv_no_numba_and_no_task_code(entry: str) -> None:
+    """The API process stays light: no OpenCV, no compiler (numba) of the science's loops, no task code."""
     modules = closure(entry)
-    assert not {m for m in modules if m == "cv2" or m.startswith("cv2.")}, sorted(
-        m for m in modules if m in MODULES and "cv2" in imports_of(m)
-    )
+    for heavy in ("cv2", "numba"):
+        assert not {m for m in modules if m.split(".")[0] == heavy}, sorted(
+            m for m in modules if m in MODULES and heavy in imports_of(m)
+        )
     assert not {m for m in modules if m.split(".")[0] == "worker"}
     assert "celery" not in {m.split(".")[0] for m in modules if m in MODULES and m.startswith("worker")}
 
@@ -132,3 +134,4 @@ def test_the_checker_sees_a_wrong_import() -> None:
     assert "backend" not in ALLOWED["science"] and layer_of("backend.app") == "backend"
     assert layer_of("fringelab.science.fringes") == "science" and layer_of("fringelab.core.jobs") == "core"
     assert "cv2" in closure("fringelab.science.fringes")
+    assert "numba" in closure("fringelab.science.fringes")

@@ -354,48 +354,6 @@ def _rays_to_z(camera: Camera, ut: np.ndarray, vt: np.ndarray, z: np.ndarray) ->
     return out
 
 
-@dataclass(frozen=True, eq=False)
-class ScanRays:
-    """The ideal sensor coordinates of every pixel, laid out along scan lines, for back-projecting many sub-pixel
-    points that lie on scan lines (edge points: an integer line, a sub-pixel position t along it).
-
-    ut_mm, vt_mm: shape (S, T), (ũ, ṽ) of pixel (line, t) (NaN where the pixel cannot be undistorted); axis
-    "rows": a line is an image row and t its column; "cols": a line is a column and t its row.
-    Between two pixels of a line (ũ, ṽ) is interpolated linearly: the distortion bends over many pixels, so the
-    chord's error is below 1e-5 px for any lens the camera calibration accepts (tests/science/test_camera.py).
-    """
-
-    camera: Camera
-    axis: Literal["rows", "cols"]
-    ut_mm: np.ndarray
-    vt_mm: np.ndarray
-
-    def backproject_to_z(self, line: np.ndarray, t_px: np.ndarray, z_mm: np.ndarray) -> np.ndarray:
-        """Object points (N, 3) where the rays of points (line, t_px), each shape (N,), meet the planes Z = z_mm
-        (N,); as `backproject_to_z` of the same pixels."""
-        n_samples = self.ut_mm.shape[1]
-        t = np.asarray(t_px, np.float64)
-        left = np.clip(t.astype(np.int64), 0, n_samples - 2)
-        frac = t - left
-        flat = np.asarray(line, np.int64) * n_samples + left
-        ut_flat, vt_flat = self.ut_mm.ravel(), self.vt_mm.ravel()
-        u0, v0 = ut_flat.take(flat), vt_flat.take(flat)
-        ut = u0 + frac * (ut_flat.take(flat + 1) - u0)
-        vt = v0 + frac * (vt_flat.take(flat + 1) - v0)
-        return _rays_to_z(self.camera, ut, vt, np.asarray(z_mm, np.float64))
-
-
-def scan_rays(camera: Camera, inverse: InverseModel, *, axis: Literal["rows", "cols"]) -> ScanRays:
-    """`ScanRays` of every pixel of the camera's image (exact undistortion at each pixel)."""
-    height, width = camera.image_height_px, camera.image_width_px
-    v, u = np.mgrid[0:height, 0:width].astype(np.float64)
-    ut, vt = ideal_from_pixels(camera, np.column_stack([u.ravel(), v.ravel()]), inverse=inverse)
-    ut, vt = ut.reshape(height, width), vt.reshape(height, width)
-    if axis == "cols":
-        ut, vt = np.ascontiguousarray(ut.T), np.ascontiguousarray(vt.T)
-    return ScanRays(camera=camera, axis=axis, ut_mm=ut, vt_mm=vt)
-
-
 def camera_as_opencv(camera: Camera) -> OpenCVCamera:
     """The same camera in OpenCV's form (docs/method.md §3): exact, k3 = 0."""
     f = camera.f_mm

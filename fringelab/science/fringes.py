@@ -669,31 +669,32 @@ def _link_chains(
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _nearest_same_polarity(
-    t: np.ndarray, polarity: np.ndarray, lo: int, hi: int, query: float, sign: int, max_step: float
-) -> int:
-    """Index in [lo, hi) of the crossing of polarity `sign` nearest to `query` (lower t on a tie), or −1 when
-    none lies within max_step. Crossings in [lo, hi) are sorted by t."""
-    a, b = lo, hi
-    while a < b:  # first index with t >= query
-        mid = (a + b) // 2
-        if t[mid] < query:
-            a = mid + 1
-        else:
-            b = mid
-    below = a - 1
-    while below >= lo and polarity[below] != sign:
-        below -= 1
-    above = a
-    while above < hi and polarity[above] != sign:
-        above += 1
-    best = -1
-    best_gap = np.inf
-    if below >= lo:
-        best, best_gap = below, query - t[below]
-    if above < hi and t[above] - query < best_gap:
-        best, best_gap = above, t[above] - query
-    return best if best_gap <= max_step else -1
+def _nearest_on_line(
+    t: np.ndarray, polarity: np.ndarray, lo: int, hi: int, query_lo: int, query_hi: int, max_step: float
+) -> np.ndarray:
+    """For each crossing in [query_lo, query_hi) (sorted by t), the index in [lo, hi) (sorted by t) of the crossing
+    of its polarity nearest to it (the lower t on a tie), −1 when none lies within max_step. The queries come in
+    increasing t, so the search position only moves forward."""
+    nearest = np.full(query_hi - query_lo, -1, np.int64)
+    a = lo
+    for q in range(query_lo, query_hi):
+        while a < hi and t[a] < t[q]:
+            a += 1
+        below = a - 1
+        while below >= lo and polarity[below] != polarity[q]:
+            below -= 1
+        above = a
+        while above < hi and polarity[above] != polarity[q]:
+            above += 1
+        best = -1
+        best_gap = np.inf
+        if below >= lo:
+            best, best_gap = below, t[q] - t[below]
+        if above < hi and t[above] - t[q] < best_gap:
+            best, best_gap = above, t[above] - t[q]
+        if best_gap <= max_step:
+            nearest[q - query_lo] = best
+    return nearest
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -702,18 +703,17 @@ def _link_chains_kernel(
 ) -> np.ndarray:
     n = len(line)
     label = np.arange(n)
-    for i in range(n):
-        previous_line = line[i] - 1
-        if previous_line < 0:
+    for this_line in range(1, len(starts) - 1):
+        lo, mid, hi = starts[this_line - 1], starts[this_line], starts[this_line + 1]
+        if lo == mid or mid == hi:
             continue
-        j = _nearest_same_polarity(t, polarity, starts[previous_line], starts[line[i]], t[i], polarity[i], max_step)
-        # Mutual: i must be j's nearest on i's line too; then j's label, set before (lines in order), runs on.
-        if (
-            j >= 0
-            and _nearest_same_polarity(t, polarity, starts[line[i]], starts[line[i] + 1], t[j], polarity[j], max_step)
-            == i
-        ):
-            label[i] = label[j]
+        backward = _nearest_on_line(t, polarity, lo, mid, mid, hi, max_step)
+        forward = _nearest_on_line(t, polarity, mid, hi, lo, mid, max_step)
+        # Mutual links only; then the predecessor's label, set before (lines in order), runs on.
+        for i in range(mid, hi):
+            j = backward[i - mid]
+            if j >= 0 and forward[j - lo] == i:
+                label[i] = label[j]
     return label
 
 
@@ -754,7 +754,8 @@ def _smooth_along_chains_kernel(
     for i in range(n):
         order[fill[chain[i]]] = i
         fill[chain[i]] += 1
-    smoothed = np.empty(n)
+    t_sorted = t[order]
+    smoothed_sorted = np.empty(n)
     for c in range(n_chains):
         lo, hi = first[c], first[c + 1]
         for p in range(lo, hi):
@@ -762,14 +763,14 @@ def _smooth_along_chains_kernel(
             if before >= half and after >= half:
                 value = 0.0
                 for m in range(2 * half + 1):
-                    value += interior[m] * t[order[p - half + m]]
-                smoothed[order[p]] = value
+                    value += interior[m] * t_sorted[p - half + m]
+                smoothed_sorted[p] = value
                 continue
             s0 = s1 = s2 = s3 = s4 = r0 = r1 = r2 = 0.0
             for m in range(max(-half, -before), min(half, after) + 1):
                 w = gauss[m + half]
                 d = float(m)
-                v = t[order[p + m]]
+                v = t_sorted[p + m]
                 s0 += w
                 s1 += w * d
                 s2 += w * d * d
@@ -781,7 +782,9 @@ def _smooth_along_chains_kernel(
             det = s0 * (s2 * s4 - s3 * s3) - s1 * (s1 * s4 - s3 * s2) + s2 * (s1 * s3 - s2 * s2)
             num = r0 * (s2 * s4 - s3 * s3) - s1 * (r1 * s4 - s3 * r2) + s2 * (r1 * s3 - s2 * r2)
             quadratic = num / det if abs(det) > 1e-9 * s0**3 * sigma_lines**6 else np.nan
-            smoothed[order[p]] = quadratic if np.isfinite(quadratic) else r0 / s0
+            smoothed_sorted[p] = quadratic if np.isfinite(quadratic) else r0 / s0
+    smoothed = np.empty(n)
+    smoothed[order] = smoothed_sorted
     return smoothed
 
 

@@ -8,6 +8,8 @@ reads σ through the result file's writer and reader, never imports OpenCV.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 
@@ -23,6 +25,7 @@ def edge_smoothing_weights(sigma_lines: float) -> np.ndarray:
     return np.asarray(np.linalg.solve(design, np.eye(3))[0] @ np.vstack([gauss, gauss * offsets, gauss * offsets**2]))
 
 
+@functools.lru_cache(maxsize=16)
 def smoothed_noise_ratio(sigma_lines: float, *, presmooth_px: float = 0.0) -> float:
     """σ of a smoothed edge position over the RMS of raw − smoothed (`FrameEdges.noise_px`).
 
