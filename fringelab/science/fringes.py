@@ -861,8 +861,12 @@ def _order_statements(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The distinct statements "curve `after` comes one place after curve `before`" of a frame and how many
     neighbouring pairs of edge points on scan lines make each (see `order_edges`); sorted by (before, after)."""
-    codes = np.empty(max(len(line) - 1, 0), np.int64)
-    m = 0
+    # A pair of curves repeats on line after line: runs of one pair are counted where they occur, so only the
+    # runs (a few per pair) are sorted, not every pair of points.
+    run_code = np.empty(max(len(line) - 1, 0), np.int64)
+    run_count = np.empty(max(len(line) - 1, 0), np.int64)
+    last_run = np.full(n_chains, -1, np.int64)  # the latest run of each `before` curve
+    n_runs = 0
     for i in range(len(line) - 1):
         if (
             line[i + 1] == line[i]
@@ -870,9 +874,18 @@ def _order_statements(
             and t[i + 1] - t[i] < max_gap_px
             and chain[i + 1] != chain[i]
         ):
-            codes[m] = chain[i] * n_chains + chain[i + 1]
-            m += 1
-    codes = np.sort(codes[:m])
+            code = chain[i] * n_chains + chain[i + 1]
+            run = last_run[chain[i]]
+            if run >= 0 and run_code[run] == code:
+                run_count[run] += 1
+            else:
+                run_code[n_runs], run_count[n_runs] = code, 1
+                last_run[chain[i]] = n_runs
+                n_runs += 1
+    by_code = np.argsort(run_code[:n_runs], kind="mergesort")
+    codes = run_code[:n_runs][by_code]
+    counts = run_count[:n_runs][by_code]
+    m = n_runs
     n_distinct = 0
     for i in range(m):
         if i == 0 or codes[i] != codes[i - 1]:
@@ -886,7 +899,7 @@ def _order_statements(
             j += 1
             before[j] = codes[i] // n_chains
             after[j] = codes[i] % n_chains
-        support[j] += 1
+        support[j] += counts[i]
     return before, after, support
 
 

@@ -27,12 +27,13 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from . import MeasurementError
 from .camera import backproject_to_z
 from .fringes import FrameEdges, order_edges
-from .projector import CameraModel, EdgeLines, ProjectorCalibration, match_to_reference
+from .projector import TABLE_SENSITIVITY, CameraModel, EdgeLines, ProjectorCalibration, match_to_reference, table_z_at
 
 # Reasons an edge point of a frame has no order (per point, int8).
 ORDERED = 0
@@ -359,36 +360,64 @@ def _inconsistent_chains(edges: FrameEdges, k: np.ndarray, projector: ProjectorC
     of orders k and k + 1 lie less than half a stripe's Z step apart on a smooth surface; each pair votes for or
     against both its curves, and a curve with more votes against than for is masked.
     """
-    ordered = np.flatnonzero(k >= 0)
-    if len(ordered) == 0:
+    if not np.any(k >= 0):
         return np.zeros(0, np.int64)
-    n_chains = int(edges.chain.max()) + 1
-    chain = edges.chain[ordered].astype(np.int64)
-    line = edges.line[ordered].astype(np.int64)
-    t = edges.t_px[ordered].astype(np.float64)
-    kk = k[ordered]
-    z, status = projector.z_from_t(kk, line, t)
-    outside = np.flatnonzero(status == 1)
-    outside_near = np.zeros(len(ordered), bool)
-    for step in (-2, 2):
-        _, neighbour_status = projector.z_from_t(kk[outside] + step, line[outside], t[outside])
-        outside_near[outside] |= neighbour_status == 0
-    table_against = np.bincount(chain, weights=outside_near.astype(float), minlength=n_chains)
-    length = np.bincount(chain, minlength=n_chains)
-    against_table = table_against > 0.5 * np.maximum(length, 1)
+    against = _against_table_or_neighbours(
+        np.ascontiguousarray(edges.chain, np.int64), np.ascontiguousarray(edges.line, np.int64),
+        np.ascontiguousarray(edges.t_px, np.float64), np.ascontiguousarray(k, np.int64), projector.lookup_table,
+        float(projector.period_px),
+        int(edges.chain.max()) + 1,
+    )  # fmt: skip
+    return np.flatnonzero(against)
 
-    # Neighbour pairs along scan lines (the edges are sorted by (line, t), so `ordered` is too).
-    pair = (line[1:] == line[:-1]) & (np.abs(kk[1:] - kk[:-1]) == 1) & (status[1:] == 0) & (status[:-1] == 0)
-    first, second = np.flatnonzero(pair), np.flatnonzero(pair) + 1
-    sensitivity = np.abs(projector.sensitivity_px_per_mm[kk[first], line[first]])
-    step_mm = projector.period_px / np.maximum(sensitivity, 1e-6)
-    agree = np.abs(z[second] - z[first]) < 0.5 * step_mm
-    cf, cs = chain[first], chain[second]
-    different = cf != cs
-    votes_for = np.bincount(np.r_[cf[different & agree], cs[different & agree]], minlength=n_chains)
-    votes_against = np.bincount(np.r_[cf[different & ~agree], cs[different & ~agree]], minlength=n_chains)
-    against_neighbours = votes_against > votes_for
-    return np.flatnonzero(against_table | against_neighbours)
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _against_table_or_neighbours(
+    chain: np.ndarray,
+    line: np.ndarray,
+    t: np.ndarray,
+    k: np.ndarray,
+    table: np.ndarray,
+    period_px: float,
+    n_chains: int,
+) -> np.ndarray:
+    z = np.full(len(t), np.nan)
+    status = np.full(len(t), 2, np.int8)
+    length = np.zeros(n_chains)
+    table_against = np.zeros(n_chains)
+    for i in range(len(t)):
+        if k[i] < 0:
+            continue
+        z[i], status[i] = table_z_at(table, k[i], line[i], t[i])
+        length[chain[i]] += 1.0
+        if status[i] == 1:
+            for step in (-2, 2):
+                if table_z_at(table, k[i] + step, line[i], t[i])[1] == 0:
+                    table_against[chain[i]] += 1.0
+                    break
+    votes_for = np.zeros(n_chains)
+    votes_against = np.zeros(n_chains)
+    previous = -1
+    for i in range(len(t)):  # ordered points follow each other along a line in (line, t) order
+        if k[i] < 0:
+            continue
+        p = previous
+        previous = i
+        if p < 0 or line[p] != line[i] or abs(k[i] - k[p]) != 1 or status[p] != 0 or status[i] != 0:
+            continue
+        if chain[p] == chain[i]:
+            continue
+        step_mm = period_px / max(abs(table[line[p], k[p], TABLE_SENSITIVITY]), 1e-6)
+        if abs(z[i] - z[p]) < 0.5 * step_mm:
+            votes_for[chain[p]] += 1.0
+            votes_for[chain[i]] += 1.0
+        else:
+            votes_against[chain[p]] += 1.0
+            votes_against[chain[i]] += 1.0
+    against = np.empty(n_chains, np.bool_)
+    for c in range(n_chains):
+        against[c] = table_against[c] > 0.5 * max(length[c], 1.0) or votes_against[c] > votes_for[c]
+    return against
 
 
 def clamp_circle(points_xy_mm: np.ndarray, *, n_sectors: int = 72) -> tuple[float, float, float]:

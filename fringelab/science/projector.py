@@ -29,6 +29,7 @@ from . import Cancelled, MeasurementError
 from .calibration import ProgressCallback
 from .camera import Camera, InverseModel, backproject_to_z, fit_inverse_model
 from .fringes import Axis, EdgeSettings, FrameEdges, detect_stripes, locate_edges, order_edges
+from .uncertainty import table_sigma_z_mm
 
 
 class ProjectorCalibrationError(MeasurementError):
@@ -195,9 +196,12 @@ class ProjectorCalibration:
         return int(self.lut_t_px.shape[1])
 
     @functools.cached_property
-    def n_heights(self) -> np.ndarray:
-        """(K, S) int: the number of calibration heights each table entry was fitted on."""
-        return np.count_nonzero(np.isfinite(self.lut_t_px), axis=-1)
+    def table_sigma_z_mm(self) -> np.ndarray:
+        """(K, S) σ_Z (mm) of each table entry's prediction (`uncertainty.table_sigma_z_mm`)."""
+        return table_sigma_z_mm(
+            fit_rms_mm=self.fit_rms_mm, n_heights=np.count_nonzero(np.isfinite(self.lut_t_px), axis=-1),
+            n_coefficients=self.coefficients.shape[-1],
+        )  # fmt: skip
 
     @functools.cached_property
     def reference_lines(self) -> EdgeLines:
@@ -217,47 +221,49 @@ class ProjectorCalibration:
         """
         return _z_from_t_kernel(
             np.ascontiguousarray(k, np.int64), np.ascontiguousarray(line, np.int64),
-            np.ascontiguousarray(t_px, np.float64), self._flat_table,
+            np.ascontiguousarray(t_px, np.float64), self.lookup_table,
         )  # fmt: skip
 
     @functools.cached_property
-    def _flat_table(self) -> tuple[np.ndarray, ...]:
-        """The table's bounds, centres, scales (K·S,) and coefficients (K·S, D+1), flat for the look-up."""
-        return (
-            np.ascontiguousarray(self.t_lo_px, np.float64).ravel(),
-            np.ascontiguousarray(self.t_hi_px, np.float64).ravel(),
-            np.ascontiguousarray(self.t_centre_px, np.float64).ravel(),
-            np.ascontiguousarray(self.t_scale_px, np.float64).ravel(),
-            np.ascontiguousarray(self.coefficients, np.float64).reshape(-1, self.coefficients.shape[-1]),
-            np.array([self.n_edges, self.n_lines], np.int64),
-        )  # fmt: skip
+    def lookup_table(self) -> np.ndarray:
+        """The table packed for the look-up of many points (`table_z_at`), shape (S, K, 5 + D + 1): per scan line
+        and edge t_lo, t_hi, t_centre, t_scale, the sensitivity (px/mm) and the coefficients, the edges of a line
+        next to each other as the points of a frame come (along the lines)."""
+        fields = [self.t_lo_px, self.t_hi_px, self.t_centre_px, self.t_scale_px, self.sensitivity_px_per_mm]
+        packed = np.concatenate([np.stack(fields, axis=-1), self.coefficients], axis=-1).astype(np.float64)
+        return np.ascontiguousarray(packed.transpose(1, 0, 2))
+
+
+TABLE_SENSITIVITY = 4  # the field of `ProjectorCalibration.lookup_table` that holds dt/dZ (px/mm)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def table_z_at(table: np.ndarray, k: int, line: int, t_px: float) -> tuple[float, int]:
+    """Z (mm) and status of one edge point from `ProjectorCalibration.lookup_table`, as `z_from_t` gives them: for
+    compiled loops over many points."""
+    n_lines, n_edges, n_fields = table.shape
+    if k < 0 or k >= n_edges or line < 0 or line >= n_lines:
+        return np.nan, 2
+    entry = table[line, k]
+    if not np.isfinite(entry[0]):
+        return np.nan, 2
+    if not (entry[0] <= t_px <= entry[1]):
+        return np.nan, 1
+    tau = (t_px - entry[2]) / entry[3]
+    value = entry[n_fields - 1]
+    for j in range(n_fields - 2, TABLE_SENSITIVITY, -1):
+        value = value * tau + entry[j]
+    return value, 0
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _z_from_t_kernel(
-    k: np.ndarray, line: np.ndarray, t: np.ndarray, table: tuple[np.ndarray, ...]
+    k: np.ndarray, line: np.ndarray, t: np.ndarray, table: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    t_lo, t_hi, t_centre, t_scale, coefficients, shape = table
-    n_edges, n_lines = shape[0], shape[1]
-    n_terms = coefficients.shape[1]
-    z = np.full(len(t), np.nan)
-    status = np.full(len(t), 2, np.int8)
+    z = np.empty(len(t))
+    status = np.empty(len(t), np.int8)
     for i in range(len(t)):
-        if k[i] < 0 or k[i] >= n_edges or line[i] < 0 or line[i] >= n_lines:
-            continue
-        flat = k[i] * n_lines + line[i]
-        lo, hi = t_lo[flat], t_hi[flat]
-        if not np.isfinite(lo):
-            continue
-        if not (lo <= t[i] <= hi):
-            status[i] = 1
-            continue
-        status[i] = 0
-        tau = (t[i] - t_centre[flat]) / t_scale[flat]
-        value = coefficients[flat, n_terms - 1]
-        for j in range(n_terms - 2, -1, -1):
-            value = value * tau + coefficients[flat, j]
-        z[i] = value
+        z[i], status[i] = table_z_at(table, k[i], line[i], t[i])
     return z, status
 
 

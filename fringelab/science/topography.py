@@ -51,6 +51,7 @@ from .projector import (
     ProjectorCalibration,
     _scatter,
     camera_fingerprint,
+    table_z_at,
 )
 from .uncertainty import edge_sigma_px, point_sigma_z_mm
 
@@ -532,25 +533,22 @@ def _measure(
     emitted: tuple[Any, np.ndarray], projector: ProjectorCalibration, camera_model: CameraModel
 ) -> FrameMeasurement:
     (frame, counts, noise_px, coverage), positions = emitted
-    kk, ll = np.nonzero(np.isfinite(positions))
-    t = positions[kk, ll]
-    z, status = projector.z_from_t(kk, ll, t)
-    ok = status == 0
-    kk, ll, t, z = kk[ok], ll[ok], t[ok], z[ok]
+    kk, ll, t, z, n_placed, n_out_of_range = _looked_up_points(positions, projector.lookup_table)
     points = scan_rays(camera_model, projector.axis).backproject_to_z(ll, t, z)
+    flat = kk * projector.n_lines + ll
     sigma_z = point_sigma_z_mm(
-        sensitivity_px_per_mm=projector.sensitivity_px_per_mm[kk, ll], fit_rms_mm=projector.fit_rms_mm[kk, ll],
-        n_heights=projector.n_heights[kk, ll],
-        n_coefficients=projector.coefficients.shape[-1], edge_sigma_px=edge_sigma_px(noise_px, projector.edges),
-    )  # fmt: skip
+        sensitivity_px_per_mm=projector.sensitivity_px_per_mm.ravel().take(flat),
+        table_sigma_z_mm=projector.table_sigma_z_mm.ravel().take(flat),
+        edge_sigma_px=edge_sigma_px(noise_px, projector.edges),
+    )
     return FrameMeasurement(
         frame=int(frame),
         k=kk.astype(np.int32),
         line=ll.astype(np.int32),
         points_obj_mm=points,
-        n_tracks=int(len(status)),
+        n_tracks=n_placed,
         n_ended=0,
-        n_out_of_range=int(np.count_nonzero(status == 1)),
+        n_out_of_range=n_out_of_range,
         n_unmatched=int(counts["n_unmatched"]),
         edge_noise_px=float(noise_px),
         n_order_unresolved=int(counts["n_order_unresolved"]),
@@ -559,6 +557,33 @@ def _measure(
         coverage=coverage,
         sigma_z_mm=sigma_z,
     )
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _looked_up_points(
+    positions: np.ndarray, table: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, int]:
+    """The points of positions (K, S) with Z from the table, in (k, line) order: k, line, t, z (N,), and how many
+    positions there were and how many lay outside the calibrated range."""
+    n_edges, n_lines = positions.shape
+    kk = np.empty(n_edges * n_lines, np.int64)
+    ll = np.empty(n_edges * n_lines, np.int64)
+    t = np.empty(n_edges * n_lines)
+    z = np.empty(n_edges * n_lines)
+    m = n_placed = n_out_of_range = 0
+    for k in range(n_edges):
+        for s in range(n_lines):
+            if not np.isfinite(positions[k, s]):
+                continue
+            n_placed += 1
+            value, status = table_z_at(table, k, s, positions[k, s])
+            if status == 1:
+                n_out_of_range += 1
+            if status != 0:
+                continue
+            kk[m], ll[m], t[m], z[m] = k, s, positions[k, s], value
+            m += 1
+    return kk[:m].copy(), ll[:m].copy(), t[:m].copy(), z[:m].copy(), n_placed, n_out_of_range
 
 
 # --------------------------------------------------------------------------------------------------------------

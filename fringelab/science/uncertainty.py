@@ -38,21 +38,22 @@ def edge_sigma_px(noise_px: float, edges: EdgeSettings) -> float:
     return float(noise_px) * smoothed_noise_ratio(edges.edge_smoothing_lines, presmooth_px=edges.presmooth_px)
 
 
+def table_sigma_z_mm(*, fit_rms_mm: np.ndarray, n_heights: np.ndarray, n_coefficients: int) -> np.ndarray:
+    """σ_Z (mm) of the projector table's prediction, any shape: fit RMS r, J calibration heights used and D + 1
+    coefficients give r·√((D + 1)/J) (NaN where the table has no entry)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.asarray(fit_rms_mm, np.float64) * np.sqrt(n_coefficients / np.asarray(n_heights, np.float64))
+
+
 def point_sigma_z_mm(
-    *,
-    sensitivity_px_per_mm: np.ndarray,
-    fit_rms_mm: np.ndarray,
-    n_heights: np.ndarray,
-    n_coefficients: int,
-    edge_sigma_px: float,
+    *, sensitivity_px_per_mm: np.ndarray, table_sigma_z_mm: np.ndarray, edge_sigma_px: float
 ) -> np.ndarray:
-    """σ_Z (N,) of points from the edge noise and the table fit, given per point the table's sensitivity,
-    fit RMS and number of calibration heights used (NaN where the table has no such entry)."""
+    """σ_Z (N,) of points from the edge noise and the table, given per point the table's sensitivity and its own
+    σ (`table_sigma_z_mm`): the two are independent and add in quadrature."""
     sensitivity = np.abs(np.asarray(sensitivity_px_per_mm, np.float64))
     with np.errstate(divide="ignore", invalid="ignore"):
         edge = edge_sigma_px / sensitivity
-        table = np.asarray(fit_rms_mm, np.float64) * np.sqrt(n_coefficients / np.asarray(n_heights, np.float64))
-    return np.hypot(edge, table)
+    return np.hypot(edge, table_sigma_z_mm)
 
 
 def grid_sigma_mm(
