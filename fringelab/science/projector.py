@@ -226,15 +226,18 @@ class ProjectorCalibration:
 
     @functools.cached_property
     def lookup_table(self) -> np.ndarray:
-        """The table packed for the look-up of many points (`table_z_at`), shape (S, K, 5 + D + 1): per scan line
-        and edge t_lo, t_hi, t_centre, t_scale, the sensitivity (px/mm) and the coefficients, the edges of a line
-        next to each other as the points of a frame come (along the lines)."""
-        fields = [self.t_lo_px, self.t_hi_px, self.t_centre_px, self.t_scale_px, self.sensitivity_px_per_mm]
+        """The table packed for the look-up of many points (`table_z_at`), shape (S, K, 6 + D + 1): per scan line
+        and edge t_lo, t_hi, t_centre, t_scale, the sensitivity (px/mm), the table's σ_Z (mm) and the
+        coefficients, the edges of a line next to each other as the points of a frame come (along the lines)."""
+        fields = [self.t_lo_px, self.t_hi_px, self.t_centre_px, self.t_scale_px, self.sensitivity_px_per_mm,
+                  self.table_sigma_z_mm]  # fmt: skip
         packed = np.concatenate([np.stack(fields, axis=-1), self.coefficients], axis=-1).astype(np.float64)
         return np.ascontiguousarray(packed.transpose(1, 0, 2))
 
 
-TABLE_SENSITIVITY = 4  # the field of `ProjectorCalibration.lookup_table` that holds dt/dZ (px/mm)
+# Fields of `ProjectorCalibration.lookup_table` besides the bounds and the polynomial.
+TABLE_SENSITIVITY = 4  # dt/dZ (px/mm)
+TABLE_SIGMA_Z = 5  # the table's σ_Z (mm)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -251,7 +254,7 @@ def table_z_at(table: np.ndarray, k: int, line: int, t_px: float) -> tuple[float
         return np.nan, 1
     tau = (t_px - entry[2]) / entry[3]
     value = entry[n_fields - 1]
-    for j in range(n_fields - 2, TABLE_SENSITIVITY, -1):
+    for j in range(n_fields - 2, TABLE_SIGMA_Z, -1):
         value = value * tau + entry[j]
     return value, 0
 
@@ -394,12 +397,18 @@ def _assign_by_votes(
 
 def _scatter(k: np.ndarray, line: np.ndarray, t_px: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """Dense (K, S) array of positions; (k, line) pairs that occur twice in a frame are dropped (NaN)."""
-    out = np.full(shape, np.nan)
-    ok = (k >= 0) & (k < shape[0])
-    flat = k[ok] * shape[1] + line[ok]
-    counts = np.bincount(flat, minlength=shape[0] * shape[1])
-    single = counts[flat] == 1
-    out.ravel()[flat[single]] = t_px[ok][single]
+    return _scatter_kernel(np.ascontiguousarray(k, np.int64), np.ascontiguousarray(line, np.int64),
+                           np.ascontiguousarray(t_px, np.float64), shape[0], shape[1])  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _scatter_kernel(k: np.ndarray, line: np.ndarray, t_px: np.ndarray, n_edges: int, n_lines: int) -> np.ndarray:
+    out = np.full((n_edges, n_lines), np.nan)
+    seen = np.zeros((n_edges, n_lines), np.uint8)
+    for i in range(len(k)):
+        if 0 <= k[i] < n_edges and 0 <= line[i] < n_lines:
+            seen[k[i], line[i]] = min(seen[k[i], line[i]] + 1, 2)
+            out[k[i], line[i]] = t_px[i] if seen[k[i], line[i]] == 1 else np.nan
     return out
 
 

@@ -46,6 +46,8 @@ from .order import (
     order_reference,
 )
 from .projector import (
+    TABLE_SENSITIVITY,
+    TABLE_SIGMA_Z,
     CalibrationMismatchError,
     CameraModel,
     ProjectorCalibration,
@@ -103,7 +105,8 @@ class TopographySettings:
 class FrameMeasurement:
     """The 3-D points of one frame and what its order left out.
 
-    frame: index of the frame in the recording. k, line: (N,) edge order and scan line of each point;
+    frame: index of the frame in the recording. k, line: (N,) edge order and scan line of each point, sorted by
+    (line, k);
     points_obj_mm: (N, 3). n_tracks: ordered (edge, line) points in this frame (with or without Z); n_ended: 0
     (the order is found per frame; kept for the worker's stored chunks); n_out_of_range: ordered points outside
     the calibrated Z range of their table entry (masked, never extrapolated); n_unmatched: edge points of the
@@ -533,14 +536,12 @@ def _measure(
     emitted: tuple[Any, np.ndarray], projector: ProjectorCalibration, camera_model: CameraModel
 ) -> FrameMeasurement:
     (frame, counts, noise_px, coverage), positions = emitted
-    kk, ll, t, z, n_placed, n_out_of_range = _looked_up_points(positions, projector.lookup_table)
+    kk, ll, t, z, entries, n_placed, n_out_of_range = _looked_up_points(positions, projector.lookup_table)
     points = scan_rays(camera_model, projector.axis).backproject_to_z(ll, t, z)
-    flat = kk * projector.n_lines + ll
     sigma_z = point_sigma_z_mm(
-        sensitivity_px_per_mm=projector.sensitivity_px_per_mm.ravel().take(flat),
-        table_sigma_z_mm=projector.table_sigma_z_mm.ravel().take(flat),
+        sensitivity_px_per_mm=entries[:, 0], table_sigma_z_mm=entries[:, 1],
         edge_sigma_px=edge_sigma_px(noise_px, projector.edges),
-    )
+    )  # fmt: skip
     return FrameMeasurement(
         frame=int(frame),
         k=kk.astype(np.int32),
@@ -562,17 +563,18 @@ def _measure(
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _looked_up_points(
     positions: np.ndarray, table: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, int]:
-    """The points of positions (K, S) with Z from the table, in (k, line) order: k, line, t, z (N,), and how many
-    positions there were and how many lay outside the calibrated range."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, int]:
+    """The points of positions (K, S) with Z from the table, line by line (the order the table and the rays are
+    laid out in): k, line, t, z (N,), each point's table sensitivity and σ_Z (N, 2), and how many positions there
+    were and how many lay outside the calibrated range."""
     n_edges, n_lines = positions.shape
-    kk = np.empty(n_edges * n_lines, np.int64)
-    ll = np.empty(n_edges * n_lines, np.int64)
-    t = np.empty(n_edges * n_lines)
-    z = np.empty(n_edges * n_lines)
+    capacity = n_edges * n_lines
+    kk, ll = np.empty(capacity, np.int64), np.empty(capacity, np.int64)
+    t, z = np.empty(capacity), np.empty(capacity)
+    entries = np.empty((capacity, 2))
     m = n_placed = n_out_of_range = 0
-    for k in range(n_edges):
-        for s in range(n_lines):
+    for s in range(n_lines):
+        for k in range(n_edges):
             if not np.isfinite(positions[k, s]):
                 continue
             n_placed += 1
@@ -582,8 +584,9 @@ def _looked_up_points(
             if status != 0:
                 continue
             kk[m], ll[m], t[m], z[m] = k, s, positions[k, s], value
+            entries[m, 0], entries[m, 1] = table[s, k, TABLE_SENSITIVITY], table[s, k, TABLE_SIGMA_Z]
             m += 1
-    return kk[:m].copy(), ll[:m].copy(), t[:m].copy(), z[:m].copy(), n_placed, n_out_of_range
+    return kk[:m].copy(), ll[:m].copy(), t[:m].copy(), z[:m].copy(), entries[:m].copy(), n_placed, n_out_of_range
 
 
 # --------------------------------------------------------------------------------------------------------------
