@@ -318,21 +318,19 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     # along the lines it covers the area itself.
     bright_level = float(np.percentile(scan[::4, ::4], 95))
     dark_window = _odd(period_px)
-    dark = cv2.dilate(scan, np.ones((3, dark_window), np.uint8)) < settings.dark_fraction * bright_level
+    line_kernel_period = np.ones((1, dark_window), np.uint8)
+    stripe_max = cv2.dilate(scan, line_kernel_period)
+    dark = cv2.dilate(stripe_max, np.ones((3, 1), np.uint8)) < settings.dark_fraction * bright_level
     # Black: well below the dark stripes around it. A crack or a cut narrower than a stripe is not "dark" by the
     # test above (bright stripes lie within half a period of it), but it is darker than any dark stripe, and
     # an edge that touches it is the crack's rim, not a stripe edge. The margin of 8 grey levels keeps noise
     # (σ ≈ 2, less after the smoothing along the stripes) out of it where the dark stripes are dim themselves.
     # The dark stripes' level is a fixed share of the bright stripes' beside them (the projector's slide), whatever
     # the shading, so it is expected from the brightest sample within a period along the line.
-    line_kernel_period = np.ones((1, dark_window), np.uint8)
-    stripe_max = cv2.dilate(scan, line_kernel_period)
-    stripe_min = cv2.erode(scan, line_kernel_period)
-    sampled_max, sampled_min = stripe_max[::4, ::4], stripe_min[::4, ::4]
+    sampled_max, sampled_min = stripe_max[::4, ::4], cv2.erode(scan[::4], line_kernel_period)[:, ::4]
     lit = ~dark[::4, ::4] & (sampled_max > 0)
     dark_share = float(np.median(sampled_min[lit] / sampled_max[lit])) if np.any(lit) else 0.0
-    dark_level = dark_share * stripe_max
-    black = (scan < BLACK_FRACTION * dark_level) & (dark_level - scan > BLACK_MARGIN_GREY)
+    black = _black(scan, stripe_max, dark_share)
     # Beside a wide dark area (the clamp ring, a hole) the test above already rejects what must be: the rim of the
     # area is black too, but counting it would reject a stripe more along the plate's edge.
     beside_dark = cv2.dilate(dark.astype(np.uint8), np.ones((3, 2 * dark_window + 1), np.uint8)).astype(bool)
@@ -450,6 +448,19 @@ def _reflect_101(index: int, n: int) -> int:
     return index
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _black(scan: np.ndarray, stripe_max: np.ndarray, dark_share: float) -> np.ndarray:
+    """(S, T) bool: below BLACK_FRACTION of the dark stripes' level expected there (dark_share of the brightest
+    sample within a period) and more than BLACK_MARGIN_GREY below it (see `locate_edges`)."""
+    n_lines, n_samples = scan.shape
+    black = np.empty((n_lines, n_samples), np.bool_)
+    for i in range(n_lines):
+        for j in range(n_samples):
+            dark_level = dark_share * stripe_max[i, j]
+            black[i, j] = scan[i, j] < BLACK_FRACTION * dark_level and dark_level - scan[i, j] > BLACK_MARGIN_GREY
+    return black
+
+
 def _unusable_blocks(
     scan: np.ndarray,
     dark: np.ndarray,
@@ -476,7 +487,7 @@ def _unusable_blocks(
     # larger code wins), at the blocks' scale.
     worst = _worst_reason_per_block(
         scan, dark, contrast, local_max, float(settings.min_contrast_grey), float(settings.saturation_grey),
-        black_level + margin, block,
+        black_level + margin,
     )  # fmt: skip
     reach = np.ones((-(-grow.shape[0] // block) | 1, -(-grow.shape[1] // block) | 1), np.uint8)
     return np.ascontiguousarray(cv2.dilate(worst, reach))
@@ -491,9 +502,9 @@ def _worst_reason_per_block(
     min_contrast: float,
     saturation: float,
     black_below: float,
-    block: int,
 ) -> np.ndarray:
-    """The largest UNUSABLE_* code of the pixels of each block × block block, shape (⌈H/block⌉, ⌈W/block⌉)."""
+    """The largest UNUSABLE_* code of the pixels of each UNUSABLE_BLOCK_PX² block, shape (⌈H/b⌉, ⌈W/b⌉)."""
+    block = UNUSABLE_BLOCK_PX  # a constant to the compiler: the divisions below become shifts
     height, width = scan.shape
     worst = np.zeros(((height + block - 1) // block, (width + block - 1) // block), np.uint8)
     for y in range(height):
