@@ -141,6 +141,46 @@ class FrameMeasurement:
         return out[0], out[1], out[2]
 
 
+@dataclass(frozen=True)
+class TemporalCheck:
+    """The order of a frame cross-checked against the frame before it (docs/method.md §5).
+
+    n_checked: points measured on the same (edge, line) in both frames whose neighbouring edges on the line
+    (k − 1, k + 1) were too; n_jumps: those whose change of Z between the frames differs from the mean change of
+    those two neighbours by more than TEMPORAL_JUMP_STEPS of a stripe's Z step (the Z a point moves when its edge
+    moves one period). The motion between frames is smooth across edges however fast it is, so the change of a
+    point follows its neighbours'; an order one edge pair off adds a whole step to the point (and half a step to
+    its neighbours' mean, so they are not counted with it).
+    """
+
+    n_checked: int
+    n_jumps: int
+
+
+TEMPORAL_JUMP_STEPS = 0.75
+
+
+def temporal_check(
+    previous: FrameMeasurement, current: FrameMeasurement, projector: ProjectorCalibration
+) -> TemporalCheck:
+    """Cross-check of `current`'s order against `previous` (`TemporalCheck`): a report, never a correction, so a
+    frame measured alone stays equal to the same frame measured within its sequence."""
+    shape = (projector.n_edges, projector.n_lines)
+    change = np.full(shape, np.nan)
+    change[current.k, current.line] = current.points_obj_mm[:, 2]
+    z_before = np.full(shape, np.nan)
+    z_before[previous.k, previous.line] = previous.points_obj_mm[:, 2]
+    change -= z_before  # NaN unless measured in both frames
+    neighbours = np.full(shape, np.nan)
+    neighbours[1:-1] = 0.5 * (change[:-2] + change[2:])
+    step_mm = projector.period_px / np.maximum(np.abs(projector.sensitivity_px_per_mm), 1e-6)
+    with np.errstate(invalid="ignore"):
+        departure = np.abs(change - neighbours) / step_mm
+    checked = np.isfinite(departure)
+    n_jumps = int(np.count_nonzero(departure[checked] > TEMPORAL_JUMP_STEPS))
+    return TemporalCheck(n_checked=int(np.count_nonzero(checked)), n_jumps=n_jumps)
+
+
 def check_recording_against(
     image_shape_hw_px: tuple[int, int], projector: ProjectorCalibration, camera_model: CameraModel
 ) -> None:

@@ -41,6 +41,7 @@ from fringelab.science.topography import (
     locate_test_edges,
     measure_frame,
     reference_for,
+    temporal_check,
     track_and_measure,
 )
 
@@ -267,3 +268,26 @@ def test_the_result_file_says_what_is_missing_and_refuses_a_recording_ordered_no
             MemorySource([fast.frames[0], *dimmed], {}), fast.camera, fast.projector, out_path=tmp_path / "x.h5"
         )
     assert not (tmp_path / "x.h5").exists()
+
+
+def test_temporal_continuity_cross_checks_the_order(fast: Case) -> None:
+    """The frame before is a cross-check, never a source: on the fast test (~5 mm more deflection per frame, the
+    hole and the springback within one frame) no pair of frames shows a jump, there being no wrong order; a wrong
+    order put in by hand (one edge's points moved by their stripe's Z step, as a miscount by one edge pair moves
+    them) is counted point by point, and its neighbours (half a step off in the mean) are not."""
+    step_mm = fast.projector.period_px / np.abs(fast.projector.sensitivity_px_per_mm)
+    for before, after in zip(fast.measurements, fast.measurements[1:], strict=False):
+        check = temporal_check(before, after, fast.projector)
+        assert check.n_jumps == 0 and check.n_checked > 0.9 * len(after.k)
+
+    before = fast.measurements[2]
+    assert temporal_check(before, before, fast.projector).n_jumps == 0
+    edge = int(np.median(before.k))
+    wrong = np.flatnonzero(before.k == edge)
+    points = before.points_obj_mm.copy()
+    points[wrong, 2] += step_mm[before.k[wrong], before.line[wrong]]
+    check = temporal_check(before, replace(before, points_obj_mm=points), fast.projector)
+    measured = np.zeros((fast.projector.n_edges, fast.projector.n_lines), bool)
+    measured[before.k, before.line] = True
+    with_both_neighbours = measured[edge - 1, before.line[wrong]] & measured[edge + 1, before.line[wrong]]
+    assert check.n_jumps == np.count_nonzero(with_both_neighbours) > 50
