@@ -23,7 +23,7 @@ from __future__ import annotations
 import functools
 from collections import deque
 from collections.abc import Iterable, Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
 import numba
@@ -115,7 +115,7 @@ class FrameMeasurement:
     n_order_conflicts: conflicts found (curves or groups); coverage: what of the plate was measured and what
     is missing by reason (None for measurements stored without it). sigma_z_mm: (N,) σ of each
     point's Z from the edge noise and the projector table (`uncertainty.point_sigma_z_mm`), None where not
-    computed.
+    computed. temporal: the cross-check against the frame before (`TemporalCrossCheck`), None where not made.
     """
 
     frame: int
@@ -132,6 +132,7 @@ class FrameMeasurement:
     n_order_conflicts: int = 0
     coverage: FrameCoverage | None = None
     sigma_z_mm: np.ndarray | None = None
+    temporal: TemporalCheck | None = None
 
     def dense(self, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """X, Y, Z as (K, S) arrays over (edge, line), NaN where not measured."""
@@ -179,6 +180,23 @@ def temporal_check(
     checked = np.isfinite(departure)
     n_jumps = int(np.count_nonzero(departure[checked] > TEMPORAL_JUMP_STEPS))
     return TemporalCheck(n_checked=int(np.count_nonzero(checked)), n_jumps=n_jumps)
+
+
+class TemporalCrossCheck:
+    """The frames of a test in frame order, each cross-checked against the one before it (`temporal_check`) by
+    whoever writes them in order, whatever chunks measured them: the first frame, and a frame after a gap, have
+    none."""
+
+    def __init__(self, projector: ProjectorCalibration) -> None:
+        self._projector = projector
+        self._previous: FrameMeasurement | None = None
+
+    def checked(self, measurement: FrameMeasurement) -> FrameMeasurement:
+        """The measurement with its `temporal` cross-check."""
+        previous, self._previous = self._previous, measurement
+        if previous is None or measurement.frame != previous.frame + 1:
+            return measurement
+        return replace(measurement, temporal=temporal_check(previous, measurement, self._projector))
 
 
 def check_recording_against(

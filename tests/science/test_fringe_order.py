@@ -36,6 +36,7 @@ from fringelab.science.simulate import (
 )
 from fringelab.science.topography import (
     FrameMeasurement,
+    TemporalCrossCheck,
     TopographySettings,
     grid_measurement,
     locate_test_edges,
@@ -276,9 +277,13 @@ def test_temporal_continuity_cross_checks_the_order(fast: Case) -> None:
     order put in by hand (one edge's points moved by their stripe's Z step, as a miscount by one edge pair moves
     them) is counted point by point, and its neighbours (half a step off in the mean) are not."""
     step_mm = fast.projector.period_px / np.abs(fast.projector.sensitivity_px_per_mm)
+    cross_check = TemporalCrossCheck(fast.projector)
+    checked = [cross_check.checked(m) for m in fast.measurements[:3] + fast.measurements[4:]]
+    assert checked[0].temporal is None and checked[3].temporal is None  # the first frame, and frame 4 after a gap
     for before, after in zip(fast.measurements, fast.measurements[1:], strict=False):
         check = temporal_check(before, after, fast.projector)
         assert check.n_jumps == 0 and check.n_checked > 0.9 * len(after.k)
+    assert checked[1].temporal == temporal_check(fast.measurements[0], fast.measurements[1], fast.projector)
 
     before = fast.measurements[2]
     assert temporal_check(before, before, fast.projector).n_jumps == 0
