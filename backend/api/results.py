@@ -334,6 +334,10 @@ class TopographyOverview(BaseModel):
         "area not measured in each frame, mm²."
     )
     n_order_conflicts: list[float | None] = Field(description="Per frame: conflicts between the order's sources.")
+    n_temporal_jumps: list[float | None] = Field(
+        description="Per frame: points whose change of height from the frame before departs from their neighbouring "
+        "edges' by more than 3/4 of a stripe step (a cross-check of the order; null: not checked)."
+    )
     peak_measured: list[bool | None] = Field(
         description="Per frame: whether the region around the punch, where the peak is, was measured (null: unknown)."
     )
@@ -379,6 +383,7 @@ def _overview(job: Job, state: AppState) -> TopographyOverview:
             measured_fraction=_listed(coverage["measured_fraction"]),
             missing_mm2={name: _listed(coverage[f"missing_{name}_mm2"], 1) for name in MISSING_REASONS},
             n_order_conflicts=_listed(coverage["n_order_conflicts"], 0),
+            n_temporal_jumps=_listed(coverage["n_temporal_jumps"], 0),
             peak_measured=[None if not np.isfinite(c) else bool(c >= PEAK_REGION_MEASURED) for c in peak_region],
         )
 

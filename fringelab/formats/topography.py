@@ -270,6 +270,12 @@ class TopographyWriter:
         for name, description in (
             ("n_order_conflicts", "conflicts between the sources of the fringe order (masked, never guessed)"),
             ("n_order_unresolved", "edge points whose order no anchor reaches (masked)"),
+            (
+                "n_temporal_jumps",
+                "points whose change of height from the frame before departs from their "
+                "neighbouring edges' by more than 3/4 of a stripe step (a cross-check of the order); -1: not checked "
+                "(the first frame, a frame after a gap)",
+            ),
         ):
             unit_dataset(
                 qa, name, np.zeros(0, np.int64), unit="1", description=description, maxshape=(None,), chunks=(1024,)
@@ -362,6 +368,7 @@ class TopographyWriter:
         coverage = measurement.coverage
         qa["n_order_conflicts"] = measurement.n_order_conflicts
         qa["n_order_unresolved"] = measurement.n_order_unresolved
+        qa["n_temporal_jumps"] = measurement.temporal.n_jumps if measurement.temporal is not None else -1
         qa["measured_fraction"] = coverage.measured_fraction if coverage else np.nan
         qa["visible_area_mm2"] = coverage.visible_area_mm2 if coverage else np.nan
         qa["measured_area_mm2"] = coverage.measured_area_mm2 if coverage else np.nan
@@ -624,14 +631,17 @@ class TopographyResult:
 
     def coverage(self) -> dict[str, np.ndarray]:
         """Per frame: measured_fraction, visible_area_mm2, measured_area_mm2, missing_<reason>_mm2,
-        n_order_conflicts and peak_region_coverage (float; NaN in files written before they existed)."""
-        names = ["measured_fraction", "visible_area_mm2", "measured_area_mm2", "n_order_conflicts"]
+        n_order_conflicts, n_temporal_jumps and peak_region_coverage (float; NaN in files written before they
+        existed, and for n_temporal_jumps where the frame was not cross-checked)."""
+        names = ["measured_fraction", "visible_area_mm2", "measured_area_mm2", "n_order_conflicts", "n_temporal_jumps"]
         names += ["peak_region_coverage"]
         names += [f"missing_{name}_mm2" for name in MISSING_REASONS]
         qa = self.file.get("qa", {})  # a file may have no QA at all
-        return {
+        columns = {
             name: qa[name][()].astype(np.float64) if name in qa else np.full(self.n_frames, np.nan) for name in names
         }
+        columns["n_temporal_jumps"][columns["n_temporal_jumps"] < 0] = np.nan
+        return columns
 
     def summary(self) -> dict[str, Any]:
         """The /summary attributes as stored (NaN where a value was not measured)."""

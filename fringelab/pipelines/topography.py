@@ -27,6 +27,7 @@ from fringelab.science.fringes import FrameEdges
 from fringelab.science.projector import CameraModel, ProjectorCalibration, camera_fingerprint
 from fringelab.science.topography import (
     SummaryTally,
+    TemporalCrossCheck,
     TopographyError,
     TopographySettings,
     check_recording_against,
@@ -140,11 +141,13 @@ def topography_recording(
             centre_xy_mm=(clamp[0], clamp[1]), time_source=log.time_source,
         )  # fmt: skip
         rest = itertools.chain([reference_edges], stream) if lo == 0 else stream
+        cross_check = TemporalCrossCheck(projector)
         for measurement in track_and_measure(
             rest, projector, camera_model, settings=settings, first_frame=lo, reference=reference
         ):
             if measurement.frame not in wanted:
                 continue
+            measurement = cross_check.checked(measurement)
             z_grid = grid_measurement(measurement, projector, grid, max_edge_mm=max_edge_mm)
             peak = field_peak(z_grid - z_flat, grid)
             writer.append(

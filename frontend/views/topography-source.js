@@ -40,12 +40,14 @@ export class TopographySource {
         peak_w_mm: peaks,
       },
       w_range_mm: finite.length ? [Math.min(0, ...finite), Math.max(...finite)] : [-1, 1],
-      // Per frame: what of the plate was measured, what is missing by reason (mm²), order conflicts, and whether
+      // Per frame: what of the plate was measured, what is missing by reason (mm²), order conflicts, the temporal
+      // cross-check's jumps (NaN: not checked), and whether
       // the peak region was measured (false: no peak to show; null: not recorded in this result).
       coverage: {
         measured_fraction: numbers(body.measured_fraction),
         missing_mm2: Object.fromEntries(Object.entries(body.missing_mm2 || {}).map(([k, v]) => [k, numbers(v)])),
         n_order_conflicts: numbers(body.n_order_conflicts),
+        n_temporal_jumps: numbers(body.n_temporal_jumps),
         peak_measured: Array.from(body.peak_measured || [], (v) => (v === null || v === undefined ? null : Boolean(v))),
       },
     };

@@ -635,6 +635,15 @@ class Viewer {
       yaxis: "y2", marker: { color: COLORS[(k + 1) % COLORS.length] }, opacity: 0.6,
       hovertemplate: `${reason.replaceAll("_", " ")} %{y:.2f} cm²<extra></extra>`,
     }));
+    // Frames where the cross-check against the frame before found points that jumped by a stripe step: marked on
+    // the measured line (the order of those points is suspect; the points stay as measured).
+    const jumps = (c.n_temporal_jumps || []).map((n) => Number.isFinite(n) && n > 0);
+    if (jumps.some(Boolean)) traces.push({
+      type: "scatter", mode: "markers", name: "temporal cross-check: jumps",
+      x: time.values.filter((_, i) => jumps[i]), y: c.measured_fraction.map((f) => f * 100).filter((_, i) => jumps[i]),
+      customdata: c.n_temporal_jumps.filter((_, i) => jumps[i]),
+      marker: { symbol: "x", size: 11, color: "#c0392b" }, hovertemplate: "%{customdata} points jumped by a stripe step<extra></extra>",
+    });
     const known = c.measured_fraction.some(Number.isFinite);
     const figureLayout = lineLayout({
       xAxis: time.title,
@@ -651,8 +660,8 @@ class Viewer {
     const c = this.meta.coverage;
     const reasons = Object.keys(c.missing_mm2);
     return {
-      columns: ["frame", "time_s", "measured_fraction", ...reasons.map((r) => `missing_${r}_mm2`), "n_order_conflicts"],
-      rows: this.frames.map((frame, i) => [frame, this.meta.frames.time_s[i], c.measured_fraction[i], ...reasons.map((r) => c.missing_mm2[r][i]), c.n_order_conflicts[i]]),
+      columns: ["frame", "time_s", "measured_fraction", ...reasons.map((r) => `missing_${r}_mm2`), "n_order_conflicts", "n_temporal_jumps"],
+      rows: this.frames.map((frame, i) => [frame, this.meta.frames.time_s[i], c.measured_fraction[i], ...reasons.map((r) => c.missing_mm2[r][i]), c.n_order_conflicts[i], c.n_temporal_jumps[i]]),
     };
   }
 

@@ -3,6 +3,7 @@ TopographyResult.coverage(); files written before it existed read as NaN (the la
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import h5py
@@ -11,7 +12,7 @@ import numpy as np
 from fringelab.formats.topography import TopographyResult, TopographyWriter
 from fringelab.science.coverage import MISSING_REASONS, FrameCoverage
 from fringelab.science.fields import Grid, Peak
-from fringelab.science.topography import FrameMeasurement
+from fringelab.science.topography import FrameMeasurement, TemporalCheck
 
 
 def measurement(frame: int, coverage: FrameCoverage | None) -> FrameMeasurement:
@@ -37,7 +38,8 @@ def write(path: Path, measurements: list[FrameMeasurement]) -> Path:
 def test_coverage_round_trips_with_every_reason(tmp_path: Path) -> None:
     missing = {name: 10.0 * (i + 1) for i, name in enumerate(MISSING_REASONS)}
     coverage = FrameCoverage(visible_area_mm2=1000.0, measured_area_mm2=790.0, missing_mm2=missing, n_order_conflicts=3)
-    path = write(tmp_path / "r.h5", [measurement(0, coverage), measurement(1, None)])
+    checked = replace(measurement(1, None), temporal=TemporalCheck(n_checked=5, n_jumps=2))
+    path = write(tmp_path / "r.h5", [measurement(0, coverage), checked])
     with TopographyResult(path) as result:
         read = result.coverage()
         assert result.file["qa/missing_shadow_mm2"].attrs["unit"] == "mm2"
@@ -47,6 +49,7 @@ def test_coverage_round_trips_with_every_reason(tmp_path: Path) -> None:
     for name, value in missing.items():
         assert read[f"missing_{name}_mm2"][0] == value
     assert read["n_order_conflicts"].tolist() == [3.0, 0.0]
+    assert np.isnan(read["n_temporal_jumps"][0]) and read["n_temporal_jumps"][1] == 2.0  # not checked: NaN
     # A measurement without coverage (stored before it existed) is written as NaN, never as "all measured".
     assert np.isnan(read["measured_fraction"][1]) and np.isnan(read["missing_hole_mm2"][1])
 

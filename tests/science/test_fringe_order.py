@@ -253,6 +253,8 @@ def test_the_result_file_says_what_is_missing_and_refuses_a_recording_ordered_no
     hole = coverage["missing_hole_mm2"]
     assert hole[3] > 300.0 > hole[2]  # the 18 mm hole is 254 mm², its rim loses half a stripe more
     assert np.all(coverage["missing_order_unresolved_mm2"] == 0) and np.all(coverage["n_order_conflicts"] == 0)
+    jumps = coverage["n_temporal_jumps"]  # the cross-check against the frame before: none before the first
+    assert np.isnan(jumps[0]) and np.all(jumps[1:] == 0)
     total = coverage["measured_area_mm2"] + sum(coverage[k] for k in coverage if k.startswith("missing_"))
     np.testing.assert_allclose(total, coverage["visible_area_mm2"], rtol=1e-9)  # every bit of the plate accounted
 

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from fringelab.pipelines.topography import result_writer
-from fringelab.science.topography import SummaryTally
+from fringelab.science.topography import SummaryTally, TemporalCrossCheck
 from worker.jobs.inputs import calibration_file, recording_input
 from worker.runner import (
     Chunked,
@@ -230,6 +230,7 @@ def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict
     z_flat, clamp = float(track["z_flat_mm"]), [float(v) for v in track["clamp"]]
     peak_names = [f.name for f in fields(Peak)]
     tally = SummaryTally()
+    cross_check = TemporalCrossCheck(projector)  # over the chunks' frames in order, so whatever the chunking
     with context.output("topography.h5", media_type="application/x-hdf5") as temporary:
         writer = result_writer(
             temporary, grid=Grid(x_mm=track["x_mm"], y_mm=track["y_mm"]), max_edge_mm=float(track["max_edge_mm"]),
@@ -240,7 +241,7 @@ def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict
         with writer:
             for first, _stop in ranges:
                 measurements, gridded = _load_frames(context, first)
-                for i, measurement in enumerate(measurements):
+                for i, measurement in enumerate(map(cross_check.checked, measurements)):
                     peak = Peak(**dict(zip(peak_names, map(float, gridded["peak"][i]), strict=True)))
                     writer.append(measurement, gridded["z_mm"][i], peak, log=log.row(measurement.frame),
                                   camera_frame=int(log.camera_frame[measurement.frame]))  # fmt: skip
