@@ -433,7 +433,8 @@ def build_projector_calibration(
     majority vote of its points against the positions predicted from the previous two steps. The Z steps must
     move the edges by less than settings.max_step_fraction of a stripe period (QA: max_step_shift_periods);
     steps of more than about 0.6 period alias (each edge looks like its neighbour moving the other way, the same
-    for all of them), which no image reveals, so choose the steps for the stripe period and sensitivity. Raises
+    for all of them), which no stack of equal steps reveals, so choose the steps for the stripe period and
+    sensitivity (the first deflected frame of a test shows it: `order.check_order_against_table`). Raises
     ProjectorCalibrationError when identity cannot be carried (steps too coarse), when the stripes do not move
     with Z, or when too little of the field gets a table entry; CalibrationMismatchError when the frames are not
     of the camera's size.
