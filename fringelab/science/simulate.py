@@ -621,6 +621,14 @@ def fast_timeline(
 SCENARIOS = ("quasi-static", "fast", "petals", "highlight", "shadow", "hard")
 
 
+def min_test_frames(scenario_name: str) -> int:
+    """Fewest test frames a scenario's timeline can be made of: 4 for the quasi-static ones (`punch_timeline`),
+    6 for those built on the fast test (`fast_timeline`: a ramp, then three perforated frames)."""
+    if scenario_name not in SCENARIOS:
+        raise ValueError(f"scenario: expected one of {SCENARIOS}, got {scenario_name!r}")
+    return 4 if scenario_name in ("quasi-static", "highlight") else 6
+
+
 def scenario(name: str, setup: Preset, n_frames: int) -> tuple[Preset, PunchTimeline]:
     """A preset's scene and timeline for one of the virtual tests.
 
