@@ -17,7 +17,7 @@ from pydantic import BaseModel, Field, model_validator
 from backend.api.deps import CurrentUser, SessionDep, StateDep
 from backend.errors import error_responses
 from fringelab.core.jobs import start_demo
-from fringelab.science.simulate import SCENARIOS, min_test_frames
+from fringelab.science.scenarios import SCENARIOS, min_test_frames
 
 router = APIRouter(tags=["demo"])
 

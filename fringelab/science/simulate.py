@@ -17,6 +17,7 @@ import numpy as np
 from scipy import special
 
 from .camera import Camera, backproject_to_z, camera_centre_obj_mm, fit_inverse_model, project_points
+from .scenarios import SCENARIOS
 from .synthetic import reference_camera
 
 
@@ -616,17 +617,6 @@ def fast_timeline(
         force_kN=force,
         perforation_frame=peak + 1,
     )
-
-
-SCENARIOS = ("quasi-static", "fast", "petals", "highlight", "shadow", "hard")
-
-
-def min_test_frames(scenario_name: str) -> int:
-    """Fewest test frames a scenario's timeline can be made of: 4 for the quasi-static ones (`punch_timeline`),
-    6 for those built on the fast test (`fast_timeline`: a ramp, then three perforated frames)."""
-    if scenario_name not in SCENARIOS:
-        raise ValueError(f"scenario: expected one of {SCENARIOS}, got {scenario_name!r}")
-    return 4 if scenario_name in ("quasi-static", "highlight") else 6
 
 
 def scenario(name: str, setup: Preset, n_frames: int) -> tuple[Preset, PunchTimeline]:
