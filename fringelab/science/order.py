@@ -441,8 +441,9 @@ def check_order_against_table(
     polarity) would put them inside. That is the mark of a projector calibration whose Z steps moved the stripes
     more than half a period each: edge identity is carried between steps by the nearest edge of the same
     polarity, so a shift of (1 − a) periods reads as a shift of a periods the other way, the same for every
-    edge, and a stack of equal flat-plate steps cannot show it (a frame of the test, whose plate moves by less
-    than a step, can). A plate that moved below the calibrated range looks the same, so the message names both.
+    edge. `projector.build_projector_calibration` refuses such a stack now; tables built before it did are caught
+    here, by a frame of the test whose plate moved by less than a step. A plate that moved below the calibrated
+    range looks the same, so the message names both.
     max_step_fraction: the calibration's largest safe shift per step in periods (`ProjectorSettings`), for the
     Z step the message asks for.
     """
