@@ -101,12 +101,17 @@ def job_merge(self: Task, job_id: str, phase: int) -> dict[str, Any]:
 
 
 @shared_task(bind=True, name=DEMO_TASK, ignore_result=True)
-def demo(self: Task, experiment_id: int, presets: list[str], test_frames: int) -> None:
+def demo(self: Task, experiment_id: int, presets: list[str], test_frames: int, scenario: str = "quasi-static") -> None:
     def first_camera_ready() -> None:  # its jobs start while the next camera is simulated
         demo_advance.apply_async(args=[experiment_id, presets, time.time()], countdown=demo_job.ADVANCE_EVERY_S)
 
     demo_job.simulate_demo(
-        demo_job.services_of(self.app), experiment_id, presets, test_frames, first_camera_ready=first_camera_ready
+        demo_job.services_of(self.app),
+        experiment_id,
+        presets,
+        test_frames,
+        scenario=scenario,
+        first_camera_ready=first_camera_ready,
     )
 
 

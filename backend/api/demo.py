@@ -8,16 +8,21 @@ experiment as they are made, and follow the same rules as uploaded ones.
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from enum import StrEnum
+from typing import Annotated, Literal, Self
 
 from fastapi import APIRouter, Body
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, model_validator
 
 from backend.api.deps import CurrentUser, SessionDep, StateDep
 from backend.errors import error_responses
 from fringelab.core.jobs import start_demo
+from fringelab.science.scenarios import SCENARIOS, min_test_frames
 
 router = APIRouter(tags=["demo"])
+
+# The simulator's virtual tests, as the API's enum (the list is the simulator's).
+DemoScenario = StrEnum("DemoScenario", {name: name for name in SCENARIOS})  # type: ignore[misc]
 
 
 class DemoIn(BaseModel):
@@ -31,6 +36,23 @@ class DemoIn(BaseModel):
         "four times slower. The first camera's results come first.",
     )
     test_frames: int = Field(20, ge=4, le=200, description="Frames of the simulated punch test.")
+    scenario: DemoScenario = Field(  # type: ignore[valid-type]
+        DemoScenario("quasi-static"),
+        description="The virtual test: quasi-static, the paper's; fast, large motion per frame, then an 18 mm hole "
+        "and 6 mm of springback within one frame; petals, the fast test with radial cracks and petals around the "
+        "hole; highlight, a specular highlight on the plate; shadow, the fast test with the punch coming through "
+        "and shadowing part of the stripes; hard, all of them at once. The fast ones need at least 6 frames.",
+    )
+
+    @model_validator(mode="after")
+    def _enough_frames(self) -> Self:
+        needed = min_test_frames(self.scenario.value)
+        if self.test_frames < needed:
+            raise ValueError(
+                f"test_frames: the {self.scenario.value} scenario needs at least {needed} frames (a ramp, then the "
+                f"perforated frames), got {self.test_frames}"
+            )
+        return self
 
 
 class DemoOut(BaseModel):
@@ -42,9 +64,12 @@ def make_demo(
     session: SessionDep,
     state: StateDep,
     principal: CurrentUser,
-    body: Annotated[DemoIn | None, Body(examples=[{"cameras": ["kodak"], "test_frames": 20}])] = None,
+    body: Annotated[
+        DemoIn | None, Body(examples=[{"cameras": ["kodak"], "test_frames": 20, "scenario": "quasi-static"}])
+    ] = None,
 ) -> DemoOut:
     """Make a virtual experiment and measure it: simulated recordings, calibrations and topography."""
     body = body or DemoIn()
     cameras = list(dict.fromkeys(body.cameras))  # each camera once, in the order asked
-    return DemoOut(experiment_id=start_demo(session, state.celery, principal, cameras, body.test_frames))
+    experiment_id = start_demo(session, state.celery, principal, cameras, body.test_frames, body.scenario.value)
+    return DemoOut(experiment_id=experiment_id)

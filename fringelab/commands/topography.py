@@ -12,6 +12,7 @@ from typing import Any
 
 from fringelab.commands.output import emit, fail, progress_bar
 from fringelab.formats import EXPORT_FORMATS
+from fringelab.science.scenarios import SCENARIOS
 
 
 def _frames(text: str) -> slice:
@@ -138,6 +139,7 @@ def register(subparsers: Any) -> None:
     simulate.add_argument(
         "--scenario",
         default="quasi-static",
+        choices=SCENARIOS,
         help="quasi-static: the paper's test; fast: large motion per frame, an 18 mm hole and 6 mm springback in "
         "one frame; petals: fast, with radial cracks and petals; highlight: a specular highlight; shadow: the "
         "punch comes through and shadows the stripes; hard: all at once",

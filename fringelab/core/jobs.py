@@ -814,26 +814,37 @@ async def reconcile_periodically(sessions: sessionmaker[Session], celery: Celery
         await anyio.to_thread.run_sync(reconcile_quietly, sessions, celery, settings)
 
 
-def start_demo(session: Session, celery: Celery, principal: Principal, cameras: list[str], test_frames: int) -> int:
+def start_demo(
+    session: Session,
+    celery: Celery,
+    principal: Principal,
+    cameras: list[str],
+    test_frames: int,
+    scenario: str = "quasi-static",
+) -> int:
     """Store a new demo experiment of `principal` (committed, audited) and send the task that simulates its
-    cameras' recordings and starts their jobs; returns the experiment's id. Unavailable without the queue."""
+    cameras' recordings and starts their jobs; returns the experiment's id. Unavailable without the queue.
+
+    scenario: the virtual test (`fringelab.science.simulate.SCENARIOS`: the paper's quasi-static test, or a hard
+    one: fast motion with springback at perforation, petals and cracks, a highlight, the punch's shadow)."""
     today = date.today().isoformat()
+    kind = "virtual punch test" if scenario == "quasi-static" else f"virtual punch test, {scenario}"
     experiment = Experiment(
-        name=f"Demo: virtual punch test ({today})",
+        name=f"Demo: {kind} ({today})",
         plate="virtual plate, clamped (simulated)",
         punch="hemispherical (simulated)",
         test_date=today,
         notes="Made by the dashboard's Load demo experiment button: the recordings of "
-        f"{', '.join(cameras)} are simulated (fringelab simulate), then checked, calibrated and measured by "
-        "the workers like uploaded ones.",
+        f"{', '.join(cameras)} are simulated (fringelab simulate --scenario {scenario}), then checked, calibrated "
+        "and measured by the workers like uploaded ones.",
         owner_id=principal.user_id,
     )
     session.add(experiment)
     session.flush()
-    audit(session, principal, "create", "experiment", experiment.id, demo=True)
+    audit(session, principal, "create", "experiment", experiment.id, demo=True, scenario=scenario)
     session.commit()
     try:
-        celery.send_task(DEMO_TASK, args=[experiment.id, cameras, test_frames])
+        celery.send_task(DEMO_TASK, args=[experiment.id, cameras, test_frames, scenario])
     except OperationalError as error:
         raise Unavailable(f"the job queue (Redis) is unreachable: {error}; try again when it is back") from None
     return experiment.id

@@ -54,6 +54,12 @@ class RimNotVisibleError(ReferenceFrameError):
     """The clamped rim, where w = 0 anchors the order, is not in view."""
 
 
+class OrderAgainstTableError(MeasurementError):
+    """The rim-anchored order puts a frame's stripes on the wrong side of the projector table: the table's edges
+    move the other way with Z than the frame's (a calibration whose Z steps aliased, or a plate beyond the
+    calibrated range)."""
+
+
 @dataclass(frozen=True)
 class OrderSettings:
     """Settings of the per-frame order.
@@ -418,6 +424,94 @@ def _against_table_or_neighbours(
     for c in range(n_chains):
         against[c] = table_against[c] > 0.5 * max(length[c], 1.0) or votes_against[c] > votes_for[c]
     return against
+
+
+def check_order_against_table(
+    edges: FrameEdges,
+    reference: OrderReference,
+    projector: ProjectorCalibration,
+    *,
+    settings: OrderSettings | None = None,
+    max_step_fraction: float = 0.35,
+) -> None:
+    """Raise OrderAgainstTableError when most of a frame's rim-anchored stripes lie below the table's lowest Z.
+
+    Meant for a frame `order_frame` masked mostly as conflicts: its stripes, counted from the stationary rim,
+    moved the way the table calls "below the lowest calibrated Z", while the order one stripe over (k ± 2, same
+    polarity) would put them inside. That is the mark of a projector calibration whose Z steps moved the stripes
+    more than half a period each: edge identity is carried between steps by the nearest edge of the same
+    polarity, so a shift of (1 − a) periods reads as a shift of a periods the other way, the same for every
+    edge. `projector.build_projector_calibration` refuses such a stack now; tables built before it did are caught
+    here, by a frame of the test whose plate moved by less than a step. A plate that moved below the calibrated
+    range looks the same, so the message names both.
+    max_step_fraction: the calibration's largest safe shift per step in periods (`ProjectorSettings`), for the
+    Z step the message asks for.
+    """
+    settings = OrderSettings() if settings is None else settings
+    if len(edges) == 0:
+        return
+    order = order_edges(edges)
+    relative = order.crossing_index(edges)
+    component = order.component[edges.chain]
+    k_near, distance = match_to_reference(
+        edges.line, edges.t_px, edges.polarity, reference.rim_lines, projector.polarity
+    )
+    on_rim = (k_near >= 0) & (np.abs(distance) <= settings.anchor_tolerance_fraction * projector.period_px)
+    on_rim &= relative >= 0
+    if np.count_nonzero(on_rim) < settings.min_anchor_points:
+        return
+    # The offset most rim votes of each group agree on (as `order_frame` anchors it, without the checks).
+    votes = k_near[on_rim] - relative[on_rim]
+    lowest = int(votes.min())
+    span = int(votes.max()) - lowest + 1
+    codes, counts = np.unique(component[on_rim] * span + (votes - lowest), return_counts=True)
+    n_groups = int(order.component.max()) + 1
+    best_count = np.zeros(n_groups, np.int64)
+    best_offset = np.zeros(n_groups, np.int64)
+    ascending = np.argsort(counts, kind="stable")
+    best_count[codes[ascending] // span] = counts[ascending]
+    best_offset[codes[ascending] // span] = codes[ascending] % span + lowest
+    anchored = relative >= 0
+    anchored[anchored] = best_count[component[anchored]] >= settings.min_anchor_points
+    k = relative[anchored] + best_offset[component[anchored]]
+    line, t = edges.line[anchored], edges.t_px[anchored]
+    in_table = (k >= 0) & (k < projector.n_edges)
+    k, line, t = k[in_table], line[in_table], t[in_table]
+    _z, status = projector.z_from_t(k, line, t)
+    has_entry = status != 2
+    if np.count_nonzero(has_entry) < settings.min_anchor_points:
+        return
+    sensitivity = projector.sensitivity_px_per_mm[k, line]
+    with np.errstate(invalid="ignore"):
+        below = (status == 1) & np.where(
+            sensitivity > 0, t < projector.t_lo_px[k, line], t > projector.t_hi_px[k, line]
+        )
+    neighbour_fits = np.zeros(len(k), bool)
+    for step in (-2, 2):
+        neighbour_fits |= projector.z_from_t(k + step, line, t)[1] == 0
+    share = np.count_nonzero(below & neighbour_fits) / np.count_nonzero(has_entry)
+    if share < 0.5:
+        return
+    z_lowest = float(projector.z_mm[0])
+    dz_mm = float(np.median(np.diff(projector.z_mm)))
+    abs_sensitivity = np.abs(projector.sensitivity_px_per_mm[projector.valid])
+    shift = float(np.median(abs_sensitivity)) * dz_mm / projector.period_px
+    # Were the table aliased by one period per step, an edge's true rate would be period/dz − |apparent rate|,
+    # largest where the apparent rate is smallest.
+    true_rate = projector.period_px / dz_mm - float(np.percentile(abs_sensitivity, 5))
+    safe_step_mm = max_step_fraction * projector.period_px / true_rate if true_rate > 0 else float("nan")
+    raise OrderAgainstTableError(
+        f"{share:.0%} of the frame's stripes, ordered from the clamped rim, lie below the lowest calibrated Z "
+        f"({z_lowest:g} mm) for their order while the next stripe's order would put them inside the projector "
+        "table: the stripes moved against the direction in which the table says Z grows. Most likely the projector "
+        f"calibration's Z steps ({dz_mm:g} mm) were too coarse: its edges move {shift:.2f} stripe periods per step "
+        f"in the table, which reads the same as {1 - shift:.2f} periods the other way (edges are followed from "
+        "step to step by the nearest edge of the same polarity, so a shift of more than half a period is taken "
+        "for the neighbouring edge moving back); record the projector calibration again with Z steps of at most "
+        f"{safe_step_mm:.1f} mm (each step must move the stripes less than {max_step_fraction:g} period). "
+        f"Otherwise the plate moved below Z = {z_lowest:g} mm, outside the calibrated range: calibrate that side "
+        "too."
+    )
 
 
 def clamp_circle(points_xy_mm: np.ndarray, *, n_sectors: int = 72) -> tuple[float, float, float]:

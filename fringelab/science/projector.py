@@ -433,7 +433,8 @@ def build_projector_calibration(
     majority vote of its points against the positions predicted from the previous two steps. The Z steps must
     move the edges by less than settings.max_step_fraction of a stripe period (QA: max_step_shift_periods);
     steps of more than about 0.6 period alias (each edge looks like its neighbour moving the other way, the same
-    for all of them), which no image reveals, so choose the steps for the stripe period and sensitivity. Raises
+    for all of them), which no single image reveals; the edges' positions over Z do, as they bend off the
+    straight lines they follow in space (`_refuse_aliased_steps`), and the calibration is refused. Raises
     ProjectorCalibrationError when identity cannot be carried (steps too coarse), when the stripes do not move
     with Z, or when too little of the field gets a table entry; CalibrationMismatchError when the frames are not
     of the camera's size.
@@ -547,6 +548,8 @@ def build_projector_calibration(
             progress(done + 1, total, "edges")
     assert polarity is not None
     lut = np.stack([positions[j] for j in range(n_frames)], axis=-1).astype(np.float32)
+    _refuse_aliased_steps(lut, z_sorted, j_ref, camera_model, axis=edge_settings.axis, period_px=period,
+                          max_step_fraction=settings.max_step_fraction)  # fmt: skip
     calibration = _fit_table(
         lut,
         z_sorted,
@@ -563,6 +566,80 @@ def build_projector_calibration(
     if progress is not None:
         progress(total, total, "done")
     return calibration
+
+
+def _refuse_aliased_steps(
+    lut: np.ndarray,
+    z_sorted: np.ndarray,
+    j_ref: int,
+    camera_model: CameraModel,
+    *,
+    axis: str,
+    period_px: float,
+    max_step_fraction: float,
+    window: int = 9,
+) -> None:
+    """ProjectorCalibrationError when the Z steps moved the stripes by whole periods more than the images show.
+
+    Identity is carried to the nearest edge of the same polarity, so a step that moved the stripes (n + a)
+    periods reads as a: every edge is taken for the one n stripes over, the same for all of them, and the table
+    runs backwards or too slowly. No single image shows it, but geometry does: an edge's points over Z, back-
+    projected to their plane Z, lie on one straight line in space (its light plane cut by the scan line's viewing
+    plane), while the relabelled points of an aliased table bend away from it by about n·(change of the period
+    with Z) per step. For n in −2 … 2 the table's identities over `window` steps from the reference are shifted
+    by n stripes per step and the median straightness (RMS off a fitted line, mm) compared: the calibration is
+    refused when n ≠ 0 is clearly straighter than the identities as carried.
+    """
+    side = 1 if len(z_sorted) - 1 - j_ref >= j_ref else -1
+    n_steps = min(window, j_ref + 1 if side < 0 else len(z_sorted) - j_ref)
+    if n_steps < 4:
+        return
+    steps = j_ref + side * np.arange(n_steps)
+    z = z_sorted[steps]
+    n_k, n_s = lut.shape[:2]
+    lines = np.arange(0, n_s, max(1, n_s // 64))
+    t = lut[:, lines][:, :, steps].astype(np.float64)  # (K, S', W)
+    xy = np.full((*t.shape, 2), np.nan)
+    for m in range(n_steps):
+        kk, ss = np.nonzero(np.isfinite(t[:, :, m]))
+        q = np.column_stack([t[kk, ss, m], lines[ss]] if axis == "rows" else [lines[ss], t[kk, ss, m]])
+        xy[kk, ss, m] = backproject_to_z(camera_model.camera, q, float(z[m]), inverse=camera_model.inverse)[:, :2]
+    design = np.column_stack([np.ones(n_steps), z - z.mean()])
+    off_line = np.eye(n_steps) - design @ np.linalg.pinv(design)  # residual of a straight line in Z
+    straightness = {}
+    for n in range(-2, 3):
+        shifted = np.full_like(xy, np.nan)
+        for m in range(n_steps):
+            shift = 2 * n * m
+            lo, hi = max(0, -shift), min(n_k, n_k - shift)
+            if lo < hi:
+                shifted[lo:hi, :, m] = xy[lo + shift : hi + shift, :, m]
+        whole = np.all(np.isfinite(shifted), axis=(2, 3))
+        if np.count_nonzero(whole) < 50:
+            continue
+        residual = np.einsum("ij,ejc->eic", off_line, shifted[whole])
+        straightness[n] = float(np.median(np.sqrt(np.mean(residual**2, axis=(1, 2)))))
+    if 0 not in straightness or len(straightness) < 2:
+        return
+    n_best = min(straightness, key=lambda n: straightness[n])
+    if n_best == 0 or straightness[0] < 3.0 * straightness[n_best]:
+        return
+    dz_mm = float(np.median(np.abs(np.diff(z_sorted))))
+    seen = np.isfinite(lut[:, :, steps[0]]) & np.isfinite(lut[:, :, steps[1]])
+    apparent = (lut[:, :, steps[1]] - lut[:, :, steps[0]])[seen].astype(np.float64) / period_px * side
+    true_shift = np.abs(apparent + n_best)  # periods per step, per (edge, line)
+    largest = float(np.percentile(true_shift, 95))
+    raise ProjectorCalibrationError(
+        f"the Z steps ({dz_mm:g} mm) are too coarse for these stripes: each step moved the edges about "
+        f"{float(np.median(true_shift)):.2f} stripe periods (up to {largest:.2f}), but the images show only "
+        f"{float(np.median(np.abs(apparent))):.2f}: edges are followed from step to step by the nearest edge of the "
+        f"same polarity, so {abs(n_best)} whole period(s) more per step cannot be seen in them. The geometry shows "
+        "it: an edge's positions over Z lie on a straight line in space only when each step is counted "
+        f"{abs(n_best)} period(s) more ({straightness[n_best]:.3f} mm off a line, against {straightness[0]:.3f} mm as "
+        "followed), and a table built as followed would give wrong Z everywhere. Record the projector calibration "
+        f"again with Z steps of at most {max_step_fraction * dz_mm / largest:.1f} mm (each step must move the "
+        f"stripes less than {max_step_fraction:g} period)"
+    )
 
 
 def _grown(array: np.ndarray, shift: int, n: int) -> np.ndarray:

@@ -17,6 +17,7 @@ import numpy as np
 from scipy import special
 
 from .camera import Camera, backproject_to_z, camera_centre_obj_mm, fit_inverse_model, project_points
+from .scenarios import SCENARIOS
 from .synthetic import reference_camera
 
 
@@ -616,9 +617,6 @@ def fast_timeline(
         force_kN=force,
         perforation_frame=peak + 1,
     )
-
-
-SCENARIOS = ("quasi-static", "fast", "petals", "highlight", "shadow", "hard")
 
 
 def scenario(name: str, setup: Preset, n_frames: int) -> tuple[Preset, PunchTimeline]:

@@ -40,6 +40,7 @@ from .order import (
     OrderReference,
     OrderSettings,
     ReferenceNotFlatError,
+    check_order_against_table,
     clamp_circle,
     identify_reference,
     order_frame,
@@ -284,6 +285,9 @@ def order_positions(
     """The positions (K, S) of one frame's edges by their order (`order.order_frame`): a pure function of the
     frame and the reference, so a frame ordered alone equals the same frame ordered within its sequence."""
     frame_order = order_frame(edges, reference, projector, settings=settings.order)
+    if np.count_nonzero(frame_order.reason == ORDER_CONFLICT) > 0.5 * len(edges):
+        # Mostly conflicts: say so when it is the table that disagrees with the whole frame.
+        check_order_against_table(edges, reference, projector, settings=settings.order)
     ordered = frame_order.k >= 0
     positions = _scatter(
         frame_order.k[ordered], edges.line[ordered].astype(np.int64), edges.t_px[ordered].astype(np.float64),
@@ -703,6 +707,7 @@ class SummaryTally:
     n_after_first: int = 0
     n_ordered_after_first: int = 0
     n_unresolved_after_first: int = 0
+    n_conflict_after_first: int = 0
 
     def add(self, peak: Peak, *, n_out_of_range: int, measurement: FrameMeasurement | None = None) -> None:
         self.peaks_w_mm.append(peak.w_mm)
@@ -713,17 +718,27 @@ class SummaryTally:
             self.n_after_first += 1
             self.n_ordered_after_first += len(measurement.k)
             self.n_unresolved_after_first += measurement.n_order_unresolved
+            self.n_conflict_after_first += measurement.n_order_conflict_points
 
     def require_ordered(self, where: str) -> None:
         """TopographyError when no frame after the reference could be ordered anywhere: a result with nothing
-        measured after its first frame would look like a plate that vanished."""
-        if self.n_after_first > 0 and self.n_ordered_after_first == 0:
+        measured after its first frame would look like a plate that vanished. The message names the reason most
+        of the frames' edge points had: no anchor (the rim) or a conflict (neighbours or the projector table)."""
+        if self.n_after_first == 0 or self.n_ordered_after_first > 0:
+            return
+        counts = (f"{self.n_after_first} frames; {self.n_unresolved_after_first} edge points with no anchor, "
+                  f"{self.n_conflict_after_first} masked for an order conflict")  # fmt: skip
+        if self.n_conflict_after_first > self.n_unresolved_after_first:
             raise TopographyError(
-                f"{where}: the stripes could not be ordered in any frame after the first ({self.n_after_first} frames, "
-                f"{self.n_unresolved_after_first} edge points with no anchor): the clamped rim, which anchors the "
-                "fringe order, shows no stripes in them; check that the rim stays lit and in view, or set "
-                "rim_circle_mm to a region that stays still"
+                f"{where}: the stripes could not be ordered in any frame after the first ({counts}): their order, "
+                "counted from the clamped rim, disagrees with the projector table or between neighbouring stripes; "
+                "check that the projector calibration belongs to this setup and covers the test's Z range"
             )
+        raise TopographyError(
+            f"{where}: the stripes could not be ordered in any frame after the first ({counts}): the clamped rim, "
+            "which anchors the fringe order, shows no stripes in them; check that the rim stays lit and in view, "
+            "or set rim_circle_mm to a region that stays still"
+        )
 
     @property
     def punch_axis_xy_mm(self) -> tuple[float, float]:

@@ -60,6 +60,17 @@ export async function renderExperiments(container, _params, context) {
       h("option", { value: "kodak,phantom" }, "Kodak and Phantom (about 2 minutes)"),
       h("option", { value: "kodak" }, "Kodak only (under a minute)")),
   );
+  // The simulator's virtual tests (POST /demo `scenario`): the paper's, and the hard ones the method is built for.
+  const demoScenario = field(
+    "Virtual test",
+    h("select", {},
+      h("option", { value: "quasi-static" }, "Quasi-static punch test (the paper's)"),
+      h("option", { value: "fast" }, "Fast: large motion per frame, springback at perforation"),
+      h("option", { value: "petals" }, "Petals: fast, with radial cracks and petals around the hole"),
+      h("option", { value: "highlight" }, "Highlight: a specular highlight on the plate"),
+      h("option", { value: "shadow" }, "Shadow: fast, the punch shadows part of the stripes"),
+      h("option", { value: "hard" }, "Hard: all of these at once")),
+  );
   const demo = h(
     "button",
     {
@@ -69,7 +80,7 @@ export async function renderExperiments(container, _params, context) {
         demo.disabled = true;
         try {
           const cameras = demoCameras.input.value;
-          const made = await postJSON("demo", { cameras: cameras.split(",") });
+          const made = await postJSON("demo", { cameras: cameras.split(","), scenario: demoScenario.input.value });
           // The experiment page shows the demo's steps at once, from the first second.
           window.location.hash = `#/experiments/${made.experiment_id}?demo=${cameras}&since=${Date.now()}`;
         } catch (error) {
@@ -88,6 +99,7 @@ export async function renderExperiments(container, _params, context) {
       { class: "card demo" },
       demo,
       demoCameras.wrap,
+      demoScenario.wrap,
       h("span", { class: "hint" }, "A virtual punch test: its recordings are simulated, then checked, calibrated and measured by the workers like uploaded ones."),
     ),
     list,

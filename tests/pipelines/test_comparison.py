@@ -1,9 +1,13 @@
 """`fringelab compare` on the virtual experiment: its true surface written as a simulation in every format.
 
 When the simulation is the truth, w_meas − w_sim is the measurement's own error, so its RMS per frame must equal
-the RMS of w_meas − w_true over the same nodes. 10 % is the issue's tolerance: the model's linear interpolation
-adds about 0.003 mm RMS to a 0.017 mm error (√(0.017² + 0.003²) is 1.6 % more), a mapping off by 0.1 mm in the
-plane adds more than 10 % where the slope is steep, a wrong unit or state makes it millimetres.
+the RMS of w_meas − w_true over the same nodes: the issue's rule, within 10 % (RMS_TOLERANCE). What the comparison
+adds, measured on this experiment: sampling the model's triangles on the grid, ≤ 0.0015 mm RMS with the frames
+paired by punch travel or time, ≤ 0.004 mm with the blend fitted for peak alignment, to measurement errors of
+0.017–0.032 mm per frame (√(0.017² + 0.004²) is 3 % more). A mapping off by 0.1 mm in the plane adds more than
+10 % where the slope is steep, a wrong unit or state makes it millimetres. No absolute bound: the measurement's
+error grows where the dome near the punch is steep (0.26 mm RMS within 25 mm of it in frame 4, where the grid's
+triangles between edges cut the curvature), and the rule follows it.
 """
 
 from __future__ import annotations
@@ -96,11 +100,10 @@ def test_time_and_peak_alignment(measured, tmp_path) -> None:  # type: ignore[no
     folder = write_true_simulation(measured.truth_json, tmp_path / "csv", kind="csv")
     for align in ("time", "peak"):
         summary = compare_result(measured.result, folder, tmp_path / f"{align}.h5", align=align)
-        rows = {row["frame"]: row["rms_diff_mm"] for row in summary.frames}
-        # The right state: a wrong one is off by millimetres. Since the fringe order is found per frame, the steep
-        # dome within ~15 mm of the punch is measured too (it used to be lost), where the linear grid and the
-        # model's mesh both cut the curvature: 0.08 mm, not the 0.03 mm of the plate further out.
-        assert rows[3] < 0.08, (align, rows)
+        # The right state, and the right blend of two: a wrong state is off by millimetres; a blend set from the
+        # highest measured node alone (the measurement's worst, at the top of the dome) was 0.18 mm off in frame
+        # 4, six times the measurement's error there.
+        assert_difference_is_the_measurement_error(measured, summary.path)
 
 
 def test_cli_compare_json_and_exports(measured, tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
@@ -109,8 +112,9 @@ def test_cli_compare_json_and_exports(measured, tmp_path, capsys) -> None:  # ty
     assert _run("compare", str(measured.result), str(folder), "-o", str(out), "--json") == 0
     printed = json.loads(capsys.readouterr().out)
     assert [row["frame"] for row in printed["frames"]] == list(range(8))
-    # As above: the dome next to the punch is measured now, where grid and mesh are coarse for its curvature.
-    assert all(row["rms_diff_mm"] < 0.08 and row["max_diff_mm"] < 2.5 for row in printed["frames"]), printed["frames"]
+    assert_difference_is_the_measurement_error(measured, out)
+    # The largest difference is the measurement's own, at the steep dome next to the punch (~1 mm there).
+    assert all(row["max_diff_mm"] < 2.5 for row in printed["frames"]), printed["frames"]
     for fmt, name in zip(COMPARISON_EXPORTS, ("c.csv", "copy.h5", "c.mat", "c.pvd", "p.csv"), strict=True):
         assert _run("export-comparison", str(out), "--format", fmt, "-o", str(tmp_path / name)) == 0
     # a profile along any line (here a diagonal through the plate), every frame, points beyond 2σ marked

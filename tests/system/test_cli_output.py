@@ -12,7 +12,8 @@ from tests.system.test_cli import run_cli
 
 def test_simulate_calibrate_topography_export_with_progress_and_json(tmp_path):
     root = tmp_path / "sim"
-    # A 4 mm projector Z-step: with 10 mm the per-frame order finds no anchor (see the round-2 note)
+    # A 4 mm projector Z-step: 10 mm steps move kodak's stripes ~0.66 period, which the calibration reads as
+    # 0.34 back (aliased): the projector calibration refuses them, naming the step it needs (≤ ~4.3 mm).
     simulated = run_cli("simulate", str(root), "--frames", "4", "--z-step", "4", "--json", timeout=300)
     assert simulated.returncode == 0, simulated.stderr
     experiment = json.loads(simulated.stdout)  # stdout is the JSON object and nothing else

@@ -48,18 +48,35 @@ def test_demo_stores_the_experiment_and_queues_its_task(client, settings):
     assert len(tasks) == 1
     name, body = tasks[0]
     assert name == "fringelab.demo"
-    assert body[0] == [experiment_id, ["kodak"], 8]  # each camera once
+    assert body[0] == [experiment_id, ["kodak"], 8, "quasi-static"]  # each camera once
 
 
 def test_demo_without_a_body_makes_both_cameras(client, settings):
     assert client.post("/api/v1/demo").status_code == 202
     (name, body), *_ = queued_tasks(settings)
-    assert body[0][1:] == [["kodak", "phantom"], 20]
+    assert body[0][1:] == [["kodak", "phantom"], 20, "quasi-static"]
+
+
+@pytest.mark.parametrize("scenario", ["fast", "petals", "highlight", "shadow", "hard"])
+def test_demo_makes_the_hard_virtual_tests(client, settings, scenario):
+    answer = client.post("/api/v1/demo", json={"cameras": ["kodak"], "test_frames": 6, "scenario": scenario})
+    assert answer.status_code == 202, answer.text
+    experiment = client.get(f"/api/v1/experiments/{answer.json()['experiment_id']}").json()
+    assert scenario in experiment["name"] and f"--scenario {scenario}" in experiment["notes"]
+    (name, body), *_ = queued_tasks(settings)
+    assert body[0][1:] == [["kodak"], 6, scenario]
 
 
 @pytest.mark.parametrize(
     "body, field",
-    [({"cameras": ["nikon"]}, "cameras"), ({"cameras": []}, "cameras"), ({"test_frames": 2}, "test_frames")],
+    [
+        ({"cameras": ["nikon"]}, "cameras"),
+        ({"cameras": []}, "cameras"),
+        ({"test_frames": 2}, "test_frames"),
+        ({"scenario": "earthquake"}, "scenario"),
+        # The fast test is a ramp and three perforated frames: 5 frames cannot hold it.
+        ({"scenario": "fast", "test_frames": 5}, "the fast scenario needs at least 6 frames"),
+    ],
 )
 def test_demo_refuses_what_it_cannot_simulate(client, settings, body, field):
     answer = client.post("/api/v1/demo", json=body)

@@ -61,9 +61,11 @@ def simulate_demo(
     presets: list[str],
     test_frames: int,
     *,
+    scenario: str = "quasi-static",
     first_camera_ready: Callable[[], None],
 ) -> None:
-    """Add each preset's camera to the experiment and register its simulated recordings (idempotent)."""
+    """Add each preset's camera to the experiment and register its simulated recordings of the virtual test
+    `scenario` (`simulate.SCENARIOS`) (idempotent)."""
     settings = state.settings
     with state.sessions() as session:
         experiment = session.get(Experiment, experiment_id)
@@ -91,7 +93,9 @@ def simulate_demo(
             staging = put_dir(settings.data_path)  # on the data volume: registering is a rename
             staging.mkdir(parents=True, exist_ok=True)
             with tempfile.TemporaryDirectory(dir=staging, prefix="demo-") as folder:
-                made = simulate_experiment(Path(folder), name, n_test_frames=test_frames, as_zip=True, seed=index)
+                made = simulate_experiment(
+                    Path(folder), name, n_test_frames=test_frames, as_zip=True, seed=index, scenario=scenario
+                )
                 files = {
                     "camera_calibration": made.camera_calibration,
                     "projector_calibration": made.projector_calibration,

@@ -13,7 +13,9 @@ from fringelab.formats.sidecars import z_csv_text
 from fringelab.pipelines.projector_calibration import calibrate_projector_recording
 from fringelab.science import Cancelled
 from fringelab.science.fringes import NoStripesError
+from fringelab.science.order import OrderAgainstTableError
 from fringelab.science.projector import CalibrationMismatchError, ProjectorCalibrationError, build_projector_calibration
+from fringelab.science.topography import locate_test_edges, track_and_measure
 
 from .conftest import MemorySource, RenderedExperiment
 
@@ -109,6 +111,38 @@ def test_z_steps_too_coarse_for_the_stripes_are_refused(kodak: RenderedExperimen
     frames = kodak.calibration_frames[::3][:8]
     with pytest.raises(ProjectorCalibrationError, match="finer Z steps"):
         build_projector_calibration(frames, kodak.calibration_z_mm[::3][:8], kodak.camera)
+
+
+def asked_step_mm(message: str) -> float:
+    return float(message.split("Z steps of at most ")[1].split(" mm")[0])
+
+
+def test_z_steps_that_alias_are_refused_with_the_step_they_need(kodak: RenderedExperiment) -> None:
+    # 10 mm steps move kodak's edges ~0.66 period (0.64 px/mm × 10 mm over a ~10 px period): each step reads as
+    # the same-polarity neighbour moving 0.34 period back, every edge alike, so the step check passes, but each
+    # edge's back-projected positions over Z bend off a straight line by a period's change per step.
+    with pytest.raises(ProjectorCalibrationError, match="Z steps \\(10 mm\\) are too coarse") as raised:
+        build_projector_calibration(kodak.calibration_frames[::5], kodak.calibration_z_mm[::5], kodak.camera)
+    # The step asked for must work: 4 mm steps do (and the 2 mm fixture); the largest true shift per step,
+    # ~0.74 px/mm, allows 0.35 × 9.9 / 0.74 ≈ 4.7 mm.
+    assert 3.5 <= asked_step_mm(str(raised.value)) <= 4.7
+    # 4 mm steps (0.26 period) and 2 mm ones are straight as followed: accepted.
+    build_projector_calibration(kodak.calibration_frames[::2], kodak.calibration_z_mm[::2], kodak.camera)
+
+
+def test_a_table_that_aliased_is_named_by_the_first_deflected_frame(kodak: RenderedExperiment, monkeypatch) -> None:
+    # A table built before the calibration refused aliased steps (a file in a lab's database) runs backwards:
+    # +0.33 instead of −0.64 px/mm. The first frame of the test whose plate moved (here ~9 mm) shows it: its
+    # stripes, ordered from the rim, lie below the table's lowest Z for their order.
+    import fringelab.science.projector as projector_module
+
+    monkeypatch.setattr(projector_module, "_refuse_aliased_steps", lambda *args, **kwargs: None)  # the old build
+    table = build_projector_calibration(kodak.calibration_frames[::5], kodak.calibration_z_mm[::5], kodak.camera)
+    assert np.nanmedian(table.sensitivity_px_per_mm) > 0 > np.nanmedian(kodak.projector.sensitivity_px_per_mm)
+    edges = list(locate_test_edges([kodak.test_frames[0], kodak.test_frames[3]], table))
+    with pytest.raises(OrderAgainstTableError, match="Z steps \\(10 mm\\) were too coarse") as raised:
+        list(track_and_measure(edges, table, kodak.camera))
+    assert 3.5 <= asked_step_mm(str(raised.value)) <= 4.7
 
 
 def test_frames_of_another_camera_and_malformed_input_are_refused(kodak: RenderedExperiment, phantom) -> None:

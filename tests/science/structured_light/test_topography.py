@@ -227,3 +227,24 @@ def test_scan_rays_back_project_as_the_exact_camera_does(kodak: RenderedExperime
     distortion_px = np.hypot(*distortion_mm(rays.ut_mm[[0, -1], [0, -1]], rays.vt_mm[[0, -1], [0, -1]],
                                             camera.camera)) * camera.camera.pixels_per_mm[0]  # fmt: skip
     assert np.min(distortion_px) > 2.0  # the test is about a real lens, not a pinhole
+
+
+def test_a_recording_ordered_nowhere_is_refused_with_the_reason_its_points_had() -> None:
+    from fringelab.science.fields import Peak
+    from fringelab.science.topography import FrameMeasurement, SummaryTally, TopographyError
+
+    def frame(index: int, *, unresolved: int, conflict: int) -> FrameMeasurement:
+        empty = np.zeros(0, np.int32)
+        return FrameMeasurement(
+            frame=index, k=empty, line=empty, points_obj_mm=np.zeros((0, 3)), n_tracks=0, n_ended=0,
+            n_out_of_range=0, n_unmatched=unresolved + conflict, edge_noise_px=0.01,
+            n_order_unresolved=unresolved, n_order_conflict_points=conflict,
+        )  # fmt: skip
+
+    peak = Peak(w_mm=float("nan"), x_mm=0.0, y_mm=0.0, centre_x_mm=float("nan"), centre_y_mm=float("nan"))
+    for (unresolved, conflict), says in {(900, 100): "rim", (100, 900): "disagrees with the projector table"}.items():
+        tally = SummaryTally()
+        for index in (1, 2):
+            tally.add(peak, n_out_of_range=0, measurement=frame(index, unresolved=unresolved, conflict=conflict))
+        with pytest.raises(TopographyError, match=says):
+            tally.require_ordered("test")

@@ -1,0 +1,18 @@
+"""The names of the simulator's virtual tests (`simulate.scenario` makes them), with no imports: the API offers
+them for its demo without loading the renderer. Not here: the scenes and timelines themselves (`simulate.py`)."""
+
+from __future__ import annotations
+
+SCENARIOS = ("quasi-static", "fast", "petals", "highlight", "shadow", "hard")
+
+
+def min_test_frames(scenario_name: str) -> int:
+    """Fewest test frames a scenario's timeline can be made of: 4 for the quasi-static ones (`punch_timeline`),
+    6 for those built on the fast test (`fast_timeline`: a ramp, then three perforated frames).
+
+    >>> min_test_frames("fast")
+    6
+    """
+    if scenario_name not in SCENARIOS:
+        raise ValueError(f"scenario: expected one of {SCENARIOS}, got {scenario_name!r}")
+    return 4 if scenario_name in ("quasi-static", "highlight") else 6
