@@ -82,7 +82,7 @@ def api_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ApiServer]:
            "FRINGELAB_REDIS_URL": redis_server.url, "FRINGELAB_AUTH_ENABLED": "true",
            "FRINGELAB_API_PROCESSES": str(PROCESSES), "FRINGELAB_TOKEN_CACHE_S": str(TOKEN_CACHE_S),
            "FRINGELAB_USER_REQUESTS_PER_S": str(RATE_PER_S), "FRINGELAB_USER_REQUEST_BURST": str(BURST),
-           "FRINGELAB_LOG_LEVEL": "warning"}  # fmt: skip
+           "FRINGELAB_LIST_EVENTS_S": "30", "FRINGELAB_LOG_LEVEL": "warning"}  # fmt: skip
     log = (root / "api.log").open("wb")
     process = subprocess.Popen([sys.executable, "-m", "backend.cli", "api"], env=env, stdout=log,
                                stderr=subprocess.STDOUT, start_new_session=True)  # fmt: skip
