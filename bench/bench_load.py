@@ -175,13 +175,14 @@ def request_mix(job_id: str, running_job_ids: list[str], rng: random.Random) -> 
     return "events", f"/api/v1/jobs/{rng.choice(running_job_ids or [job_id])}/events", {}
 
 
-Result = tuple[str, float, str]  # kind, latency in s, status code or "timeout" / "error:..."
+Result = tuple[str, float, str, float]  # kind, latency in s, status code or "timeout" / "error:...", sent at (unix s)
 
 
 async def one_request(session, token: str, kind: str, path: str, params: dict) -> Result:  # type: ignore[no-untyped-def]
     import aiohttp
 
     headers = {"Authorization": f"Bearer {token}"}
+    sent_at = time.time()
     started = time.perf_counter()
     try:
         async with asyncio.timeout(REQUEST_TIMEOUT_S):
@@ -200,7 +201,7 @@ async def one_request(session, token: str, kind: str, path: str, params: dict) -
         outcome, latency = "timeout", time.perf_counter() - started
     except aiohttp.ClientError as error:
         outcome, latency = f"error:{type(error).__name__}", time.perf_counter() - started
-    return kind, latency, outcome
+    return kind, latency, outcome, sent_at
 
 
 async def _client(base_url: str, tokens: list[str], job_id: str, running: list[str], *, rate: float,
@@ -259,9 +260,10 @@ def probe_process(*arguments: object, **options: object) -> list[Result]:
 
 
 def load(base_url: str, tokens: list[str], probe_token: str, job_id: str, running: list[str], *, rate: float,
-         duration_s: float, connections: int, seed: int) -> tuple[list[Result], list[Result], float]:  # fmt: skip
-    """The load from CLIENT_PROCESSES processes and the probe's from one more; (load, probe, elapsed s)."""
-    start_at = time.time() + 3.0  # every process started and connected by then
+         duration_s: float, connections: int, seed: int,
+         start_at: float) -> tuple[list[Result], list[Result], float]:  # fmt: skip
+    """The load from CLIENT_PROCESSES processes and the probe's from one more, from `start_at` (unix s); (load,
+    probe, elapsed s)."""
     spawn = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=CLIENT_PROCESSES + 1, mp_context=spawn) as pool:
         clients = [
@@ -298,6 +300,15 @@ def serving(processes: list[psutil.Process]) -> list[psutil.Process]:
             if "resource_tracker" not in " ".join(process.cmdline()):
                 kept.append(process)
     return kept
+
+
+def _load_s(moment: str | None, start_at: float) -> str:
+    """An ISO time of the API as seconds from the start of the load."""
+    if not moment:
+        return "-"
+    from datetime import datetime
+
+    return f"{datetime.fromisoformat(moment.replace('Z', '+00:00')).timestamp() - start_at:.0f}"
 
 
 def cpu_s(processes: list[psutil.Process]) -> float:
@@ -360,12 +371,14 @@ def main() -> int:
             workers = system.worker_processes()
             rss_before, api_cpu_before, worker_cpu_before = rss_bytes(api), cpu_s(api), cpu_s(workers)
             load_before = os.getloadavg()
+            start_at = time.time() + 3.0  # every client process started by then
             results, probed, elapsed = load(
                 system.base_url, tokens, probe_token, job["id"], running, rate=args.rate, duration_s=args.duration,
-                connections=args.connections, seed=args.seed,
+                connections=args.connections, seed=args.seed, start_at=start_at,
             )  # fmt: skip
             load_after = os.getloadavg()
             api = system.api_processes()  # the same ones unless one was restarted (then the figure says so)
+            serving_count = len(serving(api))
             rss_after, api_cpu, worker_cpu = (
                 rss_bytes(api),
                 cpu_s(api) - api_cpu_before,
@@ -374,16 +387,18 @@ def main() -> int:
             try:
                 second_jobs = admin.get("/api/v1/jobs", params={"experiment_id": second, "limit": 100}).json()
                 states = Counter(f"{j['kind']}:{j['state']}" for j in second_jobs["items"])
+                spans = {j["kind"]: (j["started_at"], j["finished_at"]) for j in second_jobs["items"]}
             except httpx.HTTPError as error:  # a server still swamped after the load: say so, keep the figures
                 states = Counter({f"unanswered after the load ({type(error).__name__})": 1})
+                spans = {}
             admin.close()
         finally:
             system.stop()
 
-    outcomes = Counter(outcome for _kind, _latency, outcome in results)
-    answered = [latency for _kind, latency, outcome in results if outcome[0].isdigit()]
-    probe_answered = [latency for _kind, latency, outcome in probed if outcome[0].isdigit()]
-    probe_outcomes = Counter(outcome for _kind, _latency, outcome in probed)
+    outcomes = Counter(outcome for _kind, _latency, outcome, _at in results)
+    answered = [latency for _kind, latency, outcome, _at in results if outcome[0].isdigit()]
+    probe_answered = [latency for _kind, latency, outcome, _at in probed if outcome[0].isdigit()]
+    probe_outcomes = Counter(outcome for _kind, _latency, outcome, _at in probed)
     server_errors = sum(count for outcome, count in (outcomes + probe_outcomes).items() if outcome.startswith("5"))
     timeouts = outcomes.get("timeout", 0) + probe_outcomes.get("timeout", 0)
     failures = sum(count for outcome, count in (outcomes + probe_outcomes).items() if outcome.startswith("error"))
@@ -391,22 +406,31 @@ def main() -> int:
     growth = (rss_after - rss_before) / rss_before
     print(f"load: {len(results)} requests in {elapsed:.1f} s ({len(results) / elapsed:.0f}/s asked {args.rate:.0f}/s) "
           f"from {CLIENT_PROCESSES} client processes, at most {args.connections} connections, {len(USERS)} users; "
-          f"web server: {len(serving(api))} processes")  # fmt: skip
+          f"web server: {serving_count} processes")  # fmt: skip
     print(f"answers: {json.dumps(dict(sorted(outcomes.items())))}")
-    by_kind = Counter(kind for kind, _latency, _outcome in results)
+    by_kind = Counter(kind for kind, _latency, _outcome, _at in results)
     print(f"mix: {json.dumps(dict(sorted(by_kind.items())))}")
     print(f"5xx: {server_errors}   timeouts: {timeouts}   connection errors: {failures}   "
           f"429: {outcomes.get('429', 0) + probe_outcomes.get('429', 0)}")  # fmt: skip
     print(f"latency: p50 {p50 * 1000:.0f} ms   p99 {p99 * 1000:.0f} ms   max {max(answered) * 1000:.0f} ms")
+    for kind in sorted(by_kind):
+        of_kind = [latency for k, latency, outcome, _at in results if k == kind and outcome[0].isdigit()]
+        kind_p50, kind_p99 = percentile(of_kind, 50), percentile(of_kind, 99)
+        print(f"  {kind:>8}: p50 {kind_p50 * 1000:4.0f} ms   p99 {kind_p99 * 1000:5.0f} ms")
     if probe_answered:
         probe_p50, probe_p99 = percentile(probe_answered, 50), percentile(probe_answered, 99)
         print(f"probe (one job every {PROBE_INTERVAL_S * 1000:.0f} ms, {len(probed)} asked): "
               f"p50 {probe_p50 * 1000:.0f} ms   p99 {probe_p99 * 1000:.0f} ms   max {max(probe_answered) * 1000:.0f} ms"
               f"   {json.dumps(dict(sorted(probe_outcomes.items())))}")  # fmt: skip
+    slow_at = Counter(int(at - start_at) for _kind, latency, _outcome, at in results + probed if latency > 0.5)
+    if slow_at:
+        print(f"seconds of the load (from 0) with answers over 500 ms, and how many: {dict(sorted(slow_at.items()))}")
     print(f"web server RSS: {rss_before / 2**20:.0f} MiB -> {rss_after / 2**20:.0f} MiB ({growth * 100:+.1f} %)")
     print(f"CPU during the load: web server {api_cpu:.1f} s ({api_cpu / max(1, len(results) + len(probed)) * 1000:.1f} "
           f"ms per request), worker {worker_cpu:.1f} s")  # fmt: skip
     print(f"jobs of the demo run during the load: {dict(states)}")
+    print("  while the load ran from 0 to {:.0f} s: {}".format(elapsed, "; ".join(
+        f"{kind} {_load_s(began, start_at)} to {_load_s(ended, start_at)} s" for kind, (began, ended) in spans.items())))
     print(f"load average (1/5/15 min): before {' '.join(f'{v:.2f}' for v in load_before)}, "
           f"after {' '.join(f'{v:.2f}' for v in load_after)}; {os.cpu_count()} CPUs")  # fmt: skip
     missed = [name for name, ok in (("0 × 5xx", server_errors == 0), ("no timeouts", timeouts == 0 and failures == 0),
