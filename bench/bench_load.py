@@ -429,8 +429,8 @@ def main() -> int:
     print(f"CPU during the load: web server {api_cpu:.1f} s ({api_cpu / max(1, len(results) + len(probed)) * 1000:.1f} "
           f"ms per request), worker {worker_cpu:.1f} s")  # fmt: skip
     print(f"jobs of the demo run during the load: {dict(states)}")
-    print("  while the load ran from 0 to {:.0f} s: {}".format(elapsed, "; ".join(
-        f"{kind} {_load_s(began, start_at)} to {_load_s(ended, start_at)} s" for kind, (began, ended) in spans.items())))
+    ran = [f"{kind} {_load_s(began, start_at)} to {_load_s(ended, start_at)} s" for kind, (began, ended) in spans.items()]
+    print(f"  the load ran from 0 to {elapsed:.0f} s; the jobs: {'; '.join(ran)}")
     print(f"load average (1/5/15 min): before {' '.join(f'{v:.2f}' for v in load_before)}, "
           f"after {' '.join(f'{v:.2f}' for v in load_after)}; {os.cpu_count()} CPUs")  # fmt: skip
     missed = [name for name, ok in (("0 × 5xx", server_errors == 0), ("no timeouts", timeouts == 0 and failures == 0),
