@@ -373,6 +373,12 @@ def main() -> int:
             # The load starts once the second demo's topography job runs (its ingest and calibrations first).
             wait(lambda: _topography_running(admin, second), timeout_s=SETUP_TIMEOUT_S,
                  what="running topography job of the second demo", interval_s=0.5)  # fmt: skip
+            # One topography of 200 frames takes ~10 s here: more of the same keep the worker busy through the load.
+            spec = topography_job(admin, second, finished=False)["spec"]  # type: ignore[index]
+            last = (spec.get("frames") or {}).get("last") or args.running_frames - 1
+            for extra in range(1, int(args.duration // 10) + 2):  # one frame fewer each: not the same spec
+                again = {**spec, "frames": {"first": 0, "last": last - extra}}
+                admin.post("/api/v1/jobs", json=again).raise_for_status()
             running = running_jobs(admin, second)
             share_with_members(admin, [first, second])
             api = system.api_processes()
@@ -395,7 +401,8 @@ def main() -> int:
             try:
                 second_jobs = admin.get("/api/v1/jobs", params={"experiment_id": second, "limit": 100}).json()
                 states = Counter(f"{j['kind']}:{j['state']}" for j in second_jobs["items"])
-                spans = {j["kind"]: (j["started_at"], j["finished_at"]) for j in second_jobs["items"]}
+                spans = {f"{j['kind']} {j['id'][:6]}": (j["started_at"], j["finished_at"])
+                         for j in second_jobs["items"]}  # fmt: skip
             except httpx.HTTPError as error:  # a server still swamped after the load: say so, keep the figures
                 states = Counter({f"unanswered after the load ({type(error).__name__})": 1})
                 spans = {}
@@ -412,7 +419,9 @@ def main() -> int:
     failures = sum(count for outcome, count in (outcomes + probe_outcomes).items() if outcome.startswith("error"))
     p50, p99 = percentile(answered, 50), percentile(answered, 99)
     growth = (rss_after - rss_before) / rss_before
-    print(f"load: {len(results)} requests in {elapsed:.1f} s ({len(results) / elapsed:.0f}/s asked {args.rate:.0f}/s) "
+    sent_s = max(at for *_rest, at in results) - min(at for *_rest, at in results)
+    print(f"load: {len(results)} requests sent over {sent_s:.1f} s ({len(results) / sent_s:.0f}/s, asked "
+          f"{args.rate:.0f}/s; the last answered at {elapsed:.1f} s) "
           f"from {CLIENT_PROCESSES} client processes, at most {args.connections} connections, {len(USERS)} users; "
           f"web server: {serving_count} processes")  # fmt: skip
     print(f"answers: {json.dumps(dict(sorted(outcomes.items())))}")
