@@ -6,6 +6,7 @@ through Redis, what may differ (caches of immutable results, shared polls of eve
 
 from __future__ import annotations
 
+import hashlib
 import logging
 from contextlib import asynccontextmanager
 
@@ -80,7 +81,10 @@ def create_app(settings: Settings) -> FastAPI:
     app.state.fringelab = state
     app.state.polls = SharedPolls(max_age_s=jobs.EVENTS_POLL_S)
     app.state.user_limiter = SharedRateLimiter(
-        redis_url=settings.redis_url, rate_per_s=settings.user_requests_per_s, burst=settings.user_request_burst
+        redis_url=settings.redis_url,
+        rate_per_s=settings.user_requests_per_s,
+        burst=settings.user_request_burst,
+        namespace=hashlib.sha256(settings.resolved_database_url.encode()).hexdigest()[:12],
     )
     install_error_handlers(app)
     app.add_middleware(PlainJsonNumbers, exempt_prefixes=UPLOAD_PREFIXES)  # runs after the size cap below

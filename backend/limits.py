@@ -114,7 +114,9 @@ class SharedRateLimiter:
     TIMEOUT_S = 0.5
     RETRY_S = 1.0
 
-    def __init__(self, *, redis_url: str, rate_per_s: float, burst: int) -> None:
+    def __init__(self, *, redis_url: str, rate_per_s: float, burst: int, namespace: str = "") -> None:
+        """`namespace`: what tells apart the users of different databases sharing one Redis (user ids repeat)."""
+        self.key_prefix = f"{self.KEY_PREFIX}{namespace}:" if namespace else self.KEY_PREFIX
         self.rate_per_s = rate_per_s
         self.burst = burst
         self.local = UserRateLimiter(rate_per_s=rate_per_s, burst=burst)
@@ -128,7 +130,7 @@ class SharedRateLimiter:
         """Take one request from `user`'s bucket: 0 when allowed, else the seconds until one is."""
         if time.monotonic() >= self._down_until_s:
             try:
-                return float(self._take(keys=[f"{self.KEY_PREFIX}{user}"], args=[self.rate_per_s, self.burst]))
+                return float(self._take(keys=[f"{self.key_prefix}{user}"], args=[self.rate_per_s, self.burst]))
             except (redis.RedisError, ValueError):
                 self._down_until_s = time.monotonic() + self.RETRY_S
                 logging.getLogger(__name__).warning("request rates counted per process: Redis did not answer")

@@ -30,7 +30,7 @@ pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
 PROCESSES = 2
 RATE_PER_S = 5.0
-BURST = 20
+BURST = 30
 TOKEN_CACHE_S = 300  # far longer than any test: a process that kept trusting a revoked token would show it
 PEOPLE = ("admin", "ada", "bob", "cy", "dan", "eve")
 
@@ -162,25 +162,24 @@ def test_an_account_disabled_from_the_command_line_is_refused_by_every_process(a
 
 
 def test_a_users_request_rate_counts_over_all_processes(api_server: ApiServer) -> None:
+    started = time.monotonic()  # cy's bucket is full (burst) and refills from here on
     clients = pinned_clients(api_server, "cy", per_process=3)  # each took one request of the bucket
-    started = time.monotonic()
-    sent = len(clients)
     statuses: list[int] = []
     retry_after: list[str] = []
-    for _round in range(3):
+    while len(statuses) < PROCESSES * BURST + 10:  # what per-process buckets would let through, and more
         for client in clients:
             answer = client.get("/api/v1/auth/me")
             statuses.append(answer.status_code)
             if answer.status_code == 429:
                 retry_after.append(answer.headers.get("retry-after", ""))
     elapsed_s = time.monotonic() - started
-    sent += len(statuses)
+    sent = len(clients) + len(statuses)
     allowed = BURST + RATE_PER_S * elapsed_s + 1  # what one bucket refills in the time taken, +1 for rounding
     ok = len(clients) + statuses.count(200)
-    # Counted per process, each would have allowed a whole burst: PROCESSES × BURST.
+    assert set(statuses) <= {200, 429}
     assert ok <= allowed, f"{ok} of {sent} requests allowed in {elapsed_s:.1f} s; one bucket allows {allowed:.0f}"
-    assert statuses.count(429) >= sent - allowed
-    assert retry_after and all(value.isdigit() for value in retry_after)
+    if sent > allowed + 1:  # sent faster than the rate (always, unless the machine is very slow)
+        assert retry_after and all(value.isdigit() for value in retry_after)
     for client in clients:
         client.close()
 
