@@ -384,6 +384,7 @@ def main() -> int:
             api = system.api_processes()
             workers = system.worker_processes()
             rss_before, api_cpu_before, worker_cpu_before = rss_bytes(api), cpu_s(api), cpu_s(workers)
+            each_before = {process.pid: cpu_s([process]) for process in serving(api)}
             load_before = os.getloadavg()
             start_at = time.time() + 3.0  # every client process started by then
             results, probed, elapsed = load(
@@ -393,6 +394,8 @@ def main() -> int:
             load_after = os.getloadavg()
             api = system.api_processes()  # the same ones unless one was restarted (then the figure says so)
             serving_count = len(serving(api))
+            # How evenly the kernel spread the connections: each serving process's share of the CPU time.
+            each_cpu = [cpu_s([process]) - each_before.get(process.pid, 0.0) for process in serving(api)]
             rss_after, api_cpu, worker_cpu = (
                 rss_bytes(api),
                 cpu_s(api) - api_cpu_before,
@@ -443,8 +446,10 @@ def main() -> int:
     if slow_at:
         print(f"seconds of the load (from 0) with answers over 500 ms, and how many: {dict(sorted(slow_at.items()))}")
     print(f"web server RSS: {rss_before / 2**20:.0f} MiB -> {rss_after / 2**20:.0f} MiB ({growth * 100:+.1f} %)")
-    print(f"CPU during the load: web server {api_cpu:.1f} s ({api_cpu / max(1, len(results) + len(probed)) * 1000:.1f} "
-          f"ms per request), worker {worker_cpu:.1f} s")  # fmt: skip
+    per_request_ms = api_cpu / max(1, len(results) + len(probed)) * 1000
+    by_process = " ".join(f"{t:.1f}" for t in each_cpu)
+    print(f"CPU during the load: web server {api_cpu:.1f} s ({per_request_ms:.1f} ms per request; by process "
+          f"{by_process} s), worker {worker_cpu:.1f} s")  # fmt: skip
     print(f"jobs of the demo run during the load: {dict(states)}")
     ran = []
     for kind, (begun, ended) in spans.items():
