@@ -25,6 +25,9 @@ def test_up_runs_everything_and_sigterm_leaves_no_child(tmp_path):
         names = " ".join(" ".join(c.cmdline()) for c in children)
         assert "redis-server" in names and " worker" in names and " api" in names
         assert sum("worker" in " ".join(c.cmdline()) for c in children) >= 2  # the worker and its pool processes
+        # The worker computes at FRINGELAB_WORKER_NICE (10), the web server at the priority `up` has (0).
+        assert {c.nice() for c in children if "worker" in " ".join(c.cmdline())} == {10}
+        assert {c.nice() for c in children if " api" in " ".join(c.cmdline())} == {psutil.Process().nice()}
 
         redis_url = re.search(r"Redis (redis://\S+)\)", up.log()).group(1)  # type: ignore[union-attr]
         assert redis_url != "redis://127.0.0.1:6379/0"  # its own Redis, not the user's

@@ -1,0 +1,69 @@
+"""What several API processes share through Redis, checked with two instances in this process (the real
+processes: tests/system/test_api_processes.py): the token caches' access generation and the request rates, and
+what happens while Redis does not answer (no cached token is trusted; rates are counted per process)."""
+
+from __future__ import annotations
+
+import pytest
+from sqlalchemy import select
+
+from backend.limits import SharedRateLimiter
+from fringelab.core.accounts import AuthError, TokenCache, create_user, issue_token
+from fringelab.core.db import make_engine, make_sessionmaker
+from fringelab.core.models import ApiToken, utcnow
+from fringelab.core.services import free_port
+from fringelab.core.settings import Settings
+
+HOUR_S = 3600.0  # a cache lifetime no test outlasts: what is refused is refused because of the generation
+
+
+def _token(settings: Settings):  # type: ignore[no-untyped-def]
+    sessions = make_sessionmaker(make_engine(settings.resolved_database_url))
+    with sessions() as session:
+        _row, secret = issue_token(session, create_user(session, "ada", "ada-password"))
+        session.commit()
+    return sessions, secret
+
+
+def _revoke(sessions, secret: str) -> None:  # type: ignore[no-untyped-def]
+    with sessions() as session:
+        session.scalar(select(ApiToken)).revoked_at = utcnow()
+        session.commit()
+
+
+def test_a_revocation_forgotten_in_one_cache_is_forgotten_in_every_other(settings: Settings):
+    sessions, secret = _token(settings)
+    here, there = (TokenCache(ttl_s=HOUR_S, redis_url=settings.redis_url) for _ in range(2))
+    assert here.resolve(sessions, secret).username == there.resolve(sessions, secret).username == "ada"
+    _revoke(sessions, secret)
+    assert there.resolve(sessions, secret).username == "ada"  # cached: the database is not asked again
+    here.forget()  # what the API does after a revocation (and `fringelab user` through Redis)
+    for cache in (here, there):
+        with pytest.raises(AuthError, match="revoked"):
+            cache.resolve(sessions, secret)
+
+
+def test_without_redis_no_checked_token_is_trusted(settings: Settings):
+    sessions, secret = _token(settings)
+    cache = TokenCache(ttl_s=HOUR_S, redis_url=f"redis://127.0.0.1:{free_port()}/0")  # nobody listens there
+    assert cache.resolve(sessions, secret).username == "ada"  # requests are still served, from the database
+    _revoke(sessions, secret)
+    with pytest.raises(AuthError, match="revoked"):  # not trusted while Redis cannot say whether it changed
+        cache.resolve(sessions, secret)
+
+
+def test_request_rates_are_counted_once_over_every_limiter(settings: Settings):
+    namespace = f"test-{free_port()}"  # buckets of this test only, in the tests' shared Redis
+    one, two = (
+        SharedRateLimiter(redis_url=settings.redis_url, rate_per_s=0.001, burst=4, namespace=namespace)
+        for _ in range(2)
+    )
+    waits = [limiter.take(7) for limiter in (one, two, one, two, one, two)]
+    assert waits[:4] == [0.0] * 4  # the burst, shared
+    assert all(wait > 100 for wait in waits[4:])  # then one request per 1000 s
+    assert one.take(8) == 0.0  # another user has a bucket of their own
+
+
+def test_without_redis_rates_are_counted_per_limiter(settings: Settings):
+    limiter = SharedRateLimiter(redis_url=f"redis://127.0.0.1:{free_port()}/0", rate_per_s=0.001, burst=2)
+    assert [limiter.take("ada") > 0 for _ in range(3)] == [False, False, True]
