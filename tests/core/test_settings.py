@@ -51,3 +51,22 @@ def test_settings_are_read_when_built_not_at_import(monkeypatch, tmp_path):
     assert Settings(_env_file=None).port == 9001  # type: ignore[call-arg]
     monkeypatch.setenv("FRINGELAB_PORT", "9002")
     assert Settings(_env_file=None).port == 9002  # type: ignore[call-arg]
+
+
+@pytest.mark.parametrize(
+    ("processes", "connections", "threads"),
+    [(1, 50, 40), (2, 45, 40), (4, 22, 22), (8, 11, 11)],  # 40 threads + 10, within 90 / processes
+)
+def test_the_web_servers_database_connections_stay_within_the_total(processes, connections, threads):
+    """N API processes × a pool sized for one once exceeded PostgreSQL's 100 connections: each process gets its
+    share of FRINGELAB_DB_MAX_CONNECTIONS (90), and no more threads than connections (a thread without one waits)."""
+    settings = Settings(_env_file=None, api_processes=processes)  # type: ignore[call-arg]
+    assert (settings.resolved_db_pool_size, settings.resolved_api_threads) == (connections, threads)
+    assert processes * settings.resolved_db_pool_size <= settings.db_max_connections
+    assert Settings(_env_file=None, api_processes=8, db_pool_size=30).resolved_db_pool_size == 30  # type: ignore[call-arg]
+
+
+def test_the_default_web_server_processes_follow_the_cores():
+    import os
+
+    assert Settings(_env_file=None).resolved_api_processes == max(1, min(8, os.cpu_count() or 1))  # type: ignore[call-arg]
