@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import re
 from contextlib import asynccontextmanager
 
 import anyio
@@ -35,7 +36,13 @@ from fringelab.core.queue import create_celery
 from fringelab.core.settings import Settings
 from fringelab.core.state import AppState
 
-UPLOAD_PREFIXES = ("/api/v1/uploads",)
+# The routes that stream a request body to disk under FRINGELAB_MAX_UPLOAD_BYTES instead of the JSON cap: the
+# recordings' uploads and a simulation's PUT (a model of many MB).
+UPLOAD_PATHS = re.compile(r"/api/v1/(?:uploads(?:/|$)|experiments/[^/]+/simulations/[^/]+$)")
+
+
+def is_upload_path(path: str) -> bool:
+    return UPLOAD_PATHS.match(path) is not None
 
 
 def create_app(settings: Settings) -> FastAPI:
@@ -75,8 +82,8 @@ def create_app(settings: Settings) -> FastAPI:
     app.state.fringelab = state
     app.state.user_limiter = UserRateLimiter(rate_per_s=settings.user_requests_per_s, burst=settings.user_request_burst)
     install_error_handlers(app)
-    app.add_middleware(PlainJsonNumbers, exempt_prefixes=UPLOAD_PREFIXES)  # runs after the size cap below
-    app.add_middleware(BodySizeLimit, max_bytes=settings.max_json_bytes, exempt_prefixes=UPLOAD_PREFIXES)
+    app.add_middleware(PlainJsonNumbers, exempt=is_upload_path)  # runs after the size cap below
+    app.add_middleware(BodySizeLimit, max_bytes=settings.max_json_bytes, exempt=is_upload_path)
     app.add_middleware(
         SecurityHeaders, allowed_origins=settings.allowed_origin_list, docs_prefixes=("/api/docs", "/api/redoc")
     )

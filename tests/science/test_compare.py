@@ -195,6 +195,36 @@ def test_model_larger_than_the_plate() -> None:
         compare.map_model(results, PLATE)
 
 
+def test_a_wrong_unit_that_was_given_is_refused_not_compared() -> None:
+    """A model in metres declared (or set) as mm is a speck on the plate: compared as it is, every difference
+    would be the whole deflection. It is refused, naming the setting, in the CLI's and in the form's terms."""
+    in_metres = as_results(true_plate_model(SCENE, TIMELINE, resolution=0.2), scale=1e-3, unit="mm")
+    with pytest.raises(compare.ComparisonError, match=r"far smaller than the measured plate.*--units mm\|m") as caught:
+        compare.map_model(in_metres, PLATE)
+    form = compare.in_form_terms(str(caught.value))
+    assert "“Units” mm or m" in form and "--" not in form
+    set_wrong = as_results(true_plate_model(SCENE, TIMELINE, resolution=0.2), scale=1e-3)
+    with pytest.raises(compare.ComparisonError, match=r"in mm as set"):
+        compare.map_model(set_wrong, PLATE, compare.MappingSettings(length_unit="mm"))
+    assert compare.map_model(set_wrong, PLATE, compare.MappingSettings(length_unit="m")).mapping.length_unit == "m"
+
+
+def test_the_last_state_keeps_its_punch_travel_when_the_history_was_printed_rounded() -> None:
+    """nodout and rcforc print times with 6 to 8 digits, d3plot holds them as float32: the last state's time can
+    lie a hair after the history's last, and its punch travel (and with it the state) must not be lost."""
+    model = true_plate_model(SCENE, TIMELINE, resolution=0.2)
+    printed = np.array([float(f"{t:.5E}") for t in model.time_s])  # as rcforc prints: up to 5e-6 relative off
+    state_time = model.time_s.astype(np.float32).astype(np.float64) * (1 + 2e-6)  # a hair later than printed
+    results = FEResults(**{**as_results(model).__dict__, "time": state_time, "punch_time": printed})
+    mapped = compare.map_model(results, PLATE)
+    travel = compare.state_punch_mm(mapped)
+    assert travel is not None and np.all(np.isfinite(travel))
+    np.testing.assert_allclose(travel[-1], model.punch_displacement_mm[-1], rtol=1e-3)
+    # beyond round-off the history does not reach: no travel there
+    outside = compare.interpolate_history(np.array([2.0 * printed[-1]]), printed, model.punch_displacement_mm)
+    assert np.isnan(outside[0])
+
+
 def test_model_offset_from_the_plate() -> None:
     results = as_results(true_plate_model(SCENE, TIMELINE, resolution=0.2))
     model = compare.map_model(results, PLATE, compare.MappingSettings(origin_xy_mm=(400.0, 0.0)))
