@@ -163,7 +163,18 @@ def comparison_profile(
 
 
 class ComparisonPreviewIn(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [
+                {
+                    "spec": {"kind": "comparison", "job_id": "6f1c2b8e-2d4a-4f6e-9a51-3c7d0e9b2f10", "simulation_id": 1,
+                             "align": "displacement", "units": "mm", "symmetry": "quarter"},
+                    "frame": 5,
+                }
+            ]
+        },
+    )  # fmt: skip
 
     spec: ComparisonSpec = Field(description="The comparison job's spec as the form has it now (format is ignored).")
     frame: int | None = Field(
