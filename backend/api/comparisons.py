@@ -31,6 +31,7 @@ from fringelab.core.specs import ComparisonSpec
 from fringelab.formats.comparison import FRAME_COLUMNS, SIMULATION_COLUMNS, ComparisonResult
 from fringelab.formats.hdf5 import json_text
 from fringelab.formats.topography import GRID_BUDGET_NODES, ResultUnavailable
+from fringelab.science.compare import in_form_terms
 
 router = APIRouter(tags=["results"])
 COMPARISON_FILE = "comparison.h5"
@@ -64,10 +65,17 @@ def _position(reader: ComparisonResult, frame: int) -> int:
         raise job_error(Invalid, "frame_not_in_result", str(error), field="frame") from None
 
 
+def _in_form_terms(mapping: dict[str, Any]) -> dict[str, Any]:
+    """The mapping with its notes naming settings as the mapping form and the job spec do (not the CLI's options)."""
+    return {**mapping, "notes": [in_form_terms(note) for note in mapping.get("notes", [])]}
+
+
 class ComparisonOverview(BaseModel):
     job_id: str
     alignment: str = Field(description="displacement, time or peak: how frames were paired with states.")
-    mapping: dict[str, Any] = Field(description="Every mapping choice; `detected` lists those detected, with notes.")
+    mapping: dict[str, Any] = Field(
+        description="Every mapping choice; `detected` lists those detected, with notes (settings named as in the spec)."
+    )
     frames: dict[str, list[Any]] = Field(
         description="Per frame: frame, state_lo (−1: no partner), n_nodes, reason, the measured test log, the "
         "simulated blend (sim_*), rms_diff_mm, max_diff_mm, mean_diff_mm, fraction_beyond_2sigma; null: not compared."
@@ -97,7 +105,7 @@ def comparison_overview(job: JobDep, state: StateDep) -> ComparisonOverview:
         return ComparisonOverview(
             job_id=job.id,
             alignment=str(reader.file.attrs.get("alignment", "")),
-            mapping=json.loads(json.dumps(reader.mapping, default=str)),
+            mapping=_in_form_terms(json.loads(json.dumps(reader.mapping, default=str))),
             frames=frames,
             simulation=simulation,
             grid={

@@ -9,7 +9,7 @@ import { COLORS, Figure, axis, fieldRows, lineLayout, lineTraces, mapLayout, map
 import { attempt, field, fill, h, num, page, showError } from "../ui.js";
 import { comparisonExportPanel } from "./exports.js";
 import { jobName, shortId } from "./jobs.js";
-import { profileTraces } from "./simulations.js";
+import { bandTrace, profileTraces, stateText } from "./simulations.js";
 
 const FIELDS = {
   diff_mm: { label: "difference w_meas − w_sim", value: "Δw" },
@@ -152,7 +152,7 @@ class ComparisonView {
     if (f.time_s[i] !== null) facts.push(`t = ${num(f.time_s[i], 4)} s`);
     if (f.punch_displacement_mm[i] !== null) facts.push(`punch ${num(f.punch_displacement_mm[i], 2)} mm`);
     if (f.state_lo[i] >= 0) {
-      facts.push(`simulation state ${f.state_lo[i]}${f.state_fraction[i] > 0 ? ` + ${num(f.state_fraction[i], 2)}` : ""}`);
+      facts.push(`simulation ${stateText(f.state_lo[i], f.state_fraction[i])}`);
       facts.push(`RMS difference ${num(f.rms_diff_mm[i], 3)} mm, largest ${num(f.max_diff_mm[i], 3)} mm over ${f.n_nodes[i]} nodes`);
       if (f.fraction_beyond_2sigma[i] !== null) facts.push(`${num(100 * f.fraction_beyond_2sigma[i], 1)} % beyond 2σ`);
     } else {
@@ -176,14 +176,19 @@ class ComparisonView {
     this.shownMap = { name, frame, field: { x: cut.x_mm, y: cut.y_mm, z: cut.values_mm }, step: cut.step };
     const f = this.overview.frames;
     let range = null;
+    let rangeNote = "";
     if (name === "diff_mm") {
-      const reach = Math.max(...finite(f.max_diff_mm), 1e-3);
-      range = [-reach, reach]; // one symmetric range for every frame: white is agreement
+      // One symmetric range for every frame (white is agreement), wide enough for the typical differences:
+      // four times the largest RMS, so that a few outliers at the data's edge do not wash the map out.
+      const largest = Math.max(...finite(f.max_diff_mm), 1e-3);
+      const reach = Math.min(largest, Math.max(4 * Math.max(...finite(f.rms_diff_mm), 0), 0.05));
+      range = [-reach, reach];
+      rangeNote = reach < largest ? `, clipped at ±${num(reach, 2)}` : "";
     } else if (name !== "sigma_w_mm") {
       const top = Math.max(...finite(f.peak_w_mm), ...finite(this.overview.simulation.peak_w_mm), 1e-3);
       range = [-top, top];
     }
-    const traces = mapTraces(this.shownMap.field, { range, valueName: FIELDS[name].value, rangeNote: name === "diff_mm" ? ", meas. − sim." : "" });
+    const traces = mapTraces(this.shownMap.field, { range, valueName: FIELDS[name].value, rangeNote });
     if (name === "sigma_w_mm") Object.assign(traces[0], { colorscale: "Viridis", zmid: undefined, zmin: 0 });
     const plotLayout = { ...mapLayout({ uirevision: "comparison-map" }), dragmode: "zoom" };
     const i = this.position;
@@ -226,6 +231,11 @@ class ComparisonView {
     this.shownProfile = { along, frame, profile, beyond };
     const traces = profileTraces(profile);
     const marked = beyond.filter(Boolean).length;
+    // On a second axis: the difference itself within ±2σ of the measurement (the band it must stay in).
+    const difference = profile.s_mm.map((_, k) => (profile.measured_mm[k] !== null && profile.simulated_mm[k] !== null ? profile.measured_mm[k] - profile.simulated_mm[k] : null));
+    const twoSigma = profile.sigma_mm.map((sigma, k) => (sigma !== null && difference[k] !== null ? 2 * sigma : null));
+    traces.push(bandTrace(profile.s_mm, twoSigma.map((v) => (v === null ? null : -v)), twoSigma, { name: "±2σ", color: "rgba(120,120,120,0.3)", yaxis: "y2" }));
+    traces.push({ type: "scatter", mode: "lines", name: "difference meas. − sim.", x: profile.s_mm, y: difference, yaxis: "y2", line: { color: "#111", width: 1, dash: "dot" }, connectgaps: false });
     traces.push({
       type: "scatter", mode: "markers", name: "|w_meas − w_sim| > 2σ",
       x: profile.s_mm.filter((_, k) => beyond[k]), y: profile.measured_mm.filter((_, k) => beyond[k]),
@@ -233,11 +243,12 @@ class ComparisonView {
     });
     const known = beyond.map((_, k) => profile.measured_mm[k] !== null && profile.simulated_mm[k] !== null && profile.sigma_mm[k] !== null).filter(Boolean).length;
     this.profileStats.textContent = profile.simulated_mm.some((v) => v !== null)
-      ? `${marked} of ${known} points along the profile differ by more than 2σ of the measurement (marked ×); the band is measured ± σ.`
+      ? `${marked} of ${known} points along the profile differ by more than 2σ of the measurement (marked ×); the blue band is measured ± σ, the grey one ±2σ around the difference (right axis).`
       : `Frame ${frame} was not compared: no simulated profile.`;
     return this.profileFigure.react(traces, lineLayout({
       xAxis: axis(`distance along ${along.toUpperCase()} through the punch axis`, "mm"),
       yAxis: axis("deflection w", "mm"),
+      y2Axis: axis("difference w_meas − w_sim", "mm"),
     }));
   }
 

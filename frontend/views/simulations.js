@@ -17,17 +17,43 @@ function detectSelect(choices, detectText = "detect") {
   return h("select", {}, h("option", { value: "" }, detectText), choices.map(([value, text]) => h("option", { value }, text)));
 }
 
+/**
+ * A band between `lower` and `upper` (arrays with null where unknown) along `s`: one closed polygon per run of
+ * known values (filled "toself", runs apart by a null), so that a gap in the data stays a gap in the band.
+ */
+export function bandTrace(s, lower, upper, { name, color, yaxis = "y" }) {
+  const xs = [];
+  const ys = [];
+  let run = [];
+  const flush = () => {
+    if (run.length > 1) {
+      const back = [...run].reverse();
+      xs.push(...run.map((k) => s[k]), ...back.map((k) => s[k]), null);
+      ys.push(...run.map((k) => upper[k]), ...back.map((k) => lower[k]), null);
+    }
+    run = [];
+  };
+  s.forEach((_, k) => (upper[k] === null || lower[k] === null ? flush() : run.push(k)));
+  flush();
+  return { type: "scatter", mode: "lines", name, x: xs, y: ys, yaxis, fill: "toself", fillcolor: color, line: { width: 0 }, hoverinfo: "skip" };
+}
+
 /** The ±σ band, the measured and the simulated profile: traces of one preview or comparison profile. */
 export function profileTraces(profile, { measuredName = "measured", simulatedName = "simulated" } = {}) {
-  const upper = profile.measured_mm.map((w, i) => (w === null || profile.sigma_mm[i] === null ? null : w + profile.sigma_mm[i]));
-  const lower = profile.measured_mm.map((w, i) => (w === null || profile.sigma_mm[i] === null ? null : w - profile.sigma_mm[i]));
-  const band = { type: "scatter", mode: "lines", x: profile.s_mm, line: { width: 0, color: COLORS[0] }, hoverinfo: "skip", connectgaps: false };
+  const known = (w, k) => w !== null && profile.sigma_mm[k] !== null;
+  const upper = profile.measured_mm.map((w, k) => (known(w, k) ? w + profile.sigma_mm[k] : null));
+  const lower = profile.measured_mm.map((w, k) => (known(w, k) ? w - profile.sigma_mm[k] : null));
   return [
-    { ...band, name: "measured + σ", y: upper, showlegend: false },
-    { ...band, name: "measured ± σ", y: lower, fill: "tonexty", fillcolor: "rgba(31,119,180,0.2)" },
+    bandTrace(profile.s_mm, lower, upper, { name: "measured ± σ", color: "rgba(31,119,180,0.25)" }),
     { type: "scatter", mode: "lines", name: measuredName, x: profile.s_mm, y: profile.measured_mm, line: { color: COLORS[0], width: 2 }, connectgaps: false },
     { type: "scatter", mode: "lines", name: simulatedName, x: profile.s_mm, y: profile.simulated_mm, line: { color: COLORS[1], width: 2, dash: "dash" }, connectgaps: false },
   ];
+}
+
+/** "state 5", "state 5 + 0.25 toward 6": where a frame lies among the simulation's states. */
+export function stateText(lo, fraction) {
+  if (fraction >= 0.9995) return `state ${lo + 1}`;
+  return fraction > 0.0005 ? `state ${lo} + ${num(fraction, 2)} toward ${lo + 1}` : `state ${lo}`;
 }
 
 // ---- the list and the upload -----------------------------------------------------------------------------------
@@ -154,7 +180,7 @@ function mappingForm({ context, simulations, topographies }) {
   };
   const unitsConfirmed = h("input", { type: "checkbox", id: "units-confirmed" });
   const unitsLabel = h("label", { for: "units-confirmed" }, "The model's units are as detected");
-  const unitsConfirm = h("div", { class: "field check-field wide-row", hidden: true }, h("span", {}, unitsConfirmed, " ", unitsLabel));
+  const unitsConfirm = h("div", { class: "field check-field", style: "grid-column: 1 / -1", hidden: true }, h("span", {}, unitsConfirmed, " ", unitsLabel));
   const previewAxis = field("Preview profile along", h("select", {}, h("option", { value: "x" }, "X through the punch axis"), h("option", { value: "y" }, "Y through the punch axis")));
   const previewFrame = field("Preview frame", h("select", {}, h("option", { value: "" }, "the most deflected paired frame")));
   const previewFigure = new Figure({ name: "Mapping preview", filename: "mapping-preview", height: 340, csv: () => previewCSV() });
@@ -254,8 +280,8 @@ function mappingForm({ context, simulations, topographies }) {
       const f = answer.frames;
       const i = f.frame.indexOf(answer.frame);
       const paired = f.state_lo.filter((s) => s >= 0).length;
-      previewState.textContent = `Frame ${answer.frame} (peak ${num(f.peak_w_mm[i], 2)} mm) against state ${f.state_lo[i]}`
-        + `${f.state_fraction[i] > 0 ? ` + ${num(f.state_fraction[i], 2)} toward the next` : ""} · ${paired} of ${f.frame.length} frames paired `
+      previewState.textContent = `Frame ${answer.frame} (peak ${num(f.peak_w_mm[i], 2)} mm) against ${stateText(f.state_lo[i], f.state_fraction[i])}`
+        + ` · ${paired} of ${f.frame.length} frames paired `
         + `by ${answer.alignment} · the measurement covers ${Math.round(100 * answer.overlap_fraction)} % of the model.`;
       showDetected(answer.mapping);
       fill(unpaired, f.frame.map((frame, k) => (f.reason[k] ? h("li", {}, `Frame ${frame} not compared: ${f.reason[k]}`) : null)));
@@ -307,7 +333,7 @@ function mappingForm({ context, simulations, topographies }) {
     h("h3", {}, "Compare with a simulation"),
     h("div", { class: "grid-form" }, topography.wrap, simulation.wrap),
     h("fieldset", { class: "sub-spec" }, h("legend", {}, "Mapping onto the plate and time alignment"),
-      h("div", { class: "grid-form" }, Object.values(controls).map((f) => f.wrap), unitsConfirm)),
+      Object.values(controls).map((f) => f.wrap), unitsConfirm),
     h("div", { class: "compare-controls" }, previewAxis.wrap, previewFrame.wrap),
     previewState,
     previewError,
