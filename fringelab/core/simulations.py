@@ -110,7 +110,7 @@ def read_simulation_summary(folder: Path, *, filename: str) -> dict[str, Any]:
     from fringelab.formats.simulations import open_simulation
 
     try:
-        results = open_simulation(folder)
+        results = open_simulation(folder, punch_needed=False)  # a nodout of several nodes: chosen when compared
     except (ValueError, KeyError, IndexError, OSError, EOFError) as error:
         message = str(error).replace(str(folder) + "/", "").replace(str(folder), filename)
         raise Invalid(f"{filename}: not a simulation fringelab reads: {message}", code="invalid_simulation") from None

@@ -249,3 +249,31 @@ def test_an_unsafe_zip_is_refused_and_a_simulation_in_use_is_not_deleted(client,
     assert refused.status_code == 409 and refused.json()["code"] == "in_use", refused.text
     assert "cmp-1" in refused.json()["detail"]
     assert client.get(f"/api/v1/simulations/{simulation['id']}").status_code == 200
+
+
+def test_a_nodout_of_several_nodes_is_uploaded_and_its_punch_node_chosen_in_the_form(
+    client,
+    settings,
+    measured,  # noqa: F811
+    tmp_path,
+) -> None:  # type: ignore[no-untyped-def]
+    """An upload reads the model whatever its nodout holds; the comparison (and its preview) then needs the punch
+    node when nodout lists several, and says which ones, naming the form's setting."""
+    from fringelab.formats.simulation_lsdyna_ascii import read_nodout, write_nodout
+
+    experiment = client.post("/api/v1/experiments", json={"name": "plate"}).json()
+    jobs = add_topography_jobs(settings, experiment["id"], measured.result)
+    folder = write_true_simulation(measured.truth_json, tmp_path / "fe", kind="vtu")
+    punch = read_nodout(folder / "nodout")
+    both = np.concatenate([punch.displacement, np.zeros_like(punch.displacement)], axis=1)
+    write_nodout(folder / "nodout", time=punch.time, node_ids=np.array([9001, 9002]), displacement=both,
+                 coordinates=np.zeros((2, 3)))  # fmt: skip
+    uploaded = client.put(f"/api/v1/experiments/{experiment['id']}/simulations/fe.zip", content=zipped(folder))
+    assert uploaded.status_code == 201, uploaded.text
+    spec = {"kind": "comparison", "job_id": jobs["done"], "simulation_id": uploaded.json()["id"]}
+    unchosen = client.post("/api/v1/comparisons/preview", json={"spec": spec})
+    assert unchosen.status_code == 422, unchosen.text
+    assert "9001, 9002" in unchosen.json()["detail"] and "“Punch node”" in unchosen.json()["detail"], unchosen.text
+    chosen = client.post("/api/v1/comparisons/preview", json={"spec": {**spec, "punch_node": 9001}})
+    assert chosen.status_code == 200, chosen.text
+    assert chosen.json()["frames"]["reason"] == [""] * 8

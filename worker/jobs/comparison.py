@@ -45,8 +45,8 @@ def comparison_body(context: JobContext) -> dict[str, Any]:
                 contact_interface=spec.get("contact_interface"),
                 progress=lambda done, total, stage: context.progress(done, total, stage),
             )
-    except ComparisonError as error:  # named as the mapping form and the spec name the setting to change
-        raise ComparisonError(in_form_terms(str(error))) from None
+    except (ComparisonError, ValueError) as error:  # the setting to change named as the mapping form names it
+        raise type(error)(in_form_terms(str(error))) from None
     fmt = spec.get("format")
     if fmt:
         name, media = COMPARISON_EXPORT_FILES[fmt]
