@@ -324,7 +324,7 @@ def preview_comparison(
             return {
                 "frame": int(result.frames[i]),
                 "alignment": spec.get("align") or "displacement",
-                "mapping": {**mapping, "notes": [in_form_terms(note) for note in mapping["notes"]]},
+                "mapping": {**mapping, "notes": [in_form_terms(str(note)) for note in pairing.model.mapping.notes]},
                 "overlap_fraction": float(pairing.overlap),
                 "axis_xy_mm": [axis_x, axis_y],
                 "frames": {
