@@ -12,8 +12,11 @@ folder is in place and read, so a refused upload leaves neither a row nor files.
 from __future__ import annotations
 
 import shutil
+import threading
 import uuid
 import zipfile
+from collections import OrderedDict
+from collections.abc import Callable
 from pathlib import Path, PurePosixPath
 from typing import Any
 
@@ -272,6 +275,32 @@ def _preview_inputs(
     return result, settings.data_path / simulation.path
 
 
+class _RecentPairings:
+    """The last few pairings the preview made, by what they were made from: a preview that only changes the frame
+    shown is answered at once, not paired again (pairing a model whose origin is fitted takes seconds). Few, as a
+    pairing holds its simulation's states in memory."""
+
+    def __init__(self, size: int = 2) -> None:
+        self.size = size
+        self._items: OrderedDict[tuple[Any, ...], Any] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, key: tuple[Any, ...], make: Callable[[], Any]) -> Any:
+        with self._lock:
+            if key in self._items:
+                self._items.move_to_end(key)
+                return self._items[key]
+        made = make()  # outside the lock: another preview need not wait for this one
+        with self._lock:
+            self._items[key] = made
+            while len(self._items) > self.size:
+                self._items.popitem(last=False)
+        return made
+
+
+_PAIRINGS = _RecentPairings()
+
+
 def preview_comparison(
     session: Session, settings: Settings, principal: Principal, spec: dict[str, Any], *, frame: int | None = None
 ) -> dict[str, Any]:
@@ -287,14 +316,26 @@ def preview_comparison(
     from fringelab.science.fields import line_profile
 
     result_path, simulation_path = _preview_inputs(session, settings, principal, spec)
+    mapping_choices = mapping_settings(spec)
+    align = spec.get("align") or "displacement"
+    punch = (spec.get("punch_node"), spec.get("contact_interface"))
     try:
-        simulation = open_simulation(
-            simulation_path, punch_node=spec.get("punch_node"), contact_interface=spec.get("contact_interface")
-        )
         with TopographyResult(result_path) as result:
-            pairing = pair_result(
-                result, simulation, mapping=mapping_settings(spec), align=spec.get("align") or "displacement"
+
+            def pair() -> Any:
+                simulation = open_simulation(simulation_path, punch_node=punch[0], contact_interface=punch[1])
+                return pair_result(result, simulation, mapping=mapping_choices, align=align)
+
+            key = (
+                str(result_path),
+                result_path.stat().st_mtime_ns,
+                str(simulation_path),
+                punch,
+                mapping_choices,
+                align,
             )
+            pairing = _PAIRINGS.get(key, pair)
+            simulation = pairing.model.results
             alignment = pairing.alignment
             aligned = np.flatnonzero(alignment.aligned)
             if frame is None:
