@@ -325,6 +325,19 @@ class MappedModel:
         """The simulated deflection w (ny, nx) of one state on the grid (linear on the model's triangles, NaN
         outside the model)."""
         xy, w = self.surface_w(state)
+        return self._rasterize(xy, w, grid)
+
+    def sample_between(self, state_lo: int, fraction: float, grid: Grid) -> np.ndarray:
+        """w (ny, nx) on the grid of the surface blended between two states node by node ((1 − f)·state_lo +
+        f·(state_lo + 1) of positions and w): one rasterization, where `StateSampler.at` blends two grids. The
+        same up to the in-plane motion between the states; for fitting, which samples a blend many times."""
+        if fraction <= 0.0 or state_lo + 1 >= self.results.n_states:
+            return self.sample(state_lo, grid)
+        xy0, w0 = self.surface_w(state_lo)
+        xy1, w1 = self.surface_w(state_lo + 1)
+        return self._rasterize((1.0 - fraction) * xy0 + fraction * xy1, (1.0 - fraction) * w0 + fraction * w1, grid)
+
+    def _rasterize(self, xy: np.ndarray, w: np.ndarray, grid: Grid) -> np.ndarray:
         corner_xy, corner_w = [], []
         for sx, sy in _unfolds(self.mapping.symmetry):
             plate_xy = self._to_plate_xy(xy * np.array([sx, sy]))
@@ -689,10 +702,7 @@ def fit_origin(model: MappedModel, grid: Grid, measured_w: np.ndarray, *, state_
         if np.hypot(*offset) > search_mm:
             return 1e6 + float(np.hypot(*offset))
         moved = model.with_origin((start[0] + offset[0], start[1] + offset[1]))
-        w_sim = moved.sample(state_lo, grid)
-        if fraction > 0 and state_lo + 1 < model.results.n_states:
-            w_sim = (1.0 - fraction) * w_sim + fraction * moved.sample(state_lo + 1, grid)
-        diff = measured_w - w_sim
+        diff = measured_w - moved.sample_between(state_lo, fraction, grid)
         both = np.isfinite(diff)
         return float(np.mean(diff[both] ** 2)) if np.count_nonzero(both) > 100 else 1e6
 
