@@ -64,6 +64,29 @@ def test_quarter_model_unfolded_equals_the_full_model() -> None:
     assert np.max(np.abs(w_full[both] - w_quarter[both])) < MODEL_TOLERANCE_MM
 
 
+def test_pairing_a_quarter_model_with_a_measurement_fits_it_and_pairs_every_frame() -> None:
+    """`pair_with_measurement`, the one pairing of the comparison and its preview: a quarter model is detected,
+    its symmetry axis put on the punch axis and fitted there (it is already right: the fit must stay within
+    0.05 mm), every frame paired at its own state, and w_sim of a frame is the truth within the model's own
+    interpolation error. A model moved by 3 mm is fitted back."""
+    frames = [truth(i) for i in range(len(TIMELINE.states))]
+    peaks = np.array([np.nanmax(w) for w in frames])
+    kwargs = dict(grid=GRID, plate=PLATE, measured_w=lambda i: frames[i], frame_time_s=TIMELINE.time_s,
+                  frame_punch_mm=TIMELINE.punch_displacement_mm, frame_peak_mm=peaks)  # fmt: skip
+    pairing = compare.pair_with_measurement(as_results(true_plate_model(SCENE, TIMELINE, quarter=True)), **kwargs)  # type: ignore[arg-type]
+    assert pairing.model.mapping.symmetry == "quarter" and pairing.overlap > 0.9
+    assert np.hypot(*np.subtract(pairing.model.mapping.origin_xy_mm, SCENE.centre_xy_mm)) < 0.05
+    np.testing.assert_array_equal(pairing.alignment.state_lo[1:] + pairing.alignment.fraction[1:].round(),
+                                  np.arange(1, len(frames)))  # fmt: skip
+    w_sim = pairing.simulated_w(5)
+    assert w_sim is not None and np.nanmax(np.abs(w_sim - frames[5])) < MODEL_TOLERANCE_MM
+    off = compare.PlateFrame(axis_xy_mm=(SCENE.centre_xy_mm[0] + 3.0, SCENE.centre_xy_mm[1]),
+                                          data_box_mm=PLATE.data_box_mm)  # fmt: skip
+    moved = compare.pair_with_measurement(as_results(true_plate_model(SCENE, TIMELINE, quarter=True)),
+                                          **{**kwargs, "plate": off})  # type: ignore[arg-type]  # fmt: skip
+    assert np.hypot(*np.subtract(moved.model.mapping.origin_xy_mm, SCENE.centre_xy_mm)) < 0.05, moved.model.mapping
+
+
 def test_half_model_given_explicitly_and_rotated_plate_normal() -> None:
     base = true_plate_model(SCENE, TIMELINE, quarter=True)
     # The same quarter with its normal along the model's y axis and deflecting toward −y: (x, y, z) → (z, −x, y)
