@@ -264,6 +264,7 @@ function mappingForm({ context, simulations, topographies }) {
   const update = async () => {
     clearTimeout(timer);
     const mine = ++sequence;
+    submit.disabled = true; // a comparison starts from choices the preview has shown to work
     if (!topography.input.value || !simulation.input.value) {
       preview = null;
       previewState.textContent = !topography.input.value ? "No succeeded topography result in this experiment yet." : "Upload a simulation to compare with.";
@@ -277,6 +278,7 @@ function mappingForm({ context, simulations, topographies }) {
       if (mine !== sequence || !context.current()) return null;
       preview = answer;
       previewError.hidden = true;
+      submit.disabled = false;
       const f = answer.frames;
       const i = f.frame.indexOf(answer.frame);
       const paired = f.state_lo.filter((s) => s >= 0).length;
