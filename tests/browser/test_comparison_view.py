@@ -169,3 +169,10 @@ def test_upload_map_with_a_live_preview_compare_and_export(
     rows = text.splitlines()
     assert rows[0].startswith("frame,state_lo,") and len(rows) == 9
     assert rows[8].split(",")[1] == "-1" and "punch displacement" in rows[8]
+
+    # The topography's own export form still offers the topography's formats (one form module serves both kinds)
+    page.goto(f"/#/jobs/{topography}")
+    formats = page.get_by_role("form", name="Export the result").get_by_label("Export format")
+    expect(formats.locator("option")).to_have_count(5)
+    expect(formats).to_contain_text("grid NPZ (numpy)")
+    expect(formats).not_to_contain_text("HDF5")
