@@ -173,7 +173,7 @@ function mappingForm({ context, simulations, topographies }) {
       h("option", { value: "away" }, "the other side"),
       h("option", { value: "mid" }, "the mid-surface (no thickness offset)")),
     "Which surface of a shell or solid model the cameras see; shells are offset by half their thickness."),
-    shell_thickness_mm: field("Shell thickness (mm)", h("input", { type: "number", step: "any", min: 0, placeholder: "from the file" })),
+    shell_thickness_mm: field("Shell thickness (mm)", h("input", { type: "number", step: "any", min: 0, placeholder: "from the file" }), "Overrides the file's; the surface facing the cameras lies half of it off the mid-surface."),
     punch_node: field("Punch node", h("input", { type: "number", step: 1, min: 1, placeholder: "nodout's only node" }), "The node whose travel is the punch displacement, where the file has no punch curve."),
     time_unit_s: field("Time unit (s)", h("input", { type: "number", step: "any", min: 0, placeholder: "from the file, else 1" }), "Seconds per model time unit (0.001 for ms)."),
     time_offset_s: field("Time offset (s)", h("input", { type: "number", step: "any", value: 0 }), "Added to the model's times before aligning by time."),
@@ -210,7 +210,11 @@ function mappingForm({ context, simulations, topographies }) {
     };
     for (const key of ["units", "symmetry", "normal_axis"]) if (c[key].value) out[key] = c[key].value;
     if (c.w_sign.value) out.w_sign = Number(c.w_sign.value);
-    if (c.origin_x.value !== "" || c.origin_y.value !== "") out.origin_xy_mm = [number(c.origin_x) || 0, number(c.origin_y) || 0];
+    if (c.origin_x.value !== "" || c.origin_y.value !== "") {
+      // One coordinate set: the other stays where the last preview put it.
+      const shown = preview ? preview.mapping.origin_xy_mm : [0, 0];
+      out.origin_xy_mm = [number(c.origin_x) ?? shown[0], number(c.origin_y) ?? shown[1]];
+    }
     for (const key of ["shell_thickness_mm", "punch_node", "time_unit_s"]) if (c[key].value !== "") out[key] = number(c[key]);
     return out;
   };

@@ -112,6 +112,12 @@ def test_upload_map_with_a_live_preview_compare_and_export(
     form.get_by_label("Units", exact=True).select_option("")
     expect(state).to_contain_text("6 of 8 frames paired", timeout=30_000)
     expect(refused).to_be_hidden()
+    # a model put off the plate: the overlap is refused, naming the origin as the form does
+    form.get_by_label("Origin x (mm)").fill("400")
+    expect(refused).to_contain_text("“Origin x (mm)” and “Origin y (mm)”", timeout=30_000)
+    expect(form.get_by_role("button", name="Start comparison")).to_be_disabled()
+    form.get_by_label("Origin x (mm)").fill("")
+    expect(state).to_contain_text("6 of 8 frames paired", timeout=30_000)
 
     # Detected units are confirmed before the comparison starts; the spec then names them
     start = form.get_by_role("button", name="Start comparison")
