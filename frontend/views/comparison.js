@@ -191,9 +191,14 @@ class ComparisonView {
     const traces = mapTraces(this.shownMap.field, { range, valueName: FIELDS[name].value, rangeNote });
     if (name === "sigma_w_mm") Object.assign(traces[0], { colorscale: "Viridis", zmid: undefined, zmin: 0 });
     const plotLayout = { ...mapLayout({ uirevision: "comparison-map" }), dragmode: "zoom" };
+    // The result grid's extent for every frame and field (a frame with nothing to draw too); a zoom is kept.
+    const g = this.overview.grid;
+    plotLayout.xaxis = { ...plotLayout.xaxis, range: [g.x_min_mm, g.x_max_mm] };
+    plotLayout.yaxis = { ...plotLayout.yaxis, range: [g.y_min_mm, g.y_max_mm] };
     const i = this.position;
-    if (this.overview.frames.state_lo[i] < 0 && name !== "w_meas_mm" && name !== "sigma_w_mm") {
-      plotLayout.annotations = [{ text: `Frame ${frame} not compared: ${f.reason[i]}`, xref: "paper", yref: "paper", x: 0.5, y: 0.5, showarrow: false, font: { size: 13, color: "#5b6472" } }];
+    if (!this.shownMap.field.z.some((row) => row.some((v) => v !== null))) {
+      const why = f.state_lo[i] < 0 ? `not compared:<br>${f.reason[i]}` : "has no value here";
+      plotLayout.annotations = [{ text: `Frame ${frame} ${why}`, xref: "paper", yref: "paper", x: 0.5, y: 0.5, showarrow: false, font: { size: 13, color: "#5b6472" } }];
     }
     return this.mapFigure.react(traces, plotLayout);
   }
@@ -316,6 +321,7 @@ class ComparisonView {
         x: x.values.filter((_, i) => missing[i]), y: x.values.filter((_, i) => missing[i]).map(() => 0),
         text: f.reason.filter((_, i) => missing[i]).map((r) => r || "no node with both"),
         marker: { size: 11, symbol: "x-thin-open", color: "#c2185b", line: { width: 2 } },
+        cliponaxis: false, // on the axis line, whole
         hovertemplate: "not compared: %{text}<extra></extra>",
       });
     }
