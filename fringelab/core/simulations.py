@@ -278,19 +278,31 @@ def _preview_inputs(
 class _RecentPairings:
     """The last few pairings the preview made, by what they were made from: a preview that only changes the frame
     shown is answered at once, not paired again (pairing a model whose origin is fitted takes seconds). Few, as a
-    pairing holds its simulation's states in memory."""
+    pairing holds its simulation's states in memory. One pairing is made at a time: previews run in the API's
+    threads, and the other requests must keep their cores."""
 
     def __init__(self, size: int = 2) -> None:
         self.size = size
         self._items: OrderedDict[tuple[Any, ...], Any] = OrderedDict()
         self._lock = threading.Lock()
+        self._making = threading.Lock()
 
-    def get(self, key: tuple[Any, ...], make: Callable[[], Any]) -> Any:
+    def _known(self, key: tuple[Any, ...]) -> Any:
         with self._lock:
             if key in self._items:
                 self._items.move_to_end(key)
                 return self._items[key]
-        made = make()  # outside the lock: another preview need not wait for this one
+        return None
+
+    def get(self, key: tuple[Any, ...], make: Callable[[], Any]) -> Any:
+        known = self._known(key)
+        if known is not None:
+            return known
+        with self._making:
+            known = self._known(key)  # made while this one waited
+            if known is not None:
+                return known
+            made = make()
         with self._lock:
             self._items[key] = made
             while len(self._items) > self.size:

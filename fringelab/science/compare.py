@@ -294,11 +294,12 @@ class MappedModel:
 
     def surface_w(self, state: int) -> tuple[np.ndarray, np.ndarray]:
         """Deflected surface of one state before unfolding: xy (M, 2) in the oriented, scaled model frame and w (M,)."""
-        if state not in self._surfaces:
+        surface = self._surfaces.get(state)
+        if surface is None:  # the one made here is returned: another thread may drop it from the cache meanwhile
             while len(self._surfaces) >= 4:
-                self._surfaces.pop(next(iter(self._surfaces)))
-            self._surfaces[state] = self._surface_w(state)
-        return self._surfaces[state]
+                self._surfaces.pop(next(iter(self._surfaces)), None)
+            surface = self._surfaces[state] = self._surface_w(state)
+        return surface
 
     def _surface_w(self, state: int) -> tuple[np.ndarray, np.ndarray]:
         scale = LENGTH_UNITS[self.mapping.length_unit]
@@ -727,11 +728,13 @@ class StateSampler:
         self._cache: OrderedDict[int, np.ndarray] = OrderedDict()
 
     def state(self, s: int) -> np.ndarray:
-        if s not in self._cache:
-            self._cache[s] = self.model.sample(s, self.grid)
+        # The grid made here is the one returned: a sampler shared by threads (the preview's) may lose it meanwhile.
+        grid_w = self._cache.get(s)
+        if grid_w is None:
+            grid_w = self._cache[s] = self.model.sample(s, self.grid)
             while len(self._cache) > self.keep:
                 self._cache.popitem(last=False)
-        return self._cache[s]
+        return grid_w
 
     def at(self, state_lo: int, fraction: float) -> np.ndarray:
         """w_sim (ny, nx) between states state_lo and state_lo + 1 (NaN where either has no data)."""
