@@ -11,7 +11,7 @@ split so that test recordings can be processed in parallel chunks with results i
 2. `measure_frame`: order, Z, X, Y of one frame given the reference (`reference_for` of the first frame's
    edges), a pure function of the frame too. `track_and_measure` runs it over frames in order, with temporal
    smoothing (if on) as a centred window, so it sees the same neighbours whatever the chunking.
-3. Gridding (`fields.grid_edge_points`), a pure function of one measurement.
+3. Gridding of Z and its σ on one mesh (`grid_measurement_with_sigma`), a pure function of one measurement.
 
 `topography_recording` runs all three over a recording and streams the result into an HDF5 file. Not here: the
 edge locator (`fringes.py`), the order (`order.py`), the table (`projector.py`), grids and profiles
@@ -32,8 +32,9 @@ import numpy as np
 from . import MeasurementError
 from .camera import Camera, InverseModel, camera_centre_obj_mm, ideal_from_pixels
 from .coverage import MISSING_REASONS, FrameCoverage
-from .fields import Grid, Peak, grid_covering, grid_edge_points, typical_edge_gap_mm
+from .fields import Grid, Peak, grid_covering, typical_edge_gap_mm
 from .fringes import UNUSABLE_BLACK, UNUSABLE_BLOCK_PX, UNUSABLE_DARK, FrameEdges, detect_stripes, locate_edges
+from .gridding import grid_edge_fields, grid_edge_points
 from .order import (
     ORDER_CONFLICT,
     ORDER_UNRESOLVED,
@@ -56,7 +57,7 @@ from .projector import (
     camera_fingerprint,
     table_z_at,
 )
-from .uncertainty import edge_sigma_px, point_sigma_z_mm
+from .uncertainty import edge_sigma_px, point_sigma_z_mm, sigma_edge_halves, sigma_from_halves
 
 # The first test frame is the reference the order is anchored on (kept under its old name).
 FirstFrameNotFlatError = ReferenceNotFlatError
@@ -674,6 +675,20 @@ def grid_measurement(
     """The gridded Z (ny, nx) of one frame's points, NaN outside the data."""
     x, y, z = measurement.dense((projector.n_edges, projector.n_lines))
     return grid_edge_points(x, y, z, grid, max_edge_mm=max_edge_mm)
+
+
+def grid_measurement_with_sigma(
+    measurement: FrameMeasurement, projector: ProjectorCalibration, grid: Grid, *, max_edge_mm: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The gridded Z and its σ (`uncertainty.grid_sigma_mm`), each (ny, nx) and NaN outside the data, on one
+    mesh: the Z of `grid_measurement`, and σ NaN everywhere for a measurement without σ."""
+    shape = (projector.n_edges, projector.n_lines)
+    x, y, z = measurement.dense(shape)
+    sigma = np.full(shape, np.nan)
+    if measurement.sigma_z_mm is not None:
+        sigma[measurement.k, measurement.line] = measurement.sigma_z_mm
+    fields = grid_edge_fields(x, y, np.concatenate([z[None], sigma_edge_halves(sigma)]), grid, max_edge_mm=max_edge_mm)
+    return fields[0], sigma_from_halves(fields[1:])
 
 
 def frame_range(frames: Sequence[int] | range | None, n_frames: int) -> range:

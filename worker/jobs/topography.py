@@ -17,7 +17,9 @@ no long in-order phase: the merge only writes.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -49,17 +51,31 @@ class _TopographyInputs:
         self.source.close()
 
 
-def _topography_inputs(context: JobContext) -> _TopographyInputs:
-    """The recording (open: close it), calibrations, frames to write and settings of a topography job."""
+@functools.lru_cache(maxsize=4)
+def _calibration(kind: str, path: Path, _stamp: tuple[int, int]) -> Any:
+    """A calibration file read once per worker process (and per version of the file: its mtime and size are in
+    the key), so the chunks of a job, and the jobs after it, reuse it and what is built from it once (the
+    projector's packed table, the camera's scan-line rays)."""
     from fringelab.formats.camera import read_camera_json
     from fringelab.formats.projector import read_projector_calibration
+
+    return read_camera_json(path) if kind == "camera" else read_projector_calibration(path)
+
+
+def _cached_calibration(kind: str, path: Path) -> Any:
+    stat = path.stat()
+    return _calibration(kind, path, (stat.st_mtime_ns, stat.st_size))
+
+
+def _topography_inputs(context: JobContext) -> _TopographyInputs:
+    """The recording (open: close it), calibrations, frames to write and settings of a topography job."""
     from fringelab.formats.recordings import open_recording
     from fringelab.science.topography import TopographySettings, frame_range
 
     spec = context.spec
     _recording, _camera, path = recording_input(context)
-    camera_model = read_camera_json(calibration_file(context, spec["camera_calibration_id"]))
-    projector = read_projector_calibration(calibration_file(context, spec["projector_calibration_id"]))
+    camera_model = _cached_calibration("camera", calibration_file(context, spec["camera_calibration_id"]))
+    projector = _cached_calibration("projector", calibration_file(context, spec["projector_calibration_id"]))
     source = open_recording(path)
     frames = spec.get("frames") or {}
     last = frames.get("last")
@@ -131,14 +147,16 @@ _MEASURE_COUNTS = (
 
 def _sigma(measurement: Any) -> np.ndarray:
     sigma = measurement.sigma_z_mm
-    return np.full(len(measurement.k), np.nan) if sigma is None else np.asarray(sigma, np.float64)
+    return np.full(len(measurement.k), np.nan, np.float32) if sigma is None else np.asarray(sigma, np.float32)
 
 
 def topography_measure(context: JobContext, first: int, stop: int) -> None:
-    """Phase 0, any worker: frames [first, stop) measured and gridded, each on its own."""
+    """Phase 0, any worker: frames [first, stop) measured, gridded (Z and σ) and packed as the result file stores
+    them, each on its own; the merge only writes."""
+    from fringelab.formats.topography import pack_grids
     from fringelab.science.coverage import MISSING_REASONS
     from fringelab.science.fields import Grid, field_peak
-    from fringelab.science.topography import grid_measurement, locate_test_edges, track_and_measure
+    from fringelab.science.topography import grid_measurement_with_sigma, locate_test_edges, track_and_measure
 
     inputs = _topography_inputs(context)
     projector, settings = inputs.projector, inputs.settings
@@ -147,7 +165,7 @@ def topography_measure(context: JobContext, first: int, stop: int) -> None:
     # Temporal smoothing looks h frames either way: read them too (the sequential pass reads no further).
     h = settings.temporal_smoothing_frames
     lo, hi = max(0, first - h), min(len(inputs.source), stop + h)
-    measurements, grids, peaks = [], [], []
+    measurements, grids, packed, peaks = [], [], [], []
     try:
         frames = (inputs.source[i] for i in range(lo, hi))
         located = locate_test_edges(frames, projector)
@@ -156,9 +174,13 @@ def topography_measure(context: JobContext, first: int, stop: int) -> None:
         ):
             if not first <= measurement.frame < stop:
                 continue
-            z_grid = grid_measurement(measurement, projector, grid, max_edge_mm=float(data["max_edge_mm"]))
+            z_grid, sigma_grid = grid_measurement_with_sigma(
+                measurement, projector, grid, max_edge_mm=float(data["max_edge_mm"])
+            )
             measurements.append(measurement)
-            grids.append(z_grid)
+            grids.append(z_grid.astype(np.float32))  # the merge needs only where it has data
+            chunks = pack_grids(z_grid, sigma_grid)
+            packed.extend([chunks.z_mm, chunks.sigma_w_mm])
             peaks.append(list(vars(field_peak(z_grid - z_flat, grid)).values()))
             context.progress(measurement.frame - first + 1, stop - first, "measuring")
     finally:
@@ -172,14 +194,18 @@ def topography_measure(context: JobContext, first: int, stop: int) -> None:
         "measured_area_mm2": [c.measured_area_mm2 for c in covered],
         **{f"missing_{name}_mm2": [c.missing_mm2[name] for c in covered] for name in MISSING_REASONS},
     }
+    points = np.concatenate([m.points_obj_mm for m in measurements]).reshape(-1, 3)
     save_arrays(
         context, f"chunks/frames-{first:07d}.npz",
         frame=np.array([m.frame for m in measurements], np.int64),
         offsets=np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
         k=np.concatenate([m.k for m in measurements]), line=np.concatenate([m.line for m in measurements]),
-        points_obj_mm=np.concatenate([m.points_obj_mm for m in measurements]).reshape(-1, 3),
+        # X and Y as the file stores them; Z in full, for the temporal cross-check of the merge
+        xy_mm=points[:, :2].astype(np.float32), z_mm=points[:, 2],
         edge_noise_px=np.array([m.edge_noise_px for m in measurements], np.float64),
-        z_mm=np.array(grids), peak=np.array(peaks, np.float64),
+        z_grid_mm=np.array(grids, np.float32).reshape(-1, *grid.shape), peak=np.array(peaks, np.float64),
+        packed=np.frombuffer(b"".join(packed), np.uint8),
+        packed_offsets=np.concatenate([[0], np.cumsum([len(c) for c in packed])]).astype(np.int64),
         sigma_z_mm=np.concatenate([_sigma(m) for m in measurements]),
         **{name: np.array([getattr(m, name) for m in measurements], np.int64) for name in _MEASURE_COUNTS},
         **{name: np.array(values, np.float64) for name, values in coverage.items()},
@@ -192,12 +218,14 @@ def _load_frames(context: JobContext, first: int) -> tuple[list[Any], Any]:
 
     data = load_arrays(context, f"chunks/frames-{first:07d}.npz")
     offsets = data["offsets"]
+    # float64 as measured: X, Y were stored as the file stores them (float32), which loses nothing written
+    points = np.column_stack([data["xy_mm"].astype(np.float64), data["z_mm"]])
     measurements = [
         FrameMeasurement(
             frame=int(frame),
             k=data["k"][lo:hi],
             line=data["line"][lo:hi],
-            points_obj_mm=data["points_obj_mm"][lo:hi],
+            points_obj_mm=points[lo:hi],
             edge_noise_px=float(data["edge_noise_px"][i]),
             coverage=FrameCoverage(
                 visible_area_mm2=float(data["visible_area_mm2"][i]),
@@ -211,6 +239,16 @@ def _load_frames(context: JobContext, first: int) -> tuple[list[Any], Any]:
         for i, (frame, lo, hi) in enumerate(zip(data["frame"], offsets[:-1], offsets[1:], strict=True))
     ]
     return measurements, data
+
+
+def _packed(data: Any, i: int) -> Any:
+    """The packed grids of the chunk's frame i (`topography_measure`)."""
+    from fringelab.formats.topography import PackedGrids
+
+    packed, at = data["packed"], data["packed_offsets"]
+    return PackedGrids(
+        z_mm=packed[at[2 * i] : at[2 * i + 1]].tobytes(), sigma_w_mm=packed[at[2 * i + 1] : at[2 * i + 2]].tobytes()
+    )
 
 
 def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict[str, Any]:
@@ -243,8 +281,9 @@ def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict
                 measurements, gridded = _load_frames(context, first)
                 for i, measurement in enumerate(map(cross_check.checked, measurements)):
                     peak = Peak(**dict(zip(peak_names, map(float, gridded["peak"][i]), strict=True)))
-                    writer.append(measurement, gridded["z_mm"][i], peak, log=log.row(measurement.frame),
-                                  camera_frame=int(log.camera_frame[measurement.frame]))  # fmt: skip
+                    writer.append(measurement, gridded["z_grid_mm"][i], peak, log=log.row(measurement.frame),
+                                  camera_frame=int(log.camera_frame[measurement.frame]),
+                                  packed=_packed(gridded, i))  # fmt: skip
                     tally.add(peak, n_out_of_range=measurement.n_out_of_range, measurement=measurement)
                     context.progress(measurement.frame - wanted.start + 1, len(wanted), "writing")
             tally.require_ordered(where)
