@@ -137,6 +137,7 @@ class TopographyWriter:
         self._columns_written = 0
         self._writes: deque[tuple[Any, tuple[Any, ...]]] = deque()
         self._pool = ThreadPoolExecutor(max_workers=WRITER_THREADS, thread_name_prefix="topography-writer")
+        self._datasets: dict[str, h5py.Dataset] = {}
         file = self._file = h5py.File(self._temp, "w")
         file.attrs["schema"] = TOPOGRAPHY_SCHEMA
         file.attrs["schema_version"] = SCHEMA_VERSION
@@ -333,7 +334,7 @@ class TopographyWriter:
     def append(
         self,
         measurement: FrameMeasurement,
-        z_grid_mm: np.ndarray,
+        z_grid_mm: np.ndarray | None,
         peak: Peak,
         *,
         log: tuple[float, float, float],
@@ -343,9 +344,11 @@ class TopographyWriter:
     ) -> None:
         """Add one frame: its points, grid and σ grid (NaN: not known), peak, test-log row (time_s,
         punch_displacement_mm, force_kN), QA, and its number as the camera counts it (default: its index).
-        packed: the two grids already as stored (`pack_grids` of them, e.g. by the worker that measured the frame);
-        otherwise they are packed here, in the writer's threads."""
+        packed: the two grids already as stored (`pack_grids` of them, e.g. by the worker that measured the frame;
+        the grids are then not needed); otherwise they are packed here, in the writer's threads."""
         if packed is None:
+            if z_grid_mm is None:
+                raise ValueError("z_grid_mm: a grid is needed unless the grids come packed")
             sigma = np.full(self.grid.shape, np.nan) if sigma_grid_mm is None else sigma_grid_mm
             grids: PackedGrids | Future[PackedGrids] = self._pool.submit(pack_grids, z_grid_mm, sigma)
         else:
@@ -362,7 +365,7 @@ class TopographyWriter:
         self._points_buffered += len(points)
         while self._points_buffered >= POINTS_CHUNK_ROWS:
             self._flush_points(POINTS_CHUNK_ROWS)
-        finite = np.isfinite(z_grid_mm)
+        finite = packed.z_finite if packed is not None else np.isfinite(np.asarray(z_grid_mm))
         nodes = int(np.count_nonzero(finite))
         if self._first_coverage_nodes is None:
             self._first_coverage_nodes = max(nodes, 1)
@@ -399,6 +402,13 @@ class TopographyWriter:
         if self._n - self._columns_written >= COLUMN_FLUSH_FRAMES:
             self._flush_columns()
 
+    def _dataset(self, name: str) -> h5py.Dataset:
+        """The open dataset `name` (looking one up by name costs more than writing a frame's grid)."""
+        dataset = self._datasets.get(name)
+        if dataset is None:
+            dataset = self._datasets[name] = self._file[name]
+        return dataset
+
     # Writes happen on the calling thread, in the order they were queued; the threads only compress.
     def _queue_write(self, write: Any, *args: Any) -> None:
         self._writes.append((write, args))
@@ -411,7 +421,7 @@ class TopographyWriter:
 
     def _write_grids(self, i: int, packed: PackedGrids) -> None:
         for name, chunk in (("grid/z_mm", packed.z_mm), ("grid/sigma_w_mm", packed.sigma_w_mm)):
-            dataset = self._file[name]
+            dataset = self._dataset(name)
             if dataset.shape[0] <= i:
                 dataset.resize(i + 1, axis=0)
             dataset.id.write_direct_chunk((i, 0, 0), chunk)
@@ -430,20 +440,20 @@ class TopographyWriter:
         self._points_buffered -= rows
 
     def _write_points_chunk(self, name: str, start: int, chunk: bytes) -> None:
-        dataset = self._file[f"points/{name}"]
+        dataset = self._dataset(f"points/{name}")
         if dataset.shape[0] < start + POINTS_CHUNK_ROWS:
             dataset.resize(start + POINTS_CHUNK_ROWS, axis=0)
         dataset.id.write_direct_chunk((start,), chunk)
 
     def _write_points_tail(self, name: str, start: int, values: np.ndarray) -> None:
-        dataset = self._file[f"points/{name}"]
+        dataset = self._dataset(f"points/{name}")
         dataset.resize(start + len(values), axis=0)
         dataset[start:] = values
 
     def _flush_columns(self) -> None:
         first = self._columns_written
         for name, values in self._columns.items():
-            dataset = self._file[name]
+            dataset = self._dataset(name)
             offset = 1 if name == "points/offsets" else 0  # offsets start with a 0
             dataset.resize(offset + self._n, axis=0)
             dataset[offset + first : offset + self._n] = np.asarray(values, dataset.dtype)
@@ -480,10 +490,12 @@ class TopographyWriter:
 
 @dataclass(frozen=True)
 class PackedGrids:
-    """A frame's grid/z_mm and grid/sigma_w_mm as their stored HDF5 chunks (`pack_grids`)."""
+    """A frame's grid/z_mm and grid/sigma_w_mm as their stored HDF5 chunks (`pack_grids`), and where Z has data
+    (ny, nx) bool (the frame's QA)."""
 
     z_mm: bytes
     sigma_w_mm: bytes
+    z_finite: np.ndarray
 
 
 def pack_grids(z_grid_mm: np.ndarray, sigma_grid_mm: np.ndarray) -> PackedGrids:
@@ -491,7 +503,9 @@ def pack_grids(z_grid_mm: np.ndarray, sigma_grid_mm: np.ndarray) -> PackedGrids:
     datasets' filters: byte shuffle, then zlib level 1): a worker packs the frames it measured, in parallel, and
     the writer stores the chunks as they are (`TopographyWriter.append(packed=...)`). The values read back are
     those of the grids given, whoever packed them."""
-    return PackedGrids(z_mm=_packed_chunk(z_grid_mm), sigma_w_mm=_packed_chunk(sigma_grid_mm))
+    return PackedGrids(
+        z_mm=_packed_chunk(z_grid_mm), sigma_w_mm=_packed_chunk(sigma_grid_mm), z_finite=np.isfinite(z_grid_mm)
+    )
 
 
 def _packed_chunk(values: np.ndarray) -> bytes:

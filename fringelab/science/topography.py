@@ -168,20 +168,57 @@ def temporal_check(
 ) -> TemporalCheck:
     """Cross-check of `current`'s order against `previous` (`TemporalCheck`): a report, never a correction, so a
     frame measured alone stays equal to the same frame measured within its sequence."""
-    shape = (projector.n_edges, projector.n_lines)
-    change = np.full(shape, np.nan)
-    change[current.k, current.line] = current.points_obj_mm[:, 2]
-    z_before = np.full(shape, np.nan)
-    z_before[previous.k, previous.line] = previous.points_obj_mm[:, 2]
-    change -= z_before  # NaN unless measured in both frames
-    neighbours = np.full(shape, np.nan)
-    neighbours[1:-1] = 0.5 * (change[:-2] + change[2:])
-    step_mm = projector.period_px / np.maximum(np.abs(projector.sensitivity_px_per_mm), 1e-6)
-    with np.errstate(invalid="ignore"):
-        departure = np.abs(change - neighbours) / step_mm
-    checked = np.isfinite(departure)
-    n_jumps = int(np.count_nonzero(departure[checked] > TEMPORAL_JUMP_STEPS))
-    return TemporalCheck(n_checked=int(np.count_nonzero(checked)), n_jumps=n_jumps)
+    return _temporal_check(previous, current, _stripe_step_mm(projector))
+
+
+def _stripe_step_mm(projector: ProjectorCalibration) -> np.ndarray:
+    """(K, S) the Z step of one stripe period at each table entry (mm)."""
+    return np.ascontiguousarray(projector.period_px / np.maximum(np.abs(projector.sensitivity_px_per_mm), 1e-6))
+
+
+def _temporal_check(previous: FrameMeasurement, current: FrameMeasurement, step_mm: np.ndarray) -> TemporalCheck:
+    n_checked, n_jumps = _temporal_check_kernel(
+        np.ascontiguousarray(previous.k, np.int64), np.ascontiguousarray(previous.line, np.int64),
+        np.ascontiguousarray(previous.points_obj_mm[:, 2], np.float64),
+        np.ascontiguousarray(current.k, np.int64), np.ascontiguousarray(current.line, np.int64),
+        np.ascontiguousarray(current.points_obj_mm[:, 2], np.float64), step_mm, TEMPORAL_JUMP_STEPS,
+    )  # fmt: skip
+    return TemporalCheck(n_checked=int(n_checked), n_jumps=int(n_jumps))
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _temporal_check_kernel(
+    k_before: np.ndarray,
+    line_before: np.ndarray,
+    z_before: np.ndarray,
+    k: np.ndarray,
+    line: np.ndarray,
+    z: np.ndarray,
+    step_mm: np.ndarray,
+    jump_steps: float,
+) -> tuple[int, int]:
+    """Each point's change of Z between the frames (NaN unless measured in both) against the mean change of its
+    neighbouring edges on the line (k − 1, k + 1), in stripe steps: (points checked, points beyond jump_steps)."""
+    n_edges, n_lines = step_mm.shape
+    change = np.full((n_edges, n_lines), np.nan)
+    before = np.full((n_edges, n_lines), np.nan)
+    for i in range(len(z)):
+        change[k[i], line[i]] = z[i]
+    for i in range(len(z_before)):
+        before[k_before[i], line_before[i]] = z_before[i]
+    for e in range(n_edges):
+        for s in range(n_lines):
+            change[e, s] -= before[e, s]
+    n_checked = n_jumps = 0
+    for e in range(1, n_edges - 1):
+        for s in range(n_lines):
+            neighbours = 0.5 * (change[e - 1, s] + change[e + 1, s])
+            departure = np.abs(change[e, s] - neighbours) / step_mm[e, s]
+            if np.isfinite(departure):
+                n_checked += 1
+                if departure > jump_steps:
+                    n_jumps += 1
+    return n_checked, n_jumps
 
 
 class TemporalCrossCheck:
@@ -190,7 +227,7 @@ class TemporalCrossCheck:
     none."""
 
     def __init__(self, projector: ProjectorCalibration) -> None:
-        self._projector = projector
+        self._step_mm = _stripe_step_mm(projector)
         self._previous: FrameMeasurement | None = None
 
     def checked(self, measurement: FrameMeasurement) -> FrameMeasurement:
@@ -198,7 +235,7 @@ class TemporalCrossCheck:
         previous, self._previous = self._previous, measurement
         if previous is None or measurement.frame != previous.frame + 1:
             return measurement
-        return replace(measurement, temporal=temporal_check(previous, measurement, self._projector))
+        return replace(measurement, temporal=_temporal_check(previous, measurement, self._step_mm))
 
 
 def check_recording_against(

@@ -165,7 +165,7 @@ def topography_measure(context: JobContext, first: int, stop: int) -> None:
     # Temporal smoothing looks h frames either way: read them too (the sequential pass reads no further).
     h = settings.temporal_smoothing_frames
     lo, hi = max(0, first - h), min(len(inputs.source), stop + h)
-    measurements, grids, packed, peaks = [], [], [], []
+    measurements, finite, packed, peaks = [], [], [], []
     try:
         frames = (inputs.source[i] for i in range(lo, hi))
         located = locate_test_edges(frames, projector)
@@ -178,11 +178,12 @@ def topography_measure(context: JobContext, first: int, stop: int) -> None:
                 measurement, projector, grid, max_edge_mm=float(data["max_edge_mm"])
             )
             measurements.append(measurement)
-            grids.append(z_grid.astype(np.float32))  # the merge needs only where it has data
             chunks = pack_grids(z_grid, sigma_grid)
             packed.extend([chunks.z_mm, chunks.sigma_w_mm])
+            finite.append(np.packbits(chunks.z_finite))
             peaks.append(list(vars(field_peak(z_grid - z_flat, grid)).values()))
-            context.progress(measurement.frame - first + 1, stop - first, "measuring")
+            # (the chunk's end is recorded when it is marked done: the last frame need not be)
+            context.progress(measurement.frame - first, stop - first, "measuring")
     finally:
         inputs.close()
     sizes = [len(m.k) for m in measurements]
@@ -203,7 +204,7 @@ def topography_measure(context: JobContext, first: int, stop: int) -> None:
         # X and Y as the file stores them; Z in full, for the temporal cross-check of the merge
         xy_mm=points[:, :2].astype(np.float32), z_mm=points[:, 2],
         edge_noise_px=np.array([m.edge_noise_px for m in measurements], np.float64),
-        z_grid_mm=np.array(grids, np.float32).reshape(-1, *grid.shape), peak=np.array(peaks, np.float64),
+        z_finite=np.array(finite, np.uint8), peak=np.array(peaks, np.float64),
         packed=np.frombuffer(b"".join(packed), np.uint8),
         packed_offsets=np.concatenate([[0], np.cumsum([len(c) for c in packed])]).astype(np.int64),
         sigma_z_mm=np.concatenate([_sigma(m) for m in measurements]),
@@ -241,14 +242,16 @@ def _load_frames(context: JobContext, first: int) -> tuple[list[Any], Any]:
     return measurements, data
 
 
-def _packed(data: Any, i: int) -> Any:
+def _packed(data: Any, i: int, track: Any) -> Any:
     """The packed grids of the chunk's frame i (`topography_measure`)."""
     from fringelab.formats.topography import PackedGrids
 
     packed, at = data["packed"], data["packed_offsets"]
+    shape = (len(track["y_mm"]), len(track["x_mm"]))
     return PackedGrids(
-        z_mm=packed[at[2 * i] : at[2 * i + 1]].tobytes(), sigma_w_mm=packed[at[2 * i + 1] : at[2 * i + 2]].tobytes()
-    )
+        z_mm=packed[at[2 * i] : at[2 * i + 1]].tobytes(), sigma_w_mm=packed[at[2 * i + 1] : at[2 * i + 2]].tobytes(),
+        z_finite=np.unpackbits(data["z_finite"][i], count=shape[0] * shape[1]).reshape(shape).view(bool),
+    )  # fmt: skip
 
 
 def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict[str, Any]:
@@ -281,9 +284,9 @@ def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict
                 measurements, gridded = _load_frames(context, first)
                 for i, measurement in enumerate(map(cross_check.checked, measurements)):
                     peak = Peak(**dict(zip(peak_names, map(float, gridded["peak"][i]), strict=True)))
-                    writer.append(measurement, gridded["z_grid_mm"][i], peak, log=log.row(measurement.frame),
+                    writer.append(measurement, None, peak, log=log.row(measurement.frame),
                                   camera_frame=int(log.camera_frame[measurement.frame]),
-                                  packed=_packed(gridded, i))  # fmt: skip
+                                  packed=_packed(gridded, i, track))  # fmt: skip
                     tally.add(peak, n_out_of_range=measurement.n_out_of_range, measurement=measurement)
                     context.progress(measurement.frame - wanted.start + 1, len(wanted), "writing")
             tally.require_ordered(where)
