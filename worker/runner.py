@@ -456,8 +456,22 @@ def frame_ranges(count: int, chunk_frames: int) -> list[tuple[int, int]]:
     return [(first, min(first + chunk_frames, count)) for first in range(0, count, chunk_frames)]
 
 
-def chunk_frames_of(spec: dict[str, Any], settings: Settings) -> int:
-    return int(spec.get("chunk_frames") or settings.chunk_frames)
+# A job that names no chunk size and has fewer frames than SPREAD_CHUNKS chunks of FRINGELAB_CHUNK_FRAMES is split
+# into SPREAD_CHUNKS chunks (of at least MIN_CHUNK_FRAMES), so that the worker processes share a short job too; each
+# chunk costs a task, its inputs and its hand-over, so they are not made smaller than that.
+SPREAD_CHUNKS = 8
+MIN_CHUNK_FRAMES = 5
+
+
+def chunk_frames_of(spec: dict[str, Any], settings: Settings, n_frames: int | None = None) -> int:
+    """Frames per chunk: the job's own `chunk_frames`; else FRINGELAB_CHUNK_FRAMES, or fewer for a job of
+    `n_frames` frames that would make fewer than SPREAD_CHUNKS chunks of it (see there)."""
+    if spec.get("chunk_frames"):
+        return int(spec["chunk_frames"])
+    most = int(settings.chunk_frames)
+    if n_frames is None:
+        return most
+    return min(most, max(MIN_CHUNK_FRAMES, -(-n_frames // SPREAD_CHUNKS)))
 
 
 def this_worker() -> str:

@@ -123,7 +123,7 @@ def topography_entry(context: JobContext) -> Chunked:
     wanted = inputs.wanted
     context.log(f"topography of frames {wanted.start}..{wanted.stop - 1}, each ordered on its own")
     ranges = [(wanted.start + a, wanted.start + b) for a, b in frame_ranges(len(wanted), chunk_frames_of(
-        context.spec, context.settings))]  # fmt: skip
+        context.spec, context.settings, len(wanted)))]  # fmt: skip
     return Chunked(ranges, stage="measuring")
 
 
