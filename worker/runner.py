@@ -487,16 +487,25 @@ def remove_chunk_files(directory: Path) -> None:
 
 
 def save_arrays(context: JobContext, name: str, **arrays: np.ndarray) -> None:
+    """Arrays a chunk hands over (to `load_arrays`), in one file written atomically: their names, then each as a
+    .npy record, one after the other (no ZIP: read back at the speed of the disk cache, no checksum per read)."""
+    from numpy.lib import format as npy
+
     with context.output(name, publish=False) as path, path.open("wb") as handle:
-        np.savez(handle, **arrays)
+        npy.write_array(handle, np.array(list(arrays), dtype=str), allow_pickle=False)
+        for value in arrays.values():
+            npy.write_array(handle, np.asarray(value), allow_pickle=False)
 
 
 def load_arrays(context: JobContext, name: str) -> dict[str, np.ndarray]:
+    from numpy.lib import format as npy
+
     path = context.directory / name
     if not path.is_file():
         raise RuntimeError(f"the intermediate file {name} is missing")
-    with np.load(path) as data:
-        return {key: data[key] for key in data.files}
+    with path.open("rb") as handle:
+        names = npy.read_array(handle, allow_pickle=False)
+        return {str(key): npy.read_array(handle, allow_pickle=False) for key in names}
 
 
 def finite_or_none(value: Any) -> Any:

@@ -5,10 +5,10 @@ One fan-out over the frames and a merge in frame order, computing exactly what
 bit, whatever the chunking):
 
     entry:             the reference: frame 0's edges matched to the table, the rim that anchors the fringe
-                       order, frame 0 measured, the grid from it                    -> chunks/reference.npz
+                       order, frame 0 measured, the grid from it                    -> chunks/reference.arrays
     phase 0, chunks:   for each frame on its own: edges, fringe order, Z, X, Y, what is missing, the deflection
                        grid and peak (with temporal smoothing, h frames either side are read too)
-                                                                                    -> chunks/frames-<first>.npz
+                                                                                    -> chunks/frames-<first>.arrays
     merge 0, in order: the result file (TopographyWriter) and its summary           -> topography.h5
 
 No frame depends on the frames before it (the order is found per frame, anchored on the reference), so there is
@@ -114,7 +114,7 @@ def topography_entry(context: JobContext) -> Chunked:
     z = first.points_obj_mm[:, 2]
     z_flat = float(np.median(z))
     save_arrays(
-        context, "chunks/reference.npz",
+        context, "chunks/reference.arrays",
         reference_t_px=reference.reference_t_px, rim=reference.rim, rim_circle_mm=np.array(reference.rim_circle_mm),
         cell_area_mm2=reference.cell_area_mm2, x_mm=grid.x_mm, y_mm=grid.y_mm, max_edge_mm=max_edge_mm,
         z_flat_mm=z_flat, flat_rms_mm=float(np.sqrt(np.mean((z - z_flat) ** 2))),
@@ -130,7 +130,7 @@ def topography_entry(context: JobContext) -> Chunked:
 def _reference(context: JobContext) -> Any:
     from fringelab.science.order import OrderReference
 
-    data = load_arrays(context, "chunks/reference.npz")
+    data = load_arrays(context, "chunks/reference.arrays")
     reference = OrderReference(
         reference_t_px=data["reference_t_px"], rim=data["rim"],
         rim_circle_mm=tuple(float(v) for v in data["rim_circle_mm"]),  # type: ignore[arg-type]
@@ -197,7 +197,7 @@ def topography_measure(context: JobContext, first: int, stop: int) -> None:
     }
     points = np.concatenate([m.points_obj_mm for m in measurements]).reshape(-1, 3)
     save_arrays(
-        context, f"chunks/frames-{first:07d}.npz",
+        context, f"chunks/frames-{first:07d}.arrays",
         frame=np.array([m.frame for m in measurements], np.int64),
         offsets=np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
         k=np.concatenate([m.k for m in measurements]), line=np.concatenate([m.line for m in measurements]),
@@ -217,7 +217,7 @@ def _load_frames(context: JobContext, first: int) -> tuple[list[Any], Any]:
     from fringelab.science.coverage import MISSING_REASONS, FrameCoverage
     from fringelab.science.topography import FrameMeasurement
 
-    data = load_arrays(context, f"chunks/frames-{first:07d}.npz")
+    data = load_arrays(context, f"chunks/frames-{first:07d}.arrays")
     offsets = data["offsets"]
     # float64 as measured: X, Y were stored as the file stores them (float32), which loses nothing written
     points = np.column_stack([data["xy_mm"].astype(np.float64), data["z_mm"]])
