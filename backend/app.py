@@ -1,7 +1,12 @@
-"""The FastAPI application factory: routers, the frontend and the shared state of one API process."""
+"""The FastAPI application factory: routers, the frontend and the shared state of one API process.
+
+`fringelab api` serves it from FRINGELAB_API_PROCESSES processes (uvicorn's workers, each calling
+`app_from_env`); what must hold across them (token revocations, request rates, the job reconciliation) goes
+through Redis, what may differ (caches of immutable results, shared polls of event streams) is per process."""
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import re
 from contextlib import asynccontextmanager
@@ -26,14 +31,15 @@ from backend.api import (
 )
 from backend.errors import install_error_handlers
 from backend.frontend import mount_docs, mount_frontend
-from backend.limits import BodySizeLimit, PlainJsonNumbers, UserRateLimiter
+from backend.limits import BodySizeLimit, PlainJsonNumbers, SharedRateLimiter
 from backend.openapi import install_openapi, operation_id
+from backend.polls import SharedPolls
 from backend.security import SecurityHeaders
 from fringelab.core.accounts import TokenCache
 from fringelab.core.db import make_engine, make_sessionmaker
 from fringelab.core.jobs import reconcile_periodically, reconcile_quietly
 from fringelab.core.queue import create_celery
-from fringelab.core.settings import Settings
+from fringelab.core.settings import Settings, load_settings
 from fringelab.core.state import AppState
 
 # The routes that stream a request body to disk under FRINGELAB_MAX_UPLOAD_BYTES instead of the JSON cap: the
@@ -46,19 +52,19 @@ def is_upload_path(path: str) -> bool:
 
 
 def create_app(settings: Settings) -> FastAPI:
-    engine = make_engine(settings.resolved_database_url, pool_size=settings.resolved_db_pool_size)
+    engine = make_engine(settings.resolved_database_url, max_connections=settings.resolved_db_pool_size)
     state = AppState(
         settings=settings,
         engine=engine,
         sessions=make_sessionmaker(engine),
         celery=create_celery(settings),
-        tokens=TokenCache(ttl_s=settings.token_cache_s),
+        tokens=TokenCache(ttl_s=settings.token_cache_s, redis_url=settings.redis_url),
     )
 
     @asynccontextmanager
     async def lifespan(_app: FastAPI):  # type: ignore[no-untyped-def]
         # Blocking routes run in this many threads; the database pool holds a connection for each.
-        anyio.to_thread.current_default_thread_limiter().total_tokens = settings.api_threads
+        anyio.to_thread.current_default_thread_limiter().total_tokens = settings.resolved_api_threads
         reconcile_quietly(state.sessions, state.celery, settings)  # jobs the queue lost while the API was down
         async with anyio.create_task_group() as background:
             if settings.reconcile_interval_s > 0:
@@ -80,7 +86,13 @@ def create_app(settings: Settings) -> FastAPI:
         generate_unique_id_function=operation_id,
     )
     app.state.fringelab = state
-    app.state.user_limiter = UserRateLimiter(rate_per_s=settings.user_requests_per_s, burst=settings.user_request_burst)
+    app.state.polls = SharedPolls(max_age_s=jobs.EVENTS_POLL_S)
+    app.state.user_limiter = SharedRateLimiter(
+        redis_url=settings.redis_url,
+        rate_per_s=settings.user_requests_per_s,
+        burst=settings.user_request_burst,
+        namespace=hashlib.sha256(settings.resolved_database_url.encode()).hexdigest()[:12],
+    )
     install_error_handlers(app)
     app.add_middleware(PlainJsonNumbers, exempt=is_upload_path)  # runs after the size cap below
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_json_bytes, exempt=is_upload_path)
@@ -106,6 +118,12 @@ def create_app(settings: Settings) -> FastAPI:
     return app
 
 
+def app_from_env() -> FastAPI:
+    """The app of one web server process, from the environment: what uvicorn calls in each of its workers
+    (`backend.app:app_from_env`, factory); `fringelab api` has checked these settings before."""
+    return create_app(load_settings())
+
+
 TOKEN_USE_FLUSH_S = 10.0
 
 
@@ -120,7 +138,8 @@ async def _flush_token_uses_periodically(state: AppState) -> None:
 
 
 def uvicorn_options(settings: Settings) -> dict[str, object]:
-    """How `fringelab api` serves the app. Behind a reverse proxy at a sub-path (FRINGELAB_ROOT_PATH, the proxy
+    """How `fringelab api` serves the app (in FRINGELAB_API_PROCESSES processes, see `backend.cli.cmd_api`).
+    Behind a reverse proxy at a sub-path (FRINGELAB_ROOT_PATH, the proxy
     strips the prefix), the server's root path makes the docs, the OpenAPI `servers` and every URL the API
     builds (tus `Location`) carry the prefix. X-Forwarded-For and -Proto are believed only from the proxies named
     in FRINGELAB_TRUSTED_PROXIES (uvicorn's default trusts them from any loopback client, which let anyone on

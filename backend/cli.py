@@ -41,7 +41,7 @@ def cmd_db_upgrade(_args: argparse.Namespace) -> int:
 def cmd_api(_args: argparse.Namespace) -> int:
     import uvicorn
 
-    from backend.app import create_app, uvicorn_options
+    from backend.app import uvicorn_options
     from fringelab.core.db import upgrade_database
     from fringelab.core.services import check_port_free, check_redis
 
@@ -51,7 +51,14 @@ def cmd_api(_args: argparse.Namespace) -> int:
     check_redis(settings.redis_url)
     check_port_free(settings.host, settings.port)
     upgrade_database(settings.resolved_database_url)
-    uvicorn.run(create_app(settings), **uvicorn_options(settings))  # type: ignore[arg-type]
+    # By import string: each of the FRINGELAB_API_PROCESSES processes builds its own app from the environment
+    # (uvicorn's parent holds the port and restarts a process that dies).
+    uvicorn.run(
+        "backend.app:app_from_env",
+        factory=True,
+        workers=settings.resolved_api_processes,
+        **uvicorn_options(settings),  # type: ignore[arg-type]
+    )
     return 0
 
 
@@ -157,7 +164,21 @@ def cmd_user(args: argparse.Namespace) -> int:
                 return _fail(error.detail)
             session.commit()
             print(f"{args.user_command}d {user.username}")
+            _announce_access_change(settings)
     return 0
+
+
+def _announce_access_change(settings: Settings) -> None:
+    """Make running API processes drop the tokens they have checked (a disabled account stops at once)."""
+    from backend.supervisor import running_redis_url
+    from fringelab.core.accounts import announce_access_change
+
+    if not announce_access_change(running_redis_url(settings)):
+        print(
+            f"(no running fringelab reached: API processes notice within FRINGELAB_TOKEN_CACHE_S, "
+            f"{settings.token_cache_s:g} s)",
+            file=sys.stderr,
+        )
 
 
 def cmd_token_create(args: argparse.Namespace) -> int:

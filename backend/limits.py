@@ -1,12 +1,14 @@
 """Limits of the web server: a cap on request bodies (413, except on the upload routes, which stream to disk under
-their own limit), and a request rate per user (429)."""
+their own limit), and a request rate per user (429), shared by all API processes through Redis."""
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from collections.abc import Callable
 
+import redis
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from fringelab.core.errors import TooLarge
@@ -54,10 +56,11 @@ class BodySizeLimit:
 
 
 class UserRateLimiter:
-    """A token bucket per user of this API process: `rate_per_s` requests per second on average, `burst` at once.
+    """A token bucket per user in this process: `rate_per_s` requests per second on average, `burst` at once.
 
     One user's script cannot starve everyone else: beyond its rate it gets a 429 with Retry-After, while other
-    users' requests are served. (Per process: several API processes behind a proxy each allow the rate.)
+    users' requests are served. `SharedRateLimiter` keeps the buckets in Redis, for all API processes together,
+    and falls back on this one while Redis does not answer.
     """
 
     MAX_USERS = 100_000
@@ -81,6 +84,61 @@ class UserRateLimiter:
                 self._buckets.clear()
             self._buckets[user] = (tokens - 1.0, now)
             return 0.0
+
+
+# KEYS[1]: the user's bucket; ARGV: rate per s, burst. Returns the seconds to wait ("0" when the request may go),
+# as a string (Redis turns Lua numbers into integers). The time is Redis's own, the same for every API process.
+_TAKE_SCRIPT = """
+local rate = tonumber(ARGV[1])
+local burst = tonumber(ARGV[2])
+local clock = redis.call('TIME')
+local now = tonumber(clock[1]) + tonumber(clock[2]) / 1000000
+local bucket = redis.call('HMGET', KEYS[1], 'tokens', 'at')
+local tokens = tonumber(bucket[1]) or burst
+local at = tonumber(bucket[2]) or now
+tokens = math.min(burst, tokens + math.max(0, now - at) * rate)
+local wait = 0
+if tokens < 1 then
+  wait = (1 - tokens) / rate
+else
+  tokens = tokens - 1
+end
+redis.call('HSET', KEYS[1], 'tokens', tostring(tokens), 'at', tostring(now))
+redis.call('EXPIRE', KEYS[1], math.ceil(burst / rate) + 1)
+return tostring(wait)
+"""
+
+
+class SharedRateLimiter:
+    """`UserRateLimiter`'s bucket per user, kept in Redis: one script call per request, atomic, so a user's rate
+    is the same whether one API process or eight serve them. While Redis does not answer, each process counts
+    on its own (the limit is a courtesy to other users, not a security boundary: it must not fail requests)."""
+
+    KEY_PREFIX = "fringelab:rate:"
+    TIMEOUT_S = 0.5
+    RETRY_S = 1.0
+
+    def __init__(self, *, redis_url: str, rate_per_s: float, burst: int, namespace: str = "") -> None:
+        """`namespace`: what tells apart the users of different databases sharing one Redis (user ids repeat)."""
+        self.key_prefix = f"{self.KEY_PREFIX}{namespace}:" if namespace else self.KEY_PREFIX
+        self.rate_per_s = rate_per_s
+        self.burst = burst
+        self.local = UserRateLimiter(rate_per_s=rate_per_s, burst=burst)
+        self._redis = redis.Redis.from_url(
+            redis_url, socket_timeout=self.TIMEOUT_S, socket_connect_timeout=self.TIMEOUT_S
+        )
+        self._take = self._redis.register_script(_TAKE_SCRIPT)
+        self._down_until_s = 0.0
+
+    def take(self, user: object) -> float:
+        """Take one request from `user`'s bucket: 0 when allowed, else the seconds until one is."""
+        if time.monotonic() >= self._down_until_s:
+            try:
+                return float(self._take(keys=[f"{self.key_prefix}{user}"], args=[self.rate_per_s, self.burst]))
+            except (redis.RedisError, ValueError):
+                self._down_until_s = time.monotonic() + self.RETRY_S
+                logging.getLogger(__name__).warning("request rates counted per process: Redis did not answer")
+        return self.local.take(user)
 
 
 INT64_MAX = (1 << 63) - 1

@@ -85,6 +85,7 @@ class Supervisor:
     log_dir: Path
     children: list[Child] = field(default_factory=list)
     stopping: bool = False
+    embedded_redis_url: str = ""  # the Redis `up` started (loopback, no password): the CLI finds it here
 
     def start(self, name: str, argv: list[str], env: dict[str, str], log: IO[bytes] | None = None) -> Child:
         child = Child(name, _spawn(argv, env, log), argv, env, log)
@@ -123,7 +124,8 @@ class Supervisor:
             for c in self.children
         ]  # fmt: skip
         with contextlib.suppress(OSError):
-            write_json(self.settings.data_path / STATUS_FILE, {"supervisor_pid": os.getpid(), "children": children})
+            status = {"supervisor_pid": os.getpid(), "children": children, "redis_url": self.embedded_redis_url}
+            write_json(self.settings.data_path / STATUS_FILE, status)
 
     def stop_all(self) -> None:
         for child in reversed(self.children):  # web first, Redis last
@@ -154,6 +156,22 @@ def _stop_group(child: Child) -> None:
     with contextlib.suppress(ProcessLookupError):
         os.killpg(child.pid, signal.SIGKILL)  # stragglers such as pool processes of a worker killed mid-task
     child.process.wait()
+
+
+def running_redis_url(settings: Settings) -> str:
+    """The Redis of the running system: FRINGELAB_REDIS_URL, else the one a running `fringelab up` on this data
+    directory started (from its status file); "" when neither. The `fringelab user` commands tell the API
+    processes through it that an account changed."""
+    if settings.redis_url:
+        return settings.redis_url
+    import json
+
+    try:
+        status = json.loads((settings.data_path / STATUS_FILE).read_text())
+    except (OSError, ValueError):
+        return ""
+    url = status.get("redis_url", "") if isinstance(status, dict) else ""
+    return url if isinstance(url, str) else ""
 
 
 def _acquire_lock(path: Path) -> IO[str]:
@@ -212,7 +230,7 @@ def run_up(settings: Settings) -> int:
         env["FRINGELAB_DATABASE_URL"] = settings.resolved_database_url
         redis_url = settings.redis_url
         if not redis_url:
-            redis_url = _start_redis(supervisor, env)
+            redis_url = supervisor.embedded_redis_url = _start_redis(supervisor, env)
         check_redis(redis_url)
         env["FRINGELAB_REDIS_URL"] = redis_url
         command = [sys.executable, "-m", "backend.cli"]

@@ -2,15 +2,21 @@
 
 Run from the repository root:  .venv/bin/python bench/bench_load.py [--rate 200] [--duration 30] [--connections 100]
 
-It starts its own system (`python -m backend.cli up`, its own Redis, worker and web server) with accounts on in
-a temporary data directory, on a free loopback port, and stops it at the end (also on Ctrl-C or an error). Four
-users, each with an API token, share the load. A demo experiment (the virtual kodak camera) is measured first,
-so that results exist; a second demo is started just before the load, so that its calibrations and topography
-job run while the load runs. Then, open loop, `--rate` requests per second for `--duration` seconds from at most
-`--connections` concurrent connections, spread over results (topography grid, overview, profile), lists (jobs,
-recordings, experiments), single objects and Server-Sent-Event streams of jobs (read for at most 2 s). It
-prints the count of 5xx answers, of 429s, of timeouts (no answer in 10 s) and of connection errors, the p50 /
-p99 / max latency, and the web server's memory (RSS) before and after. Targets (issue 16): 0 × 5xx, no timeouts,
+It starts its own system (`python -m backend.cli up`, its own Redis, worker and web server processes) with
+accounts on in a temporary data directory, on a free loopback port, and stops it at the end (also on Ctrl-C or an
+error). Four users (two admins, two members of a group the demo experiments are shared with), each with an API
+token, share the load evenly (50/s each at 200/s, half the default per-user limit). A demo experiment (the virtual
+kodak camera) is measured first, so that results exist; a second demo is started just before the load, so that
+its calibrations and topography job run while the load runs. Then, open loop, `--rate` requests per second for
+`--duration` seconds from at most `--connections` concurrent connections, spread over results (topography grid,
+overview, profile), lists (jobs, recordings, experiments), single objects, logs and Server-Sent-Event streams of
+jobs (read for at most 2 s). The load comes from two client processes (aiohttp; one Python process could not send
+200 requests/s and time them honestly on a busy machine), plus a probe: a fifth user asking for one job every
+100 ms, one request at a time, whose latency is what a person at the dashboard would see.
+
+It prints the count of 5xx answers, of 429s, of timeouts (no answer in 10 s) and of connection errors, the p50 /
+p99 / max latency (of the load and of the probe), the web server's memory (RSS of all its processes) before and
+after, its CPU time per request, and the load average of the machine. Targets (issue 16): 0 × 5xx, no timeouts,
 p99 < 500 ms, memory growth < 20 %. Exit status 1 when a target is missed.
 """
 
@@ -20,6 +26,7 @@ import argparse
 import asyncio
 import contextlib
 import json
+import multiprocessing
 import os
 import random
 import signal
@@ -29,6 +36,7 @@ import sys
 import tempfile
 import time
 from collections import Counter
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import httpx
@@ -39,7 +47,11 @@ sys.path.insert(0, str(ROOT))
 
 from fringelab.core.services import free_port  # noqa: E402
 
-USERS = ("admin", "ada", "bob", "cy")
+USERS = ("admin", "lab", "ada", "bob")  # two admins, two members of the group the demos are shared with
+ADMINS = ("admin", "lab")
+PROBE_USER = "probe"
+CLIENT_PROCESSES = 2
+PROBE_INTERVAL_S = 0.1
 REQUEST_TIMEOUT_S = 10.0
 SETUP_TIMEOUT_S = 600.0
 STREAM_READ_S = 2.0
@@ -93,13 +105,24 @@ class System:
 
         wait(healthy, timeout_s=180, what="healthy `fringelab up`")
 
-    def api_process(self) -> psutil.Process:
+    def _child(self, command: str) -> list[psutil.Process]:
+        """The child of `up` running `fringelab <command>` (or `python -m <command>`) and its own processes."""
         assert self.process is not None
-        for child in psutil.Process(self.process.pid).children(recursive=True):
+        for child in psutil.Process(self.process.pid).children():
             with contextlib.suppress(psutil.Error):
-                if child.cmdline()[-1:] == ["api"]:
-                    return child
-        raise RuntimeError("no web server process under `fringelab up`")
+                if child.cmdline()[-1:] == [command]:
+                    return [child, *child.children(recursive=True)]
+        return []
+
+    def api_processes(self) -> list[psutil.Process]:
+        """The web server: the `fringelab api` process and the processes it serves with."""
+        processes = self._child("api")
+        if not processes:
+            raise RuntimeError("no web server process under `fringelab up`")
+        return processes
+
+    def worker_processes(self) -> list[psutil.Process]:
+        return self._child("worker")
 
     def stop(self) -> None:
         if self.process is None or self.process.poll() is not None:
@@ -128,6 +151,11 @@ def topography_job(client: httpx.Client, experiment_id: int, *, finished: bool) 
     return None
 
 
+def _topography_running(client: httpx.Client, experiment_id: int) -> bool:
+    job = topography_job(client, experiment_id, finished=False)
+    return job is not None and job["state"] == "running"
+
+
 def running_jobs(client: httpx.Client, experiment_id: int) -> list[str]:
     jobs = client.get("/api/v1/jobs", params={"experiment_id": experiment_id, "limit": 100}).json()["items"]
     return [job["id"] for job in jobs if job["state"] in ("queued", "running")]
@@ -141,7 +169,7 @@ def request_mix(job_id: str, running_job_ids: list[str], rng: random.Random) -> 
     if pick < 0.40:
         return "overview", f"/api/v1/jobs/{job_id}/topography", {}
     if pick < 0.50:
-        line = {"x0": -40.0, "y0": 0.0, "x1": 40.0, "y1": 0.0, "frames": [rng.randrange(0, 8)]}
+        line = {"x0": -40.0, "y0": 0.0, "x1": 40.0, "y1": 0.0, "frames": rng.randrange(0, 8)}
         return "profile", f"/api/v1/jobs/{job_id}/topography/profile", line
     if pick < 0.65:
         return "list", rng.choice(["/api/v1/jobs", "/api/v1/recordings", "/api/v1/experiments"]), {}
@@ -152,57 +180,157 @@ def request_mix(job_id: str, running_job_ids: list[str], rng: random.Random) -> 
     return "events", f"/api/v1/jobs/{rng.choice(running_job_ids or [job_id])}/events", {}
 
 
-async def one_request(client: httpx.AsyncClient, token: str, kind: str, path: str, params: dict,
-                      results: list[tuple[str, float, str]]) -> None:  # fmt: skip
+Result = tuple[str, float, str, float]  # kind, latency in s, status code or "timeout" / "error:...", sent at (unix s)
+
+
+async def one_request(session, token: str, kind: str, path: str, params: dict) -> Result:  # type: ignore[no-untyped-def]
+    import aiohttp
+
     headers = {"Authorization": f"Bearer {token}"}
+    sent_at = time.time()
     started = time.perf_counter()
     try:
-        if kind == "events":
-            async with client.stream("GET", path, headers=headers, timeout=REQUEST_TIMEOUT_S) as answer:
-                outcome = str(answer.status_code)
-                latency = time.perf_counter() - started  # to the first byte of the stream
-                with contextlib.suppress(TimeoutError):
-                    async with asyncio.timeout(STREAM_READ_S):
-                        async for _chunk in answer.aiter_bytes():
-                            pass
-        else:
-            answer = await client.get(path, params=params, headers=headers, timeout=REQUEST_TIMEOUT_S)
-            outcome = str(answer.status_code)
-            latency = time.perf_counter() - started
-    except httpx.TimeoutException:
+        async with asyncio.timeout(REQUEST_TIMEOUT_S):
+            async with session.get(path, params=params, headers=headers) as answer:
+                outcome = str(answer.status)
+                latency = time.perf_counter() - started  # for a stream: to its first byte
+                if kind != "events":
+                    await answer.read()
+                    latency = time.perf_counter() - started
+                else:
+                    with contextlib.suppress(TimeoutError):
+                        async with asyncio.timeout(STREAM_READ_S):
+                            async for _chunk in answer.content.iter_any():
+                                pass
+    except TimeoutError:
         outcome, latency = "timeout", time.perf_counter() - started
-    except httpx.HTTPError as error:
+    except aiohttp.ClientError as error:
         outcome, latency = f"error:{type(error).__name__}", time.perf_counter() - started
-    results.append((kind, latency, outcome))
+    return kind, latency, outcome, sent_at
 
 
-Result = tuple[str, float, str]  # kind, latency in s, status code or "timeout" / "error:..."
+async def _client(base_url: str, tokens: list[str], job_id: str, running: list[str], *, rate: float,
+                  duration_s: float, connections: int, seed: int, start_at: float, index: int,
+                  processes: int) -> tuple[list[Result], float]:  # fmt: skip
+    import aiohttp
 
-
-async def load(base_url: str, tokens: list[str], job_id: str, running: list[str], *, rate: float,
-               duration_s: float, connections: int, seed: int) -> tuple[list[Result], float]:  # fmt: skip
-    rng = random.Random(seed)
-    results: list[tuple[str, float, str]] = []
-    limits = httpx.Limits(max_connections=connections, max_keepalive_connections=connections)
+    rng = random.Random(seed * 1000 + index)
     gate = asyncio.Semaphore(connections)
-    async with httpx.AsyncClient(base_url=base_url, limits=limits) as client:
-        tasks = []
-        started = time.perf_counter()
-        total = int(rate * duration_s)
+    connector = aiohttp.TCPConnector(limit=connections, keepalive_timeout=30)
+    results: list[Result] = []
+    async with aiohttp.ClientSession(base_url, connector=connector) as session:
 
-        async def gated(index: int) -> None:
-            kind, path, params = request_mix(job_id, running, rng)
+        async def gated(number: int, kind: str, path: str, params: dict) -> None:
             async with gate:
-                await one_request(client, tokens[index % len(tokens)], kind, path, params, results)
+                results.append(await one_request(session, tokens[number % len(tokens)], kind, path, params))
 
-        for index in range(total):
-            delay = started + index / rate - time.perf_counter()
+        total = int(rate * duration_s)
+        tasks = []
+        # Both clients share one schedule: request n of all goes at start_at + n / rate; this one sends every
+        # `processes`-th, so the server sees one even stream at the asked rate.
+        await asyncio.sleep(max(0.0, start_at - time.time()))
+        started = time.perf_counter()
+        for number in range(index, total, processes):
+            delay = started + number / rate - time.perf_counter()
             if delay > 0:
                 await asyncio.sleep(delay)
-            tasks.append(asyncio.create_task(gated(index)))
+            tasks.append(asyncio.create_task(gated(number, *request_mix(job_id, running, rng))))
         await asyncio.gather(*tasks)
         elapsed = time.perf_counter() - started
     return results, elapsed
+
+
+def client_process(*arguments: object, **options: object) -> tuple[list[Result], float]:
+    """One load client, in a process of its own (started by `load`)."""
+    return asyncio.run(_client(*arguments, **options))  # type: ignore[arg-type]
+
+
+async def _probe(base_url: str, token: str, job_id: str, *, start_at: float, duration_s: float) -> list[Result]:
+    import aiohttp
+
+    results: list[Result] = []
+    connector = aiohttp.TCPConnector(limit=1, keepalive_timeout=30)
+    async with aiohttp.ClientSession(base_url, connector=connector) as session:
+        await asyncio.sleep(max(0.0, start_at - time.time()))
+        ends = time.perf_counter() + duration_s
+        while time.perf_counter() < ends:
+            began = time.perf_counter()
+            results.append(await one_request(session, token, "probe", f"/api/v1/jobs/{job_id}", {}))
+            await asyncio.sleep(max(0.0, PROBE_INTERVAL_S - (time.perf_counter() - began)))
+    return results
+
+
+def probe_process(*arguments: object, **options: object) -> list[Result]:
+    return asyncio.run(_probe(*arguments, **options))  # type: ignore[arg-type]
+
+
+def load(base_url: str, tokens: list[str], probe_token: str, job_id: str, running: list[str], *, rate: float,
+         duration_s: float, connections: int, seed: int,
+         start_at: float) -> tuple[list[Result], list[Result], float]:  # fmt: skip
+    """The load from CLIENT_PROCESSES processes and the probe's from one more, from `start_at` (unix s); (load,
+    probe, elapsed s)."""
+    spawn = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=CLIENT_PROCESSES + 1, mp_context=spawn) as pool:
+        clients = [
+            pool.submit(client_process, base_url, tokens, job_id, running, rate=rate, duration_s=duration_s,
+                        connections=max(1, connections // CLIENT_PROCESSES), seed=seed, start_at=start_at,
+                        index=index, processes=CLIENT_PROCESSES)
+            for index in range(CLIENT_PROCESSES)
+        ]  # fmt: skip
+        probe = pool.submit(probe_process, base_url, probe_token, job_id, start_at=start_at, duration_s=duration_s)
+        results: list[Result] = []
+        elapsed = 0.0
+        for client in clients:
+            part, took = client.result()
+            results += part
+            elapsed = max(elapsed, took)
+        return results, probe.result(), elapsed
+
+
+def share_with_members(client: httpx.Client, experiment_ids: list[int]) -> None:
+    """The members read the demos through a group share, as a lab does (not the 404 of someone else's data)."""
+    members = [name for name in USERS if name not in ADMINS]
+    group = client.post("/api/v1/groups", json={"name": "bench", "members": members})
+    group.raise_for_status()
+    for experiment_id in experiment_ids:
+        client.patch(f"/api/v1/experiments/{experiment_id}", json={"group_id": group.json()["id"]}).raise_for_status()
+
+
+def serving(processes: list[psutil.Process]) -> list[psutil.Process]:
+    """The processes that serve requests: uvicorn's children, not its parent (which only holds the port) nor
+    multiprocessing's resource tracker."""
+    kept = []
+    for process in processes[1:] or processes:
+        with contextlib.suppress(psutil.Error):
+            if "resource_tracker" not in " ".join(process.cmdline()):
+                kept.append(process)
+    return kept
+
+
+def _load_s(moment: str | None, start_at: float) -> str:
+    """An ISO time of the API as seconds from the start of the load."""
+    if not moment:
+        return "-"
+    from datetime import datetime
+
+    return f"{datetime.fromisoformat(moment.replace('Z', '+00:00')).timestamp() - start_at:.0f}"
+
+
+def cpu_s(processes: list[psutil.Process]) -> float:
+    total = 0.0
+    for process in processes:
+        with contextlib.suppress(psutil.Error):
+            times = process.cpu_times()
+            total += times.user + times.system
+    return total
+
+
+def rss_bytes(processes: list[psutil.Process]) -> int:
+    total = 0
+    for process in processes:
+        with contextlib.suppress(psutil.Error):
+            total += process.memory_info().rss
+    return total
 
 
 def percentile(values: list[float], q: float) -> float:
@@ -214,17 +342,24 @@ def main() -> int:
     parser.add_argument("--rate", type=float, default=200.0, help="requests per second")
     parser.add_argument("--duration", type=float, default=30.0, help="seconds of load")
     parser.add_argument("--connections", type=int, default=100, help="concurrent connections at most")
-    parser.add_argument("--test-frames", type=int, default=8, help="frames of each demo's simulated test")
+    parser.add_argument("--test-frames", type=int, default=8, help="frames of the first demo's simulated test")
+    parser.add_argument(
+        "--running-frames",
+        type=int,
+        default=48,
+        help="frames of the second demo's test: enough that its topography runs through the load",
+    )
     parser.add_argument("--seed", type=int, default=16)
     args = parser.parse_args()
 
     with tempfile.TemporaryDirectory(prefix="fringelab-bench-load-") as temp:
         system = System(Path(temp) / "var")
         Path(temp, "var").mkdir()
-        for index, name in enumerate(USERS):
-            flags = ["--admin"] if index == 0 else []
+        for name in (*USERS, PROBE_USER):
+            flags = ["--admin"] if name in ADMINS or name == PROBE_USER else []
             cli(system.env, "user", "add", name, *flags, "--password-stdin", stdin=f"{name}-password-16\n")
         tokens = [cli(system.env, "token", "create", name, "--name", "bench") for name in USERS]
+        probe_token = cli(system.env, "token", "create", PROBE_USER, "--name", "bench")
         try:
             system.start()
             setup_started = time.monotonic()
@@ -234,45 +369,89 @@ def main() -> int:
             job = wait(lambda: topography_job(admin, first, finished=True), timeout_s=SETUP_TIMEOUT_S,
                        what="finished topography job of the first demo", interval_s=2)  # fmt: skip
             print(f"setup: first demo measured in {time.monotonic() - setup_started:.0f} s", flush=True)
-            second = demo(admin, test_frames=args.test_frames)
-            running = wait(lambda: running_jobs(admin, second), timeout_s=120, what="job of the second demo")
-            # Every user's requests name the admin's jobs: the admin reads them (half the requests), members get
-            # the 404 of an object they may not see, which costs the server the same authentication and check.
-            api = system.api_process()
-            rss_before = api.memory_info().rss
-            results, elapsed = asyncio.run(
-                load(system.base_url, tokens[:1] * 3 + tokens[1:], job["id"], running, rate=args.rate,
-                     duration_s=args.duration, connections=args.connections, seed=args.seed)
+            second = demo(admin, test_frames=args.running_frames)
+            # The load starts once the second demo's topography job runs (its ingest and calibrations first).
+            wait(lambda: _topography_running(admin, second), timeout_s=SETUP_TIMEOUT_S,
+                 what="running topography job of the second demo", interval_s=0.5)  # fmt: skip
+            # One topography of 200 frames takes ~10 s here: more of the same keep the worker busy through the load.
+            spec = topography_job(admin, second, finished=False)["spec"]  # type: ignore[index]
+            last = (spec.get("frames") or {}).get("last") or args.running_frames - 1
+            for extra in range(1, int(args.duration // 10) + 2):  # one frame fewer each: not the same spec
+                again = {**spec, "frames": {"first": 0, "last": last - extra}}
+                admin.post("/api/v1/jobs", json=again).raise_for_status()
+            running = running_jobs(admin, second)
+            share_with_members(admin, [first, second])
+            api = system.api_processes()
+            workers = system.worker_processes()
+            rss_before, api_cpu_before, worker_cpu_before = rss_bytes(api), cpu_s(api), cpu_s(workers)
+            load_before = os.getloadavg()
+            start_at = time.time() + 3.0  # every client process started by then
+            results, probed, elapsed = load(
+                system.base_url, tokens, probe_token, job["id"], running, rate=args.rate, duration_s=args.duration,
+                connections=args.connections, seed=args.seed, start_at=start_at,
             )  # fmt: skip
-            rss_after = api.memory_info().rss
+            load_after = os.getloadavg()
+            api = system.api_processes()  # the same ones unless one was restarted (then the figure says so)
+            serving_count = len(serving(api))
+            rss_after, api_cpu, worker_cpu = (
+                rss_bytes(api),
+                cpu_s(api) - api_cpu_before,
+                cpu_s(workers) - worker_cpu_before,
+            )
             try:
                 second_jobs = admin.get("/api/v1/jobs", params={"experiment_id": second, "limit": 100}).json()
                 states = Counter(f"{j['kind']}:{j['state']}" for j in second_jobs["items"])
+                spans = {f"{j['kind']} {j['id'][:6]}": (j["started_at"], j["finished_at"])
+                         for j in second_jobs["items"]}  # fmt: skip
             except httpx.HTTPError as error:  # a server still swamped after the load: say so, keep the figures
                 states = Counter({f"unanswered after the load ({type(error).__name__})": 1})
+                spans = {}
             admin.close()
         finally:
             system.stop()
 
-    outcomes = Counter(outcome for _kind, _latency, outcome in results)
-    answered = [latency for _kind, latency, outcome in results if outcome[0].isdigit()]
-    server_errors = sum(count for outcome, count in outcomes.items() if outcome.startswith("5"))
-    timeouts = outcomes.get("timeout", 0)
-    failures = sum(count for outcome, count in outcomes.items() if outcome.startswith("error"))
+    outcomes = Counter(outcome for _kind, _latency, outcome, _at in results)
+    answered = [latency for _kind, latency, outcome, _at in results if outcome[0].isdigit()]
+    probe_answered = [latency for _kind, latency, outcome, _at in probed if outcome[0].isdigit()]
+    probe_outcomes = Counter(outcome for _kind, _latency, outcome, _at in probed)
+    server_errors = sum(count for outcome, count in (outcomes + probe_outcomes).items() if outcome.startswith("5"))
+    timeouts = outcomes.get("timeout", 0) + probe_outcomes.get("timeout", 0)
+    failures = sum(count for outcome, count in (outcomes + probe_outcomes).items() if outcome.startswith("error"))
     p50, p99 = percentile(answered, 50), percentile(answered, 99)
     growth = (rss_after - rss_before) / rss_before
-    load_1, load_5, load_15 = os.getloadavg()
-    print(f"load: {len(results)} requests in {elapsed:.1f} s ({len(results) / elapsed:.0f}/s asked {args.rate:.0f}/s), "
-          f"at most {args.connections} connections, 4 users")  # fmt: skip
+    sent_s = max(at for *_rest, at in results) - min(at for *_rest, at in results)
+    print(f"load: {len(results)} requests sent over {sent_s:.1f} s ({len(results) / sent_s:.0f}/s, asked "
+          f"{args.rate:.0f}/s; the last answered at {elapsed:.1f} s) "
+          f"from {CLIENT_PROCESSES} client processes, at most {args.connections} connections, {len(USERS)} users; "
+          f"web server: {serving_count} processes")  # fmt: skip
     print(f"answers: {json.dumps(dict(sorted(outcomes.items())))}")
-    by_kind = Counter(kind for kind, _latency, _outcome in results)
+    by_kind = Counter(kind for kind, _latency, _outcome, _at in results)
     print(f"mix: {json.dumps(dict(sorted(by_kind.items())))}")
     print(f"5xx: {server_errors}   timeouts: {timeouts}   connection errors: {failures}   "
-          f"429: {outcomes.get('429', 0)}")  # fmt: skip
+          f"429: {outcomes.get('429', 0) + probe_outcomes.get('429', 0)}")  # fmt: skip
     print(f"latency: p50 {p50 * 1000:.0f} ms   p99 {p99 * 1000:.0f} ms   max {max(answered) * 1000:.0f} ms")
+    for kind in sorted(by_kind):
+        of_kind = [latency for k, latency, outcome, _at in results if k == kind and outcome[0].isdigit()]
+        kind_p50, kind_p99 = percentile(of_kind, 50), percentile(of_kind, 99)
+        print(f"  {kind:>8}: p50 {kind_p50 * 1000:4.0f} ms   p99 {kind_p99 * 1000:5.0f} ms")
+    if probe_answered:
+        probe_p50, probe_p99 = percentile(probe_answered, 50), percentile(probe_answered, 99)
+        print(f"probe (one job every {PROBE_INTERVAL_S * 1000:.0f} ms, {len(probed)} asked): "
+              f"p50 {probe_p50 * 1000:.0f} ms   p99 {probe_p99 * 1000:.0f} ms   max {max(probe_answered) * 1000:.0f} ms"
+              f"   {json.dumps(dict(sorted(probe_outcomes.items())))}")  # fmt: skip
+    slow_at = Counter(int(at - start_at) for _kind, latency, _outcome, at in results + probed if latency > 0.5)
+    if slow_at:
+        print(f"seconds of the load (from 0) with answers over 500 ms, and how many: {dict(sorted(slow_at.items()))}")
     print(f"web server RSS: {rss_before / 2**20:.0f} MiB -> {rss_after / 2**20:.0f} MiB ({growth * 100:+.1f} %)")
+    print(f"CPU during the load: web server {api_cpu:.1f} s ({api_cpu / max(1, len(results) + len(probed)) * 1000:.1f} "
+          f"ms per request), worker {worker_cpu:.1f} s")  # fmt: skip
     print(f"jobs of the demo run during the load: {dict(states)}")
-    print(f"load average (1/5/15 min): {load_1:.2f} {load_5:.2f} {load_15:.2f}")
+    ran = []
+    for kind, (begun, ended) in spans.items():
+        ran.append(f"{kind} {_load_s(begun, start_at)} to {_load_s(ended, start_at)} s")
+    print(f"  the load ran from 0 to {elapsed:.0f} s; the jobs: {'; '.join(ran)}")
+    print(f"load average (1/5/15 min): before {' '.join(f'{v:.2f}' for v in load_before)}, "
+          f"after {' '.join(f'{v:.2f}' for v in load_after)}; {os.cpu_count()} CPUs")  # fmt: skip
     missed = [name for name, ok in (("0 × 5xx", server_errors == 0), ("no timeouts", timeouts == 0 and failures == 0),
               ("p99 < 500 ms", p99 < 0.5), ("memory growth < 20 %", growth < 0.2)) if not ok]  # fmt: skip
     print("targets: all met" if not missed else f"targets missed: {', '.join(missed)}")

@@ -20,6 +20,16 @@ def create_worker_app(settings: Settings) -> Celery:
     return create_celery(settings, include=TASK_MODULES)
 
 
+def lower_priority(nice: int) -> None:
+    """Run this process and its pool processes (they inherit it) at niceness `nice` (FRINGELAB_WORKER_NICE): on
+    one machine, a topography job using every core then yields the CPU to the web server's requests. Only ever
+    lowers the priority (raising it needs privileges)."""
+    if hasattr(os, "setpriority"):
+        current = os.getpriority(os.PRIO_PROCESS, 0)
+        if nice > current:
+            os.setpriority(os.PRIO_PROCESS, 0, nice)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Start a prefork worker, one process per core (FRINGELAB_WORKER_CONCURRENCY); exit 2 on a start-up fault."""
     try:
@@ -30,6 +40,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (SettingsError, ServiceError) as error:
         print(f"fringelab worker: {error}", file=sys.stderr)
         return 2
+    lower_priority(settings.worker_nice)
     create_worker_app(settings).worker_main(
         [
             "worker",

@@ -8,11 +8,12 @@ retrying need write access; a job of an experiment one may not read is a 404. Jo
 
 from __future__ import annotations
 
-import json
 import logging
 import threading
-from collections.abc import AsyncIterator
+from collections import defaultdict
+from collections.abc import AsyncIterator, Sequence
 from datetime import datetime
+from functools import partial
 from typing import Annotated, Any
 
 import anyio
@@ -25,6 +26,7 @@ from sqlalchemy.orm import Session
 
 from backend.api.deps import CurrentUser, SessionDep, StateDep, bearer_scheme, principal_of, request_secret
 from backend.errors import error_responses
+from backend.polls import SharedPolls
 from backend.schemas.deletion import DeletionOut, deletion_out
 from backend.schemas.jobs import (
     MAX_ID,
@@ -76,9 +78,27 @@ def _seconds(start: datetime | None, end: datetime | None) -> float | None:
 
 
 def job_out(session: Session, job: Job, *, now: datetime | None = None) -> JobOut:
+    return job_outs(session, [job], now=now)[0]
+
+
+def job_outs(session: Session, jobs: Sequence[Job], *, now: datetime | None = None) -> list[JobOut]:
+    """The jobs as the API shows them, with two queries for all of them (their chunks, their retries), not two
+    per job: a list of 50 jobs asked 100 queries before."""
     now = now or utcnow()
-    chunks = session.scalars(select(JobChunk).where(JobChunk.job_id == job.id).order_by(JobChunk.phase, JobChunk.index))
-    retried_by = session.scalar(select(Job.id).where(Job.retry_of == job.id).order_by(Job.created_at.desc()))
+    ids = [job.id for job in jobs]
+    chunks_of: dict[str, list[JobChunk]] = defaultdict(list)
+    retried_by: dict[str | None, str] = {}
+    if ids:
+        query = select(JobChunk).where(JobChunk.job_id.in_(ids)).order_by(JobChunk.phase, JobChunk.index)
+        for chunk in session.scalars(query):
+            chunks_of[chunk.job_id].append(chunk)
+        retries = select(Job.retry_of, Job.id).where(Job.retry_of.in_(ids)).order_by(Job.created_at, Job.id)
+        for retry_of, retry_id in session.execute(retries):
+            retried_by[retry_of] = retry_id  # the newest retry last
+    return [_job_out(job, chunks_of[job.id], retried_by.get(job.id), now) for job in jobs]
+
+
+def _job_out(job: Job, chunks: list[JobChunk], retried_by: str | None, now: datetime) -> JobOut:
     total = job.progress_total
     return JobOut(
         id=job.id,
@@ -179,8 +199,7 @@ def list_jobs(
         query = query.where(Job.experiment_id == experiment_id)
     total = session.scalar(select(func.count()).select_from(query.subquery())) or 0
     jobs = session.scalars(query.order_by(Job.created_at.desc(), Job.id).limit(limit).offset(offset)).all()
-    now = utcnow()
-    return JobList(items=[job_out(session, job, now=now) for job in jobs], total=total)
+    return JobList(items=job_outs(session, jobs), total=total)
 
 
 def _visible_jobs(session: Session, principal: Principal, experiment_id: int | None) -> Any:
@@ -194,35 +213,61 @@ def _visible_jobs(session: Session, principal: Principal, experiment_id: int | N
     return query
 
 
-def _list_signature(state: AppState, principal: Principal, experiment_id: int | None) -> tuple[int, str, list[str]]:
-    """(count, newest id, ids of jobs that changed): cheap enough to ask twice a second."""
+def _list_marks(state: AppState, principal: Principal, experiment_id: int | None) -> dict[str, str]:
+    """A mark of each job the caller may see, which changes when the job does: cheap enough to ask twice a
+    second (and shared by every stream of the same view, see `_list_view`)."""
     with state.sessions() as session:
         rows = session.execute(_visible_jobs(session, principal, experiment_id)).all()
-    marks = {row.id: f"{row.state}|{row.stage}|{row.progress_done}|{row.finished_at}" for row in rows}
-    return len(rows), json.dumps(marks, sort_keys=True), sorted(marks)
+    return {row.id: f"{row.state}|{row.stage}|{row.progress_done}|{row.finished_at}" for row in rows}
+
+
+def _list_view(principal: Principal, experiment_id: int | None) -> tuple[object, ...]:
+    """Which jobs list a stream watches: admins all see the same one, members each their own."""
+    return ("jobs", "admin" if principal.is_admin else principal.user_id, experiment_id)
+
+
+def polls_of(request: Request) -> SharedPolls:
+    return request.app.state.polls
 
 
 @router.get("/jobs/events", response_class=EventSourceResponse, responses=error_responses(401, 422))
 async def jobs_events(
     state: StateDep,
+    request: Request,
     principal: CurrentUser,
+    credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer_scheme)],
     experiment_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
 ) -> AsyncIterator[ServerSentEvent]:
     """Changes of the jobs list as Server-Sent Events: `jobs` ({"changed": [ids], "total": n}) whenever a job the
     caller may see (of `experiment_id`, or any) is added, moves on, ends or goes; the dashboard's lists and the
     queue page refresh on it instead of polling. Comments keep it alive; it closes after FRINGELAB_LIST_EVENTS_S
-    and the browser's EventSource reconnects (the first event after a reconnect names every job)."""
+    and the browser's EventSource reconnects (the first event after a reconnect names every job). The reader's
+    token is checked again every few seconds: once it is revoked (or the account disabled) the stream sends
+    `end` with the reason and closes."""
+    secret = request_secret(request, credentials)
+    polls = polls_of(request)
     last: dict[str, str] | None = None
     idle_s = 0.0
+    checked_at_s = anyio.current_time()
     ends = anyio.current_time() + state.settings.list_events_s  # then the browser reconnects (retry)
     while anyio.current_time() < ends:
-        total, text, _ids = await anyio.to_thread.run_sync(_list_signature, state, principal, experiment_id)
-        marks = json.loads(text)
+        if anyio.current_time() - checked_at_s >= EVENTS_ACCESS_CHECK_S:
+            checked_at_s = anyio.current_time()
+            try:  # the role may have changed too: the list then shows what the reader may see now
+                principal = await anyio.to_thread.run_sync(lambda: principal_of(request, state, secret, count=False))
+            except Unauthorized as error:
+                yield ServerSentEvent(
+                    event="end", data={"state": "forbidden", "error": f"access ended: {error.detail}"}
+                )
+                return
+        marks = await polls.get(
+            _list_view(principal, experiment_id), partial(_list_marks, state, principal, experiment_id)
+        )
         if marks != last:
             changed = sorted(k for k in set(marks) | set(last or {}) if (last or {}).get(k) != marks.get(k))
             last = marks
             idle_s = 0.0
-            yield ServerSentEvent(event="jobs", data={"changed": changed, "total": total}, retry=2000)
+            yield ServerSentEvent(event="jobs", data={"changed": changed, "total": len(marks)}, retry=2000)
         elif idle_s >= 15.0:
             idle_s = 0.0
             yield ServerSentEvent(comment="keep-alive")
@@ -274,6 +319,7 @@ async def job_events(
     again every few seconds while the stream is open: a revoked token, a disabled account or a lost share ends
     it with an `end` event whose error says so."""
     secret = request_secret(request, credentials)
+    polls = polls_of(request)
     last_view: dict[str, Any] | None = None
     last_line = 0
     sequence = 0
@@ -285,9 +331,12 @@ async def job_events(
             if refusal:
                 yield ServerSentEvent(event="end", data={"state": "forbidden", "error": refusal})
                 return
-        view, lines = await anyio.to_thread.run_sync(_snapshot, state, job_id, last_line)
+        view, newest_line = await polls.get(("job", job_id), partial(_job_view, state, job_id))
         if view is None:
             return
+        lines: list[LogLineOut] = []
+        if newest_line > last_line:  # streams that are as far along share one read of the new lines
+            lines = await polls.get(("log", job_id, last_line), partial(_log_after, state, job_id, last_line))
         for line in lines:
             last_line = line.id
             yield ServerSentEvent(event="log", data=line, id=f"log-{line.id}")
@@ -313,12 +362,19 @@ def _access_refusal(request: Request, state: AppState, secret: str | None, job_i
     return ""
 
 
-def _snapshot(state: AppState, job_id: str, after: int) -> tuple[JobOut | None, list[LogLineOut]]:
+def _job_view(state: AppState, job_id: str) -> tuple[JobOut | None, int]:
+    """The job as its event stream shows it (None once deleted) and the id of its newest log line."""
     with state.sessions() as session:
         job = session.get(Job, job_id)
         if job is None:
-            return None, []
-        return job_out(session, job), _log_lines(session, job_id, after=after)
+            return None, 0
+        newest = session.scalar(select(func.max(JobLog.id)).where(JobLog.job_id == job_id)) or 0
+        return job_out(session, job), newest
+
+
+def _log_after(state: AppState, job_id: str, after: int) -> list[LogLineOut]:
+    with state.sessions() as session:
+        return _log_lines(session, job_id, after=after)
 
 
 @router.get("/jobs/{job_id}/deletion", response_model=DeletionOut, responses=WRITE_ERRORS)

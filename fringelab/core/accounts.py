@@ -168,6 +168,31 @@ class _Known:
     token_id: int
     expires_at: datetime | None
     checked_at_s: float
+    generation: int | None  # the access generation when it was checked (None: unknown, never trusted)
+
+
+ACCESS_GENERATION_KEY = "fringelab:access-generation"
+REDIS_TIMEOUT_S = 0.5
+REDIS_RETRY_S = 1.0  # after Redis failed to answer, how long checked tokens are not trusted without asking it
+
+
+def announce_access_change(redis_url: str) -> bool:
+    """Tell every API process that a token was revoked or an account changed (the access generation in Redis
+    goes up; each process's TokenCache then asks the database again). False when Redis could not be reached:
+    the change then reaches other processes within FRINGELAB_TOKEN_CACHE_S."""
+    if not redis_url:
+        return False
+    try:
+        connection = redis.Redis.from_url(
+            redis_url, socket_timeout=REDIS_TIMEOUT_S * 4, socket_connect_timeout=REDIS_TIMEOUT_S * 4
+        )
+        try:
+            connection.incr(ACCESS_GENERATION_KEY)
+        finally:
+            connection.close()
+    except redis.RedisError:
+        return False
+    return True
 
 
 class TokenCache:
@@ -176,29 +201,63 @@ class TokenCache:
     Authentication is on every request: a database read (and, before, a write of `last_used_at`) each time
     made 200 requests/s exhaust the connection pool. Here a token costs one read per `ttl_s`; refusals are
     remembered as well (a flood of bad tokens costs no more). `last_used_at` is kept in memory and written by
-    `flush_last_used` in one transaction (the API calls it every few seconds and at shutdown). A revocation,
-    a disabled account or a changed role calls `forget()` in this process; another process sees it within `ttl_s`.
+    `flush_last_used` in one transaction (the API calls it every few seconds and at shutdown).
+
+    Several API processes each keep a cache. A revocation, a disabled account or a changed role calls `forget()`,
+    which empties this cache and raises the access generation in Redis (`announce_access_change`, also what the
+    `fringelab user` commands call); every process reads that generation on each request (one Redis GET, no
+    database) and empties its cache when it moved, so a revoked token is refused by all of them at once. While
+    Redis does not answer, no checked token is trusted: each request asks the database.
     """
 
     MAX_ENTRIES = 10_000
 
-    def __init__(self, ttl_s: float) -> None:
+    def __init__(self, ttl_s: float, *, redis_url: str = "") -> None:
         self.ttl_s = ttl_s
+        self.redis_url = redis_url
         self._known: dict[str, _Known] = {}
         self._last_used: dict[int, datetime] = {}
         self._lock = threading.Lock()
+        self._generation: int | None = None
+        self._redis_down_until_s = 0.0
+        self._redis = (
+            redis.Redis.from_url(redis_url, socket_timeout=REDIS_TIMEOUT_S, socket_connect_timeout=REDIS_TIMEOUT_S)
+            if redis_url
+            else None
+        )
+
+    def _shared_generation(self) -> int | None:
+        """The access generation in Redis; None when it cannot be known (no Redis, or it did not answer)."""
+        if self._redis is None or time.monotonic() < self._redis_down_until_s:
+            return None
+        try:
+            return int(self._redis.get(ACCESS_GENERATION_KEY) or 0)
+        except (redis.RedisError, ValueError):
+            self._redis_down_until_s = time.monotonic() + REDIS_RETRY_S
+            return None
 
     def resolve(self, sessions: sessionmaker[Session], secret: str) -> Principal:
         digest = token_digest(secret)
         now_s = time.monotonic()
+        generation = self._shared_generation() if self._redis is not None else 0
+        if generation is not None and generation != self._generation:
+            with self._lock:  # entries of older generations are never trusted again: free them
+                self._known.clear()
+                self._generation = generation
         known = self._known.get(digest)
-        if known is None or now_s - known.checked_at_s >= self.ttl_s:
+        trusted = (
+            known is not None
+            and generation is not None
+            and known.generation == generation
+            and now_s - known.checked_at_s < self.ttl_s
+        )
+        if known is None or not trusted:
             with sessions() as session:
                 try:
                     principal, token_id, expires_at = _lookup_token(session, secret)
-                    known = _Known(principal, "", token_id, expires_at, now_s)
+                    known = _Known(principal, "", token_id, expires_at, now_s, generation)
                 except AuthError as error:
-                    known = _Known(None, str(error), 0, None, now_s)
+                    known = _Known(None, str(error), 0, None, now_s, generation)
             with self._lock:
                 if len(self._known) >= self.MAX_ENTRIES:
                     self._known.clear()
@@ -213,9 +272,11 @@ class TokenCache:
         return known.principal
 
     def forget(self) -> None:
-        """Drop every checked token (after a revocation, a disabled user, a role change)."""
+        """Drop every checked token, here and in every other API process (after a revocation, a disabled user,
+        a role change)."""
         with self._lock:
             self._known.clear()
+        announce_access_change(self.redis_url)
 
     def flush_last_used(self, sessions: sessionmaker[Session]) -> int:
         """Write the last uses seen since the previous flush; returns how many tokens were written."""

@@ -21,10 +21,12 @@ class DatabaseError(Exception):
     """The database cannot be reached or migrated; the message says how to fix it."""
 
 
-def make_engine(url: str, *, pool_size: int = 5) -> Engine:
-    """An engine with `pool_size` connections kept (and as many again on demand): the web server passes one
-    per thread that may run a route, so that no request waits for a connection another holds."""
-    pool: dict[str, int] = {"pool_size": pool_size, "max_overflow": pool_size, "pool_timeout": 30}
+def make_engine(url: str, *, max_connections: int = 10) -> Engine:
+    """An engine that opens at most `max_connections` connections (half kept, the rest on demand): the web
+    server passes one per thread that may run a route, so that no request waits for a connection another
+    holds, within its share of the database's connections (`Settings.resolved_db_pool_size`)."""
+    kept = max(1, (max_connections + 1) // 2)
+    pool: dict[str, int] = {"pool_size": kept, "max_overflow": max(0, max_connections - kept), "pool_timeout": 30}
     if url.startswith("sqlite"):
         path = url.split("///", 1)[-1]
         if path and path != ":memory:":

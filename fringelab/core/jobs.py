@@ -24,6 +24,7 @@ would count a chunk twice and fire the merge early; a row that goes `pending -> 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import uuid
@@ -799,21 +800,36 @@ def reconcile(
     return actions
 
 
+RECONCILE_LOCK = "fringelab:reconcile-lock"
+RECONCILE_LOCK_S = 120  # longer than a reconciliation takes; a process that died holding it frees it by then
+
+
 def reconcile_quietly(sessions: sessionmaker[Session], celery: Celery, settings: Settings) -> list[str]:
     """`reconcile` as the API runs it: a broker or database that is down is logged, not fatal (the health
-    endpoint reports it, and the next round reconciles)."""
+    endpoint reports it, and the next round reconciles). One API process at a time (a lock in Redis): two
+    processes reading the broker at once could both find a task lost and send it twice."""
     from fringelab.core.queue import QUEUE
 
     try:
-        with sessions() as session:
-            actions = reconcile(
-                session,
-                celery,
-                redis_url=settings.redis_url,
-                queues=[QUEUE],
-                lost_after_s=settings.worker_lost_after_s,
-                inspect_timeout_s=settings.health_worker_timeout_s,
-            )
+        connection = redis.Redis.from_url(settings.redis_url, socket_timeout=5, socket_connect_timeout=5)
+        lock = connection.lock(RECONCILE_LOCK, timeout=RECONCILE_LOCK_S, blocking=False)
+        if not lock.acquire():
+            connection.close()
+            return []  # another API process is reconciling right now
+        try:
+            with sessions() as session:
+                actions = reconcile(
+                    session,
+                    celery,
+                    redis_url=settings.redis_url,
+                    queues=[QUEUE],
+                    lost_after_s=settings.worker_lost_after_s,
+                    inspect_timeout_s=settings.health_worker_timeout_s,
+                )
+        finally:
+            with contextlib.suppress(redis.RedisError):
+                lock.release()
+            connection.close()
     except (SQLAlchemyError, redis.RedisError, OperationalError, OSError) as error:
         log.warning("jobs not reconciled with the queue: %s", error)
         return []

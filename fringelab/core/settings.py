@@ -35,6 +35,20 @@ class Settings(BaseSettings):
         description="Path prefix under which a reverse proxy serves the API (e.g. `/fringelab`); empty: at the root.",
     )
     worker_concurrency: int = Field(0, ge=0, description="Worker processes; 0 means one per CPU core.")
+    worker_nice: int = Field(
+        10,
+        ge=0,
+        le=19,
+        description="Scheduling niceness of the worker processes (0-19): the higher, the more the web server's "
+        "requests go first while a job computes on the same cores.",
+    )
+    api_processes: int = Field(
+        0,
+        ge=0,
+        le=64,
+        description="Web server processes sharing the port; 0 means one per CPU core, at most 8. Token "
+        "revocations and the per-user request rate are shared between them through Redis.",
+    )
     job_time_limit_s: int = Field(6 * 3600, ge=10, description="Hard time limit of one task.")
     visibility_timeout_s: int = Field(
         12 * 3600, ge=60, description="Redis redelivers an unacknowledged task after this; longer than any job."
@@ -81,13 +95,25 @@ class Settings(BaseSettings):
         40, ge=4, le=1000, description="Threads that run the web server's blocking routes (database, files)."
     )
     db_pool_size: int = Field(
-        0, ge=0, description="Database connections of one web server; 0 means one per API thread (+ 10)."
+        0,
+        ge=0,
+        description="Database connections of one web server process; 0 means one per API thread (+ 10), within "
+        "FRINGELAB_DB_MAX_CONNECTIONS shared by the API processes.",
+    )
+    db_max_connections: int = Field(
+        90,
+        ge=4,
+        description="Database connections all web server processes together may open (PostgreSQL allows 100 by "
+        "default; keep this below its max_connections minus the workers' own); each process gets its share.",
     )
     token_cache_s: float = Field(
         5.0, ge=0, le=300, description="How long a checked token is trusted without asking the database again."
     )
     user_requests_per_s: float = Field(
-        100.0, gt=0, description="Requests per second one user may send on average (a 429 beyond)."
+        100.0,
+        gt=0,
+        description="Requests per second one user may send on average, all web server processes together "
+        "(counted in Redis); a 429 beyond.",
     )
     user_request_burst: int = Field(300, ge=1, description="Requests one user may send at once above that rate.")
     log_level: Literal["debug", "info", "warning", "error"] = Field("info", description="Log level.")
@@ -152,8 +178,23 @@ class Settings(BaseSettings):
         return [origin.strip().rstrip("/") for origin in self.allowed_origins.split(",") if origin.strip()]
 
     @property
+    def resolved_api_processes(self) -> int:
+        return self.api_processes or max(1, min(8, os.cpu_count() or 1))
+
+    @property
     def resolved_db_pool_size(self) -> int:
-        return self.db_pool_size or self.api_threads + 10
+        """Database connections of one web server process: its threads' (+ 10 for event streams and background
+        work), but no more than its share of FRINGELAB_DB_MAX_CONNECTIONS, so that N processes never open more than
+        the server allows (several processes × a pool sized for one once exceeded PostgreSQL's 100)."""
+        if self.db_pool_size:
+            return self.db_pool_size
+        return max(2, min(self.api_threads + 10, self.db_max_connections // self.resolved_api_processes))
+
+    @property
+    def resolved_api_threads(self) -> int:
+        """Threads of one web server process: no more than it has database connections, as a thread beyond
+        would only wait for one (the pool's 30 s timeout, then a 500)."""
+        return max(2, min(self.api_threads, self.resolved_db_pool_size))
 
     @property
     def resolved_worker_concurrency(self) -> int:

@@ -17,7 +17,7 @@ import httpx
 import psutil
 import pytest
 
-from tests.support import RedisServer, wait_for
+from tests.support import RedisServer, bearer, wait_for
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
@@ -351,6 +351,21 @@ def test_the_last_admin_cannot_demote_itself(lab_server):
         assert admin.get("/api/v1/auth/me").json()["role"] == "admin"
     expired = lab_server.cli("token", "create", "ada", "--days", "-1")
     assert expired.returncode == 2 and "never expires" in expired.stderr
+
+
+def test_an_account_disabled_on_the_command_line_is_refused_at_once(lab_server):
+    """`fringelab user disable` while `up` runs reaches the Redis `up` started (its port is known only to `up`),
+    so no web server process goes on trusting the account's tokens for FRINGELAB_TOKEN_CACHE_S."""
+    added = lab_server.cli("user", "add", "zoe", "--password-stdin", stdin="zoe-password\n")
+    assert added.returncode == 0, added.stderr
+    token = lab_server.cli("token", "create", "zoe").stdout.strip()
+    clients = [httpx.Client(base_url=lab_server.url, headers=bearer(token), timeout=30) for _ in range(6)]
+    assert [c.get("/api/v1/auth/me").status_code for c in clients] == [200] * 6  # each process has checked it
+    disabled = lab_server.cli("user", "disable", "zoe")
+    assert disabled.returncode == 0 and "no running fringelab reached" not in disabled.stderr, disabled.stderr
+    assert [c.get("/api/v1/auth/me").status_code for c in clients] == [401] * 6
+    for client in clients:
+        client.close()
 
 
 # ------------------------------------------------------------------------------------------- 6: supervision
