@@ -6,6 +6,8 @@
 import { getJSON, postJSON, putFile } from "../api.js";
 import { COLORS, Figure, axis, lineLayout } from "../plots.js";
 import { attempt, field, fill, formatBytes, h, num, say, showError, table } from "../ui.js";
+import { filesOfDrop } from "../upload.js";
+import { storedZip } from "../zip.js";
 import { deleteButton } from "./deletion.js";
 import { jobName, shortId } from "./jobs.js";
 
@@ -94,50 +96,89 @@ export function simulationsPanel({ experimentId, context, topographies }) {
     mapping.simulationsChanged();
   };
 
+  // A simulation is one upload: a file as it is, or a folder (a d3plot family with nodout and rcforc, a .pvd with
+  // its .vtu files) packed in the browser into a stored ZIP, as the recordings' uploader packs folders of frames.
   const file = field(
     "Simulation file",
     h("input", { type: "file", accept: ".zip,.csv,.vtu,.pvd,.e,.exo,.ex2,.d3plot" }),
     "One file (a nodal CSV, a .vtu, an Exodus .e/.exo) or a ZIP of a folder: a d3plot family with nodout and rcforc, a .pvd with its .vtu files, a nodal CSV with its punch CSV (time_s, force_kN, punch_displacement_mm).",
   );
+  const folder = field("Simulation folder", h("input", { type: "file", webkitdirectory: true }),
+    "A folder is packed into one ZIP here and uploaded; so are several files dropped together.");
   const progress = h("progress", { max: 1, value: 0, hidden: true, "aria-label": "Upload progress of the simulation" });
   const progressText = h("span", { class: "progress-text", "aria-live": "polite" });
   const submit = h("button", { type: "submit", class: "primary" }, "Upload simulation");
+
+  /** Upload [{ file, path }] as one simulation: one file as it is, more (a folder's) as a stored ZIP. */
+  const send = async (items) => {
+    if (!items.length) return showError("choose a file or a folder first", "upload the simulation");
+    const top = items[0].path.includes("/") ? items[0].path.split("/")[0] : "simulation";
+    const name = items.length === 1 && !items[0].path.includes("/") ? items[0].file.name : `${top}.zip`;
+    submit.disabled = true;
+    progress.hidden = false;
+    const abort = new AbortController();
+    context.onLeave(() => abort.abort());
+    try {
+      let body = items[0].file;
+      if (items.length > 1 || items[0].path.includes("/")) {
+        const inFolder = items.map(({ file: f, path }) => ({ file: f, path: path.includes("/") ? path.split("/").slice(1).join("/") : path }));
+        body = await storedZip(inFolder, { onProgress: (done, total) => {
+          progressText.textContent = `packing ${items.length} files… ${Math.floor((100 * done) / total)} %`;
+        } });
+      }
+      const made = await putFile(`experiments/${experimentId}/simulations/${encodeURIComponent(name)}`, body, {
+        signal: abort.signal,
+        onProgress: (sent, total) => {
+          progress.value = total ? sent / total : 0;
+          progressText.textContent = `${formatBytes(sent)} of ${formatBytes(total)}${sent >= total ? ", reading the model…" : ""}`;
+        },
+      });
+      say(`Simulation ${made.id} ${made.filename} uploaded: ${simulationFacts(made)}.`);
+      progressText.textContent = "";
+      await refresh();
+    } catch (error) {
+      progressText.textContent = "";
+      showError(error, `upload ${name}`);
+    } finally {
+      submit.disabled = false;
+      progress.hidden = true;
+    }
+    return null;
+  };
+  const picked = (input) => {
+    const items = [...input.files].map((f) => ({ file: f, path: f.webkitRelativePath || f.name }));
+    input.value = "";
+    return items;
+  };
+  folder.input.addEventListener("change", () => send(picked(folder.input)));
   const upload = h(
     "form",
     {
-      class: "card grid-form",
+      class: "card grid-form dropzone",
       "aria-label": "Upload a simulation",
-      onsubmit: async (event) => {
+      ondragover: (event) => {
         event.preventDefault();
-        const chosen = file.input.files[0];
-        if (!chosen) return showError("choose a file first", "upload the simulation");
-        submit.disabled = true;
-        progress.hidden = false;
-        const abort = new AbortController();
-        context.onLeave(() => abort.abort());
+        upload.classList.add("over");
+      },
+      ondragleave: () => upload.classList.remove("over"),
+      ondrop: async (event) => {
+        event.preventDefault();
+        upload.classList.remove("over");
         try {
-          const made = await putFile(`experiments/${experimentId}/simulations/${encodeURIComponent(chosen.name)}`, chosen, {
-            signal: abort.signal,
-            onProgress: (sent, total) => {
-              progress.value = total ? sent / total : 0;
-              progressText.textContent = `${formatBytes(sent)} of ${formatBytes(total)}${sent >= total ? ", reading the model…" : ""}`;
-            },
-          });
-          say(`Simulation ${made.id} ${made.filename} uploaded: ${simulationFacts(made)}.`);
-          file.input.value = "";
-          progressText.textContent = "";
-          await refresh();
+          await send(await filesOfDrop(event.dataTransfer));
         } catch (error) {
-          progressText.textContent = "";
-          showError(error, `upload ${chosen.name}`);
-        } finally {
-          submit.disabled = false;
-          progress.hidden = true;
+          showError(error, "read the dropped files");
         }
+      },
+      onsubmit: (event) => {
+        event.preventDefault();
+        send(picked(file.input));
       },
     },
     h("h3", {}, "Upload a simulation"),
+    h("p", { class: "hint wide-row" }, "Drop a simulation's file or folder here, or choose it."),
     file.wrap,
+    folder.wrap,
     h("div", { class: "actions" }, submit, " ", progress, " ", progressText),
   );
   refresh();

@@ -2,19 +2,19 @@
 
 The measurement is the virtual experiment's topography (tests/pipelines/conftest.py, `measured`: 8 frames, the
 pipeline's own result), registered as a succeeded topography job of a new experiment. The simulation is that
-experiment's true surface written as a quarter model in metres (a .pvd/.vtu series with nodout and rcforc, zipped,
-over 1 MiB) whose states reach only the punch travel of frame 5, at displacements that are not the frames': so the
-units and the symmetry must be detected, the states interpolated, and frames 6 and 7 are left uncompared, with
-their reason, as gaps. Through the dashboard: upload, the mapping form's live preview (detected choices shown in
-the controls, a wrong unit refused in the form's own words), the comparison job, its view (map, field switch,
-frame slider, profile with ±σ, peak and force curves, per-frame differences with the gaps) and an export.
+experiment's true surface written as a quarter model in metres (a folder: a .pvd/.vtu series with nodout and
+rcforc, over 1 MiB, packed into a ZIP by the browser) whose states reach only the punch travel of frame 5, at
+displacements that are not the frames': so the units and the symmetry must be detected, the states interpolated,
+and frames 6 and 7 are left uncompared, with their reason, as gaps. Through the dashboard: upload, the mapping
+form's live preview (detected choices shown in the controls, a wrong unit and a model off the plate refused in the
+form's own words), the comparison job, its view (map, field switch, frame slider, profile with ±σ, peak and force
+curves, per-frame differences with the gaps) and an export.
 """
 
 from __future__ import annotations
 
 import re
 import uuid
-import zipfile
 from pathlib import Path
 
 import httpx
@@ -57,18 +57,12 @@ def register_topography(data_dir: Path, experiment_id: int, result: Path) -> str
 
 
 def quarter_model_in_metres(measured, folder: Path) -> Path:  # type: ignore[no-untyped-def]  # noqa: F811
-    """The true surface as a zipped quarter model in metres, its states short of the test's last frames."""
+    """The true surface as a quarter model in metres (a folder), its states short of the test's last frames."""
     with TopographyResult(measured.result) as result:
         punch_mm = result.column("frames/punch_displacement_mm")
     states = np.linspace(0.0, punch_mm[LAST_SIMULATED_FRAME], 7)  # not the frames' displacements
-    model = write_true_simulation(measured.truth_json, folder / "plate-fe", kind="vtu", quarter=True,
-                                  length_unit="m", state_punch_mm=states, resolution=0.03)  # fmt: skip
-    archive = folder / "plate-fe.zip"
-    with zipfile.ZipFile(archive, "w", compression=zipfile.ZIP_STORED) as out:  # stored: over 1 MiB, as models are
-        for path in sorted(model.rglob("*")):
-            if path.is_file():
-                out.write(path, Path(model.name) / path.relative_to(model))
-    return archive
+    return write_true_simulation(measured.truth_json, folder / "plate-fe", kind="vtu", quarter=True,
+                                 length_unit="m", state_punch_mm=states, resolution=0.03)  # fmt: skip
 
 
 def test_upload_map_with_a_live_preview_compare_and_export(
@@ -82,14 +76,14 @@ def test_upload_map_with_a_live_preview_compare_and_export(
     base = f"{live_server.base_url}/api/v1"
     experiment = httpx.post(f"{base}/experiments", json={"name": "plate vs LS-DYNA"}, timeout=30).json()
     topography = register_topography(live_server.data_dir, experiment["id"], measured.result)
-    archive = quarter_model_in_metres(measured, tmp_path)
-    assert archive.stat().st_size > 2**20  # over the JSON bodies' cap: the simulation upload streams past it
+    model = quarter_model_in_metres(measured, tmp_path)
+    # over the JSON bodies' cap: the simulation's upload streams past it
+    assert sum(path.stat().st_size for path in model.rglob("*")) > 2**20
 
     page.goto(f"/#/experiments/{experiment['id']}")
     section = page.get_by_role("region", name="Simulations and comparisons")
     upload = section.get_by_role("form", name="Upload a simulation")
-    upload.get_by_label("Simulation file").set_input_files(str(archive))
-    upload.get_by_role("button", name="Upload simulation").click()
+    upload.get_by_label("Simulation folder").set_input_files(str(model))  # packed into a ZIP in the browser
     expect(section.get_by_role("table", name="Simulations")).to_contain_text("plate-fe.zip", timeout=60_000)
     expect(section.get_by_role("table", name="Simulations")).to_contain_text("7 states")
 
