@@ -276,7 +276,12 @@ class ComparisonView {
     if (finite(f.punch_displacement_mm).length) {
       return { key: "punch_displacement_mm", title: axis("punch displacement", "mm"), frames: f.punch_displacement_mm, states: this.overview.simulation.punch_displacement_mm };
     }
-    if (finite(f.time_s).length) return { key: "time_s", title: axis("time", "s"), frames: f.time_s, states: this.overview.simulation.time_s };
+    if (finite(f.time_s).length) {
+      // The states' times on the test's clock: the model's time plus the offset the mapping added to align them.
+      const offset = this.overview.mapping.time_offset_s || 0;
+      const states = this.overview.simulation.time_s.map((t) => (t === null ? null : t + offset));
+      return { key: "time_s", title: axis("time", "s"), frames: f.time_s, states };
+    }
     return { key: "frame", title: axis("frame", "index"), frames: this.frames, states: null };
   }
 
@@ -285,12 +290,19 @@ class ComparisonView {
     const s = this.overview.simulation;
     const x = this.curveAxis();
     const series = [{ name: "peak w, measured", x: x.frames, y: f.peak_w_mm, color: COLORS[0], mode: "lines+markers" }];
-    // The simulation's own states where it has the same x; else its blend at each compared frame.
-    if (x.states && finite(x.states).length) series.push({ name: "peak w, simulated", x: x.states, y: s.peak_w_mm, color: COLORS[1], dash: "dash", mode: "lines+markers" });
-    else series.push({ name: "peak w, simulated", x: x.frames, y: f.sim_peak_w_mm, color: COLORS[1], dash: "dash", mode: "lines+markers" });
+    // The simulation's own states where they have the same x (its punch travel, its time); else its blend at each
+    // compared frame, at the frame's x.
+    const ownX = Boolean(x.states && finite(x.states).length);
+    series.push(ownX
+      ? { name: "peak w, simulated", x: x.states, y: s.peak_w_mm, color: COLORS[1], dash: "dash", mode: "lines+markers" }
+      : { name: "peak w, simulated", x: x.frames, y: f.sim_peak_w_mm, color: COLORS[1], dash: "dash", mode: "lines+markers" });
     const haveForce = finite(f.force_kN).length || finite(s.force_kN).length;
     if (finite(f.force_kN).length) series.push({ name: "force, measured", x: x.frames, y: f.force_kN, color: COLORS[2], yaxis: "y2" });
-    if (finite(s.force_kN).length && x.states) series.push({ name: "force, simulated", x: x.states, y: s.force_kN, color: COLORS[3], dash: "dash", yaxis: "y2" });
+    if (finite(s.force_kN).length) {
+      series.push(ownX
+        ? { name: "force, simulated", x: x.states, y: s.force_kN, color: COLORS[3], dash: "dash", yaxis: "y2" }
+        : { name: "force, simulated", x: x.frames, y: f.sim_force_kN, color: COLORS[3], dash: "dash", yaxis: "y2" });
+    }
     const traces = lineTraces(series);
     const i = this.position;
     traces.push({ type: "scatter", mode: "markers", name: "this frame", x: [x.frames[i]], y: [f.peak_w_mm[i]], marker: { size: 12, color: "#111", symbol: "circle-open", line: { width: 2 } } });
