@@ -175,6 +175,15 @@ def test_a_simulation_that_is_the_truth_differs_from_the_measurement_by_its_erro
     with zipfile.ZipFile(io.BytesIO(download.content)) as archive:
         names = archive.namelist()
     assert "comparison.pvd" in names and sum(n.endswith(".vtu") for n in names) == 8, names
+    # the profile the view shows, along Y through the punch axis: its line goes with the export
+    line = [profile["x_mm"][0], profile["y_mm"][0], profile["x_mm"][-1], profile["y_mm"][-1]]
+    spec = {"kind": "export", "job_id": job["id"], "format": "profile-csv", "line": line}
+    profile_job = wait_job(client, client.post("/api/v1/jobs", json=spec).json()["id"], timeout_s=120)
+    assert profile_job["state"] == "succeeded", profile_job["error"]
+    rows = client.get(profile_job["files"][0]["url"]).text.splitlines()
+    assert rows[0] == "frame,s_mm,x_mm,y_mm,w_meas_mm,w_sim_mm,diff_mm,sigma_w_mm,beyond_2sigma"
+    xs = {round(float(row.split(",")[2]), 3) for row in rows[1:]}
+    assert xs == {round(line[0], 3)}, xs  # along Y: x stays on the punch axis
     for source, fmt in ((job["id"], "points-csv"), (jobs["done"], "hdf5")):
         wrong_format = client.post("/api/v1/jobs", json={"kind": "export", "job_id": source, "format": fmt})
         assert wrong_format.status_code == 422 and wrong_format.json()["field"] == "format", wrong_format.text
