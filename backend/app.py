@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import re
 from contextlib import asynccontextmanager
 
 import anyio
@@ -41,7 +42,13 @@ from fringelab.core.queue import create_celery
 from fringelab.core.settings import Settings, load_settings
 from fringelab.core.state import AppState
 
-UPLOAD_PREFIXES = ("/api/v1/uploads",)
+# The routes that stream a request body to disk under FRINGELAB_MAX_UPLOAD_BYTES instead of the JSON cap: the
+# recordings' uploads and a simulation's PUT (a model of many MB).
+UPLOAD_PATHS = re.compile(r"/api/v1/(?:uploads(?:/|$)|experiments/[^/]+/simulations/[^/]+$)")
+
+
+def is_upload_path(path: str) -> bool:
+    return UPLOAD_PATHS.match(path) is not None
 
 
 def create_app(settings: Settings) -> FastAPI:
@@ -87,8 +94,8 @@ def create_app(settings: Settings) -> FastAPI:
         namespace=hashlib.sha256(settings.resolved_database_url.encode()).hexdigest()[:12],
     )
     install_error_handlers(app)
-    app.add_middleware(PlainJsonNumbers, exempt_prefixes=UPLOAD_PREFIXES)  # runs after the size cap below
-    app.add_middleware(BodySizeLimit, max_bytes=settings.max_json_bytes, exempt_prefixes=UPLOAD_PREFIXES)
+    app.add_middleware(PlainJsonNumbers, exempt=is_upload_path)  # runs after the size cap below
+    app.add_middleware(BodySizeLimit, max_bytes=settings.max_json_bytes, exempt=is_upload_path)
     app.add_middleware(
         SecurityHeaders, allowed_origins=settings.allowed_origin_list, docs_prefixes=("/api/docs", "/api/redoc")
     )

@@ -6,6 +6,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Callable
 
 import redis
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
@@ -14,13 +15,13 @@ from fringelab.core.errors import TooLarge
 
 
 class BodySizeLimit:
-    def __init__(self, app: ASGIApp, *, max_bytes: int, exempt_prefixes: tuple[str, ...]) -> None:
+    def __init__(self, app: ASGIApp, *, max_bytes: int, exempt: Callable[[str], bool]) -> None:
         self.app = app
         self.max_bytes = max_bytes
-        self.exempt_prefixes = exempt_prefixes
+        self.exempt = exempt
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http" or scope["path"].startswith(self.exempt_prefixes):
+        if scope["type"] != "http" or self.exempt(scope["path"]):
             await self.app(scope, receive, send)
             return
         declared = dict(scope["headers"]).get(b"content-length")
@@ -40,7 +41,10 @@ class BodySizeLimit:
         await self.app(scope, counting_receive, send)
 
     def _message(self) -> str:
-        return f"request body over {self.max_bytes} bytes; upload recordings through the upload routes"
+        return (
+            f"request body over {self.max_bytes} bytes (FRINGELAB_MAX_JSON_BYTES); upload recordings and simulations "
+            "through their upload routes"
+        )
 
     async def _reject(self, send: Send) -> None:
         import json
@@ -160,17 +164,13 @@ class PlainJsonNumbers:
     cannot be serialised (500), and a huge integer overflows in the database driver (500). Bodies are capped by
     BodySizeLimit before this runs; upload routes (no JSON) are exempt."""
 
-    def __init__(self, app: ASGIApp, *, exempt_prefixes: tuple[str, ...]) -> None:
+    def __init__(self, app: ASGIApp, *, exempt: Callable[[str], bool]) -> None:
         self.app = app
-        self.exempt_prefixes = exempt_prefixes
+        self.exempt = exempt
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         content_type = dict(scope.get("headers", [])).get(b"content-type", b"")
-        if (
-            scope["type"] != "http"
-            or scope["path"].startswith(self.exempt_prefixes)
-            or b"json" not in content_type.lower()
-        ):
+        if scope["type"] != "http" or self.exempt(scope["path"]) or b"json" not in content_type.lower():
             await self.app(scope, receive, send)
             return
         chunks = []

@@ -87,7 +87,7 @@ OPERATION_IDS = {
     "put_simulation": "upload_simulation", "list_simulations": "list_simulations",
     "read_simulation": "get_simulation", "remove_simulation": "delete_simulation",
     "comparison_overview": "get_comparison", "comparison_grid": "get_comparison_grid",
-    "comparison_profile": "get_comparison_profile",
+    "comparison_profile": "get_comparison_profile", "preview_comparison_route": "preview_comparison",
 }  # fmt: skip
 
 

@@ -1,29 +1,40 @@
 """Benchmark of the job system: topography throughput with 1 and 2 worker processes on the same recording (scaling
 efficiency), and the end-to-end time from the first upload to the last frame's result.
 
-Run from the repository root:  .venv/bin/python bench/bench_jobs.py [--kind topography|selftest] [--frames 40]
+Run from the repository root:
+  .venv/bin/python bench/bench_jobs.py [--kind topography|selftest] [--frames 160] [--repeat 3]
 
 It starts what a lab machine runs, on a scratch data directory: its own redis-server, a migrated SQLite
 database, the API (in this process) and `fringelab worker` subprocesses (prefork, as users run them, one BLAS
 thread each). With --kind topography it writes the virtual experiment (`fringelab simulate`, kodak preset,
 512 x 480 px, as ZIPs; not timed), then times, with the most worker processes asked for: creating the experiment
 and camera, uploading the three recordings and their ingest, the camera and projector calibrations, and the
-topography (end to end). Then, for each worker count, it runs the same topography again and prints
+topography (end to end). Then --repeat times, one round after the other: the science pipeline alone
+(`topography_recording` in this process, the same recording and calibrations, OpenCV on one thread; its writer
+compresses the points in its 2 threads, as the job's merge does), and for each worker count the same topography
+as a job, each printed as it ends:
 
-  workers     worker processes (one `fringelab worker --concurrency N`)
-  frames      frames of the job, in chunks of --chunk-frames
+  round       which repetition
+  workers     worker processes (one `fringelab worker --concurrency N`); "pipeline" for the science alone
+  frames      frames of the job, in chunks of --chunk-frames (default: the job's own choice, see README)
   run s       from the job's start to its end (job record: started_at .. finished_at)
   frames/s    frames / run s
+  cpu s       CPU seconds (user + system) the worker processes (or this process, for the pipeline) spent on it:
+              what the job costs whatever else runs on the machine
   parallel s  of which the reference (frame 0) and the fan-out ran (every frame measured on its own: edges,
-              fringe order, Z, X, Y, grid; in chunks on every process)
+              fringe order, Z, X, Y, grids of Z and σ, packed as stored; in chunks on every process)
   in order s  and the pass in frame order (writing the file)
+  peak MB     the largest peak resident memory (VmHWM) of the worker processes (flat in the number of frames:
+              compare --frames 40 with --frames 160)
   spread      frames each worker process measured
+  load        the 1-minute load average when it ended
 
-and the scaling efficiency, (frames/s with N) / (N x frames/s with 1), and the job with one worker process
-against the science pipeline alone (`topography_recording` in this process, one thread, the same recording and
-calibrations): (job frames/s with 1) / (pipeline frames/s). --kind selftest measures the job system
-alone (synthetic frames, an FFT each; --frame-size-px sets the work per frame). On a machine whose cores are
-shared with other work the efficiency says so: `os.cpu_count()` and the load average are printed.
+then, per round and as the median over the rounds (ratios taken within a round, so that the load of the moment
+cancels): the scaling efficiency, (frames/s with N) / (N x frames/s with 1), and the job with one worker process
+against the science pipeline alone, (job frames/s with 1) / (pipeline frames/s), by wall time and by CPU time.
+--kind selftest measures the job system alone (synthetic frames, an FFT each; --frame-size-px sets the work per
+frame). On a machine whose cores are shared with other work the efficiency says so: `os.cpu_count()` and the load
+average are printed.
 """
 
 from __future__ import annotations
@@ -32,6 +43,7 @@ import argparse
 import os
 import shutil
 import signal
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -115,6 +127,37 @@ class Bench:
     def stop_worker(worker: subprocess.Popen[bytes]) -> None:
         os.killpg(worker.pid, signal.SIGTERM)
         worker.wait(timeout=60)
+
+    @staticmethod
+    def cpu_s(worker: subprocess.Popen[bytes]) -> float:
+        """CPU seconds (user + system) the worker and its pool processes spent so far."""
+        import psutil
+
+        main = psutil.Process(worker.pid)
+        total = 0.0
+        for process in [main, *main.children(recursive=True)]:
+            try:
+                times = process.cpu_times()
+            except psutil.NoSuchProcess:
+                continue
+            total += times.user + times.system
+        return total
+
+    @staticmethod
+    def peak_rss_mb(worker: subprocess.Popen[bytes]) -> float:
+        """The largest peak resident memory (VmHWM) of the worker's processes, MB."""
+        import psutil
+
+        peak = 0.0
+        for process in psutil.Process(worker.pid).children(recursive=True):
+            try:
+                status = Path(f"/proc/{process.pid}/status").read_text()
+            except OSError:
+                continue
+            for line in status.splitlines():
+                if line.startswith("VmHWM:"):
+                    peak = max(peak, int(line.split()[1]) / 1024)
+        return peak
 
     def run(self, spec: dict[str, Any], *, timeout_s: float) -> tuple[dict[str, Any], float]:
         start = time.perf_counter()
@@ -210,8 +253,8 @@ def calibrate(bench: Bench, ids: dict[str, Any]) -> tuple[dict[str, Any], float]
     return spec, time.perf_counter() - start
 
 
-def pipeline_rate(ids: dict[str, Any], frames: int) -> float:
-    """Frames/s of the science pipeline alone, in this process with one thread: the job's reference figure."""
+def pipeline_run(ids: dict[str, Any], attempt: int) -> tuple[float, float]:
+    """Seconds and CPU seconds of the science pipeline alone, in this process: the job's reference figure."""
     import cv2
 
     from fringelab.formats.camera import read_camera_json
@@ -221,40 +264,44 @@ def pipeline_rate(ids: dict[str, Any], frames: int) -> float:
 
     cv2.setNumThreads(1)
     camera, projector = read_camera_json(ids["camera_json"]), read_projector_calibration(ids["projector_h5"])
-    best = float("inf")
-    for attempt in range(2):
-        start = time.perf_counter()
-        topography_recording(open_recording(ids["test_path"]), camera, projector,
-                             out_path=Path(ids["camera_json"]).parent / f"pipeline-{attempt}.h5")  # fmt: skip
-        best = min(best, time.perf_counter() - start)
-    return frames / best
+    out_path = Path(ids["camera_json"]).parent / f"pipeline-{attempt}.h5"
+    if attempt == 0:  # compiled code loaded, tables built: as in a worker that has run a job before
+        topography_recording(open_recording(ids["test_path"]), camera, projector, out_path=out_path, frames=range(4))
+    start, cpu = time.perf_counter(), time.process_time()
+    topography_recording(open_recording(ids["test_path"]), camera, projector, out_path=out_path)
+    elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu
+    out_path.unlink()
+    return elapsed, cpu
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--kind", choices=("topography", "selftest"), default="topography")
-    parser.add_argument("--frames", type=int, default=None, help="frames of the job (topography 40, selftest 400)")
+    parser.add_argument("--frames", type=int, default=None, help="frames of the job (topography 160, selftest 400)")
     parser.add_argument("--frame-size-px", type=int, default=512, help="selftest work per frame (512: ~10 ms)")
-    parser.add_argument("--chunk-frames", type=int, default=None, help="frames per chunk (topography 5, selftest 25)")
+    parser.add_argument("--chunk-frames", type=int, default=None, help="frames per chunk (topography: the job's own)")
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="worker process counts to measure")
+    parser.add_argument("--repeat", type=int, default=3, help="rounds of measurements (medians are printed)")
     parser.add_argument("--keep", action="store_true", help="keep the scratch directory")
     args = parser.parse_args()
     topography = args.kind == "topography"
-    frames = args.frames or (40 if topography else 400)
-    chunk_frames = args.chunk_frames or (5 if topography else 25)
+    frames = args.frames or (160 if topography else 400)
+    # topography: the job's own choice (FRINGELAB_CHUNK_FRAMES at its default, split for a short job) unless asked
+    chunk_frames = args.chunk_frames or (0 if topography else 25)
+    chunking = f"chunks of {chunk_frames} frames" if chunk_frames else "chunks of the job's choice"
 
-    science_rate = 0.0
     root = Path(tempfile.mkdtemp(prefix="fringelab-bench-jobs-"))
-    bench = Bench(root, chunk_frames=chunk_frames)
+    bench = Bench(root, chunk_frames=chunk_frames or Settings.model_fields["chunk_frames"].default)
     print(f"machine: {os.cpu_count()} CPU cores, load average {os.getloadavg()[0]:.2f}; scratch {root}")
     try:
         if topography:
-            print(f"job: topography of the virtual kodak experiment, {frames} frames of 512 x 480 px, "
-                  f"chunks of {chunk_frames} frames")  # fmt: skip
+            print(f"job: topography of the virtual kodak experiment, {frames} frames of 512 x 480 px, {chunking}")
             worker = bench.start_worker(max(args.workers))
             try:
                 ids = upload_virtual_experiment(bench, frames)
                 spec, calibration_s = calibrate(bench, ids)
+                if args.chunk_frames:
+                    spec["chunk_frames"] = args.chunk_frames
                 job, topography_s = bench.run(spec, timeout_s=3600)
             finally:
                 bench.stop_worker(worker)
@@ -264,40 +311,69 @@ def main() -> int:
                   f"topography {topography_s:.1f} s)\n")  # fmt: skip
         else:
             spec = {"kind": "selftest", "frames": frames, "frame_size_px": args.frame_size_px}
-            print(f"job: selftest, {frames} frames of {args.frame_size_px} px, chunks of {chunk_frames} frames\n")
-        print(
-            f"{'workers':>7} {'frames':>7} {'run s':>8} {'frames/s':>9} {'parallel s':>10} {'in order s':>10}  spread"
-        )
-        rates: dict[int, float] = {}
-        for processes in args.workers:
-            worker = bench.start_worker(processes)
-            try:  # a small job first, so every pool process has imported the science before the timing
-                bench.run({"kind": "selftest", "frames": 4 * processes, "chunk_frames": 1}, timeout_s=600)
-                job, _ = bench.run(spec, timeout_s=3600)
-            finally:
-                bench.stop_worker(worker)
-            run_s, parallel_s, in_order_s = timings(job)
-            rates[processes] = frames / run_s
-            spread: dict[str, int] = {}
-            for chunk in (c for c in job["chunks"] if c["phase"] == 0):
-                spread[chunk["worker"]] = spread.get(chunk["worker"], 0) + chunk["stop_frame"] - chunk["first_frame"]
-            shares = " ".join(str(n) for n in sorted(spread.values(), reverse=True))
-            print(f"{processes:>7} {frames:>7} {run_s:>8.2f} {rates[processes]:>9.2f} {parallel_s:>10.2f} "
-                  f"{in_order_s:>10.2f}  {shares}")  # fmt: skip
-        if topography:
-            science_rate = pipeline_rate(ids, frames)
+            print(f"job: selftest, {frames} frames of {args.frame_size_px} px, {chunking}\n")
+        print(f"{'round':>5} {'workers':>8} {'frames':>6} {'run s':>7} {'frames/s':>8} {'cpu s':>7} {'parallel s':>10} "
+              f"{'in order s':>10} {'peak MB':>7} {'load':>5}  spread")  # fmt: skip
+        rounds: list[dict[Any, tuple[float, float]]] = []  # per round: workers (0: pipeline) -> (frames/s, cpu s)
+        for round_ in range(1, args.repeat + 1):
+            measured: dict[Any, tuple[float, float]] = {}
+            if topography:
+                pipeline_s, pipeline_cpu_s = pipeline_run(ids, round_ - 1)
+                measured[0] = (frames / pipeline_s, pipeline_cpu_s)
+                print(f"{round_:>5} {'pipeline':>8} {frames:>6} {pipeline_s:>7.2f} {frames / pipeline_s:>8.2f} "
+                      f"{pipeline_cpu_s:>7.2f} {'':>10} {'':>10} {'':>7} {os.getloadavg()[0]:>5.2f}")  # fmt: skip
+            for processes in args.workers:
+                worker = bench.start_worker(processes)
+                try:  # a small job first, so every pool process has imported the science before the timing
+                    bench.run({"kind": "selftest", "frames": 4 * processes, "chunk_frames": 1}, timeout_s=600)
+                    if topography:  # and has read the calibrations and compiled what it runs, as after a first job
+                        bench.run(spec | {"frames": {"first": 0, "last": 2 * processes - 1}, "chunk_frames": 1},
+                                  timeout_s=600)  # fmt: skip
+                    cpu_before = bench.cpu_s(worker)
+                    job, _ = bench.run(spec, timeout_s=3600)
+                    cpu_s = bench.cpu_s(worker) - cpu_before
+                    peak_mb = bench.peak_rss_mb(worker)
+                finally:
+                    bench.stop_worker(worker)
+                run_s, parallel_s, in_order_s = timings(job)
+                measured[processes] = (frames / run_s, cpu_s)
+                spread: dict[str, int] = {}
+                for chunk in (c for c in job["chunks"] if c["phase"] == 0):
+                    n = chunk["stop_frame"] - chunk["first_frame"]
+                    spread[chunk["worker"]] = spread.get(chunk["worker"], 0) + n
+                shares = " ".join(str(n) for n in sorted(spread.values(), reverse=True))
+                print(f"{round_:>5} {processes:>8} {frames:>6} {run_s:>7.2f} {frames / run_s:>8.2f} {cpu_s:>7.2f} "
+                      f"{parallel_s:>10.2f} {in_order_s:>10.2f} {peak_mb:>7.0f} {os.getloadavg()[0]:>5.2f}  "
+                      f"{shares}")  # fmt: skip
+            rounds.append(measured)
     finally:
         bench.close()
         if not args.keep:
             shutil.rmtree(root, ignore_errors=True)
-    for processes, rate in rates.items():
-        if processes > 1 and 1 in rates:
-            print(f"\nscaling efficiency with {processes} processes: {rate / (processes * rates[1]):.2f}")
-    if science_rate and 1 in rates:
-        print(f"science pipeline alone (one process, one thread): {science_rate:.2f} frames/s; job with 1 worker "
-              f"process: {rates[1]:.2f} frames/s, ratio {rates[1] / science_rate:.2f}")  # fmt: skip
-    print(f"load average at the end {os.getloadavg()[0]:.2f}")
+    report(rounds, args.workers)
+    print(f"load average at the end {os.getloadavg()[0]:.2f} (1, 5, 15 min: {os.getloadavg()})")
     return 0
+
+
+def report(rounds: list[dict[Any, tuple[float, float]]], workers: list[int]) -> None:
+    """The ratios of each round and their medians over the rounds."""
+
+    def line(name: str, values: list[float]) -> None:
+        if values:
+            each = ", ".join(f"{v:.2f}" for v in values)
+            print(f"{name}: median {statistics.median(values):.2f} (rounds: {each})")
+
+    print()
+    for processes in (n for n in workers if n > 1):
+        line(f"scaling efficiency with {processes} processes",
+             [r[processes][0] / (processes * r[1][0]) for r in rounds if 1 in r and processes in r])  # fmt: skip
+    line("job with 1 worker process / science pipeline alone, frames/s",
+         [r[1][0] / r[0][0] for r in rounds if 0 in r and 1 in r])  # fmt: skip
+    line("science pipeline alone / job with 1 worker process, CPU s",
+         [r[0][1] / r[1][1] for r in rounds if 0 in r and 1 in r])  # fmt: skip
+    for processes in workers:
+        line(f"frames/s with {processes} worker process(es)", [r[processes][0] for r in rounds if processes in r])
+    line("science pipeline alone, frames/s", [r[0][0] for r in rounds if 0 in r])
 
 
 if __name__ == "__main__":

@@ -83,6 +83,35 @@ export const postJSON = (path, json = {}) => send("POST", path, { json });
 export const deleteJSON = (path) => send("DELETE", path);
 export const putText = (path, text) => send("PUT", path, { text });
 
+/**
+ * PUT a file as the whole request body (a simulation's streamed upload), with `onProgress(sentBytes, totalBytes)`
+ * while it is sent (XMLHttpRequest: fetch cannot report upload progress). Resolves to the JSON answer; rejects
+ * with an ApiError. `signal` (an AbortSignal) stops it.
+ */
+export function putFile(path, file, { onProgress = () => {}, signal = null } = {}) {
+  return new Promise((resolve, reject) => {
+    const request = new XMLHttpRequest();
+    request.open("PUT", path.startsWith("/") ? path : `${API}/${path}`);
+    request.setRequestHeader("Accept", "application/json");
+    request.setRequestHeader("Content-Type", "application/octet-stream");
+    request.upload.onprogress = (event) => onProgress(event.loaded, event.lengthComputable ? event.total : file.size);
+    request.onerror = () => reject(new ApiError(0, "network", "cannot reach the server; is fringelab still running?"));
+    request.onabort = () => reject(new ApiError(0, "aborted", "the upload was stopped"));
+    request.onload = async () => {
+      const response = new Response(request.responseText, { status: request.status });
+      if (request.status >= 200 && request.status < 300) {
+        resolve(request.responseText ? JSON.parse(request.responseText) : null);
+        return;
+      }
+      const error = await errorOf(response);
+      if (request.status === 401) onUnauthorized(error);
+      reject(error);
+    };
+    if (signal) signal.addEventListener("abort", () => request.abort());
+    request.send(file);
+  });
+}
+
 /** The health report, also when a part is down (the server then answers 503 with the same body). */
 export async function getHealth() {
   let response;

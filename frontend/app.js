@@ -11,6 +11,7 @@ import { renderRecording } from "./views/recording.js";
 import { renderJob, renderJobs } from "./views/jobs.js";
 import { renderCalibration } from "./views/calibration.js";
 import { renderViewer } from "./views/viewer.js";
+import { renderComparison } from "./views/comparison.js";
 import { renderHelp, renderHelpIndex } from "./views/help.js";
 import { renderQueue } from "./views/queue.js";
 
@@ -53,6 +54,7 @@ router
   .add("/jobs/:id", renderJob)
   .add("/jobs/:id/report", renderCalibration)
   .add("/jobs/:id/viewer", renderViewer)
+  .add("/jobs/:id/comparison", renderComparison)
   .add("/queue", renderQueue)
   .add("/help", renderHelpIndex)
   .add("/help/:name", renderHelp)

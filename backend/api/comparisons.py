@@ -1,6 +1,7 @@
 """Comparison results (a comparison job's `comparison.h5`, `fringelab.formats.comparison`) cut to what the dashboard
 draws: the per-frame differences and both curves, a frame's difference or σ map within a display budget, and the
-profiles through the punch axis, measured against simulated with ±σ.
+profiles through the punch axis, measured against simulated with ±σ; and the mapping form's live preview
+(`POST /comparisons/preview`: what a comparison with the form's choices would pair, without running it).
 
 Thin: the file is read through `ComparisonResult`; access follows the job's experiment. Arrays come as JSON lists
 with null where nothing was compared (the frame's `reason` says why for a frame without a simulation partner).
@@ -14,18 +15,23 @@ from contextlib import contextmanager
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Query
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, ConfigDict, Field
 
-from backend.api.deps import StateDep
+from backend.api.deps import CurrentUser, SessionDep, StateDep
 from backend.api.jobs import JobDep
 from backend.api.results import RESULT_ERRORS, _listed
+from backend.errors import error_responses
 from backend.results import result_path
 from backend.schemas.jobs import MAX_ID
 from fringelab.core.errors import Conflict, Gone, Invalid, NotFound
 from fringelab.core.jobs import job_error
 from fringelab.core.models import Job
+from fringelab.core.simulations import preview_comparison
+from fringelab.core.specs import ComparisonSpec
 from fringelab.formats.comparison import FRAME_COLUMNS, SIMULATION_COLUMNS, ComparisonResult
+from fringelab.formats.hdf5 import json_text
 from fringelab.formats.topography import GRID_BUDGET_NODES, ResultUnavailable
+from fringelab.science.compare import in_form_terms
 
 router = APIRouter(tags=["results"])
 COMPARISON_FILE = "comparison.h5"
@@ -59,10 +65,17 @@ def _position(reader: ComparisonResult, frame: int) -> int:
         raise job_error(Invalid, "frame_not_in_result", str(error), field="frame") from None
 
 
+def _in_form_terms(mapping: dict[str, Any]) -> dict[str, Any]:
+    """The mapping with its notes naming settings as the mapping form and the job spec do (not the CLI's options)."""
+    return {**mapping, "notes": [in_form_terms(note) for note in mapping.get("notes", [])]}
+
+
 class ComparisonOverview(BaseModel):
     job_id: str
     alignment: str = Field(description="displacement, time or peak: how frames were paired with states.")
-    mapping: dict[str, Any] = Field(description="Every mapping choice; `detected` lists those detected, with notes.")
+    mapping: dict[str, Any] = Field(
+        description="Every mapping choice; `detected` lists those detected, with notes (settings named as in the spec)."
+    )
     frames: dict[str, list[Any]] = Field(
         description="Per frame: frame, state_lo (−1: no partner), n_nodes, reason, the measured test log, the "
         "simulated blend (sim_*), rms_diff_mm, max_diff_mm, mean_diff_mm, fraction_beyond_2sigma; null: not compared."
@@ -92,7 +105,7 @@ def comparison_overview(job: JobDep, state: StateDep) -> ComparisonOverview:
         return ComparisonOverview(
             job_id=job.id,
             alignment=str(reader.file.attrs.get("alignment", "")),
-            mapping=json.loads(json.dumps(reader.mapping, default=str)),
+            mapping=_in_form_terms(json.loads(json.dumps(reader.mapping, default=str))),
             frames=frames,
             simulation=simulation,
             grid={
@@ -155,3 +168,72 @@ def comparison_profile(
     with comparison(job, state.settings.data_path) as reader:
         profile = reader.profile(axis, _position(reader, frame))
     return ComparisonProfileOut(frame=frame, axis=axis, **{name: _listed(values) for name, values in profile.items()})
+
+
+class ComparisonPreviewIn(BaseModel):
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [
+                {
+                    "spec": {"kind": "comparison", "job_id": "6f1c2b8e-2d4a-4f6e-9a51-3c7d0e9b2f10", "simulation_id": 1,
+                             "align": "displacement", "units": "mm", "symmetry": "quarter"},
+                    "frame": 5,
+                }
+            ]
+        },
+    )  # fmt: skip
+
+    spec: ComparisonSpec = Field(description="The comparison job's spec as the form has it now (format is ignored).")
+    frame: int | None = Field(
+        None, ge=0, le=MAX_ID, description="Recording frame of the profiles; empty: the most deflected paired frame."
+    )
+
+
+class PreviewProfile(BaseModel):
+    s_mm: list[float | None]
+    x_mm: list[float | None]
+    y_mm: list[float | None]
+    measured_mm: list[float | None]
+    simulated_mm: list[float | None]
+    sigma_mm: list[float | None] = Field(description="σ_w of the measurement from its edge noise; null: not known.")
+
+
+class ComparisonPreviewOut(BaseModel):
+    frame: int = Field(description="The recording frame the profiles are of.")
+    alignment: str
+    mapping: dict[str, Any] = Field(description="Every mapping choice as resolved; `detected` lists those detected.")
+    overlap_fraction: float = Field(description="Share of the model's area the measurement covers.")
+    axis_xy_mm: list[float] = Field(description="The measured punch axis the profiles run through, mm.")
+    frames: dict[str, list[Any]] = Field(
+        description="Per frame: frame, state_lo (−1: no partner), state_fraction, reason (why not paired), peak_w_mm."
+    )
+    simulation: dict[str, Any] = Field(description="n_states, and peak_w_mm per state.")
+    profiles: dict[str, PreviewProfile] = Field(description="Through the punch axis along X (`x`) and Y (`y`).")
+
+
+@router.post(
+    "/comparisons/preview",
+    response_model=ComparisonPreviewOut,
+    tags=["simulations"],
+    responses=error_responses(401, 404, 409, 422),
+)
+def preview_comparison_route(body: ComparisonPreviewIn, session: SessionDep, state: StateDep,
+                             principal: CurrentUser) -> ComparisonPreviewOut:  # fmt: skip
+    """What a comparison with these mapping choices would compare, without running it: the mapping resolved (the
+    detected choices named), each frame's partner state or why it has none, and the measured and simulated
+    profiles through the punch axis. A choice that cannot work is a 422 naming the form's setting to change."""
+    preview = preview_comparison(session, state.settings, principal, body.spec.model_dump(mode="json"),
+                                 frame=body.frame)  # fmt: skip
+    frames = preview["frames"]
+    return ComparisonPreviewOut(
+        frame=preview["frame"], alignment=preview["alignment"],
+        mapping=json.loads(json_text(preview["mapping"])), overlap_fraction=preview["overlap_fraction"],
+        axis_xy_mm=[float(v) for v in preview["axis_xy_mm"]],
+        frames={"frame": frames["frame"], "state_lo": frames["state_lo"], "reason": frames["reason"],
+                "state_fraction": _listed(frames["state_fraction"], 4), "peak_w_mm": _listed(frames["peak_w_mm"], 4)},
+        simulation={"n_states": preview["simulation"]["n_states"],
+                    "peak_w_mm": _listed(preview["simulation"]["peak_w_mm"], 4)},
+        profiles={axis: PreviewProfile(**{name: _listed(values) for name, values in profile.items()})
+                  for axis, profile in preview["profiles"].items()},
+    )  # fmt: skip

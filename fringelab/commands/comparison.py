@@ -71,7 +71,7 @@ def register(subparsers: Any) -> None:
     export.add_argument("--format", required=True, choices=COMPARISON_EXPORTS)
     export.add_argument("-o", "--output", required=True, help="file to write (.csv, .h5, .mat, .pvd, .csv)")
     export.add_argument("--line", type=_line, metavar="X0,Y0,X1,Y1",
-                        help="profile-csv: the line in mm (default along X through the grid's middle)")  # fmt: skip
+                        help="profile-csv: the line in mm (default along X through the punch axis)")  # fmt: skip
     export.set_defaults(handler=export_command)
 
 
@@ -109,7 +109,7 @@ def compare_command(args: argparse.Namespace) -> int:
 
 
 def export_command(args: argparse.Namespace) -> int:
-    from fringelab.formats.comparison import export_comparison
+    from fringelab.formats.exports import export_comparison
 
     try:
         path = export_comparison(args.comparison, args.format, args.output, line=args.line)

@@ -55,6 +55,7 @@ from fringelab.core.models import (
     utcnow,
 )
 from fringelab.core.settings import Settings
+from fringelab.formats import COMPARISON_EXPORTS, EXPORT_FORMATS
 
 TASK_NAMES = {
     "ingest": "fringelab.ingest",
@@ -271,6 +272,22 @@ def _calibration_ref(calibration: Calibration) -> dict[str, Any]:
     }
 
 
+def _check_export_source(spec: dict[str, Any], source: Job) -> None:
+    """Each kind of result has its export formats; a comparison's take no frame range and no labelled lines."""
+    formats = COMPARISON_EXPORTS if source.kind == "comparison" else EXPORT_FORMATS
+    if spec["format"] not in formats:
+        raise job_error(
+            Invalid,
+            "format_not_for_source",
+            f"format {spec['format']} is not an export of a {source.kind} result; choose one of {', '.join(formats)}",
+            field="format",
+        )
+    if source.kind == "comparison":
+        for name in ("frames", "lines"):
+            if spec.get(name):
+                raise job_error(Invalid, "invalid_spec", f"a comparison export takes no {name}", field=name)
+
+
 def _check_export_frames(spec: dict[str, Any], source: Job) -> None:
     """An export's frame range must hold frames of its result (the result says its first and last frame)."""
     wanted = spec.get("frames")
@@ -331,8 +348,10 @@ def prepare_job(session: Session, spec: dict[str, Any], *, authorize: Authorize 
         return Prepared()
     if kind == "export":
         source = session.get(Job, spec["job_id"])
-        missing = job_error(Invalid, "job_not_found", f"there is no topography job {spec['job_id']}", field="job_id")
-        if source is None or source.kind != "topography":
+        missing = job_error(
+            Invalid, "job_not_found", f"there is no topography or comparison job {spec['job_id']}", field="job_id"
+        )
+        if source is None or source.kind not in ("topography", "comparison"):
             raise missing
         try:
             authorize(source.experiment_id)
@@ -340,8 +359,11 @@ def prepare_job(session: Session, spec: dict[str, Any], *, authorize: Authorize 
             raise missing from None
         if source.state != "succeeded":
             raise job_error(
-                Conflict, "job_not_succeeded", f"topography job {source.id} is {source.state}; export a succeeded one"
+                Conflict,
+                "job_not_succeeded",
+                f"{source.kind} job {source.id} is {source.state}; export a succeeded one",
             )
+        _check_export_source(spec, source)
         _check_export_frames(spec, source)
         return Prepared(experiment_id=source.experiment_id, inputs=[{"job_id": source.id}])
     if kind == "comparison":

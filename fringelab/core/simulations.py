@@ -12,8 +12,11 @@ folder is in place and read, so a refused upload leaves neither a row nor files.
 from __future__ import annotations
 
 import shutil
+import threading
 import uuid
 import zipfile
+from collections import OrderedDict
+from collections.abc import Callable
 from pathlib import Path, PurePosixPath
 from typing import Any
 
@@ -110,7 +113,7 @@ def read_simulation_summary(folder: Path, *, filename: str) -> dict[str, Any]:
     from fringelab.formats.simulations import open_simulation
 
     try:
-        results = open_simulation(folder)
+        results = open_simulation(folder, punch_needed=False)  # a nodout of several nodes: chosen when compared
     except (ValueError, KeyError, IndexError, OSError, EOFError) as error:
         message = str(error).replace(str(folder) + "/", "").replace(str(folder), filename)
         raise Invalid(f"{filename}: not a simulation fringelab reads: {message}", code="invalid_simulation") from None
@@ -219,3 +222,177 @@ def delete_simulation(session: Session, settings: Settings, principal: Principal
     session.delete(simulation)
     session.commit()
     remove_tree(settings.data_path, directory)
+
+
+# ---- the live preview of a mapping ---------------------------------------------------------------------------------
+
+# The mapping options of a comparison spec (`ComparisonSpec`) and the `MappingSettings` field each sets.
+MAPPING_OPTIONS = {
+    "units": "length_unit", "symmetry": "symmetry", "normal_axis": "normal_axis", "w_sign": "w_sign",
+    "origin_xy_mm": "origin_xy_mm", "rotation_deg": "rotation_deg", "surface": "surface",
+    "shell_thickness_mm": "shell_thickness_mm", "time_unit_s": "time_unit_s", "time_offset_s": "time_offset_s",
+}  # fmt: skip
+
+
+def mapping_settings(spec: dict[str, Any]) -> Any:
+    """A comparison spec's mapping options as `science.compare.MappingSettings` (None: detect): the one reading of
+    them, for the comparison job and the preview."""
+    from fringelab.science.compare import MappingSettings
+
+    values: dict[str, Any] = {f: spec[o] for o, f in MAPPING_OPTIONS.items() if spec.get(o) is not None}
+    if "origin_xy_mm" in values:
+        values["origin_xy_mm"] = (float(values["origin_xy_mm"][0]), float(values["origin_xy_mm"][1]))
+    return MappingSettings(**values)
+
+
+def _preview_inputs(
+    session: Session, settings: Settings, principal: Principal, spec: dict[str, Any]
+) -> tuple[Path, Path]:
+    """The topography result file and the simulation folder a preview reads; 404/409/422 naming the field."""
+    from fringelab.core.jobs import job_error, job_for
+
+    job = job_for(session, principal, spec["job_id"])
+    if job.kind != "topography":
+        raise job_error(Invalid, "job_not_found", f"job {job.id} is a {job.kind} job; choose a topography job",
+                        field="job_id")  # fmt: skip
+    if job.state != "succeeded":
+        raise job_error(
+            Conflict, "job_not_succeeded", f"topography job {job.id} is {job.state}; wait until it succeeds"
+        )
+    entry = next((f for f in job.files or [] if f.get("name") == "topography.h5"), None)
+    result = settings.data_path / entry["path"] if entry else None
+    if result is None or not result.is_file():
+        raise job_error(
+            Conflict, "result_missing", f"topography job {job.id} has no result file any more; run it again"
+        )
+    simulation = session.get(Simulation, spec["simulation_id"])
+    if simulation is None or simulation.experiment_id != job.experiment_id or not simulation.path:
+        raise job_error(
+            Invalid, "simulation_not_found",
+            f"there is no simulation {spec['simulation_id']} in the experiment of topography job {job.id}",
+            field="simulation_id",
+        )  # fmt: skip
+    return result, settings.data_path / simulation.path
+
+
+class _RecentPairings:
+    """The last few pairings the preview made, by what they were made from: a preview that only changes the frame
+    shown is answered at once, not paired again (pairing a model whose origin is fitted takes seconds). Few, as a
+    pairing holds its simulation's states in memory. One pairing is made at a time: previews run in the API's
+    threads, and the other requests must keep their cores."""
+
+    def __init__(self, size: int = 2) -> None:
+        self.size = size
+        self._items: OrderedDict[tuple[Any, ...], Any] = OrderedDict()
+        self._lock = threading.Lock()
+        self._making = threading.Lock()
+
+    def _known(self, key: tuple[Any, ...]) -> Any:
+        with self._lock:
+            if key in self._items:
+                self._items.move_to_end(key)
+                return self._items[key]
+        return None
+
+    def get(self, key: tuple[Any, ...], make: Callable[[], Any]) -> Any:
+        known = self._known(key)
+        if known is not None:
+            return known
+        with self._making:
+            known = self._known(key)  # made while this one waited
+            if known is not None:
+                return known
+            made = make()
+        with self._lock:
+            self._items[key] = made
+            while len(self._items) > self.size:
+                self._items.popitem(last=False)
+        return made
+
+
+_PAIRINGS = _RecentPairings()
+
+
+def preview_comparison(
+    session: Session, settings: Settings, principal: Principal, spec: dict[str, Any], *, frame: int | None = None
+) -> dict[str, Any]:
+    """What a comparison with these mapping choices would pair, for the mapping form's live preview: the mapping
+    resolved (every detected choice and note), each frame's partner state or why it has none, and the measured and
+    simulated profiles through the punch axis along X and Y of one frame (`frame`, else the most deflected one
+    paired). The pairing is the comparison's own (`formats.comparison.pair_result`). A choice that cannot work is
+    an Invalid (422) naming the form's setting to change."""
+    from fringelab.formats.comparison import pair_result, plate_frame_of
+    from fringelab.formats.simulations import open_simulation
+    from fringelab.formats.topography import TopographyResult
+    from fringelab.science.compare import ComparisonError, in_form_terms
+    from fringelab.science.fields import line_profile
+
+    result_path, simulation_path = _preview_inputs(session, settings, principal, spec)
+    mapping_choices = mapping_settings(spec)
+    align = spec.get("align") or "displacement"
+    punch = (spec.get("punch_node"), spec.get("contact_interface"))
+    try:
+        with TopographyResult(result_path) as result:
+
+            def pair() -> Any:
+                simulation = open_simulation(simulation_path, punch_node=punch[0], contact_interface=punch[1])
+                return pair_result(result, simulation, mapping=mapping_choices, align=align)
+
+            key = (
+                str(result_path),
+                result_path.stat().st_mtime_ns,
+                str(simulation_path),
+                punch,
+                mapping_choices,
+                align,
+            )
+            pairing = _PAIRINGS.get(key, pair)
+            simulation = pairing.model.results
+            alignment = pairing.alignment
+            aligned = np.flatnonzero(alignment.aligned)
+            if frame is None:
+                peaks = result.column("peak/w_mm")
+                i = int(aligned[np.argmax(np.nan_to_num(peaks[aligned], nan=-np.inf))])
+            else:
+                hits = np.flatnonzero(result.frames == frame)
+                if len(hits) == 0:
+                    raise Invalid(f"frame {frame} is not in the result (its frames are {int(result.frames[0])}…"
+                                  f"{int(result.frames[-1])})", code="frame_not_in_result", field="frame")  # fmt: skip
+                i = int(hits[0])
+            grid = result.grid
+            w_meas = result.w_grid(i)
+            w_sim = pairing.simulated_w(i)
+            sigma = result.sigma_grid(i)
+            stack = np.stack([w_meas, np.full(grid.shape, np.nan) if w_sim is None else w_sim,
+                              np.full(grid.shape, np.nan) if sigma is None else sigma])  # fmt: skip
+            axis_x, axis_y = plate_frame_of(result).axis_xy_mm
+            mapping = pairing.model.mapping.as_dict()
+            lines = {"x": ((float(grid.x_mm[0]), axis_y), (float(grid.x_mm[-1]), axis_y)),
+                     "y": ((axis_x, float(grid.y_mm[0])), (axis_x, float(grid.y_mm[-1])))}  # fmt: skip
+            profiles = {}
+            for name, (start, end) in lines.items():
+                cut = line_profile(stack, grid, start, end)
+                profiles[name] = {"s_mm": cut.s_mm, "x_mm": cut.x_mm, "y_mm": cut.y_mm, "measured_mm": cut.values[0],
+                                  "simulated_mm": cut.values[1], "sigma_mm": cut.values[2]}  # fmt: skip
+            return {
+                "frame": int(result.frames[i]),
+                "alignment": spec.get("align") or "displacement",
+                "mapping": {**mapping, "notes": [in_form_terms(str(note)) for note in pairing.model.mapping.notes]},
+                "overlap_fraction": float(pairing.overlap),
+                "axis_xy_mm": [axis_x, axis_y],
+                "frames": {
+                    "frame": result.frames.astype(int).tolist(),
+                    "state_lo": alignment.state_lo.astype(int).tolist(),
+                    "state_fraction": alignment.fraction,
+                    "reason": list(alignment.reason),
+                    "peak_w_mm": result.column("peak/w_mm"),
+                },
+                "simulation": {"n_states": simulation.n_states, "peak_w_mm": pairing.state_peak_mm},
+                "profiles": profiles,
+            }
+    except ComparisonError as error:
+        raise Invalid(in_form_terms(str(error)), code="mapping_not_possible") from None
+    except (ValueError, KeyError, OSError) as error:
+        raise Invalid(
+            in_form_terms(str(error)).replace(str(simulation_path) + "/", ""), code="invalid_simulation"
+        ) from None

@@ -150,7 +150,8 @@ class TopographySpec(_Spec):
 
 
 class ExportSpec(_Spec):
-    """Write a succeeded topography result in a format for other programs (a download when the job succeeds)."""
+    """Write a succeeded topography result, or a succeeded comparison with a simulation, in a format for other
+    programs (a download when the job succeeds). Each kind of source has its formats."""
 
     model_config = ConfigDict(
         extra="forbid",
@@ -160,10 +161,14 @@ class ExportSpec(_Spec):
     )
 
     kind: Literal["export"]
-    job_id: str = Field(min_length=1, max_length=36, description="A succeeded topography job.")
-    format: ExportFormat = Field(
-        description="points-csv, grid-npz (numpy), mat (MATLAB), vtk (ParaView time series, zipped) or "
-        "profile-csv (a section along `line`)."
+    job_id: str = Field(min_length=1, max_length=36, description="A succeeded topography or comparison job.")
+    format: (
+        Annotated[ExportFormat, Field(title="Topography export")]
+        | Annotated[ComparisonExport, Field(title="Comparison export")]
+    ) = Field(
+        description="Of a topography: points-csv, grid-npz (numpy), mat (MATLAB), vtk (ParaView time series, zipped) "
+        "or profile-csv (a section along `line`). Of a comparison: csv (per frame), hdf5 (the comparison file), mat, "
+        "vtk or profile-csv (measured, simulated and σ along `line`, the points beyond 2σ marked)."
     )
     line: tuple[float, float, float, float] | None = Field(
         None, description="X0, Y0, X1, Y1 in mm, for profile-csv; empty: along X through the punch axis."

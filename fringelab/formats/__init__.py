@@ -8,7 +8,8 @@ topography    projector tables, topography results (writer and reader), exports,
 simulations   opening a finite-element simulation (file or folder); one module per format: simulation_d3plot
               (lasso-python), simulation_vtu (.pvd/.vtu), simulation_exodus, simulation_csv (nodal and punch CSV),
               simulation_lsdyna_ascii (nodout, rcforc)
-comparison    the comparison of a topography with a simulation (writer, reader, exports)
+comparison    the comparison of a topography with a simulation (writer, reader)
+exports       every export for other tools, of a topography result and of a comparison (one owner per format)
 
 Modules the API imports (containers, previews, topography's reader) use numpy and h5py only; decoding frames
 (recordings) and the OpenCV YAML export need OpenCV and are used by the worker and the command line.
@@ -30,3 +31,11 @@ EXPORT_FILES: dict[str, tuple[str, str]] = {
 # The exports of a comparison file, declared once.
 ComparisonExport = Literal["csv", "hdf5", "mat", "vtk", "profile-csv"]
 COMPARISON_EXPORTS: tuple[str, ...] = get_args(ComparisonExport)
+# The file each comparison export hands out (a comparison job's `format`, or an export job of a comparison).
+COMPARISON_EXPORT_FILES: dict[str, tuple[str, str]] = {
+    "csv": ("comparison.csv", "text/csv"),
+    "hdf5": ("comparison-copy.h5", "application/x-hdf5"),
+    "mat": ("comparison.mat", "application/x-matlab-data"),
+    "vtk": ("comparison-vtk.zip", "application/zip"),
+    "profile-csv": ("comparison-profile.csv", "text/csv"),
+}

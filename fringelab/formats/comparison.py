@@ -17,15 +17,15 @@ compared, and /frames/reason says why for a frame without a simulation partner:
                simulated_mm, sigma_mm (n, M)
   /simulation  time_s, punch_displacement_mm, force_kN, peak_w_mm (S,) per simulation state (NaN where the
                simulation has none)
-Exports (COMPARISON_EXPORTS): "csv" (per-frame table), "hdf5" (this file), "mat" (MATLAB), "vtk" (ParaView
-time series of the difference map), "profile-csv" (measured, simulated and σ along any line, every frame, with
-the points beyond 2σ marked).
+Pairing a result with a simulation (`pair_result`: the result's grid, frames, log and punch axis fed to
+`science.compare.pair_with_measurement`) is here too, for the comparison and the dashboard's live preview.
+Its exports (COMPARISON_EXPORTS: per-frame CSV, HDF5 copy, MAT, VTK, profile CSV) are written by
+`fringelab.formats.exports.export_comparison`, the owner of every export format.
 """
 
 from __future__ import annotations
 
 import json
-import shutil
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -33,9 +33,11 @@ from typing import Any
 import h5py
 import numpy as np
 
-from fringelab.formats import COMPARISON_EXPORTS
-from fringelab.formats.atomic import atomic_path, commit_partial, partial_path
+from fringelab.formats.atomic import commit_partial, partial_path
 from fringelab.formats.hdf5 import SCHEMA_VERSION, json_text, require_schema, unit_dataset
+from fringelab.formats.topography import TopographyResult
+from fringelab.science import compare
+from fringelab.science.fe_results import FEResults
 from fringelab.science.fields import Grid
 
 COMPARISON_SCHEMA = "fringelab.comparison"
@@ -68,6 +70,38 @@ SIMULATION_COLUMNS = (
     ("force_kN", "kN", "punch force at the state"),
     ("peak_w_mm", "mm", "largest deflection of the model's surface at the state"),
 )
+
+
+def plate_frame_of(result: TopographyResult) -> compare.PlateFrame:
+    """The measured plate of a result: the extent of its first frame's data and its punch axis (the summary's,
+    else the clamp centre, else the data's centre)."""
+    summary = result.summary()
+    axis = None
+    for prefix in ("punch_axis", "clamp_centre"):
+        candidate = (float(summary.get(f"{prefix}_x_mm", np.nan)), float(summary.get(f"{prefix}_y_mm", np.nan)))
+        if np.all(np.isfinite(candidate)):
+            axis = candidate
+            break
+    try:
+        return compare.plate_frame_of(result.grid, result.w_grid(0), axis_xy_mm=axis)
+    except compare.ComparisonError as error:
+        raise compare.ComparisonError(f"{result.path.name}: {error}") from None
+
+
+def pair_result(
+    result: TopographyResult,
+    simulation: FEResults,
+    *,
+    mapping: compare.MappingSettings | None = None,
+    align: str = "displacement",
+) -> compare.Pairing:
+    """A simulation paired with a result's frames: `science.compare.pair_with_measurement` fed with the result's
+    grid, frames, test log and punch axis (what the comparison and the dashboard's live preview both use)."""
+    return compare.pair_with_measurement(
+        simulation, grid=result.grid, plate=plate_frame_of(result), measured_w=result.w_grid,
+        frame_time_s=result.column("frames/time_s"), frame_punch_mm=result.column("frames/punch_displacement_mm"),
+        frame_peak_mm=result.column("peak/w_mm"), mapping=mapping, align=align,
+    )  # fmt: skip
 
 
 class ComparisonWriter:
@@ -242,112 +276,3 @@ class ComparisonResult:
         for name, _, _ in FRAME_COLUMNS:
             table[name] = json.loads(json_text(self.column(name)))
         return table
-
-
-def export_comparison(
-    comparison: str | Path, fmt: str, out: str | Path, *, line: tuple[float, float, float, float] | None = None
-) -> Path:
-    """Write an export of a comparison file: "csv" (per-frame table), "hdf5" (a copy), "mat", "vtk" (.pvd), or
-    "profile-csv" along `line` (X0, Y0, X1, Y1 in mm; default along X through the grid's middle row)."""
-    if fmt not in COMPARISON_EXPORTS:
-        raise ValueError(f"format: expected one of {COMPARISON_EXPORTS}, got {fmt!r}")
-    if line is not None and fmt != "profile-csv":
-        raise ValueError("line is only used by the profile-csv format")
-    out = Path(out)
-    if fmt == "hdf5":
-        with ComparisonResult(comparison):
-            pass  # refuse to copy what is not a comparison file
-        with atomic_path(out) as temp:
-            shutil.copyfile(comparison, temp)
-        return out
-    with ComparisonResult(comparison) as result:
-        if fmt == "csv":
-            names = ["frame", "state_lo", "n_nodes"] + [name for name, _, _ in FRAME_COLUMNS]
-            rows = [result.frames, result.column("state_lo"), result.column("n_nodes")]
-            rows += [result.column(name) for name, _, _ in FRAME_COLUMNS]
-            reasons = result.column("reason")
-            with atomic_path(out) as temp, open(temp, "w", newline="") as handle:
-                handle.write(",".join(names) + ",reason\n")
-                for i in range(result.n_frames):
-                    cells = [f"{rows[c][i]:.6g}" if np.isfinite(rows[c][i]) else "" for c in range(len(names))]
-                    handle.write(",".join(cells) + "," + reasons[i].replace(",", ";") + "\n")
-            return out
-        if fmt == "profile-csv":
-            return _export_profile(result, out, line)
-        if fmt == "mat":
-            from scipy.io import savemat
-
-            data: dict[str, Any] = {"x_mm": result.grid.x_mm, "y_mm": result.grid.y_mm,
-                                    "frames": result.frames.astype(np.float64)}  # fmt: skip
-            for name, _, _ in FRAME_COLUMNS:
-                data[name] = result.column(name)
-            data["state_lo"] = result.column("state_lo").astype(np.float64)
-            for name, _ in FIELDS:
-                data[name] = result.file[f"fields/{name}"][()].astype(np.float64)
-            for name, _, _ in SIMULATION_COLUMNS:
-                data[f"sim_state_{name}"] = result.column(f"simulation/{name}")
-            data["mapping_json"] = result.file.attrs["mapping_json"]
-            with atomic_path(out) as temp, open(temp, "wb") as handle:
-                savemat(handle, data, do_compression=True)
-            return out
-        return _export_vtk(result, out)
-
-
-def _export_profile(result: ComparisonResult, path: Path, line: tuple[float, float, float, float] | None) -> Path:
-    """CSV frame,s_mm,x_mm,y_mm,w_meas_mm,w_sim_mm,diff_mm,sigma_w_mm,beyond_2sigma along a line, every frame
-    (empty cells where there is no value; beyond_2sigma is 1 where |diff| > 2σ, 0 where not, empty unknown)."""
-    from fringelab.science.fields import line_profile
-
-    grid = result.grid
-    if line is None:
-        middle = float(grid.y_mm[len(grid.y_mm) // 2])
-        line = (float(grid.x_mm[0]), middle, float(grid.x_mm[-1]), middle)
-    names = ("w_meas_mm", "w_sim_mm", "diff_mm", "sigma_w_mm")
-    with atomic_path(path) as temp, open(temp, "w", newline="") as handle:
-        handle.write("frame,s_mm,x_mm,y_mm," + ",".join(names) + ",beyond_2sigma\n")
-        for i, frame in enumerate(result.frames):
-            stack = np.stack([result.field(name, i) for name in names])
-            profile = line_profile(stack, grid, line[:2], line[2:])
-            meas, sim, diff, sigma = profile.values
-            with np.errstate(invalid="ignore"):
-                beyond = np.where(np.isfinite(diff) & np.isfinite(sigma), np.abs(diff) > 2 * sigma, np.nan)
-            for j in range(len(profile.s_mm)):
-                cells = [profile.s_mm[j], profile.x_mm[j], profile.y_mm[j], meas[j], sim[j], diff[j], sigma[j]]
-                text = ",".join(f"{v:.5f}" if np.isfinite(v) else "" for v in cells)
-                flag = "" if np.isnan(beyond[j]) else str(int(beyond[j]))
-                handle.write(f"{int(frame)},{text},{flag}\n")
-    return path
-
-
-def _export_vtk(result: ComparisonResult, path: Path) -> Path:
-    """ParaView time series: one .vtu per frame (the measured surface, quads between nodes with data) carrying
-    w_meas_mm, w_sim_mm, diff_mm and sigma_w_mm, listed in `path` (.pvd)."""
-    import meshio
-
-    folder = path.parent / f"{path.stem}_vtu"
-    folder.mkdir(parents=True, exist_ok=True)
-    gx, gy = np.meshgrid(result.grid.x_mm, result.grid.y_mm)
-    ny, nx = result.grid.shape
-    node = np.arange(ny * nx).reshape(ny, nx)
-    quads_all = np.column_stack([node[:-1, :-1].ravel(), node[:-1, 1:].ravel(), node[1:, 1:].ravel(),
-                                 node[1:, :-1].ravel()])  # fmt: skip
-    times = result.column("time_s")
-    entries = []
-    for i, frame in enumerate(result.frames):
-        w = result.field("w_meas_mm", i).ravel()
-        quads = quads_all[np.all(np.isfinite(w)[quads_all], axis=1)]
-        used = np.unique(quads)
-        renumber = np.full(ny * nx, -1)
-        renumber[used] = np.arange(len(used))
-        points = np.column_stack([gx.ravel()[used], gy.ravel()[used], w[used]])
-        data = {name: result.field(name, i).ravel()[used] for name, _ in FIELDS}
-        name = f"frame_{int(frame):06d}.vtu"
-        with atomic_path(folder / name) as temp:
-            meshio.write(temp, meshio.Mesh(points, [("quad", renumber[quads])], point_data=data), file_format="vtu")
-        time = float(times[i]) if np.isfinite(times[i]) else float(frame)
-        entries.append(f'    <DataSet timestep="{time!r}" part="0" file="{folder.name}/{name}"/>')
-    text = ('<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">\n'
-            "  <Collection>\n" + "\n".join(entries) + "\n  </Collection>\n</VTKFile>\n")  # fmt: skip
-    with atomic_path(path) as temp:
-        temp.write_text(text)
-    return path

@@ -1,23 +1,34 @@
-"""Exports of a topography result for other tools: points CSV, grid NPZ, MATLAB .mat, VTK time series, profile CSV.
+"""Exports for other tools, the one owner of every export format: of a topography result (points CSV, grid NPZ,
+MATLAB .mat, VTK time series, profile CSV) and of a comparison with a simulation (per-frame CSV, HDF5 copy, .mat,
+VTK time series, profile CSV with the points beyond 2σ marked).
 
-Every export takes an optional frame range (`frames`: first and last recording frame number, both included) and
-holds the result grid itself (never a display grid); the profile CSV takes any number of lines, labelled."""
+Every topography export takes an optional frame range (`frames`: first and last recording frame number, both
+included) and holds the result grid itself (never a display grid); the profile CSV takes any number of lines,
+labelled. The VTK series of both are written by one writer (`write_surface_series`)."""
 
 from __future__ import annotations
 
+import shutil
 import time
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextvars import ContextVar
 from pathlib import Path
 from typing import Any, Literal, get_args
 
 import numpy as np
 
-from fringelab.formats import EXPORT_FILES, EXPORT_FORMATS, ExportFormat  # noqa: F401  (declared once, there)
+from fringelab.formats import (  # noqa: F401  (declared once, there)
+    COMPARISON_EXPORT_FILES,
+    COMPARISON_EXPORTS,
+    EXPORT_FILES,
+    EXPORT_FORMATS,
+    ExportFormat,
+)
 from fringelab.formats.atomic import atomic_path
+from fringelab.formats.comparison import FIELDS, FRAME_COLUMNS, SIMULATION_COLUMNS, ComparisonResult
 from fringelab.formats.topography import TopographyResult
-from fringelab.science.fields import line_profile
+from fringelab.science.fields import Grid, line_profile
 
 Line = tuple[float, float, float, float]  # X0, Y0, X1, Y1 in mm
 FrameRange = tuple[int, int]  # first and last recording frame number, both included
@@ -247,43 +258,46 @@ def _mat_dataset(group: Any, name: str, array: np.ndarray, matlab_class: str) ->
     return dataset
 
 
-def export_vtk(result: TopographyResult, path: str | Path, *, frames: FrameRange | None = None) -> Path:
-    """A ParaView time series: `path` (.pvd) listing one .vtu per frame in the folder `<stem>_vtu` beside it.
+def write_surface_series(
+    path: str | Path,
+    grid: Grid,
+    surfaces: Iterable[tuple[int, float, np.ndarray, dict[str, np.ndarray]]],
+    *,
+    count: int | None = None,
+) -> Path:
+    """A ParaView time series of gridded surfaces: `path` (.pvd) listing one .vtu per frame in the folder
+    `<stem>_vtu` beside it (the one writer of the VTK exports).
 
-    Each .vtu is the gridded surface (quads between nodes that all have data) at its measured height, with point
-    data z_mm and w_mm; the .pvd gives each frame its time (time_s where logged, else the frame index).
+    surfaces: (frame, time, z (ny, nx), point data {name: (ny, nx)}) per frame, in order; each .vtu is the surface
+    at height z as quads between nodes that all have a z, with the point data at those nodes; the .pvd gives
+    each frame its time. count: the number of surfaces, for progress.
     """
     import meshio
 
     path = Path(path)
     folder = path.parent / f"{path.stem}_vtu"
     folder.mkdir(parents=True, exist_ok=True)
-    gx, gy = np.meshgrid(result.grid.x_mm, result.grid.y_mm)
-    ny, nx = result.grid.shape
+    gx, gy = np.meshgrid(grid.x_mm, grid.y_mm)
+    ny, nx = grid.shape
     node = np.arange(ny * nx).reshape(ny, nx)
     quads_all = np.column_stack(
         [node[:-1, :-1].ravel(), node[:-1, 1:].ravel(), node[1:, 1:].ravel(), node[1:, :-1].ravel()]
     )
-    times = result.column("frames/time_s")
     entries = []
-    positions = frame_positions(result, frames)
-    for k, i in enumerate(positions):
-        frame = result.frames[i]
-        z = result.z_grid(i).ravel()
-        finite = np.isfinite(z)
-        quads = quads_all[np.all(finite[quads_all], axis=1)]
+    for k, (frame, time_s, z_grid, data) in enumerate(surfaces):
+        z = z_grid.ravel()
+        quads = quads_all[np.all(np.isfinite(z)[quads_all], axis=1)]
         used = np.unique(quads)
         renumber = np.full(ny * nx, -1)
         renumber[used] = np.arange(len(used))
         points = np.column_stack([gx.ravel()[used], gy.ravel()[used], z[used]])
-        mesh = meshio.Mesh(
-            points, [("quad", renumber[quads])], point_data={"z_mm": z[used], "w_mm": z[used] - result.z_flat_mm}
-        )
+        point_data = {name: values.ravel()[used] for name, values in data.items()}
         name = f"frame_{int(frame):06d}.vtu"
-        meshio.write(folder / name, mesh, binary=True)
-        time = float(times[i]) if np.isfinite(times[i]) else float(frame)
-        entries.append(f'    <DataSet timestep="{time!r}" part="0" file="{folder.name}/{name}"/>')
-        _tick(k + 1, len(positions), "surfaces")
+        with atomic_path(folder / name) as temp:
+            meshio.write(temp, meshio.Mesh(points, [("quad", renumber[quads])], point_data=point_data),
+                         file_format="vtu", binary=True)  # fmt: skip
+        entries.append(f'    <DataSet timestep="{float(time_s)!r}" part="0" file="{folder.name}/{name}"/>')
+        _tick(k + 1, count or k + 1, "surfaces")
     pvd = (
         '<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">\n'
         "  <Collection>\n" + "\n".join(entries) + "\n  </Collection>\n</VTKFile>\n"
@@ -291,6 +305,22 @@ def export_vtk(result: TopographyResult, path: str | Path, *, frames: FrameRange
     with atomic_path(path) as temp:
         temp.write_text(pvd)
     return path
+
+
+def export_vtk(result: TopographyResult, path: str | Path, *, frames: FrameRange | None = None) -> Path:
+    """A ParaView time series (`write_surface_series`): per frame the gridded surface at its measured height, with
+    point data z_mm and w_mm; each frame at its time (time_s where logged, else the frame index)."""
+    times = result.column("frames/time_s")
+    positions = frame_positions(result, frames)
+
+    def surfaces() -> Iterator[tuple[int, float, np.ndarray, dict[str, np.ndarray]]]:
+        for i in positions:
+            frame = int(result.frames[i])
+            z = result.z_grid(i)
+            time_s = float(times[i]) if np.isfinite(times[i]) else float(frame)
+            yield frame, time_s, z, {"z_mm": z, "w_mm": z - result.z_flat_mm}
+
+    return write_surface_series(path, result.grid, surfaces(), count=len(positions))
 
 
 def read_pvd(path: str | Path) -> list[tuple[float, Path]]:
@@ -399,3 +429,91 @@ def export_result(
             return export_profile_csv(result, out_path, line=line, lines=lines, frames=frames)
     finally:
         _PROGRESS.reset(token)
+
+
+# ---- a comparison with a simulation (formats.comparison) ----------------------------------------------------------
+
+
+def export_comparison(comparison: str | Path, fmt: str, out: str | Path, *, line: Line | None = None) -> Path:
+    """Write an export of a comparison file: "csv" (per-frame table), "hdf5" (a copy), "mat", "vtk" (.pvd), or
+    "profile-csv" along `line` (X0, Y0, X1, Y1 in mm; default along X through the punch axis)."""
+    if fmt not in COMPARISON_EXPORTS:
+        raise ValueError(f"format: expected one of {COMPARISON_EXPORTS}, got {fmt!r}")
+    if line is not None and fmt != "profile-csv":
+        raise ValueError("line is only used by the profile-csv format")
+    out = Path(out)
+    if fmt == "hdf5":
+        with ComparisonResult(comparison):
+            pass  # refuse to copy what is not a comparison file
+        with atomic_path(out) as temp:
+            shutil.copyfile(comparison, temp)
+        return out
+    with ComparisonResult(comparison) as result:
+        if fmt == "csv":
+            names = ["frame", "state_lo", "n_nodes"] + [name for name, _, _ in FRAME_COLUMNS]
+            rows = [result.frames, result.column("state_lo"), result.column("n_nodes")]
+            rows += [result.column(name) for name, _, _ in FRAME_COLUMNS]
+            reasons = result.column("reason")
+            with atomic_path(out) as temp, open(temp, "w", newline="") as handle:
+                handle.write(",".join(names) + ",reason\n")
+                for i in range(result.n_frames):
+                    cells = [f"{rows[c][i]:.6g}" if np.isfinite(rows[c][i]) else "" for c in range(len(names))]
+                    handle.write(",".join(cells) + "," + reasons[i].replace(",", ";") + "\n")
+            return out
+        if fmt == "profile-csv":
+            return _export_comparison_profile(result, out, line)
+        if fmt == "mat":
+            from scipy.io import savemat
+
+            data: dict[str, Any] = {"x_mm": result.grid.x_mm, "y_mm": result.grid.y_mm,
+                                    "frames": result.frames.astype(np.float64)}  # fmt: skip
+            for name, _, _ in FRAME_COLUMNS:
+                data[name] = result.column(name)
+            data["state_lo"] = result.column("state_lo").astype(np.float64)
+            for name, _ in FIELDS:
+                data[name] = result.file[f"fields/{name}"][()].astype(np.float64)
+            for name, _, _ in SIMULATION_COLUMNS:
+                data[f"sim_state_{name}"] = result.column(f"simulation/{name}")
+            data["mapping_json"] = result.file.attrs["mapping_json"]
+            with atomic_path(out) as temp, open(temp, "wb") as handle:
+                savemat(handle, data, do_compression=True)
+            return out
+        return _export_comparison_vtk(result, out)
+
+
+def _export_comparison_profile(result: ComparisonResult, path: Path, line: Line | None) -> Path:
+    """CSV frame,s_mm,x_mm,y_mm,w_meas_mm,w_sim_mm,diff_mm,sigma_w_mm,beyond_2sigma along a line, every frame
+    (empty cells where there is no value; beyond_2sigma is 1 where |diff| > 2σ, 0 where not, empty unknown)."""
+    grid = result.grid
+    if line is None:  # the stored profile along X: through the punch axis
+        through = float(result.file["profiles/x/y_mm"][0])
+        line = (float(grid.x_mm[0]), through, float(grid.x_mm[-1]), through)
+    names = ("w_meas_mm", "w_sim_mm", "diff_mm", "sigma_w_mm")
+    with atomic_path(path) as temp, open(temp, "w", newline="") as handle:
+        handle.write("frame,s_mm,x_mm,y_mm," + ",".join(names) + ",beyond_2sigma\n")
+        for i, frame in enumerate(result.frames):
+            stack = np.stack([result.field(name, i) for name in names])
+            profile = line_profile(stack, grid, line[:2], line[2:])
+            meas, sim, diff, sigma = profile.values
+            with np.errstate(invalid="ignore"):
+                beyond = np.where(np.isfinite(diff) & np.isfinite(sigma), np.abs(diff) > 2 * sigma, np.nan)
+            for j in range(len(profile.s_mm)):
+                cells = [profile.s_mm[j], profile.x_mm[j], profile.y_mm[j], meas[j], sim[j], diff[j], sigma[j]]
+                text = ",".join(f"{v:.5f}" if np.isfinite(v) else "" for v in cells)
+                flag = "" if np.isnan(beyond[j]) else str(int(beyond[j]))
+                handle.write(f"{int(frame)},{text},{flag}\n")
+    return path
+
+
+def _export_comparison_vtk(result: ComparisonResult, path: Path) -> Path:
+    """ParaView time series (`write_surface_series`): per frame the measured surface carrying w_meas_mm, w_sim_mm,
+    diff_mm and sigma_w_mm."""
+    times = result.column("time_s")
+
+    def surfaces() -> Iterator[tuple[int, float, np.ndarray, dict[str, np.ndarray]]]:
+        for i, frame in enumerate(result.frames):
+            data = {name: result.field(name, i) for name, _ in FIELDS}
+            time_s = float(times[i]) if np.isfinite(times[i]) else float(frame)
+            yield int(frame), time_s, data["w_meas_mm"], data
+
+    return write_surface_series(path, result.grid, surfaces(), count=result.n_frames)

@@ -38,12 +38,18 @@ def _kind(path: Path) -> str | None:
 
 
 def open_simulation(
-    path: str | Path, *, punch_node: int | None = None, contact_interface: int | None = None
+    path: str | Path,
+    *,
+    punch_node: int | None = None,
+    contact_interface: int | None = None,
+    punch_needed: bool = True,
 ) -> FEResults:
     """Read a simulation (file or folder) into `FEResults`, with its punch travel and force where it has them.
 
     punch_node: the node whose travel is the punch displacement (a nodout node, or a mesh node); None: nodout's
     only node, or none. contact_interface: the rcforc interface of the punch; None: the one with the largest force.
+    punch_needed: a nodout of several nodes without a punch_node is a ValueError naming them (for a comparison);
+    False reads it without a punch travel (an upload: the punch node is chosen when it is compared).
     """
     from fringelab.formats import simulation_csv, simulation_lsdyna_ascii
 
@@ -81,7 +87,8 @@ def open_simulation(
     updates: dict[str, object] = {}
     if "nodout" in kinds:
         histories = simulation_lsdyna_ascii.read_nodout(kinds["nodout"][0])
-        if punch_node is None or punch_node in histories.node_ids:
+        ambiguous = punch_node is None and len(histories.node_ids) > 1
+        if (punch_node is None or punch_node in histories.node_ids) and (punch_needed or not ambiguous):
             travel = histories.punch_travel(punch_node, where=kinds["nodout"][0].name)
             updates.update(punch_time=histories.time, punch_displacement=travel)
     if "rcforc" in kinds:

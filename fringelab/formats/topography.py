@@ -44,6 +44,9 @@ Files written before σ existed have no sigma_w_mm datasets; the reader then ret
 from __future__ import annotations
 
 import math
+import zlib
+from collections import defaultdict, deque
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from functools import cached_property
@@ -69,6 +72,19 @@ TOPOGRAPHY_SCHEMA = "fringelab.topography"
 # region measured has no peak to show (a gap, not a drop).
 PEAK_REGION_RADIUS_MM = 40.0
 PEAK_REGION_MEASURED = 0.5
+# Storage of the result: the compressed datasets' zlib level (with the byte shuffle), the points' chunk (rows), how
+# many frames of the per-frame columns are buffered before they are written, and the writer's compression threads.
+GZIP_LEVEL = 1
+POINTS_CHUNK_ROWS = 65536
+COLUMN_FLUSH_FRAMES = 1024
+WRITER_THREADS = 2
+MAX_WRITES_IN_FLIGHT = 16
+# Of the points, only the edge and line indices are compressed (50 to 100 times smaller, at a few % of the cost of
+# writing them); their coordinates and σ, float32 noise in the last bits, shrank 1.3 to 1.8 times for most of the
+# time spent writing a result (files written before are read the same: compression is the file's business).
+COMPRESSED_POINTS = ("edge", "line")
+_POINT_DTYPES = {"x_mm": np.float32, "y_mm": np.float32, "z_mm": np.float32, "edge": np.int32, "line": np.int32,
+                 "sigma_w_mm": np.float32}  # fmt: skip
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -117,6 +133,15 @@ class TopographyWriter:
         self._n = 0
         self._n_points = 0
         self._first_coverage_nodes: int | None = None
+        # Buffered until whole chunks (points) or COLUMN_FLUSH_FRAMES frames (the per-frame columns) can be written;
+        # compression runs in threads, the writes on this thread in order, at most MAX_WRITES_IN_FLIGHT behind.
+        self._points: dict[str, list[np.ndarray]] = {name: [] for name in _POINT_DTYPES}
+        self._points_buffered = 0
+        self._columns: dict[str, list[Any]] = defaultdict(list)
+        self._columns_written = 0
+        self._writes: deque[tuple[Any, tuple[Any, ...]]] = deque()
+        self._pool = ThreadPoolExecutor(max_workers=WRITER_THREADS, thread_name_prefix="topography-writer")
+        self._datasets: dict[str, h5py.Dataset] = {}
         file = self._file = h5py.File(self._temp, "w")
         file.attrs["schema"] = TOPOGRAPHY_SCHEMA
         file.attrs["schema_version"] = SCHEMA_VERSION
@@ -178,6 +203,7 @@ class TopographyWriter:
             ("line", np.int32, "1", "scan line (image row for axis 'rows', column for 'cols')"),
             ("sigma_w_mm", np.float32, "mm", "standard deviation of the point's height (edge noise, projector table)"),
         ):
+            compressed = {"compression": "gzip", "compression_opts": GZIP_LEVEL, "shuffle": True}
             unit_dataset(
                 points,
                 name,
@@ -185,10 +211,8 @@ class TopographyWriter:
                 unit=unit,
                 description=description,
                 maxshape=(None,),
-                chunks=(65536,),
-                compression="gzip",
-                compression_opts=1,
-                shuffle=True,
+                chunks=(POINTS_CHUNK_ROWS,),
+                **(compressed if name in COMPRESSED_POINTS else {}),
             )
         grid_group = file.create_group("grid")
         unit_dataset(grid_group, "x_mm", grid.x_mm, unit="mm", description="X of the grid nodes")
@@ -202,7 +226,7 @@ class TopographyWriter:
             maxshape=(None, ny, nx),
             chunks=(1, ny, nx),
             compression="gzip",
-            compression_opts=1,
+            compression_opts=GZIP_LEVEL,
             shuffle=True,
             fillvalue=np.nan,
         )
@@ -215,7 +239,7 @@ class TopographyWriter:
             maxshape=(None, ny, nx),
             chunks=(1, ny, nx),
             compression="gzip",
-            compression_opts=1,
+            compression_opts=GZIP_LEVEL,
             shuffle=True,
             fillvalue=np.nan,
         )
@@ -310,88 +334,147 @@ class TopographyWriter:
         if exc_type is not None:
             self.abort()
 
-    def _append(self, dataset: h5py.Dataset, values: np.ndarray) -> None:
-        start = dataset.shape[0]
-        dataset.resize(start + len(values), axis=0)
-        dataset[start:] = values
-
     def append(
         self,
         measurement: FrameMeasurement,
-        z_grid_mm: np.ndarray,
+        z_grid_mm: np.ndarray | None,
         peak: Peak,
         *,
         log: tuple[float, float, float],
         camera_frame: int | None = None,
+        sigma_grid_mm: np.ndarray | None = None,
+        packed: PackedGrids | None = None,
     ) -> None:
-        """Add one frame: its points, grid, peak, test-log row (time_s, punch_displacement_mm, force_kN), QA, and
-        its number as the camera counts it (default: its index)."""
-        file = self._file
-        self._append(file["frames/index"], np.array([measurement.frame]))
-        number = measurement.frame if camera_frame is None else camera_frame
-        self._append(file["frames/camera_frame"], np.array([number], np.int64))
-        for name, value in zip(("time_s", "punch_displacement_mm", "force_kN"), log, strict=True):
-            self._append(file[f"frames/{name}"], np.array([value]))
+        """Add one frame: its points, grid and σ grid (NaN: not known), peak, test-log row (time_s,
+        punch_displacement_mm, force_kN), QA, and its number as the camera counts it (default: its index).
+        packed: the two grids already as stored (`pack_grids` of them, e.g. by the worker that measured the frame;
+        the grids are then not needed); otherwise they are packed here, in the writer's threads."""
+        if packed is None:
+            if z_grid_mm is None:
+                raise ValueError("z_grid_mm: a grid is needed unless the grids come packed")
+            sigma = np.full(self.grid.shape, np.nan) if sigma_grid_mm is None else sigma_grid_mm
+            grids: PackedGrids | Future[PackedGrids] = self._pool.submit(pack_grids, z_grid_mm, sigma)
+        else:
+            grids = packed
+        self._queue_write(self._write_grids, self._n, grids)
         points = measurement.points_obj_mm
-        self._append(file["points/x_mm"], points[:, 0].astype(np.float32))
-        self._append(file["points/y_mm"], points[:, 1].astype(np.float32))
-        self._append(file["points/z_mm"], points[:, 2].astype(np.float32))
-        self._append(file["points/edge"], measurement.k.astype(np.int32))
-        self._append(file["points/line"], measurement.line.astype(np.int32))
-        sigma = measurement.sigma_z_mm if measurement.sigma_z_mm is not None else np.full(len(points), np.nan)
-        self._append(file["points/sigma_w_mm"], sigma.astype(np.float32))
+        sigma_points = measurement.sigma_z_mm if measurement.sigma_z_mm is not None else np.full(len(points), np.nan)
+        for name, values in (
+            ("x_mm", points[:, 0]), ("y_mm", points[:, 1]), ("z_mm", points[:, 2]), ("edge", measurement.k),
+            ("line", measurement.line), ("sigma_w_mm", sigma_points),
+        ):  # fmt: skip
+            self._points[name].append(np.asarray(values, _POINT_DTYPES[name]))
         self._n_points += len(points)
-        self._append(file["points/offsets"], np.array([self._n_points]))
-        grid_z = file["grid/z_mm"]
-        grid_z.resize(self._n + 1, axis=0)
-        grid_z[self._n] = z_grid_mm.astype(np.float32)
-        grid_sigma = file["grid/sigma_w_mm"]
-        grid_sigma.resize(self._n + 1, axis=0)
-        grid_sigma[self._n] = self._sigma_grid(measurement, sigma).astype(np.float32)
-        for name in ("w_mm", "x_mm", "y_mm", "centre_x_mm", "centre_y_mm"):
-            self._append(file[f"peak/{name}"], np.array([getattr(peak, name)]))
-        nodes = int(np.count_nonzero(np.isfinite(z_grid_mm)))
+        self._points_buffered += len(points)
+        while self._points_buffered >= POINTS_CHUNK_ROWS:
+            self._flush_points(POINTS_CHUNK_ROWS)
+        finite = packed.z_finite if packed is not None else np.isfinite(np.asarray(z_grid_mm))
+        nodes = int(np.count_nonzero(finite))
         if self._first_coverage_nodes is None:
             self._first_coverage_nodes = max(nodes, 1)
-        qa = {
-            "n_points": len(points),
-            "n_tracks": measurement.n_tracks,
-            "n_ended": measurement.n_ended,
-            "n_out_of_range": measurement.n_out_of_range,
-            "n_unmatched": measurement.n_unmatched,
-            "edge_noise_px": measurement.edge_noise_px,
-            "grid_coverage": nodes / self._first_coverage_nodes,
-        }
-        finite = np.isfinite(z_grid_mm)
-        peak_nodes = self._peak_nodes
-        qa["peak_region_coverage"] = np.mean(finite[peak_nodes]) if peak_nodes is not None else np.nan
         coverage = measurement.coverage
-        qa["n_order_conflicts"] = measurement.n_order_conflicts
-        qa["n_order_unresolved"] = measurement.n_order_unresolved
-        qa["n_temporal_jumps"] = measurement.temporal.n_jumps if measurement.temporal is not None else -1
-        qa["measured_fraction"] = coverage.measured_fraction if coverage else np.nan
-        qa["visible_area_mm2"] = coverage.visible_area_mm2 if coverage else np.nan
-        qa["measured_area_mm2"] = coverage.measured_area_mm2 if coverage else np.nan
+        peak_nodes = self._peak_nodes
+        row: dict[str, Any] = {
+            "frames/index": measurement.frame,
+            "frames/camera_frame": measurement.frame if camera_frame is None else camera_frame,
+            "frames/time_s": log[0],
+            "frames/punch_displacement_mm": log[1],
+            "frames/force_kN": log[2],
+            "points/offsets": self._n_points,
+            **{f"peak/{name}": getattr(peak, name) for name in ("w_mm", "x_mm", "y_mm", "centre_x_mm", "centre_y_mm")},
+            "qa/n_points": len(points),
+            "qa/n_tracks": measurement.n_tracks,
+            "qa/n_ended": measurement.n_ended,
+            "qa/n_out_of_range": measurement.n_out_of_range,
+            "qa/n_unmatched": measurement.n_unmatched,
+            "qa/edge_noise_px": measurement.edge_noise_px,
+            "qa/grid_coverage": nodes / self._first_coverage_nodes,
+            "qa/peak_region_coverage": np.mean(finite[peak_nodes]) if peak_nodes is not None else np.nan,
+            "qa/n_order_conflicts": measurement.n_order_conflicts,
+            "qa/n_order_unresolved": measurement.n_order_unresolved,
+            "qa/n_temporal_jumps": measurement.temporal.n_jumps if measurement.temporal is not None else -1,
+            "qa/measured_fraction": coverage.measured_fraction if coverage else np.nan,
+            "qa/visible_area_mm2": coverage.visible_area_mm2 if coverage else np.nan,
+            "qa/measured_area_mm2": coverage.measured_area_mm2 if coverage else np.nan,
+        }
         for name in MISSING_REASONS:
-            qa[f"missing_{name}_mm2"] = coverage.missing_mm2[name] if coverage else np.nan
-        for name, value in qa.items():
-            self._append(file[f"qa/{name}"], np.array([value]))
+            row[f"qa/missing_{name}_mm2"] = coverage.missing_mm2[name] if coverage else np.nan
+        for name, value in row.items():
+            self._columns[name].append(value)
         self._n += 1
+        if self._n - self._columns_written >= COLUMN_FLUSH_FRAMES:
+            self._flush_columns()
 
-    def _sigma_grid(self, measurement: FrameMeasurement, sigma: np.ndarray) -> np.ndarray:
-        """σ on the grid, on the same triangles as the heights (`science.uncertainty.grid_sigma_mm`)."""
-        from fringelab.science.uncertainty import grid_sigma_mm
+    def _dataset(self, name: str) -> h5py.Dataset:
+        """The open dataset `name` (looking one up by name costs more than writing a frame's grid)."""
+        dataset = self._datasets.get(name)
+        if dataset is None:
+            dataset = self._datasets[name] = self._file[name]
+        return dataset
 
-        if len(sigma) == 0 or not np.any(np.isfinite(sigma)):
-            return np.full(self.grid.shape, np.nan)
-        shape = (int(measurement.k.max()) + 1, int(measurement.line.max()) + 1)
-        x, y, _ = measurement.dense(shape)
-        dense_sigma = np.full(shape, np.nan)
-        dense_sigma[measurement.k, measurement.line] = sigma
-        return grid_sigma_mm(x, y, dense_sigma, self.grid, max_edge_mm=self.max_edge_mm)
+    # Writes happen on the calling thread, in the order they were queued; the threads only compress.
+    def _queue_write(self, write: Any, *args: Any) -> None:
+        self._writes.append((write, args))
+        while len(self._writes) > MAX_WRITES_IN_FLIGHT:
+            self._write_next()
+
+    def _write_next(self) -> None:
+        write, args = self._writes.popleft()
+        write(*(arg.result() if isinstance(arg, Future) else arg for arg in args))
+
+    def _write_grids(self, i: int, packed: PackedGrids) -> None:
+        for name, chunk in (("grid/z_mm", packed.z_mm), ("grid/sigma_w_mm", packed.sigma_w_mm)):
+            dataset = self._dataset(name)
+            if dataset.shape[0] <= i:
+                dataset.resize(i + 1, axis=0)
+            dataset.id.write_direct_chunk((i, 0, 0), chunk)
+
+    def _flush_points(self, rows: int) -> None:
+        """The first `rows` buffered points (a whole stored chunk, or the rest at the end) to the file."""
+        start = self._n_points - self._points_buffered
+        for name, pieces in self._points.items():
+            buffered = np.concatenate(pieces) if len(pieces) != 1 else pieces[0]
+            head, rest = buffered[:rows], buffered[rows:]
+            self._points[name] = [rest] if len(rest) else []
+            if rows == POINTS_CHUNK_ROWS:
+                chunk = self._pool.submit(_packed_chunk, head) if name in COMPRESSED_POINTS else head.tobytes()
+                self._queue_write(self._write_points_chunk, name, start, chunk)
+            else:
+                self._queue_write(self._write_points_tail, name, start, head)
+        self._points_buffered -= rows
+
+    def _write_points_chunk(self, name: str, start: int, chunk: bytes) -> None:
+        dataset = self._dataset(f"points/{name}")
+        if dataset.shape[0] < start + POINTS_CHUNK_ROWS:
+            dataset.resize(start + POINTS_CHUNK_ROWS, axis=0)
+        dataset.id.write_direct_chunk((start,), chunk)
+
+    def _write_points_tail(self, name: str, start: int, values: np.ndarray) -> None:
+        dataset = self._dataset(f"points/{name}")
+        dataset.resize(start + len(values), axis=0)
+        dataset[start:] = values
+
+    def _flush_columns(self) -> None:
+        first = self._columns_written
+        for name, values in self._columns.items():
+            dataset = self._dataset(name)
+            offset = 1 if name == "points/offsets" else 0  # offsets start with a 0
+            dataset.resize(offset + self._n, axis=0)
+            dataset[offset + first : offset + self._n] = np.asarray(values, dataset.dtype)
+            values.clear()
+        self._columns_written = self._n
+
+    def _finish_writes(self) -> None:
+        if self._points_buffered:
+            self._flush_points(self._points_buffered)
+        while self._writes:
+            self._write_next()
+        self._flush_columns()
 
     def close(self, summary: dict[str, Any]) -> Path:
         """Write the summary attributes and the XDMF views, close the file and move it into place."""
+        self._finish_writes()
+        self._pool.shutdown()
         file = self._file
         file.attrs["n_frames"] = self._n
         _write_xdmf_views(file, self.grid, self._n)
@@ -403,9 +486,39 @@ class TopographyWriter:
 
     def abort(self) -> None:
         try:
+            self._pool.shutdown(cancel_futures=True)
             self._file.close()
         finally:
             self._temp.unlink(missing_ok=True)
+
+
+@dataclass(frozen=True)
+class PackedGrids:
+    """A frame's grid/z_mm and grid/sigma_w_mm as their stored HDF5 chunks (`pack_grids`), and where Z has data
+    (ny, nx) bool (the frame's QA)."""
+
+    z_mm: bytes
+    sigma_w_mm: bytes
+    z_finite: np.ndarray
+
+
+def pack_grids(z_grid_mm: np.ndarray, sigma_grid_mm: np.ndarray) -> PackedGrids:
+    """A frame's gridded Z and σ (ny, nx) as the result file stores them (float32, one chunk each, through the
+    datasets' filters: byte shuffle, then zlib level 1): a worker packs the frames it measured, in parallel, and
+    the writer stores the chunks as they are (`TopographyWriter.append(packed=...)`). The values read back are
+    those of the grids given, whoever packed them."""
+    return PackedGrids(
+        z_mm=_packed_chunk(z_grid_mm), sigma_w_mm=_packed_chunk(sigma_grid_mm), z_finite=np.isfinite(z_grid_mm)
+    )
+
+
+def _packed_chunk(values: np.ndarray) -> bytes:
+    """A whole chunk of a dataset created with shuffle=True, compression="gzip", compression_opts=1: what the
+    HDF5 filters make of it (the shuffle filter groups the bytes by their place in the item, then deflate), in
+    float32 for floats and as given for integers."""
+    array = np.ascontiguousarray(values, np.float32 if values.dtype.kind == "f" else values.dtype)
+    shuffled = array.view(np.uint8).reshape(-1, array.dtype.itemsize).T.tobytes()
+    return zlib.compress(shuffled, GZIP_LEVEL)
 
 
 XDMF_GROUP = "xdmf"

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from fringelab.formats.comparison import ComparisonWriter
+from fringelab.formats.comparison import ComparisonWriter, pair_result, plate_frame_of
 from fringelab.formats.hdf5 import json_text
 from fringelab.formats.simulations import open_simulation
 from fringelab.formats.topography import TopographyResult
@@ -38,27 +38,6 @@ class ComparisonSummary:
     def as_json(self) -> dict[str, Any]:
         """`{"frames": [{"frame", "rms_diff_mm", "max_diff_mm"}, …]}` plus the mapping (NaN → null)."""
         return json.loads(json_text({"frames": self.frames, "mapping": self.mapping, "alignment": self.alignment}))
-
-
-def plate_frame_of(result: TopographyResult) -> compare.PlateFrame:
-    """The measured punch axis (the summary's, else the clamp centre, else the data's centre) and the extent of
-    the first frame's data."""
-    w0 = result.w_grid(0)
-    has = np.isfinite(w0)
-    if not np.any(has):
-        raise compare.ComparisonError(f"{result.path.name}: the first frame has no data to compare with")
-    gx, gy = np.meshgrid(result.grid.x_mm, result.grid.y_mm)
-    box = (float(gx[has].min()), float(gx[has].max()), float(gy[has].min()), float(gy[has].max()))
-    summary = result.summary()
-    axis = (float("nan"), float("nan"))
-    for prefix in ("punch_axis", "clamp_centre"):
-        candidate = (float(summary.get(f"{prefix}_x_mm", np.nan)), float(summary.get(f"{prefix}_y_mm", np.nan)))
-        if np.all(np.isfinite(candidate)):
-            axis = candidate
-            break
-    if not np.all(np.isfinite(axis)):
-        axis = (0.5 * (box[0] + box[1]), 0.5 * (box[2] + box[3]))
-    return compare.PlateFrame(axis_xy_mm=axis, data_box_mm=box)
 
 
 def camera_covariance_field(result: TopographyResult, grid: Grid, has: np.ndarray) -> np.ndarray | None:
@@ -110,31 +89,15 @@ def compare_result(
     with TopographyResult(result_path) as result:
         grid = result.grid
         plate = plate_frame_of(result)
-        model = compare.map_model(simulation, plate, mapping)
-        n_states = simulation.n_states
-        state_peak = np.array([model.peak_w_mm(s) for s in range(n_states)])
         if progress is not None:
             progress(0, result.n_frames, "aligning")
+        pairing = pair_result(result, simulation, mapping=mapping, align=align)
+        model, alignment, sampler, state_peak = pairing.model, pairing.alignment, pairing.sampler, pairing.state_peak_mm
+        n_states = simulation.n_states
         frame_time = result.column("frames/time_s")
         frame_punch = result.column("frames/punch_displacement_mm")
         frame_force = result.column("frames/force_kN")
         frame_peak = result.column("peak/w_mm")
-        if align == "peak":
-            alignment = compare.align_by_footprint_peak(model, grid, result.w_grid, result.n_frames)
-        else:
-            alignment = compare.align_frames(model, align, frame_time_s=frame_time, frame_punch_mm=frame_punch,
-                                             frame_peak_mm=frame_peak, state_peak_mm=state_peak)  # fmt: skip
-        if model.mapping.origin_on_axis:
-            # The measured punch axis is the dome's centroid, biased where the top has no data: fit the model's
-            # position on the frame that deflects most.
-            aligned = np.flatnonzero(alignment.aligned)
-            best = int(aligned[np.argmax(np.nan_to_num(frame_peak[aligned], nan=-np.inf))])
-            model = compare.fit_origin(model, grid, result.w_grid(best), state_lo=int(alignment.state_lo[best]),
-                                       fraction=float(alignment.fraction[best]))  # fmt: skip
-        sampler = compare.StateSampler(model, grid)
-        first = int(np.flatnonzero(alignment.aligned)[0])
-        compare.check_overlap(model, grid, sampler.at(int(alignment.state_lo[first]), float(alignment.fraction[first])),
-                              result.w_grid(first))  # fmt: skip
         covariance = camera_covariance_field(result, grid, np.isfinite(result.w_grid(0)))
         state_time = simulation.time * model.mapping.time_unit_s
         state_punch = compare.state_punch_mm(model)

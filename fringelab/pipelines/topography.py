@@ -35,7 +35,7 @@ from fringelab.science.topography import (
     clamp_circle,
     frame_range,
     grid_for_first_frame,
-    grid_measurement,
+    grid_measurement_with_sigma,
     locate_test_edges,
     measure_frame,
     reference_for,
@@ -148,10 +148,10 @@ def topography_recording(
             if measurement.frame not in wanted:
                 continue
             measurement = cross_check.checked(measurement)
-            z_grid = grid_measurement(measurement, projector, grid, max_edge_mm=max_edge_mm)
+            z_grid, sigma_grid = grid_measurement_with_sigma(measurement, projector, grid, max_edge_mm=max_edge_mm)
             peak = field_peak(z_grid - z_flat, grid)
             writer.append(
-                measurement, z_grid, peak, log=log.row(measurement.frame),
+                measurement, z_grid, peak, log=log.row(measurement.frame), sigma_grid_mm=sigma_grid,
                 camera_frame=int(log.camera_frame[measurement.frame]),
             )  # fmt: skip
             tally.add(peak, n_out_of_range=measurement.n_out_of_range, measurement=measurement)

@@ -41,6 +41,34 @@ class ComparisonError(MeasurementError):
     """The simulation cannot be compared with the measurement as set (the message names what to set)."""
 
 
+# The messages here (and the simulation readers') name a setting by its command-line option; the dashboard's mapping
+# form and the job spec name it as below. `in_form_terms` turns one into the other, so one message serves both.
+FORM_TERMS: dict[str, str] = {
+    "--normal-axis x|y|z": "“Normal axis” x, y or z",
+    "--units mm|m": "“Units” mm or m",
+    "--symmetry none|half-x|half-y|quarter": "“Symmetry” none, half-x, half-y or quarter",
+    "--shell-thickness": "“Shell thickness (mm)”",
+    "--punch-node ID": "“Punch node”",
+    "--align displacement|time|peak": "“Time alignment” by displacement, time or peak",
+    "--align displacement|time": "“Time alignment” by displacement or time",
+    "--align time|peak": "“Time alignment” by time or peak",
+    "--origin X,Y in mm": "“Origin x (mm)” and “Origin y (mm)”",
+    "--rotation DEG": "“Rotation (°)”",
+    "--time-offset S": "“Time offset (s)”",
+}
+
+
+def in_form_terms(message: str) -> str:
+    """A message with the command-line options it names replaced by the mapping form's names of the settings.
+
+    >>> in_form_terms("set the units (--units mm|m)")
+    'set the units (“Units” mm or m)'
+    """
+    for option in sorted(FORM_TERMS, key=len, reverse=True):
+        message = message.replace(option, FORM_TERMS[option])
+    return message
+
+
 @dataclass(frozen=True)
 class MappingSettings:
     """How a model is put into the plate frame; None means: detect (see `map_model`).
@@ -266,11 +294,12 @@ class MappedModel:
 
     def surface_w(self, state: int) -> tuple[np.ndarray, np.ndarray]:
         """Deflected surface of one state before unfolding: xy (M, 2) in the oriented, scaled model frame and w (M,)."""
-        if state not in self._surfaces:
+        surface = self._surfaces.get(state)
+        if surface is None:  # the one made here is returned: another thread may drop it from the cache meanwhile
             while len(self._surfaces) >= 4:
-                self._surfaces.pop(next(iter(self._surfaces)))
-            self._surfaces[state] = self._surface_w(state)
-        return self._surfaces[state]
+                self._surfaces.pop(next(iter(self._surfaces)), None)
+            surface = self._surfaces[state] = self._surface_w(state)
+        return surface
 
     def _surface_w(self, state: int) -> tuple[np.ndarray, np.ndarray]:
         scale = LENGTH_UNITS[self.mapping.length_unit]
@@ -297,6 +326,19 @@ class MappedModel:
         """The simulated deflection w (ny, nx) of one state on the grid (linear on the model's triangles, NaN
         outside the model)."""
         xy, w = self.surface_w(state)
+        return self._rasterize(xy, w, grid)
+
+    def sample_between(self, state_lo: int, fraction: float, grid: Grid) -> np.ndarray:
+        """w (ny, nx) on the grid of the surface blended between two states node by node ((1 − f)·state_lo +
+        f·(state_lo + 1) of positions and w): one rasterization, where `StateSampler.at` blends two grids. The
+        same up to the in-plane motion between the states; for fitting, which samples a blend many times."""
+        if fraction <= 0.0 or state_lo + 1 >= self.results.n_states:
+            return self.sample(state_lo, grid)
+        xy0, w0 = self.surface_w(state_lo)
+        xy1, w1 = self.surface_w(state_lo + 1)
+        return self._rasterize((1.0 - fraction) * xy0 + fraction * xy1, (1.0 - fraction) * w0 + fraction * w1, grid)
+
+    def _rasterize(self, xy: np.ndarray, w: np.ndarray, grid: Grid) -> np.ndarray:
         corner_xy, corner_w = [], []
         for sx, sy in _unfolds(self.mapping.symmetry):
             plate_xy = self._to_plate_xy(xy * np.array([sx, sy]))
@@ -379,6 +421,15 @@ def map_model(results: FEResults, plate: PlateFrame, settings: MappingSettings |
             f"{where}: units cannot be decided: the model spans {float(np.max(hi - lo)):.4g} (its own units), the "
             f"measured plate {measured:.0f} mm; neither mm nor m fits. Set the units (--units mm|m) and check that "
             "the model is the plate"
+        )
+    if unit is not None and ratio < 1.0 / EXTENT_TOLERANCE / 2.0:
+        # A unit that was given (set, or declared by the file) and is wrong makes the model a speck on the plate:
+        # compared as it is, it would give differences of the whole deflection and no error.
+        given = "set" if settings.length_unit else "declared by the file"
+        raise ComparisonError(
+            f"{where}: the model ({ratio * measured:.3g} mm across as {symmetry}, in {length_unit} as "
+            f"{given}) is far smaller than the measured plate ({measured:.0f} mm): check the units (--units mm|m) "
+            "and the symmetry (--symmetry none|half-x|half-y|quarter)"
         )
     if ratio > EXTENT_TOLERANCE:
         raise ComparisonError(
@@ -505,14 +556,30 @@ def align_by_values(method: str, frame_value: np.ndarray, state_value: np.ndarra
     return Alignment(method, state_lo, fraction, tuple(reasons), frame_value, state_value)
 
 
+def interpolate_history(time: np.ndarray, history_time: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """values (P,) of a time history at `time` (S,), linear; NaN outside the history's span.
+
+    The span is widened by a round-off of the history's times (1e-5 of the largest |time|): LS-DYNA prints nodout
+    and rcforc times with 5 to 8 digits while d3plot holds them as float32, so the last state's time may lie a hair
+    after the history's last (its punch travel would be lost, and with it the last state)."""
+    history_time = np.asarray(history_time, np.float64)
+    time = np.asarray(time, np.float64)
+    if len(history_time) == 0:
+        return np.full(len(time), np.nan)
+    lo, hi = float(np.min(history_time)), float(np.max(history_time))
+    slack = 1e-5 * max(abs(lo), abs(hi), float(np.max(np.abs(time))) if len(time) else 0.0)
+    inside = (time >= lo - slack) & (time <= hi + slack)
+    out = np.interp(np.clip(time, lo, hi), history_time, values)
+    return np.where(inside, out, np.nan)
+
+
 def state_punch_mm(model: MappedModel) -> np.ndarray | None:
     """The punch travel (S,) in mm at the simulation's states, or None when the simulation has none."""
     results = model.results
     if results.punch_displacement is None or results.punch_time is None:
         return None
     scale = 1.0 if results.punch_in_mm else LENGTH_UNITS[model.mapping.length_unit]
-    travel = np.interp(results.time, results.punch_time, results.punch_displacement, left=np.nan, right=np.nan)
-    return scale * travel
+    return scale * interpolate_history(results.time, results.punch_time, results.punch_displacement)
 
 
 def state_force_kN(model: MappedModel) -> np.ndarray | None:
@@ -520,8 +587,7 @@ def state_force_kN(model: MappedModel) -> np.ndarray | None:
     results = model.results
     if results.force is None or results.force_time is None:
         return None
-    force = np.interp(results.time, results.force_time, results.force, left=np.nan, right=np.nan)
-    return model.mapping.force_unit_kN * force
+    return model.mapping.force_unit_kN * interpolate_history(results.time, results.force_time, results.force)
 
 
 def align_frames(
@@ -637,10 +703,7 @@ def fit_origin(model: MappedModel, grid: Grid, measured_w: np.ndarray, *, state_
         if np.hypot(*offset) > search_mm:
             return 1e6 + float(np.hypot(*offset))
         moved = model.with_origin((start[0] + offset[0], start[1] + offset[1]))
-        w_sim = moved.sample(state_lo, grid)
-        if fraction > 0 and state_lo + 1 < model.results.n_states:
-            w_sim = (1.0 - fraction) * w_sim + fraction * moved.sample(state_lo + 1, grid)
-        diff = measured_w - w_sim
+        diff = measured_w - moved.sample_between(state_lo, fraction, grid)
         both = np.isfinite(diff)
         return float(np.mean(diff[both] ** 2)) if np.count_nonzero(both) > 100 else 1e6
 
@@ -665,11 +728,13 @@ class StateSampler:
         self._cache: OrderedDict[int, np.ndarray] = OrderedDict()
 
     def state(self, s: int) -> np.ndarray:
-        if s not in self._cache:
-            self._cache[s] = self.model.sample(s, self.grid)
+        # The grid made here is the one returned: a sampler shared by threads (the preview's) may lose it meanwhile.
+        grid_w = self._cache.get(s)
+        if grid_w is None:
+            grid_w = self._cache[s] = self.model.sample(s, self.grid)
             while len(self._cache) > self.keep:
                 self._cache.popitem(last=False)
-        return self._cache[s]
+        return grid_w
 
     def at(self, state_lo: int, fraction: float) -> np.ndarray:
         """w_sim (ny, nx) between states state_lo and state_lo + 1 (NaN where either has no data)."""
@@ -773,3 +838,83 @@ def profiles_along(
     stack = np.stack([measured, simulated, sigma if sigma is not None else np.full_like(measured, np.nan)])
     profile = line_profile(stack, grid, start_xy_mm, end_xy_mm)
     return Profiles(profile.s_mm, profile.x_mm, profile.y_mm, *profile.values)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Pairing: the one way a simulation is put next to a measurement (the comparison and its live preview)
+
+
+def plate_frame_of(grid: Grid, first_w_mm: np.ndarray, *, axis_xy_mm: tuple[float, float] | None) -> PlateFrame:
+    """The plate as the measurement sees it: the extent of the first frame's data (ny, nx) on `grid`, and the
+    punch axis (axis_xy_mm: the result's punch axis or clamp centre; None: the centre of the data)."""
+    has = np.isfinite(first_w_mm)
+    if not np.any(has):
+        raise ComparisonError("the result's first frame has no data to compare with")
+    gx, gy = np.meshgrid(grid.x_mm, grid.y_mm)
+    box = (float(gx[has].min()), float(gx[has].max()), float(gy[has].min()), float(gy[has].max()))
+    axis = axis_xy_mm if axis_xy_mm is not None and np.all(np.isfinite(axis_xy_mm)) else None
+    if axis is None:
+        axis = (0.5 * (box[0] + box[1]), 0.5 * (box[2] + box[3]))
+    return PlateFrame(axis_xy_mm=(float(axis[0]), float(axis[1])), data_box_mm=box)
+
+
+@dataclass(frozen=True, eq=False)
+class Pairing:
+    """A simulation mapped into the plate frame and paired with the test's frames: what the comparison compares.
+
+    state_peak_mm (S,): the simulated peak per state; sampler: w_sim on the grid for a frame's (state_lo, fraction);
+    overlap: the share of the model's area the measurement covers (in the first paired frame)."""
+
+    model: MappedModel
+    alignment: Alignment
+    state_peak_mm: np.ndarray
+    sampler: StateSampler
+    overlap: float
+
+    def simulated_w(self, i: int) -> np.ndarray | None:
+        """w_sim (ny, nx) paired with frame position i, or None where the frame has no partner."""
+        lo = int(self.alignment.state_lo[i])
+        return None if lo < 0 else self.sampler.at(lo, float(self.alignment.fraction[i]))
+
+
+def pair_with_measurement(
+    results: FEResults,
+    *,
+    grid: Grid,
+    plate: PlateFrame,
+    measured_w: Callable[[int], np.ndarray],
+    frame_time_s: np.ndarray,
+    frame_punch_mm: np.ndarray,
+    frame_peak_mm: np.ndarray,
+    mapping: MappingSettings | None = None,
+    align: str = "displacement",
+) -> Pairing:
+    """Map a simulation into the plate frame and pair every test frame with its states (`map_model`,
+    `align_frames` or `align_by_footprint_peak`); a model put on the measured punch axis is then moved to fit the
+    frame that deflects most (`fit_origin`), and the overlap with the measurement checked (`check_overlap`).
+
+    measured_w(i): frame position i's measured w (ny, nx) on `grid`; frame_* (n,): the test log and measured peak
+    per frame (NaN where unknown). Raises ComparisonError naming the setting when a step cannot be done.
+    """
+    if align not in ALIGNMENTS:
+        raise ValueError(f"align: expected one of {ALIGNMENTS}, got {align!r}")
+    n_frames = len(frame_time_s)
+    model = map_model(results, plate, mapping)
+    state_peak = np.array([model.peak_w_mm(s) for s in range(results.n_states)])
+    if align == "peak":
+        alignment = align_by_footprint_peak(model, grid, measured_w, n_frames)
+    else:
+        alignment = align_frames(model, align, frame_time_s=frame_time_s, frame_punch_mm=frame_punch_mm,
+                                 frame_peak_mm=frame_peak_mm, state_peak_mm=state_peak)  # fmt: skip
+    if model.mapping.origin_on_axis:
+        # The measured punch axis is the dome's centroid, biased where the top has no data: fit the model's
+        # position on the frame that deflects most.
+        aligned = np.flatnonzero(alignment.aligned)
+        best = int(aligned[np.argmax(np.nan_to_num(frame_peak_mm[aligned], nan=-np.inf))])
+        model = fit_origin(model, grid, measured_w(best), state_lo=int(alignment.state_lo[best]),
+                           fraction=float(alignment.fraction[best]))  # fmt: skip
+    sampler = StateSampler(model, grid)
+    first = int(np.flatnonzero(alignment.aligned)[0])
+    lo, fraction = int(alignment.state_lo[first]), float(alignment.fraction[first])
+    overlap = check_overlap(model, grid, sampler.at(lo, fraction), measured_w(first))
+    return Pairing(model, alignment, state_peak, sampler, overlap)

@@ -125,7 +125,8 @@ def grid_edge_points(
     """The gridded field (ny, nx) of edge points given as (K, S) arrays (edge k, scan line s), NaN = missing.
 
     Linear on the triangles of `edge_mesh_triangles`; nodes outside every triangle are NaN, so the field is
-    interpolated only within the data and never across holes.
+    interpolated only within the data and never across holes. The rule in numpy; frames are gridded by its
+    compiled twin, `gridding.grid_edge_fields`, which gives the same numbers to the bit.
     """
     triangles, keep = edge_mesh_triangles(x_mm, y_mm, max_edge_mm=max_edge_mm)
     triangles = triangles[keep]

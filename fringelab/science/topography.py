@@ -11,7 +11,7 @@ split so that test recordings can be processed in parallel chunks with results i
 2. `measure_frame`: order, Z, X, Y of one frame given the reference (`reference_for` of the first frame's
    edges), a pure function of the frame too. `track_and_measure` runs it over frames in order, with temporal
    smoothing (if on) as a centred window, so it sees the same neighbours whatever the chunking.
-3. Gridding (`fields.grid_edge_points`), a pure function of one measurement.
+3. Gridding of Z and its σ on one mesh (`grid_measurement_with_sigma`), a pure function of one measurement.
 
 `topography_recording` runs all three over a recording and streams the result into an HDF5 file. Not here: the
 edge locator (`fringes.py`), the order (`order.py`), the table (`projector.py`), grids and profiles
@@ -32,8 +32,9 @@ import numpy as np
 from . import MeasurementError
 from .camera import Camera, InverseModel, camera_centre_obj_mm, ideal_from_pixels
 from .coverage import MISSING_REASONS, FrameCoverage
-from .fields import Grid, Peak, grid_covering, grid_edge_points, typical_edge_gap_mm
+from .fields import Grid, Peak, grid_covering, typical_edge_gap_mm
 from .fringes import UNUSABLE_BLACK, UNUSABLE_BLOCK_PX, UNUSABLE_DARK, FrameEdges, detect_stripes, locate_edges
+from .gridding import grid_edge_fields, grid_edge_points
 from .order import (
     ORDER_CONFLICT,
     ORDER_UNRESOLVED,
@@ -56,7 +57,7 @@ from .projector import (
     camera_fingerprint,
     table_z_at,
 )
-from .uncertainty import edge_sigma_px, point_sigma_z_mm
+from .uncertainty import edge_sigma_px, point_sigma_z_mm, sigma_edge_halves, sigma_from_halves
 
 # The first test frame is the reference the order is anchored on (kept under its old name).
 FirstFrameNotFlatError = ReferenceNotFlatError
@@ -167,20 +168,57 @@ def temporal_check(
 ) -> TemporalCheck:
     """Cross-check of `current`'s order against `previous` (`TemporalCheck`): a report, never a correction, so a
     frame measured alone stays equal to the same frame measured within its sequence."""
-    shape = (projector.n_edges, projector.n_lines)
-    change = np.full(shape, np.nan)
-    change[current.k, current.line] = current.points_obj_mm[:, 2]
-    z_before = np.full(shape, np.nan)
-    z_before[previous.k, previous.line] = previous.points_obj_mm[:, 2]
-    change -= z_before  # NaN unless measured in both frames
-    neighbours = np.full(shape, np.nan)
-    neighbours[1:-1] = 0.5 * (change[:-2] + change[2:])
-    step_mm = projector.period_px / np.maximum(np.abs(projector.sensitivity_px_per_mm), 1e-6)
-    with np.errstate(invalid="ignore"):
-        departure = np.abs(change - neighbours) / step_mm
-    checked = np.isfinite(departure)
-    n_jumps = int(np.count_nonzero(departure[checked] > TEMPORAL_JUMP_STEPS))
-    return TemporalCheck(n_checked=int(np.count_nonzero(checked)), n_jumps=n_jumps)
+    return _temporal_check(previous, current, _stripe_step_mm(projector))
+
+
+def _stripe_step_mm(projector: ProjectorCalibration) -> np.ndarray:
+    """(K, S) the Z step of one stripe period at each table entry (mm)."""
+    return np.ascontiguousarray(projector.period_px / np.maximum(np.abs(projector.sensitivity_px_per_mm), 1e-6))
+
+
+def _temporal_check(previous: FrameMeasurement, current: FrameMeasurement, step_mm: np.ndarray) -> TemporalCheck:
+    n_checked, n_jumps = _temporal_check_kernel(
+        np.ascontiguousarray(previous.k, np.int64), np.ascontiguousarray(previous.line, np.int64),
+        np.ascontiguousarray(previous.points_obj_mm[:, 2], np.float64),
+        np.ascontiguousarray(current.k, np.int64), np.ascontiguousarray(current.line, np.int64),
+        np.ascontiguousarray(current.points_obj_mm[:, 2], np.float64), step_mm, TEMPORAL_JUMP_STEPS,
+    )  # fmt: skip
+    return TemporalCheck(n_checked=int(n_checked), n_jumps=int(n_jumps))
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _temporal_check_kernel(
+    k_before: np.ndarray,
+    line_before: np.ndarray,
+    z_before: np.ndarray,
+    k: np.ndarray,
+    line: np.ndarray,
+    z: np.ndarray,
+    step_mm: np.ndarray,
+    jump_steps: float,
+) -> tuple[int, int]:
+    """Each point's change of Z between the frames (NaN unless measured in both) against the mean change of its
+    neighbouring edges on the line (k − 1, k + 1), in stripe steps: (points checked, points beyond jump_steps)."""
+    n_edges, n_lines = step_mm.shape
+    change = np.full((n_edges, n_lines), np.nan)
+    before = np.full((n_edges, n_lines), np.nan)
+    for i in range(len(z)):
+        change[k[i], line[i]] = z[i]
+    for i in range(len(z_before)):
+        before[k_before[i], line_before[i]] = z_before[i]
+    for e in range(n_edges):
+        for s in range(n_lines):
+            change[e, s] -= before[e, s]
+    n_checked = n_jumps = 0
+    for e in range(1, n_edges - 1):
+        for s in range(n_lines):
+            neighbours = 0.5 * (change[e - 1, s] + change[e + 1, s])
+            departure = np.abs(change[e, s] - neighbours) / step_mm[e, s]
+            if np.isfinite(departure):
+                n_checked += 1
+                if departure > jump_steps:
+                    n_jumps += 1
+    return n_checked, n_jumps
 
 
 class TemporalCrossCheck:
@@ -189,7 +227,7 @@ class TemporalCrossCheck:
     none."""
 
     def __init__(self, projector: ProjectorCalibration) -> None:
-        self._projector = projector
+        self._step_mm = _stripe_step_mm(projector)
         self._previous: FrameMeasurement | None = None
 
     def checked(self, measurement: FrameMeasurement) -> FrameMeasurement:
@@ -197,7 +235,7 @@ class TemporalCrossCheck:
         previous, self._previous = self._previous, measurement
         if previous is None or measurement.frame != previous.frame + 1:
             return measurement
-        return replace(measurement, temporal=temporal_check(previous, measurement, self._projector))
+        return replace(measurement, temporal=_temporal_check(previous, measurement, self._step_mm))
 
 
 def check_recording_against(
@@ -674,6 +712,20 @@ def grid_measurement(
     """The gridded Z (ny, nx) of one frame's points, NaN outside the data."""
     x, y, z = measurement.dense((projector.n_edges, projector.n_lines))
     return grid_edge_points(x, y, z, grid, max_edge_mm=max_edge_mm)
+
+
+def grid_measurement_with_sigma(
+    measurement: FrameMeasurement, projector: ProjectorCalibration, grid: Grid, *, max_edge_mm: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The gridded Z and its σ (`uncertainty.grid_sigma_mm`), each (ny, nx) and NaN outside the data, on one
+    mesh: the Z of `grid_measurement`, and σ NaN everywhere for a measurement without σ."""
+    shape = (projector.n_edges, projector.n_lines)
+    x, y, z = measurement.dense(shape)
+    sigma = np.full(shape, np.nan)
+    if measurement.sigma_z_mm is not None:
+        sigma[measurement.k, measurement.line] = measurement.sigma_z_mm
+    fields = grid_edge_fields(x, y, np.concatenate([z[None], sigma_edge_halves(sigma)]), grid, max_edge_mm=max_edge_mm)
+    return fields[0], sigma_from_halves(fields[1:])
 
 
 def frame_range(frames: Sequence[int] | range | None, n_frames: int) -> range:

@@ -26,7 +26,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .camera import Camera, project_points
-from .fields import Grid, grid_edge_points
+from .fields import Grid
+from .gridding import grid_edge_fields
 from .smoothing import smoothed_noise_ratio
 
 if TYPE_CHECKING:
@@ -61,10 +62,23 @@ def grid_sigma_mm(
 ) -> np.ndarray:
     """σ (ny, nx) of the gridded heights from the points' σ, all (K, S) over (edge, line) (NaN = not measured):
     the interpolation weights summed per edge, edges independent (see the module docstring)."""
-    edge = np.arange(sigma_mm.shape[0])[:, None]
-    even = grid_edge_points(x_mm, y_mm, np.where(edge % 2 == 0, sigma_mm, 0.0), grid, max_edge_mm=max_edge_mm)
-    odd = grid_edge_points(x_mm, y_mm, np.where(edge % 2 == 1, sigma_mm, 0.0), grid, max_edge_mm=max_edge_mm)
-    return np.hypot(even, odd)
+    halves = grid_edge_fields(x_mm, y_mm, sigma_edge_halves(sigma_mm), grid, max_edge_mm=max_edge_mm)
+    return sigma_from_halves(halves)
+
+
+def sigma_edge_halves(sigma_mm: np.ndarray) -> np.ndarray:
+    """The points' σ (K, S) split in two fields (2, K, S), the even edges' and the odd edges' (0 on the others):
+    gridded on the heights' triangles (`fields.grid_edge_fields`), each is the sum of one edge's weighted σ at a
+    node, since a triangle's corners lie on two neighbouring edges."""
+    sigma = np.asarray(sigma_mm, np.float64)
+    even = (np.arange(sigma.shape[0]) % 2 == 0)[:, None]
+    return np.stack([np.where(even, sigma, 0.0), np.where(even, 0.0, sigma)])
+
+
+def sigma_from_halves(halves: np.ndarray) -> np.ndarray:
+    """σ (ny, nx) of the grid from its two gridded halves (2, ny, nx) (`sigma_edge_halves`): independent edges
+    add in quadrature."""
+    return np.hypot(halves[0], halves[1])
 
 
 def camera_sigma_xy_mm(

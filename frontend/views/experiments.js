@@ -3,8 +3,9 @@
 import { apiUrl, getJSON, postJSON } from "../api.js";
 import { attempt, field, fill, formatBytes, formatTime, h, page, say, showError, table } from "../ui.js";
 import { Uploader } from "../upload.js";
-import { jobsPanel } from "./jobs.js";
+import { jobName, jobsPanel } from "./jobs.js";
 import { deleteButton } from "./deletion.js";
+import { simulationsPanel } from "./simulations.js";
 
 /** Show the current route again (after a delete changed what it lists). */
 const reshow = () => window.dispatchEvent(new HashChangeEvent("hashchange"));
@@ -267,6 +268,8 @@ export async function renderExperiment(container, { id }, context) {
     // recordings (the demo's worker) or a recording's new state (its ingest).
     onJobs: (items) => {
       if (demo) demo.jobsChanged(items);
+      latestJobs = items;
+      simulations.jobsChanged();
       const signature = JSON.stringify(items.map((j) => [j.id, j.state]));
       if (signature === lastJobs) return;
       lastJobs = signature;
@@ -275,6 +278,20 @@ export async function renderExperiment(container, { id }, context) {
     },
   });
   let lastJobs = null;
+  let latestJobs = [];
+  // The experiment's finite-element simulations and their comparison with its succeeded topography results.
+  const simulations = simulationsPanel({
+    experimentId: experiment.id,
+    context,
+    topographies: () => latestJobs
+      .filter((job) => job.kind === "topography" && job.state === "succeeded")
+      .map((job) => {
+        const recording = [...recordingsByCamera.values()].flat().find((r) => r.id === (job.spec && job.spec.recording_id));
+        const source = recording ? ` · recording #${recording.id} ${recording.filename} (${recording.camera_name})` : "";
+        const frames = job.result && Array.isArray(job.result.frames) ? ` · frames ${job.result.frames[0]}–${job.result.frames[1]}` : "";
+        return { id: job.id, label: `${jobName(job)}${source}${frames}` };
+      }),
+  });
   // Cameras made elsewhere (a script, the demo's worker) appear too: new ones are added, shown ones (and their
   // uploads in progress) stay as they are.
   const sections = new Map();
@@ -323,6 +340,7 @@ export async function renderExperiment(container, { id }, context) {
     demo ? demo.element : null,
     h("section", { "aria-labelledby": "cameras-title" }, h("h2", { id: "cameras-title" }, "Cameras and recordings"), camerasBox, cameraForm(experiment.id, loadCameras)),
     jobs.element,
+    simulations.element,
   );
   await loadCameras();
 }

@@ -1,7 +1,8 @@
-// Exports of a topography result from the dashboard: a form that starts an export job (POST /api/v1/jobs, kind
-// "export") in any of the API's formats (read from its own schema, so the list is the server's one list), for a
-// frame range and, for profiles, the viewer's current section lines; the jobs it starts are followed live and
-// each gets its download link when done. The jobs lists show the same links (`downloadLinks` of jobs.js).
+// Exports from the dashboard: a form that starts an export job (POST /api/v1/jobs, kind "export") in any of the
+// API's formats for its kind of result (read from its own schema, so the list is the server's one list): of a
+// topography result for a frame range and, for profiles, the viewer's current section lines; of a comparison
+// with a simulation (comparisonExportPanel). The jobs it starts are followed live and each gets its download link
+// when done. The jobs lists show the same links (`downloadLinks` of jobs.js).
 import { postJSON } from "../api.js";
 import { apiSchema, specSchema } from "../specform.js";
 import { field, fill, formatBytes, h, say, showError } from "../ui.js";
@@ -15,13 +16,34 @@ const FORMAT_NAMES = {
   "profile-csv": "profile CSV (the section lines)",
 };
 
-/** The formats of ExportSpec in the server's OpenAPI document. */
-async function exportFormats() {
+/** The export formats of a `source` result ("topography" or "comparison") in the server's OpenAPI document:
+ * ExportSpec's format holds one list per source, each titled ("Topography export", "Comparison export"). */
+export async function exportFormats(source = "topography") {
   const root = await apiSchema();
   const schema = specSchema(root, "export");
   let format = schema.properties.format;
   if (format.$ref) format = root.components.schemas[format.$ref.split("/").pop()];
-  return format.enum || (format.anyOf || []).flatMap((s) => s.enum || [s.const]).filter(Boolean);
+  const lists = format.anyOf ? format.anyOf.map((s) => (s.$ref ? root.components.schemas[s.$ref.split("/").pop()] : s)) : [format];
+  const title = source === "comparison" ? "Comparison export" : "Topography export";
+  const chosen = lists.find((s) => s.title === title) || lists[0];
+  return chosen.enum || [chosen.const].filter(Boolean);
+}
+
+/** Follow an export job started from a form: its state, then its download link, in `item` (an <li>). */
+export function followExport(exportJob, item, context) {
+  const state = h("span", { class: "badge" }, exportJob.state);
+  const links = h("span");
+  fill(item, h("a", { href: `#/jobs/${exportJob.id}` }, jobName(exportJob)), ` ${exportJob.spec.format} `, state, " ", links);
+  const close = followJob(exportJob.id, {
+    onJob: (current) => {
+      state.textContent = current.state;
+      state.className = `badge state-${current.state}`;
+      if (current.error) fill(links, h("span", { class: "error" }, current.error));
+      const files = downloadLinks(current);
+      if (files) fill(links, files, ` (${formatBytes(current.files.reduce((a, f) => a + f.size_bytes, 0))})`);
+    },
+  });
+  context.onLeave(close);
 }
 
 /**
@@ -51,22 +73,6 @@ export function exportPanel(job, { frames, lines = () => [], context }) {
     })
     .catch((error) => showError(error, "read the export formats"));
 
-  const follow = (exportJob, item) => {
-    const state = h("span", { class: "badge" }, exportJob.state);
-    const links = h("span");
-    fill(item, h("a", { href: `#/jobs/${exportJob.id}` }, jobName(exportJob)), ` ${exportJob.spec.format} `, state, " ", links);
-    const close = followJob(exportJob.id, {
-      onJob: (current) => {
-        state.textContent = current.state;
-        state.className = `badge state-${current.state}`;
-        if (current.error) fill(links, h("span", { class: "error" }, current.error));
-        const files = downloadLinks(current);
-        if (files) fill(links, files, ` (${formatBytes(current.files.reduce((a, f) => a + f.size_bytes, 0))})`);
-      },
-    });
-    context.onLeave(close);
-  };
-
   const form = h(
     "form",
     {
@@ -83,7 +89,7 @@ export function exportPanel(job, { frames, lines = () => [], context }) {
           say(`${jobName(exportJob)} started: ${spec.format}, frames ${spec.frames.first}–${spec.frames.last}.`);
           const item = h("li", {});
           started.prepend(item);
-          follow(exportJob, item);
+          followExport(exportJob, item, context);
         } catch (error) {
           showError(error, "start the export");
         } finally {
@@ -100,4 +106,50 @@ export function exportPanel(job, { frames, lines = () => [], context }) {
     started,
   );
   return { element: form, describe };
+}
+
+const COMPARISON_FORMAT_NAMES = {
+  csv: "CSV, one row per frame (RMS, largest and mean difference, both curves)",
+  hdf5: "HDF5, the whole comparison file",
+  mat: "MATLAB .mat (the fields of every frame)",
+  vtk: "VTK time series for ParaView (zipped): w measured, simulated, difference, σ",
+  "profile-csv": "profile CSV along the profile shown (measured, simulated, σ, beyond 2σ)",
+};
+
+/** The export form of comparison job `job`; `line()` returns the profile's line now ([X0, Y0, X1, Y1] mm). */
+export function comparisonExportPanel(job, { line, context }) {
+  const format = field("Comparison export format", h("select", {}, h("option", { value: "" }, "reading the formats…")));
+  const started = h("ul", { class: "exports wide-row", "aria-label": "Exports started here" });
+  const submit = h("button", { type: "submit", class: "primary" }, "Export");
+  exportFormats("comparison")
+    .then((formats) => fill(format.input, formats.map((f) => h("option", { value: f }, COMPARISON_FORMAT_NAMES[f] || f))))
+    .catch((error) => showError(error, "read the export formats"));
+  return h(
+    "form",
+    {
+      class: "card grid-form",
+      "aria-label": "Export the comparison",
+      onsubmit: async (event) => {
+        event.preventDefault();
+        const spec = { kind: "export", job_id: job.id, format: format.input.value };
+        if (spec.format === "profile-csv") spec.line = line();
+        submit.disabled = true;
+        try {
+          const exportJob = await postJSON("jobs", spec);
+          say(`${jobName(exportJob)} started: ${spec.format}.`);
+          const item = h("li", {});
+          started.prepend(item);
+          followExport(exportJob, item, context);
+        } catch (error) {
+          showError(error, "start the export");
+        } finally {
+          submit.disabled = false;
+        }
+      },
+    },
+    h("h2", {}, "Export"),
+    format.wrap,
+    h("div", { class: "actions" }, submit),
+    started,
+  );
 }

@@ -13,6 +13,7 @@ export const JOB_KIND_NAMES = {
   projector_calibration: "Projector calibration",
   topography: "Topography",
   export: "Export",
+  comparison: "Comparison",
   selftest: "Self-test",
 };
 const ACTIVE = ["queued", "running"];
@@ -36,6 +37,7 @@ export function resultLink(job) {
     return h("a", { href: `#/jobs/${job.id}/report` }, "Calibration report");
   }
   if (job.kind === "topography") return h("a", { href: `#/jobs/${job.id}/viewer` }, "Topography viewer");
+  if (job.kind === "comparison") return h("a", { href: `#/jobs/${job.id}/comparison` }, "Comparison view");
   return null;
 }
 
@@ -249,6 +251,7 @@ export function describeInput(job) {
   if (spec.camera_calibration_id) parts.push(`camera cal. ${spec.camera_calibration_id}`);
   if (spec.projector_calibration_id) parts.push(`projector cal. ${spec.projector_calibration_id}`);
   if (spec.job_id) parts.push(`job ${shortId(spec.job_id)}`);
+  if (spec.simulation_id) parts.push(`simulation ${spec.simulation_id}`);
   if (spec.format) parts.push(spec.format);
   return parts.flatMap((part, i) => (i ? [", ", part] : [part]));
 }

@@ -21,7 +21,8 @@ import pytest
 
 from fringelab.commands import comparison as commands
 from fringelab.formats import COMPARISON_EXPORTS
-from fringelab.formats.comparison import ComparisonResult, export_comparison
+from fringelab.formats.comparison import ComparisonResult
+from fringelab.formats.exports import export_comparison
 from fringelab.formats.topography import TopographyResult
 from fringelab.pipelines.comparison import compare_result
 from fringelab.pipelines.simulation import write_true_simulation

@@ -64,6 +64,29 @@ def test_quarter_model_unfolded_equals_the_full_model() -> None:
     assert np.max(np.abs(w_full[both] - w_quarter[both])) < MODEL_TOLERANCE_MM
 
 
+def test_pairing_a_quarter_model_with_a_measurement_fits_it_and_pairs_every_frame() -> None:
+    """`pair_with_measurement`, the one pairing of the comparison and its preview: a quarter model is detected,
+    its symmetry axis put on the punch axis and fitted there (it is already right: the fit must stay within
+    0.05 mm), every frame paired at its own state, and w_sim of a frame is the truth within the model's own
+    interpolation error. A model moved by 3 mm is fitted back."""
+    frames = [truth(i) for i in range(len(TIMELINE.states))]
+    peaks = np.array([np.nanmax(w) for w in frames])
+    kwargs = dict(grid=GRID, plate=PLATE, measured_w=lambda i: frames[i], frame_time_s=TIMELINE.time_s,
+                  frame_punch_mm=TIMELINE.punch_displacement_mm, frame_peak_mm=peaks)  # fmt: skip
+    pairing = compare.pair_with_measurement(as_results(true_plate_model(SCENE, TIMELINE, quarter=True)), **kwargs)  # type: ignore[arg-type]
+    assert pairing.model.mapping.symmetry == "quarter" and pairing.overlap > 0.9
+    assert np.hypot(*np.subtract(pairing.model.mapping.origin_xy_mm, SCENE.centre_xy_mm)) < 0.05
+    np.testing.assert_array_equal(pairing.alignment.state_lo[1:] + pairing.alignment.fraction[1:].round(),
+                                  np.arange(1, len(frames)))  # fmt: skip
+    w_sim = pairing.simulated_w(5)
+    assert w_sim is not None and np.nanmax(np.abs(w_sim - frames[5])) < MODEL_TOLERANCE_MM
+    off = compare.PlateFrame(axis_xy_mm=(SCENE.centre_xy_mm[0] + 3.0, SCENE.centre_xy_mm[1]),
+                                          data_box_mm=PLATE.data_box_mm)  # fmt: skip
+    moved = compare.pair_with_measurement(as_results(true_plate_model(SCENE, TIMELINE, quarter=True)),
+                                          **{**kwargs, "plate": off})  # type: ignore[arg-type]  # fmt: skip
+    assert np.hypot(*np.subtract(moved.model.mapping.origin_xy_mm, SCENE.centre_xy_mm)) < 0.05, moved.model.mapping
+
+
 def test_half_model_given_explicitly_and_rotated_plate_normal() -> None:
     base = true_plate_model(SCENE, TIMELINE, quarter=True)
     # The same quarter with its normal along the model's y axis and deflecting toward −y: (x, y, z) → (z, −x, y)
@@ -193,6 +216,36 @@ def test_model_larger_than_the_plate() -> None:
     results = as_results(true_plate_model(SCENE, TIMELINE, resolution=0.2), scale=4.0, unit="mm")
     with pytest.raises(compare.ComparisonError, match=r"larger than the measured plate.*--units"):
         compare.map_model(results, PLATE)
+
+
+def test_a_wrong_unit_that_was_given_is_refused_not_compared() -> None:
+    """A model in metres declared (or set) as mm is a speck on the plate: compared as it is, every difference
+    would be the whole deflection. It is refused, naming the setting, in the CLI's and in the form's terms."""
+    in_metres = as_results(true_plate_model(SCENE, TIMELINE, resolution=0.2), scale=1e-3, unit="mm")
+    with pytest.raises(compare.ComparisonError, match=r"far smaller than the measured plate.*--units mm\|m") as caught:
+        compare.map_model(in_metres, PLATE)
+    form = compare.in_form_terms(str(caught.value))
+    assert "“Units” mm or m" in form and "--" not in form
+    set_wrong = as_results(true_plate_model(SCENE, TIMELINE, resolution=0.2), scale=1e-3)
+    with pytest.raises(compare.ComparisonError, match=r"in mm as set"):
+        compare.map_model(set_wrong, PLATE, compare.MappingSettings(length_unit="mm"))
+    assert compare.map_model(set_wrong, PLATE, compare.MappingSettings(length_unit="m")).mapping.length_unit == "m"
+
+
+def test_the_last_state_keeps_its_punch_travel_when_the_history_was_printed_rounded() -> None:
+    """nodout and rcforc print times with 6 to 8 digits, d3plot holds them as float32: the last state's time can
+    lie a hair after the history's last, and its punch travel (and with it the state) must not be lost."""
+    model = true_plate_model(SCENE, TIMELINE, resolution=0.2)
+    printed = np.array([float(f"{t:.5E}") for t in model.time_s])  # as rcforc prints: up to 5e-6 relative off
+    state_time = model.time_s.astype(np.float32).astype(np.float64) * (1 + 2e-6)  # a hair later than printed
+    results = FEResults(**{**as_results(model).__dict__, "time": state_time, "punch_time": printed})
+    mapped = compare.map_model(results, PLATE)
+    travel = compare.state_punch_mm(mapped)
+    assert travel is not None and np.all(np.isfinite(travel))
+    np.testing.assert_allclose(travel[-1], model.punch_displacement_mm[-1], rtol=1e-3)
+    # beyond round-off the history does not reach: no travel there
+    outside = compare.interpolate_history(np.array([2.0 * printed[-1]]), printed, model.punch_displacement_mm)
+    assert np.isnan(outside[0])
 
 
 def test_model_offset_from_the_plate() -> None:

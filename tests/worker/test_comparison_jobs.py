@@ -96,6 +96,25 @@ def test_a_simulation_that_is_the_truth_differs_from_the_measurement_by_its_erro
     assert client.get(f"/api/v1/simulations/{simulation['id']}").json() == simulation
 
     spec = {"kind": "comparison", "simulation_id": simulation["id"], "format": "csv"}
+    # the mapping form's live preview: the mapping resolved, and the profiles through the punch axis of the most
+    # deflected paired frame, measured against simulated (the truth: apart by the measurement's error only)
+    answer = client.post("/api/v1/comparisons/preview", json={"spec": {**spec, "job_id": jobs["done"]}})
+    assert answer.status_code == 200, answer.text
+    preview = answer.json()
+    assert preview["mapping"]["length_unit"] == "mm" and "symmetry" in preview["mapping"]["detected"]
+    peaks = np.array(preview["frames"]["peak_w_mm"], dtype=float)
+    assert preview["frame"] == preview["frames"]["frame"][int(np.nanargmax(peaks))]
+    for axis in ("x", "y"):
+        cut = preview["profiles"][axis]
+        both = np.array(cut["measured_mm"], dtype=float) - np.array(cut["simulated_mm"], dtype=float)
+        assert np.count_nonzero(np.isfinite(both)) > 20 and np.nanmax(np.abs(both)) < 1.0, axis
+    # a wrong choice is a 422 naming the form's setting, not a command-line option
+    wrong_unit = client.post("/api/v1/comparisons/preview",
+                             json={"spec": {**spec, "job_id": jobs["done"], "units": "m"}})  # fmt: skip
+    assert wrong_unit.status_code == 422 and wrong_unit.json()["code"] == "mapping_not_possible", wrong_unit.text
+    assert "“Units”" in wrong_unit.json()["detail"] and "--" not in wrong_unit.json()["detail"], wrong_unit.text
+    no_frame = client.post("/api/v1/comparisons/preview", json={"spec": {**spec, "job_id": jobs["done"]}, "frame": 999})
+    assert no_frame.status_code == 422 and no_frame.json()["code"] == "frame_not_in_result", no_frame.text
     running = client.post("/api/v1/jobs", json={**spec, "job_id": jobs["running"]})
     assert running.status_code == 409 and running.json()["code"] == "job_not_succeeded", running.text
     elsewhere = client.post("/api/v1/experiments", json={"name": "another"}).json()
@@ -111,6 +130,7 @@ def test_a_simulation_that_is_the_truth_differs_from_the_measurement_by_its_erro
 
     overview = client.get(f"/api/v1/jobs/{job['id']}/comparison").json()
     assert overview["alignment"] == "displacement"
+    assert overview["frames"]["state_lo"] == preview["frames"]["state_lo"]  # the preview pairs as the comparison
     assert overview["frames"]["reason"] == [""] * 8
     path = settings.data_path / "results" / "jobs" / job["id"] / "comparison.h5"
     with ComparisonResult(path) as comparison:
@@ -146,9 +166,51 @@ def test_a_simulation_that_is_the_truth_differs_from_the_measurement_by_its_erro
     not_comparison = client.get(f"/api/v1/jobs/{jobs['done']}/comparison")
     assert not_comparison.status_code == 404, not_comparison.text
 
+    # exports of the comparison (the export job, as the comparison view starts them): VTK is a .pvd with its .vtu
+    exported = client.post("/api/v1/jobs", json={"kind": "export", "job_id": job["id"], "format": "vtk"})
+    assert exported.status_code == 201, exported.text
+    export_job = wait_job(client, exported.json()["id"], timeout_s=120)
+    assert export_job["state"] == "succeeded", export_job["error"]
+    download = client.get(export_job["files"][0]["url"])
+    with zipfile.ZipFile(io.BytesIO(download.content)) as archive:
+        names = archive.namelist()
+    assert "comparison.pvd" in names and sum(n.endswith(".vtu") for n in names) == 8, names
+    # the profile the view shows, along Y through the punch axis: its line goes with the export
+    line = [profile["x_mm"][0], profile["y_mm"][0], profile["x_mm"][-1], profile["y_mm"][-1]]
+    spec = {"kind": "export", "job_id": job["id"], "format": "profile-csv", "line": line}
+    profile_job = wait_job(client, client.post("/api/v1/jobs", json=spec).json()["id"], timeout_s=120)
+    assert profile_job["state"] == "succeeded", profile_job["error"]
+    rows = client.get(profile_job["files"][0]["url"]).text.splitlines()
+    assert rows[0] == "frame,s_mm,x_mm,y_mm,w_meas_mm,w_sim_mm,diff_mm,sigma_w_mm,beyond_2sigma"
+    xs = {round(float(row.split(",")[2]), 3) for row in rows[1:]}
+    assert xs == {round(line[0], 3)}, xs  # along Y: x stays on the punch axis
+    for source, fmt in ((job["id"], "points-csv"), (jobs["done"], "hdf5")):
+        wrong_format = client.post("/api/v1/jobs", json={"kind": "export", "job_id": source, "format": fmt})
+        assert wrong_format.status_code == 422 and wrong_format.json()["field"] == "format", wrong_format.text
+
     assert client.delete(f"/api/v1/simulations/{simulation['id']}").status_code == 204
     assert client.get(base).json() == []
     assert leftovers(settings) == []
+
+
+def test_a_simulation_of_several_mib_is_uploaded_in_one_request(client, settings) -> None:  # type: ignore[no-untyped-def]
+    """A simulation's PUT streams to disk under FRINGELAB_MAX_UPLOAD_BYTES, not the 1 MiB cap of JSON bodies."""
+    experiment = client.post("/api/v1/experiments", json={"name": "plate"}).json()
+    n = 120
+    rows = "".join(
+        f"{s},{s * 1e-3},{i * n + j + 1},{2.0 * i:.6f},{2.0 * j:.6f},0.000000,0,0,{s * 0.01 * i * j:.6f}\n"
+        for s in (0, 1, 2)
+        for i in range(n)
+        for j in range(n)
+    )
+    body = ("state,time_s,node,x_mm,y_mm,z_mm,ux_mm,uy_mm,uz_mm\n" + rows).encode()
+    assert len(body) > 2 * settings.max_json_bytes
+    uploaded = client.put(f"/api/v1/experiments/{experiment['id']}/simulations/plate.csv", content=body)
+    assert uploaded.status_code == 201, uploaded.text
+    assert (uploaded.json()["n_states"], uploaded.json()["n_nodes"]) == (3, n * n)
+    # other request bodies keep their cap
+    too_long = client.post("/api/v1/experiments", json={"name": "x", "notes": "n" * (settings.max_json_bytes + 1)})
+    assert too_long.status_code == 413, too_long.text
 
 
 def test_an_upload_over_the_limit_or_into_no_experiment_is_refused(settings) -> None:  # type: ignore[no-untyped-def]
@@ -196,3 +258,31 @@ def test_an_unsafe_zip_is_refused_and_a_simulation_in_use_is_not_deleted(client,
     assert refused.status_code == 409 and refused.json()["code"] == "in_use", refused.text
     assert "cmp-1" in refused.json()["detail"]
     assert client.get(f"/api/v1/simulations/{simulation['id']}").status_code == 200
+
+
+def test_a_nodout_of_several_nodes_is_uploaded_and_its_punch_node_chosen_in_the_form(
+    client,
+    settings,
+    measured,  # noqa: F811
+    tmp_path,
+) -> None:  # type: ignore[no-untyped-def]
+    """An upload reads the model whatever its nodout holds; the comparison (and its preview) then needs the punch
+    node when nodout lists several, and says which ones, naming the form's setting."""
+    from fringelab.formats.simulation_lsdyna_ascii import read_nodout, write_nodout
+
+    experiment = client.post("/api/v1/experiments", json={"name": "plate"}).json()
+    jobs = add_topography_jobs(settings, experiment["id"], measured.result)
+    folder = write_true_simulation(measured.truth_json, tmp_path / "fe", kind="vtu")
+    punch = read_nodout(folder / "nodout")
+    both = np.concatenate([punch.displacement, np.zeros_like(punch.displacement)], axis=1)
+    write_nodout(folder / "nodout", time=punch.time, node_ids=np.array([9001, 9002]), displacement=both,
+                 coordinates=np.zeros((2, 3)))  # fmt: skip
+    uploaded = client.put(f"/api/v1/experiments/{experiment['id']}/simulations/fe.zip", content=zipped(folder))
+    assert uploaded.status_code == 201, uploaded.text
+    spec = {"kind": "comparison", "job_id": jobs["done"], "simulation_id": uploaded.json()["id"]}
+    unchosen = client.post("/api/v1/comparisons/preview", json={"spec": spec})
+    assert unchosen.status_code == 422, unchosen.text
+    assert "9001, 9002" in unchosen.json()["detail"] and "“Punch node”" in unchosen.json()["detail"], unchosen.text
+    chosen = client.post("/api/v1/comparisons/preview", json={"spec": {**spec, "punch_node": 9001}})
+    assert chosen.status_code == 200, chosen.text
+    assert chosen.json()["frames"]["reason"] == [""] * 8

@@ -1,47 +1,64 @@
-"""The export job: a topography result written in one of the export formats (fringelab.formats.exports)."""
+"""The export job: a topography result, or a comparison with a simulation, written in one of its export formats
+(`fringelab.formats.exports`, the owner of every export format). `write_download` also serves the comparison job's
+own export."""
 
 from __future__ import annotations
 
 import shutil
 import zipfile
+from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from fringelab.core.models import Job
 from worker.runner import JobContext
 
+SOURCE_FILES = {"topography": "topography.h5", "comparison": "comparison.h5"}
+
+
+def write_download(context: JobContext, fmt: str, name: str, media: str, write: Callable[[Path], Path]) -> None:
+    """One export as one download `name`: the file `write(path)` writes there, or for "vtk" (a .pvd and its folder
+    of .vtu files) all of them in one ZIP."""
+    if fmt != "vtk":
+        with context.output(name, media_type=media) as temporary:
+            write(temporary)
+        return
+    work = context.directory / "vtk"
+    shutil.rmtree(work, ignore_errors=True)  # a previous run's leftovers
+    write(work / f"{Path(name).stem.removesuffix('-vtk')}.pvd")
+    with (
+        context.output(name, media_type=media) as temporary,
+        zipfile.ZipFile(temporary, "w", compression=zipfile.ZIP_DEFLATED) as archive,
+    ):
+        for path in sorted(work.rglob("*")):
+            if path.is_file():
+                archive.write(path, path.relative_to(work))
+    shutil.rmtree(work)
+
 
 def export_body(context: JobContext) -> dict[str, Any]:
-    from fringelab.formats.exports import EXPORT_FILES, export_result
+    from fringelab.formats.exports import COMPARISON_EXPORT_FILES, EXPORT_FILES, export_comparison, export_result
 
     spec = context.spec
     with context.sessions() as session:
         source = session.get(Job, spec["job_id"])
-        entry = next((f for f in (source.files if source else []) if f["name"] == "topography.h5"), None)
+        kind = source.kind if source else "topography"
+        entry = next((f for f in (source.files if source else []) if f["name"] == SOURCE_FILES.get(kind)), None)
     if entry is None:
-        raise ValueError(f"topography job {spec['job_id']} has no result file any more; run it again")
-    result_path = context.settings.data_path / entry["path"]
+        raise ValueError(f"{kind} job {spec['job_id']} has no result file any more; run it again")
+    source_path = context.settings.data_path / entry["path"]
     line = tuple(spec["line"]) if spec.get("line") else None
     lines = [tuple(one) for one in spec["lines"]] if spec.get("lines") else None
     frames = spec.get("frames")
     frame_range = (frames["first"], frames["last"] if frames.get("last") is not None else 2**31 - 1) if frames else None
     context.progress(0, 1, "exporting")
     fmt = spec["format"]
-    if fmt == "vtk":  # a .pvd time series of .vtu files: one download as a ZIP
-        work = context.directory / "vtk"
-        shutil.rmtree(work, ignore_errors=True)  # a previous run's leftovers
-        export_result(result_path, fmt, work / "topography.pvd", frames=frame_range)
-        name, media = EXPORT_FILES[fmt]
-        with (
-            context.output(name, media_type=media) as temporary,
-            zipfile.ZipFile(temporary, "w", compression=zipfile.ZIP_DEFLATED) as archive,
-        ):
-            for path in sorted(work.rglob("*")):
-                if path.is_file():
-                    archive.write(path, path.relative_to(work))
-        shutil.rmtree(work)
+    if kind == "comparison":
+        name, media = COMPARISON_EXPORT_FILES[fmt]
+        write_download(context, fmt, name, media, lambda path: export_comparison(source_path, fmt, path, line=line))  # type: ignore[arg-type]
     else:
         name, media = EXPORT_FILES[fmt]
-        with context.output(name, media_type=media) as temporary:
-            export_result(result_path, fmt, temporary, line=line, lines=lines, frames=frame_range)  # type: ignore[arg-type]
+        write_download(context, fmt, name, media,
+                       lambda path: export_result(source_path, fmt, path, line=line, lines=lines, frames=frame_range))  # type: ignore[arg-type]  # fmt: skip
     context.progress(1, 1, "exporting")
     return {"format": fmt, "file": name, "source_job_id": spec["job_id"], "frames": frames, "lines": len(lines or [])}

@@ -47,14 +47,14 @@ def selftest_compute(context: JobContext, first: int, stop: int) -> None:
         values.append(value)
         digests.append(digest)
         context.progress(done + 1, stop - first, "computing frames")
-    save_arrays(context, f"chunks/p0-{first:07d}.npz", frame=np.arange(first, stop), value=np.asarray(values),
+    save_arrays(context, f"chunks/p0-{first:07d}.arrays", frame=np.arange(first, stop), value=np.asarray(values),
           digest=np.asarray(digests, dtype="S64"), worker=np.asarray([this_worker()], dtype="S200"))  # fmt: skip
 
 
 def selftest_chain(context: JobContext, ranges: list[tuple[int, int]]) -> Chunked:
     """Merge of phase 0, in frame order: check that every frame came back once, and chain the digests (each link
     depends on all frames before it, as edge identity does in a topography), then verify in parallel."""
-    chunks = [load_arrays(context, f"chunks/p0-{first:07d}.npz") for first, _stop in ranges]
+    chunks = [load_arrays(context, f"chunks/p0-{first:07d}.arrays") for first, _stop in ranges]
     frame = np.concatenate([c["frame"] for c in chunks])
     expected = int(context.spec["frames"])
     if not np.array_equal(frame, np.arange(expected)):
@@ -66,7 +66,7 @@ def selftest_chain(context: JobContext, ranges: list[tuple[int, int]]) -> Chunke
         chain.append(link.hexdigest())
         context.progress(done + 1, expected, "chaining")
     computed_by = np.concatenate([np.repeat(c["worker"], c["frame"].size) for c in chunks])
-    save_arrays(context, "chunks/sequence.npz", frame=frame, value=np.concatenate([c["value"] for c in chunks]),
+    save_arrays(context, "chunks/sequence.arrays", frame=frame, value=np.concatenate([c["value"] for c in chunks]),
           digest=digest, chain=np.asarray(chain, dtype="S64"), computed_by=computed_by)  # fmt: skip
     return Chunked(ranges, stage="verifying frames")
 
@@ -74,20 +74,20 @@ def selftest_chain(context: JobContext, ranges: list[tuple[int, int]]) -> Chunke
 def selftest_verify(context: JobContext, first: int, stop: int) -> None:
     """Phase 1, any worker: compute frames [first, stop) again and compare with what phase 0 stored."""
     size_px = int(context.spec["frame_size_px"])
-    stored = load_arrays(context, "chunks/sequence.npz")["digest"][first:stop]
+    stored = load_arrays(context, "chunks/sequence.arrays")["digest"][first:stop]
     matches = []
     for done, frame in enumerate(range(first, stop)):
         matches.append(selftest_frame(frame, size_px=size_px)[1].encode() == stored[done])
         context.progress(done + 1, stop - first, "verifying frames")
-    save_arrays(context, f"chunks/p1-{first:07d}.npz", matches=np.asarray(matches),
+    save_arrays(context, f"chunks/p1-{first:07d}.arrays", matches=np.asarray(matches),
           worker=np.asarray([this_worker()], dtype="S200"))  # fmt: skip
 
 
 def selftest_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict[str, Any]:
     """Merge of phase 1: the result file, and a failure naming the workers if any frame came out differently."""
     context.progress(0, 1, "writing")
-    sequence = load_arrays(context, "chunks/sequence.npz")
-    checks = [load_arrays(context, f"chunks/p1-{first:07d}.npz") for first, _stop in ranges]
+    sequence = load_arrays(context, "chunks/sequence.arrays")
+    checks = [load_arrays(context, f"chunks/p1-{first:07d}.arrays") for first, _stop in ranges]
     matches = np.concatenate([c["matches"] for c in checks])
     verified_by = np.concatenate([np.repeat(c["worker"], c["matches"].size) for c in checks])
     differing = np.flatnonzero(~matches)

@@ -5,10 +5,10 @@ One fan-out over the frames and a merge in frame order, computing exactly what
 bit, whatever the chunking):
 
     entry:             the reference: frame 0's edges matched to the table, the rim that anchors the fringe
-                       order, frame 0 measured, the grid from it                    -> chunks/reference.npz
+                       order, frame 0 measured, the grid from it                    -> chunks/reference.arrays
     phase 0, chunks:   for each frame on its own: edges, fringe order, Z, X, Y, what is missing, the deflection
                        grid and peak (with temporal smoothing, h frames either side are read too)
-                                                                                    -> chunks/frames-<first>.npz
+                                                                                    -> chunks/frames-<first>.arrays
     merge 0, in order: the result file (TopographyWriter) and its summary           -> topography.h5
 
 No frame depends on the frames before it (the order is found per frame, anchored on the reference), so there is
@@ -17,7 +17,9 @@ no long in-order phase: the merge only writes.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -49,17 +51,31 @@ class _TopographyInputs:
         self.source.close()
 
 
-def _topography_inputs(context: JobContext) -> _TopographyInputs:
-    """The recording (open: close it), calibrations, frames to write and settings of a topography job."""
+@functools.lru_cache(maxsize=4)
+def _calibration(kind: str, path: Path, _stamp: tuple[int, int]) -> Any:
+    """A calibration file read once per worker process (and per version of the file: its mtime and size are in
+    the key), so the chunks of a job, and the jobs after it, reuse it and what is built from it once (the
+    projector's packed table, the camera's scan-line rays)."""
     from fringelab.formats.camera import read_camera_json
     from fringelab.formats.projector import read_projector_calibration
+
+    return read_camera_json(path) if kind == "camera" else read_projector_calibration(path)
+
+
+def _cached_calibration(kind: str, path: Path) -> Any:
+    stat = path.stat()
+    return _calibration(kind, path, (stat.st_mtime_ns, stat.st_size))
+
+
+def _topography_inputs(context: JobContext) -> _TopographyInputs:
+    """The recording (open: close it), calibrations, frames to write and settings of a topography job."""
     from fringelab.formats.recordings import open_recording
     from fringelab.science.topography import TopographySettings, frame_range
 
     spec = context.spec
     _recording, _camera, path = recording_input(context)
-    camera_model = read_camera_json(calibration_file(context, spec["camera_calibration_id"]))
-    projector = read_projector_calibration(calibration_file(context, spec["projector_calibration_id"]))
+    camera_model = _cached_calibration("camera", calibration_file(context, spec["camera_calibration_id"]))
+    projector = _cached_calibration("projector", calibration_file(context, spec["projector_calibration_id"]))
     source = open_recording(path)
     frames = spec.get("frames") or {}
     last = frames.get("last")
@@ -98,7 +114,7 @@ def topography_entry(context: JobContext) -> Chunked:
     z = first.points_obj_mm[:, 2]
     z_flat = float(np.median(z))
     save_arrays(
-        context, "chunks/reference.npz",
+        context, "chunks/reference.arrays",
         reference_t_px=reference.reference_t_px, rim=reference.rim, rim_circle_mm=np.array(reference.rim_circle_mm),
         cell_area_mm2=reference.cell_area_mm2, x_mm=grid.x_mm, y_mm=grid.y_mm, max_edge_mm=max_edge_mm,
         z_flat_mm=z_flat, flat_rms_mm=float(np.sqrt(np.mean((z - z_flat) ** 2))),
@@ -107,14 +123,14 @@ def topography_entry(context: JobContext) -> Chunked:
     wanted = inputs.wanted
     context.log(f"topography of frames {wanted.start}..{wanted.stop - 1}, each ordered on its own")
     ranges = [(wanted.start + a, wanted.start + b) for a, b in frame_ranges(len(wanted), chunk_frames_of(
-        context.spec, context.settings))]  # fmt: skip
+        context.spec, context.settings, len(wanted)))]  # fmt: skip
     return Chunked(ranges, stage="measuring")
 
 
 def _reference(context: JobContext) -> Any:
     from fringelab.science.order import OrderReference
 
-    data = load_arrays(context, "chunks/reference.npz")
+    data = load_arrays(context, "chunks/reference.arrays")
     reference = OrderReference(
         reference_t_px=data["reference_t_px"], rim=data["rim"],
         rim_circle_mm=tuple(float(v) for v in data["rim_circle_mm"]),  # type: ignore[arg-type]
@@ -131,14 +147,16 @@ _MEASURE_COUNTS = (
 
 def _sigma(measurement: Any) -> np.ndarray:
     sigma = measurement.sigma_z_mm
-    return np.full(len(measurement.k), np.nan) if sigma is None else np.asarray(sigma, np.float64)
+    return np.full(len(measurement.k), np.nan, np.float32) if sigma is None else np.asarray(sigma, np.float32)
 
 
 def topography_measure(context: JobContext, first: int, stop: int) -> None:
-    """Phase 0, any worker: frames [first, stop) measured and gridded, each on its own."""
+    """Phase 0, any worker: frames [first, stop) measured, gridded (Z and σ) and packed as the result file stores
+    them, each on its own; the merge only writes."""
+    from fringelab.formats.topography import pack_grids
     from fringelab.science.coverage import MISSING_REASONS
     from fringelab.science.fields import Grid, field_peak
-    from fringelab.science.topography import grid_measurement, locate_test_edges, track_and_measure
+    from fringelab.science.topography import grid_measurement_with_sigma, locate_test_edges, track_and_measure
 
     inputs = _topography_inputs(context)
     projector, settings = inputs.projector, inputs.settings
@@ -147,7 +165,7 @@ def topography_measure(context: JobContext, first: int, stop: int) -> None:
     # Temporal smoothing looks h frames either way: read them too (the sequential pass reads no further).
     h = settings.temporal_smoothing_frames
     lo, hi = max(0, first - h), min(len(inputs.source), stop + h)
-    measurements, grids, peaks = [], [], []
+    measurements, finite, packed, peaks = [], [], [], []
     try:
         frames = (inputs.source[i] for i in range(lo, hi))
         located = locate_test_edges(frames, projector)
@@ -156,11 +174,16 @@ def topography_measure(context: JobContext, first: int, stop: int) -> None:
         ):
             if not first <= measurement.frame < stop:
                 continue
-            z_grid = grid_measurement(measurement, projector, grid, max_edge_mm=float(data["max_edge_mm"]))
+            z_grid, sigma_grid = grid_measurement_with_sigma(
+                measurement, projector, grid, max_edge_mm=float(data["max_edge_mm"])
+            )
             measurements.append(measurement)
-            grids.append(z_grid)
+            chunks = pack_grids(z_grid, sigma_grid)
+            packed.extend([chunks.z_mm, chunks.sigma_w_mm])
+            finite.append(np.packbits(chunks.z_finite))
             peaks.append(list(vars(field_peak(z_grid - z_flat, grid)).values()))
-            context.progress(measurement.frame - first + 1, stop - first, "measuring")
+            # (the chunk's end is recorded when it is marked done: the last frame need not be)
+            context.progress(measurement.frame - first, stop - first, "measuring")
     finally:
         inputs.close()
     sizes = [len(m.k) for m in measurements]
@@ -172,14 +195,18 @@ def topography_measure(context: JobContext, first: int, stop: int) -> None:
         "measured_area_mm2": [c.measured_area_mm2 for c in covered],
         **{f"missing_{name}_mm2": [c.missing_mm2[name] for c in covered] for name in MISSING_REASONS},
     }
+    points = np.concatenate([m.points_obj_mm for m in measurements]).reshape(-1, 3)
     save_arrays(
-        context, f"chunks/frames-{first:07d}.npz",
+        context, f"chunks/frames-{first:07d}.arrays",
         frame=np.array([m.frame for m in measurements], np.int64),
         offsets=np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
         k=np.concatenate([m.k for m in measurements]), line=np.concatenate([m.line for m in measurements]),
-        points_obj_mm=np.concatenate([m.points_obj_mm for m in measurements]).reshape(-1, 3),
+        # X and Y as the file stores them; Z in full, for the temporal cross-check of the merge
+        xy_mm=points[:, :2].astype(np.float32), z_mm=points[:, 2],
         edge_noise_px=np.array([m.edge_noise_px for m in measurements], np.float64),
-        z_mm=np.array(grids), peak=np.array(peaks, np.float64),
+        z_finite=np.array(finite, np.uint8), peak=np.array(peaks, np.float64),
+        packed=np.frombuffer(b"".join(packed), np.uint8),
+        packed_offsets=np.concatenate([[0], np.cumsum([len(c) for c in packed])]).astype(np.int64),
         sigma_z_mm=np.concatenate([_sigma(m) for m in measurements]),
         **{name: np.array([getattr(m, name) for m in measurements], np.int64) for name in _MEASURE_COUNTS},
         **{name: np.array(values, np.float64) for name, values in coverage.items()},
@@ -190,14 +217,16 @@ def _load_frames(context: JobContext, first: int) -> tuple[list[Any], Any]:
     from fringelab.science.coverage import MISSING_REASONS, FrameCoverage
     from fringelab.science.topography import FrameMeasurement
 
-    data = load_arrays(context, f"chunks/frames-{first:07d}.npz")
+    data = load_arrays(context, f"chunks/frames-{first:07d}.arrays")
     offsets = data["offsets"]
+    # float64 as measured: X, Y were stored as the file stores them (float32), which loses nothing written
+    points = np.column_stack([data["xy_mm"].astype(np.float64), data["z_mm"]])
     measurements = [
         FrameMeasurement(
             frame=int(frame),
             k=data["k"][lo:hi],
             line=data["line"][lo:hi],
-            points_obj_mm=data["points_obj_mm"][lo:hi],
+            points_obj_mm=points[lo:hi],
             edge_noise_px=float(data["edge_noise_px"][i]),
             coverage=FrameCoverage(
                 visible_area_mm2=float(data["visible_area_mm2"][i]),
@@ -211,6 +240,18 @@ def _load_frames(context: JobContext, first: int) -> tuple[list[Any], Any]:
         for i, (frame, lo, hi) in enumerate(zip(data["frame"], offsets[:-1], offsets[1:], strict=True))
     ]
     return measurements, data
+
+
+def _packed(data: Any, i: int, track: Any) -> Any:
+    """The packed grids of the chunk's frame i (`topography_measure`)."""
+    from fringelab.formats.topography import PackedGrids
+
+    packed, at = data["packed"], data["packed_offsets"]
+    shape = (len(track["y_mm"]), len(track["x_mm"]))
+    return PackedGrids(
+        z_mm=packed[at[2 * i] : at[2 * i + 1]].tobytes(), sigma_w_mm=packed[at[2 * i + 1] : at[2 * i + 2]].tobytes(),
+        z_finite=np.unpackbits(data["z_finite"][i], count=shape[0] * shape[1]).reshape(shape).view(bool),
+    )  # fmt: skip
 
 
 def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict[str, Any]:
@@ -243,8 +284,9 @@ def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict
                 measurements, gridded = _load_frames(context, first)
                 for i, measurement in enumerate(map(cross_check.checked, measurements)):
                     peak = Peak(**dict(zip(peak_names, map(float, gridded["peak"][i]), strict=True)))
-                    writer.append(measurement, gridded["z_mm"][i], peak, log=log.row(measurement.frame),
-                                  camera_frame=int(log.camera_frame[measurement.frame]))  # fmt: skip
+                    writer.append(measurement, None, peak, log=log.row(measurement.frame),
+                                  camera_frame=int(log.camera_frame[measurement.frame]),
+                                  packed=_packed(gridded, i, track))  # fmt: skip
                     tally.add(peak, n_out_of_range=measurement.n_out_of_range, measurement=measurement)
                     context.progress(measurement.frame - wanted.start + 1, len(wanted), "writing")
             tally.require_ordered(where)

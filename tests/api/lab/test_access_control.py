@@ -59,7 +59,7 @@ ADMIN = {
 }
 # Operations whose object travels in the body or a header rather than the path: bob names ada's object there, and
 # must get exactly the answer an id that does not exist gets (a second request names one).
-BODY_REFERENCED = {("POST", "/api/v1/uploads"), ("POST", "/api/v1/jobs")}
+BODY_REFERENCED = {("POST", "/api/v1/uploads"), ("POST", "/api/v1/jobs"), ("POST", "/api/v1/comparisons/preview")}
 NOBODY_ID = 2**31 - 1
 NOBODY_JOB = "00000000-0000-0000-0000-000000000000"
 # 404 codes that mean "no such object" (for the owner, never about her own object).
@@ -148,6 +148,11 @@ def _request(world: World, method: str, path: str) -> dict[str, Any]:
             }
         },
         ("POST", "/api/v1/jobs"): {"json": {"kind": "export", "job_id": world.ids["job"], "format": "grid-npz"}},
+        ("POST", "/api/v1/comparisons/preview"): {
+            "json": {
+                "spec": {"kind": "comparison", "job_id": world.ids["job"], "simulation_id": world.ids["simulation"]}
+            }
+        },
         ("GET", "/api/v1/jobs/{job_id}/topography/grid"): {"params": {"frame": 0}},
         ("GET", "/api/v1/jobs/{job_id}/topography/profile"): {
             "params": {"x0_mm": 0, "y0_mm": 0, "x1_mm": 10, "y1_mm": 0, "frames": [0]}
