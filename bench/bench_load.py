@@ -34,6 +34,7 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
@@ -313,7 +314,54 @@ def _load_s(moment: str | None, start_at: float) -> str:
         return "-"
     from datetime import datetime
 
-    return f"{datetime.fromisoformat(moment.replace('Z', '+00:00')).timestamp() - start_at:.0f}"
+    return f"{datetime.fromisoformat(moment.replace('Z', '+00:00')).timestamp() - start_at:.1f}"
+
+
+class TopographyKeeper(threading.Thread):
+    """Keeps two topography jobs of the running demo queued or running (its spec, one frame fewer each time: never
+    the same spec as an active one), until stopped."""
+
+    def __init__(self, base_url: str, token: str, experiment_id: int, spec: dict, *, frames: int) -> None:
+        super().__init__(daemon=True)
+        self.client = httpx.Client(base_url=base_url, headers={"Authorization": f"Bearer {token}"}, timeout=30)
+        self.experiment_id, self.spec, self.frames = experiment_id, spec, frames
+        self.started = 0
+        self._stopping = threading.Event()
+
+    def run(self) -> None:
+        last = (self.spec.get("frames") or {}).get("last") or self.frames - 1
+        while not self._stopping.wait(0.5):
+            with contextlib.suppress(httpx.HTTPError):
+                jobs = self.client.get("/api/v1/jobs", params={"experiment_id": self.experiment_id, "limit": 100})
+                active = [j for j in jobs.json()["items"] if j["kind"] == "topography" and j["state"] in
+                          ("queued", "running")]  # fmt: skip
+                if len(active) < 2:  # one running, one queued behind it: no gap while the next one is picked up
+                    self.started += 1
+                    again = {**self.spec, "frames": {"first": 0, "last": last - self.started % 50}}
+                    self.client.post("/api/v1/jobs", json=again)
+
+    def stop(self) -> None:
+        self._stopping.set()
+        self.join(timeout=30)
+        self.client.close()
+
+
+def _covered_s(spans: list[tuple[str | None, str | None]], start_at: float, elapsed_s: float) -> float:
+    """Seconds of the load (0 to `elapsed_s`) during which at least one of the jobs' spans was open."""
+    intervals = []
+    for begun, ended in spans:
+        if begun:
+            low = max(0.0, float(_load_s(begun, start_at)))
+            high = min(elapsed_s, float(_load_s(ended, start_at)) if ended else elapsed_s)
+            if high > low:
+                intervals.append((low, high))
+    covered, reached = 0.0, 0.0
+    for low, high in sorted(intervals):
+        low = max(low, reached)
+        if high > low:
+            covered += high - low
+            reached = high
+    return covered
 
 
 def cpu_s(processes: list[psutil.Process]) -> float:
@@ -373,12 +421,7 @@ def main() -> int:
             # The load starts once the second demo's topography job runs (its ingest and calibrations first).
             wait(lambda: _topography_running(admin, second), timeout_s=SETUP_TIMEOUT_S,
                  what="running topography job of the second demo", interval_s=0.5)  # fmt: skip
-            # One topography of 200 frames takes ~10 s here: more of the same keep the worker busy through the load.
             spec = topography_job(admin, second, finished=False)["spec"]  # type: ignore[index]
-            last = (spec.get("frames") or {}).get("last") or args.running_frames - 1
-            for extra in range(1, int(args.duration // 10) + 2):  # one frame fewer each: not the same spec
-                again = {**spec, "frames": {"first": 0, "last": last - extra}}
-                admin.post("/api/v1/jobs", json=again).raise_for_status()
             running = running_jobs(admin, second)
             share_with_members(admin, [first, second])
             api = system.api_processes()
@@ -387,10 +430,16 @@ def main() -> int:
             each_before = {process.pid: cpu_s([process]) for process in serving(api)}
             load_before = os.getloadavg()
             start_at = time.time() + 3.0  # every client process started by then
-            results, probed, elapsed = load(
-                system.base_url, tokens, probe_token, job["id"], running, rate=args.rate, duration_s=args.duration,
-                connections=args.connections, seed=args.seed, start_at=start_at,
-            )  # fmt: skip
+            # One topography of 200 frames takes a few seconds: the keeper starts more, so that one always runs.
+            keeper = TopographyKeeper(system.base_url, tokens[0], second, spec, frames=args.running_frames)
+            keeper.start()
+            try:
+                results, probed, elapsed = load(
+                    system.base_url, tokens, probe_token, job["id"], running, rate=args.rate,
+                    duration_s=args.duration, connections=args.connections, seed=args.seed, start_at=start_at,
+                )  # fmt: skip
+            finally:
+                keeper.stop()
             load_after = os.getloadavg()
             api = system.api_processes()  # the same ones unless one was restarted (then the figure says so)
             serving_count = len(serving(api))
@@ -455,6 +504,8 @@ def main() -> int:
     for kind, (begun, ended) in spans.items():
         ran.append(f"{kind} {_load_s(begun, start_at)} to {_load_s(ended, start_at)} s")
     print(f"  the load ran from 0 to {elapsed:.0f} s; the jobs: {'; '.join(ran)}")
+    covered = _covered_s([span for kind, span in spans.items() if kind.startswith("topography")], start_at, elapsed)
+    print(f"  a topography job ran during {covered / elapsed * 100:.0f} % of the load ({keeper.started} started by it)")
     print(f"load average (1/5/15 min): before {' '.join(f'{v:.2f}' for v in load_before)}, "
           f"after {' '.join(f'{v:.2f}' for v in load_after)}; {os.cpu_count()} CPUs")  # fmt: skip
     missed = [name for name, ok in (("0 × 5xx", server_errors == 0), ("no timeouts", timeouts == 0 and failures == 0),
