@@ -9,13 +9,17 @@ accepted it, which psutil shows), so a per-process cache or counter would be see
 
 from __future__ import annotations
 
+import http.client
+import json
 import os
 import subprocess
 import sys
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
+from typing import Any
 
 import httpx
 import psutil
@@ -50,25 +54,48 @@ class ApiServer:
     def serving_processes(self) -> list[psutil.Process]:
         return psutil.Process(self.process.pid).children(recursive=True)
 
-    def process_of(self, client: httpx.Client) -> int | None:
-        """The PID of the web server process holding `client`'s (single, kept-alive) connection."""
+    def process_of(self, client: Pinned) -> int | None:
+        """The PID of the web server process holding `client`'s kept-alive connection."""
         pid_of: dict[int, int] = {}  # the client's port -> the server process holding that connection
         for child in self.serving_processes():
             for connection in child.net_connections(kind="tcp"):
                 if connection.status == psutil.CONN_ESTABLISHED and connection.laddr.port == self.port:
                     pid_of[connection.raddr.port] = child.pid
-        port = _client_port(client)
+        port = client.local_port
         return pid_of.get(port) if port is not None else None
 
 
-def _client_port(client: httpx.Client) -> int | None:
-    """The local port of the one connection `client` keeps (httpx keeps it in its pool)."""
-    pool = client._transport._pool  # type: ignore[attr-defined]
-    for connection in pool.connections:
-        stream = getattr(connection._connection, "_network_stream", None)
-        if stream is not None:
-            return int(stream.get_extra_info("socket").getsockname()[1])
-    return None
+@dataclass(frozen=True)
+class Answer:
+    status_code: int
+    headers: dict[str, str]  # names in lower case
+    text: str
+
+    def json(self) -> Any:
+        return json.loads(self.text)
+
+
+class Pinned:
+    """One kept-alive HTTP/1.1 connection (the standard library's: its socket, hence its port, is known) sending
+    the requests of one user: it stays with the server process that accepted it."""
+
+    def __init__(self, server: ApiServer, token: str) -> None:
+        self.connection = http.client.HTTPConnection("127.0.0.1", server.port, timeout=30)
+        self.headers = bearer(token)
+
+    @property
+    def local_port(self) -> int | None:
+        return int(self.connection.sock.getsockname()[1]) if self.connection.sock else None
+
+    def get(self, path: str) -> Answer:
+        self.connection.request("GET", path, headers=self.headers)
+        answer = self.connection.getresponse()
+        text = answer.read().decode()
+        assert not answer.will_close, "the server closed a kept-alive connection"
+        return Answer(answer.status, {k.lower(): v for k, v in answer.getheaders()}, text)
+
+    def close(self) -> None:
+        self.connection.close()
 
 
 @pytest.fixture(scope="module")
@@ -114,21 +141,28 @@ def api_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ApiServer]:
         redis_server.stop()
 
 
-def pinned_clients(server: ApiServer, who: str, *, per_process: int = 2, most: int = 40) -> list[httpx.Client]:
-    """Clients of `who`, each with one kept-alive connection, until every process holds `per_process` of them."""
-    clients: list[httpx.Client] = []
-    held: dict[int, int] = {}
-    while len(clients) < most:
-        client = httpx.Client(base_url=server.url, headers=bearer(server.tokens[who]), timeout=30,
-                              limits=httpx.Limits(max_connections=1))  # fmt: skip
-        assert client.get("/api/v1/auth/me").status_code == 200  # this process has now checked the token
-        clients.append(client)
-        pid = server.process_of(client)
-        if pid is not None:
-            held[pid] = held.get(pid, 0) + 1
-        if len(held) >= PROCESSES and min(held.values()) >= per_process:
+def pinned_clients(server: ApiServer, who: str, *, per_process: int = 2, most: int = 200) -> list[Pinned]:
+    """Connections of `who`, each kept alive, `per_process` on every process, each of which has then checked
+    `who`'s token. Connections are opened 20 ms apart and those a process already has enough of are closed
+    unused: made back to back, nearly all are accepted by the same process."""
+    kept: dict[int, list[Pinned]] = {}
+    for _attempt in range(most):
+        opened = Pinned(server, server.tokens[who])
+        opened.connection.connect()
+        time.sleep(0.02)  # accepted by then, and the other process gets its turn
+        pid = wait_for(partial(server.process_of, opened), timeout_s=5, what="the connection accepted")
+        held = kept.setdefault(int(pid), [])  # type: ignore[call-overload]
+        if len(held) < per_process:
+            held.append(opened)
+        else:
+            opened.close()
+        if len(kept) >= PROCESSES and all(len(held) >= per_process for held in kept.values()):
+            clients = [client for held in kept.values() for client in held]
+            for client in clients:
+                assert client.get("/api/v1/auth/me").status_code == 200  # this process has now checked the token
             return clients
-    raise AssertionError(f"{most} connections did not reach {PROCESSES} processes: {held}")
+    spread = {pid: len(held) for pid, held in kept.items()}
+    raise AssertionError(f"{most} connections did not reach {PROCESSES} processes: {spread}")
 
 
 def test_the_server_runs_several_processes(api_server: ApiServer) -> None:
