@@ -6,13 +6,14 @@ bit, whatever the chunking):
 
     entry:             the reference: frame 0's edges matched to the table, the rim that anchors the fringe
                        order, frame 0 measured, the grid from it                    -> chunks/reference.arrays
-    phase 0, chunks:   for each frame on its own: edges, fringe order, Z, X, Y, what is missing, the deflection
-                       grid and peak (with temporal smoothing, h frames either side are read too)
-                                                                                    -> chunks/frames-<first>.arrays
-    merge 0, in order: the result file (TopographyWriter) and its summary           -> topography.h5
+    phase 0, chunks:   for each frame on its own: edges, fringe order, Z, X, Y, what is missing, the grids of Z
+                       and of its σ (compressed as the file stores them) and the peak (with temporal smoothing, h
+                       frames either side are read too)                             -> chunks/frames-<first>.arrays
+    merge 0, in order: the temporal cross-check of consecutive frames, the result file (TopographyWriter, which
+                       stores the packed grids as they are) and its summary        -> topography.h5
 
 No frame depends on the frames before it (the order is found per frame, anchored on the reference), so there is
-no long in-order phase: the merge only writes.
+no long in-order phase: the merge only writes. Each worker process reads a calibration file once (`_calibration`).
 """
 
 from __future__ import annotations
