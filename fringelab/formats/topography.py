@@ -36,6 +36,8 @@ Files written before σ existed have no sigma_w_mm datasets; the reader then ret
   /xdmf             nodes_xy_mm (ny·nx, 2), quads (M, 4), z_mm/<i> (ny, nx) virtual views of grid/z_mm[i]: what
                     the XDMF sidecar (`write_xdmf`, ParaView) points at; absent in older files
   grid/z_mm has HDF5 dimension scales: frames/index, grid/y_mm, grid/x_mm
+  Compressed (byte shuffle, then zlib level 1): grid/z_mm, grid/sigma_w_mm, points/edge, points/line; the points'
+  coordinates and σ are stored as they are (files written before compressed them too: readers do not care).
   /summary          attrs: flat_rms_mm (RMS of w over the first frame), n_tracks_first_frame, clamp_centre_x_mm,
                     clamp_centre_y_mm, clamp_radius_mm (circle through the outermost first-frame points),
                     punch_axis_x_mm, punch_axis_y_mm (median of the per-frame centres), n_out_of_range_total
