@@ -10,9 +10,9 @@ thread each). With --kind topography it writes the virtual experiment (`fringela
 512 x 480 px, as ZIPs; not timed), then times, with the most worker processes asked for: creating the experiment
 and camera, uploading the three recordings and their ingest, the camera and projector calibrations, and the
 topography (end to end). Then --repeat times, one round after the other: the science pipeline alone
-(`topography_recording` in this process, the same recording and calibrations, OpenCV on one thread; its writer
-compresses the points in its 2 threads, as the job's merge does), and for each worker count the same topography
-as a job, each printed as it ends:
+(`topography_recording` in this process, the same recording and calibrations, all on one thread: OpenCV's, and the
+writer's compression too, which the command line runs in 2 threads beside), and for each worker count the same
+topography as a job, each printed as it ends:
 
   round       which repetition
   workers     worker processes (one `fringelab worker --concurrency N`); "pipeline" for the science alone
@@ -254,7 +254,8 @@ def calibrate(bench: Bench, ids: dict[str, Any]) -> tuple[dict[str, Any], float]
 
 
 def pipeline_run(ids: dict[str, Any], attempt: int) -> tuple[float, float]:
-    """Seconds and CPU seconds of the science pipeline alone, in this process: the job's reference figure."""
+    """Seconds and CPU seconds of the science pipeline alone, in this process on one thread: the job's reference
+    figure (a worker process, too, runs one frame at a time on one thread)."""
     import cv2
 
     from fringelab.formats.camera import read_camera_json
@@ -266,9 +267,10 @@ def pipeline_run(ids: dict[str, Any], attempt: int) -> tuple[float, float]:
     camera, projector = read_camera_json(ids["camera_json"]), read_projector_calibration(ids["projector_h5"])
     out_path = Path(ids["camera_json"]).parent / f"pipeline-{attempt}.h5"
     if attempt == 0:  # compiled code loaded, tables built: as in a worker that has run a job before
-        topography_recording(open_recording(ids["test_path"]), camera, projector, out_path=out_path, frames=range(4))
+        topography_recording(open_recording(ids["test_path"]), camera, projector, out_path=out_path, frames=range(4),
+                             writer_threads=0)  # fmt: skip
     start, cpu = time.perf_counter(), time.process_time()
-    topography_recording(open_recording(ids["test_path"]), camera, projector, out_path=out_path)
+    topography_recording(open_recording(ids["test_path"]), camera, projector, out_path=out_path, writer_threads=0)
     elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu
     out_path.unlink()
     return elapsed, cpu

@@ -105,7 +105,8 @@ class TopographyWriter:
     """Streams a topography result into HDF5, one frame at a time (memory does not grow with the frame count).
 
     Use as a context manager: the file is written under a temporary name and renamed into place by `close()`
-    after the summary; on an exception it is removed.
+    after the summary; on an exception it is removed. threads: how many threads compress what comes unpacked
+    (0: the calling thread does).
     """
 
     def __init__(
@@ -119,6 +120,7 @@ class TopographyWriter:
         attrs: dict[str, Any],
         calibration_attrs: dict[str, Any],
         peak_region_mm: tuple[float, float, float] | None = None,
+        threads: int = WRITER_THREADS,
     ) -> None:
         self.path = Path(path)
         # Grid nodes of the region around the punch (X, Y, radius), where the peak is: whether a frame measured it.
@@ -142,7 +144,7 @@ class TopographyWriter:
         self._columns: dict[str, list[Any]] = defaultdict(list)
         self._columns_written = 0
         self._writes: deque[tuple[Any, tuple[Any, ...]]] = deque()
-        self._pool = ThreadPoolExecutor(max_workers=WRITER_THREADS, thread_name_prefix="topography-writer")
+        self._pool = ThreadPoolExecutor(threads, thread_name_prefix="topography-writer") if threads > 0 else None
         self._datasets: dict[str, h5py.Dataset] = {}
         file = self._file = h5py.File(self._temp, "w")
         file.attrs["schema"] = TOPOGRAPHY_SCHEMA
@@ -355,7 +357,7 @@ class TopographyWriter:
             if z_grid_mm is None:
                 raise ValueError("z_grid_mm: a grid is needed unless the grids come packed")
             sigma = np.full(self.grid.shape, np.nan) if sigma_grid_mm is None else sigma_grid_mm
-            grids: PackedGrids | Future[PackedGrids] = self._pool.submit(pack_grids, z_grid_mm, sigma)
+            grids: PackedGrids | Future[PackedGrids] = self._submit(pack_grids, z_grid_mm, sigma)
         else:
             grids = packed
         self._queue_write(self._write_grids, self._n, grids)
@@ -414,6 +416,9 @@ class TopographyWriter:
             dataset = self._datasets[name] = self._file[name]
         return dataset
 
+    def _submit(self, compress: Any, *args: Any) -> Any:
+        return self._pool.submit(compress, *args) if self._pool is not None else compress(*args)
+
     # Writes happen on the calling thread, in the order they were queued; the threads only compress.
     def _queue_write(self, write: Any, *args: Any) -> None:
         self._writes.append((write, args))
@@ -439,7 +444,7 @@ class TopographyWriter:
             head, rest = buffered[:rows], buffered[rows:]
             self._points[name] = [rest] if len(rest) else []
             if rows == POINTS_CHUNK_ROWS:
-                chunk = self._pool.submit(_packed_chunk, head) if name in COMPRESSED_POINTS else head.tobytes()
+                chunk = self._submit(_packed_chunk, head) if name in COMPRESSED_POINTS else head.tobytes()
                 self._queue_write(self._write_points_chunk, name, start, chunk)
             else:
                 self._queue_write(self._write_points_tail, name, start, head)
@@ -476,7 +481,8 @@ class TopographyWriter:
     def close(self, summary: dict[str, Any]) -> Path:
         """Write the summary attributes and the XDMF views, close the file and move it into place."""
         self._finish_writes()
-        self._pool.shutdown()
+        if self._pool is not None:
+            self._pool.shutdown()
         file = self._file
         file.attrs["n_frames"] = self._n
         _write_xdmf_views(file, self.grid, self._n)
@@ -488,7 +494,8 @@ class TopographyWriter:
 
     def abort(self) -> None:
         try:
-            self._pool.shutdown(cancel_futures=True)
+            if self._pool is not None:
+                self._pool.shutdown(cancel_futures=True)
             self._file.close()
         finally:
             self._temp.unlink(missing_ok=True)
