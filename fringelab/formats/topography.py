@@ -46,7 +46,6 @@ Files written before σ existed have no sigma_w_mm datasets; the reader then ret
 from __future__ import annotations
 
 import math
-import zlib
 from collections import defaultdict, deque
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
@@ -59,6 +58,11 @@ import h5py
 import numpy as np
 
 from fringelab.formats.atomic import atomic_path, commit_partial, partial_path
+
+try:  # ISA-L's deflate makes the zlib streams that HDF5's deflate filter reads about 7 times faster than zlib
+    from isal.isal_zlib import compress as deflate
+except ImportError:  # a platform without its wheels: the same streams, slower
+    from zlib import compress as deflate
 from fringelab.formats.hdf5 import SCHEMA_VERSION, require_schema, unit_dataset
 
 # MISSING_REASONS is re-exported for the API (it reads results through this module only).
@@ -522,12 +526,13 @@ def pack_grids(z_grid_mm: np.ndarray, sigma_grid_mm: np.ndarray) -> PackedGrids:
 
 
 def _packed_chunk(values: np.ndarray) -> bytes:
-    """A whole chunk of a dataset created with shuffle=True, compression="gzip", compression_opts=1: what the
-    HDF5 filters make of it (the shuffle filter groups the bytes by their place in the item, then deflate), in
-    float32 for floats and as given for integers."""
+    """A whole chunk of a dataset created with shuffle=True, compression="gzip", compression_opts=1, as the HDF5
+    filters would store it (the shuffle filter groups the bytes by their place in the item, then a zlib stream of
+    them, level 1: ISA-L's, a little larger than zlib's and read by the same inflate), in float32 for floats and as
+    given for integers."""
     array = np.ascontiguousarray(values, np.float32 if values.dtype.kind == "f" else values.dtype)
     shuffled = array.view(np.uint8).reshape(-1, array.dtype.itemsize).T.tobytes()
-    return zlib.compress(shuffled, GZIP_LEVEL)
+    return deflate(shuffled, GZIP_LEVEL)
 
 
 XDMF_GROUP = "xdmf"
