@@ -36,8 +36,7 @@ Files written before σ existed have no sigma_w_mm datasets; the reader then ret
   /xdmf             nodes_xy_mm (ny·nx, 2), quads (M, 4), z_mm/<i> (ny, nx) virtual views of grid/z_mm[i]: what
                     the XDMF sidecar (`write_xdmf`, ParaView) points at; absent in older files
   grid/z_mm has HDF5 dimension scales: frames/index, grid/y_mm, grid/x_mm
-  Compressed (byte shuffle, then zlib level 1): grid/z_mm, grid/sigma_w_mm, points/edge, points/line; the points'
-  coordinates and σ are stored as they are (files written before compressed them too: readers do not care).
+  grid/* (but x_mm, y_mm) and points/* (but offsets) are compressed: byte shuffle, then a zlib stream (level 1)
   /summary          attrs: flat_rms_mm (RMS of w over the first frame), n_tracks_first_frame, clamp_centre_x_mm,
                     clamp_centre_y_mm, clamp_radius_mm (circle through the outermost first-frame points),
                     punch_axis_x_mm, punch_axis_y_mm (median of the per-frame centres), n_out_of_range_total
@@ -85,10 +84,6 @@ POINTS_CHUNK_ROWS = 65536
 COLUMN_FLUSH_FRAMES = 1024
 WRITER_THREADS = 2
 MAX_WRITES_IN_FLIGHT = 16
-# Of the points, only the edge and line indices are compressed (50 to 100 times smaller, at a few % of the cost of
-# writing them); their coordinates and σ, float32 noise in the last bits, shrank 1.3 to 1.8 times for most of the
-# time spent writing a result (files written before are read the same: compression is the file's business).
-COMPRESSED_POINTS = ("edge", "line")
 _POINT_DTYPES = {"x_mm": np.float32, "y_mm": np.float32, "z_mm": np.float32, "edge": np.int32, "line": np.int32,
                  "sigma_w_mm": np.float32}  # fmt: skip
 
@@ -211,7 +206,6 @@ class TopographyWriter:
             ("line", np.int32, "1", "scan line (image row for axis 'rows', column for 'cols')"),
             ("sigma_w_mm", np.float32, "mm", "standard deviation of the point's height (edge noise, projector table)"),
         ):
-            compressed = {"compression": "gzip", "compression_opts": GZIP_LEVEL, "shuffle": True}
             unit_dataset(
                 points,
                 name,
@@ -220,7 +214,9 @@ class TopographyWriter:
                 description=description,
                 maxshape=(None,),
                 chunks=(POINTS_CHUNK_ROWS,),
-                **(compressed if name in COMPRESSED_POINTS else {}),
+                compression="gzip",
+                compression_opts=GZIP_LEVEL,
+                shuffle=True,
             )
         grid_group = file.create_group("grid")
         unit_dataset(grid_group, "x_mm", grid.x_mm, unit="mm", description="X of the grid nodes")
@@ -448,8 +444,7 @@ class TopographyWriter:
             head, rest = buffered[:rows], buffered[rows:]
             self._points[name] = [rest] if len(rest) else []
             if rows == POINTS_CHUNK_ROWS:
-                chunk = self._submit(_packed_chunk, head) if name in COMPRESSED_POINTS else head.tobytes()
-                self._queue_write(self._write_points_chunk, name, start, chunk)
+                self._queue_write(self._write_points_chunk, name, start, self._submit(_packed_chunk, head))
             else:
                 self._queue_write(self._write_points_tail, name, start, head)
         self._points_buffered -= rows
