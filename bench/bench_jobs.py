@@ -25,16 +25,16 @@ topography as a job, each printed as it ends:
               fringe order, Z, X, Y, grids of Z and σ, packed as stored; in chunks on every process)
   in order s  and the pass in frame order (writing the file)
   peak MB     the largest peak resident memory (VmHWM) of the worker processes (flat in the number of frames:
-              compare --frames 40 with --frames 160)
+              compare --frames 40 with --frames 320)
   spread      frames each worker process measured
   load        the 1-minute load average when it ended
 
-then, per round and as the median over the rounds (ratios taken within a round, so that the load of the moment
-cancels): the scaling efficiency, (frames/s with N) / (N x frames/s with 1), and the job with one worker process
-against the science pipeline alone, (job frames/s with 1) / (pipeline frames/s), by wall time and by CPU time.
---kind selftest measures the job system alone (synthetic frames, an FFT each; --frame-size-px sets the work per
-frame). On a machine whose cores are shared with other work the efficiency says so: `os.cpu_count()` and the load
-average are printed.
+then, per round and as the median over the rounds (ratios taken within a round, of runs seconds apart: on shared
+cores the load still moves between them, and the CPU-time ratio is the steadier figure): the scaling efficiency,
+(frames/s with N) / (N x frames/s with 1), and the job with one worker process against the science pipeline alone,
+(job frames/s with 1) / (pipeline frames/s), by wall time and by CPU time. --kind selftest measures the job system
+alone (synthetic frames, an FFT each; --frame-size-px sets the work per frame). On a machine whose cores are
+shared with other work the efficiency says so: `os.cpu_count()` and the load average are printed.
 """
 
 from __future__ import annotations
