@@ -180,17 +180,18 @@ def topography_measure(context: JobContext, first: int, stop: int) -> None:
                 )
                 packed = pack_grids(z_grid, sigma_grid)
                 sigma = np.full(len(m.k), np.nan) if m.sigma_z_mm is None else m.sigma_z_mm
+                scalars = [m.frame, m.edge_noise_px, m.coverage.visible_area_mm2, m.coverage.measured_area_mm2,
+                           *(m.coverage.missing_mm2[name] for name in MISSING_REASONS),
+                           *vars(field_peak(z_grid - z_flat, grid)).values(),
+                           *(getattr(m, name) for name in _MEASURE_COUNTS)]  # fmt: skip
                 write(
-                    frame=m.frame, k=m.k, line=m.line,
+                    k=m.k, line=m.line,
                     # X, Y and σ as the file stores them; Z in full, for the temporal cross-check of the merge
                     xy_mm=m.points_obj_mm[:, :2].astype(np.float32), z_mm=m.points_obj_mm[:, 2],
-                    sigma_z_mm=np.asarray(sigma, np.float32), edge_noise_px=m.edge_noise_px,
+                    sigma_z_mm=np.asarray(sigma, np.float32),
                     packed_z_mm=np.frombuffer(packed.z_mm, np.uint8),
-                    packed_sigma_w_mm=np.frombuffer(packed.sigma_w_mm, np.uint8),
-                    z_finite=np.packbits(packed.z_finite), peak=list(vars(field_peak(z_grid - z_flat, grid)).values()),
-                    visible_area_mm2=m.coverage.visible_area_mm2, measured_area_mm2=m.coverage.measured_area_mm2,
-                    missing_mm2=[m.coverage.missing_mm2[name] for name in MISSING_REASONS],
-                    counts=[getattr(m, name) for name in _MEASURE_COUNTS],
+                    packed_sigma_w_mm=np.frombuffer(packed.sigma_w_mm, np.uint8), z_finite=np.packbits(packed.z_finite),
+                    scalars=np.array(scalars, np.float64),  # in one record (each costs a header); counts exact
                 )  # fmt: skip
                 # (the chunk's end is recorded when it is marked done: the last frame need not be)
                 context.progress(m.frame - first, stop - first, "measuring")
@@ -208,22 +209,25 @@ def _handed_over(context: JobContext, first: int, grid_shape: tuple[int, int]) -
     from fringelab.science.topography import FrameMeasurement
 
     peak_names = [f.name for f in fields(Peak)]
+    n_missing, n_peak = len(MISSING_REASONS), len(peak_names)
     for record in read_array_records(context, f"chunks/frames-{first:07d}.arrays"):
-        counts = dict(zip(_MEASURE_COUNTS, map(int, record["counts"]), strict=True))
+        scalars = record["scalars"].tolist()
+        frame, edge_noise_px, visible_area_mm2, measured_area_mm2 = scalars[:4]
+        missing, peak_values, count_values = np.split(scalars[4:], [n_missing, n_missing + n_peak])
+        counts = dict(zip(_MEASURE_COUNTS, map(int, count_values), strict=True))
         points = np.empty((len(record["k"]), 3))  # float64 as measured: X, Y in float32 lose nothing written
         points[:, :2], points[:, 2] = record["xy_mm"], record["z_mm"]
         measurement = FrameMeasurement(
-            frame=int(record["frame"]), k=record["k"], line=record["line"], points_obj_mm=points,
-            edge_noise_px=float(record["edge_noise_px"]), sigma_z_mm=record["sigma_z_mm"],
+            frame=int(frame), k=record["k"], line=record["line"], points_obj_mm=points,
+            edge_noise_px=edge_noise_px, sigma_z_mm=record["sigma_z_mm"],
             coverage=FrameCoverage(
-                visible_area_mm2=float(record["visible_area_mm2"]),
-                measured_area_mm2=float(record["measured_area_mm2"]),
-                missing_mm2={name: float(v) for name, v in zip(MISSING_REASONS, record["missing_mm2"], strict=True)},
+                visible_area_mm2=visible_area_mm2, measured_area_mm2=measured_area_mm2,
+                missing_mm2={name: float(v) for name, v in zip(MISSING_REASONS, missing, strict=True)},
                 n_order_conflicts=counts["n_order_conflicts"],
             ),
             **counts,
         )  # fmt: skip
-        peak = Peak(**dict(zip(peak_names, map(float, record["peak"]), strict=True)))
+        peak = Peak(**dict(zip(peak_names, map(float, peak_values), strict=True)))
         finite = np.unpackbits(record["z_finite"], count=grid_shape[0] * grid_shape[1]).reshape(grid_shape)
         packed = PackedGrids(
             z_mm=record["packed_z_mm"].tobytes(), sigma_w_mm=record["packed_sigma_w_mm"].tobytes(),
