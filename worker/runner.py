@@ -487,25 +487,44 @@ def remove_chunk_files(directory: Path) -> None:
 
 
 def save_arrays(context: JobContext, name: str, **arrays: np.ndarray) -> None:
-    """Arrays a chunk hands over (to `load_arrays`), in one file written atomically: their names, then each as a
-    .npy record, one after the other (no ZIP: read back at the speed of the disk cache, no checksum per read)."""
-    from numpy.lib import format as npy
-
-    with context.output(name, publish=False) as path, path.open("wb") as handle:
-        npy.write_array(handle, np.array(list(arrays), dtype=str), allow_pickle=False)
-        for value in arrays.values():
-            npy.write_array(handle, np.asarray(value), allow_pickle=False)
+    """Arrays a task hands over (to `load_arrays`), in one file written atomically (one `array_records` record)."""
+    with array_records(context, name) as write:
+        write(**arrays)
 
 
 def load_arrays(context: JobContext, name: str) -> dict[str, np.ndarray]:
+    return next(read_array_records(context, name))
+
+
+@contextmanager
+def array_records(context: JobContext, name: str) -> Iterator[Callable[..., None]]:
+    """A hand-over file written record by record (`write(**arrays)`, e.g. one per frame, so that what a chunk holds
+    does not grow with its frames), committed when the block completes: each record is its names, then each array
+    as a .npy record (no ZIP: read back at the speed of the disk cache, no checksum per read)."""
+    from numpy.lib import format as npy
+
+    with context.output(name, publish=False) as path, path.open("wb") as handle:
+
+        def write(**arrays: Any) -> None:
+            npy.write_array(handle, np.array(list(arrays), dtype=str), allow_pickle=False)
+            for value in arrays.values():
+                npy.write_array(handle, np.asarray(value), allow_pickle=False)
+
+        yield write
+
+
+def read_array_records(context: JobContext, name: str) -> Iterator[dict[str, np.ndarray]]:
+    """The records of a hand-over file (`array_records`), one at a time."""
     from numpy.lib import format as npy
 
     path = context.directory / name
     if not path.is_file():
         raise RuntimeError(f"the intermediate file {name} is missing")
     with path.open("rb") as handle:
-        names = npy.read_array(handle, allow_pickle=False)
-        return {str(key): npy.read_array(handle, allow_pickle=False) for key in names}
+        size = path.stat().st_size
+        while handle.tell() < size:
+            names = npy.read_array(handle, allow_pickle=False)
+            yield {str(key): npy.read_array(handle, allow_pickle=False) for key in names}
 
 
 def finite_or_none(value: Any) -> Any:

@@ -18,7 +18,7 @@ import numpy as np
 from fringelab.formats.camera import calibration_as_dict
 from fringelab.formats.hdf5 import json_text
 from fringelab.formats.recordings import recording_log
-from fringelab.formats.topography import PEAK_REGION_RADIUS_MM, TopographyWriter, write_xdmf
+from fringelab.formats.topography import PEAK_REGION_RADIUS_MM, WRITER_THREADS, TopographyWriter, write_xdmf
 from fringelab.pipelines.provenance import code_versions
 from fringelab.science import Cancelled
 from fringelab.science.calibration import CameraCalibration, ProgressCallback
@@ -68,6 +68,7 @@ def topography_recording(
     edges: Iterable[FrameEdges] | None = None,
     progress: ProgressCallback | None = None,
     should_cancel: Callable[[], bool] | None = None,
+    writer_threads: int = WRITER_THREADS,
 ) -> TopographySummary:
     """Topography of a test recording into an HDF5 result file (layout in `topography_files`): what the CLI and
     the tasks call.
@@ -79,7 +80,8 @@ def topography_recording(
     over the whole recording. edges: already located edges
     of frames 0, 1, ... (e.g. from chunks run in parallel, see `topography_files.read_edges`); None locates
     them here. progress(done, total, stage) after every frame ("frames"), should_cancel() polled between frames
-    (Cancelled; the partial file is removed).
+    (Cancelled; the partial file is removed). writer_threads: threads that compress the file's chunks beside the
+    measurement (0: all in the calling thread).
 
     Memory does not grow with the number of frames: frames are read, located, tracked, gridded and written one
     at a time.
@@ -138,7 +140,7 @@ def topography_recording(
         writer = result_writer(
             out_path, grid=grid, max_edge_mm=max_edge_mm, z_flat_mm=z_flat, camera_model=camera_model,
             projector=projector, settings=settings, where=where, n_frames=n_frames, wanted=wanted,
-            centre_xy_mm=(clamp[0], clamp[1]), time_source=log.time_source,
+            centre_xy_mm=(clamp[0], clamp[1]), time_source=log.time_source, threads=writer_threads,
         )  # fmt: skip
         rest = itertools.chain([reference_edges], stream) if lo == 0 else stream
         cross_check = TemporalCrossCheck(projector)
@@ -190,6 +192,7 @@ def result_writer(
     wanted: range,
     time_source: str = "",
     centre_xy_mm: tuple[float, float] = (float("nan"), float("nan")),
+    threads: int = WRITER_THREADS,
 ) -> TopographyWriter:
     """The result file's writer with everything a result records of how it was made (settings, provenance,
     the calibrations it used)."""
@@ -209,6 +212,7 @@ def result_writer(
         },
         calibration_attrs=_calibration_attrs(camera_model, projector),
         peak_region_mm=(centre_xy_mm[0], centre_xy_mm[1], PEAK_REGION_RADIUS_MM),
+        threads=threads,
     )
 
 

@@ -115,7 +115,13 @@ def rasterize_triangles(
     inside = (l1 >= -eps) & (l2 >= -eps) & (l1 + l2 <= 1.0 + eps) & (det != 0)
     values = corner_values[tri]
     interpolated = values[:, 0] + l1 * (values[:, 1] - values[:, 0]) + l2 * (values[:, 2] - values[:, 0])
-    field[iy[inside], ix[inside]] = interpolated[inside]
+    # A node on the side two triangles share is inside both: it takes the later triangle's value. Said here, since
+    # numpy leaves unspecified which of repeated indices an assignment keeps (a node with one triangle's value in
+    # one run and the other's in the next: a NaN or not, where one of them has a corner without data).
+    node = iy[inside] * len(grid.x_mm) + ix[inside]
+    _, last_reversed = np.unique(node[::-1], return_index=True)
+    last = len(node) - 1 - last_reversed
+    field[iy[inside][last], ix[inside][last]] = interpolated[inside][last]
     return field
 
 

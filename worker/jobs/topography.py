@@ -6,18 +6,20 @@ bit, whatever the chunking):
 
     entry:             the reference: frame 0's edges matched to the table, the rim that anchors the fringe
                        order, frame 0 measured, the grid from it                    -> chunks/reference.arrays
-    phase 0, chunks:   for each frame on its own: edges, fringe order, Z, X, Y, what is missing, the deflection
-                       grid and peak (with temporal smoothing, h frames either side are read too)
-                                                                                    -> chunks/frames-<first>.arrays
-    merge 0, in order: the result file (TopographyWriter) and its summary           -> topography.h5
+    phase 0, chunks:   for each frame on its own: edges, fringe order, Z, X, Y, what is missing, the grids of Z
+                       and of its σ (compressed as the file stores them) and the peak (with temporal smoothing, h
+                       frames either side are read too)                             -> chunks/frames-<first>.arrays
+    merge 0, in order: the temporal cross-check of consecutive frames, the result file (TopographyWriter, which
+                       stores the packed grids as they are) and its summary        -> topography.h5
 
 No frame depends on the frames before it (the order is found per frame, anchored on the reference), so there is
-no long in-order phase: the merge only writes.
+no long in-order phase: the merge only writes. Each worker process reads a calibration file once (`_calibration`).
 """
 
 from __future__ import annotations
 
 import functools
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -30,10 +32,12 @@ from worker.jobs.inputs import calibration_file, recording_input
 from worker.runner import (
     Chunked,
     JobContext,
+    array_records,
     chunk_frames_of,
     finite_or_none,
     frame_ranges,
     load_arrays,
+    read_array_records,
     remove_chunk_files,
     save_arrays,
 )
@@ -145,14 +149,9 @@ _MEASURE_COUNTS = (
 )  # fmt: skip
 
 
-def _sigma(measurement: Any) -> np.ndarray:
-    sigma = measurement.sigma_z_mm
-    return np.full(len(measurement.k), np.nan, np.float32) if sigma is None else np.asarray(sigma, np.float32)
-
-
 def topography_measure(context: JobContext, first: int, stop: int) -> None:
     """Phase 0, any worker: frames [first, stop) measured, gridded (Z and σ) and packed as the result file stores
-    them, each on its own; the merge only writes."""
+    them, each on its own and handed over as it comes (one record per frame): the merge only writes."""
     from fringelab.formats.topography import pack_grids
     from fringelab.science.coverage import MISSING_REASONS
     from fringelab.science.fields import Grid, field_peak
@@ -165,102 +164,83 @@ def topography_measure(context: JobContext, first: int, stop: int) -> None:
     # Temporal smoothing looks h frames either way: read them too (the sequential pass reads no further).
     h = settings.temporal_smoothing_frames
     lo, hi = max(0, first - h), min(len(inputs.source), stop + h)
-    measurements, finite, packed, peaks = [], [], [], []
     try:
         frames = (inputs.source[i] for i in range(lo, hi))
         located = locate_test_edges(frames, projector)
-        for measurement in track_and_measure(
-            located, projector, inputs.camera_model, settings=settings, first_frame=lo, reference=reference
-        ):
-            if not first <= measurement.frame < stop:
-                continue
-            z_grid, sigma_grid = grid_measurement_with_sigma(
-                measurement, projector, grid, max_edge_mm=float(data["max_edge_mm"])
-            )
-            measurements.append(measurement)
-            chunks = pack_grids(z_grid, sigma_grid)
-            packed.extend([chunks.z_mm, chunks.sigma_w_mm])
-            finite.append(np.packbits(chunks.z_finite))
-            peaks.append(list(vars(field_peak(z_grid - z_flat, grid)).values()))
-            # (the chunk's end is recorded when it is marked done: the last frame need not be)
-            context.progress(measurement.frame - first, stop - first, "measuring")
+        with array_records(context, f"chunks/frames-{first:07d}.arrays") as write:
+            for m in track_and_measure(
+                located, projector, inputs.camera_model, settings=settings, first_frame=lo, reference=reference
+            ):
+                if not first <= m.frame < stop:
+                    continue
+                if m.coverage is None:
+                    raise RuntimeError("a measurement came without its coverage")
+                z_grid, sigma_grid = grid_measurement_with_sigma(
+                    m, projector, grid, max_edge_mm=float(data["max_edge_mm"])
+                )
+                packed = pack_grids(z_grid, sigma_grid)
+                sigma = np.full(len(m.k), np.nan) if m.sigma_z_mm is None else m.sigma_z_mm
+                scalars = [m.frame, m.edge_noise_px, m.coverage.visible_area_mm2, m.coverage.measured_area_mm2,
+                           *(m.coverage.missing_mm2[name] for name in MISSING_REASONS),
+                           *vars(field_peak(z_grid - z_flat, grid)).values(),
+                           *(getattr(m, name) for name in _MEASURE_COUNTS)]  # fmt: skip
+                write(
+                    k=m.k, line=m.line,
+                    # X, Y and σ as the file stores them; Z in full, for the temporal cross-check of the merge
+                    xy_mm=m.points_obj_mm[:, :2].astype(np.float32), z_mm=m.points_obj_mm[:, 2],
+                    sigma_z_mm=np.asarray(sigma, np.float32),
+                    packed_z_mm=np.frombuffer(packed.z_mm, np.uint8),
+                    packed_sigma_w_mm=np.frombuffer(packed.sigma_w_mm, np.uint8), z_finite=np.packbits(packed.z_finite),
+                    scalars=np.array(scalars, np.float64),  # in one record (each costs a header); counts exact
+                )  # fmt: skip
+                # (the chunk's end is recorded when it is marked done: the last frame need not be)
+                context.progress(m.frame - first, stop - first, "measuring")
     finally:
         inputs.close()
-    sizes = [len(m.k) for m in measurements]
-    covered = [m.coverage for m in measurements if m.coverage is not None]
-    if len(covered) != len(measurements):
-        raise RuntimeError("a measurement came without its coverage")
-    coverage = {
-        "visible_area_mm2": [c.visible_area_mm2 for c in covered],
-        "measured_area_mm2": [c.measured_area_mm2 for c in covered],
-        **{f"missing_{name}_mm2": [c.missing_mm2[name] for c in covered] for name in MISSING_REASONS},
-    }
-    points = np.concatenate([m.points_obj_mm for m in measurements]).reshape(-1, 3)
-    save_arrays(
-        context, f"chunks/frames-{first:07d}.arrays",
-        frame=np.array([m.frame for m in measurements], np.int64),
-        offsets=np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
-        k=np.concatenate([m.k for m in measurements]), line=np.concatenate([m.line for m in measurements]),
-        # X and Y as the file stores them; Z in full, for the temporal cross-check of the merge
-        xy_mm=points[:, :2].astype(np.float32), z_mm=points[:, 2],
-        edge_noise_px=np.array([m.edge_noise_px for m in measurements], np.float64),
-        z_finite=np.array(finite, np.uint8), peak=np.array(peaks, np.float64),
-        packed=np.frombuffer(b"".join(packed), np.uint8),
-        packed_offsets=np.concatenate([[0], np.cumsum([len(c) for c in packed])]).astype(np.int64),
-        sigma_z_mm=np.concatenate([_sigma(m) for m in measurements]),
-        **{name: np.array([getattr(m, name) for m in measurements], np.int64) for name in _MEASURE_COUNTS},
-        **{name: np.array(values, np.float64) for name, values in coverage.items()},
-    )  # fmt: skip
 
 
-def _load_frames(context: JobContext, first: int) -> tuple[list[Any], Any]:
+def _handed_over(context: JobContext, first: int, grid_shape: tuple[int, int]) -> Iterator[tuple[Any, Any, Any]]:
+    """The frames of a chunk (`topography_measure`) one at a time: (measurement, peak, packed grids)."""
+    from dataclasses import fields
+
+    from fringelab.formats.topography import PackedGrids
     from fringelab.science.coverage import MISSING_REASONS, FrameCoverage
+    from fringelab.science.fields import Peak
     from fringelab.science.topography import FrameMeasurement
 
-    data = load_arrays(context, f"chunks/frames-{first:07d}.arrays")
-    offsets = data["offsets"]
-    # float64 as measured: X, Y were stored as the file stores them (float32), which loses nothing written
-    points = np.column_stack([data["xy_mm"].astype(np.float64), data["z_mm"]])
-    measurements = [
-        FrameMeasurement(
-            frame=int(frame),
-            k=data["k"][lo:hi],
-            line=data["line"][lo:hi],
-            points_obj_mm=points[lo:hi],
-            edge_noise_px=float(data["edge_noise_px"][i]),
+    peak_names = [f.name for f in fields(Peak)]
+    n_missing, n_peak = len(MISSING_REASONS), len(peak_names)
+    for record in read_array_records(context, f"chunks/frames-{first:07d}.arrays"):
+        scalars = record["scalars"].tolist()
+        frame, edge_noise_px, visible_area_mm2, measured_area_mm2 = scalars[:4]
+        missing, peak_values, count_values = np.split(scalars[4:], [n_missing, n_missing + n_peak])
+        counts = dict(zip(_MEASURE_COUNTS, map(int, count_values), strict=True))
+        points = np.empty((len(record["k"]), 3))  # float64 as measured: X, Y in float32 lose nothing written
+        points[:, :2], points[:, 2] = record["xy_mm"], record["z_mm"]
+        measurement = FrameMeasurement(
+            frame=int(frame), k=record["k"], line=record["line"], points_obj_mm=points,
+            edge_noise_px=edge_noise_px, sigma_z_mm=record["sigma_z_mm"],
             coverage=FrameCoverage(
-                visible_area_mm2=float(data["visible_area_mm2"][i]),
-                measured_area_mm2=float(data["measured_area_mm2"][i]),
-                missing_mm2={name: float(data[f"missing_{name}_mm2"][i]) for name in MISSING_REASONS},
-                n_order_conflicts=int(data["n_order_conflicts"][i]),
+                visible_area_mm2=visible_area_mm2, measured_area_mm2=measured_area_mm2,
+                missing_mm2={name: float(v) for name, v in zip(MISSING_REASONS, missing, strict=True)},
+                n_order_conflicts=counts["n_order_conflicts"],
             ),
-            sigma_z_mm=data["sigma_z_mm"][lo:hi],
-            **{name: int(data[name][i]) for name in _MEASURE_COUNTS},
+            **counts,
         )  # fmt: skip
-        for i, (frame, lo, hi) in enumerate(zip(data["frame"], offsets[:-1], offsets[1:], strict=True))
-    ]
-    return measurements, data
-
-
-def _packed(data: Any, i: int, track: Any) -> Any:
-    """The packed grids of the chunk's frame i (`topography_measure`)."""
-    from fringelab.formats.topography import PackedGrids
-
-    packed, at = data["packed"], data["packed_offsets"]
-    shape = (len(track["y_mm"]), len(track["x_mm"]))
-    return PackedGrids(
-        z_mm=packed[at[2 * i] : at[2 * i + 1]].tobytes(), sigma_w_mm=packed[at[2 * i + 1] : at[2 * i + 2]].tobytes(),
-        z_finite=np.unpackbits(data["z_finite"][i], count=shape[0] * shape[1]).reshape(shape).view(bool),
-    )  # fmt: skip
+        peak = Peak(**dict(zip(peak_names, map(float, peak_values), strict=True)))
+        finite = np.unpackbits(record["z_finite"], count=grid_shape[0] * grid_shape[1]).reshape(grid_shape)
+        packed = PackedGrids(
+            z_mm=record["packed_z_mm"].tobytes(), sigma_w_mm=record["packed_sigma_w_mm"].tobytes(),
+            z_finite=finite.view(bool),
+        )  # fmt: skip
+        yield measurement, peak, packed
 
 
 def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict[str, Any]:
     """Merge of phase 0, in frame order: the result file, as `topography_recording` writes it."""
-    from dataclasses import fields
-
     from fringelab.formats.recordings import recording_log
     from fringelab.formats.topography import write_xdmf
-    from fringelab.science.fields import Grid, Peak
+    from fringelab.science.fields import Grid
 
     inputs = _topography_inputs(context)
     source, wanted, projector = inputs.source, inputs.wanted, inputs.projector
@@ -269,7 +249,6 @@ def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict
     inputs.close()
     _, track = _reference(context)
     z_flat, clamp = float(track["z_flat_mm"]), [float(v) for v in track["clamp"]]
-    peak_names = [f.name for f in fields(Peak)]
     tally = SummaryTally()
     cross_check = TemporalCrossCheck(projector)  # over the chunks' frames in order, so whatever the chunking
     with context.output("topography.h5", media_type="application/x-hdf5") as temporary:
@@ -280,13 +259,12 @@ def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict
             centre_xy_mm=(clamp[0], clamp[1]),
         )  # fmt: skip
         with writer:
+            grid_shape = (len(track["y_mm"]), len(track["x_mm"]))
             for first, _stop in ranges:
-                measurements, gridded = _load_frames(context, first)
-                for i, measurement in enumerate(map(cross_check.checked, measurements)):
-                    peak = Peak(**dict(zip(peak_names, map(float, gridded["peak"][i]), strict=True)))
+                for handed_over, peak, packed in _handed_over(context, first, grid_shape):
+                    measurement = cross_check.checked(handed_over)
                     writer.append(measurement, None, peak, log=log.row(measurement.frame),
-                                  camera_frame=int(log.camera_frame[measurement.frame]),
-                                  packed=_packed(gridded, i, track))  # fmt: skip
+                                  camera_frame=int(log.camera_frame[measurement.frame]), packed=packed)  # fmt: skip
                     tally.add(peak, n_out_of_range=measurement.n_out_of_range, measurement=measurement)
                     context.progress(measurement.frame - wanted.start + 1, len(wanted), "writing")
             tally.require_ordered(where)
