@@ -283,10 +283,14 @@ def test_exports_from_the_viewer_and_their_downloads_in_the_jobs_list(page, demo
     np.testing.assert_array_equal(npz["frames"], [2, 3, 4])
 
     page.goto("/#/jobs")
-    exports = page.get_by_role("table", name="All jobs").get_by_role("row").filter(has_text="Export")
-    expect(exports).to_have_count(len(formats), timeout=30_000)
-    for i in range(len(formats)):
-        expect(exports.nth(i).get_by_role("link", name=re.compile(r"^Download "))).to_be_visible()
+    # The jobs started here, by the job id in their download links (other tests on this server export too).
+    export_ids = {re.search(r"/jobs/([0-9a-f-]+)/files/", link).group(1) for link in links}  # type: ignore[union-attr]
+    assert len(export_ids) == len(formats)
+    rows = page.get_by_role("table", name="All jobs").get_by_role("row")
+    for export_id in export_ids:
+        row = rows.filter(has_text=f"Export {export_id[:8]}")
+        expect(row).to_have_count(1, timeout=30_000)
+        expect(row.get_by_role("link", name=re.compile(r"^Download ")).first).to_be_visible()
     screenshot(page, "jobs-list-export-downloads")
 
 

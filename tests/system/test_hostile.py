@@ -302,7 +302,8 @@ def test_an_open_event_stream_ends_when_its_token_is_revoked(lab_server):
     """Finding 11: a stream went on delivering after the user's access was revoked."""
     with lab_server.client("admin") as admin:
         token = admin.post("/api/v1/auth/tokens", json={"name": "stream"}).json()
-        job = admin.post("/api/v1/jobs", json={"kind": "selftest", "frames": 4000, "frame_size_px": 128})
+        # long enough (tens of seconds) to outlive the stream's 2 s re-check of access
+        job = admin.post("/api/v1/jobs", json={"kind": "selftest", "frames": 20000, "frame_size_px": 256})
         assert job.status_code in (201, 202), job.text
         job_id = job.json()["id"]
         events: list[str] = []
