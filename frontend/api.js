@@ -137,12 +137,14 @@ export function query(params) {
 /**
  * Server-Sent Events from `path`: `handlers` maps event names to functions of the parsed JSON data. The stream
  * is closed after an `end` event (the server closes it too; without this the browser would reconnect).
- * `onError(message)` hears about a lost connection. Returns a function that closes the stream.
+ * `onError(message)` hears about a lost connection, and about an `end` with state "forbidden" (the reader's
+ * access ended while the stream was open: a revoked token, a disabled account), which no handler sees.
+ * Returns a function that closes the stream.
  */
 export function subscribe(path, handlers, { onError = () => {} } = {}) {
   const source = new EventSource(path.startsWith("/") ? path : `${API}/${path}`);
   let ended = false;
-  for (const [name, handle] of Object.entries(handlers)) {
+  for (const [name, handle] of Object.entries({ end: () => {}, ...handlers })) {
     source.addEventListener(name, (event) => {
       let data = null;
       try {
@@ -153,6 +155,10 @@ export function subscribe(path, handlers, { onError = () => {} } = {}) {
       if (name === "end") {
         ended = true;
         source.close();
+        if (data && data.state === "forbidden") {
+          onError(`${data.error || "access ended"} (live updates stopped)`);
+          return;
+        }
       }
       handle(data);
     });

@@ -173,7 +173,7 @@ export class JobList {
           this.refresh();
         }, 500);
       },
-    });
+    }, { onError: (message) => showError(message, "follow the jobs") });
   }
 
   async refresh() {

@@ -65,3 +65,29 @@ def test_login_then_create_list_and_revoke_a_token(browser, auth_server):
         context.close()
     # 401s are the answers that open the login form; anything else is a fault.
     assert [e for e in console_errors if "status of 401" not in e] == []
+
+
+def test_a_jobs_list_open_when_the_account_is_disabled_says_that_access_ended(browser, auth_server):
+    """The list's event stream ends with "forbidden" once the reader's access ends (re-checked every 2 s): the page
+    says why live updates stopped, instead of a lost connection."""
+    subprocess.run(
+        [sys.executable, "-m", "backend.cli", "user", "add", "bob", "--password-stdin"],
+        input=f"{PASSWORD}\n", text=True, env=auth_server.env, check=True, capture_output=True,
+    )  # fmt: skip
+    context = browser.new_context(viewport={"width": 1280, "height": 800}, base_url=auth_server.base_url)
+    page = context.new_page()
+    try:
+        page.goto("/#/jobs")
+        page.get_by_label("Username").fill("bob")
+        page.get_by_label("Password").fill(PASSWORD)
+        page.get_by_role("button", name="Log in").click()
+        expect(page.get_by_text("No jobs yet.")).to_be_visible()  # read: the list's event stream opens then
+        page.wait_for_timeout(500)
+        subprocess.run([sys.executable, "-m", "backend.cli", "user", "disable", "bob"], env=auth_server.env,
+                       check=True, capture_output=True)  # fmt: skip
+        alert = page.get_by_role("alert")
+        expect(alert).to_contain_text("access ended", timeout=15_000)
+        expect(alert).to_contain_text("live updates stopped")
+        screenshot(page, "jobs-list-access-ended")
+    finally:
+        context.close()
