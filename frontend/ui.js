@@ -94,6 +94,26 @@ export function clearError() {
   document.getElementById("alert-text").textContent = "";
 }
 
+/**
+ * `show(value)` for the latest value asked for: values asked for while one is being shown collapse into the last
+ * (quick moves of a slider draw once each settle, in order). Returns the function that asks; its promise settles
+ * once what was asked is shown.
+ */
+export function latestOnly(show) {
+  let drawing = Promise.resolve();
+  let pending = null;
+  return (value) => {
+    pending = value;
+    drawing = drawing.then(async () => {
+      if (pending === null) return;
+      const next = pending;
+      pending = null;
+      await show(next);
+    });
+    return drawing;
+  };
+}
+
 /** Run `action` and show its error in the status region; returns its value, or undefined when it failed. */
 export async function attempt(doing, action) {
   try {

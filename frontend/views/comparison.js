@@ -6,7 +6,7 @@
 // mapping used; exports. Every plot downloads its data (CSV) and its image (PNG).
 import { getJSON, query } from "../api.js";
 import { COLORS, Figure, axis, fieldRows, lineLayout, lineTraces, mapLayout, mapTraces, verticalMarker } from "../plots.js";
-import { attempt, field, fill, h, num, page, showError } from "../ui.js";
+import { attempt, field, fill, h, latestOnly, num, page, showError } from "../ui.js";
 import { comparisonExportPanel } from "./exports.js";
 import { jobName, shortId } from "./jobs.js";
 import { bandTrace, profileTraces, stateText } from "./simulations.js";
@@ -51,7 +51,7 @@ class ComparisonView {
     this.context = context;
     this.frames = overview.frames.frame;
     this.position = 0;
-    this.drawing = Promise.resolve();
+    this.showLatest = latestOnly((position) => this.showFrame(position));
     this.build();
   }
 
@@ -134,14 +134,7 @@ class ComparisonView {
   goTo(position) {
     const clamped = Math.max(0, Math.min(this.frames.length - 1, position));
     this.slider.value = clamped;
-    this.pending = clamped;
-    this.drawing = this.drawing.then(async () => {
-      if (this.pending === null) return;
-      const next = this.pending;
-      this.pending = null;
-      await this.showFrame(next);
-    });
-    return this.drawing;
+    return this.showLatest(clamped);
   }
 
   async showFrame(position) {

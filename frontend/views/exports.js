@@ -83,18 +83,7 @@ export function exportPanel(job, { frames, lines = () => [], context }) {
         const spec = { kind: "export", job_id: job.id, format: format.input.value, frames: { first: Number(first.input.value), last: Number(last.input.value) } };
         const chosen = lines();
         if (spec.format === "profile-csv" && chosen.length) spec.lines = chosen.map((l) => [l.x0, l.y0, l.x1, l.y1]);
-        submit.disabled = true;
-        try {
-          const exportJob = await postJSON("jobs", spec);
-          say(`${jobName(exportJob)} started: ${spec.format}, frames ${spec.frames.first}–${spec.frames.last}.`);
-          const item = h("li", {});
-          started.prepend(item);
-          followExport(exportJob, item, context);
-        } catch (error) {
-          showError(error, "start the export");
-        } finally {
-          submit.disabled = false;
-        }
+        await startExport(spec, `${spec.format}, frames ${spec.frames.first}–${spec.frames.last}`, { submit, started, context });
       },
     },
     h("h2", {}, "Export"),
@@ -106,6 +95,23 @@ export function exportPanel(job, { frames, lines = () => [], context }) {
     started,
   );
   return { element: form, describe };
+}
+
+/** Start export job `spec` from a form (its `submit` button held while it is sent), said as `what`, and follow it
+ * in the form's list `started`. */
+async function startExport(spec, what, { submit, started, context }) {
+  submit.disabled = true;
+  try {
+    const exportJob = await postJSON("jobs", spec);
+    say(`${jobName(exportJob)} started: ${what}.`);
+    const item = h("li", {});
+    started.prepend(item);
+    followExport(exportJob, item, context);
+  } catch (error) {
+    showError(error, "start the export");
+  } finally {
+    submit.disabled = false;
+  }
 }
 
 const COMPARISON_FORMAT_NAMES = {
@@ -133,18 +139,7 @@ export function comparisonExportPanel(job, { line, context }) {
         event.preventDefault();
         const spec = { kind: "export", job_id: job.id, format: format.input.value };
         if (spec.format === "profile-csv") spec.line = line();
-        submit.disabled = true;
-        try {
-          const exportJob = await postJSON("jobs", spec);
-          say(`${jobName(exportJob)} started: ${spec.format}.`);
-          const item = h("li", {});
-          started.prepend(item);
-          followExport(exportJob, item, context);
-        } catch (error) {
-          showError(error, "start the export");
-        } finally {
-          submit.disabled = false;
-        }
+        await startExport(spec, spec.format, { submit, started, context });
       },
     },
     h("h2", {}, "Export"),

@@ -22,7 +22,7 @@ import {
   surfaceTraces,
   verticalMarker,
 } from "../plots.js";
-import { attempt, field, fill, h, num, page, say, showError } from "../ui.js";
+import { attempt, field, fill, h, latestOnly, num, page, say, showError } from "../ui.js";
 import { TopographySource } from "./topography-source.js";
 import { exportPanel } from "./exports.js";
 import { explained } from "./calibration.js";
@@ -103,8 +103,7 @@ class Viewer {
     // Symmetric about zero, so that white is a flat plate and red and blue read as up and down.
     const reach = Math.max(Math.abs(meta.w_range_mm[0]), Math.abs(meta.w_range_mm[1])) || 1;
     this.colorRange = [-reach, reach];
-    this.drawing = Promise.resolve();
-    this.pending = null;
+    this.showLatest = latestOnly((position) => this.showFrame(position));
     this.build();
   }
 
@@ -343,14 +342,7 @@ class Viewer {
     const clamped = Math.max(0, Math.min(this.frames.length - 1, position));
     this.slider.value = clamped;
     this.frameNumber.value = this.frames[clamped];
-    this.pending = clamped;
-    this.drawing = this.drawing.then(async () => {
-      if (this.pending === null) return;
-      const next = this.pending;
-      this.pending = null;
-      await this.showFrame(next);
-    });
-    return this.drawing;
+    return this.showLatest(clamped);
   }
 
   async showFrame(position) {
