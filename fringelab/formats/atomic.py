@@ -12,6 +12,7 @@ import json
 import os
 import uuid
 from collections.abc import Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -46,6 +47,33 @@ def commit_partial(partial: Path, path: str | Path) -> Path:
     os.replace(partial, path)
     _fsync_folder(path.parent)
     return path
+
+
+class FlushBehind:
+    """Writes a growing temporary file's data to disk behind its writer: an fdatasync in a thread each time
+    `step_bytes` more have been written (`poke` after writing), so that `commit_partial`'s fsync at the end waits
+    for the last part only instead of the whole file. `close` waits for the flush under way."""
+
+    def __init__(self, path: str | Path, *, step_bytes: int = 16 << 20) -> None:
+        self._fd = os.open(path, os.O_RDONLY)
+        self._step_bytes = step_bytes
+        self._flushed_bytes = 0
+        self._running: Future[None] | None = None
+        self._thread = ThreadPoolExecutor(1, thread_name_prefix="flush-behind")
+
+    def poke(self) -> None:
+        if self._running is not None and not self._running.done():
+            return
+        size = os.fstat(self._fd).st_size
+        if size - self._flushed_bytes >= self._step_bytes:
+            self._flushed_bytes = size
+            self._running = self._thread.submit(getattr(os, "fdatasync", os.fsync), self._fd)
+
+    def close(self) -> None:
+        self._thread.shutdown(wait=True)
+        if self._running is not None:
+            self._running.result()  # a disk error surfaces here, before the file is committed
+        os.close(self._fd)
 
 
 @contextmanager

@@ -44,6 +44,7 @@ Files written before σ existed have no sigma_w_mm datasets; the reader then ret
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections import defaultdict, deque
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -56,7 +57,7 @@ from typing import TYPE_CHECKING, Any
 import h5py
 import numpy as np
 
-from fringelab.formats.atomic import atomic_path, commit_partial, partial_path
+from fringelab.formats.atomic import FlushBehind, atomic_path, commit_partial, partial_path
 
 try:  # ISA-L's deflate makes the zlib streams that HDF5's deflate filter reads about 7 times faster than zlib
     from isal.isal_zlib import compress as deflate
@@ -146,6 +147,7 @@ class TopographyWriter:
         self._pool = ThreadPoolExecutor(threads, thread_name_prefix="topography-writer") if threads > 0 else None
         self._datasets: dict[str, h5py.Dataset] = {}
         file = self._file = h5py.File(self._temp, "w")
+        self._flush_behind = FlushBehind(self._temp)
         file.attrs["schema"] = TOPOGRAPHY_SCHEMA
         file.attrs["schema_version"] = SCHEMA_VERSION
         file.attrs["created_utc"] = datetime.now(UTC).isoformat(timespec="seconds")
@@ -247,6 +249,7 @@ class TopographyWriter:
             shuffle=True,
             fillvalue=np.nan,
         )
+        self._xdmf_views = _start_xdmf_views(file, grid)
         self.max_edge_mm = max_edge_mm
         # Dimension scales: tools that read HDF5 generically (h5py, HDFView, xarray/h5netcdf) see z_mm's axes.
         for dim, scale, label in ((0, frames["index"], "frame"), (1, grid_group["y_mm"], "y_mm"),
@@ -361,6 +364,8 @@ class TopographyWriter:
         else:
             grids = packed
         self._queue_write(self._write_grids, self._n, grids)
+        _add_xdmf_view(self._xdmf_views, self._n, self.grid.shape)
+        self._flush_behind.poke()
         points = measurement.points_obj_mm
         sigma_points = measurement.sigma_z_mm if measurement.sigma_z_mm is not None else np.full(len(points), np.nan)
         for name, values in (
@@ -478,17 +483,17 @@ class TopographyWriter:
         self._flush_columns()
 
     def close(self, summary: dict[str, Any]) -> Path:
-        """Write the summary attributes and the XDMF views, close the file and move it into place."""
+        """Write the summary attributes, close the file and move it into place."""
         self._finish_writes()
         if self._pool is not None:
             self._pool.shutdown()
         file = self._file
         file.attrs["n_frames"] = self._n
-        _write_xdmf_views(file, self.grid, self._n)
         group = file.require_group("summary")
         for key, value in summary.items():
             group.attrs[key] = value
         file.close()
+        self._flush_behind.close()
         return commit_partial(self._temp, self.path)
 
     def abort(self) -> None:
@@ -497,6 +502,8 @@ class TopographyWriter:
                 self._pool.shutdown(cancel_futures=True)
             self._file.close()
         finally:
+            with contextlib.suppress(OSError):  # the file is removed: whether it reached the disk does not matter
+                self._flush_behind.close()
             self._temp.unlink(missing_ok=True)
 
 
@@ -533,10 +540,10 @@ def _packed_chunk(values: np.ndarray) -> bytes:
 XDMF_GROUP = "xdmf"
 
 
-def _write_xdmf_views(file: h5py.File, grid: Grid, n_frames: int) -> None:
-    """What an XDMF sidecar points at: the grid nodes (N, 2) and its quads (M, 4) once, and per frame a virtual
-    dataset (ny, nx) that is a view of grid/z_mm[i] (no copy), since XDMF readers without hyperslab support
-    (meshio) need one dataset per time step."""
+def _start_xdmf_views(file: h5py.File, grid: Grid) -> h5py.Group:
+    """What an XDMF sidecar points at: the grid nodes (N, 2) and its quads (M, 4) once, and a group that takes a
+    view of each frame's grid (`_add_xdmf_view`), since XDMF readers without hyperslab support (meshio) need one
+    dataset per time step."""
     group = file.create_group(XDMF_GROUP)
     group.attrs["description"] = "views of /grid for the XDMF sidecar (ParaView); no data of their own"
     ny, nx = grid.shape
@@ -548,12 +555,15 @@ def _write_xdmf_views(file: h5py.File, grid: Grid, n_frames: int) -> None:
         [node[:-1, :-1].ravel(), node[:-1, 1:].ravel(), node[1:, 1:].ravel(), node[1:, :-1].ravel()]
     )
     unit_dataset(group, "quads", quads.astype(np.int64), unit="1", description="node indices of each grid cell")
-    frames = group.create_group("z_mm")
-    source = h5py.VirtualSource(".", "grid/z_mm", shape=(n_frames, ny, nx), dtype=np.float32)
-    for i in range(n_frames):
-        layout = h5py.VirtualLayout(shape=(ny, nx), dtype=np.float32)
-        layout[:, :] = source[i, :, :]
-        frames.create_virtual_dataset(f"{i:06d}", layout, fillvalue=np.nan)
+    return group.create_group("z_mm")
+
+
+def _add_xdmf_view(views: h5py.Group, i: int, shape: tuple[int, int]) -> None:
+    """Frame i's view: a virtual dataset (ny, nx) of grid/z_mm[i] (no copy), made as the frame is written."""
+    source = h5py.VirtualSource(".", "grid/z_mm", shape=(i + 1, *shape), dtype=np.float32)
+    layout = h5py.VirtualLayout(shape=shape, dtype=np.float32)
+    layout[:, :] = source[i, :, :]
+    views.create_virtual_dataset(f"{i:06d}", layout, fillvalue=np.nan)
 
 
 def _data_item(dimensions: str, number_type: str, precision: int, where: str) -> str:
