@@ -1,8 +1,12 @@
 """Running a job inside a Celery task: state transitions, progress, heartbeats, cancel, errors and chunks.
 
 A task body receives a `JobContext` and returns either the job's result (a JSON-able dict: the job succeeds) or
-a `Chunked` plan: the job goes on as one chunk task per frame range on any worker, then a merge task that ends
-the job or plans the next such phase (see `fringelab.core.jobs` for why the join is counted in the database).
+a `Chunked` plan: the job goes on as one chunk task per frame range on any worker, and a merge task, sent with
+them, that takes each chunk's output in frame order as soon as it is done and ends the job or plans the next such
+phase (see `fringelab.core.jobs` for why the join is counted in the database). While the next chunk in order is
+still being computed elsewhere, the merge computes a chunk nobody has started itself (`_chunks_in_order`): so the
+in-order pass overlaps the chunks instead of following them, its worker process never idles while there is work,
+and it never waits for a chunk that needs its own slot (one worker process runs a whole phase inside its merge).
 Everything a person must act on (ValueError, MeasurementError) becomes the job's error text; anything else is an
 internal error whose traceback goes to the worker log. Acks-late work can run twice: a job that already
 finished is not run again, and only one run can finish it (`UPDATE ... WHERE finished_at IS NULL`).
@@ -36,6 +40,7 @@ from fringelab.core.jobs import (
     MERGE_TASK,
     WORKER_SEND_RETRY,
     add_log,
+    as_utc,
     chunk_task_id,
     heartbeat_interval_s,
     merge_task_id,
@@ -48,6 +53,7 @@ from worker.runtime import job_dir, sessions_of, settings_of
 
 log = logging.getLogger(__name__)
 PROGRESS_INTERVAL_S = 0.5
+MERGE_POLL_S = 0.02  # how often a merge waiting for a chunk computed by another process looks again
 
 
 @dataclass(frozen=True)
@@ -132,7 +138,8 @@ class JobContext:
 
 JobBody = Callable[[JobContext], "dict[str, Any] | Chunked"]
 ChunkBody = Callable[[JobContext, int, int], None]
-MergeBody = Callable[[JobContext, list[tuple[int, int]]], "dict[str, Any] | Chunked"]
+# A merge gets each chunk's frame range `(first, stop)` in frame order, as soon as that chunk is done.
+MergeBody = Callable[[JobContext, Iterator[tuple[int, int]]], "dict[str, Any] | Chunked"]
 
 
 def _worker_name(task: Task) -> str:
@@ -259,11 +266,11 @@ def _start_phase(task: Task, sessions: sessionmaker[Session], job_id: str, plan:
 
 
 def _send_pending(task: Task, sessions: sessionmaker[Session], job_id: str, phase: int) -> None:
-    """Send the tasks of the phase's unfinished chunks (a Celery group over every worker), or its merge."""
+    """Send the phase's merge (once), then the tasks of its unfinished chunks (a Celery group over every worker)."""
+    _send_merge_once(task, sessions, job_id, phase)
     with sessions() as session:
         pending = [c.index for c in _phase_chunks(session, job_id, phase) if c.state != "done"]
     if not pending:
-        _send_merge_once(task, sessions, job_id, phase)
         return
     signatures = [
         task.app.signature(CHUNK_TASK, args=[job_id, phase, index]).set(task_id=chunk_task_id(job_id, phase, index))
@@ -273,41 +280,72 @@ def _send_pending(task: Task, sessions: sessionmaker[Session], job_id: str, phas
 
 
 def run_chunk(task: Task, job_id: str, phase: int, index: int, body: ChunkBody) -> None:
-    """One chunk of a phase of a chunked job. Idempotent: a chunk already done is not run again."""
-    sessions = sessions_of(task.app)
+    """One chunk of a phase of a chunked job, unless somebody already runs it or ran it (its merge may have taken
+    it). A redelivered task (its earlier run died with its process) takes its chunk over."""
+    sessions, settings = sessions_of(task.app), settings_of(task.app)
+    redelivered = bool((task.request.delivery_info or {}).get("redelivered"))
     with sessions() as session:
         job = session.get(Job, job_id)
         chunk = session.get(JobChunk, (job_id, phase, index))
         if job is None or chunk is None or job.state != "running" or job.phase != phase:
             _confirm_cancel(sessions, job)
             return
-        if chunk.state == "done":  # redelivered after it finished: make sure the merge was sent, nothing else
+        if chunk.state == "done":  # redelivered after it finished, or its merge ran it: make sure the merge was sent
             session.close()
             _after_chunk(task, sessions, job_id, phase)
             return
-        moment = utcnow()
-        chunk.state, chunk.worker, chunk.started_at, chunk.heartbeat_at = "running", _worker_name(task), moment, moment
+        taken = _takeable(chunk, settings, orphaned=lambda _chunk: redelivered) and _claim(
+            session, chunk, _worker_name(task)
+        )
         first, stop, spec = chunk.first_frame, chunk.stop_frame, dict(job.spec)
-        session.commit()
-    context = JobContext(
-        job_id=job_id, spec=spec, settings=settings_of(task.app), sessions=sessions, chunk=(phase, index)
-    )
+    if not taken:
+        return
+    context = JobContext(job_id=job_id, spec=spec, settings=settings, sessions=sessions, chunk=(phase, index))
     ok, _ = _run_guarded(context, lambda: body(context, first, stop))
     if not ok:
         return
+    _mark_done(sessions, job_id, phase, index, stop - first)
+    _after_chunk(task, sessions, job_id, phase)
+
+
+def _takeable(chunk: JobChunk, settings: Settings, *, orphaned: Callable[[JobChunk], bool]) -> bool:
+    """Whether a process may run this chunk now: nobody has started it, or its run died (`orphaned`: known dead;
+    or no heartbeat for FRINGELAB_WORKER_LOST_AFTER_S)."""
+    if chunk.state == "pending":
+        return True
+    if chunk.state != "running":
+        return False
+    beat = as_utc(chunk.heartbeat_at)
+    stale = beat is None or (utcnow() - beat).total_seconds() > settings.worker_lost_after_s
+    return stale or orphaned(chunk)
+
+
+def _claim(session: Session, chunk: JobChunk, worker: str) -> bool:
+    """Mark the chunk running on `worker`, if nobody changed it since it was read (of two claims, one wins)."""
+    moment = utcnow()
+    claimed = session.execute(
+        update(JobChunk)
+        .where(JobChunk.job_id == chunk.job_id, JobChunk.phase == chunk.phase, JobChunk.index == chunk.index)
+        .where(JobChunk.state == chunk.state, JobChunk.worker == chunk.worker)
+        .values(state="running", worker=worker, started_at=moment, heartbeat_at=moment, done=0)
+    ).rowcount  # type: ignore[attr-defined]
+    session.commit()
+    return bool(claimed)
+
+
+def _mark_done(sessions: sessionmaker[Session], job_id: str, phase: int, index: int, frames: int) -> None:
     with sessions() as session:
         session.execute(
             update(JobChunk)
             .where(JobChunk.job_id == job_id, JobChunk.phase == phase, JobChunk.index == index)
             .where(JobChunk.state != "done")
-            .values(state="done", done=stop - first, finished_at=utcnow())
+            .values(state="done", done=frames, finished_at=utcnow())
         )
         session.flush()
         job = session.get(Job, job_id)
         if job is not None:
             job.progress_done = _phase_done(session, job_id, phase)
         session.commit()
-    _after_chunk(task, sessions, job_id, phase)
 
 
 def _phase_done(session: Session, job_id: str, phase: int) -> int:
@@ -325,7 +363,8 @@ def _after_chunk(task: Task, sessions: sessionmaker[Session], job_id: str, phase
 
 
 def _send_merge_once(task: Task, sessions: sessionmaker[Session], job_id: str, phase: int) -> None:
-    """Send the phase's merge task, once: the chunk that claims `merge_queued_at` sends it."""
+    """Send the phase's merge task, once: whoever claims `merge_queued_at` sends it (the phase's start; a chunk
+    that ends the phase, if that send failed)."""
     with sessions() as session:
         claimed = session.execute(
             update(Job)
@@ -351,10 +390,12 @@ def _send_merge_once(task: Task, sessions: sessionmaker[Session], job_id: str, p
         raise
 
 
-def run_merge(task: Task, job_id: str, phase: int, body: MergeBody) -> dict[str, Any]:
-    """The end of a phase: a pass in frame order over what its chunks stored, which ends the job (a result) or
-    starts the next phase (a `Chunked` plan)."""
+def run_merge(task: Task, job_id: str, phase: int, body: MergeBody, chunk_body: ChunkBody) -> dict[str, Any]:
+    """The in-order pass of a phase, over what its chunks store as they finish (`_chunks_in_order`, which runs
+    `chunk_body` here when there is a chunk nobody started), which ends the job (a result) or starts the next
+    phase (a `Chunked` plan)."""
     sessions = sessions_of(task.app)
+    redelivered = bool((task.request.delivery_info or {}).get("redelivered"))
     with sessions() as session:
         job = session.get(Job, job_id)
         if job is None or job.state != "running":
@@ -365,12 +406,14 @@ def run_merge(task: Task, job_id: str, phase: int, body: MergeBody) -> dict[str,
             if job.phase == phase + 1:
                 _send_pending(task, sessions, job_id, phase + 1)
             return {}
-        ranges = [(c.first_frame, c.stop_frame) for c in _phase_chunks(session, job_id, phase)]
+        # A redelivered merge's earlier run died with its process, and with it the chunks that run was computing.
+        dead_merge = job.worker if redelivered else None
         spec = dict(job.spec)
         job.worker = _worker_name(task)
         job.heartbeat_at = utcnow()  # after merge_queued_at: tells reconciliation that the merge has started
         session.commit()
     context = JobContext(job_id=job_id, spec=spec, settings=settings_of(task.app), sessions=sessions)
+    ranges = _chunks_in_order(context, phase, chunk_body, worker=_worker_name(task), dead_merge=dead_merge)
     ok, outcome = _run_guarded(context, lambda: body(context, ranges))
     if not ok:
         return {}
@@ -378,7 +421,50 @@ def run_merge(task: Task, job_id: str, phase: int, body: MergeBody) -> dict[str,
         _start_phase(task, sessions, job_id, outcome, phase=phase + 1)
         return {}
     finish(sessions, job_id, state="succeeded", result=outcome, context=context)
+    remove_chunk_files(context.directory)  # after the job's end: a merge that runs again needs them until then
     return dict(outcome)
+
+
+def _chunks_in_order(
+    context: JobContext, phase: int, chunk_body: ChunkBody, *, worker: str, dead_merge: str | None
+) -> Iterator[tuple[int, int]]:
+    """The phase's frame ranges in frame order, each as soon as its chunk is done. While the next one is not,
+    this process runs a chunk nobody runs (`_takeable`: the next one in order first), else waits for the one
+    another process computes. Raises Cancelled when the job stops running."""
+    job_id, settings = context.job_id, context.settings
+    interval_s = heartbeat_interval_s(settings)
+    given = 0  # chunks handed to the merge so far
+    while True:
+        with context.sessions() as session:
+            if session.scalar(select(Job.state).where(Job.id == job_id)) != "running":
+                raise Cancelled("the job was cancelled")
+            chunks = _phase_chunks(session, job_id, phase)
+            ready = []
+            for chunk in chunks[given:]:
+                if chunk.state != "done":
+                    break
+                ready.append((chunk.first_frame, chunk.stop_frame))
+            taken = None
+            if not ready:
+                for chunk in chunks[given:]:
+                    if _takeable(chunk, settings, orphaned=lambda c: c.worker == dead_merge) and _claim(
+                        session, chunk, worker
+                    ):
+                        taken = (chunk.index, chunk.first_frame, chunk.stop_frame)
+                        break
+        if given == len(chunks):
+            return
+        yield from ready
+        given += len(ready)
+        if taken is not None:
+            index, first, stop = taken
+            here = JobContext(job_id=job_id, spec=context.spec, settings=settings, sessions=context.sessions,
+                              chunk=(phase, index))  # fmt: skip
+            with _heartbeat(context.sessions, job_id, (phase, index), interval_s=interval_s):
+                chunk_body(here, first, stop)
+            _mark_done(context.sessions, job_id, phase, index, stop - first)
+        elif not ready:
+            time.sleep(MERGE_POLL_S)
 
 
 def _confirm_cancel(sessions: sessionmaker[Session], job: Job | None) -> None:
@@ -456,22 +542,34 @@ def frame_ranges(count: int, chunk_frames: int) -> list[tuple[int, int]]:
     return [(first, min(first + chunk_frames, count)) for first in range(0, count, chunk_frames)]
 
 
-# A job that names no chunk size and has fewer frames than SPREAD_CHUNKS chunks of FRINGELAB_CHUNK_FRAMES is split
-# into SPREAD_CHUNKS chunks (of at least MIN_CHUNK_FRAMES), so that the worker processes share a short job too; each
-# chunk costs a task, its inputs and its hand-over, so they are not made smaller than that.
-SPREAD_CHUNKS = 8
+# A job that names no chunk size is split by guided self-scheduling (Polychronopoulos & Kuck, IEEE Trans. Comput.
+# 1987): each chunk takes 1/GUIDED_PARTS of the frames still left, at most FRINGELAB_CHUNK_FRAMES and at least
+# MIN_CHUNK_FRAMES. The chunks shrink towards the end, so the worker processes run out of work at nearly the same
+# time and the merge's pass in frame order has only a short chunk left to write after the last one is measured;
+# each chunk costs a task, its inputs and its hand-over (~10 ms), so they are not made smaller than that.
+GUIDED_PARTS = 8
 MIN_CHUNK_FRAMES = 5
 
 
-def chunk_frames_of(spec: dict[str, Any], settings: Settings, n_frames: int | None = None) -> int:
-    """Frames per chunk: the job's own `chunk_frames`; else FRINGELAB_CHUNK_FRAMES, or fewer for a job of
-    `n_frames` frames that would make fewer than SPREAD_CHUNKS chunks of it (see there)."""
+def guided_frame_ranges(count: int, *, most: int, least: int = MIN_CHUNK_FRAMES) -> list[tuple[int, int]]:
+    """Split positions `0..count-1` into consecutive ranges, each of 1/GUIDED_PARTS of those left, clipped to
+    [least, most] frames (the last one may be shorter)."""
+    if count < 1 or most < 1:
+        raise ValueError(f"need at least one frame and one frame per chunk, got {count} and {most}")
+    ranges, first = [], 0
+    while first < count:
+        size = min(most, max(least, -(-(count - first) // GUIDED_PARTS)))
+        ranges.append((first, min(first + size, count)))
+        first += size
+    return ranges
+
+
+def planned_frame_ranges(count: int, spec: dict[str, Any], settings: Settings) -> list[tuple[int, int]]:
+    """The chunks of a job of `count` frames: of the job's own `chunk_frames` when it names one, else guided
+    (`guided_frame_ranges`, at most FRINGELAB_CHUNK_FRAMES)."""
     if spec.get("chunk_frames"):
-        return int(spec["chunk_frames"])
-    most = int(settings.chunk_frames)
-    if n_frames is None:
-        return most
-    return min(most, max(MIN_CHUNK_FRAMES, -(-n_frames // SPREAD_CHUNKS)))
+        return frame_ranges(count, int(spec["chunk_frames"]))
+    return guided_frame_ranges(count, most=int(settings.chunk_frames))
 
 
 def this_worker() -> str:

@@ -97,7 +97,10 @@ def job_chunk(self: Task, job_id: str, phase: int, index: int) -> None:
 @shared_task(bind=True, name=MERGE_TASK, ignore_result=True)
 def job_merge(self: Task, job_id: str, phase: int) -> dict[str, Any]:
     kind = _kind(self, job_id)
-    return run_merge(self, job_id, phase, PHASES[kind][phase][1]) if kind is not None else {}
+    if kind is None:
+        return {}
+    chunk_body, merge_body = PHASES[kind][phase]
+    return run_merge(self, job_id, phase, merge_body, chunk_body)
 
 
 @shared_task(bind=True, name=DEMO_TASK, ignore_result=True)

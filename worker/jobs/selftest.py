@@ -4,6 +4,7 @@ directory."""
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Iterator
 from typing import Any
 
 import h5py
@@ -15,10 +16,8 @@ from fringelab.core.models import Job, utcnow
 from worker.runner import (
     Chunked,
     JobContext,
-    chunk_frames_of,
-    frame_ranges,
     load_arrays,
-    remove_chunk_files,
+    planned_frame_ranges,
     save_arrays,
     this_worker,
 )
@@ -35,7 +34,7 @@ def selftest_frame(frame: int, *, size_px: int) -> tuple[float, str]:
 def selftest_entry(context: JobContext) -> Chunked:
     frames = int(context.spec["frames"])
     context.log(f"selftest of {frames} frames of {context.spec['frame_size_px']} px")
-    return Chunked(frame_ranges(frames, chunk_frames_of(context.spec, context.settings)), stage="computing frames")
+    return Chunked(planned_frame_ranges(frames, context.spec, context.settings), stage="computing frames")
 
 
 def selftest_compute(context: JobContext, first: int, stop: int) -> None:
@@ -51,9 +50,10 @@ def selftest_compute(context: JobContext, first: int, stop: int) -> None:
           digest=np.asarray(digests, dtype="S64"), worker=np.asarray([this_worker()], dtype="S200"))  # fmt: skip
 
 
-def selftest_chain(context: JobContext, ranges: list[tuple[int, int]]) -> Chunked:
+def selftest_chain(context: JobContext, finished: Iterator[tuple[int, int]]) -> Chunked:
     """Merge of phase 0, in frame order: check that every frame came back once, and chain the digests (each link
     depends on all frames before it, as edge identity does in a topography), then verify in parallel."""
+    ranges = list(finished)  # every chunk: the chain starts once all are done
     chunks = [load_arrays(context, f"chunks/p0-{first:07d}.arrays") for first, _stop in ranges]
     frame = np.concatenate([c["frame"] for c in chunks])
     expected = int(context.spec["frames"])
@@ -83,8 +83,9 @@ def selftest_verify(context: JobContext, first: int, stop: int) -> None:
           worker=np.asarray([this_worker()], dtype="S200"))  # fmt: skip
 
 
-def selftest_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict[str, Any]:
+def selftest_write(context: JobContext, finished: Iterator[tuple[int, int]]) -> dict[str, Any]:
     """Merge of phase 1: the result file, and a failure naming the workers if any frame came out differently."""
+    ranges = list(finished)
     context.progress(0, 1, "writing")
     sequence = load_arrays(context, "chunks/sequence.arrays")
     checks = [load_arrays(context, f"chunks/p1-{first:07d}.arrays") for first, _stop in ranges]
@@ -106,7 +107,6 @@ def selftest_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict[s
     with context.sessions() as session:
         started = session.scalar(select(Job.started_at).where(Job.id == context.job_id))
     elapsed_s = (utcnow() - as_utc(started)).total_seconds() if started is not None else None  # type: ignore[operator]
-    remove_chunk_files(context.directory)
     frames = int(sequence["frame"].size)
     return {
         "frames": frames,

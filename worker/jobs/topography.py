@@ -33,12 +33,10 @@ from worker.runner import (
     Chunked,
     JobContext,
     array_records,
-    chunk_frames_of,
     finite_or_none,
-    frame_ranges,
     load_arrays,
+    planned_frame_ranges,
     read_array_records,
-    remove_chunk_files,
     save_arrays,
 )
 
@@ -126,8 +124,8 @@ def topography_entry(context: JobContext) -> Chunked:
     )  # fmt: skip
     wanted = inputs.wanted
     context.log(f"topography of frames {wanted.start}..{wanted.stop - 1}, each ordered on its own")
-    ranges = [(wanted.start + a, wanted.start + b) for a, b in frame_ranges(len(wanted), chunk_frames_of(
-        context.spec, context.settings, len(wanted)))]  # fmt: skip
+    ranges = [(wanted.start + a, wanted.start + b)
+              for a, b in planned_frame_ranges(len(wanted), context.spec, context.settings)]  # fmt: skip
     return Chunked(ranges, stage="measuring")
 
 
@@ -236,8 +234,9 @@ def _handed_over(context: JobContext, first: int, grid_shape: tuple[int, int]) -
         yield measurement, peak, packed
 
 
-def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict[str, Any]:
-    """Merge of phase 0, in frame order: the result file, as `topography_recording` writes it."""
+def topography_write(context: JobContext, ranges: Iterator[tuple[int, int]]) -> dict[str, Any]:
+    """Merge of phase 0, in frame order: the result file, as `topography_recording` writes it, a chunk at a time
+    as the chunks finish (the progress is theirs)."""
     from fringelab.formats.recordings import recording_log
     from fringelab.formats.topography import write_xdmf
     from fringelab.science.fields import Grid
@@ -266,13 +265,11 @@ def topography_write(context: JobContext, ranges: list[tuple[int, int]]) -> dict
                     writer.append(measurement, None, peak, log=log.row(measurement.frame),
                                   camera_frame=int(log.camera_frame[measurement.frame]), packed=packed)  # fmt: skip
                     tally.add(peak, n_out_of_range=measurement.n_out_of_range, measurement=measurement)
-                    context.progress(measurement.frame - wanted.start + 1, len(wanted), "writing")
             tally.require_ordered(where)
             writer.close(tally.attrs(flat_rms_mm=float(track["flat_rms_mm"]),
                                      n_tracks_first_frame=int(track["n_tracks_first_frame"]), clamp=clamp))  # fmt: skip
     with context.output("topography.xdmf", media_type="application/xml") as temporary:
         write_xdmf(context.directory / "topography.h5", temporary)  # ParaView opens it beside topography.h5
-    remove_chunk_files(context.directory)
     result = {
         "frames": [wanted.start, wanted.stop - 1],
         "flat_rms_mm": float(track["flat_rms_mm"]),
