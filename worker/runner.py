@@ -138,8 +138,8 @@ class JobContext:
 
 JobBody = Callable[[JobContext], "dict[str, Any] | Chunked"]
 ChunkBody = Callable[[JobContext, int, int], None]
-# A merge gets each chunk's frame range `(first, stop)` in frame order, as soon as that chunk is done.
-MergeBody = Callable[[JobContext, Iterator[tuple[int, int]]], "dict[str, Any] | Chunked"]
+# A merge gets each chunk's turn (`InOrder`) in frame order, as soon as that chunk can be taken.
+MergeBody = Callable[[JobContext, Iterator["InOrder"]], "dict[str, Any] | Chunked"]
 
 
 def _worker_name(task: Task) -> str:
@@ -409,12 +409,16 @@ def run_merge(task: Task, job_id: str, phase: int, body: MergeBody, chunk_body: 
         # A redelivered merge's earlier run died with its process, and with it the chunks that run was computing.
         dead_merge = job.worker if redelivered else None
         spec = dict(job.spec)
+        if dead_merge is not None:
+            add_log(
+                session, job_id, f"the pass in frame order starts again on {_worker_name(task)} ({dead_merge} was lost)"
+            )
         job.worker = _worker_name(task)
         job.heartbeat_at = utcnow()  # after merge_queued_at: tells reconciliation that the merge has started
         session.commit()
     context = JobContext(job_id=job_id, spec=spec, settings=settings_of(task.app), sessions=sessions)
-    ranges = _chunks_in_order(context, phase, chunk_body, worker=_worker_name(task), dead_merge=dead_merge)
-    ok, outcome = _run_guarded(context, lambda: body(context, ranges))
+    turns = _chunks_in_order(context, phase, chunk_body, worker=_worker_name(task), dead_merge=dead_merge)
+    ok, outcome = _run_guarded(context, lambda: body(context, turns))
     if not ok:
         return {}
     if isinstance(outcome, Chunked):
@@ -425,46 +429,79 @@ def run_merge(task: Task, job_id: str, phase: int, body: MergeBody, chunk_body: 
     return dict(outcome)
 
 
+@dataclass(frozen=True)
+class InOrder:
+    """A chunk's turn in a merge's pass in frame order: frames [first, stop). `measure_here` is the chunk's own
+    context when nobody has measured it yet: the merge measures it itself, now, straight into its output (no
+    hand-over; the progress and heartbeat are the chunk's); otherwise its hand-over is ready to read."""
+
+    first: int
+    stop: int
+    measure_here: JobContext | None = None
+
+
 def _chunks_in_order(
     context: JobContext, phase: int, chunk_body: ChunkBody, *, worker: str, dead_merge: str | None
-) -> Iterator[tuple[int, int]]:
-    """The phase's frame ranges in frame order, each as soon as its chunk is done. While the next one is not,
-    this process runs a chunk nobody runs (`_takeable`: the next one in order first), else waits for the one
-    another process computes. Raises Cancelled when the job stops running."""
-    job_id, settings = context.job_id, context.settings
+) -> Iterator[InOrder]:
+    """The phase's chunks in frame order, each as soon as it can be taken: done elsewhere (read its hand-over), or
+    the next one is nobody's (claimed and measured by the merge in its turn). While another process measures the
+    next one, this process measures a later chunk nobody runs (through `chunk_body`, handed over), else waits.
+    `_takeable` decides what nobody runs. Raises Cancelled when the job stops running."""
+    job_id, settings, sessions = context.job_id, context.settings, context.sessions
     interval_s = heartbeat_interval_s(settings)
+
+    def takeable(chunk: JobChunk) -> bool:
+        return _takeable(chunk, settings, orphaned=lambda c: c.worker == dead_merge)
+
+    def chunk_context(index: int) -> JobContext:
+        return JobContext(job_id=job_id, spec=context.spec, settings=settings, sessions=sessions, chunk=(phase, index))
+
     given = 0  # chunks handed to the merge so far
     while True:
-        with context.sessions() as session:
+        with sessions() as session:
             if session.scalar(select(Job.state).where(Job.id == job_id)) != "running":
                 raise Cancelled("the job was cancelled")
             chunks = _phase_chunks(session, job_id, phase)
+            if given == len(chunks):
+                return
             ready = []
             for chunk in chunks[given:]:
                 if chunk.state != "done":
                     break
-                ready.append((chunk.first_frame, chunk.stop_frame))
-            taken = None
-            if not ready:
-                for chunk in chunks[given:]:
-                    if _takeable(chunk, settings, orphaned=lambda c: c.worker == dead_merge) and _claim(
-                        session, chunk, worker
-                    ):
-                        taken = (chunk.index, chunk.first_frame, chunk.stop_frame)
-                        break
-        if given == len(chunks):
-            return
+                ready.append(InOrder(chunk.first_frame, chunk.stop_frame))
+            ahead = chunks[given + len(ready) :]
+            here = next((c for c in ahead[:1] if takeable(c) and _claim(session, c, worker)), None)
+            later = None
+            if here is None and not ready:
+                later = next((c for c in ahead[1:] if takeable(c) and _claim(session, c, worker)), None)
+            here_range = None if here is None else (here.index, here.first_frame, here.stop_frame)
+            later_range = None if later is None else (later.index, later.first_frame, later.stop_frame)
         yield from ready
         given += len(ready)
-        if taken is not None:
-            index, first, stop = taken
-            here = JobContext(job_id=job_id, spec=context.spec, settings=settings, sessions=context.sessions,
-                              chunk=(phase, index))  # fmt: skip
-            with _heartbeat(context.sessions, job_id, (phase, index), interval_s=interval_s):
-                chunk_body(here, first, stop)
-            _mark_done(context.sessions, job_id, phase, index, stop - first)
+        if here_range is not None:
+            index, first, stop = here_range
+            with _heartbeat(sessions, job_id, (phase, index), interval_s=interval_s):
+                yield InOrder(first, stop, measure_here=chunk_context(index))
+            _mark_done(sessions, job_id, phase, index, stop - first)
+            given += 1
+        elif later_range is not None:
+            index, first, stop = later_range
+            with _heartbeat(sessions, job_id, (phase, index), interval_s=interval_s):
+                chunk_body(chunk_context(index), first, stop)
+            _mark_done(sessions, job_id, phase, index, stop - first)
         elif not ready:
             time.sleep(MERGE_POLL_S)
+
+
+def handed_over(turns: Iterator[InOrder], chunk_body: ChunkBody) -> list[tuple[int, int]]:
+    """For a merge that reads every chunk's hand-over: the chunks the merge measures itself are measured through
+    `chunk_body` (handed over like the others); their frame ranges in order."""
+    ranges = []
+    for turn in turns:
+        if turn.measure_here is not None:
+            chunk_body(turn.measure_here, turn.first, turn.stop)
+        ranges.append((turn.first, turn.stop))
+    return ranges
 
 
 def _confirm_cancel(sessions: sessionmaker[Session], job: Job | None) -> None:

@@ -55,7 +55,10 @@ class Settings(BaseSettings):
     )
     health_worker_timeout_s: float = Field(1.0, gt=0, le=30, description="How long /health waits for workers.")
     chunk_frames: int = Field(
-        100, ge=1, description="Frames per parallel chunk of a topography (or selftest) job; smaller spreads wider."
+        100,
+        ge=1,
+        description="Most frames per parallel chunk of a topography (or selftest) job (chunks shrink "
+        "towards the job's end).",
     )
     cancel_grace_s: float = Field(
         10.0, ge=0, description="After a cancel, seconds a running task has to stop before its process is terminated."

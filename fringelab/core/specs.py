@@ -49,7 +49,11 @@ class SelftestSpec(_Spec):
     frames: int = Field(200, ge=1, le=100_000, description="Synthetic frames to compute.")
     frame_size_px: int = Field(256, ge=16, le=4096, description="Side of each square frame; sets the work per frame.")
     chunk_frames: int | None = Field(
-        None, ge=1, le=100_000, description="Frames per parallel chunk; empty means FRINGELAB_CHUNK_FRAMES."
+        None,
+        ge=1,
+        le=100_000,
+        description="Frames per parallel chunk; empty: chunks that shrink towards the end, of at most "
+        "FRINGELAB_CHUNK_FRAMES.",
     )
 
 
@@ -145,7 +149,11 @@ class TopographySpec(_Spec):
     grid_step_mm: float = Field(2.0, ge=0.1, le=50, description="Spacing of the deflection grid, mm.")
     temporal_smoothing_frames: int = Field(0, ge=0, le=50, description="Half-width of the temporal filter; 0: off.")
     chunk_frames: int | None = Field(
-        None, ge=1, le=100_000, description="Frames per parallel chunk; empty means FRINGELAB_CHUNK_FRAMES."
+        None,
+        ge=1,
+        le=100_000,
+        description="Frames per parallel chunk; empty: chunks that shrink towards the end, of at most "
+        "FRINGELAB_CHUNK_FRAMES.",
     )
 
 

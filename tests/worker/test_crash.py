@@ -68,10 +68,14 @@ def test_a_worker_process_killed_mid_chunk_is_replaced_and_the_job_ends_once_com
     assert killed not in worker.pool_pids() and len(worker.pool_pids()) == 2
 
 
+@pytest.mark.parametrize("victim", ["a measuring chunk's", "the merge's"])
 def test_a_topography_whose_worker_process_is_killed_while_measuring_ends_identical_to_a_sequential_run(
-    settings, client, start_prefork_worker, virtual_experiment, tmp_path
+    settings, client, start_prefork_worker, virtual_experiment, tmp_path, victim
 ):
-    worker = start_prefork_worker(settings, concurrency=2)
+    """Either process: one measuring a chunk, or the merge's after it measured a chunk in its turn straight into
+    its file (that chunk is done and has no hand-over: the merge that runs again measures it again). With one
+    worker process the merge measures every chunk in its turn (the chunk tasks wait behind it)."""
+    worker = start_prefork_worker(settings, concurrency=2 if victim == "a measuring chunk's" else 1)
     ids = upload_virtual_experiment(client, virtual_experiment)
 
     def succeeded(spec: dict) -> dict:
@@ -88,17 +92,25 @@ def test_a_topography_whose_worker_process_is_killed_while_measuring_ends_identi
             "projector_calibration_id": projector["result"]["calibration_id"]}  # fmt: skip
     job_id = client.post("/api/v1/jobs", json=spec).json()["id"]
 
-    def a_measuring_chunk() -> dict | None:
+    def a_measuring_chunk() -> str | None:
         chunks = client.get(f"/api/v1/jobs/{job_id}").json()["chunks"]
-        return next((c for c in chunks if c["phase"] == 0 and c["state"] == "running" and c["worker"]), None)
+        return next((c["worker"] for c in chunks if c["phase"] == 0 and c["state"] == "running" and c["worker"]), None)
 
-    victim = wait_for(a_measuring_chunk, timeout_s=180, what="a measuring chunk to run", interval_s=0.02)
-    killed = pid_of(victim["worker"])  # type: ignore[index]
+    def the_merge_after_its_own_chunk() -> str | None:
+        job = client.get(f"/api/v1/jobs/{job_id}").json()
+        merged_here = any(c["state"] == "done" and c["worker"] == job["worker"] for c in job["chunks"])
+        return job["worker"] if job["state"] == "running" and merged_here else None
+
+    find = a_measuring_chunk if victim == "a measuring chunk's" else the_merge_after_its_own_chunk
+    killed = pid_of(wait_for(find, timeout_s=180, what=f"{victim} process", interval_s=0.02))  # type: ignore[arg-type]
     psutil.Process(killed).send_signal(signal.SIGKILL)
 
     job = wait_job(client, job_id, timeout_s=300)
     assert job["state"] == "succeeded", job["error"]
-    assert sum(m.startswith("succeeded") for m in log_messages(client, job_id)) == 1
+    messages = log_messages(client, job_id)
+    assert sum(m.startswith("succeeded") for m in messages) == 1
+    if victim == "the merge's":
+        assert any(m.startswith("the pass in frame order starts again") for m in messages), messages
     assert killed not in worker.pool_pids()
     result = datasets(settings.data_path / "results" / "jobs" / job_id / "topography.h5")
     reference = datasets(

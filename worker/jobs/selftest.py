@@ -15,7 +15,9 @@ from fringelab.core.jobs import as_utc
 from fringelab.core.models import Job, utcnow
 from worker.runner import (
     Chunked,
+    InOrder,
     JobContext,
+    handed_over,
     load_arrays,
     planned_frame_ranges,
     save_arrays,
@@ -50,10 +52,10 @@ def selftest_compute(context: JobContext, first: int, stop: int) -> None:
           digest=np.asarray(digests, dtype="S64"), worker=np.asarray([this_worker()], dtype="S200"))  # fmt: skip
 
 
-def selftest_chain(context: JobContext, finished: Iterator[tuple[int, int]]) -> Chunked:
+def selftest_chain(context: JobContext, turns: Iterator[InOrder]) -> Chunked:
     """Merge of phase 0, in frame order: check that every frame came back once, and chain the digests (each link
     depends on all frames before it, as edge identity does in a topography), then verify in parallel."""
-    ranges = list(finished)  # every chunk: the chain starts once all are done
+    ranges = handed_over(turns, selftest_compute)  # every chunk: the chain starts once all are done
     chunks = [load_arrays(context, f"chunks/p0-{first:07d}.arrays") for first, _stop in ranges]
     frame = np.concatenate([c["frame"] for c in chunks])
     expected = int(context.spec["frames"])
@@ -83,9 +85,9 @@ def selftest_verify(context: JobContext, first: int, stop: int) -> None:
           worker=np.asarray([this_worker()], dtype="S200"))  # fmt: skip
 
 
-def selftest_write(context: JobContext, finished: Iterator[tuple[int, int]]) -> dict[str, Any]:
+def selftest_write(context: JobContext, turns: Iterator[InOrder]) -> dict[str, Any]:
     """Merge of phase 1: the result file, and a failure naming the workers if any frame came out differently."""
-    ranges = list(finished)
+    ranges = handed_over(turns, selftest_verify)
     context.progress(0, 1, "writing")
     sequence = load_arrays(context, "chunks/sequence.arrays")
     checks = [load_arrays(context, f"chunks/p1-{first:07d}.arrays") for first, _stop in ranges]

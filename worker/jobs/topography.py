@@ -31,6 +31,7 @@ from fringelab.science.topography import SummaryTally, TemporalCrossCheck
 from worker.jobs.inputs import calibration_file, recording_input
 from worker.runner import (
     Chunked,
+    InOrder,
     JobContext,
     array_records,
     finite_or_none,
@@ -148,8 +149,20 @@ _MEASURE_COUNTS = (
 
 
 def topography_measure(context: JobContext, first: int, stop: int) -> None:
-    """Phase 0, any worker: frames [first, stop) measured, gridded (Z and σ) and packed as the result file stores
-    them, each on its own and handed over as it comes (one record per frame): the merge only writes."""
+    """Phase 0, any worker: frames [first, stop) measured (`_measured`) and handed over one record per frame."""
+    with array_records(context, _hand_over_name(first)) as write:
+        for record in _measured(context, first, stop):
+            write(**record)
+
+
+def _hand_over_name(first: int) -> str:
+    return f"chunks/frames-{first:07d}.arrays"
+
+
+def _measured(context: JobContext, first: int, stop: int, *, report: bool = True) -> Iterator[dict[str, np.ndarray]]:
+    """Frames [first, stop), each on its own: measured, gridded (Z and σ) and packed as the result file stores
+    them, as records (one per frame) that `_frames_of` reads, whether handed over or not: the merge only writes.
+    report: the progress is the context's chunk's."""
     from fringelab.formats.topography import pack_grids
     from fringelab.science.coverage import MISSING_REASONS
     from fringelab.science.fields import Grid, field_peak
@@ -165,40 +178,39 @@ def topography_measure(context: JobContext, first: int, stop: int) -> None:
     try:
         frames = (inputs.source[i] for i in range(lo, hi))
         located = locate_test_edges(frames, projector)
-        with array_records(context, f"chunks/frames-{first:07d}.arrays") as write:
-            for m in track_and_measure(
-                located, projector, inputs.camera_model, settings=settings, first_frame=lo, reference=reference
-            ):
-                if not first <= m.frame < stop:
-                    continue
-                if m.coverage is None:
-                    raise RuntimeError("a measurement came without its coverage")
-                z_grid, sigma_grid = grid_measurement_with_sigma(
-                    m, projector, grid, max_edge_mm=float(data["max_edge_mm"])
-                )
-                packed = pack_grids(z_grid, sigma_grid)
-                sigma = np.full(len(m.k), np.nan) if m.sigma_z_mm is None else m.sigma_z_mm
-                scalars = [m.frame, m.edge_noise_px, m.coverage.visible_area_mm2, m.coverage.measured_area_mm2,
-                           *(m.coverage.missing_mm2[name] for name in MISSING_REASONS),
-                           *vars(field_peak(z_grid - z_flat, grid)).values(),
-                           *(getattr(m, name) for name in _MEASURE_COUNTS)]  # fmt: skip
-                write(
-                    k=m.k, line=m.line,
-                    # X, Y and σ as the file stores them; Z in full, for the temporal cross-check of the merge
-                    xy_mm=m.points_obj_mm[:, :2].astype(np.float32), z_mm=m.points_obj_mm[:, 2],
-                    sigma_z_mm=np.asarray(sigma, np.float32),
-                    packed_z_mm=np.frombuffer(packed.z_mm, np.uint8),
-                    packed_sigma_w_mm=np.frombuffer(packed.sigma_w_mm, np.uint8), z_finite=np.packbits(packed.z_finite),
-                    scalars=np.array(scalars, np.float64),  # in one record (each costs a header); counts exact
-                )  # fmt: skip
-                # (the chunk's end is recorded when it is marked done: the last frame need not be)
+        for m in track_and_measure(
+            located, projector, inputs.camera_model, settings=settings, first_frame=lo, reference=reference
+        ):
+            if not first <= m.frame < stop:
+                continue
+            if m.coverage is None:
+                raise RuntimeError("a measurement came without its coverage")
+            z_grid, sigma_grid = grid_measurement_with_sigma(m, projector, grid, max_edge_mm=float(data["max_edge_mm"]))
+            packed = pack_grids(z_grid, sigma_grid)
+            sigma = np.full(len(m.k), np.nan) if m.sigma_z_mm is None else m.sigma_z_mm
+            scalars = [m.frame, m.edge_noise_px, m.coverage.visible_area_mm2, m.coverage.measured_area_mm2,
+                       *(m.coverage.missing_mm2[name] for name in MISSING_REASONS),
+                       *vars(field_peak(z_grid - z_flat, grid)).values(),
+                       *(getattr(m, name) for name in _MEASURE_COUNTS)]  # fmt: skip
+            yield dict(
+                k=m.k, line=m.line,
+                # X, Y and σ as the file stores them; Z in full, for the temporal cross-check of the merge
+                xy_mm=m.points_obj_mm[:, :2].astype(np.float32), z_mm=m.points_obj_mm[:, 2],
+                sigma_z_mm=np.asarray(sigma, np.float32),
+                packed_z_mm=np.frombuffer(packed.z_mm, np.uint8),
+                packed_sigma_w_mm=np.frombuffer(packed.sigma_w_mm, np.uint8), z_finite=np.packbits(packed.z_finite),
+                scalars=np.array(scalars, np.float64),  # in one record (each costs a header); counts exact
+            )  # fmt: skip
+            if report:  # (the chunk's end is recorded when it is marked done: the last frame need not be)
                 context.progress(m.frame - first, stop - first, "measuring")
     finally:
         inputs.close()
 
 
-def _handed_over(context: JobContext, first: int, grid_shape: tuple[int, int]) -> Iterator[tuple[Any, Any, Any]]:
-    """The frames of a chunk (`topography_measure`) one at a time: (measurement, peak, packed grids)."""
+def _frames_of(context: JobContext, turn: InOrder, grid_shape: tuple[int, int]) -> Iterator[tuple[Any, Any, Any]]:
+    """The frames of a chunk's turn one at a time, (measurement, peak, packed grids): measured here when the turn
+    says so, or when its hand-over is missing (a merge that ran before, and died, measured it straight into its
+    own file), else read from the hand-over. Either way from the same records, so the file is the same."""
     from dataclasses import fields
 
     from fringelab.formats.topography import PackedGrids
@@ -206,9 +218,15 @@ def _handed_over(context: JobContext, first: int, grid_shape: tuple[int, int]) -
     from fringelab.science.fields import Peak
     from fringelab.science.topography import FrameMeasurement
 
+    if turn.measure_here is not None:
+        records = _measured(turn.measure_here, turn.first, turn.stop)
+    elif not (context.directory / _hand_over_name(turn.first)).is_file():
+        records = _measured(context, turn.first, turn.stop, report=False)  # the chunk is done already
+    else:
+        records = read_array_records(context, _hand_over_name(turn.first))
     peak_names = [f.name for f in fields(Peak)]
     n_missing, n_peak = len(MISSING_REASONS), len(peak_names)
-    for record in read_array_records(context, f"chunks/frames-{first:07d}.arrays"):
+    for record in records:
         scalars = record["scalars"].tolist()
         frame, edge_noise_px, visible_area_mm2, measured_area_mm2 = scalars[:4]
         missing, peak_values, count_values = np.split(scalars[4:], [n_missing, n_missing + n_peak])
@@ -234,9 +252,9 @@ def _handed_over(context: JobContext, first: int, grid_shape: tuple[int, int]) -
         yield measurement, peak, packed
 
 
-def topography_write(context: JobContext, ranges: Iterator[tuple[int, int]]) -> dict[str, Any]:
+def topography_write(context: JobContext, turns: Iterator[InOrder]) -> dict[str, Any]:
     """Merge of phase 0, in frame order: the result file, as `topography_recording` writes it, a chunk at a time
-    as the chunks finish (the progress is theirs)."""
+    as each one's turn comes (the progress is the chunks')."""
     from fringelab.formats.recordings import recording_log
     from fringelab.formats.topography import write_xdmf
     from fringelab.science.fields import Grid
@@ -259,9 +277,9 @@ def topography_write(context: JobContext, ranges: Iterator[tuple[int, int]]) -> 
         )  # fmt: skip
         with writer:
             grid_shape = (len(track["y_mm"]), len(track["x_mm"]))
-            for first, _stop in ranges:
-                for handed_over, peak, packed in _handed_over(context, first, grid_shape):
-                    measurement = cross_check.checked(handed_over)
+            for turn in turns:
+                for measured, peak, packed in _frames_of(context, turn, grid_shape):
+                    measurement = cross_check.checked(measured)
                     writer.append(measurement, None, peak, log=log.row(measurement.frame),
                                   camera_frame=int(log.camera_frame[measurement.frame]), packed=packed)  # fmt: skip
                     tally.add(peak, n_out_of_range=measurement.n_out_of_range, measurement=measurement)
