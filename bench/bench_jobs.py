@@ -129,19 +129,19 @@ class Bench:
         worker.wait(timeout=60)
 
     @staticmethod
-    def cpu_s(worker: subprocess.Popen[bytes]) -> float:
-        """CPU seconds (user + system) the worker and its pool processes spent so far."""
+    def cpu_s(worker: subprocess.Popen[bytes]) -> dict[int, float]:
+        """CPU seconds (user + system) the worker's main process and each pool process spent so far, by PID."""
         import psutil
 
         main = psutil.Process(worker.pid)
-        total = 0.0
+        spent = {}
         for process in [main, *main.children(recursive=True)]:
             try:
                 times = process.cpu_times()
             except psutil.NoSuchProcess:
                 continue
-            total += times.user + times.system
-        return total
+            spent[process.pid] = times.user + times.system
+        return spent
 
     @staticmethod
     def peak_rss_mb(worker: subprocess.Popen[bytes]) -> float:
@@ -197,6 +197,20 @@ def timings(job: dict[str, Any]) -> tuple[float, float, float]:
         parallel += (max(_moment(c["finished_at"]) for c in chunks) - begin).total_seconds()
     run = (finished - started).total_seconds()
     return run, parallel, run - parallel
+
+
+def schedule(job: dict[str, Any]) -> str:
+    """A finished job's chunks, one line each: frames, the process that measured it, its start and end (s from
+    the job's start)."""
+    started = _moment(job["started_at"])
+    lines = []
+    for c in sorted(job["chunks"], key=lambda c: (c["phase"], c["index"])):
+        begin = (_moment(c["started_at"]) - started).total_seconds()
+        end = (_moment(c["finished_at"]) - started).total_seconds()
+        lines.append(f"      chunk {c['index']:>3} frames {c['first_frame']:>5}..{c['stop_frame'] - 1:<5} "
+                     f"{c['worker']:>32} {begin:6.3f} .. {end:6.3f} s")  # fmt: skip
+    lines.append(f"      job ends {(_moment(job['finished_at']) - started).total_seconds():.3f} s")
+    return "\n".join(lines)
 
 
 def upload_virtual_experiment(bench: Bench, frames: int) -> dict[str, Any]:
@@ -299,6 +313,7 @@ def main() -> int:
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="worker process counts to measure")
     parser.add_argument("--repeat", type=int, default=3, help="rounds of measurements (medians are printed)")
     parser.add_argument("--keep", action="store_true", help="keep the scratch directory")
+    parser.add_argument("--schedule", action="store_true", help="print each timed job's chunks: who, when")
     args = parser.parse_args()
     topography = args.kind == "topography"
     frames = args.frames or (160 if topography else 400)
@@ -347,7 +362,9 @@ def main() -> int:
                     cpu_before = bench.cpu_s(worker)
                     # its times come from its record: a slow poll loses nothing and takes less from the workers' cores
                     job, _ = bench.run(spec, timeout_s=3600, poll_s=0.25)
-                    cpu_s = bench.cpu_s(worker) - cpu_before
+                    cpu_after = bench.cpu_s(worker)
+                    cpu_by_pid = {pid: spent - cpu_before.get(pid, 0.0) for pid, spent in cpu_after.items()}
+                    cpu_s = sum(cpu_by_pid.values())
                     peak_mb = bench.peak_rss_mb(worker)
                 finally:
                     bench.stop_worker(worker)
@@ -361,6 +378,12 @@ def main() -> int:
                 print(f"{round_:>5} {processes:>8} {frames:>6} {run_s:>7.2f} {frames / run_s:>8.2f} {cpu_s:>7.2f} "
                       f"{parallel_s:>10.2f} {in_order_s:>10.2f} {peak_mb:>7.0f} {os.getloadavg()[0]:>5.2f}  "
                       f"{shares}")  # fmt: skip
+                if args.schedule:
+                    print(schedule(job))
+                    print(
+                        "      cpu s by process: "
+                        + ", ".join(f"{pid} {v:.2f}" for pid, v in sorted(cpu_by_pid.items()))
+                    )
             rounds.append(measured)
     finally:
         bench.close()

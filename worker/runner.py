@@ -2,11 +2,13 @@
 
 A task body receives a `JobContext` and returns either the job's result (a JSON-able dict: the job succeeds) or
 a `Chunked` plan: the job goes on as one chunk task per frame range on any worker, and a merge task, sent with
-them, that takes each chunk's output in frame order as soon as it is done and ends the job or plans the next such
-phase (see `fringelab.core.jobs` for why the join is counted in the database). While the next chunk in order is
-still being computed elsewhere, the merge computes a chunk nobody has started itself (`_chunks_in_order`): so the
-in-order pass overlaps the chunks instead of following them, its worker process never idles while there is work,
-and it never waits for a chunk that needs its own slot (one worker process runs a whole phase inside its merge).
+them, that takes the chunks in frame order, each as soon as it can (`_chunks_in_order`, `InOrder`), and ends the
+job or plans the next such phase (see `fringelab.core.jobs` for why the join is counted in the database). When
+the next chunk in order is nobody's, the merge claims it and measures it in its turn, straight into its output
+(no hand-over); while another process measures the next one, the merge measures a later chunk nobody has started
+(handed over), else waits. So the pass in frame order overlaps the chunks instead of following them, its process
+never idles while there is work, one worker process runs a whole phase inside its merge, and the merge never waits
+for a chunk that needs its own slot. A claim is an UPDATE on the chunk's row that only one process can win.
 Everything a person must act on (ValueError, MeasurementError) becomes the job's error text; anything else is an
 internal error whose traceback goes to the worker log. Acks-late work can run twice: a job that already
 finished is not run again, and only one run can finish it (`UPDATE ... WHERE finished_at IS NULL`).

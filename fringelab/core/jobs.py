@@ -17,11 +17,12 @@ a task that runs twice (acks-late redelivery) cannot finish a job twice.
 Chunked jobs (topography, selftest) run in phases. The entry task (id = job id) plans the first phase: frame
 ranges stored as `JobChunk` rows, one chunk task per row (id `<job>:<phase>:<index>`, a Celery group over every
 worker), and before them the phase's merge task (id `<job>:merge:<phase>`; sent once: `merge_queued_at`), which
-runs in frame order over each chunk as soon as its row is done, computes the chunks nobody has started meanwhile,
-and either ends the job or plans the next phase. A chunk runs where its row is claimed (`pending -> running`, one
-claim wins); a chunk task that finds its row claimed by a live run leaves it. The join is counted in the database,
-not in a Celery chord: a chord's counter in Redis counts task deliveries, so an acks-late redelivery would count a
-chunk twice and fire the merge early; a row that goes `-> done` once cannot.
+runs in frame order over each chunk as soon as its row is done, measures the chunks nobody has started (the next
+one in order straight into its output), and either ends the job or plans the next phase. A chunk runs where its
+row is claimed (`pending -> running`, one claim wins); a chunk task that finds its row claimed by a live run
+leaves it. The join is counted in the database, not in a Celery chord: a chord's counter in Redis counts task
+deliveries, so an acks-late redelivery would count a chunk twice and fire the merge early; a row that goes
+`-> done` once cannot.
 """
 
 from __future__ import annotations

@@ -85,6 +85,9 @@ POINTS_CHUNK_ROWS = 65536
 COLUMN_FLUSH_FRAMES = 1024
 WRITER_THREADS = 2
 MAX_WRITES_IN_FLIGHT = 16
+# The XDMF views are made XDMF_VIEW_FRAMES frames at a time (made one by one while the file grows, they cost ~4
+# times more; all at the close, they would wait for the last frame).
+XDMF_VIEW_FRAMES = 32
 _POINT_DTYPES = {"x_mm": np.float32, "y_mm": np.float32, "z_mm": np.float32, "edge": np.int32, "line": np.int32,
                  "sigma_w_mm": np.float32}  # fmt: skip
 
@@ -250,6 +253,7 @@ class TopographyWriter:
             fillvalue=np.nan,
         )
         self._xdmf_views = _start_xdmf_views(file, grid)
+        self._views_made = 0
         self.max_edge_mm = max_edge_mm
         # Dimension scales: tools that read HDF5 generically (h5py, HDFView, xarray/h5netcdf) see z_mm's axes.
         for dim, scale, label in ((0, frames["index"], "frame"), (1, grid_group["y_mm"], "y_mm"),
@@ -364,7 +368,6 @@ class TopographyWriter:
         else:
             grids = packed
         self._queue_write(self._write_grids, self._n, grids)
-        _add_xdmf_view(self._xdmf_views, self._n, self.grid.shape)
         self._flush_behind.poke()
         points = measurement.points_obj_mm
         sigma_points = measurement.sigma_z_mm if measurement.sigma_z_mm is not None else np.full(len(points), np.nan)
@@ -413,6 +416,12 @@ class TopographyWriter:
         self._n += 1
         if self._n - self._columns_written >= COLUMN_FLUSH_FRAMES:
             self._flush_columns()
+        if self._n - self._views_made >= XDMF_VIEW_FRAMES:
+            self._make_views()
+
+    def _make_views(self) -> None:
+        _add_xdmf_views(self._xdmf_views, range(self._views_made, self._n), self.grid.shape)
+        self._views_made = self._n
 
     def _dataset(self, name: str) -> h5py.Dataset:
         """The open dataset `name` (looking one up by name costs more than writing a frame's grid)."""
@@ -481,6 +490,7 @@ class TopographyWriter:
         while self._writes:
             self._write_next()
         self._flush_columns()
+        self._make_views()
 
     def close(self, summary: dict[str, Any]) -> Path:
         """Write the summary attributes, close the file and move it into place."""
@@ -542,7 +552,7 @@ XDMF_GROUP = "xdmf"
 
 def _start_xdmf_views(file: h5py.File, grid: Grid) -> h5py.Group:
     """What an XDMF sidecar points at: the grid nodes (N, 2) and its quads (M, 4) once, and a group that takes a
-    view of each frame's grid (`_add_xdmf_view`), since XDMF readers without hyperslab support (meshio) need one
+    view of each frame's grid (`_add_xdmf_views`), since XDMF readers without hyperslab support (meshio) need one
     dataset per time step."""
     group = file.create_group(XDMF_GROUP)
     group.attrs["description"] = "views of /grid for the XDMF sidecar (ParaView); no data of their own"
@@ -558,12 +568,13 @@ def _start_xdmf_views(file: h5py.File, grid: Grid) -> h5py.Group:
     return group.create_group("z_mm")
 
 
-def _add_xdmf_view(views: h5py.Group, i: int, shape: tuple[int, int]) -> None:
-    """Frame i's view: a virtual dataset (ny, nx) of grid/z_mm[i] (no copy), made as the frame is written."""
-    source = h5py.VirtualSource(".", "grid/z_mm", shape=(i + 1, *shape), dtype=np.float32)
-    layout = h5py.VirtualLayout(shape=shape, dtype=np.float32)
-    layout[:, :] = source[i, :, :]
-    views.create_virtual_dataset(f"{i:06d}", layout, fillvalue=np.nan)
+def _add_xdmf_views(views: h5py.Group, frames: range, shape: tuple[int, int]) -> None:
+    """The views of frames `frames`: each a virtual dataset (ny, nx) of grid/z_mm[i] (no copy)."""
+    source = h5py.VirtualSource(".", "grid/z_mm", shape=(frames.stop, *shape), dtype=np.float32)
+    for i in frames:
+        layout = h5py.VirtualLayout(shape=shape, dtype=np.float32)
+        layout[:, :] = source[i, :, :]
+        views.create_virtual_dataset(f"{i:06d}", layout, fillvalue=np.nan)
 
 
 def _data_item(dimensions: str, number_type: str, precision: int, where: str) -> str:

@@ -11,9 +11,12 @@ bit, whatever the chunking):
                        frames either side are read too)                             -> chunks/frames-<first>.arrays
     merge 0, in order: the temporal cross-check of consecutive frames, the result file (TopographyWriter, which
                        stores the packed grids as they are) and its summary        -> topography.h5
+                       (a chunk whose turn comes before anybody measured it is measured by the merge, straight
+                       into the file: `_frames_of`)
 
 No frame depends on the frames before it (the order is found per frame, anchored on the reference), so there is
-no long in-order phase: the merge only writes. Each worker process reads a calibration file once (`_calibration`).
+no long in-order phase: the merge only writes, as the chunks come. Each worker process reads a calibration file
+once (`_calibration`).
 """
 
 from __future__ import annotations
