@@ -149,6 +149,7 @@ class TopographyWriter:
         self._writes: deque[tuple[Any, tuple[Any, ...]]] = deque()
         self._pool = ThreadPoolExecutor(threads, thread_name_prefix="topography-writer") if threads > 0 else None
         self._datasets: dict[str, h5py.Dataset] = {}
+        self._rows_reserved: dict[str, int] = {}  # rows each growing dataset has room for (`_reserved`)
         file = self._file = h5py.File(self._temp, "w")
         self._flush_behind = FlushBehind(self._temp)
         file.attrs["schema"] = TOPOGRAPHY_SCHEMA
@@ -443,12 +444,19 @@ class TopographyWriter:
         write, args = self._writes.popleft()
         write(*(arg.result() if isinstance(arg, Future) else arg for arg in args))
 
+    def _reserved(self, name: str, rows: int) -> h5py.Dataset:
+        """The dataset `name` with room for `rows` rows: it grows by doubling (asking h5py for a dataset's shape,
+        or resizing it, costs more than writing a frame's chunk); `_finish_writes` cuts it to the rows written."""
+        dataset = self._dataset(name)
+        room = self._rows_reserved.get(name, 0)
+        if room < rows:
+            self._rows_reserved[name] = max(rows, 2 * room)
+            dataset.resize(self._rows_reserved[name], axis=0)
+        return dataset
+
     def _write_grids(self, i: int, packed: PackedGrids) -> None:
         for name, chunk in (("grid/z_mm", packed.z_mm), ("grid/sigma_w_mm", packed.sigma_w_mm)):
-            dataset = self._dataset(name)
-            if dataset.shape[0] <= i:
-                dataset.resize(i + 1, axis=0)
-            dataset.id.write_direct_chunk((i, 0, 0), chunk)
+            self._reserved(name, i + 1).id.write_direct_chunk((i, 0, 0), chunk)
 
     def _flush_points(self, rows: int) -> None:
         """The first `rows` buffered points (a whole stored chunk, or the rest at the end) to the file."""
@@ -464,15 +472,10 @@ class TopographyWriter:
         self._points_buffered -= rows
 
     def _write_points_chunk(self, name: str, start: int, chunk: bytes) -> None:
-        dataset = self._dataset(f"points/{name}")
-        if dataset.shape[0] < start + POINTS_CHUNK_ROWS:
-            dataset.resize(start + POINTS_CHUNK_ROWS, axis=0)
-        dataset.id.write_direct_chunk((start,), chunk)
+        self._reserved(f"points/{name}", start + POINTS_CHUNK_ROWS).id.write_direct_chunk((start,), chunk)
 
     def _write_points_tail(self, name: str, start: int, values: np.ndarray) -> None:
-        dataset = self._dataset(f"points/{name}")
-        dataset.resize(start + len(values), axis=0)
-        dataset[start:] = values
+        self._reserved(f"points/{name}", start + len(values))[start : start + len(values)] = values
 
     def _flush_columns(self) -> None:
         first = self._columns_written
@@ -489,6 +492,10 @@ class TopographyWriter:
             self._flush_points(self._points_buffered)
         while self._writes:
             self._write_next()
+        for name, room in self._rows_reserved.items():
+            rows = self._n if name.startswith("grid/") else self._n_points
+            if room != rows:
+                self._dataset(name).resize(rows, axis=0)
         self._flush_columns()
         self._make_views()
 
