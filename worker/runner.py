@@ -31,18 +31,21 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import redis
 from celery import Task, group
 from sqlalchemy import func, select, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, sessionmaker
 
 from fringelab.core.jobs import (
+    CHUNK_DONE_KEEP_S,
     CHUNK_TASK,
     FINAL_STATES,
     MERGE_TASK,
     WORKER_SEND_RETRY,
     add_log,
     as_utc,
+    chunk_done_key,
     chunk_task_id,
     heartbeat_interval_s,
     merge_task_id,
@@ -51,11 +54,14 @@ from fringelab.core.models import Job, JobChunk, utcnow
 from fringelab.core.settings import Settings
 from fringelab.formats.atomic import atomic_path
 from fringelab.science import Cancelled, MeasurementError
-from worker.runtime import job_dir, sessions_of, settings_of
+from worker.runtime import job_dir, redis_of, sessions_of, settings_of
 
 log = logging.getLogger(__name__)
 PROGRESS_INTERVAL_S = 0.5
-MERGE_POLL_S = 0.02  # how often a merge waiting for a chunk computed by another process looks again
+# A merge waiting for a chunk another process measures wakes when that chunk is done (`chunk_done_key`), or after
+# MERGE_WAIT_S to look at the database anyway (a dead process's chunk, a cancel); MERGE_POLL_S while Redis is down.
+MERGE_WAIT_S = 1
+MERGE_POLL_S = 0.05
 
 
 @dataclass(frozen=True)
@@ -307,7 +313,26 @@ def run_chunk(task: Task, job_id: str, phase: int, index: int, body: ChunkBody) 
     if not ok:
         return
     _mark_done(sessions, job_id, phase, index, stop - first)
+    _announce_done(task, job_id, phase, index)
     _after_chunk(task, sessions, job_id, phase)
+
+
+def _announce_done(task: Task, job_id: str, phase: int, index: int) -> None:
+    """Wake the phase's merge if it waits for this chunk (best effort: it looks at the database anyway)."""
+    try:
+        client, key = redis_of(task.app), chunk_done_key(job_id, phase)
+        client.pipeline().lpush(key, index).expire(key, CHUNK_DONE_KEEP_S).execute()
+    except redis.RedisError as error:
+        log.warning("chunk %s:%s:%s done, but its merge could not be told (%s); it finds out by itself", job_id,
+                    phase, index, error)  # fmt: skip
+
+
+def _wait_for_a_chunk(task: Task, job_id: str, phase: int) -> None:
+    """Until a chunk task announces a chunk done (`_announce_done`), at most MERGE_WAIT_S."""
+    try:
+        redis_of(task.app).blpop([chunk_done_key(job_id, phase)], timeout=MERGE_WAIT_S)
+    except redis.RedisError:
+        time.sleep(MERGE_POLL_S)
 
 
 def _takeable(chunk: JobChunk, settings: Settings, *, orphaned: Callable[[JobChunk], bool]) -> bool:
@@ -419,7 +444,8 @@ def run_merge(task: Task, job_id: str, phase: int, body: MergeBody, chunk_body: 
         job.heartbeat_at = utcnow()  # after merge_queued_at: tells reconciliation that the merge has started
         session.commit()
     context = JobContext(job_id=job_id, spec=spec, settings=settings_of(task.app), sessions=sessions)
-    turns = _chunks_in_order(context, phase, chunk_body, worker=_worker_name(task), dead_merge=dead_merge)
+    turns = _chunks_in_order(context, phase, chunk_body, worker=_worker_name(task), dead_merge=dead_merge,
+                             wait=lambda: _wait_for_a_chunk(task, job_id, phase))  # fmt: skip
     ok, outcome = _run_guarded(context, lambda: body(context, turns))
     if not ok:
         return {}
@@ -443,12 +469,19 @@ class InOrder:
 
 
 def _chunks_in_order(
-    context: JobContext, phase: int, chunk_body: ChunkBody, *, worker: str, dead_merge: str | None
+    context: JobContext,
+    phase: int,
+    chunk_body: ChunkBody,
+    *,
+    worker: str,
+    dead_merge: str | None,
+    wait: Callable[[], None],
 ) -> Iterator[InOrder]:
     """The phase's chunks in frame order, each as soon as it can be taken: done elsewhere (read its hand-over), or
     the next one is nobody's (claimed and measured by the merge in its turn). While another process measures the
-    next one, this process measures a later chunk nobody runs (through `chunk_body`, handed over), else waits.
-    `_takeable` decides what nobody runs. Raises Cancelled when the job stops running."""
+    next one, this process measures a later chunk nobody runs (through `chunk_body`, handed over), else `wait`s
+    (until a chunk task says it is done). `_takeable` decides what nobody runs. Raises Cancelled when the job stops
+    running."""
     job_id, settings, sessions = context.job_id, context.settings, context.sessions
     interval_s = heartbeat_interval_s(settings)
 
@@ -492,7 +525,7 @@ def _chunks_in_order(
                 chunk_body(chunk_context(index), first, stop)
             _mark_done(sessions, job_id, phase, index, stop - first)
         elif not ready:
-            time.sleep(MERGE_POLL_S)
+            wait()
 
 
 def handed_over(turns: Iterator[InOrder], chunk_body: ChunkBody) -> list[tuple[int, int]]:

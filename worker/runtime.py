@@ -1,11 +1,12 @@
-"""Per-process resources of a worker: the database sessions, made once per process (after the prefork fork), and
-where a job keeps its files."""
+"""Per-process resources of a worker: the database sessions and the Redis client, made once per process (after the
+prefork fork), and where a job keeps its files."""
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
 
+import redis
 from celery import Celery
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -14,6 +15,7 @@ from fringelab.core.settings import Settings
 from fringelab.core.storage import job_dir as storage_job_dir
 
 _sessions: dict[tuple[int, str], sessionmaker[Session]] = {}
+_redis: dict[tuple[int, str], redis.Redis] = {}
 
 
 def settings_of(app: Celery) -> Settings:
@@ -27,6 +29,15 @@ def sessions_of(app: Celery) -> sessionmaker[Session]:
     if key not in _sessions:
         _sessions[key] = make_sessionmaker(make_engine(url))
     return _sessions[key]
+
+
+def redis_of(app: Celery) -> redis.Redis:
+    """This process's client of the queue's Redis (for what the job system signals besides tasks)."""
+    url = settings_of(app).redis_url
+    key = (os.getpid(), url)
+    if key not in _redis:
+        _redis[key] = redis.Redis.from_url(url, socket_timeout=10, socket_connect_timeout=5)
+    return _redis[key]
 
 
 def job_dir(settings: Settings, job_id: str) -> Path:

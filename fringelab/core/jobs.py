@@ -105,6 +105,16 @@ def merge_task_id(job_id: str, phase: int) -> str:
     return f"{job_id}:merge:{phase}"
 
 
+CHUNK_DONE_KEEP_S = 3600  # a list nobody pops (its merge died) is gone after this
+
+
+def chunk_done_key(job_id: str, phase: int) -> str:
+    """A Redis list each chunk task pushes its index to when it is done, so that the phase's merge, waiting for a
+    chunk, wakes at once instead of polling the database. The database stays the truth: a push that is lost only
+    delays the merge until its wait times out."""
+    return f"fringelab:chunk-done:{job_id}:{phase}"
+
+
 def as_utc(moment: datetime | None) -> datetime | None:
     """SQLite gives naive datetimes back; every time fringelab stores is UTC."""
     if moment is None or moment.tzinfo is not None:
