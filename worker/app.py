@@ -7,6 +7,7 @@ import sys
 from collections.abc import Sequence
 
 from celery import Celery
+from celery.signals import worker_process_init
 
 from fringelab.core.queue import create_celery
 from fringelab.core.services import ServiceError, check_redis
@@ -18,6 +19,15 @@ TASK_MODULES = ("worker.tasks",)
 def create_worker_app(settings: Settings) -> Celery:
     """The Celery app of a worker process: the shared queue settings plus every task."""
     return create_celery(settings, include=TASK_MODULES)
+
+
+@worker_process_init.connect
+def one_thread_per_process(**_: object) -> None:
+    """OpenCV's thread pool, one thread: the worker's processes are its parallelism (one per core); a pool per
+    process on top would put more threads than cores on the machine (`worker.__main__` does the same for BLAS)."""
+    import cv2
+
+    cv2.setNumThreads(1)
 
 
 def lower_priority(nice: int) -> None:
