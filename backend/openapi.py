@@ -3,7 +3,8 @@
 FastAPI documents what a route declares. What no single route can declare is added here, to the document, so
 that a new route is documented the same way without anyone remembering to:
 
-- 401 on every operation that takes a token (it has `security`: it depends on `get_principal`);
+- 401 and 429 on every operation that takes a token (it has `security`: it depends on `get_principal`, which
+  counts the user's requests, `backend.limits`);
 - 413 on every operation with a request body outside the upload routes (`backend.limits.BodySizeLimit`);
 - 422 with the body our handler sends (`{"detail", "code", "errors"}`), not FastAPI's default shape;
 - the `{"detail", "code"}` schema on every error response that has none;
@@ -45,6 +46,8 @@ DESCRIPTIONS = {
     403: "Not allowed: an admin route, or read-only access to a shared experiment (`code` says which).",
     413: "The request body is larger than FRINGELAB_MAX_JSON_BYTES.",
     422: "The request does not match the schema; `detail` names each field.",
+    429: "This user sent more than FRINGELAB_USER_REQUESTS_PER_S requests per second (beyond a burst of "
+    "FRINGELAB_USER_REQUEST_BURST); wait the `Retry-After` seconds and send it again.",
 }
 
 
@@ -130,6 +133,7 @@ def complete(document: dict[str, Any]) -> None:
             responses = operation.setdefault("responses", {})
             if operation.get("security"):
                 responses.setdefault("401", {})
+                responses.setdefault("429", {})
             if "requestBody" in operation and not path.startswith(UPLOADS):
                 responses.setdefault("413", {})
             if path in TUS_OPERATIONS.get(method, {}):

@@ -22,12 +22,18 @@ topography as a job, each printed as it ends:
   cpu s       CPU seconds (user + system) the worker processes (or this process, for the pipeline) spent on it:
               what the job costs whatever else runs on the machine
   parallel s  of which the reference (frame 0) and the fan-out ran (every frame measured on its own: edges,
-              fringe order, Z, X, Y, grids of Z and σ, packed as stored; in chunks on every process)
-  in order s  and the pass in frame order (writing the file)
+              fringe order, Z, X, Y, grids of Z and σ, packed as stored; in chunks on every process), until the
+              last chunk ended; the pass in frame order writes the file meanwhile
+  in order s  and what the pass in frame order had left after that (the last chunk's frames, closing the file,
+              its checksum)
   peak MB     the largest peak resident memory (VmHWM) of the worker processes (flat in the number of frames:
               compare --frames 40 with --frames 320)
   spread      frames each worker process measured
   load        the 1-minute load average when it ended
+
+With --schedule, each job's chunks follow its line (the process that measured each, its start and end from the
+job's start), and the CPU seconds of each worker process. Before each timed job, short topographies run until
+every pool process has measured a chunk (`warm_up`), as on a worker that has run a job before.
 
 then, per round and as the median over the rounds (ratios taken within a round, of runs seconds apart: on shared
 cores the load still moves between them, and the CPU-time ratio is the steadier figure): the scaling efficiency,

@@ -418,9 +418,9 @@ def _send_merge_once(task: Task, sessions: sessionmaker[Session], job_id: str, p
 
 
 def run_merge(task: Task, job_id: str, phase: int, body: MergeBody, chunk_body: ChunkBody) -> dict[str, Any]:
-    """The in-order pass of a phase, over what its chunks store as they finish (`_chunks_in_order`, which runs
-    `chunk_body` here when there is a chunk nobody started), which ends the job (a result) or starts the next
-    phase (a `Chunked` plan)."""
+    """The in-order pass of a phase over its chunks' turns (`_chunks_in_order`: measured here when nobody has
+    started them, `chunk_body` for a later chunk measured while waiting), which ends the job (a result) or starts
+    the next phase (a `Chunked` plan)."""
     sessions = sessions_of(task.app)
     redelivered = bool((task.request.delivery_info or {}).get("redelivered"))
     with sessions() as session:

@@ -68,8 +68,8 @@ def test_every_operation_says_how_it_fails(document):
         if (method, path) in PUBLIC:
             if operation.get("security"):
                 problems.append(f"{name}: public but asks for a token")
-        elif "401" not in responses or not operation.get("security"):
-            problems.append(f"{name}: takes a token but documents no 401 (or no security scheme)")
+        elif not {"401", "429"} <= set(responses) or not operation.get("security"):
+            problems.append(f"{name}: takes a token but documents no 401 or 429 (or no security scheme)")
         for status, response in responses.items():
             if int(status) < 400 or (method, path, status) in OTHER_ERROR_BODIES:
                 continue
