@@ -618,9 +618,11 @@ def frame_ranges(count: int, chunk_frames: int) -> list[tuple[int, int]]:
 # 1987): each chunk takes 1/GUIDED_PARTS of the frames still left, at most FRINGELAB_CHUNK_FRAMES and at least
 # MIN_CHUNK_FRAMES. The chunks shrink towards the end, so the worker processes run out of work at nearly the same
 # time and the merge's pass in frame order has only a short chunk left to write after the last one is measured;
-# each chunk costs a task, its inputs and its hand-over (~10 ms), so they are not made smaller than that.
+# each chunk costs a task, its inputs, its hand-over and the merge's turn (~10-20 ms), so they are not made smaller
+# than that: at 160 frames of 512 x 480, chunks of at least 5 frames (18 chunks) gave 73 frames/s with 2 worker
+# processes, at least 10 (13 chunks) 87, 8 chunks of 20 81 (bench/bench_jobs.py, medians of 3 rounds).
 GUIDED_PARTS = 8
-MIN_CHUNK_FRAMES = 5
+MIN_CHUNK_FRAMES = 10
 
 
 def guided_frame_ranges(count: int, *, most: int, least: int = MIN_CHUNK_FRAMES) -> list[tuple[int, int]]:
