@@ -79,6 +79,9 @@ class JobContext:
     settings: Settings
     sessions: sessionmaker[Session]
     chunk: tuple[int, int] | None = None  # (phase, index) of the chunk this context runs, if any
+    # Hand-overs this context writes stay in this process (`array_records`): a merge's own later chunk, which only
+    # that merge reads (a merge that runs again after its process died measures it again: `run_merge` hold_steals).
+    hold: bool = False
     files: dict[str, str] = field(default_factory=dict)  # name -> media type, of the files this run published
     provenance: dict[str, Any] = field(default_factory=dict)  # added to the job's provenance when it succeeds
     _last_progress: float = field(default=0.0)
@@ -417,10 +420,14 @@ def _send_merge_once(task: Task, sessions: sessionmaker[Session], job_id: str, p
         raise
 
 
-def run_merge(task: Task, job_id: str, phase: int, body: MergeBody, chunk_body: ChunkBody) -> dict[str, Any]:
+def run_merge(
+    task: Task, job_id: str, phase: int, body: MergeBody, chunk_body: ChunkBody, *, hold_steals: bool = False
+) -> dict[str, Any]:
     """The in-order pass of a phase over its chunks' turns (`_chunks_in_order`: measured here when nobody has
     started them, `chunk_body` for a later chunk measured while waiting), which ends the job (a result) or starts
-    the next phase (a `Chunked` plan)."""
+    the next phase (a `Chunked` plan). hold_steals: the later chunks this merge measures stay in its process (no
+    file, no fsync, no reading back from disk); only for a body that measures a done chunk again when its hand-over
+    is gone (a merge that runs again after its process died)."""
     sessions = sessions_of(task.app)
     redelivered = bool((task.request.delivery_info or {}).get("redelivered"))
     with sessions() as session:
@@ -445,8 +452,11 @@ def run_merge(task: Task, job_id: str, phase: int, body: MergeBody, chunk_body: 
         session.commit()
     context = JobContext(job_id=job_id, spec=spec, settings=settings_of(task.app), sessions=sessions)
     turns = _chunks_in_order(context, phase, chunk_body, worker=_worker_name(task), dead_merge=dead_merge,
-                             wait=lambda: _wait_for_a_chunk(task, job_id, phase))  # fmt: skip
-    ok, outcome = _run_guarded(context, lambda: body(context, turns))
+                             wait=lambda: _wait_for_a_chunk(task, job_id, phase), hold_steals=hold_steals)  # fmt: skip
+    try:
+        ok, outcome = _run_guarded(context, lambda: body(context, turns))
+    finally:
+        _drop_held(job_id)
     if not ok:
         return {}
     if isinstance(outcome, Chunked):
@@ -476,10 +486,12 @@ def _chunks_in_order(
     worker: str,
     dead_merge: str | None,
     wait: Callable[[], None],
+    hold_steals: bool,
 ) -> Iterator[InOrder]:
     """The phase's chunks in frame order, each as soon as it can be taken: done elsewhere (read its hand-over), or
     the next one is nobody's (claimed and measured by the merge in its turn). While another process measures the
-    next one, this process measures a later chunk nobody runs (through `chunk_body`, handed over), else `wait`s
+    next one, this process measures a later chunk nobody runs (through `chunk_body`, handed over, `hold_steals`: kept
+    in this process), else `wait`s
     (until a chunk task says it is done). `_takeable` decides what nobody runs. Raises Cancelled when the job stops
     running."""
     job_id, settings, sessions = context.job_id, context.settings, context.sessions
@@ -488,8 +500,10 @@ def _chunks_in_order(
     def takeable(chunk: JobChunk) -> bool:
         return _takeable(chunk, settings, orphaned=lambda c: c.worker == dead_merge)
 
-    def chunk_context(index: int) -> JobContext:
-        return JobContext(job_id=job_id, spec=context.spec, settings=settings, sessions=sessions, chunk=(phase, index))
+    def chunk_context(index: int, *, hold: bool = False) -> JobContext:
+        return JobContext(
+            job_id=job_id, spec=context.spec, settings=settings, sessions=sessions, chunk=(phase, index), hold=hold
+        )
 
     given = 0  # chunks handed to the merge so far
     while True:
@@ -522,7 +536,7 @@ def _chunks_in_order(
         elif later_range is not None:
             index, first, stop = later_range
             with _heartbeat(sessions, job_id, (phase, index), interval_s=interval_s):
-                chunk_body(chunk_context(index), first, stop)
+                chunk_body(chunk_context(index, hold=hold_steals), first, stop)
             _mark_done(sessions, job_id, phase, index, stop - first)
         elif not ready:
             wait()
@@ -668,27 +682,56 @@ def load_arrays(context: JobContext, name: str) -> dict[str, np.ndarray]:
     return next(read_array_records(context, name))
 
 
+# Hand-overs kept in this process (`JobContext.hold`), by (job id, name); in memory up to HELD_HAND_OVER_BYTES each,
+# beyond that in an anonymous temporary file. A merge drops its job's when it ends.
+HELD_HAND_OVER_BYTES = 256 << 20
+_held: dict[tuple[str, str], Any] = {}
+
+
 @contextmanager
 def array_records(context: JobContext, name: str) -> Iterator[Callable[..., None]]:
     """A hand-over file written record by record (`write(**arrays)`, e.g. one per frame, so that what a chunk holds
     does not grow with its frames), committed when the block completes: each record is its names, then each array
-    as a .npy record (no ZIP: read back at the speed of the disk cache, no checksum per read)."""
+    as a .npy record (no ZIP: read back at the speed of the disk cache, no checksum per read). With `context.hold`
+    it stays in this process instead (no file, no fsync), for this process to read."""
+    import tempfile
+
     from numpy.lib import format as npy
 
-    with context.output(name, publish=False) as path, path.open("wb") as handle:
-
+    def writer(handle: Any) -> Callable[..., None]:
         def write(**arrays: Any) -> None:
             npy.write_array(handle, np.array(list(arrays), dtype=str), allow_pickle=False)
             for value in arrays.values():
                 npy.write_array(handle, np.asarray(value), allow_pickle=False)
 
-        yield write
+        return write
+
+    if context.hold:
+        held = tempfile.SpooledTemporaryFile(max_size=HELD_HAND_OVER_BYTES)  # noqa: SIM115 (kept, read later)
+        try:
+            yield writer(held)
+        except BaseException:
+            held.close()
+            raise
+        _held[(context.job_id, name)] = held
+        return
+    with context.output(name, publish=False) as path, path.open("wb") as handle:
+        yield writer(handle)
 
 
 def read_array_records(context: JobContext, name: str) -> Iterator[dict[str, np.ndarray]]:
-    """The records of a hand-over file (`array_records`), one at a time."""
+    """The records of a hand-over (`array_records`), one at a time: kept in this process, or its file."""
     from numpy.lib import format as npy
 
+    held = _held.pop((context.job_id, name), None)
+    if held is not None:
+        with held:
+            size = held.seek(0, os.SEEK_END)
+            held.seek(0)
+            while held.tell() < size:
+                names = npy.read_array(held, allow_pickle=False)
+                yield {str(key): npy.read_array(held, allow_pickle=False) for key in names}
+        return
     path = context.directory / name
     if not path.is_file():
         raise RuntimeError(f"the intermediate file {name} is missing")
@@ -697,6 +740,16 @@ def read_array_records(context: JobContext, name: str) -> Iterator[dict[str, np.
         while handle.tell() < size:
             names = npy.read_array(handle, allow_pickle=False)
             yield {str(key): npy.read_array(handle, allow_pickle=False) for key in names}
+
+
+def has_hand_over(context: JobContext, name: str) -> bool:
+    """Whether a hand-over `name` of the context's job can be read here (kept in this process, or its file)."""
+    return (context.job_id, name) in _held or (context.directory / name).is_file()
+
+
+def _drop_held(job_id: str) -> None:
+    for key in [key for key in _held if key[0] == job_id]:
+        _held.pop(key).close()
 
 
 def finite_or_none(value: Any) -> Any:

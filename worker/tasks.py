@@ -30,14 +30,15 @@ from worker.jobs import topography as topography_job
 from worker.runner import ChunkBody, MergeBody, run_chunk, run_job, run_merge
 from worker.runtime import sessions_of
 
-# Per chunked kind, its phases in order: (chunk body, merge body). A merge that returns a `Chunked` plan starts the
-# next phase; the last one returns the result.
-PHASES: dict[str, list[tuple[ChunkBody, MergeBody]]] = {
+# Per chunked kind, its phases in order: (chunk body, merge body, whether the merge keeps the later chunks it measures
+# itself in its process: `run_merge` hold_steals). A merge that returns a `Chunked` plan starts the next phase; the
+# last one returns the result.
+PHASES: dict[str, list[tuple[ChunkBody, MergeBody, bool]]] = {
     "selftest": [
-        (selftest_job.selftest_compute, selftest_job.selftest_chain),
-        (selftest_job.selftest_verify, selftest_job.selftest_write),
+        (selftest_job.selftest_compute, selftest_job.selftest_chain, False),
+        (selftest_job.selftest_verify, selftest_job.selftest_write, False),
     ],
-    "topography": [(topography_job.topography_measure, topography_job.topography_write)],
+    "topography": [(topography_job.topography_measure, topography_job.topography_write, True)],
 }
 
 
@@ -99,8 +100,8 @@ def job_merge(self: Task, job_id: str, phase: int) -> dict[str, Any]:
     kind = _kind(self, job_id)
     if kind is None:
         return {}
-    chunk_body, merge_body = PHASES[kind][phase]
-    return run_merge(self, job_id, phase, merge_body, chunk_body)
+    chunk_body, merge_body, hold_steals = PHASES[kind][phase]
+    return run_merge(self, job_id, phase, merge_body, chunk_body, hold_steals=hold_steals)
 
 
 @shared_task(bind=True, name=DEMO_TASK, ignore_result=True)

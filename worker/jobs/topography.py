@@ -38,6 +38,7 @@ from worker.runner import (
     JobContext,
     array_records,
     finite_or_none,
+    has_hand_over,
     load_arrays,
     planned_frame_ranges,
     read_array_records,
@@ -213,7 +214,8 @@ def _measured(context: JobContext, first: int, stop: int, *, report: bool = True
 def _frames_of(context: JobContext, turn: InOrder, grid_shape: tuple[int, int]) -> Iterator[tuple[Any, Any, Any]]:
     """The frames of a chunk's turn one at a time, (measurement, peak, packed grids): measured here when the turn
     says so, or when its hand-over is missing (a merge that ran before, and died, measured it straight into its
-    own file), else read from the hand-over. Either way from the same records, so the file is the same."""
+    own file or kept it in its process), else read from the hand-over. Either way from the same records, so the
+    file is the same."""
     from dataclasses import fields
 
     from fringelab.formats.topography import PackedGrids
@@ -223,7 +225,7 @@ def _frames_of(context: JobContext, turn: InOrder, grid_shape: tuple[int, int]) 
 
     if turn.measure_here is not None:
         records = _measured(turn.measure_here, turn.first, turn.stop)
-    elif not (context.directory / _hand_over_name(turn.first)).is_file():
+    elif not has_hand_over(context, _hand_over_name(turn.first)):
         records = _measured(context, turn.first, turn.stop, report=False)  # the chunk is done already
     else:
         records = read_array_records(context, _hand_over_name(turn.first))
