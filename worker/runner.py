@@ -463,7 +463,7 @@ def run_merge(
         _start_phase(task, sessions, job_id, outcome, phase=phase + 1)
         return {}
     finish(sessions, job_id, state="succeeded", result=outcome, context=context)
-    remove_chunk_files(context.directory)  # after the job's end: a merge that runs again needs them until then
+    _remove_chunk_files(context.directory)  # after the job's end: a merge that runs again needs them until then
     return dict(outcome)
 
 
@@ -664,7 +664,7 @@ def this_worker() -> str:
     return f"{socket.gethostname()}:{os.getpid()}"
 
 
-def remove_chunk_files(directory: Path) -> None:
+def _remove_chunk_files(directory: Path) -> None:
     chunk_dir = directory / "chunks"
     if chunk_dir.is_dir():
         for path in chunk_dir.iterdir():
@@ -723,20 +723,15 @@ def read_array_records(context: JobContext, name: str) -> Iterator[dict[str, np.
     """The records of a hand-over (`array_records`), one at a time: kept in this process, or its file."""
     from numpy.lib import format as npy
 
-    held = _held.pop((context.job_id, name), None)
-    if held is not None:
-        with held:
-            size = held.seek(0, os.SEEK_END)
-            held.seek(0)
-            while held.tell() < size:
-                names = npy.read_array(held, allow_pickle=False)
-                yield {str(key): npy.read_array(held, allow_pickle=False) for key in names}
-        return
-    path = context.directory / name
-    if not path.is_file():
-        raise RuntimeError(f"the intermediate file {name} is missing")
-    with path.open("rb") as handle:
-        size = path.stat().st_size
+    handle = _held.pop((context.job_id, name), None)
+    if handle is None:
+        path = context.directory / name
+        if not path.is_file():
+            raise RuntimeError(f"the intermediate file {name} is missing")
+        handle = path.open("rb")
+    with handle:
+        size = handle.seek(0, os.SEEK_END)
+        handle.seek(0)
         while handle.tell() < size:
             names = npy.read_array(handle, allow_pickle=False)
             yield {str(key): npy.read_array(handle, allow_pickle=False) for key in names}
