@@ -203,7 +203,7 @@ def list_jobs(
 
 
 def _visible_jobs(session: Session, principal: Principal, experiment_id: int | None) -> Any:
-    query = select(Job.id, Job.state, Job.stage, Job.progress_done, Job.finished_at)
+    query = select(Job.id, Job.state, Job.stage, Job.progress_done, Job.worker, Job.finished_at)
     if not principal.is_admin:
         query = query.where(
             Job.experiment_id.in_(select(Experiment.id).where(readable_experiments(session, principal)))
@@ -214,11 +214,12 @@ def _visible_jobs(session: Session, principal: Principal, experiment_id: int | N
 
 
 def _list_marks(state: AppState, principal: Principal, experiment_id: int | None) -> dict[str, str]:
-    """A mark of each job the caller may see, which changes when the job does: cheap enough to ask twice a
-    second (and shared by every stream of the same view, see `_list_view`)."""
+    """A mark of each job the caller may see, which changes when the job does (its worker too: a job's pass in
+    frame order may run on another process than its start, and the queue page shows it): cheap enough to ask
+    twice a second (and shared by every stream of the same view, see `_list_view`)."""
     with state.sessions() as session:
         rows = session.execute(_visible_jobs(session, principal, experiment_id)).all()
-    return {row.id: f"{row.state}|{row.stage}|{row.progress_done}|{row.finished_at}" for row in rows}
+    return {row.id: f"{row.state}|{row.stage}|{row.progress_done}|{row.worker}|{row.finished_at}" for row in rows}
 
 
 def _list_view(principal: Principal, experiment_id: int | None) -> tuple[object, ...]:
