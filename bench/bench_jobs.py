@@ -15,7 +15,9 @@ writer's compression too, which the command line runs in 2 threads beside), and 
 topography as a job, each printed as it ends:
 
   round       which repetition
-  workers     worker processes (one `fringelab worker --concurrency N`); "pipeline" for the science alone
+  workers     worker processes (one `fringelab worker --concurrency N`); "pipeline" for the science alone;
+              "N x pl" for N copies of it at once, each in a process of its own (the machine's ceiling: how
+              much N processes with no job system between them get from its cores)
   frames      frames of the job, in chunks of --chunk-frames (default: the job's own choice, see README)
   run s       from the job's start to its end (job record: started_at .. finished_at)
   frames/s    frames / run s
@@ -38,7 +40,8 @@ every pool process has measured a chunk (`warm_up`), as on a worker that has run
 then, per round and as the median over the rounds (ratios taken within a round, of runs seconds apart: on shared
 cores the load still moves between them, and the CPU-time ratio is the steadier figure): the scaling efficiency,
 (frames/s with N) / (N x frames/s with 1), and the job with one worker process against the science pipeline alone,
-(job frames/s with 1) / (pipeline frames/s), by wall time and by CPU time. --kind selftest measures the job system
+(job frames/s with 1) / (pipeline frames/s), by wall time and by CPU time, and the ceiling the machine sets on
+the efficiency: (frames/s of N pipelines at once) / (N x frames/s of one, in a process of its own). --kind selftest measures the job system
 alone (synthetic frames, an FFT each; --frame-size-px sets the work per frame). On a machine whose cores are
 shared with other work the efficiency says so: `os.cpu_count()` and the load average are printed.
 """
@@ -296,6 +299,49 @@ def pipeline_run(ids: dict[str, Any], attempt: int) -> tuple[float, float]:
     return elapsed, cpu
 
 
+def _pipeline_in_a_process(ids: dict[str, Any], out_path: Path, start: Any, elapsed_s: Any) -> None:
+    """One copy of `pipeline_run` in a process of its own: warmed up, then timed from when every copy is ready."""
+    import cv2
+
+    from fringelab.formats.camera import read_camera_json
+    from fringelab.formats.projector import read_projector_calibration
+    from fringelab.formats.recordings import open_recording
+    from fringelab.pipelines.topography import topography_recording
+
+    cv2.setNumThreads(1)
+    camera, projector = read_camera_json(ids["camera_json"]), read_projector_calibration(ids["projector_h5"])
+    topography_recording(open_recording(ids["test_path"]), camera, projector, out_path=out_path, frames=range(4),
+                         writer_threads=0)  # fmt: skip
+    start.wait()
+    began = time.perf_counter()
+    topography_recording(open_recording(ids["test_path"]), camera, projector, out_path=out_path, writer_threads=0)
+    elapsed_s.value = time.perf_counter() - began
+    out_path.unlink()
+
+
+def pipelines_at_once(ids: dict[str, Any], copies: int) -> float:
+    """Seconds until `copies` science pipelines, each in a process of its own on one thread, started together,
+    have all ended: what the machine's cores give N independent copies (shared caches, memory bandwidth, a VM's
+    neighbours), the ceiling of the job system's scaling efficiency on this machine."""
+    import multiprocessing
+
+    spawn = multiprocessing.get_context("spawn")  # this process runs threads (the API client): no fork
+    start = spawn.Barrier(copies)
+    elapsed = [spawn.Value("d", 0.0) for _ in range(copies)]
+    parent = Path(ids["camera_json"]).parent
+    processes = [
+        spawn.Process(target=_pipeline_in_a_process, args=(ids, parent / f"copy-{i}.h5", start, elapsed[i]))
+        for i in range(copies)
+    ]
+    for process in processes:
+        process.start()
+    for process in processes:
+        process.join()
+        if process.exitcode != 0:
+            raise RuntimeError(f"a pipeline copy failed (exit code {process.exitcode})")
+    return max(value.value for value in elapsed)
+
+
 def warm_up(bench: Bench, spec: dict[str, Any], processes: int, *, tries: int = 5) -> None:
     """Short topographies until every pool process has measured a chunk (read the calibrations, built the tables,
     loaded the compiled code), as on a worker that has run a job before. Which process takes which chunk is the
@@ -359,6 +405,12 @@ def main() -> int:
                 measured[0] = (frames / pipeline_s, pipeline_cpu_s)
                 print(f"{round_:>5} {'pipeline':>8} {frames:>6} {pipeline_s:>7.2f} {frames / pipeline_s:>8.2f} "
                       f"{pipeline_cpu_s:>7.2f} {'':>10} {'':>10} {'':>7} {os.getloadavg()[0]:>5.2f}")  # fmt: skip
+                for copies in sorted({1, *args.workers}):
+                    copies_s = pipelines_at_once(ids, copies)
+                    measured[("copies", copies)] = (copies * frames / copies_s, 0.0)
+                    print(f"{round_:>5} {f'{copies} x pl':>8} {copies * frames:>6} {copies_s:>7.2f} "
+                          f"{copies * frames / copies_s:>8.2f} {'':>7} {'':>10} {'':>10} {'':>7} "
+                          f"{os.getloadavg()[0]:>5.2f}")  # fmt: skip
             for processes in args.workers:
                 worker = bench.start_worker(processes)
                 try:  # a small job first, so every pool process has imported the science before the timing
@@ -412,6 +464,10 @@ def report(rounds: list[dict[Any, tuple[float, float]]], workers: list[int]) -> 
     for processes in (n for n in workers if n > 1):
         line(f"scaling efficiency with {processes} processes",
              [r[processes][0] / (processes * r[1][0]) for r in rounds if 1 in r and processes in r])  # fmt: skip
+    for processes in (n for n in workers if n > 1):
+        line(f"ceiling: {processes} pipelines at once, each in its own process / {processes} x one alone, frames/s",
+             [r[("copies", processes)][0] / (processes * r[("copies", 1)][0]) for r in rounds
+              if ("copies", processes) in r and ("copies", 1) in r])  # fmt: skip
     line("job with 1 worker process / science pipeline alone, frames/s",
          [r[1][0] / r[0][0] for r in rounds if 0 in r and 1 in r])  # fmt: skip
     line("science pipeline alone / job with 1 worker process, CPU s",

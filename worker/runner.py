@@ -6,12 +6,15 @@ them, that takes the chunks in frame order, each as soon as it can (`_chunks_in_
 job or plans the next such phase (see `fringelab.core.jobs` for why the join is counted in the database). When
 the next chunk in order is nobody's, the merge claims it and measures it in its turn, straight into its output
 (no hand-over); while another process measures the next one, the merge measures a later chunk nobody has started
-(handed over), else waits. So the pass in frame order overlaps the chunks instead of following them, its process
-never idles while there is work, one worker process runs a whole phase inside its merge, and the merge never waits
-for a chunk that needs its own slot. A claim is an UPDATE on the chunk's row that only one process can win.
-Everything a person must act on (ValueError, MeasurementError) becomes the job's error text; anything else is an
-internal error whose traceback goes to the worker log. Acks-late work can run twice: a job that already
-finished is not run again, and only one run can finish it (`UPDATE ... WHERE finished_at IS NULL`).
+(handed over), else waits. A chunk task goes on from its chunk to the next one nobody has started, so the other
+processes do not go back to the queue between chunks. So the pass in frame order overlaps the chunks instead of
+following them, no process idles while there is work, one worker process runs a whole phase inside its merge, and
+the merge never waits for a chunk that needs its own slot. A claim is an UPDATE on the chunk's row that only one
+process can win; a chunk whose process is gone is taken over at once (`_process_gone`: on the same machine) or
+once its heartbeat is stale. Everything a person must act on (ValueError, MeasurementError) becomes the job's
+error text; anything else is an internal error whose traceback goes to the worker log. Acks-late work can run
+twice: a job that already finished is not run again, and only one run can finish it
+(`UPDATE ... WHERE finished_at IS NULL`).
 
 What does not belong here: what a job computes (worker/jobs/) and how the API reports it.
 """
@@ -21,16 +24,19 @@ from __future__ import annotations
 import hashlib
 import logging
 import os
+import re
 import socket
 import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import psutil
 import redis
 from celery import Task, group
 from sqlalchemy import func, select, update
@@ -155,6 +161,9 @@ MergeBody = Callable[[JobContext, Iterator["InOrder"]], "dict[str, Any] | Chunke
 
 def _worker_name(task: Task) -> str:
     return f"{task.request.hostname or socket.gethostname()} (pid {os.getpid()})"
+
+
+_WORKER_NAME = re.compile(r"^(?:[^@]*@)?(?P<host>.+) \(pid (?P<pid>\d+)\)$")  # a `_worker_name`: node@host (pid N)
 
 
 @contextmanager
@@ -291,33 +300,60 @@ def _send_pending(task: Task, sessions: sessionmaker[Session], job_id: str, phas
 
 
 def run_chunk(task: Task, job_id: str, phase: int, index: int, body: ChunkBody) -> None:
-    """One chunk of a phase of a chunked job, unless somebody already runs it or ran it (its merge may have taken
-    it). A redelivered task (its earlier run died with its process) takes its chunk over."""
+    """This task's chunk, then every chunk of the phase that nobody has started, lowest first, until none is left:
+    the process goes on without a round trip through the queue per chunk (the tasks of the chunks it took find them
+    taken and end at once). A chunk whose process is gone (`_process_gone`) is taken over; a redelivered task (its
+    earlier run died with its process) takes its own chunk over too, unless a live process on this machine runs it
+    (one that took it over first)."""
     sessions, settings = sessions_of(task.app), settings_of(task.app)
     redelivered = bool((task.request.delivery_info or {}).get("redelivered"))
+    worker = _worker_name(task)
+
+    def orphaned(chunk: JobChunk) -> bool:
+        gone = _process_gone(chunk)
+        return bool(gone) or (gone is None and redelivered and chunk.index == index)
+
+    def takeable(chunk: JobChunk) -> bool:
+        return _takeable(chunk, settings, orphaned=orphaned)
+
+    wanted: int | None = index
+    while claimed := _claim_next(sessions, settings, job_id, phase, worker, wanted=wanted, takeable=takeable):
+        context, first, stop = claimed
+        ok, _ = _run_guarded(context, partial(body, context, first, stop))
+        if not ok:
+            return
+        assert context.chunk is not None
+        _mark_done(sessions, job_id, phase, context.chunk[1], stop - first)
+        _announce_done(task, job_id, phase, context.chunk[1])
+        wanted = None
+    _after_chunk(task, sessions, job_id, phase)
+
+
+def _claim_next(
+    sessions: sessionmaker[Session],
+    settings: Settings,
+    job_id: str,
+    phase: int,
+    worker: str,
+    *,
+    wanted: int | None,
+    takeable: Callable[[JobChunk], bool],
+) -> tuple[JobContext, int, int] | None:
+    """Claim chunk `wanted` if it can be taken, else the first of the phase that can: its context and frames
+    [first, stop). None when none can, or the job no longer runs this phase."""
     with sessions() as session:
         job = session.get(Job, job_id)
-        chunk = session.get(JobChunk, (job_id, phase, index))
-        if job is None or chunk is None or job.state != "running" or job.phase != phase:
+        if job is None or job.state != "running" or job.phase != phase:
             _confirm_cancel(sessions, job)
-            return
-        if chunk.state == "done":  # redelivered after it finished, or its merge ran it: make sure the merge was sent
-            session.close()
-            _after_chunk(task, sessions, job_id, phase)
-            return
-        taken = _takeable(chunk, settings, orphaned=lambda _chunk: redelivered) and _claim(
-            session, chunk, _worker_name(task)
-        )
-        first, stop, spec = chunk.first_frame, chunk.stop_frame, dict(job.spec)
-    if not taken:
-        return
-    context = JobContext(job_id=job_id, spec=spec, settings=settings, sessions=sessions, chunk=(phase, index))
-    ok, _ = _run_guarded(context, lambda: body(context, first, stop))
-    if not ok:
-        return
-    _mark_done(sessions, job_id, phase, index, stop - first)
-    _announce_done(task, job_id, phase, index)
-    _after_chunk(task, sessions, job_id, phase)
+            return None
+        chunks = _phase_chunks(session, job_id, phase)
+        for chunk in sorted(chunks, key=lambda c: c.index != wanted):  # `wanted` first, then in order
+            if takeable(chunk) and _claim(session, chunk, worker):
+                context = JobContext(
+                    job_id=job_id, spec=dict(job.spec), settings=settings, sessions=sessions, chunk=(phase, chunk.index)
+                )
+                return context, chunk.first_frame, chunk.stop_frame
+    return None
 
 
 def _announce_done(task: Task, job_id: str, phase: int, index: int) -> None:
@@ -336,6 +372,20 @@ def _wait_for_a_chunk(task: Task, job_id: str, phase: int) -> None:
         redis_of(task.app).blpop([chunk_done_key(job_id, phase)], timeout=MERGE_WAIT_S)
     except redis.RedisError:
         time.sleep(MERGE_POLL_S)
+
+
+def _process_gone(chunk: JobChunk) -> bool | None:
+    """Whether the process running the chunk has ended, where that can be told: on this machine (the host of its
+    worker's name, `_worker_name`, is this one), True when its PID is gone (or a zombie), else False. None for a
+    process elsewhere: its heartbeat decides (`_takeable`). A PID taken again by another process reads as alive:
+    the heartbeat decides then too."""
+    match = _WORKER_NAME.match(chunk.worker or "")
+    if match is None or match["host"] != socket.gethostname():
+        return None
+    try:
+        return psutil.Process(int(match["pid"])).status() == psutil.STATUS_ZOMBIE
+    except psutil.NoSuchProcess:
+        return True
 
 
 def _takeable(chunk: JobChunk, settings: Settings, *, orphaned: Callable[[JobChunk], bool]) -> bool:
@@ -498,7 +548,7 @@ def _chunks_in_order(
     interval_s = heartbeat_interval_s(settings)
 
     def takeable(chunk: JobChunk) -> bool:
-        return _takeable(chunk, settings, orphaned=lambda c: c.worker == dead_merge)
+        return _takeable(chunk, settings, orphaned=lambda c: c.worker == dead_merge or bool(_process_gone(c)))
 
     def chunk_context(index: int, *, hold: bool = False) -> JobContext:
         return JobContext(
