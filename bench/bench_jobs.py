@@ -41,9 +41,10 @@ then, per round and as the median over the rounds (ratios taken within a round, 
 cores the load still moves between them, and the CPU-time ratio is the steadier figure): the scaling efficiency,
 (frames/s with N) / (N x frames/s with 1), and the job with one worker process against the science pipeline alone,
 (job frames/s with 1) / (pipeline frames/s), by wall time and by CPU time, and the ceiling the machine sets on
-the efficiency: (frames/s of N pipelines at once) / (N x frames/s of one, in a process of its own). --kind selftest measures the job system
-alone (synthetic frames, an FFT each; --frame-size-px sets the work per frame). On a machine whose cores are
-shared with other work the efficiency says so: `os.cpu_count()` and the load average are printed.
+the efficiency, (frames/s of N pipelines at once) / (N x frames/s of one, in a process of its own), with the
+efficiency against it. --kind selftest measures the job system alone (synthetic frames, an FFT each;
+--frame-size-px sets the work per frame). On a machine whose cores are shared with other work the efficiency says
+so: `os.cpu_count()` and the load average are printed.
 """
 
 from __future__ import annotations
@@ -460,14 +461,20 @@ def report(rounds: list[dict[Any, tuple[float, float]]], workers: list[int]) -> 
             each = ", ".join(f"{v:.2f}" for v in values)
             print(f"{name}: median {statistics.median(values):.2f} (rounds: {each})")
 
+    def efficiency(r: dict[Any, tuple[float, float]], n: int) -> float:
+        return r[n][0] / (n * r[1][0])
+
+    def ceiling(r: dict[Any, tuple[float, float]], n: int) -> float:
+        return r[("copies", n)][0] / (n * r[("copies", 1)][0])
+
     print()
-    for processes in (n for n in workers if n > 1):
-        line(f"scaling efficiency with {processes} processes",
-             [r[processes][0] / (processes * r[1][0]) for r in rounds if 1 in r and processes in r])  # fmt: skip
-    for processes in (n for n in workers if n > 1):
-        line(f"ceiling: {processes} pipelines at once, each in its own process / {processes} x one alone, frames/s",
-             [r[("copies", processes)][0] / (processes * r[("copies", 1)][0]) for r in rounds
-              if ("copies", processes) in r and ("copies", 1) in r])  # fmt: skip
+    for n in (n for n in workers if n > 1):
+        line(f"scaling efficiency with {n} processes", [efficiency(r, n) for r in rounds if {1, n} <= r.keys()])
+        with_ceiling = [r for r in rounds if {1, n, ("copies", 1), ("copies", n)} <= r.keys()]
+        line(f"ceiling: {n} pipelines at once, each in its own process / {n} x one alone, frames/s",
+             [ceiling(r, n) for r in with_ceiling])  # fmt: skip
+        line(f"scaling efficiency with {n} processes / the ceiling",
+             [efficiency(r, n) / ceiling(r, n) for r in with_ceiling])  # fmt: skip
     line("job with 1 worker process / science pipeline alone, frames/s",
          [r[1][0] / r[0][0] for r in rounds if 0 in r and 1 in r])  # fmt: skip
     line("science pipeline alone / job with 1 worker process, CPU s",
