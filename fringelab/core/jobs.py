@@ -20,9 +20,9 @@ worker), and before them the phase's merge task (id `<job>:merge:<phase>`; sent 
 runs in frame order over each chunk as soon as its row is done, measures the chunks nobody has started (the next
 one in order straight into its output), and either ends the job or plans the next phase. A chunk runs where its
 row is claimed (`pending -> running`, one claim wins); a chunk task that finds its row claimed by a live run
-leaves it, and goes on to the next row nobody has claimed. The join is counted in the database, not in a Celery chord: a chord's counter in Redis counts task
-deliveries, so an acks-late redelivery would count a chunk twice and fire the merge early; a row that goes
-`-> done` once cannot.
+leaves it, and goes on to the next row nobody has claimed. The join is counted in the database, not in a Celery
+chord: a chord's counter in Redis counts task deliveries, so an acks-late redelivery would count a chunk twice and
+fire the merge early; a row that goes `-> done` once cannot.
 """
 
 from __future__ import annotations
