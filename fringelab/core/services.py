@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import errno
 import socket
+import time
 from urllib.parse import urlsplit, urlunsplit
 
 import redis
@@ -27,16 +28,30 @@ class ServiceError(Exception):
     """A part the process needs is missing or busy; the message names it and says how to fix it."""
 
 
-def check_redis(url: str, *, timeout_s: float = 3.0) -> None:
-    try:
-        client = redis.Redis.from_url(url, socket_timeout=timeout_s, socket_connect_timeout=timeout_s)
-        client.ping()
-        client.close()
-    except redis.RedisError as error:
-        raise ServiceError(
-            f"Redis at {redacted_url(url)} is unreachable ({error}); start it, fix FRINGELAB_REDIS_URL, "
-            "or leave FRINGELAB_REDIS_URL empty so that `fringelab up` starts its own"
-        ) from None
+# How long a starting worker waits for its Redis (one restarted beside it by `fringelab up`, or started later by
+# compose) before it exits with the error.
+WORKER_REDIS_WAIT_S = 10.0
+
+
+def check_redis(url: str, *, timeout_s: float = 3.0, wait_s: float = 0.0) -> None:
+    """Raise ServiceError unless Redis at `url` answers, trying again for up to `wait_s` (a worker started while
+    its Redis restarts beside it, under `fringelab up` or compose, waits for it rather than exiting)."""
+    deadline = time.monotonic() + wait_s
+    while True:
+        try:
+            client = redis.Redis.from_url(url, socket_timeout=timeout_s, socket_connect_timeout=timeout_s)
+            client.ping()
+            client.close()
+            return
+        except redis.RedisError as error:
+            if time.monotonic() < deadline:
+                time.sleep(0.25)
+                continue
+            waited = f" for {wait_s:g} s" if wait_s else ""
+            raise ServiceError(
+                f"Redis at {redacted_url(url)} is unreachable{waited} ({error}); start it, fix FRINGELAB_REDIS_URL, "
+                "or leave FRINGELAB_REDIS_URL empty so that `fringelab up` starts its own"
+            ) from None
 
 
 def check_port_free(host: str, port: int) -> None:

@@ -3,15 +3,20 @@
 from __future__ import annotations
 
 import os
+import signal
 import socket
 import subprocess
 import sys
+import time
 
 import pytest
 
 from backend import __version__
 from backend.cli import build_parser
+from fringelab.core.queue import create_celery
 from fringelab.core.services import free_port
+from fringelab.core.settings import Settings
+from tests.support import RedisServer, wait_for
 
 
 def run_cli(*args: str, env: dict[str, str] | None = None, timeout: float = 60) -> subprocess.CompletedProcess[str]:
@@ -51,6 +56,27 @@ def test_unreachable_redis_is_named(tmp_path):
     env = {"FRINGELAB_REDIS_URL": f"redis://127.0.0.1:{port}/0", "FRINGELAB_DATA_DIR": str(tmp_path)}
     for command in ("worker", "api"):
         assert_one_line_error(run_cli(command, env=env), f"127.0.0.1:{port}", "FRINGELAB_REDIS_URL")
+
+
+def test_a_worker_started_before_its_redis_waits_for_it(tmp_path):
+    """`fringelab up` restarts Redis beside a worker that is starting (compose may start Redis later): the worker
+    waits for it (WORKER_REDIS_WAIT_S) instead of exiting, and then serves."""
+    redis_server = RedisServer(tmp_path)
+    clean = {k: v for k, v in os.environ.items() if not k.startswith("FRINGELAB_")}
+    env = {**clean, "FRINGELAB_REDIS_URL": redis_server.url, "FRINGELAB_DATA_DIR": str(tmp_path / "var"),
+           "FRINGELAB_WORKER_CONCURRENCY": "1"}  # fmt: skip
+    worker = subprocess.Popen([sys.executable, "-m", "backend.cli", "worker"], env=env, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.PIPE, text=True, start_new_session=True)  # fmt: skip
+    try:
+        time.sleep(2)  # the worker is up to its check of Redis by now, and Redis is not there
+        assert worker.poll() is None, worker.stderr.read() if worker.stderr else ""
+        redis_server.start()
+        celery = create_celery(Settings(_env_file=None, redis_url=redis_server.url))  # type: ignore[call-arg]
+        wait_for(lambda: celery.control.ping(timeout=0.5), timeout_s=60, what="the worker to answer")
+    finally:
+        os.killpg(worker.pid, signal.SIGTERM)
+        worker.wait(timeout=60)
+        redis_server.stop()
 
 
 def test_invalid_setting_is_named(tmp_path):

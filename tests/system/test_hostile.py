@@ -400,7 +400,7 @@ def test_a_killed_child_of_up_comes_back_and_its_job_ends_once(tmp_path):
                 wait_for(lambda: _healthy(server.url), timeout_s=90, what=f"health after {word} came back")
             health = httpx.get(f"{server.url}/api/v1/health", timeout=30).json()
             assert {p["name"]: p["restarts"] for p in health["processes"]} == {
-                "redis-server": 1, "worker": 1, "web server": 1}  # fmt: skip
+                "redis-server": 1, "worker": 1, "web server": 1}, server.up.log()  # fmt: skip
             final = wait_for(lambda: _final(admin, job["id"]), timeout_s=240, interval_s=1, what="the job to end")
             assert final["state"] in ("succeeded", "failed"), final  # type: ignore[index]
             log = admin.get(f"/api/v1/jobs/{job['id']}/log").json()
