@@ -83,10 +83,45 @@ def alembic_config(url: str) -> Config:
 
 
 def upgrade_database(url: str, revision: str = "head") -> None:
-    """Apply the migrations up to `revision`; raise DatabaseError with a usable message on failure."""
+    """Apply the migrations up to `revision`; raise DatabaseError with a usable message on failure. Processes
+    that start together (the web server's, a command such as `fringelab user add`) upgrade one at a time
+    (`_one_upgrade_at_a_time`): the second finds the first one's work done instead of repeating it halfway."""
     engine = make_engine(url)
     try:
         check_database(engine)
+        with _one_upgrade_at_a_time(engine):
+            command.upgrade(alembic_config(url), revision)
     finally:
         engine.dispose()
-    command.upgrade(alembic_config(url), revision)
+
+
+# The PostgreSQL advisory lock that upgrades take (any fixed number; "fringelab" in ASCII, cut to 63 bits).
+UPGRADE_LOCK_KEY = 0x6672696E67656C61
+
+
+@contextmanager
+def _one_upgrade_at_a_time(engine: Engine) -> Iterator[None]:
+    """Hold the database's upgrade lock: a lock file beside an SQLite database, an advisory lock on PostgreSQL
+    (held by a connection of its own until the upgrade ends)."""
+    if engine.dialect.name == "sqlite":
+        path = engine.url.database
+        if not path or path == ":memory:":
+            yield
+            return
+        try:
+            import fcntl
+        except ImportError:  # not POSIX: no lock (start one process first there)
+            yield
+            return
+        with Path(f"{path}.upgrade-lock").open("a") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+            yield
+    elif engine.dialect.name == "postgresql":
+        with engine.connect() as connection:
+            connection.execute(text("SELECT pg_advisory_lock(:key)"), {"key": UPGRADE_LOCK_KEY})
+            try:
+                yield
+            finally:
+                connection.execute(text("SELECT pg_advisory_unlock(:key)"), {"key": UPGRADE_LOCK_KEY})
+    else:
+        yield

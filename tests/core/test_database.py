@@ -82,3 +82,23 @@ def test_sqlite_runs_in_wal_mode_with_foreign_keys(tmp_path):
 def test_an_unreachable_database_is_named():
     with pytest.raises(DatabaseError, match=r"127\.0\.0\.1:1.*FRINGELAB_DATABASE_URL"):
         upgrade_database("postgresql+psycopg://nobody@127.0.0.1:1/none?connect_timeout=2")
+
+
+def _upgrade_in_a_process(url: str) -> None:
+    upgrade_database(url)
+
+
+def test_processes_that_start_together_upgrade_one_at_a_time(database_url):
+    """The web server and a command such as `fringelab user add` start together and both upgrade a new database:
+    each succeeds (the later ones find the work done), where two interleaved upgrades fail halfway (SQLite: "table
+    _alembic_tmp_users already exists")."""
+    import multiprocessing
+
+    spawn = multiprocessing.get_context("spawn")
+    processes = [spawn.Process(target=_upgrade_in_a_process, args=(database_url,)) for _ in range(4)]
+    for process in processes:
+        process.start()
+    for process in processes:
+        process.join(timeout=300)
+    assert [process.exitcode for process in processes] == [0] * 4
+    assert {"users", "jobs", "job_chunks", "alembic_version"} <= _tables(database_url)
