@@ -277,9 +277,10 @@ def calibrate(bench: Bench, ids: dict[str, Any]) -> tuple[dict[str, Any], float]
     return spec, time.perf_counter() - start
 
 
-def pipeline_run(ids: dict[str, Any], attempt: int) -> tuple[float, float]:
+def pipeline_run(ids: dict[str, Any], out_path: Path, *, warm_up: bool, ready: Any = None) -> tuple[float, float]:
     """Seconds and CPU seconds of the science pipeline alone, in this process on one thread: the job's reference
-    figure (a worker process, too, runs one frame at a time on one thread)."""
+    figure (a worker process, too, runs one frame at a time on one thread). warm_up: 4 frames first (compiled code
+    loaded, tables built: as in a worker that has run a job before); ready: called just before the timing."""
     import cv2
 
     from fringelab.formats.camera import read_camera_json
@@ -289,10 +290,11 @@ def pipeline_run(ids: dict[str, Any], attempt: int) -> tuple[float, float]:
 
     cv2.setNumThreads(1)
     camera, projector = read_camera_json(ids["camera_json"]), read_projector_calibration(ids["projector_h5"])
-    out_path = Path(ids["camera_json"]).parent / f"pipeline-{attempt}.h5"
-    if attempt == 0:  # compiled code loaded, tables built: as in a worker that has run a job before
+    if warm_up:
         topography_recording(open_recording(ids["test_path"]), camera, projector, out_path=out_path, frames=range(4),
                              writer_threads=0)  # fmt: skip
+    if ready is not None:
+        ready()
     start, cpu = time.perf_counter(), time.process_time()
     topography_recording(open_recording(ids["test_path"]), camera, projector, out_path=out_path, writer_threads=0)
     elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu
@@ -302,22 +304,7 @@ def pipeline_run(ids: dict[str, Any], attempt: int) -> tuple[float, float]:
 
 def _pipeline_in_a_process(ids: dict[str, Any], out_path: Path, start: Any, elapsed_s: Any) -> None:
     """One copy of `pipeline_run` in a process of its own: warmed up, then timed from when every copy is ready."""
-    import cv2
-
-    from fringelab.formats.camera import read_camera_json
-    from fringelab.formats.projector import read_projector_calibration
-    from fringelab.formats.recordings import open_recording
-    from fringelab.pipelines.topography import topography_recording
-
-    cv2.setNumThreads(1)
-    camera, projector = read_camera_json(ids["camera_json"]), read_projector_calibration(ids["projector_h5"])
-    topography_recording(open_recording(ids["test_path"]), camera, projector, out_path=out_path, frames=range(4),
-                         writer_threads=0)  # fmt: skip
-    start.wait()
-    began = time.perf_counter()
-    topography_recording(open_recording(ids["test_path"]), camera, projector, out_path=out_path, writer_threads=0)
-    elapsed_s.value = time.perf_counter() - began
-    out_path.unlink()
+    elapsed_s.value, _ = pipeline_run(ids, out_path, warm_up=True, ready=start.wait)
 
 
 def pipelines_at_once(ids: dict[str, Any], copies: int) -> float:
@@ -402,7 +389,8 @@ def main() -> int:
         for round_ in range(1, args.repeat + 1):
             measured: dict[Any, tuple[float, float]] = {}
             if topography:
-                pipeline_s, pipeline_cpu_s = pipeline_run(ids, round_ - 1)
+                pipeline_s, pipeline_cpu_s = pipeline_run(ids, Path(ids["camera_json"]).parent / "pipeline.h5",
+                                                          warm_up=round_ == 1)  # fmt: skip
                 measured[0] = (frames / pipeline_s, pipeline_cpu_s)
                 print(f"{round_:>5} {'pipeline':>8} {frames:>6} {pipeline_s:>7.2f} {frames / pipeline_s:>8.2f} "
                       f"{pipeline_cpu_s:>7.2f} {'':>10} {'':>10} {'':>7} {os.getloadavg()[0]:>5.2f}")  # fmt: skip

@@ -302,19 +302,15 @@ def _send_pending(task: Task, sessions: sessionmaker[Session], job_id: str, phas
 def run_chunk(task: Task, job_id: str, phase: int, index: int, body: ChunkBody) -> None:
     """This task's chunk, then every chunk of the phase that nobody has started, lowest first, until none is left:
     the process goes on without a round trip through the queue per chunk (the tasks of the chunks it took find them
-    taken and end at once). A chunk whose process is gone (`_process_gone`) is taken over; a redelivered task (its
-    earlier run died with its process) takes its own chunk over too, unless a live process on this machine runs it
-    (one that took it over first)."""
+    taken and end at once). A chunk whose process died is taken over (`_takeable`); a redelivered task (its earlier
+    run died with its process) takes its own chunk over too, unless a live process on this machine runs it (one
+    that took it over first)."""
     sessions, settings = sessions_of(task.app), settings_of(task.app)
     redelivered = bool((task.request.delivery_info or {}).get("redelivered"))
     worker = _worker_name(task)
 
-    def orphaned(chunk: JobChunk) -> bool:
-        gone = _process_gone(chunk)
-        return bool(gone) or (gone is None and redelivered and chunk.index == index)
-
     def takeable(chunk: JobChunk) -> bool:
-        return _takeable(chunk, settings, orphaned=orphaned)
+        return _takeable(chunk, settings, orphaned=lambda c: redelivered and c.index == index)
 
     wanted: int | None = index
     while claimed := _claim_next(sessions, settings, job_id, phase, worker, wanted=wanted, takeable=takeable):
@@ -389,15 +385,17 @@ def _process_gone(chunk: JobChunk) -> bool | None:
 
 
 def _takeable(chunk: JobChunk, settings: Settings, *, orphaned: Callable[[JobChunk], bool]) -> bool:
-    """Whether a process may run this chunk now: nobody has started it, or its run died (`orphaned`: known dead;
-    or no heartbeat for FRINGELAB_WORKER_LOST_AFTER_S)."""
+    """Whether a process may run this chunk now: nobody has started it, or its run died: its process is gone
+    (`_process_gone`, on this machine), or, for a process elsewhere, the caller knows it died (`orphaned`), or it
+    has sent no heartbeat for FRINGELAB_WORKER_LOST_AFTER_S."""
     if chunk.state == "pending":
         return True
     if chunk.state != "running":
         return False
     beat = as_utc(chunk.heartbeat_at)
     stale = beat is None or (utcnow() - beat).total_seconds() > settings.worker_lost_after_s
-    return stale or orphaned(chunk)
+    gone = _process_gone(chunk)
+    return stale or bool(gone) or (gone is None and orphaned(chunk))
 
 
 def _claim(session: Session, chunk: JobChunk, worker: str) -> bool:
@@ -548,7 +546,7 @@ def _chunks_in_order(
     interval_s = heartbeat_interval_s(settings)
 
     def takeable(chunk: JobChunk) -> bool:
-        return _takeable(chunk, settings, orphaned=lambda c: c.worker == dead_merge or bool(_process_gone(c)))
+        return _takeable(chunk, settings, orphaned=lambda c: c.worker == dead_merge)
 
     def chunk_context(index: int, *, hold: bool = False) -> JobContext:
         return JobContext(
