@@ -64,6 +64,12 @@ class RedisServer:
             self.process.terminate()
             self.process.wait(timeout=10)
 
+    def kill(self) -> None:
+        """As a crash: clients see their connections reset and the port refuses until `start`."""
+        if self.process and self.process.poll() is None:
+            self.process.kill()
+            self.process.wait(timeout=10)
+
 
 class UpProcess:
     """`fringelab up` as a user runs it, in a subprocess on a free port with its own data directory."""
