@@ -1,9 +1,9 @@
 // A dropped folder of frames becomes one recording: the server takes one file per recording, so the folder is
 // packed here into a ZIP without compression (frames are PNG/TIFF/JPEG already). The result is a Blob made of the
 // original File objects between small headers, so nothing is copied into memory and the upload streams it from
-// disk; the files are read once, in slices, for their CRC-32. Any size and any number of files: past the plain
-// ZIP limits (4 GiB of data or offsets, 65,535 entries) the archive carries ZIP64 records (APPNOTE 4.5.3, 4.3.14),
-// which Python's zipfile (the server) and every current unzip tool read.
+// disk; the files are read once for their CRC-32 (small ones together, large ones in slices). Any size and any
+// number of files: past the plain ZIP limits (4 GiB of data or offsets, 65,535 entries) the archive carries ZIP64
+// records (APPNOTE 4.5.3, 4.3.14), which Python's zipfile (the server) and every current unzip tool read.
 
 const LIMIT_32 = 0xffffffff; // a 32-bit field holding this value means "see the ZIP64 extra field"
 const LIMIT_16 = 0xffff;

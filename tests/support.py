@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import redis
@@ -128,3 +128,34 @@ class UpProcess:
 def bearer(token: str) -> dict[str, str]:
     """The header that authenticates a request with an API token."""
     return {"Authorization": f"Bearer {token}"}
+
+
+_ADD_PEOPLE = """
+import json, sys
+from fringelab.core.accounts import create_user, issue_token
+from fringelab.core.db import make_engine, make_sessionmaker, upgrade_database
+from fringelab.core.settings import load_settings
+
+settings = load_settings()
+upgrade_database(settings.resolved_database_url)
+tokens = {}
+with make_sessionmaker(make_engine(settings.resolved_database_url))() as session:
+    for name, admin in json.loads(sys.argv[1]):
+        user = create_user(session, name, f"{name}-password", role="admin" if admin else "member")
+        tokens[name] = issue_token(session, user, kind="api")[1]
+    session.commit()
+print(json.dumps(tokens))
+"""
+
+
+def add_people(env: dict[str, str], people: Iterable[tuple[str, bool]]) -> dict[str, str]:
+    """Users (password "<name>-password"; admin or member) and an API token each, {name: token}, made as
+    `fringelab user add` and `fringelab token create` make them, in one process with the server's environment
+    (the six commands of three people cost 12 s; tests/api/auth/test_accounts.py runs the commands themselves)."""
+    import json
+    import sys
+
+    done = subprocess.run([sys.executable, "-c", _ADD_PEOPLE, json.dumps(list(people))], env=env,
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    return dict(json.loads(done.stdout))

@@ -1,5 +1,5 @@
 """A shared lab server as people run it: `fringelab up` with accounts on, in a subprocess on a free loopback port,
-with users made by the `fringelab user` / `token` commands. The tests talk HTTP to it only."""
+with users and tokens made as the `fringelab user` / `token` commands make them. The tests talk HTTP to it only."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from tests.support import UpProcess
+from tests.support import UpProcess, add_people
 
 PEOPLE = (("admin", True), ("ada", False), ("bob", False))
 
@@ -39,13 +39,7 @@ def start_lab_server(data_dir: Path, **env: str) -> LabServer:
     up = UpProcess(data_dir, extra_env={"FRINGELAB_AUTH_ENABLED": "true", "FRINGELAB_WORKER_CONCURRENCY": "2", **env})
     server = LabServer(up)
     data_dir.mkdir(parents=True, exist_ok=True)
-    for name, admin in PEOPLE:
-        added = server.cli("user", "add", name, *(["--admin"] if admin else []), "--password-stdin",
-                           stdin=f"{name}-password\n")  # fmt: skip
-        assert added.returncode == 0, added.stderr
-        created = server.cli("token", "create", name)
-        assert created.returncode == 0, created.stderr
-        server.tokens[name] = created.stdout.strip()
+    server.tokens.update(add_people(up.env, PEOPLE))
     up.start()
     return server
 

@@ -28,7 +28,7 @@ import pytest
 from backend.supervisor import STATUS_FILE, Supervisor, running_redis_url
 from fringelab.core.services import free_port
 from fringelab.core.settings import Settings
-from tests.support import RedisServer, bearer, wait_for
+from tests.support import RedisServer, add_people, bearer, wait_for
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
@@ -115,13 +115,7 @@ def api_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ApiServer]:
                                stderr=subprocess.STDOUT, start_new_session=True)  # fmt: skip
     server = ApiServer(process, f"http://127.0.0.1:{port}", port, env)
     try:
-        for name in PEOPLE:
-            flags = ["--admin"] if name == "admin" else []
-            added = server.cli("user", "add", name, *flags, "--password-stdin", stdin=f"{name}-password\n")
-            assert added.returncode == 0, added.stderr
-            created = server.cli("token", "create", name)
-            assert created.returncode == 0, created.stderr
-            server.tokens[name] = created.stdout.strip()
+        server.tokens.update(add_people(env, [(name, name == "admin") for name in PEOPLE]))
 
         def up() -> bool:
             if process.poll() is not None:
