@@ -9,6 +9,7 @@ everyone else gets a 404, as if it did not exist.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import re
 import secrets
@@ -59,14 +60,18 @@ def hash_password(password: str) -> str:
     return _hasher.hash(password)
 
 
-_DUMMY_HASH = _hasher.hash(secrets.token_urlsafe(16))  # what an unknown user's password is checked against
+@functools.cache
+def _dummy_hash() -> str:
+    """What an unknown user's password is checked against: made on first use, not at import (a hash costs a
+    quarter of a second, which every command and server process paid at start)."""
+    return _hasher.hash(secrets.token_urlsafe(16))
 
 
 def authenticate(session: Session, username: str, password: str) -> User | None:
     """The active user with this username and password, or None. Takes one password check whether or not the
     user exists (an unknown name is checked against a dummy hash), so the time does not tell names apart."""
     user = session.scalar(select(User).where(User.username == username))
-    matches = verify_password(user.password_hash if user else _DUMMY_HASH, password)
+    matches = verify_password(user.password_hash if user else _dummy_hash(), password)
     return user if user is not None and matches and not user.disabled else None
 
 

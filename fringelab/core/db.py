@@ -8,11 +8,13 @@ from __future__ import annotations
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from alembic import command
-from alembic.config import Config
 from sqlalchemy import Engine, create_engine, event, text
 from sqlalchemy.orm import Session, sessionmaker
+
+if TYPE_CHECKING:
+    from alembic.config import Config
 
 MIGRATIONS_DIR = Path(__file__).parent / "migrations"
 
@@ -76,6 +78,8 @@ def check_database(engine: Engine) -> None:
 
 
 def alembic_config(url: str) -> Config:
+    from alembic.config import Config  # half a second to import: only where a database is upgraded
+
     config = Config()
     config.set_main_option("script_location", str(MIGRATIONS_DIR))
     config.set_main_option("sqlalchemy.url", url.replace("%", "%%"))
@@ -86,6 +90,8 @@ def upgrade_database(url: str, revision: str = "head") -> None:
     """Apply the migrations up to `revision`; raise DatabaseError with a usable message on failure. Processes
     that start together (the web server's, a command such as `fringelab user add`) upgrade one at a time
     (`_one_upgrade_at_a_time`): the second finds the first one's work done instead of repeating it halfway."""
+    from alembic import command
+
     engine = make_engine(url)
     try:
         check_database(engine)
