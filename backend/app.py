@@ -35,7 +35,7 @@ from backend.limits import BodySizeLimit, PlainJsonNumbers, SharedRateLimiter
 from backend.openapi import install_openapi, operation_id
 from backend.polls import SharedPolls
 from backend.security import SecurityHeaders
-from fringelab.core.accounts import TokenCache
+from fringelab.core.accounts import TokenCache, dummy_hash
 from fringelab.core.db import make_engine, make_sessionmaker
 from fringelab.core.jobs import reconcile_periodically, reconcile_quietly
 from fringelab.core.queue import create_celery
@@ -70,6 +70,8 @@ def create_app(settings: Settings) -> FastAPI:
             if settings.reconcile_interval_s > 0:
                 background.start_soon(reconcile_periodically, state.sessions, state.celery, settings)
             background.start_soon(_flush_token_uses_periodically, state)
+            if settings.auth_enabled:
+                background.start_soon(anyio.to_thread.run_sync, dummy_hash)
             yield
             background.cancel_scope.cancel()
         state.tokens.flush_last_used(state.sessions)

@@ -61,9 +61,10 @@ def hash_password(password: str) -> str:
 
 
 @functools.cache
-def _dummy_hash() -> str:
-    """What an unknown user's password is checked against: made on first use, not at import (a hash costs a
-    quarter of a second, which every command and server process paid at start)."""
+def dummy_hash() -> str:
+    """What an unknown user's password is checked against: made once per process, not at import (a hash costs a
+    quarter of a second, which every command paid at start); the web server makes it in the background as it
+    starts, so that not even its first login tells names apart by time."""
     return _hasher.hash(secrets.token_urlsafe(16))
 
 
@@ -71,7 +72,7 @@ def authenticate(session: Session, username: str, password: str) -> User | None:
     """The active user with this username and password, or None. Takes one password check whether or not the
     user exists (an unknown name is checked against a dummy hash), so the time does not tell names apart."""
     user = session.scalar(select(User).where(User.username == username))
-    matches = verify_password(user.password_hash if user else _dummy_hash(), password)
+    matches = verify_password(user.password_hash if user else dummy_hash(), password)
     return user if user is not None and matches and not user.disabled else None
 
 
