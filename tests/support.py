@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
+import sys
 import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -152,9 +154,6 @@ def add_people(env: dict[str, str], people: Iterable[tuple[str, bool]]) -> dict[
     """Users (password "<name>-password"; admin or member) and an API token each, {name: token}, made as
     `fringelab user add` and `fringelab token create` make them, in one process with the server's environment
     (the six commands of three people cost 12 s; tests/api/auth/test_accounts.py runs the commands themselves)."""
-    import json
-    import sys
-
     done = subprocess.run([sys.executable, "-c", _ADD_PEOPLE, json.dumps(list(people))], env=env,
                           capture_output=True, text=True, timeout=120)  # fmt: skip
     assert done.returncode == 0, done.stderr

@@ -393,9 +393,10 @@ def _takeable(chunk: JobChunk, settings: Settings, *, orphaned: Callable[[JobChu
     if chunk.state != "running":
         return False
     beat = as_utc(chunk.heartbeat_at)
-    stale = beat is None or (utcnow() - beat).total_seconds() > settings.worker_lost_after_s
+    if beat is None or (utcnow() - beat).total_seconds() > settings.worker_lost_after_s:
+        return True  # stale: no need to look for its process
     gone = _process_gone(chunk)
-    return stale or bool(gone) or (gone is None and orphaned(chunk))
+    return bool(gone) or (gone is None and orphaned(chunk))
 
 
 def _claim(session: Session, chunk: JobChunk, worker: str) -> bool:
