@@ -65,11 +65,21 @@ def _type_checking_only(node: ast.AST, parents: dict[ast.AST, ast.AST]) -> bool:
     return False
 
 
+def _parse(path: Path) -> ast.Module:
+    """`ast.parse`, once more if CPython 3.11's AST depth counter, shared by all threads, was disturbed by another
+    thread parsing at the same time (Python 3.11 formats a traceback with `ast`: a thread a test left behind,
+    logging its lost Redis, did so): "SystemError: AST constructor recursion depth mismatch"."""
+    try:
+        return ast.parse(path.read_text(), str(path))
+    except SystemError:
+        return ast.parse(path.read_text(), str(path))
+
+
 @cache
 def imports_of(module: str) -> frozenset[str]:
     """Every module `module` imports when it runs (resolved to project modules where it names one)."""
     path = MODULES[module]
-    tree = ast.parse(path.read_text(), str(path))
+    tree = _parse(path)
     parents = {child: node for node in ast.walk(tree) for child in ast.iter_child_nodes(node)}
     package = module if path.name == "__init__.py" else module.rpartition(".")[0]
     found: set[str] = set()
