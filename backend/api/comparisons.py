@@ -19,11 +19,10 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from backend.api.deps import CurrentUser, SessionDep, StateDep
 from backend.api.jobs import JobDep
-from backend.api.results import RESULT_ERRORS, _listed
+from backend.api.results import RESULT_ERRORS, _listed, succeeded_file
 from backend.errors import error_responses
-from backend.results import result_path
 from backend.schemas.jobs import MAX_ID
-from fringelab.core.errors import Conflict, Gone, Invalid, NotFound
+from fringelab.core.errors import Gone, Invalid
 from fringelab.core.jobs import job_error
 from fringelab.core.models import Job
 from fringelab.core.simulations import preview_comparison
@@ -40,17 +39,8 @@ COMPARISON_FILE = "comparison.h5"
 @contextmanager
 def comparison(job: Job, data_path: Any) -> Iterator[ComparisonResult]:
     """The file of a succeeded comparison job, open; a job error (404/409/410) with what to do otherwise."""
-    if job.kind != "comparison":
-        raise job_error(NotFound, "not_comparison", f"job {job.id} is a {job.kind} job, not a comparison")
-    if job.state != "succeeded":
-        raise job_error(
-            Conflict, "job_not_succeeded", f"job {job.id} is {job.state}; its results come when it succeeds"
-        )
-    entry = next((f for f in job.files if f["name"] == COMPARISON_FILE), None)
-    if entry is None:
-        raise job_error(Gone, "result_missing", f"job {job.id} has no {COMPARISON_FILE}; retry the job")
+    path = succeeded_file(job, data_path, kind="comparison", name=COMPARISON_FILE)
     try:
-        path = result_path(data_path, entry["path"])
         reader = ComparisonResult(path)
     except (ResultUnavailable, ValueError) as error:
         raise job_error(Gone, "result_missing", str(error)) from None

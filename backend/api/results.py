@@ -283,21 +283,26 @@ TOPOGRAPHY_FILE = "topography.h5"
 ANSWERS = AnswerCache(max_bytes=16 * 2**20)
 
 
-def topography_file(job: Job, data_path: Any) -> PathType:
-    """The result file of a succeeded topography job; a job error (404/409/410) with what to do otherwise."""
-    if job.kind != "topography":
-        raise job_error(NotFound, "not_topography", f"job {job.id} is a {job.kind} job, not a topography")
+def succeeded_file(job: Job, data_path: Any, *, kind: str, name: str) -> PathType:
+    """The file `name` of a succeeded job of `kind`; a job error (404/409/410) with what to do otherwise."""
+    if job.kind != kind:
+        raise job_error(NotFound, f"not_{kind}", f"job {job.id} is a {job.kind} job, not a {kind}")
     if job.state != "succeeded":
         raise job_error(
             Conflict, "job_not_succeeded", f"job {job.id} is {job.state}; its results come when it succeeds"
         )
-    entry = next((f for f in job.files if f["name"] == TOPOGRAPHY_FILE), None)
+    entry = next((f for f in job.files if f["name"] == name), None)
     if entry is None:
-        raise job_error(Gone, "result_missing", f"job {job.id} has no {TOPOGRAPHY_FILE}; retry the job")
+        raise job_error(Gone, "result_missing", f"job {job.id} has no {name}; retry the job")
     try:
         return result_path(data_path, entry["path"])
     except ResultUnavailable as error:
         raise job_error(Gone, "result_missing", str(error)) from None
+
+
+def topography_file(job: Job, data_path: Any) -> PathType:
+    """The result file of a succeeded topography job (`succeeded_file`)."""
+    return succeeded_file(job, data_path, kind="topography", name=TOPOGRAPHY_FILE)
 
 
 @contextmanager

@@ -227,32 +227,23 @@ class TopographyWriter:
         grid_group = file.create_group("grid")
         unit_dataset(grid_group, "x_mm", grid.x_mm, unit="mm", description="X of the grid nodes")
         unit_dataset(grid_group, "y_mm", grid.y_mm, unit="mm", description="Y of the grid nodes")
-        unit_dataset(
-            grid_group,
-            "z_mm",
-            np.zeros((0, ny, nx), np.float32),
-            unit="mm",
-            description="gridded Z per frame [frame, iy, ix], NaN outside the data",
-            maxshape=(None, ny, nx),
-            chunks=(1, ny, nx),
-            compression="gzip",
-            compression_opts=GZIP_LEVEL,
-            shuffle=True,
-            fillvalue=np.nan,
-        )
-        unit_dataset(
-            grid_group,
-            "sigma_w_mm",
-            np.zeros((0, ny, nx), np.float32),
-            unit="mm",
-            description="standard deviation of the gridded height [frame, iy, ix] (its corners' σ interpolated)",
-            maxshape=(None, ny, nx),
-            chunks=(1, ny, nx),
-            compression="gzip",
-            compression_opts=GZIP_LEVEL,
-            shuffle=True,
-            fillvalue=np.nan,
-        )
+        for name, description in (
+            ("z_mm", "gridded Z per frame [frame, iy, ix], NaN outside the data"),
+            ("sigma_w_mm", "standard deviation of the gridded height [frame, iy, ix] (its corners' σ interpolated)"),
+        ):
+            unit_dataset(
+                grid_group,
+                name,
+                np.zeros((0, ny, nx), np.float32),
+                unit="mm",
+                description=description,
+                maxshape=(None, ny, nx),
+                chunks=(1, ny, nx),
+                compression="gzip",
+                compression_opts=GZIP_LEVEL,
+                shuffle=True,
+                fillvalue=np.nan,
+            )
         self._xdmf_views = _start_xdmf_views(file, grid)
         self._views_made = 0
         self.max_edge_mm = max_edge_mm
