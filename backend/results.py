@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -72,18 +74,24 @@ def plain(value: Any) -> Any:
 PROJECTOR_SCHEMA = "fringelab.projector-calibration"
 
 
-def projector_table(data_path: Path, relative: str, *, line: int | None, edges: list[int] | None) -> dict[str, Any]:
-    """Curves of a projector look-up table (`projector.h5`, schema fringelab.projector-calibration): the position
-    t (px, along scan line `line`, default the middle one) of each stripe edge against the plate's Z, with the
-    table's settings and QA. Reads one scan line of the table."""
-    path = result_path(data_path, relative)
+@contextmanager
+def _projector_file(data_path: Path, relative: str) -> Iterator[h5py.File]:
+    """A projector calibration's `projector.h5`, open; ResultUnavailable (what to do) if it cannot be read."""
     try:
-        file = h5py.File(path, "r")
+        file = h5py.File(result_path(data_path, relative), "r")
     except OSError as error:
         raise ResultUnavailable(f"{relative} is not readable ({error}); run the calibration again") from None
     with file:
         if file.attrs.get("schema") != PROJECTOR_SCHEMA:
             raise ResultUnavailable(f"{relative} is not a projector calibration")
+        yield file
+
+
+def projector_table(data_path: Path, relative: str, *, line: int | None, edges: list[int] | None) -> dict[str, Any]:
+    """Curves of a projector look-up table (`projector.h5`, schema fringelab.projector-calibration): the position
+    t (px, along scan line `line`, default the middle one) of each stripe edge against the plate's Z, with the
+    table's settings and QA. Reads one scan line of the table."""
+    with _projector_file(data_path, relative) as file:
         table = file["lut_t_px"]
         n_edges, n_lines, _n_z = table.shape
         line = n_lines // 2 if line is None else line
@@ -111,14 +119,7 @@ def projector_report(data_path: Path, relative: str, *, cell_px: int) -> dict[st
     """The verdict of a projector table and its maps over the whole image: sensitivity (px/mm), the Z resolution
     at the measured edge noise (mm), coverage over the image and over Z (`fringelab.science.projector_quality`).
     Reads the (K, S) arrays of the table, not the table itself."""
-    path = result_path(data_path, relative)
-    try:
-        file = h5py.File(path, "r")
-    except OSError as error:
-        raise ResultUnavailable(f"{relative} is not readable ({error}); run the calibration again") from None
-    with file:
-        if file.attrs.get("schema") != PROJECTOR_SCHEMA:
-            raise ResultUnavailable(f"{relative} is not a projector calibration")
+    with _projector_file(data_path, relative) as file:
         qa = json.loads(file.attrs["qa_json"])
         image_shape = (int(file.attrs["image_height_px"]), int(file.attrs["image_width_px"]))
         maps = projector_maps(

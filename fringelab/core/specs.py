@@ -15,6 +15,17 @@ from fringelab.formats import ComparisonExport, ExportFormat
 
 MAX_ID = 2**31 - 1  # ids and frame numbers are 32-bit integers in the database
 
+# Frames per parallel chunk of a job that splits (selftest, topography); empty: the job's own choice.
+ChunkFrames = Annotated[
+    int | None,
+    Field(
+        ge=1,
+        le=100_000,
+        description="Frames per parallel chunk; empty: chunks that shrink towards the end, of at most "
+        "FRINGELAB_CHUNK_FRAMES.",
+    ),
+]
+
 
 class _Spec(BaseModel):
     model_config = ConfigDict(extra="forbid")  # a misspelt parameter is a 422 naming it, not silently ignored
@@ -48,13 +59,7 @@ class SelftestSpec(_Spec):
     kind: Literal["selftest"]
     frames: int = Field(200, ge=1, le=100_000, description="Synthetic frames to compute.")
     frame_size_px: int = Field(256, ge=16, le=4096, description="Side of each square frame; sets the work per frame.")
-    chunk_frames: int | None = Field(
-        None,
-        ge=1,
-        le=100_000,
-        description="Frames per parallel chunk; empty: chunks that shrink towards the end, of at most "
-        "FRINGELAB_CHUNK_FRAMES.",
-    )
+    chunk_frames: ChunkFrames = None
 
 
 class BoardSpec(_Spec):
@@ -144,17 +149,11 @@ class TopographySpec(_Spec):
     )
     frames: FrameRange = Field(
         default_factory=FrameRange,  # type: ignore[arg-type]
-        description="Frames to write; tracking always starts at frame 0 (flat plate).",
+        description="Frames to write; each is measured against the reference, frame 0 (flat plate).",
     )
     grid_step_mm: float = Field(2.0, ge=0.1, le=50, description="Spacing of the deflection grid, mm.")
     temporal_smoothing_frames: int = Field(0, ge=0, le=50, description="Half-width of the temporal filter; 0: off.")
-    chunk_frames: int | None = Field(
-        None,
-        ge=1,
-        le=100_000,
-        description="Frames per parallel chunk; empty: chunks that shrink towards the end, of at most "
-        "FRINGELAB_CHUNK_FRAMES.",
-    )
+    chunk_frames: ChunkFrames = None
 
 
 class ExportSpec(_Spec):
