@@ -11,15 +11,8 @@ import json
 import sys
 from typing import Any
 
+from fringelab.commands.output import line_mm
 from fringelab.formats import COMPARISON_EXPORTS
-
-
-def _line(text: str) -> tuple[float, float, float, float]:
-    try:
-        x0, y0, x1, y1 = (float(part) for part in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected X0,Y0,X1,Y1 in mm, got {text!r}") from None
-    return x0, y0, x1, y1
 
 
 def _pair(text: str) -> tuple[float, float]:
@@ -70,7 +63,7 @@ def register(subparsers: Any) -> None:
     export.add_argument("comparison", help="comparison file (.h5)")
     export.add_argument("--format", required=True, choices=COMPARISON_EXPORTS)
     export.add_argument("-o", "--output", required=True, help="file to write (.csv, .h5, .mat, .pvd, .csv)")
-    export.add_argument("--line", type=_line, metavar="X0,Y0,X1,Y1",
+    export.add_argument("--line", type=line_mm, metavar="X0,Y0,X1,Y1",
                         help="profile-csv: the line in mm (default along X through the punch axis)")  # fmt: skip
     export.set_defaults(handler=export_command)
 

@@ -19,6 +19,15 @@ from typing import Any
 ProgressCallback = Callable[[int, int, str], None]
 
 
+def line_mm(text: str) -> tuple[float, float, float, float]:
+    """An argparse type: a line X0,Y0,X1,Y1 (mm), e.g. a profile's."""
+    try:
+        x0, y0, x1, y1 = (float(part) for part in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected X0,Y0,X1,Y1 in mm, got {text!r}") from None
+    return x0, y0, x1, y1
+
+
 def add_output_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--json",

@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from fringelab.commands.output import emit, fail, progress_bar
+from fringelab.commands.output import emit, fail, line_mm, progress_bar
 from fringelab.formats import EXPORT_FORMATS
 from fringelab.science.scenarios import SCENARIOS
 
@@ -23,14 +23,6 @@ def _frames(text: str) -> slice:
         raise argparse.ArgumentTypeError(
             f"expected A:B (frames A to B−1; either may be left out), got {text!r}"
         ) from None
-
-
-def _line(text: str) -> tuple[float, float, float, float]:
-    try:
-        x0, y0, x1, y1 = (float(part) for part in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected X0,Y0,X1,Y1 in mm, got {text!r}") from None
-    return x0, y0, x1, y1
 
 
 def register(subparsers: Any) -> None:
@@ -111,7 +103,7 @@ def register(subparsers: Any) -> None:
     )
     export.add_argument(
         "--line",
-        type=_line,
+        type=line_mm,
         metavar="X0,Y0,X1,Y1",
         help="profile line in mm (profile-csv; default: along X through the punch axis); "
         "write --line=X0,... when X0 is negative",
