@@ -64,11 +64,11 @@ def cmd_api(_args: argparse.Namespace) -> int:
 
 def cmd_worker(_args: argparse.Namespace) -> int:
     """The worker is its own application (`python -m worker`): this process becomes it, so signals reach it."""
-    from fringelab.core.services import WORKER_REDIS_WAIT_S, check_redis
+    from fringelab.core.services import check_redis
 
     settings = load_settings()
     _require_redis_url(settings)
-    check_redis(settings.redis_url, wait_s=WORKER_REDIS_WAIT_S)
+    check_redis(settings.redis_url, wait_s=settings.worker_redis_wait_s)
     command = [sys.executable, "-m", "worker"]
     if os.name == "posix":
         os.execv(sys.executable, command)

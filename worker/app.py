@@ -10,7 +10,7 @@ from celery import Celery
 from celery.signals import worker_process_init
 
 from fringelab.core.queue import create_celery
-from fringelab.core.services import WORKER_REDIS_WAIT_S, ServiceError, check_redis
+from fringelab.core.services import ServiceError, check_redis
 from fringelab.core.settings import Settings, SettingsError, load_settings
 
 TASK_MODULES = ("worker.tasks",)
@@ -46,7 +46,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         settings = load_settings()
         if not settings.redis_url:
             raise ServiceError("FRINGELAB_REDIS_URL is not set; a worker needs the queue of a running fringelab")
-        check_redis(settings.redis_url, wait_s=WORKER_REDIS_WAIT_S)
+        check_redis(settings.redis_url, wait_s=settings.worker_redis_wait_s)
     except (SettingsError, ServiceError) as error:
         print(f"fringelab worker: {error}", file=sys.stderr)
         return 2

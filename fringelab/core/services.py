@@ -28,11 +28,6 @@ class ServiceError(Exception):
     """A part the process needs is missing or busy; the message names it and says how to fix it."""
 
 
-# How long a starting worker waits for its Redis (one restarted beside it by `fringelab up`, or started later by
-# compose) before it exits with the error.
-WORKER_REDIS_WAIT_S = 10.0
-
-
 def check_redis(url: str, *, timeout_s: float = 3.0, wait_s: float = 0.0) -> None:
     """Raise ServiceError unless Redis at `url` answers, trying again for up to `wait_s` (a worker started while
     its Redis restarts beside it, under `fringelab up` or compose, waits for it rather than exiting)."""

@@ -63,6 +63,12 @@ class Settings(BaseSettings):
     cancel_grace_s: float = Field(
         10.0, ge=0, description="After a cancel, seconds a running task has to stop before its process is terminated."
     )
+    worker_redis_wait_s: float = Field(
+        10.0,
+        ge=0,
+        description="How long a starting worker waits for its Redis (restarted beside it by `fringelab up`, or "
+        "started later by compose) before it exits with the error.",
+    )
     worker_lost_after_s: float = Field(
         60.0, ge=2, description="A running task that has not reported for this long is lost with its worker."
     )

@@ -53,14 +53,15 @@ def test_every_process_command_exists():
 
 def test_unreachable_redis_is_named(tmp_path):
     port = free_port()
-    env = {"FRINGELAB_REDIS_URL": f"redis://127.0.0.1:{port}/0", "FRINGELAB_DATA_DIR": str(tmp_path)}
+    env = {"FRINGELAB_REDIS_URL": f"redis://127.0.0.1:{port}/0", "FRINGELAB_DATA_DIR": str(tmp_path),
+           "FRINGELAB_WORKER_REDIS_WAIT_S": "1"}  # fmt: skip
     for command in ("worker", "api"):
         assert_one_line_error(run_cli(command, env=env), f"127.0.0.1:{port}", "FRINGELAB_REDIS_URL")
 
 
 def test_a_worker_started_before_its_redis_waits_for_it(tmp_path):
     """`fringelab up` restarts Redis beside a worker that is starting (compose may start Redis later): the worker
-    waits for it (WORKER_REDIS_WAIT_S) instead of exiting, and then serves."""
+    waits for it (FRINGELAB_WORKER_REDIS_WAIT_S) instead of exiting, and then serves."""
     redis_server = RedisServer(tmp_path)
     clean = {k: v for k, v in os.environ.items() if not k.startswith("FRINGELAB_")}
     env = {**clean, "FRINGELAB_REDIS_URL": redis_server.url, "FRINGELAB_DATA_DIR": str(tmp_path / "var"),
