@@ -731,59 +731,104 @@ def load_arrays(context: JobContext, name: str) -> dict[str, np.ndarray]:
     return next(read_array_records(context, name))
 
 
-# Hand-overs kept in this process (`JobContext.hold`), by (job id, name); in memory up to HELD_HAND_OVER_BYTES each,
-# beyond that in an anonymous temporary file. A merge drops its job's when it ends.
+def _npy_writer(handle: Any) -> Callable[..., None]:
+    """`write(**arrays)`: one record, its names, then each array as a .npy record (no ZIP: read back at the speed
+    of the disk cache, no checksum per read)."""
+    from numpy.lib import format as npy
+
+    def write(**arrays: Any) -> None:
+        npy.write_array(handle, np.array(list(arrays), dtype=str), allow_pickle=False)
+        for value in arrays.values():
+            npy.write_array(handle, np.asarray(value), allow_pickle=False)
+
+    return write
+
+
+def _npy_records(handle: Any) -> Iterator[dict[str, np.ndarray]]:
+    """The records `_npy_writer` wrote to `handle`, from its start."""
+    from numpy.lib import format as npy
+
+    size = handle.seek(0, os.SEEK_END)
+    handle.seek(0)
+    while handle.tell() < size:
+        names = npy.read_array(handle, allow_pickle=False)
+        yield {str(key): npy.read_array(handle, allow_pickle=False) for key in names}
+
+
+# Hand-overs kept in this process (`JobContext.hold`), by (job id, name); a merge drops its job's when it ends.
 HELD_HAND_OVER_BYTES = 256 << 20
-_held: dict[tuple[str, str], Any] = {}
+
+
+class _Kept:
+    """A hand-over kept in this process: its records as written (arrays, not encoded and decoded again) while
+    they fit in HELD_HAND_OVER_BYTES, the rest in an anonymous temporary file."""
+
+    def __init__(self) -> None:
+        self.records: list[dict[str, np.ndarray]] = []
+        self.nbytes = 0
+        self.spill: Any = None
+
+    def write(self, **arrays: Any) -> None:
+        # contiguous: a column of a larger array is copied, not kept as a view holding the whole
+        record = {name: np.array(value, order="C", copy=None) for name, value in arrays.items()}
+        size = sum(value.nbytes for value in record.values())
+        if self.spill is None and self.nbytes + size <= HELD_HAND_OVER_BYTES:
+            self.records.append(record)
+            self.nbytes += size
+            return
+        if self.spill is None:
+            import tempfile
+
+            self.spill = tempfile.TemporaryFile()  # noqa: SIM115 (closed by `close`)
+        _npy_writer(self.spill)(**record)
+
+    def read(self) -> Iterator[dict[str, np.ndarray]]:
+        yield from self.records
+        if self.spill is not None:
+            yield from _npy_records(self.spill)
+
+    def close(self) -> None:
+        self.records.clear()
+        if self.spill is not None:
+            self.spill.close()
+
+
+_held: dict[tuple[str, str], _Kept] = {}
 
 
 @contextmanager
 def array_records(context: JobContext, name: str) -> Iterator[Callable[..., None]]:
     """A hand-over file written record by record (`write(**arrays)`, e.g. one per frame, so that what a chunk holds
-    does not grow with its frames), committed when the block completes: each record is its names, then each array
-    as a .npy record (no ZIP: read back at the speed of the disk cache, no checksum per read). With `context.hold`
-    it stays in this process instead (no file, no fsync), for this process to read."""
-    import tempfile
-
-    from numpy.lib import format as npy
-
-    def writer(handle: Any) -> Callable[..., None]:
-        def write(**arrays: Any) -> None:
-            npy.write_array(handle, np.array(list(arrays), dtype=str), allow_pickle=False)
-            for value in arrays.values():
-                npy.write_array(handle, np.asarray(value), allow_pickle=False)
-
-        return write
-
+    does not grow with its frames, `_npy_writer`), committed when the block completes. With `context.hold` it
+    stays in this process instead (`_Kept`: no file, no fsync), for this process to read."""
     if context.hold:
-        held = tempfile.SpooledTemporaryFile(max_size=HELD_HAND_OVER_BYTES)  # noqa: SIM115 (kept, read later)
+        kept = _Kept()
         try:
-            yield writer(held)
+            yield kept.write
         except BaseException:
-            held.close()
+            kept.close()
             raise
-        _held[(context.job_id, name)] = held
+        _held[(context.job_id, name)] = kept
         return
     with context.output(name, publish=False) as path, path.open("wb") as handle:
-        yield writer(handle)
+        yield _npy_writer(handle)
 
 
 def read_array_records(context: JobContext, name: str) -> Iterator[dict[str, np.ndarray]]:
-    """The records of a hand-over (`array_records`), one at a time: kept in this process, or its file."""
-    from numpy.lib import format as npy
-
-    handle = _held.pop((context.job_id, name), None)
-    if handle is None:
-        path = context.directory / name
-        if not path.is_file():
-            raise RuntimeError(f"the intermediate file {name} is missing")
-        handle = path.open("rb")
-    with handle:
-        size = handle.seek(0, os.SEEK_END)
-        handle.seek(0)
-        while handle.tell() < size:
-            names = npy.read_array(handle, allow_pickle=False)
-            yield {str(key): npy.read_array(handle, allow_pickle=False) for key in names}
+    """The records of a hand-over (`array_records`), one at a time: kept in this process (given up as read), or
+    its file."""
+    kept = _held.pop((context.job_id, name), None)
+    if kept is not None:
+        try:
+            yield from kept.read()
+        finally:
+            kept.close()
+        return
+    path = context.directory / name
+    if not path.is_file():
+        raise RuntimeError(f"the intermediate file {name} is missing")
+    with path.open("rb") as handle:
+        yield from _npy_records(handle)
 
 
 def has_hand_over(context: JobContext, name: str) -> bool:

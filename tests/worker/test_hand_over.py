@@ -42,3 +42,21 @@ def test_a_hand_over_whose_writing_failed_is_not_kept(tmp_path) -> None:
         write(a=np.zeros(3))
         raise RuntimeError("measuring failed")
     assert not has_hand_over(context, "chunks/x.arrays")
+
+
+def test_a_kept_hand_over_beyond_its_memory_budget_goes_on_in_a_temporary_file(tmp_path, monkeypatch) -> None:
+    import worker.runner as runner
+
+    monkeypatch.setattr(runner, "HELD_HAND_OVER_BYTES", 2 * 8 * 100)  # two records of 100 float64 in memory
+    context = _context(tmp_path, hold=True)
+    written = [{"z_mm": np.full(100, float(i)), "frame": np.int64(i)} for i in range(5)]
+    with array_records(context, "chunks/frames-0000000.arrays") as write:
+        for record in written:
+            write(**record)
+    kept = runner._held[(context.job_id, "chunks/frames-0000000.arrays")]
+    assert len(kept.records) == 1 and kept.spill is not None  # the second did not fit beside the first's 8 bytes
+    back = list(read_array_records(context, "chunks/frames-0000000.arrays"))
+    assert [int(record["frame"]) for record in back] == [0, 1, 2, 3, 4]
+    for got, want in zip(back, written, strict=True):
+        np.testing.assert_array_equal(got["z_mm"], want["z_mm"])
+    assert kept.spill.closed and not list(tmp_path.rglob("*.arrays"))
