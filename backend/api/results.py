@@ -40,6 +40,7 @@ from fringelab.formats.topography import (
     ResultUnavailable,
     TopographyResult,
 )
+from fringelab.science.coverage import MISSING_DESCRIPTIONS, MISSING_LABELS
 
 router = APIRouter(tags=["results"])
 RESULT_ERRORS: dict[int | str, dict[str, Any]] = {
@@ -338,6 +339,9 @@ class TopographyOverview(BaseModel):
         description="Per reason (hole, shadow, low_contrast, order_unresolved, order_conflict, out_of_range), the "
         "area not measured in each frame, mm²."
     )
+    missing_reasons: dict[str, dict[str, str]] = Field(
+        description="Per reason of `missing_mm2`: its `label` (a few words, for a legend) and `description`."
+    )
     n_order_conflicts: list[float | None] = Field(description="Per frame: conflicts between the order's sources.")
     n_temporal_jumps: list[float | None] = Field(
         description="Per frame: points whose change of height from the frame before departs from their neighbouring "
@@ -387,6 +391,10 @@ def _overview(job: Job, state: AppState) -> TopographyOverview:
             summary={key: plain(value) for key, value in reader.summary().items()},
             measured_fraction=_listed(coverage["measured_fraction"]),
             missing_mm2={name: _listed(coverage[f"missing_{name}_mm2"], 1) for name in MISSING_REASONS},
+            missing_reasons={
+                name: {"label": MISSING_LABELS[name], "description": MISSING_DESCRIPTIONS[name]}
+                for name in MISSING_REASONS
+            },
             n_order_conflicts=_listed(coverage["n_order_conflicts"], 0),
             n_temporal_jumps=_listed(coverage["n_temporal_jumps"], 0),
             peak_measured=[None if not np.isfinite(c) else bool(c >= PEAK_REGION_MEASURED) for c in peak_region],

@@ -17,6 +17,16 @@ MISSING_DESCRIPTIONS = {
     "order_conflict": "edges masked for a conflict between the sources of their order",
     "out_of_range": "outside the calibrated Z range (never extrapolated)",
 }
+# How plots and tables name each reason in a few words: "hole" is every region as black as the background, which
+# before a perforation is the punch in front or the clamp ring, not a hole in the plate.
+MISSING_LABELS = {
+    "hole": "black: hole, punch, clamp",
+    "shadow": "shadow",
+    "low_contrast": "low contrast",
+    "order_unresolved": "order unresolved",
+    "order_conflict": "order conflict",
+    "out_of_range": "outside the Z range",
+}
 
 
 @dataclass(frozen=True)

@@ -266,7 +266,7 @@ class Viewer {
         h("div", {}, this.peakFigure.element)),
       h("div", { class: "plot-grid" },
         h("div", {}, this.coverageFigure.element,
-          h("p", { class: "hint" }, "Share of the plate (as the first frame sees it) measured in each frame, and the area missing by reason; missing regions are outlined on the map."))),
+          h("p", { class: "hint" }, "Share of the plate (as the first frame sees it) measured in each frame, and the area missing by reason (bars; hover for what each covers); missing regions are outlined on the map."))),
       (this.compareSection = h("section", { "aria-label": "Camera against camera", hidden: true },
         h("h2", {}, "Camera against camera"),
         h("div", { class: "compare-controls" },
@@ -622,10 +622,13 @@ class Viewer {
     const time = this.timeAxis();
     const reasons = Object.keys(c.missing_mm2);
     const traces = lineTraces([{ name: "measured", x: time.values, y: c.measured_fraction.map((f) => f * 100), color: COLORS[0], mode: "lines+markers" }]);
+    // Each reason under the API's label, and its description on hover ("hole" is anything as black as the
+    // background: before a perforation, the punch in front or the clamp ring).
+    const about = (reason) => c.missing_reasons[reason] || { label: reason.replaceAll("_", " "), description: "" };
     reasons.forEach((reason, k) => traces.push({
-      type: "bar", name: `missing: ${reason.replaceAll("_", " ")}`, x: time.values, y: c.missing_mm2[reason].map((a) => a / 100),
+      type: "bar", name: about(reason).label, x: time.values, y: c.missing_mm2[reason].map((a) => a / 100),
       yaxis: "y2", marker: { color: COLORS[(k + 1) % COLORS.length] }, opacity: 0.6,
-      hovertemplate: `${reason.replaceAll("_", " ")} %{y:.2f} cm²<extra></extra>`,
+      hovertemplate: `missing: ${about(reason).label} %{y:.2f} cm²<br>${about(reason).description}<extra></extra>`,
     }));
     // Frames where the cross-check against the frame before found points that jumped by a stripe step: marked on
     // the measured line (the order of those points is suspect; the points stay as measured).
