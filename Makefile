@@ -21,7 +21,7 @@ run: $(STAMP)
 lint: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
-	$(BIN)/mypy fringelab
+	$(BIN)/mypy fringelab backend worker
 
 test: lint
 	$(BIN)/python -m pytest

@@ -62,7 +62,7 @@ def create_app(settings: Settings) -> FastAPI:
     )
 
     @asynccontextmanager
-    async def lifespan(_app: FastAPI):  # type: ignore[no-untyped-def]
+    async def lifespan(_app: FastAPI):
         # Blocking routes run in this many threads; the database pool holds a connection for each.
         anyio.to_thread.current_default_thread_limiter().total_tokens = settings.resolved_api_threads
         reconcile_quietly(state.sessions, state.celery, settings)  # jobs the queue lost while the API was down

@@ -149,8 +149,8 @@ def cmd_user(args: argparse.Namespace) -> int:
             for user in session.scalars(select(User).order_by(User.username)):
                 print(f"{user.username}\t{user.role}\t{'disabled' if user.disabled else 'active'}")
         else:
-            user = session.scalar(select(User).where(User.username == args.username))
-            if user is None:
+            named = session.scalar(select(User).where(User.username == args.username))
+            if named is None:
                 return _fail(f"no user {args.username!r}")
             change = {
                 "disable": {"disabled": True},
@@ -159,11 +159,11 @@ def cmd_user(args: argparse.Namespace) -> int:
                 "demote": {"role": "member"},
             }[args.user_command]
             try:
-                change_user(session, user, **change)  # type: ignore[arg-type]
+                change_user(session, named, **change)  # type: ignore[arg-type]
             except Conflict as error:
                 return _fail(error.detail)
             session.commit()
-            print(f"{args.user_command}d {user.username}")
+            print(f"{args.user_command}d {named.username}")
             _announce_access_change(settings)
     return 0
 

@@ -356,7 +356,10 @@ def _announce_done(task: Task, job_id: str, phase: int, index: int) -> None:
     """Wake the phase's merge if it waits for this chunk (best effort: it looks at the database anyway)."""
     try:
         client, key = redis_of(task.app), chunk_done_key(job_id, phase)
-        client.pipeline().lpush(key, index).expire(key, CHUNK_DONE_KEEP_S).execute()
+        pipe = client.pipeline()
+        pipe.lpush(key, index)
+        pipe.expire(key, CHUNK_DONE_KEEP_S)
+        pipe.execute()
     except redis.RedisError as error:
         log.warning("chunk %s:%s:%s done, but its merge could not be told (%s); it finds out by itself", job_id,
                     phase, index, error)  # fmt: skip
@@ -721,7 +724,7 @@ def _remove_chunk_files(directory: Path) -> None:
         chunk_dir.rmdir()
 
 
-def save_arrays(context: JobContext, name: str, **arrays: np.ndarray) -> None:
+def save_arrays(context: JobContext, name: str, **arrays: Any) -> None:
     """Arrays a task hands over (to `load_arrays`), in one file written atomically (one `array_records` record)."""
     with array_records(context, name) as write:
         write(**arrays)

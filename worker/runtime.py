@@ -19,7 +19,7 @@ _redis: dict[tuple[int, str], redis.Redis] = {}
 
 
 def settings_of(app: Celery) -> Settings:
-    return app.fringelab_settings  # type: ignore[attr-defined,no-any-return]
+    return app.fringelab_settings
 
 
 def sessions_of(app: Celery) -> sessionmaker[Session]:

@@ -25,18 +25,25 @@ router = APIRouter(tags=["demo"])
 DemoScenario = StrEnum("DemoScenario", {name: name for name in SCENARIOS})  # type: ignore[misc]
 
 
+DemoCamera = Literal["kodak", "phantom"]
+
+
+def _both_cameras() -> list[DemoCamera]:
+    return ["kodak", "phantom"]
+
+
 class DemoIn(BaseModel):
     model_config = {"extra": "forbid"}
 
-    cameras: list[Literal["kodak", "phantom"]] = Field(
-        default_factory=lambda: ["kodak", "phantom"],
+    cameras: list[DemoCamera] = Field(
+        default_factory=_both_cameras,
         min_length=1,
         max_length=2,
         description="Virtual cameras (the paper's): kodak, 512 × 480 px, quick; phantom, 1024 × 1024 px, about "
         "four times slower. The first camera's results come first.",
     )
     test_frames: int = Field(20, ge=4, le=200, description="Frames of the simulated punch test.")
-    scenario: DemoScenario = Field(  # type: ignore[valid-type]
+    scenario: DemoScenario = Field(
         DemoScenario("quasi-static"),
         description="The virtual test: quasi-static, the paper's; fast, large motion per frame, then an 18 mm hole "
         "and 6 mm of springback within one frame; petals, the fast test with radial cracks and petals around the "
@@ -69,7 +76,7 @@ def make_demo(
     ] = None,
 ) -> DemoOut:
     """Make a virtual experiment and measure it: simulated recordings, calibrations and topography."""
-    body = body or DemoIn()
+    body = body or DemoIn.model_validate({})
     cameras = list(dict.fromkeys(body.cameras))  # each camera once, in the order asked
     experiment_id = start_demo(session, state.celery, principal, cameras, body.test_frames, body.scenario.value)
     return DemoOut(experiment_id=experiment_id)

@@ -145,7 +145,7 @@ def _job_out(job: Job, chunks: list[JobChunk], retried_by: str | None, now: date
             )
             for c in chunks
         ],
-        created_at=as_utc(job.created_at),  # type: ignore[arg-type]
+        created_at=as_utc(job.created_at),
         started_at=as_utc(job.started_at),
         finished_at=as_utc(job.finished_at),
         duration_s=_seconds(job.started_at, job.finished_at or now),
@@ -298,7 +298,7 @@ def _log_lines(session: Session, job_id: str, *, after: int, limit: int = 1000) 
     )
     return [
         LogLineOut(id=line.id, at=as_utc(line.created_at), level=line.level, message=line.message) for line in lines
-    ]  # type: ignore[arg-type]
+    ]
 
 
 def _streamable_job_id(job_id: str, state: StateDep, principal: CurrentUser) -> str:

@@ -84,7 +84,7 @@ def calibration_out(row: Calibration) -> CalibrationOut:
         image_height_px=row.image_height_px,
         sha256=row.sha256,
         summary=row.summary,
-        created_at=as_utc(row.created_at),  # type: ignore[arg-type]
+        created_at=as_utc(row.created_at),
         file_url=f"/api/v1/calibrations/{row.id}/file",
         report_url=f"/api/v1/calibrations/{row.id}/report",
     )

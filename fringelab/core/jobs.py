@@ -31,10 +31,10 @@ import contextlib
 import json
 import logging
 import uuid
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, date, datetime, timedelta
-from typing import Any
+from typing import Any, overload
 
 import redis
 from celery import Celery
@@ -115,6 +115,12 @@ def chunk_done_key(job_id: str, phase: int) -> str:
     return f"fringelab:chunk-done:{job_id}:{phase}"
 
 
+@overload
+def as_utc(moment: datetime) -> datetime: ...
+@overload
+def as_utc(moment: None) -> None: ...
+@overload
+def as_utc(moment: datetime | None) -> datetime | None: ...
 def as_utc(moment: datetime | None) -> datetime | None:
     """SQLite gives naive datetimes back; every time fringelab stores is UTC."""
     if moment is None or moment.tzinfo is not None:
@@ -687,7 +693,7 @@ class TaskToSend:
 
 def _latest(*moments: datetime | None) -> datetime | None:
     known = [as_utc(m) for m in moments if m is not None]
-    return max(known) if known else None  # type: ignore[type-var]
+    return max(known) if known else None
 
 
 def tasks_in_flight(session: Session, job: Job) -> list[TaskToSend]:
@@ -869,7 +875,7 @@ def start_demo(
     session: Session,
     celery: Celery,
     principal: Principal,
-    cameras: list[str],
+    cameras: Sequence[str],
     test_frames: int,
     scenario: str = "quasi-static",
 ) -> int:

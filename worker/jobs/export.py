@@ -55,10 +55,11 @@ def export_body(context: JobContext) -> dict[str, Any]:
     fmt = spec["format"]
     if kind == "comparison":
         name, media = COMPARISON_EXPORT_FILES[fmt]
-        write_download(context, fmt, name, media, lambda path: export_comparison(source_path, fmt, path, line=line))  # type: ignore[arg-type]
+        write_download(context, fmt, name, media, lambda path: export_comparison(source_path, fmt, path, line=line))
     else:
         name, media = EXPORT_FILES[fmt]
         write_download(context, fmt, name, media,
-                       lambda path: export_result(source_path, fmt, path, line=line, lines=lines, frames=frame_range))  # type: ignore[arg-type]  # fmt: skip
+                       lambda path: export_result(source_path, fmt, path, line=line, lines=lines,
+                                                  frames=frame_range))  # fmt: skip
     context.progress(1, 1, "exporting")
     return {"format": fmt, "file": name, "source_job_id": spec["job_id"], "frames": frames, "lines": len(lines or [])}

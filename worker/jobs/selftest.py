@@ -108,7 +108,7 @@ def selftest_write(context: JobContext, turns: Iterator[InOrder]) -> dict[str, A
         out.attrs["frame_size_px"] = int(context.spec["frame_size_px"])
     with context.sessions() as session:
         started = session.scalar(select(Job.started_at).where(Job.id == context.job_id))
-    elapsed_s = (utcnow() - as_utc(started)).total_seconds() if started is not None else None  # type: ignore[operator]
+    elapsed_s = (utcnow() - as_utc(started)).total_seconds() if started is not None else None
     frames = int(sequence["frame"].size)
     return {
         "frames": frames,

@@ -246,7 +246,7 @@ def _frames_of(context: JobContext, turn: InOrder, grid_shape: tuple[int, int]) 
                 missing_mm2={name: float(v) for name, v in zip(MISSING_REASONS, missing, strict=True)},
                 n_order_conflicts=counts["n_order_conflicts"],
             ),
-            **counts,
+            **counts,  # type: ignore[arg-type]  # (the counts by name: mypy cannot match a dict's keys)
         )  # fmt: skip
         peak = Peak(**dict(zip(peak_names, map(float, peak_values), strict=True)))
         finite = np.unpackbits(record["z_finite"], count=grid_shape[0] * grid_shape[1]).reshape(grid_shape)
