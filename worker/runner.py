@@ -786,7 +786,8 @@ class _Kept:
         _npy_writer(self.spill)(**record)
 
     def read(self) -> Iterator[dict[str, np.ndarray]]:
-        yield from self.records
+        while self.records:  # each record given up as it is read
+            yield self.records.pop(0)
         if self.spill is not None:
             yield from _npy_records(self.spill)
 
