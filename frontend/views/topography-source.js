@@ -46,7 +46,7 @@ export class TopographySource {
       coverage: {
         measured_fraction: numbers(body.measured_fraction),
         missing_mm2: Object.fromEntries(Object.entries(body.missing_mm2 || {}).map(([k, v]) => [k, numbers(v)])),
-        missing_reasons: body.missing_reasons || {}, // reason -> { label, description }
+        missing_reasons: body.missing_reasons, // reason -> { label, description }
         n_order_conflicts: numbers(body.n_order_conflicts),
         n_temporal_jumps: numbers(body.n_temporal_jumps),
         peak_measured: Array.from(body.peak_measured || [], (v) => (v === null || v === undefined ? null : Boolean(v))),

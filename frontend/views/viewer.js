@@ -624,7 +624,7 @@ class Viewer {
     const traces = lineTraces([{ name: "measured", x: time.values, y: c.measured_fraction.map((f) => f * 100), color: COLORS[0], mode: "lines+markers" }]);
     // Each reason under the API's label, and its description on hover ("hole" is anything as black as the
     // background: before a perforation, the punch in front or the clamp ring).
-    const about = (reason) => c.missing_reasons[reason] || { label: reason.replaceAll("_", " "), description: "" };
+    const about = (reason) => c.missing_reasons[reason];
     reasons.forEach((reason, k) => traces.push({
       type: "bar", name: about(reason).label, x: time.values, y: c.missing_mm2[reason].map((a) => a / 100),
       yaxis: "y2", marker: { color: COLORS[(k + 1) % COLORS.length] }, opacity: 0.6,
