@@ -2,7 +2,7 @@
 
 Run from the repository root:  .venv/bin/python bench/bench_compare.py [--repeats 3] [--frames 8]
 
-It renders a small virtual experiment (Kodak preset, --frames test frames; not timed), measures its topography,
+It renders a small virtual test (Kodak preset, --frames test frames; not timed), measures its topography,
 writes the true surface as a simulation in every format (about 13 000 nodes, one state per frame) and prints, per
 format, the median over the repeats of
   open      open_simulation (mesh, times, punch and force; no state),
@@ -36,8 +36,8 @@ from fringelab.formats.recordings import open_recording  # noqa: E402
 from fringelab.formats.simulations import open_simulation  # noqa: E402
 from fringelab.pipelines.comparison import compare_result  # noqa: E402
 from fringelab.pipelines.projector_calibration import calibrate_projector_recording  # noqa: E402
-from fringelab.pipelines.simulation import SIMULATION_WRITERS, simulate_experiment, write_true_simulation  # noqa: E402
 from fringelab.pipelines.topography import topography_recording  # noqa: E402
+from fringelab.pipelines.virtual_test import SIMULATION_WRITERS, write_true_simulation, write_virtual_test  # noqa: E402
 
 
 def main() -> None:
@@ -47,7 +47,7 @@ def main() -> None:
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="bench_compare_") as folder:
         root = Path(folder) / "kodak"
-        experiment = simulate_experiment(root, "kodak", n_test_frames=args.frames,
+        experiment = write_virtual_test(root, "kodak", n_test_frames=args.frames,
                                          calibration_z_mm=np.arange(0.0, 80.0 + 1e-9, 4.0),
                                          camera_z_mm=(-20.0, 40.0, 100.0), seed=3)  # fmt: skip
         camera = read_camera_json(experiment.camera_json)

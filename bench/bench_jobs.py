@@ -6,7 +6,7 @@ Run from the repository root:
 
 It starts what a lab machine runs, on a scratch data directory: its own redis-server, a migrated SQLite
 database, the API (in this process) and `fringelab worker` subprocesses (prefork, as users run them, one BLAS
-thread each). With --kind topography it writes the virtual experiment (`fringelab simulate`, kodak preset,
+thread each). With --kind topography it writes the virtual test (`fringelab virtual-test`, kodak preset,
 512 x 480 px, as ZIPs; not timed), then times, with the most worker processes asked for: creating the experiment
 and camera, uploading the three recordings and their ingest, the camera and projector calibrations, and the
 topography (end to end). Then --repeat times, one round after the other: the science pipeline alone
@@ -224,15 +224,15 @@ def schedule(job: dict[str, Any]) -> str:
 
 
 def upload_virtual_experiment(bench: Bench, frames: int) -> dict[str, Any]:
-    """A virtual experiment (`fringelab simulate`, kodak, as ZIPs; not timed), then timed: experiment, camera and
+    """A virtual test (`fringelab virtual-test`, kodak, as ZIPs; not timed), then timed: experiment, camera and
     the three uploads through the API, until each recording is ready (ingested)."""
     import json
 
     import numpy as np
 
-    from fringelab.pipelines.simulation import simulate_experiment
+    from fringelab.pipelines.virtual_test import write_virtual_test
 
-    virtual = simulate_experiment(
+    virtual = write_virtual_test(
         bench.root / "virtual", "kodak", n_test_frames=frames, calibration_z_mm=np.arange(0.0, 80.0 + 1e-9, 4.0),
         as_zip=True,
     )  # fmt: skip

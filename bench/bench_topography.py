@@ -2,7 +2,7 @@
 
     python bench/bench_topography.py [--frames 40] [--memory-frames 20,40,80]
 
-Reports, for the virtual experiment at 512 × 480 (kodak) and 1024 × 1024 (phantom):
+Reports, for the virtual test at 512 × 480 (kodak) and 1024 × 1024 (phantom):
 - edges: `fringes.locate_edges` per frame (the part that runs in parallel chunks);
 - order+Z+XY: `topography.track_and_measure` with the test's reference (fringe order of every frame on its own,
   what is missing, table lookup, back-projection) per frame;
@@ -35,19 +35,19 @@ from fringelab.formats.recordings import open_recording, write_recording  # noqa
 from fringelab.pipelines.topography import topography_recording  # noqa: E402
 from fringelab.science.fringes import EdgeSettings, locate_edges  # noqa: E402
 from fringelab.science.projector import build_projector_calibration, exact_camera_model  # noqa: E402
-from fringelab.science.simulate import (  # noqa: E402
-    FringeRenderer,
-    Imaging,
-    preset,
-    punch_timeline,
-    render_straight_stripes,
-)
 from fringelab.science.topography import (  # noqa: E402
     TopographySettings,
     grid_for_first_frame,
     grid_measurement,
     reference_for,
     track_and_measure,
+)
+from fringelab.science.virtual_test import (  # noqa: E402
+    FringeRenderer,
+    Imaging,
+    preset,
+    punch_timeline,
+    render_straight_stripes,
 )
 
 cv2.setNumThreads(1)

@@ -6,7 +6,7 @@
 
 1. checks the token (`GET /api/v1/auth/me`);
 2. creates an experiment and a camera (image size and pixel pitch from RECORDINGS/truth/experiment.json, as
-   `fringelab simulate` writes it, or from --image-size and --pixel-pitch-um);
+   `fringelab virtual-test` writes it, or from --image-size and --pixel-pitch-um);
 3. uploads RECORDINGS/camera_calibration, projector_calibration and test (folders are zipped first, ZIPs go as
    they are) with the resumable tus protocol: a dropped connection is resumed from the offset the server has
    (`HEAD`), not started again;
@@ -48,7 +48,7 @@ class Failed(Exception):
 
 
 def camera_from_truth(recordings: Path) -> dict[str, Any]:
-    """Image size, pixel pitch and scale axis of the virtual camera, from `fringelab simulate`'s ground truth."""
+    """Image size, pixel pitch and scale axis of the virtual camera, from `fringelab virtual-test`'s ground truth."""
     path = recordings / "truth" / "experiment.json"
     if not path.is_file():
         return {}
@@ -188,7 +188,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         type=Path,
         required=True,
         help="folder with camera_calibration, projector_calibration and test (folders or .zip), "
-        "e.g. written by `fringelab simulate`",
+        "e.g. written by `fringelab virtual-test`",
     )
     parser.add_argument("--out", type=Path, required=True, help="folder for the downloaded results")
     parser.add_argument("--experiment-name", default="automated run")

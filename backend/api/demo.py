@@ -1,9 +1,9 @@
 """`POST /api/v1/demo`: the dashboard's "Load demo experiment" button.
 
 It stores a new experiment (the caller's) and sends the `fringelab.demo` task by name; a worker adds the cameras,
-simulates their recordings (the `simulate` command's science) and starts their calibration and topography jobs
-(worker/jobs/demo.py). Thin: no science and no task code here. The cameras, recordings and jobs appear in the
-experiment as they are made, and follow the same rules as uploaded ones.
+renders their recordings as virtual tests (the `virtual-test` command's science) and starts their calibration and
+topography jobs (worker/jobs/demo.py). Thin: no science and no task code here. The cameras, recordings and jobs
+appear in the experiment as they are made, and follow the same rules as uploaded ones.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from fringelab.science.scenarios import SCENARIOS, min_test_frames
 
 router = APIRouter(tags=["demo"])
 
-# The simulator's virtual tests, as the API's enum (the list is the simulator's).
+# The virtual tests, as the API's enum (the list is `science.scenarios`').
 DemoScenario = StrEnum("DemoScenario", {name: name for name in SCENARIOS})  # type: ignore[misc]
 
 
@@ -75,7 +75,7 @@ def make_demo(
         DemoIn | None, Body(examples=[{"cameras": ["kodak"], "test_frames": 20, "scenario": "quasi-static"}])
     ] = None,
 ) -> DemoOut:
-    """Make a virtual experiment and measure it: simulated recordings, calibrations and topography."""
+    """Make a virtual test and measure it: simulated recordings, calibrations and topography."""
     body = body or DemoIn.model_validate({})
     cameras = list(dict.fromkeys(body.cameras))  # each camera once, in the order asked
     experiment_id = start_demo(session, state.celery, principal, cameras, body.test_frames, body.scenario.value)

@@ -1,8 +1,7 @@
-"""`fringelab calibrate-projector`, `topography`, `export` and `simulate`: the structured-light side on the CLI.
+"""`fringelab calibrate-projector`, `topography` and `export`: the structured-light side on the CLI.
 
-Thin: parse arguments, call the entry functions of `fringelab.science` (projector, topography,
-topography_files, simulate), print a summary. numpy and the measurement package are imported inside the
-handlers so registering the commands stays instant.
+Thin: parse arguments, call the pipelines (projector calibration, topography) and the exports, print a summary.
+numpy and the measurement package are imported inside the handlers so registering the commands stays instant.
 """
 
 from __future__ import annotations
@@ -12,7 +11,6 @@ from typing import Any
 
 from fringelab.commands.output import emit, fail, line_mm, progress_bar
 from fringelab.formats import EXPORT_FORMATS
-from fringelab.science.scenarios import SCENARIOS
 
 
 def _frames(text: str) -> slice:
@@ -26,7 +24,7 @@ def _frames(text: str) -> slice:
 
 
 def register(subparsers: Any) -> None:
-    """Add `calibrate-projector`, `topography`, `export` and `simulate` to the CLI's subparsers."""
+    """Add `calibrate-projector`, `topography` and `export` to the CLI's subparsers."""
     from fringelab.commands.output import add_output_options
 
     calibrate = subparsers.add_parser(
@@ -111,36 +109,6 @@ def register(subparsers: Any) -> None:
     add_output_options(export)
     export.set_defaults(handler=export_command)
 
-    simulate = subparsers.add_parser(
-        "simulate",
-        help="write a virtual experiment (camera and projector calibrations, a punch test, ground truth)",
-        description="Render a whole virtual experiment with stripes projected on a plate deflecting to 60 mm and "
-        "perforating, through one of the paper's cameras, in the recording formats, with ground truth in OUT/truth.",
-    )
-    simulate.add_argument("out", help="folder to write into")
-    simulate.add_argument(
-        "--preset",
-        choices=("kodak", "phantom"),
-        default="kodak",
-        help="kodak: 512 × 480 px, vertical stripes; phantom: 1024 × 1024 px, horizontal",
-    )
-    simulate.add_argument("--frames", type=int, default=40, help="test frames (default 40)")
-    simulate.add_argument(
-        "--z-step", type=float, default=2.0, metavar="MM", help="projector calibration step over 0 … 80 mm (default 2)"
-    )
-    simulate.add_argument(
-        "--scenario",
-        default="quasi-static",
-        choices=SCENARIOS,
-        help="quasi-static: the paper's test; fast: large motion per frame, an 18 mm hole and 6 mm springback in "
-        "one frame; petals: fast, with radial cracks and petals; highlight: a specular highlight; shadow: the "
-        "punch comes through and shadows the stripes; hard: all at once",
-    )
-    simulate.add_argument("--zip", action="store_true", help="write ZIPs instead of folders")
-    simulate.add_argument("--seed", type=int, default=0, help="noise seed")
-    add_output_options(simulate)
-    simulate.set_defaults(handler=simulate_command)
-
 
 def calibrate_projector_command(args: argparse.Namespace) -> int:
     from fringelab.formats.camera import read_camera_json
@@ -223,45 +191,3 @@ def export_command(args: argparse.Namespace) -> int:
     except (ValueError, OSError) as error:
         return fail(args, error)
     return emit(args, {"path": path, "format": args.format}, [f"{path}: {args.format} written"])
-
-
-def simulate_command(args: argparse.Namespace) -> int:
-    import numpy as np
-
-    from fringelab.pipelines.simulation import simulate_experiment
-    from fringelab.science.simulate import preset
-
-    if args.frames < 4:
-        return fail(args, ValueError(f"--frames: expected at least 4, got {args.frames}"))
-    if not 0 < args.z_step <= 10:
-        return fail(args, ValueError(f"--z-step: expected 0 < step ≤ 10 mm, got {args.z_step}"))
-    try:
-        with progress_bar(args, "simulate") as progress:
-            experiment = simulate_experiment(
-                args.out,
-                args.preset,
-                n_test_frames=args.frames,
-                calibration_z_mm=np.arange(0.0, 80.0 + 1e-9, args.z_step),
-                as_zip=args.zip,
-                seed=args.seed,
-                scenario=args.scenario,
-                progress=progress,
-            )
-    except (ValueError, OSError) as error:
-        return fail(args, error)
-    lines = [f"{experiment.root}: virtual {args.preset} experiment written; next:"]
-    camera = preset(args.preset).camera
-    lines.append(
-        f"  fringelab calibrate-camera {experiment.camera_calibration} --du {camera.du_px_per_mm:g} "
-        f"--dv {camera.dv_px_per_mm:g} --scale-on {camera.scale_on} -o {experiment.root / 'camera.json'}"
-    )
-    lines.append(f"  (or use the exact camera: {experiment.camera_json})")
-    lines.append(
-        f"  fringelab calibrate-projector {experiment.projector_calibration} --camera {experiment.camera_json} "
-        f"-o {experiment.root / 'projector.h5'}"
-    )
-    lines.append(
-        f"  fringelab topography {experiment.test} --camera {experiment.camera_json} --projector "
-        f"{experiment.root / 'projector.h5'} -o {experiment.root / 'result.h5'}"
-    )
-    return emit(args, vars(experiment), lines)

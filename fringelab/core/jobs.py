@@ -882,7 +882,7 @@ def start_demo(
     """Store a new demo experiment of `principal` (committed, audited) and send the task that simulates its
     cameras' recordings and starts their jobs; returns the experiment's id. Unavailable without the queue.
 
-    scenario: the virtual test (`fringelab.science.simulate.SCENARIOS`: the paper's quasi-static test, or a hard
+    scenario: the virtual test (`fringelab.science.virtual_test.SCENARIOS`: the paper's quasi-static test, or a hard
     one: fast motion with springback at perforation, petals and cracks, a highlight, the punch's shadow)."""
     today = date.today().isoformat()
     kind = "virtual punch test" if scenario == "quasi-static" else f"virtual punch test, {scenario}"
@@ -892,7 +892,7 @@ def start_demo(
         punch="hemispherical (simulated)",
         test_date=today,
         notes="Made by the dashboard's Load demo experiment button: the recordings of "
-        f"{', '.join(cameras)} are simulated (fringelab simulate --scenario {scenario}), then checked, calibrated "
+        f"{', '.join(cameras)} are simulated (fringelab virtual-test --scenario {scenario}), then checked, calibrated "
         "and measured by the workers like uploaded ones.",
         owner_id=principal.user_id,
     )

@@ -3,7 +3,7 @@
 Belongs here (the only module of the fringe/topography side that touches files): the projector calibration HDF5,
 the streaming topography result HDF5 (layout below), its exports (points CSV, grid NPZ, MATLAB .mat, VTK time
 series for ParaView, profile CSV), stored edges of frame chunks for parallel runs, the test log `frames.csv`,
-and writing frame recordings (folder or ZIP of PNG) for the virtual experiment. Every file is written to a
+and writing frame recordings (folder or ZIP of PNG) for the virtual test. Every file is written to a
 temporary name beside its target and renamed when complete.
 
 Topography result (schema "fringelab.topography", version 1); lengths in mm in the object frame (docs/method.md §2:

@@ -1,6 +1,6 @@
-"""A whole virtual experiment written to disk in the recording formats, with its ground truth beside it.
+"""A whole virtual test written to disk in the recording formats, with its ground truth beside it.
 
-The rendering is `fringelab.science.simulate`; this module only writes what it renders (`fringelab.formats`).
+The rendering is `fringelab.science.virtual_test`; this module only writes what it renders (`fringelab.formats`).
 """
 
 from __future__ import annotations
@@ -18,14 +18,14 @@ from fringelab.formats.camera import write_camera_json
 from fringelab.formats.recordings import write_recording
 from fringelab.formats.sidecars import FrameTable, frames_csv_text, z_csv_text
 from fringelab.science.chessboard import Board
-from fringelab.science.simulate import FringeRenderer, Imaging, preset, true_camera_calibration
-from fringelab.science.simulate import scenario as scenario_of
 from fringelab.science.synthetic import ChessboardRenderer, board_pose_at_z, zstack_board
+from fringelab.science.virtual_test import FringeRenderer, Imaging, preset, true_camera_calibration
+from fringelab.science.virtual_test import scenario as scenario_of
 
 
 @dataclass(frozen=True)
-class VirtualExperiment:
-    """Paths of a written virtual experiment."""
+class VirtualTest:
+    """Paths of a written virtual test."""
 
     root: Path
     camera_calibration: Path
@@ -35,7 +35,7 @@ class VirtualExperiment:
     truth_json: Path
 
 
-def simulate_experiment(
+def write_virtual_test(
     out_dir: str | Path,
     preset_name: str,
     *,
@@ -47,8 +47,8 @@ def simulate_experiment(
     imaging: Imaging | None = None,
     scenario: str = "quasi-static",
     progress: Callable[[int, int, str], None] | None = None,
-) -> VirtualExperiment:
-    """Write a whole virtual experiment for one camera in the recording formats, with ground truth beside it.
+) -> VirtualTest:
+    """Write a whole virtual test for one camera in the recording formats, with ground truth beside it.
 
     out_dir/camera_calibration  chessboard Z-stack (frames, z.csv, board.json)
     out_dir/projector_calibration  flat plate at calibration_z_mm (default 0 … 80 mm in 2 mm steps; z.csv)
@@ -56,8 +56,8 @@ def simulate_experiment(
     out_dir/truth/camera.json  the exact camera as a camera-calibration file
     out_dir/truth/experiment.json  camera, projector, scene, imaging, calibration heights and per-frame states
     (folders, or .zip files with as_zip). Frames are rendered and written one at a time. scenario: one of
-    `simulate.SCENARIOS` (the paper's quasi-static test by default; "fast", "petals", "highlight", "shadow",
-    "hard" are harder tests, see `simulate.scenario`).
+    `virtual_test.SCENARIOS` (the paper's quasi-static test by default; "fast", "petals", "highlight", "shadow",
+    "hard" are harder tests, see `virtual_test.scenario`).
     """
 
     setup, timeline = scenario_of(scenario, preset(preset_name, imaging=imaging), n_test_frames)
@@ -118,12 +118,12 @@ def simulate_experiment(
         "frames": [{"frame": i, **asdict(s)} for i, s in enumerate(timeline.states)],
         "deflection": "w(r) = w0 ln(rho_R/rho)/ln(rho_R/b), rho = sqrt(r^2 + b^2), rho_R = sqrt(R^2 + b^2), "
         "b = punch_radius_mm, R = clamp_radius_mm, r from scene.centre_xy_mm; no surface for r < hole_radius_mm; "
-        "petals and cracks as in fringelab.science.simulate.PlateScene.surface_mm",
+        "petals and cracks as in fringelab.science.virtual_test.PlateScene.surface_mm",
         "scenario": scenario,
         "seed": seed,
     }
     truth_json = write_json(root / "truth" / "experiment.json", truth)
-    return VirtualExperiment(root, camera_path, projector_path, test_path, camera_json, truth_json)
+    return VirtualTest(root, camera_path, projector_path, test_path, camera_json, truth_json)
 
 
 SIMULATION_WRITERS = ("csv", "vtu", "exodus", "d3plot")
@@ -139,7 +139,7 @@ def write_true_simulation(
     length_unit: str = "mm",
     resolution: float = 0.04,
 ) -> Path:
-    """The virtual experiment's true surface written as a finite-element simulation (a folder, returned).
+    """The virtual test's true surface written as a finite-element simulation (a folder, returned).
 
     kind: "csv" (nodal table + punch CSV with force and punch travel), "vtu" (.pvd series), "exodus" or "d3plot"
     (the last three with an LS-DYNA nodout of the punch node and an rcforc of the punch force). The states are
@@ -148,7 +148,7 @@ def write_true_simulation(
     """
     from fringelab.formats.simulation_csv import write_nodes_csv, write_punch_csv
     from fringelab.formats.simulation_lsdyna_ascii import write_nodout, write_rcforc
-    from fringelab.science.simulate import PlateScene, true_plate_model
+    from fringelab.science.virtual_test import PlateScene, true_plate_model
 
     if kind not in SIMULATION_WRITERS:
         raise ValueError(f"kind: expected one of {SIMULATION_WRITERS}, got {kind!r}")

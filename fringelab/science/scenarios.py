@@ -1,5 +1,5 @@
-"""The names of the simulator's virtual tests (`simulate.scenario` makes them), with no imports: the API offers
-them for its demo without loading the renderer. Not here: the scenes and timelines themselves (`simulate.py`)."""
+"""The names of the virtual tests (`virtual_test.scenario` makes them), with no imports: the API offers
+them for its demo without loading the renderer. Not here: the scenes and timelines themselves (`virtual_test.py`)."""
 
 from __future__ import annotations
 

@@ -2,7 +2,7 @@
 
 Belongs here: cameras with the size of distortion in the paper's Table 1, the chessboard renderer (the board
 through the Heikkilä model with supersampled edges, blur, uneven illumination and 8-bit noise) and Z-stack
-recordings built from it. Whole experiments (stripes on a deforming plate) live in `simulate.py`, which may
+recordings built from it. Whole experiments (stripes on a deforming plate) live in `virtual_test.py`, which may
 import from here.
 """
 

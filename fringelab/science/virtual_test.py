@@ -1,4 +1,4 @@
-"""The virtual experiment: stripes rendered through a camera and a pinhole projector onto a deforming plate.
+"""The virtual test: stripes rendered through a camera and a pinhole projector onto a deforming plate.
 
 Belongs here: image-space test stripes with known edges, the scene (clamped plate, punch, perforation), the
 pinhole projector, the renderer (supersampled, antialiased stripes, Lambertian shading, blur, uneven
@@ -514,7 +514,7 @@ def preset(name: str, *, imaging: Imaging | None = None) -> Preset:
 
 
 # ----------------------------------------------------------------------------------------------------------------
-# The whole virtual experiment
+# The whole virtual test
 
 
 @dataclass(frozen=True, eq=False)

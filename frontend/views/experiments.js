@@ -61,7 +61,7 @@ export async function renderExperiments(container, _params, context) {
       h("option", { value: "kodak,phantom" }, "Kodak and Phantom (about 2 minutes)"),
       h("option", { value: "kodak" }, "Kodak only (under a minute)")),
   );
-  // The simulator's virtual tests (POST /demo `scenario`): the paper's, and the hard ones the method is built for.
+  // The virtual tests (POST /demo `scenario`): the paper's, and the hard ones the method is built for.
   const demoScenario = field(
     "Virtual test",
     h("select", {},

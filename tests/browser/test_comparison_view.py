@@ -1,6 +1,6 @@
 """Comparing a measurement with a finite-element simulation in real Chromium, against a real `fringelab up`.
 
-The measurement is the virtual experiment's topography (tests/pipelines/conftest.py, `measured`: 8 frames, the
+The measurement is the virtual test's topography (tests/pipelines/conftest.py, `measured`: 8 frames, the
 pipeline's own result), registered as a succeeded topography job of a new experiment. The simulation is that
 experiment's true surface written as a quarter model in metres (a folder: a .pvd/.vtu series with nodout and
 rcforc, over 1 MiB, packed into a ZIP by the browser) whose states reach only the punch travel of frame 5, at
@@ -26,9 +26,9 @@ from fringelab.core.db import make_engine, make_sessionmaker
 from fringelab.core.models import Job, utcnow
 from fringelab.core.settings import Settings
 from fringelab.formats.topography import TopographyResult
-from fringelab.pipelines.simulation import write_true_simulation
+from fringelab.pipelines.virtual_test import write_true_simulation
 from tests.browser.conftest import screenshot
-from tests.pipelines.conftest import measured  # noqa: F401  (the session's measured virtual experiment)
+from tests.pipelines.conftest import measured  # noqa: F401  (the session's measured virtual test)
 
 pytestmark = [pytest.mark.browser, pytest.mark.integration]
 LAST_SIMULATED_FRAME = 5

@@ -158,7 +158,7 @@ def test_camera_against_camera_difference_map_and_curves(page, demo):
 
 def test_reports_and_small_texts(page, demo):
     from fringelab.science.camera import camera_centre_obj_mm
-    from fringelab.science.simulate import preset
+    from fringelab.science.virtual_test import preset
 
     camera_job = demo["jobs"][("camera_calibration", "kodak")]
     page.goto(f"/#/jobs/{camera_job['id']}/report")

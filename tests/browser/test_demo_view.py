@@ -1,4 +1,4 @@
-"""The "Load demo experiment" button: a newcomer gets a virtual experiment whose recordings are simulated,
+"""The "Load demo experiment" button: a newcomer gets a virtual test whose recordings are simulated,
 checked, calibrated and measured by the real worker, and reaches the topography viewer. It picks one of the hard
 virtual tests (fast motion, springback at perforation), which the worker simulates as chosen; the quasi-static
 default is the shared demo of the other browser tests (conftest.py)."""

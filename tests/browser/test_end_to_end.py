@@ -26,14 +26,14 @@ SWITCHES = 20
 
 @pytest.fixture(scope="module")
 def virtual_test(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
-    """The recordings of a virtual punch test (the `simulate` command's output), as ZIP files."""
-    from fringelab.pipelines.simulation import simulate_experiment
-    from fringelab.science.simulate import preset
+    """The recordings of a virtual punch test (the `virtual-test` command's output), as ZIP files."""
+    from fringelab.pipelines.virtual_test import write_virtual_test
+    from fringelab.science.virtual_test import preset
 
     # Fewer calibration frames than the command's defaults keep the test quick: the board at 7 heights, the flat
     # plate every 4 mm (edges move ~0.6 px/mm on this camera: 4 mm is a quarter period, well inside what the
     # projector calibration accepts).
-    made = simulate_experiment(
+    made = write_virtual_test(
         tmp_path_factory.mktemp("virtual"),
         PRESET,
         n_test_frames=FRAMES,

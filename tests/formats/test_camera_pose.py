@@ -9,7 +9,7 @@ import numpy as np
 
 from fringelab.formats.camera import write_camera_json
 from fringelab.science.camera import project_points
-from fringelab.science.simulate import preset, true_camera_calibration
+from fringelab.science.virtual_test import preset, true_camera_calibration
 
 
 def test_pose_both_ways(tmp_path):

@@ -1,4 +1,4 @@
-"""A measured virtual experiment, made once per session: the Kodak preset, an 8-frame test (perforation at frame
+"""A measured virtual test, made once per session: the Kodak preset, an 8-frame test (perforation at frame
 6), the projector calibrated over 0 … 80 mm in 4 mm steps, the topography of the whole test (about 20 s)."""
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ import pytest
 from fringelab.formats.camera import read_camera_json
 from fringelab.formats.recordings import open_recording
 from fringelab.pipelines.projector_calibration import calibrate_projector_recording
-from fringelab.pipelines.simulation import simulate_experiment
 from fringelab.pipelines.topography import topography_recording
-from fringelab.science.simulate import PlateScene, PlateState, true_deflection_mm
+from fringelab.pipelines.virtual_test import write_virtual_test
+from fringelab.science.virtual_test import PlateScene, PlateState, true_deflection_mm
 
 
 @dataclass(frozen=True)
@@ -39,7 +39,7 @@ class MeasuredExperiment:
 @pytest.fixture(scope="session")
 def measured(tmp_path_factory: pytest.TempPathFactory) -> MeasuredExperiment:
     root = tmp_path_factory.mktemp("measured") / "kodak"
-    experiment = simulate_experiment(root, "kodak", n_test_frames=8, calibration_z_mm=np.arange(0.0, 80.0 + 1e-9, 4.0),
+    experiment = write_virtual_test(root, "kodak", n_test_frames=8, calibration_z_mm=np.arange(0.0, 80.0 + 1e-9, 4.0),
                                      camera_z_mm=(-20.0, 40.0, 100.0), seed=3)  # fmt: skip
     camera = read_camera_json(experiment.camera_json)
     projector = calibrate_projector_recording(open_recording(experiment.projector_calibration), camera)

@@ -1,4 +1,4 @@
-"""`fringelab compare` on the virtual experiment: its true surface written as a simulation in every format.
+"""`fringelab compare` on the virtual test: its true surface written as a simulation in every format.
 
 When the simulation is the truth, w_meas − w_sim is the measurement's own error, so its RMS per frame must equal
 the RMS of w_meas − w_true over the same nodes: the issue's rule, within 10 % (RMS_TOLERANCE). What the comparison
@@ -25,7 +25,7 @@ from fringelab.formats.comparison import ComparisonResult
 from fringelab.formats.exports import export_comparison
 from fringelab.formats.topography import TopographyResult
 from fringelab.pipelines.comparison import compare_result
-from fringelab.pipelines.simulation import write_true_simulation
+from fringelab.pipelines.virtual_test import write_true_simulation
 from fringelab.science.compare import ComparisonError, MappingSettings
 
 RMS_TOLERANCE = 0.10

@@ -1,4 +1,4 @@
-"""σ_w of every measured point and grid node, against the virtual experiment's true error.
+"""σ_w of every measured point and grid node, against the virtual test's true error.
 
 If σ_w is right, |error| ≤ 2σ holds for about 95 % of the points (a normal error); the issue's band is 90–99 %:
 below, σ is too small (the differences to a simulation would be called significant too often), above, too large

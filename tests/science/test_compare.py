@@ -1,6 +1,6 @@
 """Mapping a finite-element model onto the plate frame, time alignment and differences, on exact synthetic models.
 
-The models are the virtual plate's true surface (`simulate.true_plate_model`); the "measurement" here is the true
+The models are the virtual plate's true surface (`virtual_test.true_plate_model`); the "measurement" here is the true
 deflection on a 2 mm grid, so every difference is the model's own interpolation error (about 0.01 mm, see
 `true_plate_model`) unless the mapping is wrong, which gives errors of millimetres.
 """
@@ -13,7 +13,7 @@ import pytest
 from fringelab.science import compare
 from fringelab.science.fe_results import FEResults, solid_boundary_faces
 from fringelab.science.fields import Grid
-from fringelab.science.simulate import PlateScene, PlateState, punch_timeline, true_deflection_mm, true_plate_model
+from fringelab.science.virtual_test import PlateScene, PlateState, punch_timeline, true_deflection_mm, true_plate_model
 
 SCENE = PlateScene()
 TIMELINE = punch_timeline(8)
@@ -273,8 +273,8 @@ def test_camera_covariance_moves_the_points_as_a_parameter_change_does() -> None
     that size makes (central differences over ±se are exact to second order: 1e-3 relative here)."""
     from dataclasses import replace
 
-    from fringelab.science.simulate import preset
     from fringelab.science.uncertainty import camera_sigma_xy_mm, with_camera_term
+    from fringelab.science.virtual_test import preset
 
     camera = preset("kodak").camera
     points = np.array([[0.0, 0.0, 10.0], [150.0, -100.0, 40.0]])

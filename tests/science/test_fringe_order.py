@@ -25,15 +25,6 @@ from fringelab.science.projector import (
     build_projector_calibration,
     exact_camera_model,
 )
-from fringelab.science.simulate import (
-    FringeRenderer,
-    Imaging,
-    Preset,
-    PunchTimeline,
-    preset,
-    scenario,
-    true_deflection_mm,
-)
 from fringelab.science.topography import (
     FrameMeasurement,
     TemporalCrossCheck,
@@ -44,6 +35,15 @@ from fringelab.science.topography import (
     reference_for,
     temporal_check,
     track_and_measure,
+)
+from fringelab.science.virtual_test import (
+    FringeRenderer,
+    Imaging,
+    Preset,
+    PunchTimeline,
+    preset,
+    scenario,
+    true_deflection_mm,
 )
 
 N_FRAMES = 16

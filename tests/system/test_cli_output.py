@@ -10,11 +10,11 @@ import h5py
 from tests.system.test_cli import run_cli
 
 
-def test_simulate_calibrate_topography_export_with_progress_and_json(tmp_path):
+def test_virtual_test_calibrate_topography_export_with_progress_and_json(tmp_path):
     root = tmp_path / "sim"
     # A 4 mm projector Z-step: 10 mm steps move kodak's stripes ~0.66 period, which the calibration reads as
     # 0.34 back (aliased): the projector calibration refuses them, naming the step it needs (≤ ~4.3 mm).
-    simulated = run_cli("simulate", str(root), "--frames", "4", "--z-step", "4", "--json", timeout=300)
+    simulated = run_cli("virtual-test", str(root), "--frames", "4", "--z-step", "4", "--json", timeout=300)
     assert simulated.returncode == 0, simulated.stderr
     experiment = json.loads(simulated.stdout)  # stdout is the JSON object and nothing else
     assert experiment["root"] == str(root) and "%|" not in simulated.stderr  # --json: no bar
@@ -60,7 +60,7 @@ def test_the_readme_command_line_run_works_as_written(tmp_path):
     from pathlib import Path
 
     readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
-    block = re.search(r"A whole\s+run on a virtual experiment, as written:\n\n```sh\n(.*?)```", readme, re.S)
+    block = re.search(r"A whole\s+run on a virtual test, as written:\n\n```sh\n(.*?)```", readme, re.S)
     assert block, "the README lost its command-line walk-through"
     script = Path(sys.executable).parent / "fringelab"
     lines = [line for line in block.group(1).splitlines() if line and line != "make install"]

@@ -156,17 +156,17 @@ def add_rows(settings: Settings) -> Callable[..., dict[str, int]]:
     return add
 
 
-# ------------------------------------------------------------------------------------------ virtual experiment
+# ------------------------------------------------------------------------------------------ virtual test
 
 TEST_FRAMES = 12  # the virtual punch reaches ~60 mm and perforates (frame 9) within them
 
 
 @pytest.fixture(scope="session")
 def virtual_experiment(tmp_path_factory):
-    from fringelab.pipelines.simulation import simulate_experiment
+    from fringelab.pipelines.virtual_test import write_virtual_test
 
     # 4 mm projector steps over 0..80 mm: half the default's frames, still ~20 samples per table entry
-    return simulate_experiment(
+    return write_virtual_test(
         tmp_path_factory.mktemp("virtual") / "kodak", "kodak", n_test_frames=TEST_FRAMES,
         calibration_z_mm=np.arange(0.0, 80.0 + 1e-9, 4.0), as_zip=True, seed=3,
     )  # fmt: skip

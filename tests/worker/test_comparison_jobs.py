@@ -1,6 +1,6 @@
 """Simulations uploaded into an experiment and comparison jobs, through the API with a real Redis and worker.
 
-The measurement is the virtual experiment's topography (tests/pipelines/conftest.py, `measured`: 8 frames), made
+The measurement is the virtual test's topography (tests/pipelines/conftest.py, `measured`: 8 frames), made
 by the pipeline and registered as a succeeded topography job of the experiment; the simulation is that
 experiment's true surface (`write_true_simulation`), uploaded as a ZIP of its CSV folder. When the simulation is
 the truth, w_meas − w_sim is the measurement's own error: its RMS per frame must equal the RMS of w_meas − w_true
@@ -21,8 +21,8 @@ import numpy as np
 from fringelab.core.db import make_engine, make_sessionmaker
 from fringelab.core.models import Job, utcnow
 from fringelab.formats.comparison import ComparisonResult
-from fringelab.pipelines.simulation import write_true_simulation
-from tests.pipelines.conftest import measured  # noqa: F401  (the session's measured virtual experiment)
+from fringelab.pipelines.virtual_test import write_true_simulation
+from tests.pipelines.conftest import measured  # noqa: F401  (the session's measured virtual test)
 from tests.worker.conftest import wait_job
 
 RMS_TOLERANCE = 0.10

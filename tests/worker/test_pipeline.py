@@ -1,4 +1,4 @@
-"""The whole measurement through the API on a virtual experiment (`fringelab simulate`): uploads and their ingest,
+"""The whole measurement through the API on a virtual test (`fringelab virtual-test`): uploads and their ingest,
 camera calibration, projector calibration, topography in chunks, results and exports; and the same topography in
 one chunk, in many, and in one sequential pass without any job gives identical files."""
 

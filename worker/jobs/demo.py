@@ -1,7 +1,7 @@
 """The "Load demo experiment" button's work: a virtual punch test measured like an uploaded one.
 
 Task `fringelab.demo` (sent by POST /api/v1/demo, `simulate_demo`): for each camera preset, add the camera to the demo
-experiment, simulate its three recordings (the `simulate` command's science, `simulate_experiment`) and register
+experiment, render its three recordings (the `virtual-test` command's science, `write_virtual_test`) and register
 them as an upload would (`register_upload`, which queues their ingest). Task `fringelab.demo_advance` (`advance`) then
 looks every few seconds at what is ready and starts the next job of each camera through the jobs API's own rules
 (`create_job`): camera calibration → projector calibration → topography. Polling from a short task, rather than
@@ -32,8 +32,8 @@ from fringelab.core.models import Camera, Experiment, Job, Recording, User
 from fringelab.core.recordings import register_upload
 from fringelab.core.state import AppState
 from fringelab.core.storage import put_dir, sha256_of_file
-from fringelab.pipelines.simulation import simulate_experiment
-from fringelab.science.simulate import preset
+from fringelab.pipelines.virtual_test import write_virtual_test
+from fringelab.science.virtual_test import preset
 from worker.runtime import sessions_of, settings_of
 
 log = logging.getLogger(__name__)
@@ -65,7 +65,7 @@ def simulate_demo(
     first_camera_ready: Callable[[], None],
 ) -> None:
     """Add each preset's camera to the experiment and register its simulated recordings of the virtual test
-    `scenario` (`simulate.SCENARIOS`) (idempotent)."""
+    `scenario` (`virtual_test.SCENARIOS`) (idempotent)."""
     settings = state.settings
     with state.sessions() as session:
         experiment = session.get(Experiment, experiment_id)
@@ -93,7 +93,7 @@ def simulate_demo(
             staging = put_dir(settings.data_path)  # on the data volume: registering is a rename
             staging.mkdir(parents=True, exist_ok=True)
             with tempfile.TemporaryDirectory(dir=staging, prefix="demo-") as folder:
-                made = simulate_experiment(
+                made = write_virtual_test(
                     Path(folder), name, n_test_frames=test_frames, as_zip=True, seed=index, scenario=scenario
                 )
                 files = {
@@ -127,7 +127,7 @@ def _latest_job(jobs: list[Job], kind: str, recording_id: int) -> Job | None:
 def advance(session: Session, state: AppState, experiment_id: int, presets: list[str]) -> bool:
     """Start, for each demo camera, the next job its ready inputs allow. True when nothing is left to start (every
     camera has its topography job, or a step failed and the demo stops there for that camera)."""
-    from fringelab.science.simulate import preset
+    from fringelab.science.virtual_test import preset
 
     cameras = {c.name: c for c in session.scalars(select(Camera).where(Camera.experiment_id == experiment_id))}
     jobs = list(session.scalars(select(Job).where(Job.experiment_id == experiment_id)))

@@ -1,5 +1,5 @@
 """examples/automate.py end to end, as a user runs it: a subprocess against a live `fringelab up` with accounts on
-(the user and token made with the CLI), on a small virtual experiment, with one upload cut off halfway."""
+(the user and token made with the CLI), on a small virtual test, with one upload cut off halfway."""
 
 from __future__ import annotations
 
@@ -48,11 +48,11 @@ def cli(env: dict[str, str], *args: str, stdin: str | None = None) -> str:
 
 @pytest.fixture(scope="module")
 def virtual(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """`fringelab simulate` output, as folders (the script zips them): 4 mm projector steps keep it small."""
-    from fringelab.pipelines.simulation import simulate_experiment
+    """`fringelab virtual-test` output, as folders (the script zips them): 4 mm projector steps keep it small."""
+    from fringelab.pipelines.virtual_test import write_virtual_test
 
     out = tmp_path_factory.mktemp("virtual") / "kodak"
-    simulate_experiment(out, "kodak", n_test_frames=TEST_FRAMES, calibration_z_mm=np.arange(0.0, 80.0 + 1e-9, 4.0),
+    write_virtual_test(out, "kodak", n_test_frames=TEST_FRAMES, calibration_z_mm=np.arange(0.0, 80.0 + 1e-9, 4.0),
                         seed=3)  # fmt: skip
     return out
 
@@ -107,7 +107,7 @@ def test_the_round_trip_with_a_dropped_upload(server, virtual, tmp_path):
             assert hashlib.sha256(local.read_bytes()).hexdigest() == entry["sha256"], local
             assert local.stat().st_size == entry["size_bytes"]
 
-    # the peak deflection against the truth of the virtual experiment, where it was measured
+    # the peak deflection against the truth of the virtual test, where it was measured
     truth = json.loads((virtual / "truth" / "experiment.json").read_text())
     topography = next(job for job in summary["jobs"] if job["kind"] == "topography")
     overview = api.get(f"/api/v1/jobs/{topography['id']}/topography").json()

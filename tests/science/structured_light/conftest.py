@@ -1,14 +1,14 @@
-"""Virtual experiments for the structured-light tests, rendered once per session and kept in memory.
+"""Virtual tests for the structured-light tests, rendered once per session and kept in memory.
 
 Sizes (the default suite must stay fast on two shared cores). Both render one sample per pixel: the stripes'
 optical blur and pixel integration are analytic in the renderer, so this does not bias the edges;
-`fringelab simulate` supersamples 2 × 2, which adds the pixel integration of shading and texture.
-- kodak: otherwise full size, as `fringelab simulate --preset kodak` writes it: 512 × 480 px, projector
+`fringelab virtual-test` supersamples 2 × 2, which adds the pixel integration of shading and texture.
+- kodak: otherwise full size, as `fringelab virtual-test --preset kodak` writes it: 512 × 480 px, projector
   calibration at 0 … 80 mm in 2 mm steps (41 frames), a 40-frame test (perforation at frame 30).
 - phantom: the full 1024 × 1024 px image but a reduced recording: the projector calibration only over the
   0 … 64 mm the test needs (2 mm steps, 33 frames) and a 24-frame test (perforation at frame 18; edges move up
   to ~5 px between frames instead of ~3 px).
-- kodak_full, phantom_full (slow tests only): exactly what `fringelab simulate` writes (supersampled).
+- kodak_full, phantom_full (slow tests only): exactly what `fringelab virtual-test` writes (supersampled).
 """
 
 from __future__ import annotations
@@ -26,8 +26,8 @@ from fringelab.science.projector import (
     build_projector_calibration,
     exact_camera_model,
 )
-from fringelab.science.simulate import FringeRenderer, Imaging, Preset, PunchTimeline, preset, punch_timeline
 from fringelab.science.topography import locate_test_edges
+from fringelab.science.virtual_test import FringeRenderer, Imaging, Preset, PunchTimeline, preset, punch_timeline
 
 
 @dataclass(frozen=True, eq=False)

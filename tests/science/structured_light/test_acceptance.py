@@ -1,4 +1,4 @@
-"""Acceptance numbers of docs/method.md §7 on the virtual experiment, at both presets (sizes in conftest.py).
+"""Acceptance numbers of docs/method.md §7 on the virtual test, at both presets (sizes in conftest.py).
 
 Noise σ = 2 grey levels, ~10 px per stripe period, camera ~2 m away, peak deflection 60 mm, then perforation.
 - RMS error of w below 0.05 mm on the flat plate and below 0.10 mm over the deforming plate, outside 15 mm from
@@ -13,13 +13,13 @@ import numpy as np
 import pytest
 
 from fringelab.science.fields import field_peak
-from fringelab.science.simulate import true_deflection_mm
 from fringelab.science.topography import (
     FrameMeasurement,
     grid_for_first_frame,
     grid_measurement,
     track_and_measure,
 )
+from fringelab.science.virtual_test import true_deflection_mm
 
 from .conftest import RenderedExperiment
 

@@ -15,7 +15,7 @@ from fringelab.science.fields import (
     sample_field,
 )
 from fringelab.science.fringes import locate_edges, order_edges
-from fringelab.science.simulate import render_straight_stripes
+from fringelab.science.virtual_test import render_straight_stripes
 
 
 def edge_grid(n_k: int = 40, n_s: int = 120) -> tuple[np.ndarray, np.ndarray]:

@@ -1,4 +1,4 @@
-"""Exports read back to the same numbers; frames.csv; the virtual experiment on disk; the CLI commands."""
+"""Exports read back to the same numbers; frames.csv; the virtual test on disk; the CLI commands."""
 
 from __future__ import annotations
 
@@ -12,15 +12,16 @@ import pytest
 from scipy.io import loadmat
 
 from fringelab.commands import topography as commands
+from fringelab.commands import virtual_test as virtual_test_command
 from fringelab.formats.camera import read_camera_json, write_camera_json
 from fringelab.formats.exports import export_result, read_points_csv, read_pvd
 from fringelab.formats.recordings import open_recording, write_recording
 from fringelab.formats.sidecars import read_frames_csv, z_csv_text
 from fringelab.formats.topography import TopographyResult
-from fringelab.pipelines.simulation import simulate_experiment
 from fringelab.pipelines.topography import topography_recording
+from fringelab.pipelines.virtual_test import write_virtual_test
 from fringelab.science.fields import line_profile
-from fringelab.science.simulate import true_camera_calibration
+from fringelab.science.virtual_test import true_camera_calibration
 
 from .conftest import RenderedExperiment, recorded_test
 
@@ -107,7 +108,7 @@ def test_profile_csv_round_trip(result_path: Path, tmp_path: Path) -> None:
 
 
 def test_virtual_experiment_on_disk(tmp_path: Path) -> None:
-    experiment = simulate_experiment(
+    experiment = write_virtual_test(
         tmp_path / "exp", "kodak", n_test_frames=4, calibration_z_mm=[0.0, 2.0, 4.0], camera_z_mm=(-20.0, 40.0, 100.0),
         as_zip=True,
     )  # fmt: skip
@@ -127,7 +128,9 @@ def test_virtual_experiment_on_disk(tmp_path: Path) -> None:
 
 def _run(*argv: str) -> int:
     parser = argparse.ArgumentParser(prog="fringelab")
-    commands.register(parser.add_subparsers(dest="command", required=True))
+    subparsers = parser.add_subparsers(dest="command", required=True)
+    commands.register(subparsers)
+    virtual_test_command.register(subparsers)
     args = parser.parse_args(argv)
     return int(args.handler(args))
 
@@ -164,9 +167,9 @@ def test_cli_calibrate_topography_export(kodak: RenderedExperiment, tmp_path: Pa
 
 
 @pytest.mark.slow
-def test_cli_simulate_then_measure(tmp_path: Path, capsys) -> None:
+def test_cli_virtual_test_then_measure(tmp_path: Path, capsys) -> None:
     out = tmp_path / "exp"
-    assert _run("simulate", str(out), "--preset", "kodak") == 0
+    assert _run("virtual-test", str(out), "--preset", "kodak") == 0
     printed = capsys.readouterr().out
     assert "fringelab calibrate-projector" in printed
     camera = out / "truth" / "camera.json"
@@ -177,6 +180,20 @@ def test_cli_simulate_then_measure(tmp_path: Path, capsys) -> None:
     with TopographyResult(out / "result.h5") as result:
         peak = result.column("peak/w_mm")
         assert result.n_frames == 40 and 57.0 < np.nanmax(peak) < 61.0
+
+
+def test_simulate_is_a_hidden_alias_of_virtual_test(capsys) -> None:
+    """`fringelab simulate` (the former name, kept for one release) runs `virtual-test` and is not in the help."""
+    from backend.cli import build_parser
+
+    parser = build_parser()
+    alias, named = parser.parse_args(["simulate", "out"]), parser.parse_args(["virtual-test", "out"])
+    assert alias.handler is named.handler is virtual_test_command.virtual_test_command
+    assert vars(alias) | {"command": None} == vars(named) | {"command": None}
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--help"])
+    listed = capsys.readouterr().out
+    assert "virtual-test" in listed and "simulate" not in listed
 
 
 def test_exports_take_a_frame_range_and_several_lines(result_path: Path, tmp_path: Path) -> None:

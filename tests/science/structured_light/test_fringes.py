@@ -12,7 +12,7 @@ from fringelab.science.fringes import (
     detect_stripes,
     locate_edges,
 )
-from fringelab.science.simulate import render_straight_stripes
+from fringelab.science.virtual_test import render_straight_stripes
 
 PERIOD_PX = 10.3
 PHASE_PX = 3.37

@@ -8,8 +8,8 @@ from __future__ import annotations
 import numpy as np
 
 from fringelab.science.fields import field_peak
-from fringelab.science.simulate import true_deflection_mm
 from fringelab.science.topography import TopographySettings, grid_for_first_frame, grid_measurement, track_and_measure
+from fringelab.science.virtual_test import true_deflection_mm
 
 from .conftest import RenderedExperiment
 

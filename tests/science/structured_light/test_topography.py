@@ -15,7 +15,6 @@ from fringelab.science import Cancelled
 from fringelab.science.camera import backproject_to_z, distortion_mm
 from fringelab.science.fringes import NoStripesError
 from fringelab.science.projector import CalibrationMismatchError, exact_camera_model
-from fringelab.science.simulate import PlateState, true_deflection_mm
 from fringelab.science.topography import (
     FirstFrameNotFlatError,
     TopographySettings,
@@ -24,6 +23,7 @@ from fringelab.science.topography import (
     scan_rays,
     track_and_measure,
 )
+from fringelab.science.virtual_test import PlateState, true_deflection_mm
 
 from .conftest import MemorySource, RenderedExperiment, recorded_test
 
