@@ -1,9 +1,10 @@
 """Serving the dashboard: the static ES modules of frontend/ and the plotly.js bundled in the `plotly` package, and
 the API docs (Swagger UI at /api/docs, ReDoc at /api/redoc) from the assets in the `fastapi-offline` package.
 
-plotly.js is served under a versioned path (cacheable forever) and the page learns that path from index.html,
-which is rendered once at start-up. Nothing is fetched from a CDN and no web font is loaded (ReDoc's Google fonts
-are switched off): the dashboard and the docs work on a lab network offline.
+plotly.js is served under a versioned path (cacheable forever) and the page learns that path from index.html
+(`<meta name="plotly-js">`, rendered once at start-up); the first figure a page draws loads it (frontend/plots.js).
+Nothing is fetched from a CDN and no web font is loaded (ReDoc's Google fonts are switched off): the dashboard
+and the docs work on a lab network offline.
 """
 
 from __future__ import annotations

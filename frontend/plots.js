@@ -1,10 +1,35 @@
 // Plotly helpers of the dashboard: every plot is a Figure (a titled box with "Download CSV" and "Download PNG"
 // buttons for the data and the image behind it), updated with Plotly.react; every axis title carries its unit
 // (use `axis(name, unit)`). The 2-D map turns click-and-drag into section lines and plain clicks into points.
-// No network code here: views fetch the data (api.js) and hand arrays to these functions.
+// No network code here: views fetch the data (api.js) and hand arrays to these functions; plotly.js itself
+// (4.8 MB) is loaded by the first figure drawn (loadPlotly), so pages without a plot never load it and pages with
+// one show their content first.
 import { h, newId } from "./ui.js";
 
-const Plotly = window.Plotly;
+let plotlyLoading = null;
+
+/**
+ * plotly.js, loaded once on first use: a script injected into the page from the versioned URL that index.html
+ * names in `<meta name="plotly-js">`. Resolves to `window.Plotly`; a failed load rejects (and the next call tries
+ * again).
+ */
+export function loadPlotly() {
+  if (window.Plotly) return Promise.resolve(window.Plotly);
+  if (!plotlyLoading) {
+    plotlyLoading = new Promise((resolve, reject) => {
+      const script = document.createElement("script");
+      script.src = document.querySelector('meta[name="plotly-js"]').content;
+      script.onload = () => resolve(window.Plotly);
+      script.onerror = () => {
+        plotlyLoading = null;
+        script.remove();
+        reject(new Error("Could not load the plotting library (plotly.js) from the server"));
+      };
+      document.head.append(script);
+    });
+  }
+  return plotlyLoading;
+}
 
 export const COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#17becf", "#8c564b", "#e377c2"];
 // Drawn over the red-white-blue map: dark or saturated colours that neither blend into it nor each other.
@@ -100,6 +125,7 @@ export class Figure {
   }
 
   async react(traces, plotLayout) {
+    const Plotly = await loadPlotly();
     await Plotly.react(this.plot, traces, plotLayout, this.config);
     this.drawn = true;
   }
@@ -112,7 +138,7 @@ export class Figure {
 
   downloadPNG() {
     const { width, height } = this.plot.getBoundingClientRect();
-    return Plotly.downloadImage(this.plot, {
+    return window.Plotly.downloadImage(this.plot, {
       format: "png",
       filename: this.filename,
       width: Math.max(600, Math.round(width)),
@@ -121,7 +147,7 @@ export class Figure {
   }
 
   purge() {
-    if (this.drawn) Plotly.purge(this.plot);
+    if (this.drawn) window.Plotly.purge(this.plot);
     this.drawn = false;
   }
 }

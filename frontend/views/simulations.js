@@ -311,10 +311,17 @@ function mappingForm({ context, simulations, topographies }) {
     const mine = ++sequence;
     submit.disabled = true; // a comparison starts from choices the preview has shown to work
     if (!topography.input.value || !simulation.input.value) {
+      // Nothing to compare yet: a sentence says what is missing, and no form, no empty plot.
       preview = null;
-      previewState.textContent = !topography.input.value ? "No succeeded topography result in this experiment yet." : "Upload a simulation to compare with.";
-      return drawPreview();
+      waiting.textContent = !topography.input.value
+        ? "Comparisons open here once this experiment has a succeeded topography result and a simulation."
+        : "Upload a simulation above to compare the topography results with it.";
+      waiting.hidden = false;
+      form.hidden = true;
+      return null;
     }
+    waiting.hidden = true;
+    form.hidden = false;
     previewState.textContent = "Updating the preview…";
     try {
       const body = { spec: spec() };
@@ -390,6 +397,8 @@ function mappingForm({ context, simulations, topographies }) {
     h("div", { class: "actions" }, submit),
     started,
   );
+  const waiting = h("p", { class: "hint" });
+  form.hidden = true;
   previewAxis.input.addEventListener("change", drawPreview);
   context.onLeave(() => previewFigure.purge());
 
@@ -401,7 +410,7 @@ function mappingForm({ context, simulations, topographies }) {
   };
   let shownTopographies = "";
   return {
-    element: form,
+    element: h("div", {}, waiting, form),
     simulationsChanged: () => {
       const changed = options(simulation.input, simulations().map((s) => ({ id: s.id, label: `#${s.id} ${s.filename} (${FORMAT_NAMES[s.kind] || s.kind}, ${s.n_states} states)` })), "no simulation yet");
       if (changed || !preview) update();
