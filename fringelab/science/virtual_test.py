@@ -1,8 +1,9 @@
 """The virtual test: stripes rendered through a camera and a pinhole projector onto a deforming plate.
 
 Belongs here: image-space test stripes with known edges, the scene (clamped plate, punch, perforation), the
-pinhole projector, the renderer (supersampled, antialiased stripes, Lambertian shading, blur, uneven
-illumination, 8-bit noise), presets for the paper's two cameras, and writing a whole experiment (camera
+pinhole projector, the renderer (supersampled, antialiased stripes, Lambertian shading, blur that grows away
+from focus, uneven illumination, soft partial shadows, highlights, photon, read and fixed-pattern noise, 8-bit
+output at any exposure), presets for the paper's two cameras, and writing a whole experiment (camera
 calibration, projector calibration and test recordings plus ground truth) in the recording formats.
 Not here: the camera model (`camera.py`) and the chessboard renderer (`synthetic.py`), which it uses.
 """
@@ -68,6 +69,9 @@ def render_straight_stripes(
     bright_grey: float = 200.0,
     supersample: int = 4,
     uneven_illumination: bool = True,
+    electrons_per_grey: float = 0.0,
+    pixel_gain_spread: float = 0.0,
+    blur_kernel: str = "gaussian",
 ) -> np.ndarray:
     """An 8-bit image, shape (H, W), of straight stripes with exactly known edges: test data for edge location.
 
@@ -76,6 +80,9 @@ def render_straight_stripes(
     +x) lie at x = m·period_px and falling ones at x = (m + ½)·period_px. Each pixel integrates its
     supersample² sub-pixels, each the exact box mean of the square wave over its footprint; the optical blur
     (Gaussian, blur_px) acts at the supersampled level, before pixel integration, as in a camera.
+    The harder noise of `Imaging` is there too: electrons_per_grey > 0 makes noise_grey the read noise and adds
+    photon (Poisson) noise; pixel_gain_spread a fixed per-pixel gain; blur_kernel "disk" blurs with a pillbox of
+    the same σ instead of a Gaussian (`BLUR_KERNELS`).
     """
     height, width = shape
     ss = int(supersample)
@@ -86,15 +93,66 @@ def render_straight_stripes(
     grid_v = (grid_v + 0.5) / ss - 0.5
     x = grid_u * normal[0] + grid_v * normal[1] - phase_px
     stripes = square_wave_box_mean(x, (abs(normal[0]) + abs(normal[1])) / ss, period_px)
-    if blur_px > 0:
-        stripes = cv2.GaussianBlur(stripes, (0, 0), blur_px * ss)
+    stripes = _blurred(stripes, blur_px * ss, blur_kernel)
     illumination = 1.0
     if uneven_illumination:
         illumination = 0.75 + 0.25 * np.cos(2.0 * (grid_u / width - 0.3)) * np.cos(grid_v / height - 0.6)
     image = illumination * (dark_grey + (bright_grey - dark_grey) * stripes)
     image = image.reshape(height, ss, width, ss).mean(axis=(1, 3))
-    image += rng.normal(0.0, noise_grey, shape)
-    return np.clip(np.round(image), 0, 255).astype(np.uint8)
+    return _exposed(image, rng=rng, noise_grey=noise_grey, electrons_per_grey=electrons_per_grey,
+                    pixel_gain_spread=pixel_gain_spread)  # fmt: skip
+
+
+# How the optics may blur: "gaussian", or "disk", a pillbox (a defocused lens's blur) of the same σ (radius 2σ).
+BLUR_KERNELS = ("gaussian", "disk")
+# The fixed-pattern noise is the camera's: the same per-pixel gains in every frame of every recording.
+FIXED_PATTERN_SEED = 20070913
+
+
+def _blurred(image: np.ndarray, sigma_px: float, kernel: str) -> np.ndarray:
+    """The image blurred by a Gaussian of σ sigma_px, or a pillbox of the same σ (`BLUR_KERNELS`)."""
+    if kernel not in BLUR_KERNELS:
+        raise ValueError(f"blur_kernel: expected one of {BLUR_KERNELS}, got {kernel!r}")
+    if not sigma_px > 0:
+        return image
+    if kernel == "gaussian":
+        return cv2.GaussianBlur(image, (0, 0), sigma_px, borderType=cv2.BORDER_REPLICATE)
+    # A pillbox of radius R has σ = R/2 along any direction; sampled 8 × 8 per pixel so a small one is round.
+    radius = 2.0 * sigma_px
+    half = int(np.ceil(radius))
+    fine = (np.arange(-half * 8, half * 8 + 8) + 0.5) / 8.0 - 0.5
+    fy, fx = np.meshgrid(fine, fine, indexing="ij")
+    inside = (fx * fx + fy * fy <= radius * radius).astype(np.float64)
+    disk = inside.reshape(2 * half + 1, 8, 2 * half + 1, 8).sum(axis=(1, 3))
+    disk /= disk.sum()
+    return cv2.filter2D(image, -1, disk.astype(image.dtype), borderType=cv2.BORDER_REPLICATE)
+
+
+def _exposed(
+    image: np.ndarray,
+    *,
+    rng: np.random.Generator,
+    noise_grey: float,
+    electrons_per_grey: float = 0.0,
+    pixel_gain_spread: float = 0.0,
+    camera_vignetting: float = 0.0,
+) -> np.ndarray:
+    """The 8-bit frame a camera makes of a noise-free image in grey levels: its own vignetting (1 − v·r²/r²_corner),
+    per-pixel gains (fixed-pattern noise, spread pixel_gain_spread, the same for every frame), photon noise
+    (Poisson, electrons_per_grey electrons per grey level; none for 0) and read noise (Gaussian, noise_grey; the
+    only noise for electrons_per_grey = 0), rounded and clipped to 0..255."""
+    height, width = image.shape
+    if camera_vignetting:
+        v, u = np.mgrid[0:height, 0:width].astype(np.float64)
+        r2 = ((u - 0.5 * (width - 1)) ** 2 + (v - 0.5 * (height - 1)) ** 2) / (0.25 * (width**2 + height**2))
+        image = image * (1.0 - camera_vignetting * r2)
+    if pixel_gain_spread:
+        gains = np.random.default_rng(FIXED_PATTERN_SEED).normal(1.0, pixel_gain_spread, image.shape)
+        image = image * gains
+    if electrons_per_grey > 0:
+        image = rng.poisson(np.maximum(image, 0.0) * electrons_per_grey) / electrons_per_grey
+    image = image + rng.normal(0.0, noise_grey, image.shape)
+    return np.clip(np.rint(image), 0, 255).astype(np.uint8)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -162,6 +220,43 @@ def projector_looking_at(
 
 
 @dataclass(frozen=True)
+class SoftShadow:
+    """A soft, partial shadow on the plate (of the punch or its holder, lit around by a large light source): an
+    ellipse centred at centre_xy_mm from the plate centre, semi-axes semi_axes_mm (along X, Y before turning by
+    angle_deg), inside which transmission of the projector's light is left (0.2–0.5: stripes at 20–50 % of their
+    brightness), with a soft rim rim_mm wide (10–90 %). It lies on the plate and moves with it.
+    """
+
+    centre_xy_mm: tuple[float, float]
+    semi_axes_mm: tuple[float, float]
+    transmission: float
+    rim_mm: float
+    angle_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.transmission <= 1.0:
+            raise ValueError(f"transmission: expected 0..1, got {self.transmission}")
+        if not (self.rim_mm > 0 and min(self.semi_axes_mm) > 0):
+            raise ValueError(f"rim_mm and semi_axes_mm: expected > 0, got {self.rim_mm}, {self.semi_axes_mm}")
+
+    def light(self, dx_mm: np.ndarray, dy_mm: np.ndarray) -> np.ndarray:
+        """The share of the projector's light left at points (dx, dy) from the plate centre, in [transmission, 1]."""
+        theta = np.deg2rad(self.angle_deg)
+        px, py = dx_mm - self.centre_xy_mm[0], dy_mm - self.centre_xy_mm[1]
+        along = (np.cos(theta) * px + np.sin(theta) * py) / self.semi_axes_mm[0]
+        across = (-np.sin(theta) * px + np.cos(theta) * py) / self.semi_axes_mm[1]
+        # Distance outside the ellipse, near enough: (ρ − 1) times the semi-axis in that direction.
+        rho = np.hypot(along, across)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            reach = np.hypot(along * self.semi_axes_mm[0], across * self.semi_axes_mm[1]) / rho
+        reach = np.where(rho > 1e-9, reach, min(self.semi_axes_mm))
+        outside_mm = (rho - 1.0) * reach
+        # A 10–90 % rim of width W is an erf of σ = W / 2.563.
+        lit = special.ndtr(outside_mm * 2.563 / self.rim_mm)
+        return self.transmission + (1.0 - self.transmission) * lit
+
+
+@dataclass(frozen=True)
 class PlateScene:
     """The test rig as the camera sees it: a plate clamped over a circle, a dark clamp ring, dark background.
 
@@ -175,8 +270,10 @@ class PlateScene:
     petals lift by petal_lift_mm[i] (cycled over the petals; + toward the camera) at the hole's rim, falling
     quadratically to 0 at the crack tips, so w jumps across each crack. A specular highlight (a Gaussian spot of
     the projector's light reflected straight into the camera, highlight_gain times the plate's diffuse level at
-    its centre) sits at highlight_xy_mm. room_light lights the scene evenly besides the projector (as a fraction
-    of the projector's light at the plate centre), so a shadow is dim, not black.
+    its centre) sits at highlight_xy_mm; with highlight_rim_mm it is a disc of radius highlight_sigma_mm with a
+    soft rim that wide (10–90 %) instead. room_light lights the scene evenly besides the projector (as a fraction
+    of the projector's light at the plate centre), so a shadow is dim, not black. soft_shadows: partial shadows
+    of the punch and its holder on the plate (`SoftShadow`), which dim the projector's light but not the room's.
     """
 
     centre_xy_mm: tuple[float, float] = (8.0, -5.0)
@@ -194,7 +291,9 @@ class PlateScene:
     highlight_xy_mm: tuple[float, float] | None = None
     highlight_sigma_mm: float = 10.0
     highlight_gain: float = 1.5
+    highlight_rim_mm: float | None = None
     room_light: float = 0.0
+    soft_shadows: tuple[SoftShadow, ...] = ()
 
     def deflection_mm(self, x_mm: np.ndarray, y_mm: np.ndarray, w0_mm: float) -> tuple[np.ndarray, ...]:
         """w and its slopes ∂w/∂X, ∂w/∂Y at object points (zero outside the clamp circle)."""
@@ -271,7 +370,16 @@ class PlateState:
 
 @dataclass(frozen=True)
 class Imaging:
-    """Grey levels and optics of the rendered frames (8-bit output)."""
+    """Grey levels and optics of the rendered frames (8-bit output).
+
+    gain_grey: grey level of the projector's full light on the plate's albedo (230: near the top of the range;
+    about 85 uses a third of it). vignetting: the projector's fall-off toward the slide's edge; camera_vignetting:
+    the lens's, 1 − v·r²/r²_corner over the image. blur_px: the optics' blur σ in focus; away from focus_z_mm it
+    grows as √(blur² + (defocus_blur_px_per_mm·ΔZ)²); blur_kernel "disk" blurs with a pillbox of that σ instead of
+    a Gaussian. noise_grey: Gaussian noise, the only noise with electrons_per_grey = 0, the read noise beside
+    photon (Poisson) noise of electrons_per_grey electrons per grey level otherwise. pixel_gain_spread: the
+    per-pixel gain's spread (fixed-pattern noise, the same in every frame).
+    """
 
     supersample: int = 2
     blur_px: float = 0.7
@@ -280,6 +388,27 @@ class Imaging:
     ambient_grey: float = 6.0
     vignetting: float = 0.25
     noise_grey: float = 2.0
+    electrons_per_grey: float = 0.0
+    pixel_gain_spread: float = 0.0
+    camera_vignetting: float = 0.0
+    defocus_blur_px_per_mm: float = 0.0
+    focus_z_mm: float = 0.0
+    blur_kernel: str = "gaussian"
+
+    def __post_init__(self) -> None:
+        if self.blur_kernel not in BLUR_KERNELS:
+            raise ValueError(f"blur_kernel: expected one of {BLUR_KERNELS}, got {self.blur_kernel!r}")
+
+
+def harder_imaging(*, supersample: int = 2, blur_kernel: str = "gaussian") -> Imaging:
+    """Frames as a dim real test makes them: exposed to a third of the 8-bit range, photon noise of 12 electrons
+    per grey level and 1 grey level of read noise (σ ≈ 2.6 on the bright stripes, 1 on the dark ones), 1 % of
+    fixed-pattern gain, 30 % camera vignetting in the corners, and blur growing by 0.012 px per mm away from the
+    flat plate's focus (0.9 px at 60 mm)."""
+    return Imaging(
+        supersample=supersample, gain_grey=95.0, ambient_grey=3.0, noise_grey=1.0, electrons_per_grey=12.0,
+        pixel_gain_spread=0.01, camera_vignetting=0.3, defocus_blur_px_per_mm=0.012, blur_kernel=blur_kernel,
+    )  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -353,14 +482,20 @@ class FringeRenderer:
             reflected[rows], pattern[rows] = self._radiance_block(rows, flat_z_mm=flat_z_mm, state=state)
         # The stripes come blurred already; the optics blur the rest of the scene (the clamp ring, the hole)
         # here. Blurring the product would be exact; the two factors vary on very different scales, so this
-        # differs only within a blur width of the clamp and the hole, which no measurement uses.
-        if imaging.blur_px > 0:
-            reflected = cv2.GaussianBlur(reflected, (0, 0), imaging.blur_px * ss, borderType=cv2.BORDER_REPLICATE)
+        # differs only within a blur width of the clamp and the hole, which no measurement uses. A pillbox blur
+        # is not analytic in the stripes: it blurs the whole product (the stripes carry only their defocus).
+        disk = imaging.blur_kernel == "disk"
+        if not disk:
+            reflected = _blurred(reflected, imaging.blur_px * ss, "gaussian")
         grey = imaging.ambient_grey + imaging.gain_grey * reflected * pattern
+        if disk:
+            grey = _blurred(grey, imaging.blur_px * ss, "disk")
         camera = self.preset.camera
         image = grey.reshape(camera.image_height_px, ss, camera.image_width_px, ss).mean(axis=(1, 3))
-        image = image + rng.normal(0.0, imaging.noise_grey, image.shape)
-        return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+        return _exposed(
+            image, rng=rng, noise_grey=imaging.noise_grey, electrons_per_grey=imaging.electrons_per_grey,
+            pixel_gain_spread=imaging.pixel_gain_spread, camera_vignetting=imaging.camera_vignetting,
+        )  # fmt: skip
 
     def surface_block(
         self, rows: slice, *, flat_z_mm: float | None, state: PlateState | None
@@ -410,7 +545,9 @@ class FringeRenderer:
         # where they are; it needs no fine sampling, and the supersampling then integrates the pixel.
         ss = imaging.supersample
         slide_per_px = ss * np.hypot(np.gradient(xs, axis=0), np.gradient(xs, axis=1))
-        sigma = slide_per_px * np.sqrt(imaging.blur_px**2 + 1.0 / (12.0 * ss * ss))
+        focus_blur_px = 0.0 if imaging.blur_kernel == "disk" else imaging.blur_px
+        defocus_px = imaging.defocus_blur_px_per_mm * (z - imaging.focus_z_mm)
+        sigma = slide_per_px * np.sqrt(focus_blur_px**2 + defocus_px**2 + 1.0 / (12.0 * ss * ss))
         stripes = square_wave_blurred(xs - projector.phase_mm, np.maximum(sigma, 1e-6), projector.period_mm)
         lx, ly, lz = (projector.centre_obj_mm[0] - x, projector.centre_obj_mm[1] - y, projector.centre_obj_mm[2] - z)
         distance2 = lx * lx + ly * ly + lz * lz
@@ -431,9 +568,18 @@ class FringeRenderer:
             # The punch's shadow (no projector light) and the punch itself (black) where it hides the plate.
             light = np.where(self._behind_punch(x, y, z, projector.centre_obj_mm, state), 0.0, light)
             albedo = np.where(self._behind_punch(x, y, z, self._camera_centre, state), 0.0, albedo)
+        if state is not None and scene.soft_shadows:
+            dx, dy = x - scene.centre_xy_mm[0], y - scene.centre_xy_mm[1]
+            for shadow in scene.soft_shadows:
+                light = light * shadow.light(dx, dy)
         if state is not None and scene.highlight_xy_mm is not None:
             hx, hy = scene.highlight_xy_mm
-            spot = scene.highlight_gain * np.exp(-0.5 * ((x - hx) ** 2 + (y - hy) ** 2) / scene.highlight_sigma_mm**2)
+            r2 = (x - hx) ** 2 + (y - hy) ** 2
+            if scene.highlight_rim_mm is None:
+                profile = np.exp(-0.5 * r2 / scene.highlight_sigma_mm**2)
+            else:
+                profile = special.ndtr((scene.highlight_sigma_mm - np.sqrt(r2)) * 2.563 / scene.highlight_rim_mm)
+            spot = scene.highlight_gain * profile
             light = light * (1.0 + spot / np.maximum(scene.plate_albedo, 1e-6))
         pattern = imaging.dark_stripe_fraction + (1.0 - imaging.dark_stripe_fraction) * stripes
         if scene.room_light > 0:
@@ -468,6 +614,14 @@ class FringeRenderer:
 
 
 PRESETS = ("kodak", "phantom")
+# Soft partial shadows of the punch and its holder over the dome top (from the plate centre), of several sizes,
+# rims and depths: stripes at 30, 50 and 20 % of their brightness, rims 8, 20 and 5 mm wide (about 6, 15 and 4 px
+# on the virtual Kodak, against a 10 px period).
+DOME_SHADOWS = (
+    SoftShadow(centre_xy_mm=(0.0, 22.0), semi_axes_mm=(28.0, 16.0), transmission=0.3, rim_mm=8.0, angle_deg=30.0),
+    SoftShadow(centre_xy_mm=(-55.0, -35.0), semi_axes_mm=(40.0, 40.0), transmission=0.5, rim_mm=20.0),
+    SoftShadow(centre_xy_mm=(45.0, -40.0), semi_axes_mm=(14.0, 22.0), transmission=0.2, rim_mm=5.0, angle_deg=-20.0),
+)
 # Stripe period in the image near the plate centre, as in docs/method.md §7 ("stripes ~10 px per period").
 TARGET_PERIOD_PX = 10.0
 # The paper's projector: an 85 mm Kodak Retinar lens about 2 m from the plate.
@@ -627,7 +781,10 @@ def scenario(name: str, setup: Preset, n_frames: int) -> tuple[Preset, PunchTime
     from 15 to 35 mm beyond the hole and petals lifting by different amounts, so w jumps across each crack.
     "highlight": the quasi-static test with a specular highlight on the plate. "shadow": the fast test with the
     punch coming through the hole, shadowing part of the stripes (dim room light, so the shadow is not black).
-    "hard": all of them at once.
+    "hard": all of them at once. "dim": the quasi-static test in dim, uneven light (`harder_imaging`: a third of
+    the 8-bit range, photon and fixed-pattern noise, vignetting, blur growing away from focus), with soft partial
+    shadows over the dome top (`DOME_SHADOWS`) and a highlight with a soft rim; the preset's supersampling is
+    kept.
     """
     scene = setup.scene
     petals: dict[str, Any] = {"crack_count": 4, "petal_lift_mm": (5.0, -3.0, 4.0, -2.0)}
@@ -654,6 +811,12 @@ def scenario(name: str, setup: Preset, n_frames: int) -> tuple[Preset, PunchTime
     if name == "hard":
         timeline = fast_timeline(n_frames, crack_length_mm=(15.0, 35.0), punch_protrusion_mm_per_frame=12.0, **fast)
         return replace(setup, scene=replace(scene, room_light=0.1, **petals, **highlight)), timeline
+    if name == "dim":
+        timeline = punch_timeline(n_frames, max_deflection_mm=setup.max_deflection_mm,
+                                  punch_radius_mm=scene.punch_radius_mm)  # fmt: skip
+        dim_scene = replace(scene, soft_shadows=DOME_SHADOWS, room_light=0.03, highlight_rim_mm=6.0,
+                            highlight_sigma_mm=14.0, highlight_gain=0.8, **highlight)  # fmt: skip
+        return replace(setup, scene=dim_scene, imaging=harder_imaging(supersample=setup.imaging.supersample)), timeline
     raise ValueError(f"scenario: expected one of {SCENARIOS}, got {name!r}")
 
 

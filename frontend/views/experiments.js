@@ -70,7 +70,8 @@ export async function renderExperiments(container, _params, context) {
       h("option", { value: "petals" }, "Petals: fast, with radial cracks and petals around the hole"),
       h("option", { value: "highlight" }, "Highlight: a specular highlight on the plate"),
       h("option", { value: "shadow" }, "Shadow: fast, the punch shadows part of the stripes"),
-      h("option", { value: "hard" }, "Hard: all of these at once")),
+      h("option", { value: "hard" }, "Hard: all of these at once"),
+      h("option", { value: "dim" }, "Dim: soft partial shadows, photon noise, a third of the grey range")),
   );
   const demo = h(
     "button",
