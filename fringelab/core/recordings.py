@@ -42,17 +42,9 @@ from fringelab.core.storage import (
     replace_with_link,
     sync_file,
 )
-from fringelab.formats.containers import (
-    UPLOAD_SUFFIXES,
-    CorruptRecording,
-    OverBudget,
-    RecordingLayout,
-    UnsafeArchive,
-    UnsupportedRecording,
-    ZipLimits,
-    check_ingest_budget,
-    recording_layout,
-)
+from fringelab.formats.container_common import CorruptRecording, OverBudget, UnsafeArchive, UnsupportedRecording
+from fringelab.formats.container_zip import ZipLimits
+from fringelab.formats.containers import UPLOAD_SUFFIXES, RecordingLayout, check_ingest_budget, recording_layout
 from fringelab.formats.previews import THUMBNAIL_PX
 
 KINDS = ("camera_calibration", "projector_calibration", "test")

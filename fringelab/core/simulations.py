@@ -32,7 +32,7 @@ from fringelab.core.recordings import check_upload_size
 from fringelab.core.settings import Settings
 from fringelab.core.state import AppState
 from fringelab.core.storage import place_file, put_dir, remove_tree, simulation_dir
-from fringelab.formats.containers import is_junk_entry, unsafe_entry_reason
+from fringelab.formats.container_zip import is_junk_entry, unsafe_entry_reason
 
 MODEL_DIR = "model"
 

@@ -1,15 +1,22 @@
 """File formats: one module per file type, its writer and its reader together.
 
-camera        camera-calibration JSON (and the OpenCV YAML export)
-containers    what an uploaded recording container is (ZIP, TIFF, video, .cine), checked without decoding frames
-recordings    frame sources of every container (lazy), and the sidecars z.csv, frames.csv, board.json
-previews      the preview store of a recording (previews.h5)
-topography    projector tables, topography results (writer and reader), exports, edge chunks
-simulations   opening a finite-element simulation (file or folder); one module per format: simulation_d3plot
-              (lasso-python), simulation_vtu (.pvd/.vtu), simulation_exodus, simulation_csv (nodal and punch CSV),
-              simulation_lsdyna_ascii (nodout, rcforc)
-comparison    the comparison of a topography with a simulation (writer, reader)
-exports       every export for other tools, of a topography result and of a comparison (one owner per format)
+camera          camera-calibration JSON (and the OpenCV YAML export)
+containers      the recording containers (the list of formats, sniffing, the ingest budget), checked without
+                decoding frames; one module a container: container_zip (a ZIP or folder of frames),
+                container_tiff, container_video (AVI, MP4), container_cine (Phantom .cine), container_mraw
+                (Photron .cih/.cihx + .mraw); what they share (errors, byte reads) in container_common
+recordings      frame sources of every container (lazy), and writing recordings of frames
+sidecars        the sidecars z.csv, frames.csv, board.json (one parser each)
+previews        the preview store of a recording (previews.h5)
+projector       the projector calibration (HDF5)
+topography      the topography result (writer and reader) and its XDMF views
+edges           the stored edges of a chunk of frames, handed between a topography job's workers
+simulations     opening a finite-element simulation (file or folder); one module per format: simulation_d3plot
+                (lasso-python), simulation_vtu (.pvd/.vtu), simulation_exodus, simulation_csv (nodal and punch
+                CSV), simulation_lsdyna_ascii (nodout, rcforc)
+comparison      the comparison of a topography with a simulation (writer, reader)
+exports         every export for other tools, of a topography result and of a comparison (one owner per format)
+atomic, hdf5    the one atomic write, and the HDF5 conventions every result file follows
 
 Modules the API imports (containers, previews, topography's reader) use numpy and h5py only; decoding frames
 (recordings) and the OpenCV YAML export need OpenCV and are used by the worker and the command line.

@@ -1,4 +1,4 @@
-"""Readers and writers of recordings and sidecars: the only place in `measurement` that touches files.
+"""Readers and writers of recordings: every container's frames, decoded one at a time.
 
 A recording is opened lazily: `open_recording(path)` returns a `FrameSource`, a sequence of 2-D grey frames
 (uint8 or uint16) decoded one at a time on access, so a multi-GB sequence is never held in memory. Formats:
@@ -6,10 +6,10 @@ a folder or ZIP of PNG/TIFF/BMP/JPEG frames (natural name order), a multi-page T
 Phantom .cine file (uncompressed 8/16-bit grey, 24/48-bit colour, packed 10/12-bit grey) and a Photron MRAW
 (.cih/.cihx + .mraw, 8/12/16-bit mono). Colour frames are converted to grey
 (ITU-R BT.601 luma) and the source says so (`colour_converted`). Container checks without decoding (format
-sniffing, ZIP safety, the .cine header) live in `containers`.
+sniffing, ZIP safety, the .cine, MRAW and TIFF headers) live in `containers` and its `container_*` modules.
 
-Sidecars (`z.csv`, `frames.csv`, `board.json`) are parsed and validated here with errors that name the file,
-line and column; `frame_indices` checks that a sidecar's frame ids match the frames of the recording.
+A source finds its sidecars (`z.csv`, `frames.csv`, `board.json`: inside the ZIP or beside the file) and hands
+their text to `sidecars`, which parses and validates them.
 """
 
 from __future__ import annotations
@@ -28,24 +28,20 @@ import cv2
 import numpy as np
 
 from fringelab.formats.atomic import atomic_path
-from fringelab.formats.containers import (
+from fringelab.formats.container_cine import read_cine_header, unpack_cine_pixels
+from fringelab.formats.container_common import CorruptRecording, UnsupportedRecording
+from fringelab.formats.container_mraw import MrawHeader, read_mraw_header, unpack_mraw_pixels
+from fringelab.formats.container_tiff import read_tiff_layout
+from fringelab.formats.container_video import check_video_container
+from fringelab.formats.container_zip import (
     IMAGE_SUFFIXES,
-    CorruptRecording,
-    MrawHeader,
-    UnsupportedRecording,
     ZipLimits,
-    check_video_container,
     declared_image_size,
     inspect_zip,
     is_junk_entry,
     mraw_header_in_zip,
-    read_cine_header,
-    read_mraw_header,
-    read_tiff_layout,
-    sniff_format,
-    unpack_cine_pixels,
-    unpack_mraw_pixels,
 )
+from fringelab.formats.containers import sniff_format
 from fringelab.formats.sidecars import FRAMES_CSV_COLUMNS, check_sidecar_size, read_sidecar_file
 from fringelab.formats.sidecars import sidecar_text as decode_sidecar
 from fringelab.science import natural_key

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from fringelab.formats.containers import MAX_SIDECAR_BYTES, check_sidecar_size
+from fringelab.formats.container_common import MAX_SIDECAR_BYTES, check_sidecar_size
 from fringelab.science.chessboard import Board
 
 FRAMES_CSV_COLUMNS = ("time_s", "punch_displacement_mm", "force_kN")

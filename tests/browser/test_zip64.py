@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fringelab.formats.containers import inspect_zip
+from fringelab.formats.container_zip import inspect_zip
 from fringelab.formats.recordings import open_recording
 from tests.formats.recording_files import encode, stripe_frames
 

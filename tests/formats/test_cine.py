@@ -8,7 +8,8 @@ import struct
 import numpy as np
 import pytest
 
-from fringelab.formats.containers import CorruptRecording, UnsupportedRecording, read_cine_header
+from fringelab.formats.container_cine import read_cine_header
+from fringelab.formats.container_common import CorruptRecording, UnsupportedRecording
 from fringelab.formats.recordings import open_recording
 from tests.formats.recording_files import stripe_frames, write_cine
 

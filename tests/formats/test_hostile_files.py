@@ -12,16 +12,9 @@ import numpy as np
 import pytest
 import tifffile
 
-from fringelab.formats.containers import (
-    MAX_SIDECAR_BYTES,
-    CorruptRecording,
-    OverBudget,
-    UnsafeArchive,
-    ZipLimits,
-    check_ingest_budget,
-    inspect_zip,
-    recording_layout,
-)
+from fringelab.formats.container_common import MAX_SIDECAR_BYTES, CorruptRecording, OverBudget, UnsafeArchive
+from fringelab.formats.container_zip import ZipLimits, inspect_zip
+from fringelab.formats.containers import check_ingest_budget, recording_layout
 from fringelab.formats.recordings import open_recording
 from fringelab.formats.sidecars import read_board_json, read_frames_csv, read_z_csv
 from tests.formats.recording_files import stripe_frames, write_cine, write_tiff_stack, write_video, write_zip

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fringelab.formats.containers import CorruptRecording, UnsupportedRecording
+from fringelab.formats.container_common import CorruptRecording, UnsupportedRecording
 from fringelab.formats.recordings import open_recording
 from tests.formats.recording_files import write_mraw
 
@@ -77,7 +77,7 @@ def test_colour_mraw_is_refused(tmp_path):
 def test_mraw_uploaded_as_one_zip_reads_frames_where_they_lie(tmp_path, header):
     import zipfile
 
-    from fringelab.formats.containers import inspect_zip
+    from fringelab.formats.container_zip import inspect_zip
 
     frames = _frames(3, 12)
     header_path = write_mraw(tmp_path / "shot", frames, bits=12, start_frame=-1, header=header)

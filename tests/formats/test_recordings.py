@@ -8,7 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
-from fringelab.formats.containers import CorruptRecording, UnsafeArchive, UnsupportedRecording, ZipLimits
+from fringelab.formats.container_common import CorruptRecording, UnsafeArchive, UnsupportedRecording
+from fringelab.formats.container_zip import ZipLimits
 from fringelab.formats.recordings import open_recording
 from tests.formats.recording_files import encode, stripe_frames, write_cine, write_tiff_stack, write_video, write_zip
 

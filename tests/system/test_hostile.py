@@ -222,7 +222,7 @@ def test_a_huge_z_csv_inside_a_zip_is_refused_before_it_is_read(lab_server, tmp_
     """Finding 5: a 268 MB z.csv in a ZIP grew a worker to 1.46 GiB. Its size is in the ZIP directory: 422."""
     import zipfile
 
-    from fringelab.formats.containers import MAX_SIDECAR_BYTES
+    from fringelab.formats.container_common import MAX_SIDECAR_BYTES
     from tests.formats.recording_files import encode, stripe_frames
 
     path = tmp_path / "r.zip"
