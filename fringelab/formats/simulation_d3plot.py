@@ -7,10 +7,16 @@ gigabytes is never in memory at once. A d3plot stores the current coordinates of
 (lasso's `node_displacement`); the displacement is that minus the reference coordinates. Shell thickness, when the
 file has it, is taken from the first state and averaged onto the nodes. (`buffered_reading=True` is passed
 with every `state_filter`: lasso 2.0 takes a filter of state 0 alone, `{0}`, as no filter and reads all states.)
+
+Checked before anything is read, because lasso reads what it finds without a word: the family's numbering has no
+gap (d3plot01, d3plot02, … each there), every file holds whole states (a file that ends inside a state, shorter
+than the header's state size says, is a copy cut short), the states carry nodal positions (a thermal-only result
+does not), there is at least one state, and the times do not go back. Each refusal names the file.
 """
 
 from __future__ import annotations
 
+import re
 import shutil
 from pathlib import Path
 from typing import Any
@@ -20,6 +26,7 @@ import numpy as np
 from fringelab.science.fe_results import FEResults
 
 INSTALL_HINT = "reading d3plot files needs lasso-python: pip install 'fringelab[lsdyna]'"
+END_MARK = -999999.0  # LS-DYNA's end-of-data word after the last state of a file
 
 
 def _lasso() -> tuple[Any, Any]:
@@ -35,37 +42,144 @@ def is_d3plot(path: Path) -> bool:
     return path.is_file() and (path.name.lower() == "d3plot" or path.suffix.lower() == ".d3plot")
 
 
+def family_files(path: Path) -> list[Path]:
+    """The state files of the family whose first file is `path` (path01, path02, … in order); ValueError naming
+    the first missing one when the numbering has a gap."""
+    pattern = re.compile(re.escape(path.name) + r"([0-9]+)$")
+    numbered: dict[int, Path] = {}
+    for entry in path.parent.iterdir():
+        match = pattern.match(entry.name)
+        if match and entry.is_file():
+            numbered[int(match.group(1))] = entry
+    if not numbered:
+        return []
+    missing = [n for n in range(1, max(numbered) + 1) if n not in numbered]
+    if missing:
+        names = ", ".join(f"{path.name}{n:02d}" for n in missing[:5]) + ("…" if len(missing) > 5 else "")
+        raise ValueError(
+            f"{path.name}: the family has a gap: {names} missing (there are {len(numbered)} files up to "
+            f"{numbered[max(numbered)].name}); the states in the missing file would be lost: copy the whole family "
+            "from the solver's folder"
+        )
+    return [numbered[n] for n in sorted(numbered)]
+
+
+def _data_end(file: Path, word_bytes: int) -> int:
+    """The byte offset after the last non-zero byte of `file`, rounded up to a whole word (LS-DYNA pads its
+    files with zeros to whole blocks)."""
+    size = file.stat().st_size
+    chunk = 1 << 16
+    with open(file, "rb") as handle:
+        stop = size
+        while stop > 0:
+            start = max(0, stop - chunk)
+            handle.seek(start)
+            block = np.frombuffer(handle.read(stop - start), np.uint8)
+            nonzero = np.flatnonzero(block)
+            if len(nonzero):
+                end = start + int(nonzero[-1]) + 1
+                return -(-end // word_bytes) * word_bytes
+            stop = start
+    return 0
+
+
+def _check_whole_states(files: list[Path], *, first_offset: int, state_bytes: int, word_bytes: int) -> None:
+    """ValueError naming the first file that ends inside a state (a copy cut short), or a state file that holds
+    no state. files[0] is the geometry file, whose states (if any) start at first_offset."""
+    end_mark = np.array([END_MARK], np.float32 if word_bytes == 4 else np.float64).tobytes()
+    for index, file in enumerate(files):
+        start = first_offset if index == 0 else 0
+        end = _data_end(file, word_bytes)
+        n_states, rest = divmod(max(end - start, 0), state_bytes)
+        if index > 0 and n_states == 0:
+            raise ValueError(
+                f"{file.name}: holds no whole state ({file.stat().st_size} bytes, a state is {state_bytes}): the "
+                "file is shorter than the header says; copy the family again from the solver's folder"
+            )
+        if rest == 0 or (rest == word_bytes and _word_at(file, end - word_bytes, word_bytes) == end_mark):
+            continue
+        if file.stat().st_size >= start + (n_states + 1) * state_bytes:
+            continue  # the state in progress is whole, its last words zero
+        raise ValueError(
+            f"{file.name}: ends inside a state (byte {end}: {n_states} whole states of {state_bytes} bytes from byte "
+            f"{start}, then {rest} bytes): the file is shorter than the header says; copy the family again from "
+            "the solver's folder"
+        )
+
+
+def _word_at(file: Path, offset: int, word_bytes: int) -> bytes:
+    with open(file, "rb") as handle:
+        handle.seek(offset)
+        return handle.read(word_bytes)
+
+
+def _open(D3plot: Any, path: Path, **options: Any) -> Any:
+    try:
+        return D3plot(str(path), **options)
+    except Exception as error:  # lasso raises many kinds for a file it cannot parse
+        raise ValueError(f"{path.name}: not a readable d3plot ({type(error).__name__}: {error})") from None
+
+
 def read_d3plot(path: str | Path) -> FEResults:
     """The first file of a d3plot family as `FEResults` (length and time units not declared)."""
     D3plot, ArrayType = _lasso()
     path = Path(path)
-    wanted = [ArrayType.global_timesteps, ArrayType.element_shell_thickness]
-    try:
-        header = D3plot(str(path), state_filter={0}, state_array_filter=wanted, buffered_reading=True)
-        times = D3plot(str(path), state_array_filter=[ArrayType.global_timesteps]).arrays[ArrayType.global_timesteps]
-    except Exception as error:  # lasso raises many kinds for a file it cannot parse
+    files = family_files(path)
+    timeline = _open(D3plot, path, state_array_filter=[ArrayType.global_timesteps], buffered_reading=True)
+    header = timeline.header
+    try:  # lasso's own sizes (private, pinned below lasso 3): the bytes of one state and of the geometry
+        state_bytes = int(timeline._compute_n_bytes_per_state())
+        first_offset = int(timeline.geometry_section_size)
+    except Exception as error:
         raise ValueError(f"{path.name}: not a readable d3plot ({type(error).__name__}: {error})") from None
-    arrays = header.arrays
+    _check_whole_states([path, *files], first_offset=first_offset, state_bytes=state_bytes,
+                        word_bytes=int(header.wordsize))  # fmt: skip
+    times = np.asarray(timeline.arrays.get(ArrayType.global_timesteps, np.zeros(0)), np.float64)
+    arrays = timeline.arrays
     xyz = np.asarray(arrays[ArrayType.node_coordinates], np.float64)
     n_nodes = len(xyz)
     shells = np.asarray(arrays.get(ArrayType.element_shell_node_indexes, np.zeros((0, 4))), np.int64)
     solids = np.asarray(arrays.get(ArrayType.element_solid_node_indexes, np.zeros((0, 8))), np.int64)
+    if len(times) == 0:
+        raise ValueError(
+            f"{path.name}: geometry only, no states ({n_nodes} nodes, {len(shells)} shells, {len(solids)} solids; "
+            f"{len(files)} state files): the run wrote no output time, or only its geometry file was copied; "
+            "upload the family with its state files (d3plot01, …)"
+        )
+    if not header.has_node_displacement:
+        held = "node temperatures" if header.has_node_temperatures else "no nodal result"
+        raise ValueError(
+            f"{path.name}: no nodal displacements or coordinates per state (its states hold {held}): was it "
+            "written by a thermal-only run, or with the nodal coordinates switched off in *DATABASE_EXTENT_BINARY? "
+            "Upload the structural run's d3plot"
+        )
+    backwards = np.flatnonzero(np.diff(times) < 0)
+    if len(backwards):
+        k = int(backwards[0]) + 1
+        raise ValueError(
+            f"{path.name}: state {k} (t = {times[k]:.6g}) comes before state {k - 1} (t = {times[k - 1]:.6g}): "
+            "files of two runs mixed in one family? copy the family again from the solver's folder"
+        )
     thickness = None
-    if ArrayType.element_shell_thickness in arrays and len(shells):
-        per_shell = np.asarray(arrays[ArrayType.element_shell_thickness], np.float64)[0]
-        total = np.bincount(shells.ravel(), weights=np.repeat(per_shell, shells.shape[1]), minlength=n_nodes)
-        count = np.bincount(shells.ravel(), minlength=n_nodes)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            thickness = np.where(count > 0, total / count, np.nan)
+    if len(shells):
+        first = _open(D3plot, path, state_filter={0}, state_array_filter=[ArrayType.element_shell_thickness],
+                      buffered_reading=True)  # fmt: skip
+        if ArrayType.element_shell_thickness in first.arrays:
+            per_shell = np.asarray(first.arrays[ArrayType.element_shell_thickness], np.float64)[0]
+            total = np.bincount(shells.ravel(), weights=np.repeat(per_shell, shells.shape[1]), minlength=n_nodes)
+            count = np.bincount(shells.ravel(), minlength=n_nodes)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                thickness = np.where(count > 0, total / count, np.nan)
     ids = arrays.get(ArrayType.node_ids)
     cache: dict[int, np.ndarray] = {}
 
     def displacement(i: int) -> np.ndarray:
         if i not in cache:
-            state = D3plot(
-                str(path), state_filter={i}, state_array_filter=[ArrayType.node_displacement], buffered_reading=True
-            )
-            current = np.asarray(state.arrays[ArrayType.node_displacement], np.float64)
+            if not 0 <= i < len(times):
+                raise ValueError(f"{path.name}: no state {i}; it has {len(times)}")
+            state = _open(D3plot, path, state_filter={i}, state_array_filter=[ArrayType.node_displacement],
+                          buffered_reading=True)  # fmt: skip
+            current = np.asarray(state.arrays.get(ArrayType.node_displacement, np.zeros(0)), np.float64)
             if current.shape != (1, n_nodes, 3):
                 raise ValueError(f"{path.name}: state {i}: expected positions (1, {n_nodes}, 3), got {current.shape}")
             cache.clear()
@@ -75,8 +189,7 @@ def read_d3plot(path: str | Path) -> FEResults:
     return FEResults(
         source=str(path), kind="d3plot",
         node_ids=np.asarray(ids, np.int64) if ids is not None else np.arange(1, n_nodes + 1), node_xyz=xyz,
-        shells=shells, solids=solids, shell_thickness=thickness, time=np.asarray(times, np.float64),
-        displacement=displacement,
+        shells=shells, solids=solids, shell_thickness=thickness, time=times, displacement=displacement,
     )  # fmt: skip
 
 
@@ -89,11 +202,12 @@ def write_d3plot(
     displacement: np.ndarray,
     node_ids: np.ndarray | None = None,
     shell_thickness: float | None = None,
+    one_state_per_file: bool = False,
 ) -> Path:
     """Write a d3plot family with lasso-python's writer: shells (E, 4) (triangles repeat their last corner),
-    states (S, N, 3) of displacement at times (S,); the geometry in `path`, the states in `path`01. For tests and
-    examples; the state files are moved into place before the geometry, so a reader never sees a family
-    without its states."""
+    states (S, N, 3) of displacement at times (S,); the geometry in `path`, the states in `path`01 (or one state
+    per file, `path`01, `path`02, …, as LS-DYNA splits a long run). For tests and examples; the state files are
+    moved into place before the geometry, so a reader never sees a family without its states."""
     from fringelab.formats.atomic import commit_partial, partial_path
 
     D3plot, ArrayType = _lasso()
@@ -114,7 +228,7 @@ def write_d3plot(
     folder = partial_path(path)
     folder.mkdir()
     try:
-        d3plot.write_d3plot(str(folder / path.name), single_file=True)
+        d3plot.write_d3plot(str(folder / path.name), single_file=not one_state_per_file)
         for file in sorted(folder.iterdir(), key=lambda f: (len(f.name), f.name), reverse=True):
             commit_partial(file, path.parent / file.name)
     finally:

@@ -64,43 +64,6 @@ def test_exodus(tmp_path: Path) -> None:
     np.testing.assert_array_equal(results.shells, QUADS)
 
 
-def test_d3plot_family_read_state_by_state(tmp_path: Path) -> None:
-    pytest.importorskip("lasso", reason="d3plot needs the optional extra fringelab[lsdyna]")
-    from fringelab.formats.simulation_d3plot import write_d3plot
-
-    write_d3plot(tmp_path / "d3plot", node_xyz=XYZ, shells=QUADS, time=TIME, displacement=DISP, node_ids=IDS,
-                 shell_thickness=2.0)  # fmt: skip
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["d3plot", "d3plot01"]  # geometry, then the states
-    results = open_simulation(tmp_path)
-    check(results, atol=1e-4)  # positions are float32 in the file: 1e-4 mm at 100 mm
-    np.testing.assert_array_equal(results.shells, QUADS)
-    np.testing.assert_allclose(results.shell_thickness, 2.0)
-
-
-def test_d3plot_with_nodout_keeps_the_punch_travel_of_its_last_state(tmp_path: Path) -> None:
-    """d3plot holds its times as float32, nodout prints them with 8 digits: the last state's time lies a hair
-    after nodout's last, and its punch travel (with it the state, in an alignment by displacement) must not be
-    lost. A nodout of several nodes still uploads (punch_needed=False) and then has no punch travel."""
-    pytest.importorskip("lasso", reason="d3plot needs the optional extra fringelab[lsdyna]")
-    from fringelab.formats.simulation_d3plot import write_d3plot
-    from fringelab.science.compare import PlateFrame, map_model, state_punch_mm
-
-    time = np.array([0.0, 0.0033333333, 0.0066666667, 0.0123456789])  # the last: float32 rounds it up
-    write_d3plot(tmp_path / "d3plot", node_xyz=XYZ, shells=QUADS, time=time, displacement=0.01 * DISP, node_ids=IDS)
-    travel = np.zeros((N_STATES, 1, 3))
-    travel[:, 0, 2] = 1000.0 * time
-    simulation_lsdyna_ascii.write_nodout(tmp_path / "nodout", time=time, node_ids=np.array([9]), displacement=travel,
-                                         coordinates=np.zeros((1, 3)))  # fmt: skip
-    results = open_simulation(tmp_path)
-    assert results.time[-1] > results.punch_time[-1]  # as LS-DYNA's files have it
-    model = map_model(results, PlateFrame(axis_xy_mm=(0.0, 0.0), data_box_mm=(-50.0, 50.0, -40.0, 40.0)))
-    np.testing.assert_allclose(state_punch_mm(model), 1000.0 * time, rtol=1e-4)  # type: ignore[arg-type]  # 5 digits
-    both = np.concatenate([travel, travel], axis=1)
-    simulation_lsdyna_ascii.write_nodout(tmp_path / "nodout", time=time, node_ids=np.array([9, 10]),
-                                         displacement=both, coordinates=np.zeros((2, 3)))  # fmt: skip
-    assert open_simulation(tmp_path, punch_needed=False).punch_displacement is None
-
-
 def test_nodout_and_rcforc_give_the_punch(tmp_path: Path) -> None:
     simulation_csv.write_nodes_csv(tmp_path / "m.csv", node_ids=IDS, node_xyz_mm=XYZ, time_s=TIME, displacement_mm=DISP)
     travel = np.zeros((N_STATES, 2, 3))

@@ -58,10 +58,10 @@ def assert_difference_is_the_measurement_error(measured, path: Path) -> None:  #
             assert comparison.column("n_nodes")[i] > 30000  # the whole plate, not a corner of it
 
 
-@pytest.mark.parametrize("kind", ["csv", "vtu", "exodus", "d3plot"])
+@pytest.mark.parametrize("kind", ["csv", "vtu", "exodus", pytest.param("d3plot", marks=pytest.mark.lsdyna)])
 def test_true_surface_as_a_simulation_differs_by_the_measurement_error(measured, tmp_path, kind) -> None:  # type: ignore[no-untyped-def]
     if kind == "d3plot":
-        pytest.importorskip("lasso", reason="d3plot needs the optional extra fringelab[lsdyna]")
+        pytest.importorskip("lasso", reason="d3plot needs lasso-python: `make test` runs it in .venv-lsdyna")
     folder = write_true_simulation(measured.truth_json, tmp_path / kind, kind=kind)
     summary = compare_result(measured.result, folder, tmp_path / "comparison.h5")
     assert summary.mapping["length_unit"] == "mm" and summary.mapping["symmetry"] == "none"

@@ -1,0 +1,134 @@
+"""LS-DYNA d3plot families, written with lasso-python's writer (the layout LS-DYNA writes: a geometry file, state
+files d3plot01, d3plot02, … each closed by the end mark and padded to whole blocks), read by fringelab and
+compared state by state with lasso-python's own full read, and broken as copies and runs break them.
+
+Marked `lsdyna`: they need lasso-python, which pins plotly 5; `make test` runs them in `.venv-lsdyna` (the
+project with the `lsdyna` extra), the rest of the suite in `.venv`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fringelab.formats.simulations import open_simulation
+from tests.formats.test_simulations import DISP, IDS, N_STATES, QUADS, TIME, XYZ, check
+
+pytestmark = pytest.mark.lsdyna
+lasso_dyna = pytest.importorskip("lasso.dyna", reason="d3plot needs lasso-python: `make test` runs it in .venv-lsdyna")
+from fringelab.formats.simulation_d3plot import write_d3plot  # noqa: E402
+
+A = lasso_dyna.ArrayType
+
+
+def lasso_geometry() -> object:
+    d3plot = lasso_dyna.D3plot()
+    d3plot.arrays[A.node_coordinates] = XYZ
+    d3plot.arrays[A.node_ids] = IDS
+    d3plot.arrays[A.element_shell_node_indexes] = QUADS
+    d3plot.arrays[A.element_shell_part_indexes] = np.zeros(len(QUADS), np.int64)
+    return d3plot
+
+
+@pytest.mark.parametrize("one_state_per_file", [False, True])
+def test_d3plot_family_read_state_by_state(tmp_path: Path, one_state_per_file: bool) -> None:
+    write_d3plot(tmp_path / "d3plot", node_xyz=XYZ, shells=QUADS, time=TIME, displacement=DISP, node_ids=IDS,
+                 shell_thickness=2.0, one_state_per_file=one_state_per_file)  # fmt: skip
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert names == (["d3plot", "d3plot01", "d3plot02", "d3plot03", "d3plot04"] if one_state_per_file
+                     else ["d3plot", "d3plot01"])  # fmt: skip
+    results = open_simulation(tmp_path)
+    check(results, atol=1e-4)  # positions are float32 in the file: 1e-4 mm at 100 mm
+    np.testing.assert_array_equal(results.shells, QUADS)
+    np.testing.assert_allclose(results.shell_thickness, 2.0)
+    reference = lasso_dyna.D3plot(str(tmp_path / "d3plot"))  # lasso reads every state at once
+    np.testing.assert_array_equal(results.time, reference.arrays[A.global_timesteps])
+    for state in range(N_STATES):  # the same float32 numbers: equal to float32 round-off of the subtraction
+        expected = reference.arrays[A.node_displacement][state] - reference.arrays[A.node_coordinates]
+        np.testing.assert_allclose(results.displacement(state), expected, atol=1e-5)
+
+
+def test_d3plot_with_nodout_keeps_the_punch_travel_of_its_last_state(tmp_path: Path) -> None:
+    """d3plot holds its times as float32, nodout prints them with 8 digits: the last state's time lies a hair
+    after nodout's last, and its punch travel (with it the state, in an alignment by displacement) must not be
+    lost. A nodout of several nodes still uploads (punch_needed=False) and then has no punch travel."""
+    from fringelab.formats import simulation_lsdyna_ascii
+    from fringelab.science.compare import PlateFrame, map_model, state_punch_mm
+
+    time = np.array([0.0, 0.0033333333, 0.0066666667, 0.0123456789])  # the last: float32 rounds it up
+    write_d3plot(tmp_path / "d3plot", node_xyz=XYZ, shells=QUADS, time=time, displacement=0.01 * DISP, node_ids=IDS)
+    travel = np.zeros((N_STATES, 1, 3))
+    travel[:, 0, 2] = 1000.0 * time
+    simulation_lsdyna_ascii.write_nodout(tmp_path / "nodout", time=time, node_ids=np.array([9]), displacement=travel,
+                                         coordinates=np.zeros((1, 3)))  # fmt: skip
+    results = open_simulation(tmp_path)
+    assert results.time[-1] > results.punch_time[-1]  # as LS-DYNA's files have it
+    model = map_model(results, PlateFrame(axis_xy_mm=(0.0, 0.0), data_box_mm=(-50.0, 50.0, -40.0, 40.0)))
+    np.testing.assert_allclose(state_punch_mm(model), 1000.0 * time, rtol=1e-4)  # type: ignore[arg-type]  # 5 digits
+    both = np.concatenate([travel, travel], axis=1)
+    simulation_lsdyna_ascii.write_nodout(tmp_path / "nodout", time=time, node_ids=np.array([9, 10]),
+                                         displacement=both, coordinates=np.zeros((2, 3)))  # fmt: skip
+    assert open_simulation(tmp_path, punch_needed=False).punch_displacement is None
+
+
+def test_a_family_with_a_gap_is_refused_naming_the_missing_file(tmp_path: Path) -> None:
+    """lasso reads d3plot01, 02, 04 as three states without a word; the missing file is named instead."""
+    write_d3plot(tmp_path / "d3plot", node_xyz=XYZ, shells=QUADS, time=TIME, displacement=DISP,
+                 one_state_per_file=True)  # fmt: skip
+    (tmp_path / "d3plot03").unlink()
+    assert len(lasso_dyna.D3plot(str(tmp_path / "d3plot")).arrays[A.global_timesteps]) == N_STATES - 1
+    with pytest.raises(ValueError, match=r"d3plot: the family has a gap: d3plot03 missing .*up to d3plot04"):
+        open_simulation(tmp_path)
+
+
+@pytest.mark.parametrize("one_state_per_file", [False, True])
+def test_a_file_cut_inside_a_state_is_refused_naming_it(tmp_path: Path, one_state_per_file: bool) -> None:
+    """A copy cut short: the last file ends inside a state (lasso drops that state without a word)."""
+    write_d3plot(tmp_path / "d3plot", node_xyz=XYZ, shells=QUADS, time=TIME, displacement=DISP,
+                 one_state_per_file=one_state_per_file)  # fmt: skip
+    last = sorted(tmp_path.glob("d3plot0*"))[-1]
+    state_bytes = int(lasso_dyna.D3plot(str(tmp_path / "d3plot"))._compute_n_bytes_per_state())
+    keep = (0 if one_state_per_file else 2 * state_bytes) + state_bytes // 2
+    last.write_bytes(last.read_bytes()[:keep])
+    name = last.name
+    match = rf"{name}: (ends inside a state|holds no whole state).*shorter than the header says"
+    with pytest.raises(ValueError, match=match):
+        open_simulation(tmp_path)
+
+
+def test_a_thermal_result_is_refused_at_upload_with_a_sentence(tmp_path: Path) -> None:
+    """Node temperatures and no positions: refused when it is opened (the upload's check), not with a KeyError
+    when a comparison asks for a displacement."""
+    from fringelab.core.errors import Invalid
+    from fringelab.core.simulations import read_simulation_summary
+
+    d3plot = lasso_geometry()
+    d3plot.arrays[A.global_timesteps] = TIME  # type: ignore[attr-defined]
+    d3plot.arrays[A.node_temperature] = np.full((N_STATES, len(XYZ)), 293.0)  # type: ignore[attr-defined]
+    d3plot.write_d3plot(str(tmp_path / "d3plot"))  # type: ignore[attr-defined]
+    refusal = r"d3plot: no nodal displacements or coordinates per state \(its states hold node temperatures\): was it"
+    with pytest.raises(ValueError, match=refusal + " written by a thermal-only run"):
+        open_simulation(tmp_path)
+    with pytest.raises(Invalid, match=r"thermal.zip: not a simulation fringelab reads: d3plot: no nodal displacements"):
+        read_simulation_summary(tmp_path, filename="thermal.zip")
+
+
+def test_geometry_only_says_so(tmp_path: Path) -> None:
+    """A geometry file without its state files (lasso: "State '0' exceeds the maximum number of states of '0'"),
+    and one written with no state at all."""
+    write_d3plot(tmp_path / "d3plot", node_xyz=XYZ, shells=QUADS, time=TIME, displacement=DISP)
+    (tmp_path / "d3plot01").unlink()
+    with pytest.raises(ValueError, match=r"d3plot: geometry only, no states \(30 nodes, 20 shells, 0 solids; 0 state "):
+        open_simulation(tmp_path)
+    lasso_geometry().write_d3plot(str(tmp_path / "d3plot"))  # type: ignore[attr-defined]
+    assert [p.name for p in tmp_path.iterdir()] == ["d3plot"]
+    with pytest.raises(ValueError, match=r"d3plot: geometry only, no states"):
+        open_simulation(tmp_path)
+
+
+def test_not_a_d3plot_is_named(tmp_path: Path) -> None:
+    (tmp_path / "d3plot").write_bytes(b"\x01" * 300)
+    with pytest.raises(ValueError, match=r"d3plot: not a readable d3plot \("):
+        open_simulation(tmp_path)
