@@ -34,7 +34,6 @@ from fringelab.core.state import AppState
 from fringelab.formats.topography import (
     GRID_BUDGET_NODES,
     MISSING_REASONS,
-    PEAK_REGION_MEASURED,
     FrameNotInResult,
     OutsideGrid,
     ResultUnavailable,
@@ -348,8 +347,15 @@ class TopographyOverview(BaseModel):
         "edges' by more than 3/4 of a stripe step (a cross-check of the order; null: not checked)."
     )
     peak_measured: list[bool | None] = Field(
-        description="Per frame: whether the region around the punch, where the peak is, was measured (null: unknown)."
+        description="Per frame: whether the peak was measured, i.e. the surface around the maximum on all sides "
+        "over the punch radius (docs/method.md §8); false: `peak_w_mm` is null and `peak_w_lower_bound_mm` holds "
+        "the largest measured w, a lower bound; null: unknown (a result written before the flag)."
     )
+    peak_w_lower_bound_mm: list[float | None] = Field(
+        description="Per frame: where the peak was not measured, the largest measured w (the peak is at least "
+        "this); null elsewhere."
+    )
+    peak_reason: list[str | None] = Field(description="Per frame: why the peak is not measured (null: it is).")
 
 
 @router.get("/jobs/{job_id}/topography", response_model=TopographyOverview, responses=RESULT_ERRORS)
@@ -369,14 +375,15 @@ def _overview(job: Job, state: AppState) -> TopographyOverview:
     with topography(job, state.settings.data_path) as reader:
         x, y = reader.x_mm, reader.y_mm
         coverage = reader.coverage()
-        peak_region = coverage["peak_region_coverage"]
+        peaks, verdicts = reader.column("peak/w_mm"), reader.peak_measurements()
+        not_measured = np.array([v is not None and not v.measured for v in verdicts], bool)
         return TopographyOverview(
             job_id=job.id,
             frames=reader.frames.astype(int).tolist(),
             time_s=_listed(reader.column("frames/time_s"), 6),
             punch_displacement_mm=_listed(reader.column("frames/punch_displacement_mm")),
             force_kN=_listed(reader.column("frames/force_kN")),
-            peak_w_mm=_listed(reader.column("peak/w_mm")),
+            peak_w_mm=_listed(np.where(not_measured, np.nan, peaks)),
             peak_x_mm=_listed(reader.column("peak/x_mm")),
             peak_y_mm=_listed(reader.column("peak/y_mm")),
             grid={
@@ -397,7 +404,9 @@ def _overview(job: Job, state: AppState) -> TopographyOverview:
             },
             n_order_conflicts=_listed(coverage["n_order_conflicts"], 0),
             n_temporal_jumps=_listed(coverage["n_temporal_jumps"], 0),
-            peak_measured=[None if not np.isfinite(c) else bool(c >= PEAK_REGION_MEASURED) for c in peak_region],
+            peak_measured=[None if v is None else v.measured for v in verdicts],
+            peak_w_lower_bound_mm=_listed(np.where(not_measured, peaks, np.nan)),
+            peak_reason=[v.reason if v is not None and not v.measured else None for v in verdicts],
         )
 
 

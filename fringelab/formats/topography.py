@@ -24,7 +24,10 @@ Topography result (schema "fringelab.topography", version 1); lengths in mm in t
                     the data; sigma_w_mm (n, ny, nx) float32, σ of the gridded height (interpolated like z)
 Files written before σ existed have no sigma_w_mm datasets; the reader then returns None for σ.
   /peak             w_mm, x_mm, y_mm (n,): the largest deflection of the grid and where; centre_x_mm,
-                    centre_y_mm (n,): centroid of the area above half the peak (the punch axis), NaN early on
+                    centre_y_mm (n,): centroid of the area above half the peak (the punch axis), NaN early on;
+                    measured (n,) int8: 1 where the peak was measured, 0 where w_mm is only a lower bound (the rule
+                    of `science.peaks`, attr radius_mm), missing_nodes (n,) int32: plate nodes within that radius
+                    of the maximum without data (−1: no data at all). Absent in older files: unknown.
   /qa               n_points, n_tracks, n_ended, n_out_of_range, n_unmatched (n,) int64; edge_noise_px,
                     grid_coverage (n,) float64 (fraction of the first frame's grid area still with data);
                     since the per-frame order (absent in older files, read as NaN): measured_fraction,
@@ -32,7 +35,7 @@ Files written before σ existed have no sigma_w_mm datasets; the reader then ret
                     MISSING_REASONS (n,) float64 (what of the plate the reference frame sees was measured, and
                     what not, by reason); n_order_conflicts, n_order_unresolved (n,) int64; peak_region_coverage
                     (n,) float64 (share of the grid nodes within PEAK_REGION_RADIUS_MM of the plate centre with
-                    data: below PEAK_REGION_MEASURED the frame's peak was not measured)
+                    data; QA only: whether a frame's peak was measured is peak/measured)
   /xdmf             nodes_xy_mm (ny·nx, 2), quads (M, 4), z_mm/<i> (ny, nx) virtual views of grid/z_mm[i]: what
                     the XDMF sidecar (`write_xdmf`, ParaView) points at; absent in older files
   grid/z_mm has HDF5 dimension scales: frames/index, grid/y_mm, grid/x_mm
@@ -69,15 +72,15 @@ from fringelab.formats.hdf5 import SCHEMA_VERSION, require_schema, unit_dataset
 from fringelab.science.coverage import MISSING_DESCRIPTIONS
 from fringelab.science.coverage import MISSING_REASONS as MISSING_REASONS
 from fringelab.science.fields import Grid, Peak
+from fringelab.science.peaks import PUNCH_RADIUS_MM, PeakMeasurement, peak_measurement
 
 if TYPE_CHECKING:
     from fringelab.science.topography import FrameMeasurement
 
 TOPOGRAPHY_SCHEMA = "fringelab.topography"
-# The peak of a punch test is within this of the plate centre; a frame with less than PEAK_REGION_MEASURED of that
-# region measured has no peak to show (a gap, not a drop).
+# The region around the plate centre whose measured share qa/peak_region_coverage records (QA; the rule of a
+# measured peak is `science.peaks`, stored as peak/measured).
 PEAK_REGION_RADIUS_MM = 40.0
-PEAK_REGION_MEASURED = 0.5
 # Storage of the result: the compressed datasets' zlib level (with the byte shuffle), the points' chunk (rows), how
 # many frames of the per-frame columns are buffered before they are written, and the writer's compression threads.
 GZIP_LEVEL = 1
@@ -123,9 +126,15 @@ class TopographyWriter:
         attrs: dict[str, Any],
         calibration_attrs: dict[str, Any],
         peak_region_mm: tuple[float, float, float] | None = None,
+        plate_nodes: np.ndarray | None = None,
+        punch_radius_mm: float = PUNCH_RADIUS_MM,
         threads: int = WRITER_THREADS,
     ) -> None:
         self.path = Path(path)
+        # The plate as the reference frame measured it (None: as the first frame written does), for the rule of a
+        # measured peak (`science.peaks`).
+        self._plate_nodes = plate_nodes
+        self._punch_radius_mm = punch_radius_mm
         # Grid nodes of the region around the punch (X, Y, radius), where the peak is: whether a frame measured it.
         self._peak_nodes: np.ndarray | None = None
         if peak_region_mm is not None and all(np.isfinite(peak_region_mm)):
@@ -263,6 +272,16 @@ class TopographyWriter:
             ("centre_y_mm", "Y of the centroid of the area above half the peak"),
         ):
             unit_dataset(peak, name, np.zeros(0), unit="mm", description=description, maxshape=(None,), chunks=(1024,))
+        for name, flag_dtype, description in (
+            ("measured", np.int8, "1: the peak was measured (data on all sides of the maximum within radius_mm), "
+             "0: w_mm is only a lower bound"),
+            ("missing_nodes", np.int32, "plate grid nodes within radius_mm of the maximum without data (−1: none "
+             "at all)"),
+        ):  # fmt: skip
+            unit_dataset(
+                peak, name, np.zeros(0, flag_dtype), unit="1", description=description, maxshape=(None,), chunks=(1024,)
+            )
+            peak[name].attrs["radius_mm"] = punch_radius_mm
         qa = file.create_group("qa")
         for name, description in (
             ("n_points", "3-D points of the frame"),
@@ -376,6 +395,11 @@ class TopographyWriter:
         nodes = int(np.count_nonzero(finite))
         if self._first_coverage_nodes is None:
             self._first_coverage_nodes = max(nodes, 1)
+        if self._plate_nodes is None:
+            self._plate_nodes = np.array(finite, bool)
+        peak_measured = peak_measurement(
+            finite, self.grid, (peak.x_mm, peak.y_mm), plate_nodes=self._plate_nodes, radius_mm=self._punch_radius_mm
+        )
         coverage = measurement.coverage
         peak_nodes = self._peak_nodes
         row: dict[str, Any] = {
@@ -386,6 +410,8 @@ class TopographyWriter:
             "frames/force_kN": log[2],
             "points/offsets": self._n_points,
             **{f"peak/{name}": getattr(peak, name) for name in ("w_mm", "x_mm", "y_mm", "centre_x_mm", "centre_y_mm")},
+            "peak/measured": int(peak_measured.measured),
+            "peak/missing_nodes": peak_measured.missing_nodes,
             "qa/n_points": len(points),
             "qa/n_tracks": measurement.n_tracks,
             "qa/n_ended": measurement.n_ended,
@@ -769,6 +795,22 @@ class TopographyResult:
     def w_grid(self, i: int) -> np.ndarray:
         """Gridded deflection w = z − z_flat (ny, nx) of frame position i."""
         return self.z_grid(i) - self.z_flat_mm
+
+    def peak_measurements(self) -> list[PeakMeasurement | None]:
+        """Per frame: whether its peak was measured and why not (`science.peaks`); None where the file does not
+        say (written before peak/measured existed)."""
+        if "peak/missing_nodes" not in self.file:
+            return [None] * self.n_frames
+        dataset = self.file["peak/missing_nodes"]
+        radius = float(dataset.attrs.get("radius_mm", PUNCH_RADIUS_MM))
+        return [PeakMeasurement(int(n), radius) for n in dataset[()]]
+
+    def peak_measured(self) -> np.ndarray:
+        """Per frame: 1.0 where the peak was measured, 0.0 where peak/w_mm is a lower bound, NaN: unknown (a file
+        written before peak/measured existed)."""
+        if "peak/measured" not in self.file:
+            return np.full(self.n_frames, np.nan)
+        return self.file["peak/measured"][()].astype(np.float64)
 
     def coverage(self) -> dict[str, np.ndarray]:
         """Per frame: measured_fraction, visible_area_mm2, measured_area_mm2, missing_<reason>_mm2,

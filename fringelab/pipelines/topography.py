@@ -26,6 +26,7 @@ from fringelab.science.fields import Grid, field_peak
 from fringelab.science.fringes import FrameEdges
 from fringelab.science.projector import CameraModel, ProjectorCalibration, camera_fingerprint
 from fringelab.science.topography import (
+    FrameMeasurement,
     SummaryTally,
     TemporalCrossCheck,
     TopographyError,
@@ -35,6 +36,7 @@ from fringelab.science.topography import (
     clamp_circle,
     frame_range,
     grid_for_first_frame,
+    grid_measurement,
     grid_measurement_with_sigma,
     locate_test_edges,
     measure_frame,
@@ -141,6 +143,7 @@ def topography_recording(
             out_path, grid=grid, max_edge_mm=max_edge_mm, z_flat_mm=z_flat, camera_model=camera_model,
             projector=projector, settings=settings, where=where, n_frames=n_frames, wanted=wanted,
             centre_xy_mm=(clamp[0], clamp[1]), time_source=log.time_source, threads=writer_threads,
+            plate_nodes=plate_nodes(first, projector, grid, max_edge_mm=max_edge_mm),
         )  # fmt: skip
         rest = itertools.chain([reference_edges], stream) if lo == 0 else stream
         cross_check = TemporalCrossCheck(projector)
@@ -193,9 +196,10 @@ def result_writer(
     time_source: str = "",
     centre_xy_mm: tuple[float, float] = (float("nan"), float("nan")),
     threads: int = WRITER_THREADS,
+    plate_nodes: np.ndarray | None = None,
 ) -> TopographyWriter:
     """The result file's writer with everything a result records of how it was made (settings, provenance,
-    the calibrations it used)."""
+    the calibrations it used). plate_nodes: the grid nodes the reference frame measured (`plate_nodes`)."""
 
     provenance = {"input": where, "n_frames_in_recording": n_frames, "frames_written": [wanted.start, wanted.stop]}
     return TopographyWriter(
@@ -212,8 +216,16 @@ def result_writer(
         },
         calibration_attrs=_calibration_attrs(camera_model, projector),
         peak_region_mm=(centre_xy_mm[0], centre_xy_mm[1], PEAK_REGION_RADIUS_MM),
+        plate_nodes=plate_nodes,
+        punch_radius_mm=settings.punch_radius_mm,
         threads=threads,
     )
+
+
+def plate_nodes(first: FrameMeasurement, projector: ProjectorCalibration, grid: Grid, *, max_edge_mm: float) -> Any:
+    """The grid nodes (ny, nx) bool that the reference (first) frame measured: the plate, for the rule of a
+    measured peak (`science.peaks`)."""
+    return np.isfinite(grid_measurement(first, projector, grid, max_edge_mm=max_edge_mm))
 
 
 def _calibration_attrs(camera_model: CameraModel, projector: ProjectorCalibration) -> dict[str, Any]:

@@ -47,6 +47,7 @@ from .order import (
     order_frame,
     order_reference,
 )
+from .peaks import PUNCH_RADIUS_MM
 from .projector import (
     TABLE_SENSITIVITY,
     TABLE_SIGMA_Z,
@@ -82,6 +83,8 @@ class TopographySettings:
     grid_max_edge_mm: longest triangle side of the gridding mesh; None = 3 × the median gap between neighbouring
         edges in the first frame (a missing edge between two measured ones is still bridged, a hole is not).
     grid_margin_mm: margin of the grid around the first frame's points.
+    punch_radius_mm: radius of the punch; a frame's peak counts as measured only where the surface is measured on
+        all sides of the maximum over at least this (`peaks.peak_measurement`).
     """
 
     max_jump_fraction: float = 0.3
@@ -90,6 +93,7 @@ class TopographySettings:
     grid_step_mm: float = 2.0
     grid_max_edge_mm: float | None = None
     grid_margin_mm: float = 4.0
+    punch_radius_mm: float = PUNCH_RADIUS_MM
     order: OrderSettings = field(default_factory=OrderSettings)
 
     def __post_init__(self) -> None:
@@ -99,6 +103,8 @@ class TopographySettings:
             raise ValueError(f"temporal_smoothing_frames: expected ≥ 0, got {self.temporal_smoothing_frames}")
         if not self.grid_step_mm > 0:
             raise ValueError(f"grid_step_mm: expected > 0, got {self.grid_step_mm}")
+        if not self.punch_radius_mm > 0:
+            raise ValueError(f"punch_radius_mm: expected > 0, got {self.punch_radius_mm}")
         if self.grid_max_edge_mm is not None and not self.grid_max_edge_mm > 0:
             raise ValueError(f"grid_max_edge_mm: expected > 0 or None, got {self.grid_max_edge_mm}")
 

@@ -138,3 +138,30 @@ def test_bad_result_requests_say_what_is_wrong(client, job_id):
     running = client.get("/api/v1/jobs/topo-2/topography")
     assert running.status_code == 409 and running.json()["code"] == "job_not_succeeded"
     assert client.get("/api/v1/jobs/nope/topography").status_code == 404
+
+
+def test_a_peak_not_measured_is_no_peak_but_a_lower_bound_with_its_reason(client, settings):
+    directory = settings.data_path / "results" / "jobs" / "topo-3"
+    directory.mkdir(parents=True)
+    path = directory / "topography.h5"
+    write_result(path)
+    with h5py.File(path, "a") as out:  # frame 12: data missing within the punch radius of its maximum
+        out["peak/measured"] = np.array([1, 1, 0, 1], np.int8)
+        out["peak/missing_nodes"] = np.array([0, 0, 12, 0], np.int32)
+        out["peak/missing_nodes"].attrs["radius_mm"] = 10.0
+    engine = make_engine(settings.resolved_database_url)
+    with make_sessionmaker(engine)() as session:
+        entry = {"name": "topography.h5", "path": "results/jobs/topo-3/topography.h5", "size_bytes": 1,
+                 "sha256": "", "media_type": "application/x-hdf5"}  # fmt: skip
+        session.add(Job(id="topo-3", kind="topography", state="succeeded", files=[entry]))
+        session.commit()
+    engine.dispose()
+    body = client.get("/api/v1/jobs/topo-3/topography").json()
+    assert body["peak_measured"] == [True, True, False, True]
+    assert body["peak_w_mm"][2] is None and body["peak_w_mm"][3] is not None
+    assert body["peak_w_lower_bound_mm"][2] == pytest.approx(plane_w_mm(12, 100.0, 60.0), abs=TOLERANCE_MM)
+    assert body["peak_w_lower_bound_mm"][:2] == [None, None]
+    assert body["peak_reason"][2] == (
+        "data missing within 10 mm of the maximum (12 grid nodes): the value is a lower bound"
+    )
+    assert body["peak_reason"][0] is None

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from fringelab.pipelines.topography import result_writer
+from fringelab.pipelines.topography import plate_nodes, result_writer
 from fringelab.science.topography import SummaryTally, TemporalCrossCheck
 from worker.jobs.inputs import calibration_file, recording_input
 from worker.runner import (
@@ -126,6 +126,7 @@ def topography_entry(context: JobContext) -> Chunked:
         cell_area_mm2=reference.cell_area_mm2, x_mm=grid.x_mm, y_mm=grid.y_mm, max_edge_mm=max_edge_mm,
         z_flat_mm=z_flat, flat_rms_mm=float(np.sqrt(np.mean((z - z_flat) ** 2))),
         clamp=np.array(clamp_circle(first.points_obj_mm[:, :2])), n_tracks_first_frame=first.n_tracks,
+        plate_nodes=plate_nodes(first, projector, grid, max_edge_mm=max_edge_mm),
     )  # fmt: skip
     wanted = inputs.wanted
     context.log(f"topography of frames {wanted.start}..{wanted.stop - 1}, each ordered on its own")
@@ -278,7 +279,7 @@ def topography_write(context: JobContext, turns: Iterator[InOrder]) -> dict[str,
             temporary, grid=Grid(x_mm=track["x_mm"], y_mm=track["y_mm"]), max_edge_mm=float(track["max_edge_mm"]),
             z_flat_mm=z_flat, camera_model=inputs.camera_model, projector=projector, settings=inputs.settings,
             where=where, n_frames=n_frames, wanted=wanted, time_source=log.time_source,
-            centre_xy_mm=(clamp[0], clamp[1]),
+            centre_xy_mm=(clamp[0], clamp[1]), plate_nodes=track["plate_nodes"],
         )  # fmt: skip
         with writer:
             grid_shape = (len(track["y_mm"]), len(track["x_mm"]))
