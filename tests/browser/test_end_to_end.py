@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import statistics
 from pathlib import Path
 
@@ -173,7 +174,10 @@ def test_upload_calibrate_measure_and_explore(page, live_server, virtual_test, c
     overview = httpx.get(f"{live_server.base_url}/api/v1/jobs/{topography_job}/topography", timeout=30).json()
     assert [float(row["measured_fraction"]) for row in coverage_rows] == pytest.approx(overview["measured_fraction"])
     assert min(overview["measured_fraction"]) > 0.9 and not any(overview["n_order_conflicts"])
-    assert all(overview["peak_measured"])
+    # The peak is measured while the dome's top is; from the perforation on, the maximum lies on the hole's rim:
+    # a lower bound, never counted as measured (docs/method.md §8).
+    perforation = json.loads(made.truth_json.read_text())["perforation_frame"]
+    assert all(overview["peak_measured"][: FRAMES // 2]) and not any(overview["peak_measured"][perforation:])
 
     # Frame switches: fetch + decode + Plotly.react of the field and the profile, over SWITCHES moves.
     page.evaluate("() => { window.fringelab.frameSwitchMs = []; }")

@@ -29,6 +29,7 @@ from fringelab.science.simulate import (
     PlateState,
     SoftShadow,
     preset,
+    scenario,
     true_deflection_mm,
 )
 
@@ -147,3 +148,31 @@ def test_a_maximum_on_the_rim_of_a_gap_is_not_measured() -> None:
     assert not peak_measurement(measured & plate, grid, (24.0, 0.0)).measured
     nothing = peak_measurement(np.zeros(grid.shape, bool), grid, (float("nan"), float("nan")))
     assert not nothing.measured and nothing.missing_nodes == -1
+
+
+def test_the_demos_quasi_static_test_counts_no_frame_measured_whose_peak_region_lacks_data(tmp_path: Path) -> None:
+    """The dashboard demo's default (kodak, 20 frames, the paper's quasi-static test, rendered as `simulate`
+    renders it): a frame with more than a tenth of the nodes within the punch radius of the punch axis missing
+    (the issue's frame 13 had 27 of 46) never counts as measured."""
+    setup, timeline = scenario("quasi-static", preset("kodak"), 20)
+    renderer = FringeRenderer(setup)
+    rng = np.random.default_rng(0)
+    z_mm = np.asarray(setup.calibration_z_mm)
+    camera = exact_camera_model(setup.camera)
+    projector = build_projector_calibration([renderer.render_flat(z, rng=rng) for z in z_mm], z_mm, camera)
+    source = MemorySource([renderer.render_test(state, rng=rng) for state in timeline.states], {})
+    path = topography_recording(source, camera, projector, out_path=tmp_path / "demo.h5").path
+    cx, cy = setup.scene.centre_xy_mm
+    radius = setup.scene.punch_radius_mm
+    lacking = []
+    with TopographyResult(path) as result:
+        measured = result.peak_measured()
+        gx, gy = np.meshgrid(result.x_mm, result.y_mm)
+        region = np.hypot(gx - cx, gy - cy) <= radius
+        for i in range(result.n_frames):
+            lacking.append(np.mean(~np.isfinite(result.w_grid(i))[region]) > 0.1)
+    assert not np.any(measured[np.array(lacking)]), f"measured: {measured}, lacking: {lacking}"
+    # Perforated frames lack the top (a hole): the test does exercise the rule.
+    assert all(lacking[timeline.perforation_frame :])
+    # and frames with the peak region whole keep their measured peak
+    assert all(measured[: min(timeline.perforation_frame, 10)] == 1.0)
