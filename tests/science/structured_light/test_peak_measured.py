@@ -9,7 +9,7 @@ measured peak.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +22,7 @@ from fringelab.science.fields import Grid
 from fringelab.science.gridding import grid_edge_points
 from fringelab.science.peaks import peak_measurement
 from fringelab.science.projector import build_projector_calibration, exact_camera_model
-from fringelab.science.simulate import (
+from fringelab.science.virtual_test import (
     FringeRenderer,
     Imaging,
     PlateScene,
@@ -75,16 +75,19 @@ def shaded(tmp_path_factory) -> Shaded:
     z_mm = np.arange(0.0, 64.0 + 1e-9, 2.0)
     camera = exact_camera_model(setup.camera)
     projector = build_projector_calibration([renderer.render_flat(z, rng=rng) for z in z_mm], z_mm, camera)
-    cx, cy = setup.scene.centre_xy_mm
-    states = [
-        PlateState(w0, soft_shadows=() if shadow is None else (
-            SoftShadow((cx + shadow[1], cy + shadow[2]), shadow[0], level=shadow[3], edge_mm=6.0),))
-        for w0, shadow in FRAMES
-    ]  # fmt: skip
+    states = [PlateState(w0) for w0, _ in FRAMES]
+    images = []
+    for state, (_, shadow) in zip(states, FRAMES, strict=True):
+        # The shadow is the scene's (it lies on the plate): a renderer per frame, each with its own.
+        shadows = () if shadow is None else (
+            SoftShadow(centre_xy_mm=(shadow[1], shadow[2]), semi_axes_mm=(shadow[0], shadow[0]),
+                       transmission=shadow[3], rim_mm=6.0),)  # fmt: skip
+        shaded_setup = replace(setup, scene=replace(setup.scene, soft_shadows=shadows))
+        images.append(FringeRenderer(shaded_setup).render_test(state, rng=rng))
     n = len(states)
     log = FrameTable(frame=np.arange(n), time_s=np.arange(n) * 1e-3, force_kN=np.full(n, np.nan),
                      punch_displacement_mm=np.array([w for w, _ in FRAMES]))  # fmt: skip
-    source = MemorySource([renderer.render_test(s, rng=rng) for s in states], {"frames.csv": frames_csv_text(log)})
+    source = MemorySource(images, {"frames.csv": frames_csv_text(log)})
     path = tmp_path_factory.mktemp("shadows") / "result.h5"
     topography_recording(source, camera, projector, out_path=path)
     return Shaded(path, setup.scene, states, (projector.n_edges, projector.n_lines))
