@@ -1,90 +1,124 @@
-"""Simulations as Exodus II files (.e, .exo, .ex2): mesh through meshio, the time steps through netCDF4.
+"""Simulations as Exodus II files (.e, .exo, .ex2): read through netCDF4, one state when it is asked for.
 
-meshio reads the mesh (coordinates and element blocks) but only the first time step of nodal variables, so the
-states are read here from the file's own variables, one state when it is asked for: `time_whole` (time_step,)
-and the nodal displacement as three scalar variables named in `name_nod_var` (DISPX/DISPY/DISPZ,
-DISPLX/..., displacement_x/..., disp_x/..., ux/uy/uz; case ignored), each `vals_nod_var{k}` (time_step,
-num_nodes) or, in the older layout, one `vals_nod_var` (time_step, num_nod_var, num_nodes). Node ids from
-`node_num_map` where the file has it. An optional nodal variable `thickness` gives shell thickness.
+The mesh: the node coordinates (`coordx`/`coordy`/`coordz`, or `coord` (num_dim, num_nodes)) and the element blocks
+(`connect1`, `connect2`, … with their `elem_type`, 1-based node numbers), read as `simulation_mesh` says (shells and
+solids, quadratic ones through their corners; points and lines beside them left aside; anything else refused by
+block). The states: `time_whole` (time_step,) and the nodal displacement as three nodal variables named in
+`name_nod_var` (DISPLACEMENT_X, DISPX, DISPLX, disp_x, MODEL_DISPLACEMENT_X, U_X, …; case ignored), each
+`vals_nod_var{k}` (time_step, num_nodes) or, in the older layout, one `vals_nod_var` (time_step, num_nod_var,
+num_nodes). Node ids from `node_num_map` where the file has it. An optional nodal variable `thickness` gives shell
+thickness. A 2-D file (num_dim 2, or displacements in x and y only) is refused: it has no out-of-plane
+displacement.
 """
 
 from __future__ import annotations
 
-import contextlib
-import io
-import re
-import warnings
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from fringelab.formats.simulation_vtu import mesh_cells
+from fringelab.formats.simulation_mesh import CellBlock, displacement_components, shells_and_solids, two_d_message
 from fringelab.science.fe_results import FEResults
 
 EXODUS_SUFFIXES = (".e", ".exo", ".ex2", ".exodus")
-_COMPONENT = re.compile(r"^(displ?|displacement|disp|u)[_ ]?([xyz])$", re.IGNORECASE)
 
 
-def _names(variable) -> list[str]:
+def _text(value: Any) -> str:
+    if isinstance(value, bytes):
+        return value.decode("utf-8", "replace").strip("\x00 ").strip()
+    return str(value).strip("\x00 ").strip()
+
+
+def _names(variable: Any) -> list[str]:
     variable.set_auto_mask(False)
     return [b"".join(row).decode("utf-8", "replace").strip("\x00 ").strip() for row in variable[:]]
 
 
+def _values(variable: Any, index: Any = slice(None)) -> np.ndarray:
+    variable.set_auto_mask(False)
+    return np.asarray(variable[index])
+
+
+def _mesh(nc: Any, where: str) -> tuple[np.ndarray, list[CellBlock]]:
+    """Node coordinates (N, 3) and the element blocks of an open Exodus file."""
+    variables, dimensions = nc.variables, nc.dimensions
+    n_dim = len(dimensions["num_dim"]) if "num_dim" in dimensions else 3
+    if "num_nodes" not in dimensions:
+        raise ValueError(f"{where}: no nodes (no num_nodes dimension): is it an Exodus II results file?")
+    if n_dim == 2:
+        raise ValueError(two_d_message(where, "num_dim is 2"))
+    if n_dim != 3:
+        raise ValueError(f"{where}: num_dim is {n_dim}; fringelab reads 3-D models")
+    if all(f"coord{axis}" in variables for axis in "xyz"):
+        xyz = np.column_stack([_values(variables[f"coord{axis}"]) for axis in "xyz"]).astype(np.float64)
+    elif "coord" in variables:
+        xyz = _values(variables["coord"]).astype(np.float64).T
+    else:
+        raise ValueError(f"{where}: no node coordinates (coordx/coordy/coordz or coord)")
+    n_blocks = len(dimensions["num_el_blk"]) if "num_el_blk" in dimensions else 0
+    block_ids = _values(variables["eb_prop1"]) if "eb_prop1" in variables else np.arange(1, n_blocks + 1)
+    blocks = []
+    for k in range(1, n_blocks + 1):
+        name = f"connect{k}"
+        if name not in variables:  # a block without elements
+            continue
+        variable = variables[name]
+        elem_type = _text(variable.getncattr("elem_type")) if "elem_type" in variable.ncattrs() else "?"
+        connectivity = _values(variable).astype(np.int64) - 1
+        if connectivity.size and (connectivity.min() < 0 or connectivity.max() >= len(xyz)):
+            raise ValueError(f"{where}: element block {block_ids[k - 1]} refers to nodes outside 1..{len(xyz)}")
+        blocks.append(CellBlock(elem_type, connectivity, f"element block {block_ids[k - 1]}"))
+    return xyz, blocks
+
+
 def read_exodus(path: str | Path) -> FEResults:
     """An Exodus II file as `FEResults` (length and time units not declared)."""
-    import meshio
     import netCDF4
 
     path = Path(path)
+    where = path.name
     try:
-        # meshio prints "Skipping some time data" for every transient file: the time steps are read below.
-        with warnings.catch_warnings(), contextlib.redirect_stderr(io.StringIO()):
-            warnings.simplefilter("ignore")
-            mesh = meshio.exodus.read(str(path))  # not meshio.read, which exits the process on a bad file
-    except Exception as error:
-        raise ValueError(f"{path.name}: not a readable Exodus II file ({type(error).__name__}: {error})") from None
-    shells, solids = mesh_cells(mesh.cells, path.name)
-    n_nodes = len(mesh.points)
-    with netCDF4.Dataset(path) as nc:
+        nc = netCDF4.Dataset(path)
+    except Exception as error:  # netCDF4 raises OSError and others for a file it cannot parse
+        raise ValueError(f"{where}: not a readable Exodus II file ({type(error).__name__}: {error})") from None
+    with nc:
+        xyz, blocks = _mesh(nc, where)
         variables = nc.variables
         if "time_whole" not in variables or "name_nod_var" not in variables:
-            raise ValueError(f"{path.name}: no time steps with nodal variables (time_whole, name_nod_var)")
-        time = np.asarray(variables["time_whole"][:], np.float64)
+            raise ValueError(f"{where}: no time steps with nodal variables (time_whole, name_nod_var)")
+        time = _values(variables["time_whole"]).astype(np.float64)
         names = _names(variables["name_nod_var"])
-        ids = np.asarray(variables["node_num_map"][:], np.int64) if "node_num_map" in variables else None
-    components: dict[str, int] = {}
-    for index, name in enumerate(names):
-        match = _COMPONENT.match(name)
-        if match:
-            components.setdefault(match.group(2).lower(), index)
-    if not {"x", "y", "z"} <= components.keys():
-        raise ValueError(
-            f"{path.name}: no displacement among the nodal variables {names} "
-            "(expected DISPX, DISPY, DISPZ or displacement_x, …)"
-        )
+        ids = _values(variables["node_num_map"]).astype(np.int64) if "node_num_map" in variables else None
+    shells, solids = shells_and_solids(blocks, where)
+    components = displacement_components(names, where)
     thickness_index = next((i for i, n in enumerate(names) if n.lower() == "thickness"), None)
+    n_nodes = len(xyz)
 
-    def nodal(nc, k: int, i: int) -> np.ndarray:
+    def nodal(nc: Any, k: int, i: int) -> np.ndarray:
         if f"vals_nod_var{k + 1}" in nc.variables:
-            variable = nc.variables[f"vals_nod_var{k + 1}"]
-            variable.set_auto_mask(False)
-            return np.asarray(variable[i], np.float64)
-        variable = nc.variables["vals_nod_var"]
-        variable.set_auto_mask(False)
-        return np.asarray(variable[i, k], np.float64)
+            values = _values(nc.variables[f"vals_nod_var{k + 1}"], i)
+        elif "vals_nod_var" in nc.variables:
+            values = _values(nc.variables["vals_nod_var"], (i, k))
+        else:
+            raise ValueError(f"{where}: nodal variable {names[k]!r} has no values (vals_nod_var{k + 1})")
+        if values.shape != (n_nodes,):
+            raise ValueError(f"{where}: nodal variable {names[k]!r}, step {i}: {values.shape} values, {n_nodes} nodes")
+        return values.astype(np.float64)
 
     def displacement(i: int) -> np.ndarray:
+        if not 0 <= i < len(time):
+            raise ValueError(f"{where}: no time step {i}; it has {len(time)}")
         with netCDF4.Dataset(path) as nc:
-            return np.column_stack([nodal(nc, components[axis], i) for axis in "xyz"])
+            return np.column_stack([nodal(nc, k, i) for k in components])
 
     thickness = None
-    if thickness_index is not None:
+    if thickness_index is not None and len(time):
         with netCDF4.Dataset(path) as nc:
             thickness = nodal(nc, thickness_index, 0)
     return FEResults(
         source=str(path), kind="exodus", node_ids=ids if ids is not None else np.arange(1, n_nodes + 1),
-        node_xyz=np.asarray(mesh.points, np.float64), shells=shells, solids=solids, shell_thickness=thickness,
-        time=time, displacement=displacement,
+        node_xyz=xyz, shells=shells, solids=solids, shell_thickness=thickness, time=time, displacement=displacement,
     )  # fmt: skip
 
 
@@ -96,8 +130,10 @@ def write_exodus(
     time: np.ndarray,
     displacement: np.ndarray,
     node_ids: np.ndarray | None = None,
+    names: tuple[str, ...] = ("DISPX", "DISPY", "DISPZ"),
 ) -> Path:
-    """Write an Exodus II file: the mesh through meshio, then time steps (S,) and DISPX/DISPY/DISPZ (S, N)."""
+    """Write an Exodus II file: the mesh through meshio (cells as meshio names them: "quad", "triangle6",
+    "vertex" for SPHERE, …), then time steps (S,) and one nodal variable per name, displacement[..., k] (S, N)."""
     import meshio
     import netCDF4
 
@@ -107,14 +143,14 @@ def write_exodus(
     with atomic_path(path) as partial:
         meshio.write(partial, meshio.Mesh(node_xyz, cells), file_format="exodus")
         with netCDF4.Dataset(partial, "a") as nc:
-            nc.createDimension("num_nod_var", 3)
-            names = nc.createVariable("name_nod_var", "S1", ("num_nod_var", "len_string"))
-            for k, name in enumerate(("DISPX", "DISPY", "DISPZ")):
-                names[k, : len(name)] = np.array(list(name), "S1")
+            nc.createDimension("num_nod_var", len(names))
+            name_variable = nc.createVariable("name_nod_var", "S1", ("num_nod_var", "len_string"))
+            for k, name in enumerate(names):
+                name_variable[k, : len(name)] = np.array(list(name), "S1")
             whole = nc.variables["time_whole"]
             for s, t in enumerate(time):
                 whole[s] = t
-            for k in range(3):
+            for k in range(len(names)):
                 values = nc.createVariable(f"vals_nod_var{k + 1}", "f8", ("time_step", "num_nodes"))
                 for s in range(len(time)):
                     values[s] = displacement[s, :, k]

@@ -1,7 +1,9 @@
 """Simulations as VTK time series: a ParaView .pvd collection of .vtu files, or a folder of .vtu files.
 
-Each .vtu holds the mesh at its reference coordinates and a point-data vector of the displacement (named
-`displacement`, `Displacement`, `DISP`, `U` or `u`), optionally a point-data `thickness` (shells). The .pvd's
+Each .vtu holds the mesh at its reference coordinates and the displacement as point data: one vector (named
+`displacement`, `DISP`, `U`, … case ignored) or three scalars (`DISPLACEMENT_X`, `U_X`, …), as `simulation_mesh`
+says; a 2-component vector is a 2-D result and refused. Its cells are read as `simulation_mesh` says (quadratic
+ones through their corners). Optionally a point-data `thickness` (shells). The .pvd's
 `timestep` attributes give the times (a bare folder: the field `TimeValue` of each file, else 0, 1, 2, ... in
 natural name order). Read through meshio, one file per state when it is asked for, so a long series is never
 in memory at once.
@@ -17,11 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from fringelab.formats.atomic import atomic_path
+from fringelab.formats.simulation_mesh import CellBlock, displacement_vector, shells_and_solids
 from fringelab.science.fe_results import FEResults
-
-DISPLACEMENT_NAMES = ("displacement", "Displacement", "DISPLACEMENT", "DISP", "disp", "U", "u")
-SHELL_TYPES = {"triangle": 3, "quad": 4}
-SOLID_TYPES = {"tetra": 4, "wedge": 6, "hexahedron": 8}
 
 
 def _natural_key(path: Path) -> list[object]:
@@ -40,34 +39,17 @@ def _read_mesh(path: Path):
 
 
 def displacement_field(point_data: dict[str, np.ndarray], where: str) -> np.ndarray:
-    """The displacement vectors (N, 3) among a mesh's point data (ValueError naming the names found)."""
-    for name in DISPLACEMENT_NAMES:
-        if name in point_data:
-            values = np.asarray(point_data[name], np.float64)
-            if values.ndim == 2 and values.shape[1] in (2, 3):
-                return values if values.shape[1] == 3 else np.column_stack([values, np.zeros(len(values))])
-    raise ValueError(
-        f"{where}: no displacement vector in the point data (found {sorted(point_data) or 'none'}; "
-        f"expected one of {', '.join(DISPLACEMENT_NAMES)})"
-    )
+    """The displacement vectors (N, 3) among a mesh's point data (`simulation_mesh.displacement_vector`)."""
+    return displacement_vector(point_data, where)
 
 
 def mesh_cells(cells: list, where: str) -> tuple[np.ndarray, np.ndarray]:
-    """Shells (E, 4) and solids (F, 8|6|4) of meshio cell blocks (triangles pad their last corner; vertices and
-    lines are left out). Mixed solid kinds are refused."""
-    shells, solids = [], []
-    for block in cells:
-        data = np.asarray(block.data, np.int64)
-        if block.type in SHELL_TYPES:
-            shells.append(data if data.shape[1] == 4 else np.column_stack([data, data[:, 2]]))
-        elif block.type in SOLID_TYPES:
-            solids.append(data)
-    if len({s.shape[1] for s in solids}) > 1:
-        raise ValueError(f"{where}: mixed solid element kinds; export the plate part with one kind")
-    return (
-        np.concatenate(shells) if shells else np.zeros((0, 4), np.int64),
-        np.concatenate(solids) if solids else np.zeros((0, 8), np.int64),
-    )
+    """Shells (E, 4) and solids (F, 8|6|4) of meshio cell blocks, as `simulation_mesh.shells_and_solids` reads
+    them (quadratic ones through their corners; points and lines beside them left aside; others refused)."""
+    blocks = [
+        CellBlock(block.type, np.asarray(block.data, np.int64), f"cell block {k + 1}") for k, block in enumerate(cells)
+    ]
+    return shells_and_solids(blocks, where)
 
 
 def read_pvd(path: str | Path) -> list[tuple[float, Path]]:
