@@ -31,6 +31,7 @@ from backend.api import (
 )
 from backend.errors import install_error_handlers
 from backend.frontend import mount_docs, mount_frontend
+from backend.health import HealthCache, health_redis_client, system_health
 from backend.limits import BodySizeLimit, PlainJsonNumbers, SharedRateLimiter
 from backend.openapi import install_openapi, operation_id
 from backend.polls import SharedPolls
@@ -47,6 +48,13 @@ from fringelab.core.state import AppState
 UPLOAD_PATHS = re.compile(r"/api/v1/(?:uploads(?:/|$)|experiments/[^/]+/simulations/[^/]+$)")
 
 
+# The health answer: at most a second old, and per client address at most this rate (a monitor asks every few
+# seconds; `fringelab up` and the tests poll a few times a second while a server starts).
+HEALTH_MAX_AGE_S = 1.0
+HEALTH_REQUESTS_PER_S = 20.0
+HEALTH_REQUEST_BURST = 60
+
+
 def is_upload_path(path: str) -> bool:
     return UPLOAD_PATHS.match(path) is not None
 
@@ -57,7 +65,7 @@ def create_app(settings: Settings) -> FastAPI:
         settings=settings,
         engine=engine,
         sessions=make_sessionmaker(engine),
-        celery=create_celery(settings),
+        celery=create_celery(settings, for_requests=True),
         tokens=TokenCache(ttl_s=settings.token_cache_s, redis_url=settings.redis_url),
     )
 
@@ -95,11 +103,24 @@ def create_app(settings: Settings) -> FastAPI:
         burst=settings.user_request_burst,
         namespace=hashlib.sha256(settings.resolved_database_url.encode()).hexdigest()[:12],
     )
+    health_redis = health_redis_client(settings.redis_url, timeout_s=settings.health_worker_timeout_s)
+    app.state.health = HealthCache(
+        lambda: system_health(
+            engine=engine, redis_client=health_redis, redis_url=settings.redis_url, data_path=settings.data_path
+        ),
+        max_age_s=HEALTH_MAX_AGE_S,
+        rate_per_s=HEALTH_REQUESTS_PER_S,
+        burst=HEALTH_REQUEST_BURST,
+    )
     install_error_handlers(app)
     app.add_middleware(PlainJsonNumbers, exempt=is_upload_path)  # runs after the size cap below
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_json_bytes, exempt=is_upload_path)
     app.add_middleware(
-        SecurityHeaders, allowed_origins=settings.allowed_origin_list, docs_prefixes=("/api/docs", "/api/redoc")
+        SecurityHeaders,
+        allowed_origins=settings.allowed_origin_list,
+        docs_prefixes=("/api/docs", "/api/redoc"),
+        allowed_hosts=settings.allowed_host_names,
+        check_every_origin=not settings.auth_enabled,
     )
     app.include_router(health.router, prefix="/api/v1")
     app.include_router(auth.router, prefix="/api/v1")

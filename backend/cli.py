@@ -86,18 +86,16 @@ def cmd_health(args: argparse.Namespace) -> int:
         print(response.text)
         return 0 if response.status_code == 200 else 1
 
-    from backend.health import system_health
+    from backend.health import health_redis_client, system_health
     from fringelab.core.db import make_engine
-    from fringelab.core.queue import create_celery
 
     settings = load_settings()
     _require_redis_url(settings)
     engine = make_engine(settings.resolved_database_url)
     body = system_health(
         engine=engine,
+        redis_client=health_redis_client(settings.redis_url, timeout_s=settings.health_worker_timeout_s),
         redis_url=settings.redis_url,
-        celery=create_celery(settings),
-        worker_timeout_s=settings.health_worker_timeout_s,
     )
     engine.dispose()
     print(body.model_dump_json())

@@ -87,7 +87,7 @@ def mount_frontend(app: FastAPI) -> None:
     index_html = (FRONTEND_DIR / "index.html").read_text().replace("{{PLOTLY_JS_URL}}", PLOTLY_JS_URL)
     router = APIRouter(include_in_schema=False)
 
-    @router.get("/", response_class=HTMLResponse)
+    @router.api_route("/", methods=["GET", "HEAD"], response_class=HTMLResponse)
     def index() -> HTMLResponse:
         return HTMLResponse(index_html, headers={"Cache-Control": "no-cache"})
 

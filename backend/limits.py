@@ -4,6 +4,7 @@ their own limit), and a request rate per user (429), shared by all API processes
 from __future__ import annotations
 
 import logging
+import re
 import threading
 import time
 from collections.abc import Callable
@@ -12,6 +13,8 @@ import redis
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from fringelab.core.errors import TooLarge
+
+log = logging.getLogger(__name__)
 
 
 class BodySizeLimit:
@@ -26,9 +29,10 @@ class BodySizeLimit:
             return
         declared = dict(scope["headers"]).get(b"content-length")
         if declared is not None and declared.isdigit() and int(declared) > self.max_bytes:
-            await self._reject(send)
+            await self._reject(send, scope)
             return
         received = 0
+        started = False
 
         async def counting_receive() -> Message:
             nonlocal received
@@ -38,7 +42,19 @@ class BodySizeLimit:
                 raise TooLarge(self._message())
             return message
 
-        await self.app(scope, counting_receive, send)
+        async def watching_send(message: Message) -> None:
+            nonlocal started
+            started = started or message["type"] == "http.response.start"
+            await send(message)
+
+        try:
+            await self.app(scope, counting_receive, watching_send)
+        except TooLarge:
+            # A body without Content-Length (chunked) that went over while a middleware or route read it: the
+            # same 413 as a declared one, not a 500.
+            if started:
+                raise
+            await self._reject(send, scope)
 
     def _message(self) -> str:
         return (
@@ -46,9 +62,10 @@ class BodySizeLimit:
             "through their upload routes"
         )
 
-    async def _reject(self, send: Send) -> None:
+    async def _reject(self, send: Send, scope: Scope) -> None:
         import json
 
+        log.warning("refused %s %s: body over %d bytes", scope["method"], scope["path"], self.max_bytes)
         body = json.dumps({"detail": self._message(), "code": "payload_too_large"}).encode()
         headers = [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode())]
         await send({"type": "http.response.start", "status": 413, "headers": headers})
@@ -187,7 +204,9 @@ class PlainJsonNumbers:
         if problem:
             import json
 
-            payload = json.dumps({"detail": f"body: {problem}", "code": "invalid_number"}).encode()
+            code = "invalid_number" if "number" in problem or "integer" in problem else "invalid_input"
+            log.warning("refused %s %s: body %s", scope["method"], scope["path"], problem)
+            payload = json.dumps({"detail": f"body: {problem}", "code": code}).encode()
             headers = [(b"content-type", b"application/json"), (b"content-length", str(len(payload)).encode())]
             await send({"type": "http.response.start", "status": 422, "headers": headers})
             await send({"type": "http.response.body", "body": payload})
@@ -195,18 +214,55 @@ class PlainJsonNumbers:
         await self.app(scope, _replay([{"type": "http.request", "body": body, "more_body": False}], then=receive), send)
 
 
+MAX_JSON_DEPTH = 32
+"""Deepest nesting of lists and objects a request body may have (the deepest the API reads is 3)."""
+
+
 def _number_problem(body: bytes) -> str:
     import json
 
     try:
-        json.loads(body, parse_constant=_refuse_constant, parse_int=_checked_int)
+        document = json.loads(body, parse_constant=_refuse_constant, parse_int=_checked_int)
     except _NotPlainJson as error:
         return str(error)
     except RecursionError:
-        return "nested too deeply"
+        return f"nested deeper than {MAX_JSON_DEPTH} levels"
     except ValueError:
         return ""  # not JSON at all: the route's own validation answers with its 422
+    return _shape_problem(document)
+
+
+def _shape_problem(document: object) -> str:
+    """Why a parsed body is refused before any route reads it: nested deeper than MAX_JSON_DEPTH (a 900-deep list
+    made a 500 and 311 KB of log), or a string no database can store (a lone surrogate, "\\ud800"; a NUL byte)."""
+    from fringelab.core.text import text_problem
+
+    pending: list[tuple[object, int]] = [(document, 1)]
+    while pending:
+        value, depth = pending.pop()
+        if isinstance(value, dict | list):
+            if depth > MAX_JSON_DEPTH:
+                return f"nested deeper than {MAX_JSON_DEPTH} levels"
+            items = list(value.items()) if isinstance(value, dict) else [(None, item) for item in value]
+            for key, item in items:
+                if key is not None:
+                    pending.append((key, depth))
+                pending.append((item, depth + 1))
+        elif isinstance(value, str) and (problem := _stored_text_problem(value, text_problem)):
+            return f"a string {problem}"
     return ""
+
+
+_UNSTORABLE = re.compile("[\x00\ud800-\udfff]")
+
+
+def _stored_text_problem(value: str, text_problem: Callable[..., str]) -> str:
+    found = _UNSTORABLE.search(value)
+    if found is None:
+        return ""
+    if found.group() == "\x00":
+        return "holds a NUL byte (U+0000), which cannot be stored"
+    return text_problem(value)
 
 
 def _replay(messages: list[Message], then: Receive | None = None) -> Receive:

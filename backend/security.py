@@ -3,10 +3,15 @@
 - Security headers on every response: a Content-Security-Policy that allows this origin's scripts, styles and
   images only (the dashboard is static ES modules; Plotly draws inline styles, hence 'unsafe-inline' for
   styles only), frame-ancestors 'none' and X-Frame-Options DENY (no clickjacking), nosniff, no referrer.
-- An Origin check on state-changing requests (POST, PUT, PATCH, DELETE) that carry the session cookie: the
-  browser sends `Origin` with every cross-site one; one that names another site (or `null`) is refused with a 403,
-  so a cross-site form cannot start, cancel or delete anything even where SameSite does not hold (an old
-  browser, a sibling sub-domain). Requests with a bearer token and no cookie are scripts and are not checked.
+- An Origin check on state-changing requests (POST, PUT, PATCH, DELETE) that carry the session cookie, and on
+  every one while accounts are off (then any page the browser shows could act as the local admin without a
+  cookie): the browser sends `Origin` with every cross-site one; one that names another site (or `null`) is
+  refused with a 403, so a cross-site form cannot start, cancel or delete anything even where SameSite does not
+  hold (an old browser, a sibling sub-domain). With accounts on, requests with a bearer token and no cookie are
+  scripts and are not checked.
+- A Host check (`allowed_hosts`, FRINGELAB_ALLOWED_HOSTS): a request naming another host is refused with a 400.
+  A DNS-rebinding page (attacker.example resolving to 127.0.0.1) reaches a loopback server with its own name as
+  Host; with accounts off it would otherwise get the whole API.
 """
 
 from __future__ import annotations
@@ -40,17 +45,35 @@ HEADERS = (
 
 
 class SecurityHeaders:
-    def __init__(self, app: ASGIApp, *, allowed_origins: list[str], docs_prefixes: tuple[str, ...]) -> None:
+    def __init__(
+        self,
+        app: ASGIApp,
+        *,
+        allowed_origins: list[str],
+        docs_prefixes: tuple[str, ...],
+        allowed_hosts: frozenset[str] | None = None,
+        check_every_origin: bool = False,
+    ) -> None:
+        """`allowed_hosts`: the Host names served (lower case, no port); None serves any. `check_every_origin`:
+        check the Origin of state-changing requests without the session cookie too (accounts off)."""
         self.app = app
         self.allowed_origins = {origin.lower() for origin in allowed_origins}
         self.docs_prefixes = docs_prefixes
+        self.allowed_hosts = allowed_hosts
+        self.check_every_origin = check_every_origin
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
         headers = dict(scope["headers"])
-        if scope["method"] in STATE_CHANGING and _has_session_cookie(headers) and not self._same_origin(scope, headers):
+        if self.allowed_hosts is not None and host_name(headers.get(b"host", b"")) not in self.allowed_hosts:
+            detail = ("this server does not answer to that Host name; open it by its address (the names it answers "
+                      "to are in FRINGELAB_ALLOWED_HOSTS)")  # fmt: skip
+            await _refuse(send, detail, status=400, code="host_not_allowed")
+            return
+        checked = self.check_every_origin or _has_session_cookie(headers)
+        if scope["method"] in STATE_CHANGING and checked and not self._same_origin(scope, headers):
             await _refuse(send, "cross-site request refused: the Origin of a request with the session cookie must be "
                           "this server's (or one in FRINGELAB_ALLOWED_ORIGINS)")  # fmt: skip
             return
@@ -87,8 +110,19 @@ def _has_session_cookie(headers: dict[bytes, bytes]) -> bool:
     return SESSION_COOKIE.encode() + b"=" in headers.get(b"cookie", b"")
 
 
-async def _refuse(send: Send, detail: str) -> None:
-    body = json.dumps({"detail": detail, "code": "cross_site_request"}).encode()
+def host_name(host: bytes) -> str:
+    """The name in a Host header, lower case, without its port (an IPv6 address keeps its brackets)."""
+    text = host.decode("latin-1").strip().lower()
+    if text.startswith("["):
+        return text[: text.find("]") + 1] if "]" in text else text
+    return text.rsplit(":", 1)[0] if ":" in text else text
+
+
+async def _refuse(send: Send, detail: str, *, status: int = 403, code: str = "cross_site_request") -> None:
+    import logging
+
+    logging.getLogger(__name__).warning("refused a request: %s", code)
+    body = json.dumps({"detail": detail, "code": code}).encode()
     headers = [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode()), *HEADERS]
-    await send({"type": "http.response.start", "status": 403, "headers": headers})
+    await send({"type": "http.response.start", "status": status, "headers": headers})
     await send({"type": "http.response.body", "body": body})

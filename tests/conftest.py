@@ -24,6 +24,8 @@ def _no_user_settings(monkeypatch: pytest.MonkeyPatch) -> None:
     for name in list(os.environ):
         if name.startswith("FRINGELAB_"):
             monkeypatch.delenv(name)
+    # Starlette's TestClient sends `Host: testserver`; the servers the tests start are reached at 127.0.0.1.
+    monkeypatch.setenv("FRINGELAB_ALLOWED_HOSTS", "localhost,127.0.0.1,[::1],testserver")
 
 
 @pytest.fixture(scope="session")

@@ -6,9 +6,10 @@ import os
 import sys
 from collections.abc import Sequence
 
-from celery import Celery
+from celery import Celery, bootsteps
 from celery.signals import worker_process_init
 
+from fringelab.core.liveness import Heartbeat
 from fringelab.core.queue import create_celery
 from fringelab.core.services import ServiceError, check_redis
 from fringelab.core.settings import Settings, SettingsError, load_settings
@@ -18,7 +19,9 @@ TASK_MODULES = ("worker.tasks",)
 
 def create_worker_app(settings: Settings) -> Celery:
     """The Celery app of a worker process: the shared queue settings plus every task."""
-    return create_celery(settings, include=TASK_MODULES)
+    app = create_celery(settings, include=TASK_MODULES)
+    app.steps["consumer"].add(HeartbeatStep)
+    return app
 
 
 @worker_process_init.connect
@@ -28,6 +31,30 @@ def one_thread_per_process(**_: object) -> None:
     import cv2
 
     cv2.setNumThreads(1)
+
+
+class HeartbeatStep(bootsteps.StartStopStep):
+    """Once the worker consumes tasks, its main process beats in Redis (`fringelab.core.liveness`): what
+    `/api/v1/health` counts, instead of a broadcast ping from a request thread. A consumer step, so that every
+    way of running the worker (the CLI, the tests' in-process worker) beats."""
+
+    requires = ("celery.worker.consumer.tasks:Tasks",)
+
+    def __init__(self, parent: object, **kwargs: object) -> None:
+        super().__init__(parent, **kwargs)
+        self.heartbeat: Heartbeat | None = None
+
+    def start(self, parent: object) -> None:
+        settings = getattr(getattr(parent, "app", None), "fringelab_settings", None)
+        if settings is None or not settings.redis_url or self.heartbeat is not None:
+            return
+        self.heartbeat = Heartbeat(settings.redis_url, str(getattr(parent, "hostname", os.getpid())))
+        self.heartbeat.start()
+
+    def shutdown(self, parent: object) -> None:
+        if self.heartbeat is not None:
+            self.heartbeat.stop()
+            self.heartbeat = None
 
 
 def lower_priority(nice: int) -> None:

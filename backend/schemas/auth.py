@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from backend.schemas.common import UtcDatetime
+from backend.schemas.common import PLAIN_NAME, UtcDatetime
 
 
 class LoginIn(BaseModel):
@@ -55,7 +55,7 @@ class TokenIn(BaseModel):
         json_schema_extra={"examples": [{"name": "nightly upload script", "expires_in_days": 90}]}
     )
 
-    name: str = Field(max_length=100, examples=["nightly upload script"])
+    name: Annotated[str, PLAIN_NAME] = Field(max_length=100, examples=["nightly upload script"])
     expires_in_days: int | None = Field(None, ge=1, le=3650, description="Omit for a token that does not expire.")
 
 
@@ -77,7 +77,7 @@ class TokenCreated(TokenOut):
 class GroupIn(BaseModel):
     model_config = ConfigDict(json_schema_extra={"examples": [{"name": "impact-lab", "members": ["ada", "bob"]}]})
 
-    name: str = Field(min_length=2, max_length=64, examples=["impact-lab"])
+    name: Annotated[str, PLAIN_NAME] = Field(min_length=2, max_length=64, examples=["impact-lab"])
     members: list[str] = Field(default_factory=list, description="Usernames.")
 
 

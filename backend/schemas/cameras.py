@@ -6,9 +6,9 @@ from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints, ValidationInfo, field_validator
 
-from backend.schemas.common import UtcDatetime
+from backend.schemas.common import PLAIN_NAME, UtcDatetime
 
-CameraName = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=100)]
+CameraName = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=100), PLAIN_NAME]
 Pixels = Annotated[int, Field(gt=0, le=100_000)]
 PitchUm = Annotated[float, Field(gt=0, le=1000, description="Pixel pitch in micrometres.")]
 PITCH_HELP = (

@@ -7,13 +7,13 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints
 from sqlalchemy.orm import Session
 
-from backend.schemas.common import MAX_ID, UtcDatetime
+from backend.schemas.common import CALENDAR_DATE, MAX_ID, PLAIN_NAME, PlainText, UtcDatetime
 from fringelab.core.accounts import Principal, access_level
 from fringelab.core.models import Experiment
 
-Name = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=200)]
-Label = Annotated[str, StringConstraints(strip_whitespace=True, max_length=200)]
-TestDate = Annotated[str, StringConstraints(pattern=r"^(\d{4}-\d{2}-\d{2})?$")]
+Name = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=200), PLAIN_NAME]
+Label = Annotated[str, StringConstraints(strip_whitespace=True, max_length=200), PLAIN_NAME]
+TestDate = Annotated[str, StringConstraints(pattern=r"^(\d{4}-\d{2}-\d{2})?$"), CALENDAR_DATE]
 GroupAccess = Literal["read", "write"]
 Access = Literal["admin", "owner", "write", "read"]
 
@@ -43,7 +43,7 @@ class ExperimentCreate(BaseModel):
     plate: Label = ""
     punch: Label = ""
     test_date: TestDate = Field("", description="YYYY-MM-DD, or empty.")
-    notes: str = Field("", max_length=20_000)
+    notes: PlainText = Field("", max_length=20_000)
     group_id: int | None = Field(None, ge=1, le=MAX_ID, description=_GROUP_ID)
     group_access: GroupAccess = Field("read", description=_GROUP_ACCESS)
 
@@ -61,7 +61,7 @@ class ExperimentUpdate(BaseModel):
     plate: Label | None = None
     punch: Label | None = None
     test_date: TestDate | None = None
-    notes: str | None = Field(None, max_length=20_000)
+    notes: PlainText | None = Field(None, max_length=20_000)
     group_id: int | None = Field(None, ge=1, le=MAX_ID, description=_GROUP_ID + " null: not shared.")
     group_access: GroupAccess | None = Field(None, description=_GROUP_ACCESS)
 

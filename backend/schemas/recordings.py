@@ -6,14 +6,14 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints
 
-from backend.schemas.common import UtcDatetime
+from backend.schemas.common import PLAIN_NAME, UtcDatetime
 from fringelab.core.models import Recording
 from fringelab.core.state import AppState
 
 RecordingKind = Literal["camera_calibration", "projector_calibration", "test"]
 RecordingState = Literal["uploading", "ingesting", "ready", "invalid"]
 SidecarName = Literal["z.csv", "frames.csv", "board.json"]
-FileName = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=255)]
+FileName = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=255), PLAIN_NAME]
 
 
 class QaWarningOut(BaseModel):

@@ -25,7 +25,7 @@ from argon2.exceptions import InvalidHashError, VerificationError
 from sqlalchemy import ColumnElement, or_, select, true, update
 from sqlalchemy.orm import Session, sessionmaker
 
-from fringelab.core.errors import Conflict, Forbidden, NotFound, RateLimited, Unauthorized
+from fringelab.core.errors import Conflict, Forbidden, NotFound, Unauthorized
 from fringelab.core.models import ApiToken, AuditEvent, Experiment, Group, GroupMember, User, utcnow
 from fringelab.core.settings import Settings
 
@@ -358,40 +358,20 @@ def audit(
 # ---------------------------------------------------------------------------------------------- logins
 
 
-def _failures_key(client: str) -> str:
-    return f"fringelab:login-failures:{client}"
-
-
-def _failed_logins(settings: Settings, client: str, *, count_one: bool) -> int:
-    """Failed logins of this client address in the current window (in Redis, shared by all API processes);
-    `count_one` adds the failure just seen. Without Redis there is no limit, and the login itself still works."""
-    try:
-        connection = redis.Redis.from_url(settings.redis_url, socket_timeout=2)
-        try:
-            if not count_one:
-                return int(connection.get(_failures_key(client)) or 0)
-            failures = int(connection.incr(_failures_key(client)))
-            if failures == 1:
-                connection.expire(_failures_key(client), settings.login_window_s)
-            return failures
-        finally:
-            connection.close()
-    except redis.RedisError:
-        return 0
-
-
 def log_in(
     session: Session, settings: Settings, *, client: str, username: str, password: str
 ) -> tuple[User, str, timedelta]:
     """Check a username and password from `client` (an address) and open a browser session: the user, the session
-    token's secret and its lifetime (committed). RateLimited after too many failures from that address."""
-    window = settings.login_window_s
-    if _failed_logins(settings, client, count_one=False) >= settings.login_max_failures:
-        raise RateLimited(f"too many failed logins from {client}; wait {window} s", retry_after_s=window)
-    user = authenticate(session, username, password)  # as long for an unknown name as for a known one
-    if user is None:
-        _failed_logins(settings, client, count_one=True)
-        raise Unauthorized("wrong username or password, or the account is disabled")
+    token's secret and its lifetime (committed). The attempt is counted before the check, per account and per
+    address, and the check waits for no one (`fringelab.core.logins`): RateLimited over either limit or while
+    every check slot of this process is taken."""
+    from fringelab.core.logins import login_gate
+
+    with login_gate(settings).attempt(client=client, username=username) as success:
+        user = authenticate(session, username, password)  # as long for an unknown name as for a known one
+        if user is None:
+            raise Unauthorized("wrong username or password, or the account is disabled")
+        success()
     ttl = timedelta(hours=settings.session_ttl_h)
     _, secret = issue_token(session, user, name="browser session", kind="session", ttl=ttl)
     session.commit()

@@ -42,6 +42,7 @@ from fringelab.core.storage import (
     replace_with_link,
     sync_file,
 )
+from fringelab.core.text import check_file_name
 from fringelab.formats.container_common import CorruptRecording, OverBudget, UnsafeArchive, UnsupportedRecording
 from fringelab.formats.container_zip import ZipLimits
 from fringelab.formats.containers import UPLOAD_SUFFIXES, RecordingLayout, check_ingest_budget, recording_layout
@@ -225,8 +226,7 @@ def check_upload_request(
     """Refuse an upload before any byte is sent: unknown camera or kind, unsupported name, size or disk space."""
     if kind not in KINDS:
         raise Invalid(f"kind must be one of {', '.join(KINDS)}, got {kind!r}", code="invalid_kind")
-    if not filename or len(filename) > 255 or "/" in filename or "\\" in filename:
-        raise Invalid("filename must be a plain file name of 1 to 255 characters", code="invalid_filename")
+    check_file_name(filename)
     suffix = Path(filename).suffix.lower()
     if suffix not in UPLOAD_SUFFIXES:
         raise UnsupportedFormat(

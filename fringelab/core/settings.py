@@ -84,7 +84,12 @@ class Settings(BaseSettings):
         False, description="Require a login or API token; must be on to bind an address other than loopback."
     )
     session_ttl_h: float = Field(12.0, gt=0, description="Lifetime of a browser login session, in hours.")
-    login_max_failures: int = Field(10, ge=1, description="Failed logins per client address before a 429.")
+    login_max_failures: int = Field(
+        10, ge=1, description="Login attempts per account and per client address in a window before a 429."
+    )
+    login_concurrency: int = Field(
+        0, ge=0, le=64, description="Password checks at once per web server process (64 MiB each); 0: from memory."
+    )
     login_window_s: int = Field(300, ge=1, description="Window in which failed logins are counted.")
     max_json_bytes: int = Field(1_048_576, ge=1024, description="Largest accepted non-upload request body.")
     trusted_proxies: str = Field(
@@ -99,6 +104,11 @@ class Settings(BaseSettings):
         "",
         description="Comma-separated extra origins (https://host:port) allowed to send state-changing requests "
         "with the session cookie; the server's own origin always is.",
+    )
+    allowed_hosts: str = Field(
+        "",
+        description="Comma-separated Host names this server answers to ('*': any); empty: with accounts off the "
+        "loopback names (localhost, 127.0.0.1, [::1]) and FRINGELAB_HOST, with accounts on any.",
     )
     api_threads: int = Field(
         40, ge=4, le=1000, description="Threads that run the web server's blocking routes (database, files)."
@@ -185,6 +195,18 @@ class Settings(BaseSettings):
     @property
     def allowed_origin_list(self) -> list[str]:
         return [origin.strip().rstrip("/") for origin in self.allowed_origins.split(",") if origin.strip()]
+
+    @property
+    def allowed_host_names(self) -> frozenset[str] | None:
+        """The Host names served, lower case without a port; None: any."""
+        names = [name.strip().lower() for name in self.allowed_hosts.split(",") if name.strip()]
+        if "*" in names or (not names and self.auth_enabled):
+            return None
+        if not names:
+            names = ["localhost", "127.0.0.1", "[::1]"]
+            if self.host not in ("", "0.0.0.0", "::"):
+                names.append(f"[{self.host}]" if ":" in self.host else self.host.lower())
+        return frozenset(f"[{name}]" if ":" in name and not name.startswith("[") else name for name in names)
 
     @property
     def resolved_api_processes(self) -> int:

@@ -32,6 +32,7 @@ from fringelab.core.recordings import check_upload_size
 from fringelab.core.settings import Settings
 from fringelab.core.state import AppState
 from fringelab.core.storage import place_file, put_dir, remove_tree, simulation_dir
+from fringelab.core.text import check_file_name
 from fringelab.formats.container_zip import is_junk_entry, unsafe_entry_reason
 
 MODEL_DIR = "model"
@@ -50,8 +51,7 @@ def check_simulation_request(
     state: AppState, principal: Principal, *, experiment_id: int, filename: str, length: int | None
 ) -> None:
     """Refuse an upload before any byte is sent: unknown experiment, a name that is no plain file name, size or disk."""
-    if not filename or len(filename) > 255 or "/" in filename or "\\" in filename or filename.startswith("."):
-        raise Invalid("filename must be a plain file name of 1 to 255 characters", code="invalid_filename")
+    check_file_name(filename)
     with state.sessions() as session:
         experiment = session.get(Experiment, experiment_id)
         if experiment is None:

@@ -106,6 +106,9 @@ def test_port_in_use_is_named(tmp_path, redis_server):
 
 @pytest.mark.integration
 def test_health_command_reports_missing_workers(settings):
+    import redis
+
+    redis.Redis.from_url(settings.redis_url).flushdb()  # no heartbeat left by an earlier test's worker
     env = {"FRINGELAB_REDIS_URL": settings.redis_url, "FRINGELAB_DATA_DIR": str(settings.data_dir)}
     result = run_cli("health", env=env)
     assert result.returncode == 1

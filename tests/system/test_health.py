@@ -24,6 +24,9 @@ def test_healthy_with_a_live_worker(settings, celery_worker):
 
 @pytest.mark.integration
 def test_no_worker_is_a_503_naming_workers(settings):
+    import redis
+
+    redis.Redis.from_url(settings.redis_url).flushdb()  # no heartbeat left by an earlier test's worker
     with TestClient(create_app(settings)) as client:
         response = client.get("/api/v1/health")
     assert response.status_code == 503
