@@ -34,9 +34,12 @@ def test_a_successful_login_takes_its_attempt_back(gate):
 
 
 def test_beyond_the_checks_at_once_a_login_is_refused_at_once_and_not_counted(gate):
-    with gate.attempt(client="10.0.0.1", username="ada"):
-        with pytest.raises(RateLimited, match="at once"), gate.attempt(client="10.0.0.2", username="bob"):
-            pytest.fail("a second check ran beside the first with a cap of 1")
+    with (
+        gate.attempt(client="10.0.0.1", username="ada"),
+        pytest.raises(RateLimited, match="at once"),
+        gate.attempt(client="10.0.0.2", username="bob"),
+    ):
+        pytest.fail("a second check ran beside the first with a cap of 1")
     for _ in range(3):  # bob's refused attempt was taken back: three more are allowed
         with pytest.raises(ValueError), gate.attempt(client="10.0.0.3", username="bob"):
             raise ValueError("wrong password")
