@@ -3,42 +3,46 @@
 A task only says how to run an action as a task: it takes ids, `worker.runner` loads the job, calls the body from
 `worker.jobs.<kind>`, and stores the outcome. Bodies load their inputs from storage, call the science, and write
 their files atomically, so a task that runs twice (acks-late redelivery) writes the same complete files. Tasks are
-registered with `shared_task` so they bind to the app the worker process created from its settings; their names
-are `fringelab.core.jobs.TASK_NAMES`, the API sends them by name.
+registered with `shared_task` so they bind to the app the worker process created from its settings. Each job kind's
+entry task, body and phases come from its entry in `fringelab.core.job_kinds` (the API sends the task by that
+name); this module only registers them.
 """
 
 from __future__ import annotations
 
+import importlib
 import os
 import socket
 import time
+from collections.abc import Callable
+from types import ModuleType
 from typing import Any
 
 from celery import Task, shared_task
 from sqlalchemy import select
 
-from fringelab.core.jobs import CHUNK_TASK, DEMO_ADVANCE_TASK, DEMO_TASK, MERGE_TASK, PING_TASK, TASK_NAMES
+from fringelab.core.job_kinds import JOB_KINDS, JobKind
+from fringelab.core.jobs import CHUNK_TASK, DEMO_ADVANCE_TASK, DEMO_TASK, MERGE_TASK, PING_TASK
 from fringelab.core.models import Job
-from worker.jobs import camera_calibration as camera_calibration_job
-from worker.jobs import comparison as comparison_job
 from worker.jobs import demo as demo_job
-from worker.jobs import export as export_job
-from worker.jobs import ingest as ingest_job
-from worker.jobs import projector_calibration as projector_calibration_job
-from worker.jobs import selftest as selftest_job
-from worker.jobs import topography as topography_job
-from worker.runner import ChunkBody, MergeBody, run_chunk, run_job, run_merge
+from worker.runner import ChunkBody, JobBody, MergeBody, run_chunk, run_job, run_merge
 from worker.runtime import sessions_of
 
-# Per chunked kind, its phases in order: (chunk body, merge body, whether the merge keeps the later chunks it measures
-# itself in its process: `run_merge` hold_steals). A merge that returns a `Chunked` plan starts the next phase; the
-# last one returns the result.
+
+def _module(entry: JobKind) -> ModuleType:
+    return importlib.import_module(entry.module)
+
+
+def _phases(entry: JobKind) -> list[tuple[ChunkBody, MergeBody, bool]]:
+    module = _module(entry)
+    return [(getattr(module, p.chunk), getattr(module, p.merge), p.hold_steals) for p in entry.phases]
+
+
+# Per chunked kind, its phases in order (`fringelab.core.job_kinds`): (chunk body, merge body, whether the merge
+# keeps the later chunks it measures itself in its process: `run_merge` hold_steals). A merge that returns a
+# `Chunked` plan starts the next phase; the last one returns the result.
 PHASES: dict[str, list[tuple[ChunkBody, MergeBody, bool]]] = {
-    "selftest": [
-        (selftest_job.selftest_compute, selftest_job.selftest_chain, False),
-        (selftest_job.selftest_verify, selftest_job.selftest_write, False),
-    ],
-    "topography": [(topography_job.topography_measure, topography_job.topography_write, True)],
+    kind: _phases(entry) for kind, entry in JOB_KINDS.items() if entry.phases
 }
 
 
@@ -53,39 +57,19 @@ def ping(payload: str = "pong") -> dict[str, object]:
     return {"payload": payload, "worker_pid": os.getpid(), "host": socket.gethostname()}
 
 
-@shared_task(bind=True, name=TASK_NAMES["ingest"])
-def ingest(self: Task, job_id: str) -> dict[str, Any]:
-    return run_job(self, job_id, ingest_job.ingest_recording)
+def _entry_task(entry: JobKind) -> Callable[..., dict[str, Any]]:
+    """The entry task of a kind (task id = job id), registered under the kind's task name: `run_job` with the
+    entry body of its orchestration module."""
+    body: JobBody = getattr(_module(entry), entry.body)
+
+    def run(self: Task, job_id: str) -> dict[str, Any]:
+        return run_job(self, job_id, body)
+
+    run.__name__ = run.__qualname__ = entry.kind
+    return shared_task(bind=True, name=entry.task, ignore_result=True)(run)
 
 
-@shared_task(bind=True, name=TASK_NAMES["selftest"], ignore_result=True)
-def selftest(self: Task, job_id: str) -> dict[str, Any]:
-    return run_job(self, job_id, selftest_job.selftest_entry)
-
-
-@shared_task(bind=True, name=TASK_NAMES["camera_calibration"], ignore_result=True)
-def camera_calibration(self: Task, job_id: str) -> dict[str, Any]:
-    return run_job(self, job_id, camera_calibration_job.camera_calibration_body)
-
-
-@shared_task(bind=True, name=TASK_NAMES["projector_calibration"], ignore_result=True)
-def projector_calibration(self: Task, job_id: str) -> dict[str, Any]:
-    return run_job(self, job_id, projector_calibration_job.projector_calibration_body)
-
-
-@shared_task(bind=True, name=TASK_NAMES["topography"], ignore_result=True)
-def topography(self: Task, job_id: str) -> dict[str, Any]:
-    return run_job(self, job_id, topography_job.topography_entry)
-
-
-@shared_task(bind=True, name=TASK_NAMES["export"], ignore_result=True)
-def export(self: Task, job_id: str) -> dict[str, Any]:
-    return run_job(self, job_id, export_job.export_body)
-
-
-@shared_task(bind=True, name=TASK_NAMES["comparison"], ignore_result=True)
-def comparison(self: Task, job_id: str) -> dict[str, Any]:
-    return run_job(self, job_id, comparison_job.comparison_body)
+ENTRY_TASKS = {kind: _entry_task(entry) for kind, entry in JOB_KINDS.items()}
 
 
 @shared_task(bind=True, name=CHUNK_TASK, ignore_result=True)

@@ -171,7 +171,7 @@ WRITE_ERRORS: dict[int | str, dict[str, Any]] = {
 @router.post("/jobs", status_code=201, response_model=JobOut, responses=WRITE_ERRORS)
 def start_job(spec: Annotated[JobSpec, Body()], session: SessionDep, state: StateDep, principal: CurrentUser) -> JobOut:
     """Check the spec against the recordings and calibrations it names, then queue the job."""
-    job = start_job_as(session, state.celery, principal, spec.model_dump(mode="json"))
+    job = start_job_as(session, state.celery, principal, spec)
     return job_out(session, job)
 
 

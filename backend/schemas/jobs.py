@@ -2,7 +2,7 @@
 
 The browser and scripts send the same spec to `POST /api/v1/jobs`. Shapes and ranges are checked here (FastAPI
 answers 422 naming the field); checks that need the database (is the recording ready, does the calibration
-belong to its camera, is the frame range inside the recording) live in `fringelab.core.jobs.prepare_job`.
+belong to its camera, is the frame range inside the recording) live in `fringelab.core.preparation`.
 """
 
 from __future__ import annotations
@@ -12,7 +12,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
-from fringelab.core.specs import MAX_ID, JobSpec, JobState  # noqa: F401  (re-exported for the routes)
+from fringelab.core.job_kinds import JobSpec  # noqa: F401  (re-exported for the routes)
+from fringelab.core.specs import MAX_ID, JobState  # noqa: F401  (re-exported for the routes)
 
 
 class Progress(BaseModel):

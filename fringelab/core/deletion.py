@@ -19,8 +19,8 @@ from sqlalchemy.orm import Session
 
 from fringelab.core.accounts import Principal, audit
 from fringelab.core.errors import Conflict
+from fringelab.core.job_kinds import named_by
 from fringelab.core.models import Calibration, Camera, Experiment, Job, JobChunk, JobLog, Recording
-from fringelab.core.recordings import _ids_under
 from fringelab.core.settings import Settings
 from fringelab.core.storage import job_dir, recording_dir, remove_tree, simulation_dir
 
@@ -92,8 +92,9 @@ def _job_bytes(job: Job) -> int:
     return sum(int(entry.get("size_bytes") or 0) for entry in job.files or [])
 
 
-def _names(job: Job, keys: tuple[str, ...]) -> set[int]:
-    return set(_ids_under(job.spec, keys))
+def _names(job: Job, names: str) -> set[Any]:
+    """The ids of the `names` the job's spec names (its kind's inputs, `fringelab.core.job_kinds`)."""
+    return named_by(job.kind, job.spec, names)
 
 
 def _complete(session: Session, settings: Settings, plan: DeletionPlan, seed_jobs: Iterable[Job]) -> DeletionPlan:
@@ -106,8 +107,8 @@ def _complete(session: Session, settings: Settings, plan: DeletionPlan, seed_job
     going: dict[str, Job] = {job.id: job for job in seed_jobs}
     for job in everything:
         if (
-            _names(job, ("recording_id", "recording_ids")) & recording_ids
-            or _names(job, ("camera_id", "camera_ids")) & camera_ids
+            _names(job, "recording") & recording_ids
+            or _names(job, "camera") & camera_ids
             or (job.experiment_id is not None and job.experiment_id in experiment_ids)
         ):
             going[job.id] = job
@@ -121,7 +122,7 @@ def _complete(session: Session, settings: Settings, plan: DeletionPlan, seed_job
                 calibrations[calibration.id] = calibration
                 changed = True
         for job in everything:
-            if job.id not in going and job.spec.get("job_id") in going:
+            if job.id not in going and _names(job, "job") & set(going):
                 going[job.id] = job
                 changed = True
     calibration_ids = set(calibrations)
@@ -132,7 +133,7 @@ def _complete(session: Session, settings: Settings, plan: DeletionPlan, seed_job
         job
         for job in everything
         if job.state in ACTIVE_STATES
-        and (job.id in going or job.spec.get("job_id") in going or _names(job, ("calibration_id",)) & used)
+        and (job.id in going or _names(job, "job") & set(going) or _names(job, "calibration") & used)
     ]
     plan.bytes = (
         sum(r.size_bytes or 0 for r in plan.recordings)

@@ -1,9 +1,9 @@
 """Jobs: the database row is the source of truth; Celery only carries the work out.
 
 What belongs here: creating a job (row first, then its task by name), checking a spec against the database
-before anything is queued, cancel, retry, the job log, and reconciling the database with the broker after a
-restart. Route handlers and Celery tasks are thin layers over these functions. The backend never imports task
-code: `TASK_NAMES` maps each job kind to the name its task is registered under.
+before anything is queued (`fringelab.core.preparation`), cancel, retry, the job log, and reconciling the database
+with the broker after a restart. Route handlers and Celery tasks are thin layers over these functions. The backend
+never imports task code: each job kind's entry in `fringelab.core.job_kinds` names its task.
 
 State machine (the `state` column):
 
@@ -32,43 +32,32 @@ import json
 import logging
 import uuid
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from datetime import UTC, date, datetime, timedelta
 from typing import Any, overload
 
 import redis
 from celery import Celery
 from kombu.exceptions import OperationalError
+from pydantic import BaseModel
 from sqlalchemy import select, update
 from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
 from fringelab import __version__
 from fringelab.core.accounts import Principal, access_level, audit, can_access
-from fringelab.core.errors import Conflict, DomainError, Forbidden, Invalid, NotFound, Unavailable
+from fringelab.core.errors import Conflict, Forbidden, NotFound, Unavailable
+from fringelab.core.job_kinds import job_kind, kind_of, spec_of
 from fringelab.core.models import (
-    Calibration,
-    Camera,
     Experiment,
     Job,
     JobChunk,
     JobLog,
-    Recording,
-    Simulation,
     utcnow,
 )
+from fringelab.core.preparation import Authorize, NotVisible, Prepared, job_error, nobody_checks, prepare_inputs
 from fringelab.core.settings import Settings
-from fringelab.formats import COMPARISON_EXPORTS, EXPORT_FORMATS
 
-TASK_NAMES = {
-    "ingest": "fringelab.ingest",
-    "camera_calibration": "fringelab.camera_calibration",
-    "projector_calibration": "fringelab.projector_calibration",
-    "topography": "fringelab.topography",
-    "export": "fringelab.export",
-    "comparison": "fringelab.comparison",
-    "selftest": "fringelab.selftest",
-}
 CHUNK_TASK = "fringelab.job_chunk"
 MERGE_TASK = "fringelab.job_merge"
 DEMO_TASK = "fringelab.demo"  # makes a virtual experiment; its jobs are ordinary jobs
@@ -88,13 +77,6 @@ log = logging.getLogger(__name__)
 
 class QueueUnavailable(Exception):
     """The broker did not take the task; the job is marked failed with the reason."""
-
-
-def job_error(kind: type[DomainError], code: str, detail: str, *, field: str | None = None) -> DomainError:
-    """A job request refused: a `kind` error whose answer always names the field at fault (null for none)."""
-    error = kind(detail, code=code, field=field)
-    error.names_field = True
-    return error
 
 
 def chunk_task_id(job_id: str, phase: int, index: int) -> str:
@@ -140,24 +122,24 @@ def submit_job(
     session: Session,
     celery: Celery,
     *,
-    kind: str,
-    spec: dict[str, Any],
+    spec: BaseModel,
     experiment_id: int | None = None,
     retry_of: Job | None = None,
     provenance: dict[str, Any] | None = None,
 ) -> Job:
-    """Store a queued job, commit, then send its task (task id = job id). Raises QueueUnavailable."""
-    if kind not in TASK_NAMES:
-        raise ValueError(f"unknown job kind {kind!r}; expected one of {sorted(TASK_NAMES)}")
+    """Store a queued job of the spec's kind, commit, then send its task (task id = job id). Raises
+    QueueUnavailable."""
+    entry = kind_of(spec)
+    kind, stored = entry.kind, spec.model_dump(mode="json")
     job = Job(
         id=str(uuid.uuid4()),
         kind=kind,
-        spec=spec,
+        spec=stored,
         experiment_id=experiment_id,
         state="queued",
         attempt=(retry_of.attempt + 1) if retry_of else 1,
         retry_of=retry_of.id if retry_of else None,
-        provenance={"code_version": __version__, "spec": spec, **(provenance or {})},
+        provenance={"code_version": __version__, "spec": stored, **(provenance or {})},
     )
     session.add(job)
     add_log(
@@ -165,7 +147,7 @@ def submit_job(
     )
     session.commit()
     try:
-        celery.send_task(TASK_NAMES[kind], args=[job.id], task_id=job.id, ignore_result=True)
+        celery.send_task(entry.task, args=[job.id], task_id=job.id, ignore_result=True)
     except OperationalError as error:
         job.state = "failed"
         job.error = f"the job queue (Redis) is unreachable: {error}; try again when it is back"
@@ -176,256 +158,25 @@ def submit_job(
     return job
 
 
-@dataclass
-class Prepared:
-    """What the database says about a spec's inputs: the experiment they belong to and their provenance."""
-
-    experiment_id: int | None = None
-    inputs: list[dict[str, Any]] = field(default_factory=list)
-    calibrations: list[dict[str, Any]] = field(default_factory=list)
-
-
-Authorize = Callable[[int | None], None]  # raises a job error when the caller may not start jobs of that experiment
-
-
-class NotVisible(Exception):
-    """What an Authorize raises when the caller may not even read the experiment: its objects are then refused
-    exactly as ids that do not exist, so that guessing ids teaches nothing about other users' experiments."""
-
-
-def _nobody_checks(_experiment_id: int | None) -> None:
-    return None
-
-
-def _recording(session: Session, recording_id: int, *, kind: str, field_name: str, authorize: Authorize) -> Recording:
-    recording = session.get(Recording, recording_id)
-    missing = job_error(Invalid, "recording_not_found", f"there is no recording {recording_id}", field=field_name)
-    if recording is None:
-        raise missing
-    try:
-        authorize(recording.camera.experiment_id)
-    except NotVisible:
-        raise missing from None
-    if recording.kind != kind:
-        raise job_error(
-            Invalid,
-            "wrong_recording_kind",
-            f"recording {recording_id} is a {recording.kind} recording; this job needs a {kind} recording",
-            field=field_name,
-        )
-    if recording.state != "ready":
-        advice = {
-            "uploading": "finish its upload",
-            "ingesting": "wait for its ingest job to finish",
-            "invalid": f"it was rejected ({recording.error or 'see the recording'}); upload it again",
-        }.get(recording.state, "wait until it is ready")
-        raise job_error(
-            Conflict, "recording_not_ready", f"recording {recording_id} is {recording.state}, not ready: {advice}"
-        )
-    return recording
-
-
-def _calibration(
-    session: Session, calibration_id: int, *, kind: str, recording: Recording, field_name: str
-) -> Calibration:
-    calibration = session.get(Calibration, calibration_id)
-    if calibration is None or calibration.kind != kind:
-        raise job_error(
-            Invalid, "calibration_not_found", f"there is no {kind} calibration {calibration_id}", field=field_name
-        )
-    if calibration.camera_id != recording.camera_id:
-        other = session.get(Camera, calibration.camera_id)
-        if other is None or other.experiment_id != recording.camera.experiment_id:
-            # of another experiment, perhaps someone else's: said no more about than an id that does not exist
-            raise job_error(
-                Invalid,
-                "calibration_not_found",
-                f"there is no {kind} calibration {calibration_id} of camera {recording.camera_id} (the recording's); "
-                f"see GET /api/v1/calibrations?camera_id={recording.camera_id}",
-                field=field_name,
-            )
-        raise job_error(
-            Invalid,
-            "calibration_mismatch",
-            f"{kind} calibration {calibration_id} belongs to camera {calibration.camera_id}"
-            f"{f' ({other.name})' if other else ''}, but recording {recording.id} was filmed by camera "
-            f"{recording.camera_id}; use a calibration of that camera",
-            field=field_name,
-        )
-    size = (calibration.image_width_px, calibration.image_height_px)
-    if size != (recording.width_px, recording.height_px):
-        raise job_error(
-            Invalid,
-            "calibration_mismatch",
-            f"{kind} calibration {calibration_id} was made for {size[0]}x{size[1]} px images, but recording "
-            f"{recording.id} has {recording.width_px}x{recording.height_px} px frames; calibrate at this size",
-            field=field_name,
-        )
-    return calibration
-
-
-def _check_frames(spec: dict[str, Any], recording: Recording) -> None:
-    frames = spec.get("frames") or {}
-    count = recording.frame_count
-    for key in ("first", "last"):
-        value = frames.get(key)
-        if value is not None and value >= count:
-            raise job_error(
-                Invalid,
-                "frame_out_of_range",
-                f"frames.{key} = {value} is outside recording {recording.id}, whose frames are 0..{count - 1}",
-                field=f"frames.{key}",
-            )
-
-
-def _input(recording: Recording) -> dict[str, Any]:
-    return {"recording_id": recording.id, "sha256": recording.sha256, "frames": recording.frame_count}
-
-
-def _calibration_ref(calibration: Calibration) -> dict[str, Any]:
-    return {
-        "id": calibration.id,
-        "kind": calibration.kind,
-        "version": calibration.version,
-        "sha256": calibration.sha256,
-    }
-
-
-def _check_export_source(spec: dict[str, Any], source: Job) -> None:
-    """Each kind of result has its export formats; a comparison's take no frame range and no labelled lines."""
-    formats = COMPARISON_EXPORTS if source.kind == "comparison" else EXPORT_FORMATS
-    if spec["format"] not in formats:
-        raise job_error(
-            Invalid,
-            "format_not_for_source",
-            f"format {spec['format']} is not an export of a {source.kind} result; choose one of {', '.join(formats)}",
-            field="format",
-        )
-    if source.kind == "comparison":
-        for name in ("frames", "lines"):
-            if spec.get(name):
-                raise job_error(Invalid, "invalid_spec", f"a comparison export takes no {name}", field=name)
-
-
-def _check_export_frames(spec: dict[str, Any], source: Job) -> None:
-    """An export's frame range must hold frames of its result (the result says its first and last frame)."""
-    wanted = spec.get("frames")
-    held = (source.result or {}).get("frames")
-    if not wanted or not held:
-        return
-    first, last = wanted["first"], wanted["last"] if wanted.get("last") is not None else held[1]
-    if last < held[0] or first > held[1]:
-        raise job_error(
-            Invalid,
-            "frames_outside_result",
-            f"frames {first}…{last} hold no frame of topography job {source.id} (its frames are {held[0]}…{held[1]})",
-            field="frames",
-        )
-
-
-def _prepare_comparison(session: Session, spec: dict[str, Any], *, authorize: Authorize) -> Prepared:
-    """A comparison needs a succeeded topography job (with its result file) and a simulation of its experiment."""
-    source = session.get(Job, spec["job_id"])
-    missing = job_error(Invalid, "job_not_found", f"there is no topography job {spec['job_id']}", field="job_id")
-    if source is None or source.kind != "topography":
-        raise missing
-    try:
-        authorize(source.experiment_id)
-    except NotVisible:
-        raise missing from None
-    if source.state != "succeeded":
-        raise job_error(
-            Conflict,
-            "job_not_succeeded",
-            f"topography job {source.id} is {source.state}; compare a succeeded one (wait for it, or run it again)",
-        )
-    if not any(entry.get("name") == "topography.h5" for entry in source.files or []):
-        raise job_error(
-            Conflict, "result_missing", f"topography job {source.id} has no result file any more; run it again"
-        )
-    simulation = session.get(Simulation, spec["simulation_id"])
-    if simulation is None or simulation.experiment_id != source.experiment_id:
-        raise job_error(
-            Invalid,
-            "simulation_not_found",
-            f"there is no simulation {spec['simulation_id']} in the experiment of topography job {source.id}; see "
-            f"GET /api/v1/experiments/{source.experiment_id}/simulations",
-            field="simulation_id",
-        )
-    return Prepared(
-        experiment_id=source.experiment_id,
-        inputs=[{"job_id": source.id}, {"simulation_id": simulation.id, "sha256": simulation.sha256}],
-    )
-
-
-def prepare_job(session: Session, spec: dict[str, Any], *, authorize: Authorize = _nobody_checks) -> Prepared:
-    """Check a (shape-valid) spec against the database; raise a `job_error` naming the field, or say what it uses.
-    `authorize` is asked as soon as the experiment is known, before anything about its inputs is revealed."""
-    kind = spec["kind"]
-    if kind == "selftest":
-        authorize(None)
-        return Prepared()
-    if kind == "export":
-        source = session.get(Job, spec["job_id"])
-        missing = job_error(
-            Invalid, "job_not_found", f"there is no topography or comparison job {spec['job_id']}", field="job_id"
-        )
-        if source is None or source.kind not in ("topography", "comparison"):
-            raise missing
-        try:
-            authorize(source.experiment_id)
-        except NotVisible:
-            raise missing from None
-        if source.state != "succeeded":
-            raise job_error(
-                Conflict,
-                "job_not_succeeded",
-                f"{source.kind} job {source.id} is {source.state}; export a succeeded one",
-            )
-        _check_export_source(spec, source)
-        _check_export_frames(spec, source)
-        return Prepared(experiment_id=source.experiment_id, inputs=[{"job_id": source.id}])
-    if kind == "comparison":
-        return _prepare_comparison(session, spec, authorize=authorize)
-    recording_kind = "test" if kind == "topography" else kind
-    recording = _recording(
-        session, spec["recording_id"], kind=recording_kind, field_name="recording_id", authorize=authorize
-    )
-    _check_frames(spec, recording)
-    prepared = Prepared(experiment_id=recording.camera.experiment_id, inputs=[_input(recording)])
-    if kind in ("projector_calibration", "topography"):
-        camera = _calibration(
-            session,
-            spec["camera_calibration_id"],
-            kind="camera",
-            recording=recording,
-            field_name="camera_calibration_id",
-        )
-        prepared.calibrations.append(_calibration_ref(camera))
-    if kind == "topography":
-        projector = _calibration(
-            session,
-            spec["projector_calibration_id"],
-            kind="projector",
-            recording=recording,
-            field_name="projector_calibration_id",
-        )
-        prepared.calibrations.append(_calibration_ref(projector))
-    return prepared
+def prepare_job(session: Session, spec: BaseModel, *, authorize: Authorize = nobody_checks) -> Prepared:
+    """Check a (shape-valid) spec's inputs against the database (`fringelab.core.preparation`, the inputs its
+    kind names in `fringelab.core.job_kinds`); raise a `job_error` naming the field, or say what it uses."""
+    return prepare_inputs(session, spec, kind_of(spec).inputs, authorize=authorize)
 
 
 def create_job(
     session: Session,
     celery: Celery,
-    spec: dict[str, Any],
+    spec: BaseModel,
     *,
-    authorize: Authorize = _nobody_checks,
+    authorize: Authorize = nobody_checks,
 ) -> Job:
     """Check the spec (and the caller's right to start it), refuse a duplicate of a job still queued or running,
     then store and queue the job."""
     prepared = prepare_job(session, spec, authorize=authorize)
-    for active in session.scalars(select(Job).where(Job.kind == spec["kind"], Job.state.in_(ACTIVE_STATES))):
-        if active.spec == spec:
+    kind, stored = kind_of(spec).kind, spec.model_dump(mode="json")
+    for active in session.scalars(select(Job).where(Job.kind == kind, Job.state.in_(ACTIVE_STATES))):
+        if active.spec == stored:  # the stored JSON compared whole: the same spec is the same job
             error = job_error(
                 Conflict,
                 "duplicate_job",
@@ -436,7 +187,6 @@ def create_job(
     return submit_job(
         session,
         celery,
-        kind=spec["kind"],
         spec=spec,
         experiment_id=prepared.experiment_id,
         provenance={"inputs": prepared.inputs, "calibrations": prepared.calibrations},
@@ -471,7 +221,7 @@ def job_for(session: Session, principal: Principal, job_id: str, *, write: bool 
     return job
 
 
-def start_job_as(session: Session, celery: Celery, principal: Principal, spec: dict[str, Any]) -> Job:
+def start_job_as(session: Session, celery: Celery, principal: Principal, spec: BaseModel) -> Job:
     """Start a job for `principal` (committed, audited): they need write access to the experiment its inputs
     belong to, or to be an admin for a job outside any experiment (selftest). Inputs in experiments they cannot
     see are answered as inputs that do not exist."""
@@ -582,13 +332,13 @@ def retry_job(session: Session, celery: Celery, job_id: str) -> Job:
     newer = session.scalars(select(Job).where(Job.retry_of == job.id, Job.state.in_(ACTIVE_STATES))).first()
     if newer is not None:
         raise job_error(Conflict, "already_retried", f"job {job.id} is already being retried as job {newer.id}")
-    prepared = prepare_job(session, dict(job.spec))
+    spec = spec_of(job.kind, job.spec)
+    prepared = prepare_job(session, spec)
     return submit_job(
         session,
         celery,
-        kind=job.kind,
-        spec=dict(job.spec),
-        experiment_id=prepared.experiment_id if job.kind != "ingest" else job.experiment_id,
+        spec=spec,
+        experiment_id=prepared.experiment_id if prepared.experiment_id is not None else job.experiment_id,
         retry_of=job,
         provenance={"inputs": prepared.inputs, "calibrations": prepared.calibrations},
     )
@@ -707,7 +457,7 @@ def tasks_in_flight(session: Session, job: Job) -> list[TaskToSend]:
     if job.state == "queued" or not chunks:
         running = job.state == "running"
         sign = as_utc(job.heartbeat_at) if running else as_utc(job.created_at)
-        return [TaskToSend(TASK_NAMES[job.kind], [job.id], job.id, running, sign)]
+        return [TaskToSend(job_kind(job.kind).task, [job.id], job.id, running, sign)]
     pending = [c for c in chunks if c.state != "done"]
     if pending:
         return [

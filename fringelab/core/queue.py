@@ -1,7 +1,7 @@
 """The Celery application factory. Importing this module imports no task code and no science.
 
-The API uses it to send tasks by name (`fringelab.core.jobs.TASK_NAMES`); a worker process (`worker.app`) makes
-the same app and includes its task modules.
+The API uses it to send tasks by name (each job kind's, in `fringelab.core.job_kinds`); a worker process
+(`worker.app`) makes the same app and includes its task modules.
 """
 
 from __future__ import annotations

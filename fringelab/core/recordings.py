@@ -8,7 +8,7 @@ everything a client must act on is an `DomainError` (`backend.errors`).
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -27,9 +27,11 @@ from fringelab.core.errors import (
     Unavailable,
     UnsupportedFormat,
 )
+from fringelab.core.job_kinds import named_by
 from fringelab.core.jobs import ACTIVE_STATES, QueueUnavailable, submit_job
 from fringelab.core.models import Camera, Experiment, Group, Job, Recording
 from fringelab.core.settings import Settings
+from fringelab.core.specs import IngestSpec
 from fringelab.core.state import AppState
 from fringelab.core.storage import (
     InsufficientStorage,
@@ -98,19 +100,6 @@ def update_experiment(session: Session, principal: Principal, experiment: Experi
 # ---------------------------------------------------------------------------------------------- jobs in use
 
 
-def _ids_under(value: Any, keys: tuple[str, ...]) -> Iterator[int]:
-    """Integers a job spec names under keys such as recording_id / recording_ids, at any depth."""
-    if isinstance(value, dict):
-        for key, item in value.items():
-            if isinstance(key, str) and key.endswith(keys):
-                items = item if isinstance(item, list) else [item]
-                yield from (int(i) for i in items if isinstance(i, int) and not isinstance(i, bool))
-            yield from _ids_under(item, keys)
-    elif isinstance(value, list):
-        for item in value:
-            yield from _ids_under(item, keys)
-
-
 def active_jobs_using(
     session: Session,
     *,
@@ -120,17 +109,14 @@ def active_jobs_using(
 ) -> list[Job]:
     """Queued or running jobs whose spec names one of the recordings or cameras, or that belong to the experiment.
 
-    Job specs name their inputs as `recording_id`/`recording_ids` and `camera_id`/`camera_ids` (any key ending
-    so, at any depth), the convention every job kind follows.
+    What a job names is its kind's inputs (`fringelab.core.job_kinds`).
     """
     recordings, cameras = set(recording_ids), set(camera_ids)
     using = []
     for job in session.scalars(select(Job).where(Job.state.in_(ACTIVE_STATES))):
-        named_recordings = set(_ids_under(job.spec, ("recording_id", "recording_ids")))
-        named_cameras = set(_ids_under(job.spec, ("camera_id", "camera_ids")))
         if (
-            named_recordings & recordings
-            or named_cameras & cameras
+            named_by(job.kind, job.spec, "recording") & recordings
+            or named_by(job.kind, job.spec, "camera") & cameras
             or (experiment_id is not None and job.experiment_id == experiment_id)
         ):
             using.append(job)
@@ -187,8 +173,7 @@ def submit_ingest(session: Session, state: AppState, recording: Recording) -> Re
         job = submit_job(
             session,
             state.celery,
-            kind="ingest",
-            spec={"recording_id": recording.id},
+            spec=IngestSpec(recording_id=recording.id),
             experiment_id=recording.camera.experiment_id,
         )
     except QueueUnavailable as error:

@@ -26,6 +26,7 @@ from sqlalchemy.orm import Session
 
 from fringelab.core.accounts import Principal, audit, require_access
 from fringelab.core.errors import Conflict, Invalid, NotFound, TooLarge
+from fringelab.core.job_kinds import named_by
 from fringelab.core.jobs import ACTIVE_STATES
 from fringelab.core.models import Experiment, Job, Simulation
 from fringelab.core.recordings import check_upload_size
@@ -201,11 +202,11 @@ def register_simulation(
 
 
 def jobs_using_simulation(session: Session, simulation_id: int) -> list[Job]:
-    """Queued or running comparison jobs that read the simulation."""
+    """Queued or running jobs that read the simulation (that name it among their inputs)."""
     return [
         job
-        for job in session.scalars(select(Job).where(Job.kind == "comparison", Job.state.in_(ACTIVE_STATES)))
-        if (job.spec or {}).get("simulation_id") == simulation_id
+        for job in session.scalars(select(Job).where(Job.state.in_(ACTIVE_STATES)))
+        if simulation_id in named_by(job.kind, job.spec or {}, "simulation")
     ]
 
 

@@ -2,7 +2,7 @@
 
 Shapes and ranges are checked here (the API answers 422 naming the field); checks that need the database (is the
 recording ready, does the calibration belong to its camera, is the frame range inside the recording) live in
-`fringelab.core.jobs.prepare_job`.
+`fringelab.core.preparation`. Which kinds there are, and what each names, is `fringelab.core.job_kinds`.
 """
 
 from __future__ import annotations
@@ -246,10 +246,11 @@ class ComparisonSpec(_Spec):
     format: ComparisonExport | None = Field(None, description="Also write this export as a download.")
 
 
-JobSpec = Annotated[
-    SelftestSpec | CameraCalibrationSpec | ProjectorCalibrationSpec | TopographySpec | ExportSpec | ComparisonSpec,
-    Field(discriminator="kind"),
-]
+class IngestSpec(_Spec):
+    """Check an uploaded recording (its format, frames and sidecars) and make its previews. Started by the upload
+    itself, not through POST /api/v1/jobs; stored as it always was, without a `kind`."""
+
+    recording_id: int = Field(ge=1, le=MAX_ID, description="The recording to check.")
 
 
 JobState = Literal["queued", "running", "succeeded", "failed", "cancelled"]

@@ -24,9 +24,9 @@ from pydantic import TypeAdapter
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from fringelab.core import specs as job_schemas
 from fringelab.core.accounts import LOCAL_ADMIN, Principal
 from fringelab.core.errors import DomainError
+from fringelab.core.job_kinds import JobSpec
 from fringelab.core.jobs import QueueUnavailable, create_job
 from fringelab.core.models import Camera, Experiment, Job, Recording, User
 from fringelab.core.recordings import register_upload
@@ -40,7 +40,7 @@ log = logging.getLogger(__name__)
 ADVANCE_EVERY_S = 2.0
 GIVE_UP_AFTER_S = 3600.0  # a demo whose jobs have not all started after an hour is left as it is
 RECORDING_KINDS = ("camera_calibration", "projector_calibration", "test")
-_specs: TypeAdapter[Any] = TypeAdapter(job_schemas.JobSpec)
+_specs: TypeAdapter[Any] = TypeAdapter(JobSpec)
 
 
 def services_of(app: Celery) -> AppState:
@@ -159,7 +159,7 @@ def advance(session: Session, state: AppState, experiment_id: int, presets: list
                 if kind == "topography":
                     spec["projector_calibration_id"] = calibrations["projector"]
                 try:
-                    create_job(session, state.celery, _specs.validate_python(spec).model_dump(mode="json"))
+                    create_job(session, state.celery, _specs.validate_python(spec))
                 except (DomainError, QueueUnavailable) as error:
                     log.warning("demo camera %s: %s not started: %s", name, kind, error)
                     break

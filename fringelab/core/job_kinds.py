@@ -1,0 +1,234 @@
+"""The job kinds: one entry per kind, which every layer reads.
+
+An entry says everything the layers need to know of a kind: its spec model (`fringelab.core.specs`: what the API
+takes, and what the form is built from), the name its Celery task is registered under, the inputs its spec names
+with their roles (`fringelab.core.preparation` checks them before the job is queued; deletion and "in use" find a
+job's inputs through them), the orchestration module in the worker that runs it (`worker.jobs.<kind>`: the entry
+body, and per chunked phase its chunk and merge bodies, by name), and the result files it publishes.
+
+Adding a kind is one entry here (and its spec model in `fringelab.core.specs`) and one orchestration module in
+`worker/jobs/` (docs/developer-guide.md, "Adding a job kind"). What does not belong here: the checks themselves
+(`fringelab.core.preparation`) and anything that runs a job (the worker).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Annotated, Any, Union
+
+from pydantic import BaseModel, Field
+
+from fringelab.core.preparation import (
+    CalibrationInput,
+    Input,
+    JobInput,
+    RecordingInput,
+    SimulationInput,
+    check_export_source,
+)
+from fringelab.core.specs import (
+    CameraCalibrationSpec,
+    ComparisonSpec,
+    ExportSpec,
+    IngestSpec,
+    ProjectorCalibrationSpec,
+    SelftestSpec,
+    TopographySpec,
+)
+
+TOPOGRAPHY_FILE = "topography.h5"
+COMPARISON_FILE = "comparison.h5"
+
+
+@dataclass(frozen=True)
+class Phase:
+    """A chunked phase of a kind: the names of its chunk body (`(context, first, stop)`, run on any worker per
+    frame range) and merge body (`(context, turns)`, in frame order) in the kind's orchestration module.
+    hold_steals: the later chunks the merge measures itself stay in its process (`worker.runner.run_merge`)."""
+
+    chunk: str
+    merge: str
+    hold_steals: bool = False
+
+
+@dataclass(frozen=True, kw_only=True)
+class JobKind:
+    """One kind of job (see the module's docstring)."""
+
+    kind: str
+    spec: type[BaseModel]
+    task: str  # the Celery task's name; the API sends it by name
+    inputs: tuple[Input, ...]
+    body: str  # the entry body's name in `module`: `(context) -> result | Chunked`
+    phases: tuple[Phase, ...] = ()
+    result_files: tuple[str, ...] = ()  # the files it publishes (the download names; an export's depend on its format)
+    startable: bool = True  # through POST /api/v1/jobs (an ingest is started by its upload)
+
+    @property
+    def module(self) -> str:
+        """The worker's orchestration module of the kind."""
+        return f"worker.jobs.{self.kind}"
+
+    def parse(self, stored: Mapping[str, Any]) -> BaseModel:
+        """The spec model from a spec as stored with the job (JSON), validated: the one door from stored JSON to
+        a typed spec (old jobs' specs read the same: fields added since take their defaults)."""
+        return self.spec.model_validate(stored)
+
+    def named(self, stored: Mapping[str, Any], names: str) -> set[Any]:
+        """The ids of the `names` ("recording", "calibration", "job", "simulation", "camera") a stored spec names.
+        Reads the stored JSON by the inputs' fields, not through `parse`: deleting what a job used must work
+        even for a spec that no longer validates."""
+        found: set[Any] = set()
+        for item in self.inputs:
+            if item.names == names:
+                value = stored.get(item.field)
+                found.update(value if isinstance(value, list) else [] if value is None else [value])
+        return found
+
+
+_RECORDING = RecordingInput(field="recording_id", recording_kind="test", role="the test recording to measure")
+_CAMERA = CalibrationInput(field="camera_calibration_id", calibration_kind="camera",
+                           role="the camera's calibration (same camera, same image size)")  # fmt: skip
+
+# In the order the API's schema lists the spec models (a kind added goes at the end).
+JOB_KINDS: dict[str, JobKind] = {
+    entry.kind: entry
+    for entry in (
+        JobKind(
+            kind="ingest",
+            spec=IngestSpec,
+            task="fringelab.ingest",
+            startable=False,
+            body="ingest_recording",
+            inputs=(
+                RecordingInput(
+                    field="recording_id", recording_kind="any", checked=False, role="the uploaded recording to check"
+                ),
+            ),
+        ),
+        JobKind(
+            kind="selftest",
+            spec=SelftestSpec,
+            task="fringelab.selftest",
+            inputs=(),
+            body="selftest_entry",
+            phases=(Phase("selftest_compute", "selftest_chain"), Phase("selftest_verify", "selftest_write")),
+            result_files=("selftest.h5",),
+        ),
+        JobKind(
+            kind="camera_calibration",
+            spec=CameraCalibrationSpec,
+            task="fringelab.camera_calibration",
+            inputs=(
+                RecordingInput(
+                    field="recording_id", recording_kind="camera_calibration", role="the chessboard recording"
+                ),
+            ),
+            body="camera_calibration_body",
+            result_files=("camera.json",),
+        ),
+        JobKind(
+            kind="projector_calibration",
+            spec=ProjectorCalibrationSpec,
+            task="fringelab.projector_calibration",
+            inputs=(
+                RecordingInput(
+                    field="recording_id", recording_kind="projector_calibration", role="the flat plate moved along Z"
+                ),
+                _CAMERA,
+            ),
+            body="projector_calibration_body",
+            result_files=("projector.h5",),
+        ),
+        JobKind(
+            kind="topography",
+            spec=TopographySpec,
+            task="fringelab.topography",
+            inputs=(
+                _RECORDING,
+                _CAMERA,
+                CalibrationInput(
+                    field="projector_calibration_id",
+                    calibration_kind="projector",
+                    role="the projector's look-up table (same camera, same image size)",
+                ),
+            ),
+            body="topography_entry",
+            phases=(Phase("topography_measure", "topography_write", hold_steals=True),),
+            result_files=(TOPOGRAPHY_FILE, "topography.xdmf"),
+        ),
+        JobKind(
+            kind="export",
+            spec=ExportSpec,
+            task="fringelab.export",
+            inputs=(
+                JobInput(
+                    field="job_id",
+                    job_kinds=("topography", "comparison"),
+                    advice="export a succeeded one",
+                    check=check_export_source,
+                    role="the result to export",
+                ),
+            ),
+            body="export_body",
+            result_files=("the format's file (fringelab.formats.exports)",),
+        ),
+        JobKind(
+            kind="comparison",
+            spec=ComparisonSpec,
+            task="fringelab.comparison",
+            inputs=(
+                JobInput(
+                    field="job_id",
+                    job_kinds=("topography",),
+                    needs_file=TOPOGRAPHY_FILE,
+                    advice="compare a succeeded one (wait for it, or run it again)",
+                    role="the measured deflection",
+                ),
+                SimulationInput(field="simulation_id", role="the finite-element model to compare it with"),
+            ),
+            body="comparison_body",
+            result_files=(COMPARISON_FILE, "the `format`'s export, if one is named"),
+        ),
+    )  # fmt: skip
+}
+
+
+def job_kind(kind: str) -> JobKind:
+    """The entry of `kind`; ValueError naming the kinds there are."""
+    try:
+        return JOB_KINDS[kind]
+    except KeyError:
+        raise ValueError(f"unknown job kind {kind!r}; expected one of {sorted(JOB_KINDS)}") from None
+
+
+def spec_of(kind: str, stored: Mapping[str, Any]) -> BaseModel:
+    """The typed spec of a job of `kind` from its stored JSON (`JobKind.parse`)."""
+    return job_kind(kind).parse(stored)
+
+
+def kind_of(spec: BaseModel) -> JobKind:
+    """The entry of the kind a spec model is of (by its model: an ingest's spec has no `kind` field)."""
+    for entry in JOB_KINDS.values():
+        if type(spec) is entry.spec:
+            return entry
+    raise ValueError(f"{type(spec).__name__} is the spec of no job kind")
+
+
+def named_by(kind: str, stored: Mapping[str, Any], names: str) -> set[Any]:
+    """The ids of the `names` a job of `kind` names in its stored spec (`JobKind.named`); none for a kind that
+    is no longer known."""
+    entry = JOB_KINDS.get(kind)
+    return entry.named(stored, names) if entry is not None else set()
+
+
+# The spec POST /api/v1/jobs takes: one of the startable kinds' models, told apart by `kind` (the schema-driven
+# form finds each kind's model in the API's schema by it).
+if TYPE_CHECKING:
+    JobSpec = BaseModel
+else:
+    JobSpec = Annotated[
+        Union[tuple(entry.spec for entry in JOB_KINDS.values() if entry.startable)],  # noqa: UP007
+        Field(discriminator="kind"),
+    ]
