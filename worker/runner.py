@@ -33,16 +33,18 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import Any, Generic, TypeVar
 
 import numpy as np
 import psutil
 import redis
 from celery import Task, group
+from pydantic import BaseModel, ValidationError
 from sqlalchemy import func, select, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, sessionmaker
 
+from fringelab.core.job_kinds import spec_of
 from fringelab.core.jobs import (
     CHUNK_DONE_KEEP_S,
     CHUNK_TASK,
@@ -78,10 +80,16 @@ class Chunked:
     stage: str
 
 
+Spec = TypeVar("Spec", bound=BaseModel)
+
+
 @dataclass
-class JobContext:
+class JobContext(Generic[Spec]):
+    """What a job body runs with: its job's id, its spec (the kind's model, parsed from the stored JSON when the
+    task loaded the job), the settings and database sessions of this process."""
+
     job_id: str
-    spec: dict[str, Any]
+    spec: Spec
     settings: Settings
     sessions: sessionmaker[Session]
     chunk: tuple[int, int] | None = None  # (phase, index) of the chunk this context runs, if any
@@ -153,10 +161,22 @@ class JobContext:
             self.files[name] = media_type
 
 
-JobBody = Callable[[JobContext], "dict[str, Any] | Chunked"]
-ChunkBody = Callable[[JobContext, int, int], None]
+JobBody = Callable[[JobContext[Any]], "dict[str, Any] | Chunked"]
+ChunkBody = Callable[[JobContext[Any], int, int], None]
 # A merge gets each chunk's turn (`InOrder`) in frame order, as soon as that chunk can be taken.
-MergeBody = Callable[[JobContext, Iterator["InOrder"]], "dict[str, Any] | Chunked"]
+MergeBody = Callable[[JobContext[Any], Iterator["InOrder"]], "dict[str, Any] | Chunked"]
+
+
+def _spec(job: Job) -> BaseModel:
+    """The job's spec model from its stored JSON (`fringelab.core.job_kinds.spec_of`); a spec that no longer
+    reads (stored by another version of fringelab) is a ValueError whose text says what to do."""
+    try:
+        return spec_of(job.kind, job.spec)
+    except ValidationError as error:
+        raise ValueError(
+            f"the spec of this {job.kind} job no longer reads ({error.error_count()} error(s): "
+            f"{error.errors()[0]['msg']}); start a new job"
+        ) from None
 
 
 def _worker_name(task: Task) -> str:
@@ -240,9 +260,15 @@ def run_job(task: Task, job_id: str, body: JobBody) -> dict[str, Any]:
         job.heartbeat_at = moment
         job.worker = worker
         job.error = ""
-        spec = dict(job.spec)
+        try:
+            spec, unread = _spec(job), ""
+        except ValueError as error:
+            spec, unread = None, str(error)
         add_log(session, job_id, f"{'restarted' if again else 'started'} on {worker}")
         session.commit()
+    if spec is None:
+        finish(sessions, job_id, state="failed", error=unread)
+        return {}
     context = JobContext(job_id=job_id, spec=spec, settings=settings_of(task.app), sessions=sessions)
     ok, outcome = _run_guarded(context, lambda: body(context))
     if not ok:
@@ -346,7 +372,7 @@ def _claim_next(
         for chunk in sorted(chunks, key=lambda c: c.index != wanted):  # `wanted` first, then in order
             if takeable(chunk) and _claim(session, chunk, worker):
                 context = JobContext(
-                    job_id=job_id, spec=dict(job.spec), settings=settings, sessions=sessions, chunk=(phase, chunk.index)
+                    job_id=job_id, spec=_spec(job), settings=settings, sessions=sessions, chunk=(phase, chunk.index)
                 )
                 return context, chunk.first_frame, chunk.stop_frame
     return None
@@ -494,7 +520,7 @@ def run_merge(
             return {}
         # A redelivered merge's earlier run died with its process, and with it the chunks that run was computing.
         dead_merge = job.worker if redelivered else None
-        spec = dict(job.spec)
+        spec = _spec(job)
         if dead_merge is not None:
             add_log(
                 session, job_id, f"the pass in frame order starts again on {_worker_name(task)} ({dead_merge} was lost)"
@@ -704,11 +730,11 @@ def guided_frame_ranges(count: int, *, most: int, least: int = MIN_CHUNK_FRAMES)
     return ranges
 
 
-def planned_frame_ranges(count: int, spec: dict[str, Any], settings: Settings) -> list[tuple[int, int]]:
+def planned_frame_ranges(count: int, chunk_frames: int | None, settings: Settings) -> list[tuple[int, int]]:
     """The chunks of a job of `count` frames: of the job's own `chunk_frames` when it names one, else guided
     (`guided_frame_ranges`, at most FRINGELAB_CHUNK_FRAMES)."""
-    if spec.get("chunk_frames"):
-        return frame_ranges(count, int(spec["chunk_frames"]))
+    if chunk_frames:
+        return frame_ranges(count, chunk_frames)
     return guided_frame_ranges(count, most=int(settings.chunk_frames))
 
 

@@ -213,8 +213,7 @@ def preview_comparison_route(body: ComparisonPreviewIn, session: SessionDep, sta
     """What a comparison with these mapping choices would compare, without running it: the mapping resolved (the
     detected choices named), each frame's partner state or why it has none, and the measured and simulated
     profiles through the punch axis. A choice that cannot work is a 422 naming the form's setting to change."""
-    preview = preview_comparison(session, state.settings, principal, body.spec.model_dump(mode="json"),
-                                 frame=body.frame)  # fmt: skip
+    preview = preview_comparison(session, state.settings, principal, body.spec, frame=body.frame)
     frames = preview["frames"]
     return ComparisonPreviewOut(
         frame=preview["frame"], alignment=preview["alignment"],

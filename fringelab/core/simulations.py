@@ -26,11 +26,12 @@ from sqlalchemy.orm import Session
 
 from fringelab.core.accounts import Principal, audit, require_access
 from fringelab.core.errors import Conflict, Invalid, NotFound, TooLarge
-from fringelab.core.job_kinds import named_by
+from fringelab.core.job_kinds import TOPOGRAPHY_FILE, named_by
 from fringelab.core.jobs import ACTIVE_STATES
 from fringelab.core.models import Experiment, Job, Simulation
 from fringelab.core.recordings import check_upload_size
 from fringelab.core.settings import Settings
+from fringelab.core.specs import ComparisonSpec
 from fringelab.core.state import AppState
 from fringelab.core.storage import place_file, put_dir, remove_tree, simulation_dir
 from fringelab.core.text import check_file_name
@@ -235,24 +236,25 @@ MAPPING_OPTIONS = {
 }  # fmt: skip
 
 
-def mapping_settings(spec: dict[str, Any]) -> Any:
+def mapping_settings(spec: ComparisonSpec) -> Any:
     """A comparison spec's mapping options as `science.compare.MappingSettings` (None: detect): the one reading of
     them, for the comparison job and the preview."""
     from fringelab.science.compare import MappingSettings
 
-    values: dict[str, Any] = {f: spec[o] for o, f in MAPPING_OPTIONS.items() if spec.get(o) is not None}
+    chosen = {f: getattr(spec, o) for o, f in MAPPING_OPTIONS.items()}
+    values: dict[str, Any] = {f: value for f, value in chosen.items() if value is not None}
     if "origin_xy_mm" in values:
         values["origin_xy_mm"] = (float(values["origin_xy_mm"][0]), float(values["origin_xy_mm"][1]))
     return MappingSettings(**values)
 
 
 def _preview_inputs(
-    session: Session, settings: Settings, principal: Principal, spec: dict[str, Any]
+    session: Session, settings: Settings, principal: Principal, spec: ComparisonSpec
 ) -> tuple[Path, Path]:
     """The topography result file and the simulation folder a preview reads; 404/409/422 naming the field."""
     from fringelab.core.jobs import job_error, job_for
 
-    job = job_for(session, principal, spec["job_id"])
+    job = job_for(session, principal, spec.job_id)
     if job.kind != "topography":
         raise job_error(Invalid, "job_not_found", f"job {job.id} is a {job.kind} job; choose a topography job",
                         field="job_id")  # fmt: skip
@@ -260,17 +262,17 @@ def _preview_inputs(
         raise job_error(
             Conflict, "job_not_succeeded", f"topography job {job.id} is {job.state}; wait until it succeeds"
         )
-    entry = next((f for f in job.files or [] if f.get("name") == "topography.h5"), None)
+    entry = next((f for f in job.files or [] if f.get("name") == TOPOGRAPHY_FILE), None)
     result = settings.data_path / entry["path"] if entry else None
     if result is None or not result.is_file():
         raise job_error(
             Conflict, "result_missing", f"topography job {job.id} has no result file any more; run it again"
         )
-    simulation = session.get(Simulation, spec["simulation_id"])
+    simulation = session.get(Simulation, spec.simulation_id)
     if simulation is None or simulation.experiment_id != job.experiment_id or not simulation.path:
         raise job_error(
             Invalid, "simulation_not_found",
-            f"there is no simulation {spec['simulation_id']} in the experiment of topography job {job.id}",
+            f"there is no simulation {spec.simulation_id} in the experiment of topography job {job.id}",
             field="simulation_id",
         )  # fmt: skip
     return result, settings.data_path / simulation.path
@@ -315,7 +317,7 @@ _PAIRINGS = _RecentPairings()
 
 
 def preview_comparison(
-    session: Session, settings: Settings, principal: Principal, spec: dict[str, Any], *, frame: int | None = None
+    session: Session, settings: Settings, principal: Principal, spec: ComparisonSpec, *, frame: int | None = None
 ) -> dict[str, Any]:
     """What a comparison with these mapping choices would pair, for the mapping form's live preview: the mapping
     resolved (every detected choice and note), each frame's partner state or why it has none, and the measured and
@@ -330,8 +332,8 @@ def preview_comparison(
 
     result_path, simulation_path = _preview_inputs(session, settings, principal, spec)
     mapping_choices = mapping_settings(spec)
-    align = spec.get("align") or "displacement"
-    punch = (spec.get("punch_node"), spec.get("contact_interface"))
+    align = spec.align
+    punch = (spec.punch_node, spec.contact_interface)
     try:
         with TopographyResult(result_path) as result:
 
@@ -377,7 +379,7 @@ def preview_comparison(
                                   "simulated_mm": cut.values[1], "sigma_mm": cut.values[2]}  # fmt: skip
             return {
                 "frame": int(result.frames[i]),
-                "alignment": spec.get("align") or "displacement",
+                "alignment": align,
                 "mapping": {**mapping, "notes": [in_form_terms(str(note)) for note in pairing.model.mapping.notes]},
                 "overlap_fraction": float(pairing.overlap),
                 "axis_xy_mm": [axis_x, axis_y],

@@ -38,7 +38,12 @@ def test_the_api_takes_the_startable_kinds_in_the_registrys_order() -> None:
 def test_a_spec_as_old_jobs_stored_it_still_reads() -> None:
     # an export spec stored before `lines` and `frames` existed, a topography spec before `chunk_frames` was
     # bounded, an ingest spec (never had a kind): as the JSON column holds them
-    old_export = {"kind": "export", "job_id": "6f1c2b8e-2d4a-4f6e-9a51-3c7d0e9b2f10", "format": "grid-npz", "line": None}
+    old_export = {
+        "kind": "export",
+        "job_id": "6f1c2b8e-2d4a-4f6e-9a51-3c7d0e9b2f10",
+        "format": "grid-npz",
+        "line": None,
+    }
     export = spec_of("export", old_export)
     assert isinstance(export, ExportSpec) and export.lines is None and export.frames is None
     old_topography = {"kind": "topography", "recording_id": 3, "camera_calibration_id": 1,

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 from typing import Any
 
+from fringelab.core.specs import CameraCalibrationSpec
 from worker.jobs.inputs import record_calibration, recording_input
 from worker.runner import JobContext
 
 
-def camera_calibration_body(context: JobContext) -> dict[str, Any]:
+def camera_calibration_body(context: JobContext[CameraCalibrationSpec]) -> dict[str, Any]:
     from fringelab.formats.camera import write_camera_json
     from fringelab.formats.recordings import open_recording
     from fringelab.pipelines.camera_calibration import calibrate_camera_recording
@@ -17,24 +18,24 @@ def camera_calibration_body(context: JobContext) -> dict[str, Any]:
     spec = context.spec
     recording, camera, path = recording_input(context)
     board = None
-    if spec.get("board"):
-        b = spec["board"]
-        board = Board(b["cols"], b["rows"], b["square_mm"], origin=tuple(b["origin"]) if b.get("origin") else None)
+    if spec.board is not None:
+        b = spec.board
+        board = Board(b.cols, b.rows, b.square_mm, origin=b.origin)
     pitch_u_um, pitch_v_um = camera.pixel_pitch_uv_um
     if not (pitch_u_um > 0 and pitch_v_um > 0):
         raise ValueError(f"camera {camera.name!r} has no pixel pitch; set it on the camera, then retry")
-    context.log(f"calibrating camera {camera.name!r} from recording {recording.id} ({spec['mode']})")
+    context.log(f"calibrating camera {camera.name!r} from recording {recording.id} ({spec.mode})")
     calibration = calibrate_camera_recording(
         open_recording(path),
         board=board,
-        mode=spec["mode"],
+        mode=spec.mode,
         du_px_per_mm=1000.0 / pitch_u_um,
         dv_px_per_mm=1000.0 / pitch_v_um,
-        scale_on=spec["scale_on"],
-        reject_outliers=spec["reject_outliers"],
+        scale_on=spec.scale_on,
+        reject_outliers=spec.reject_outliers,
         pixel_pitch_um=(pitch_u_um, pitch_v_um),
-        detector=spec["detector"],
-        subpix_half_window_px=spec.get("subpix_window_px"),
+        detector=spec.detector,
+        subpix_half_window_px=spec.subpix_window_px,
         progress=context.progress,
         should_cancel=context.should_cancel,
     )

@@ -9,14 +9,14 @@ from __future__ import annotations
 
 from typing import Any
 
+from fringelab.core.job_kinds import COMPARISON_FILE, TOPOGRAPHY_FILE
 from fringelab.core.models import Job, Simulation
+from fringelab.core.specs import ComparisonSpec
 from worker.jobs.export import write_download
 from worker.runner import JobContext
 
-COMPARISON_FILE = "comparison.h5"
 
-
-def comparison_body(context: JobContext) -> dict[str, Any]:
+def comparison_body(context: JobContext[ComparisonSpec]) -> dict[str, Any]:
     from fringelab.core.simulations import mapping_settings
     from fringelab.formats.exports import COMPARISON_EXPORT_FILES, export_comparison
     from fringelab.pipelines.comparison import compare_result
@@ -24,14 +24,14 @@ def comparison_body(context: JobContext) -> dict[str, Any]:
 
     spec = context.spec
     with context.sessions() as session:
-        source = session.get(Job, spec["job_id"])
-        entry = next((f for f in (source.files if source else []) if f["name"] == "topography.h5"), None)
-        simulation = session.get(Simulation, spec["simulation_id"])
+        source = session.get(Job, spec.job_id)
+        entry = next((f for f in (source.files if source else []) if f["name"] == TOPOGRAPHY_FILE), None)
+        simulation = session.get(Simulation, spec.simulation_id)
         simulation_path = simulation.path if simulation is not None else ""
     if entry is None:
-        raise ValueError(f"topography job {spec['job_id']} has no result file any more; run it again")
+        raise ValueError(f"topography job {spec.job_id} has no result file any more; run it again")
     if not simulation_path:
-        raise ValueError(f"simulation {spec['simulation_id']} was deleted; upload it again")
+        raise ValueError(f"simulation {spec.simulation_id} was deleted; upload it again")
     data = context.settings.data_path
     try:
         with context.output(COMPARISON_FILE, media_type="application/x-hdf5") as temporary:
@@ -39,15 +39,15 @@ def comparison_body(context: JobContext) -> dict[str, Any]:
                 data / entry["path"],
                 data / simulation_path,
                 temporary,
-                align=spec.get("align", "displacement"),
+                align=spec.align,
                 mapping=mapping_settings(spec),
-                punch_node=spec.get("punch_node"),
-                contact_interface=spec.get("contact_interface"),
+                punch_node=spec.punch_node,
+                contact_interface=spec.contact_interface,
                 progress=lambda done, total, stage: context.progress(done, total, stage),
             )
     except (ComparisonError, ValueError) as error:  # the setting to change named as the mapping form names it
         raise type(error)(in_form_terms(str(error))) from None
-    fmt = spec.get("format")
+    fmt = spec.format
     if fmt:
         name, media = COMPARISON_EXPORT_FILES[fmt]
         source_file = context.directory / COMPARISON_FILE
@@ -55,8 +55,8 @@ def comparison_body(context: JobContext) -> dict[str, Any]:
     result = summary.as_json()
     result.update(
         file=COMPARISON_FILE,
-        source_job_id=spec["job_id"],
-        simulation_id=spec["simulation_id"],
+        source_job_id=spec.job_id,
+        simulation_id=spec.simulation_id,
         export=COMPARISON_EXPORT_FILES[fmt][0] if fmt else None,
     )
     return result

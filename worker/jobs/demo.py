@@ -26,7 +26,7 @@ from sqlalchemy.orm import Session
 
 from fringelab.core.accounts import LOCAL_ADMIN, Principal
 from fringelab.core.errors import DomainError
-from fringelab.core.job_kinds import JobSpec
+from fringelab.core.job_kinds import JobSpec, named_by
 from fringelab.core.jobs import QueueUnavailable, create_job
 from fringelab.core.models import Camera, Experiment, Job, Recording, User
 from fringelab.core.recordings import register_upload
@@ -120,7 +120,7 @@ def simulate_demo(
 
 
 def _latest_job(jobs: list[Job], kind: str, recording_id: int) -> Job | None:
-    mine = [job for job in jobs if job.kind == kind and job.spec.get("recording_id") == recording_id]
+    mine = [job for job in jobs if job.kind == kind and recording_id in named_by(kind, job.spec, "recording")]
     return max(mine, key=lambda job: job.created_at) if mine else None
 
 

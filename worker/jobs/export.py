@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from fringelab.core.models import Job
+from fringelab.core.specs import ExportSpec
 from worker.runner import JobContext
 
 SOURCE_FILES = {"topography": "topography.h5", "comparison": "comparison.h5"}
@@ -36,23 +37,22 @@ def write_download(context: JobContext, fmt: str, name: str, media: str, write: 
     shutil.rmtree(work)
 
 
-def export_body(context: JobContext) -> dict[str, Any]:
+def export_body(context: JobContext[ExportSpec]) -> dict[str, Any]:
     from fringelab.formats.exports import COMPARISON_EXPORT_FILES, EXPORT_FILES, export_comparison, export_result
 
     spec = context.spec
     with context.sessions() as session:
-        source = session.get(Job, spec["job_id"])
+        source = session.get(Job, spec.job_id)
         kind = source.kind if source else "topography"
         entry = next((f for f in (source.files if source else []) if f["name"] == SOURCE_FILES.get(kind)), None)
     if entry is None:
-        raise ValueError(f"{kind} job {spec['job_id']} has no result file any more; run it again")
+        raise ValueError(f"{kind} job {spec.job_id} has no result file any more; run it again")
     source_path = context.settings.data_path / entry["path"]
-    line = tuple(spec["line"]) if spec.get("line") else None
-    lines = [tuple(one) for one in spec["lines"]] if spec.get("lines") else None
-    frames = spec.get("frames")
-    frame_range = (frames["first"], frames["last"] if frames.get("last") is not None else 2**31 - 1) if frames else None
+    line, lines = spec.line, (list(spec.lines) if spec.lines else None)
+    frames = spec.frames
+    frame_range = (frames.first, frames.last if frames.last is not None else 2**31 - 1) if frames else None
     context.progress(0, 1, "exporting")
-    fmt = spec["format"]
+    fmt = spec.format
     if kind == "comparison":
         name, media = COMPARISON_EXPORT_FILES[fmt]
         write_download(context, fmt, name, media, lambda path: export_comparison(source_path, fmt, path, line=line))
@@ -62,4 +62,5 @@ def export_body(context: JobContext) -> dict[str, Any]:
                        lambda path: export_result(source_path, fmt, path, line=line, lines=lines,
                                                   frames=frame_range))  # fmt: skip
     context.progress(1, 1, "exporting")
-    return {"format": fmt, "file": name, "source_job_id": spec["job_id"], "frames": frames, "lines": len(lines or [])}
+    frames_json = None if frames is None else frames.model_dump(mode="json")
+    return {"format": fmt, "file": name, "source_job_id": spec.job_id, "frames": frames_json, "lines": len(lines or [])}

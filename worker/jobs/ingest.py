@@ -21,6 +21,7 @@ import numpy as np
 from fringelab.core.models import Recording
 from fringelab.core.recordings import check_budget, zip_limits
 from fringelab.core.settings import Settings
+from fringelab.core.specs import IngestSpec
 from fringelab.core.storage import recording_dir
 from fringelab.formats.containers import STATES_BIT_DEPTH, RecordingLayout
 from fringelab.formats.previews import PREVIEW_FILE, THUMBNAIL_PX, PreviewWriter
@@ -70,8 +71,8 @@ class Inspection:
     summary: dict[str, Any] = field(default_factory=dict)
 
 
-def ingest_recording(context: JobContext) -> dict[str, Any]:
-    recording_id = int(context.spec["recording_id"])
+def ingest_recording(context: JobContext[IngestSpec]) -> dict[str, Any]:
+    recording_id = context.spec.recording_id
     with context.sessions() as session:
         recording = session.get(Recording, recording_id)
         if recording is None:

@@ -14,11 +14,13 @@ from fringelab.core.models import Calibration, Camera, Recording
 from worker.runner import JobContext
 
 
-def recording_input(context: JobContext) -> tuple[Recording, Camera, Path]:
+def recording_input(context: JobContext[Any]) -> tuple[Recording, Camera, Path]:
+    """The recording the spec's `recording_id` names (every kind that reads one names it so), its camera and file."""
+    recording_id = context.spec.recording_id
     with context.sessions() as session:
-        recording = session.get(Recording, context.spec["recording_id"])
+        recording = session.get(Recording, recording_id)
         if recording is None:
-            raise ValueError(f"recording {context.spec['recording_id']} was deleted; upload it again")
+            raise ValueError(f"recording {recording_id} was deleted; upload it again")
         camera = recording.camera
         session.expunge_all()
     return recording, camera, context.settings.data_path / recording.path

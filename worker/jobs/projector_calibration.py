@@ -4,11 +4,12 @@ from __future__ import annotations
 
 from typing import Any
 
+from fringelab.core.specs import ProjectorCalibrationSpec
 from worker.jobs.inputs import calibration_file, record_calibration, recording_input
 from worker.runner import JobContext
 
 
-def projector_calibration_body(context: JobContext) -> dict[str, Any]:
+def projector_calibration_body(context: JobContext[ProjectorCalibrationSpec]) -> dict[str, Any]:
     from fringelab.formats.camera import read_camera_json
     from fringelab.formats.projector import write_projector_calibration
     from fringelab.formats.recordings import open_recording
@@ -18,12 +19,12 @@ def projector_calibration_body(context: JobContext) -> dict[str, Any]:
 
     spec = context.spec
     recording, camera, path = recording_input(context)
-    camera_model = read_camera_json(calibration_file(context, spec["camera_calibration_id"]))
+    camera_model = read_camera_json(calibration_file(context, spec.camera_calibration_id))
     settings = ProjectorSettings(
-        edges=EdgeSettings(axis=spec["axis"]),
-        reference_z_mm=spec["reference_z_mm"],
-        poly_degree=spec["poly_degree"],
-        min_z_samples=max(6, spec["poly_degree"] + 2),
+        edges=EdgeSettings(axis=spec.axis),
+        reference_z_mm=spec.reference_z_mm,
+        poly_degree=spec.poly_degree,
+        min_z_samples=max(6, spec.poly_degree + 2),
     )
     context.log(f"projector calibration of camera {camera.name!r} from recording {recording.id}")
     calibration = calibrate_projector_recording(

@@ -13,6 +13,7 @@ from sqlalchemy import select
 
 from fringelab.core.jobs import as_utc
 from fringelab.core.models import Job, utcnow
+from fringelab.core.specs import SelftestSpec
 from worker.runner import (
     Chunked,
     InOrder,
@@ -33,15 +34,15 @@ def selftest_frame(frame: int, *, size_px: int) -> tuple[float, str]:
     return float(spectrum[1:, 1:].mean()), hashlib.sha256(image.tobytes()).hexdigest()
 
 
-def selftest_entry(context: JobContext) -> Chunked:
-    frames = int(context.spec["frames"])
-    context.log(f"selftest of {frames} frames of {context.spec['frame_size_px']} px")
-    return Chunked(planned_frame_ranges(frames, context.spec, context.settings), stage="computing frames")
+def selftest_entry(context: JobContext[SelftestSpec]) -> Chunked:
+    spec = context.spec
+    context.log(f"selftest of {spec.frames} frames of {spec.frame_size_px} px")
+    return Chunked(planned_frame_ranges(spec.frames, spec.chunk_frames, context.settings), stage="computing frames")
 
 
-def selftest_compute(context: JobContext, first: int, stop: int) -> None:
+def selftest_compute(context: JobContext[SelftestSpec], first: int, stop: int) -> None:
     """Phase 0, any worker: compute frames [first, stop)."""
-    size_px = int(context.spec["frame_size_px"])
+    size_px = context.spec.frame_size_px
     values, digests = [], []
     for done, frame in enumerate(range(first, stop)):
         value, digest = selftest_frame(frame, size_px=size_px)
@@ -52,13 +53,13 @@ def selftest_compute(context: JobContext, first: int, stop: int) -> None:
           digest=np.asarray(digests, dtype="S64"), worker=np.asarray([this_worker()], dtype="S200"))  # fmt: skip
 
 
-def selftest_chain(context: JobContext, turns: Iterator[InOrder]) -> Chunked:
+def selftest_chain(context: JobContext[SelftestSpec], turns: Iterator[InOrder]) -> Chunked:
     """Merge of phase 0, in frame order: check that every frame came back once, and chain the digests (each link
     depends on all frames before it, as edge identity does in a topography), then verify in parallel."""
     ranges = handed_over(turns, selftest_compute)  # every chunk: the chain starts once all are done
     chunks = [load_arrays(context, f"chunks/p0-{first:07d}.arrays") for first, _stop in ranges]
     frame = np.concatenate([c["frame"] for c in chunks])
-    expected = int(context.spec["frames"])
+    expected = context.spec.frames
     if not np.array_equal(frame, np.arange(expected)):
         raise RuntimeError(f"the chunks hold {frame.size} frames, not each of 0..{expected - 1} once")
     digest = np.concatenate([c["digest"] for c in chunks])
@@ -73,9 +74,9 @@ def selftest_chain(context: JobContext, turns: Iterator[InOrder]) -> Chunked:
     return Chunked(ranges, stage="verifying frames")
 
 
-def selftest_verify(context: JobContext, first: int, stop: int) -> None:
+def selftest_verify(context: JobContext[SelftestSpec], first: int, stop: int) -> None:
     """Phase 1, any worker: compute frames [first, stop) again and compare with what phase 0 stored."""
-    size_px = int(context.spec["frame_size_px"])
+    size_px = context.spec.frame_size_px
     stored = load_arrays(context, "chunks/sequence.arrays")["digest"][first:stop]
     matches = []
     for done, frame in enumerate(range(first, stop)):
@@ -85,7 +86,7 @@ def selftest_verify(context: JobContext, first: int, stop: int) -> None:
           worker=np.asarray([this_worker()], dtype="S200"))  # fmt: skip
 
 
-def selftest_write(context: JobContext, turns: Iterator[InOrder]) -> dict[str, Any]:
+def selftest_write(context: JobContext[SelftestSpec], turns: Iterator[InOrder]) -> dict[str, Any]:
     """Merge of phase 1: the result file, and a failure naming the workers if any frame came out differently."""
     ranges = handed_over(turns, selftest_verify)
     context.progress(0, 1, "writing")
@@ -105,7 +106,7 @@ def selftest_write(context: JobContext, turns: Iterator[InOrder]) -> dict[str, A
         for name in ("frame", "value", "digest", "chain", "computed_by"):
             out[name] = sequence[name]
         out["verified_by"] = verified_by
-        out.attrs["frame_size_px"] = int(context.spec["frame_size_px"])
+        out.attrs["frame_size_px"] = context.spec.frame_size_px
     with context.sessions() as session:
         started = session.scalar(select(Job.started_at).where(Job.id == context.job_id))
     elapsed_s = (utcnow() - as_utc(started)).total_seconds() if started is not None else None

@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from fringelab.core.specs import TopographySpec
 from fringelab.pipelines.topography import plate_nodes, result_writer
 from fringelab.science.topography import SummaryTally, TemporalCrossCheck
 from worker.jobs.inputs import calibration_file, recording_input
@@ -74,26 +75,25 @@ def _cached_calibration(kind: str, path: Path) -> Any:
     return _calibration(kind, path, (stat.st_mtime_ns, stat.st_size))
 
 
-def _topography_inputs(context: JobContext) -> _TopographyInputs:
+def _topography_inputs(context: JobContext[TopographySpec]) -> _TopographyInputs:
     """The recording (open: close it), calibrations, frames to write and settings of a topography job."""
     from fringelab.formats.recordings import open_recording
     from fringelab.science.topography import TopographySettings, frame_range
 
     spec = context.spec
     _recording, _camera, path = recording_input(context)
-    camera_model = _cached_calibration("camera", calibration_file(context, spec["camera_calibration_id"]))
-    projector = _cached_calibration("projector", calibration_file(context, spec["projector_calibration_id"]))
+    camera_model = _cached_calibration("camera", calibration_file(context, spec.camera_calibration_id))
+    projector = _cached_calibration("projector", calibration_file(context, spec.projector_calibration_id))
     source = open_recording(path)
-    frames = spec.get("frames") or {}
-    last = frames.get("last")
-    wanted = frame_range(range(frames.get("first", 0), len(source) if last is None else last + 1), len(source))
+    last = spec.frames.last
+    wanted = frame_range(range(spec.frames.first, len(source) if last is None else last + 1), len(source))
     settings = TopographySettings(
-        grid_step_mm=spec["grid_step_mm"], temporal_smoothing_frames=spec["temporal_smoothing_frames"]
+        grid_step_mm=spec.grid_step_mm, temporal_smoothing_frames=spec.temporal_smoothing_frames
     )
     return _TopographyInputs(source, camera_model, projector, wanted, settings)
 
 
-def topography_entry(context: JobContext) -> Chunked:
+def topography_entry(context: JobContext[TopographySpec]) -> Chunked:
     """The reference (frame 0), then the frames to write in chunks on any worker."""
     from fringelab.science.topography import (
         check_recording_against,
@@ -131,11 +131,11 @@ def topography_entry(context: JobContext) -> Chunked:
     wanted = inputs.wanted
     context.log(f"topography of frames {wanted.start}..{wanted.stop - 1}, each ordered on its own")
     ranges = [(wanted.start + a, wanted.start + b)
-              for a, b in planned_frame_ranges(len(wanted), context.spec, context.settings)]  # fmt: skip
+              for a, b in planned_frame_ranges(len(wanted), context.spec.chunk_frames, context.settings)]  # fmt: skip
     return Chunked(ranges, stage="measuring")
 
 
-def _reference(context: JobContext) -> Any:
+def _reference(context: JobContext[TopographySpec]) -> Any:
     from fringelab.science.order import OrderReference
 
     data = load_arrays(context, "chunks/reference.arrays")
@@ -153,7 +153,7 @@ _MEASURE_COUNTS = (
 )  # fmt: skip
 
 
-def topography_measure(context: JobContext, first: int, stop: int) -> None:
+def topography_measure(context: JobContext[TopographySpec], first: int, stop: int) -> None:
     """Phase 0, any worker: frames [first, stop) measured (`_measured`) and handed over one record per frame."""
     with array_records(context, _hand_over_name(first)) as write:
         for record in _measured(context, first, stop):
@@ -164,7 +164,9 @@ def _hand_over_name(first: int) -> str:
     return f"chunks/frames-{first:07d}.arrays"
 
 
-def _measured(context: JobContext, first: int, stop: int, *, report: bool = True) -> Iterator[dict[str, np.ndarray]]:
+def _measured(
+    context: JobContext[TopographySpec], first: int, stop: int, *, report: bool = True
+) -> Iterator[dict[str, np.ndarray]]:
     """Frames [first, stop), each on its own: measured, gridded (Z and σ) and packed as the result file stores
     them, as records (one per frame) that `_frames_of` reads, whether handed over or not: the merge only writes.
     report: the progress is the context's chunk's."""
@@ -212,7 +214,9 @@ def _measured(context: JobContext, first: int, stop: int, *, report: bool = True
         inputs.close()
 
 
-def _frames_of(context: JobContext, turn: InOrder, grid_shape: tuple[int, int]) -> Iterator[tuple[Any, Any, Any]]:
+def _frames_of(
+    context: JobContext[TopographySpec], turn: InOrder, grid_shape: tuple[int, int]
+) -> Iterator[tuple[Any, Any, Any]]:
     """The frames of a chunk's turn one at a time, (measurement, peak, packed grids): measured here when the turn
     says so, or when its hand-over is missing (a merge that ran before, and died, measured it straight into its
     own file or kept it in its process), else read from the hand-over. Either way from the same records, so the
@@ -258,7 +262,7 @@ def _frames_of(context: JobContext, turn: InOrder, grid_shape: tuple[int, int]) 
         yield measurement, peak, packed
 
 
-def topography_write(context: JobContext, turns: Iterator[InOrder]) -> dict[str, Any]:
+def topography_write(context: JobContext[TopographySpec], turns: Iterator[InOrder]) -> dict[str, Any]:
     """Merge of phase 0, in frame order: the result file, as `topography_recording` writes it, a chunk at a time
     as each one's turn comes (the progress is the chunks')."""
     from fringelab.formats.recordings import recording_log
