@@ -39,8 +39,8 @@ def _job(sessions, running: dict[int, str], done: set[int], chunks: int = 6) -> 
     `done`, the rest pending; its merge sent already."""
     now = utcnow()
     with sessions() as session:
-        session.add(Job(id="job-1", kind="selftest", state="running", spec={}, phase=0, merge_queued_at=now,
-                        started_at=now, heartbeat_at=now))  # fmt: skip
+        session.add(Job(id="job-1", kind="selftest", state="running", spec={"kind": "selftest"}, phase=0,
+                        merge_queued_at=now, started_at=now, heartbeat_at=now))  # fmt: skip
         for index in range(chunks):
             state = "running" if index in running else "done" if index in done else "pending"
             session.add(JobChunk(job_id="job-1", phase=0, index=index, first_frame=10 * index,

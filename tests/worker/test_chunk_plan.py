@@ -32,8 +32,8 @@ def test_a_long_job_ends_in_small_chunks() -> None:
 
 def test_a_jobs_own_chunk_size_is_kept() -> None:
     settings = Settings(_env_file=None, chunk_frames=100)  # type: ignore[call-arg]
-    assert planned_frame_ranges(45, {"chunk_frames": 20}, settings) == [(0, 20), (20, 40), (40, 45)]
-    assert planned_frame_ranges(45, {}, settings) == guided_frame_ranges(45, most=100)
+    assert planned_frame_ranges(45, 20, settings) == [(0, 20), (20, 40), (40, 45)]
+    assert planned_frame_ranges(45, None, settings) == guided_frame_ranges(45, most=100)
 
 
 def test_an_empty_job_is_refused() -> None:
