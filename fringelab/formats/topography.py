@@ -1,10 +1,11 @@
-"""Files of the structured-light side: projector tables, topography results, exports, edge chunks, recordings.
+"""The topography result file (HDF5): its writer, which streams frames in, and its reader, which the API and the
+exports go through.
 
-Belongs here (the only module of the fringe/topography side that touches files): the projector calibration HDF5,
-the streaming topography result HDF5 (layout below), its exports (points CSV, grid NPZ, MATLAB .mat, VTK time
-series for ParaView, profile CSV), stored edges of frame chunks for parallel runs, the test log `frames.csv`,
-and writing frame recordings (folder or ZIP of PNG) for the virtual test. Every file is written to a
-temporary name beside its target and renamed when complete.
+Belongs here: the result's layout (`topography_layout`, every dataset declared once, as data), the streaming
+writer (`TopographyWriter`, points and grids compressed in threads), its XDMF sidecar for ParaView (`write_xdmf`),
+and the reader (`TopographyResult`: columns, points, grids, profiles and cuts of a frame). Not here: exports for
+other tools (`exports`), the projector calibration (`projector`), a chunk's stored edges (`edges`), recordings
+(`recordings`). Every file is written to a temporary name beside its target and renamed when complete.
 
 Topography result (schema "fringelab.topography", version 1); lengths in mm in the object frame (docs/method.md §2:
 +Z toward the camera), frames are recording frame indices; every dataset has `unit` and `description` attrs:
@@ -55,7 +56,7 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import h5py
 import numpy as np
@@ -91,20 +92,120 @@ MAX_WRITES_IN_FLIGHT = 16
 # The XDMF views are made XDMF_VIEW_FRAMES frames at a time (made one by one while the file grows, they cost ~4
 # times more; all at the close, they would wait for the last frame).
 XDMF_VIEW_FRAMES = 32
-_POINT_DTYPES = {"x_mm": np.float32, "y_mm": np.float32, "z_mm": np.float32, "edge": np.int32, "line": np.int32,
-                 "sigma_w_mm": np.float32}  # fmt: skip
-
-
-# --------------------------------------------------------------------------------------------------------------
-# Projector calibration
-
-
-# --------------------------------------------------------------------------------------------------------------
-# frames.csv
 
 
 # --------------------------------------------------------------------------------------------------------------
 # The topography result
+
+
+Growth = Literal["column", "points", "grid", "axis"]
+
+
+@dataclass(frozen=True)
+class DatasetLayout:
+    """One dataset of the topography result, declared: where it is, what it holds and how it grows.
+
+    grows: "column", one value a frame (chunks of 1024); "points", one row an edge point (chunks of
+    POINTS_CHUNK_ROWS, compressed); "grid", one (ny, nx) slice a frame (one chunk a frame, compressed, NaN where
+    not written); "axis", not at all (the grid's own coordinates, `Grid.<name>`, stored as they are: dtype
+    None). initial_rows: rows it starts with (points/offsets starts with its 0).
+    """
+
+    path: str
+    dtype: Any
+    unit: str
+    description: str
+    grows: Growth = "column"
+    initial_rows: int = 0
+
+    @property
+    def name(self) -> str:
+        return self.path.rsplit("/", 1)[1]
+
+
+def topography_layout() -> tuple[DatasetLayout, ...]:
+    """Every dataset of a topography result in the order they are made (the module docstring describes them)."""
+    column: Growth = "column"
+    points: Growth = "points"
+    grid: Growth = "grid"
+    f64, i64, f32, i32 = np.float64, np.int64, np.float32, np.int32
+    return (
+        DatasetLayout("frames/index", i64, "1", "frame index in the recording"),
+        DatasetLayout("frames/camera_frame", i64, "1",
+                      "frame number as the camera counts it (a .cine counts from its trigger frame 0)"),
+        DatasetLayout("frames/time_s", f64, "s",
+                      "time of the frame (frames.csv, else the recording's time stamps; see time_source)"),
+        DatasetLayout("frames/punch_displacement_mm", f64, "mm", "punch displacement (frames.csv)"),
+        DatasetLayout("frames/force_kN", f64, "kN", "punch force (frames.csv)"),
+        DatasetLayout("points/offsets", i64, "1", "frame i's points are rows offsets[i]:offsets[i+1]", column, 1),
+        DatasetLayout("points/x_mm", f32, "mm", "X of each edge point", points),
+        DatasetLayout("points/y_mm", f32, "mm", "Y of each edge point", points),
+        DatasetLayout("points/z_mm", f32, "mm", "Z of each edge point (the deflection is z − z_flat_mm)", points),
+        DatasetLayout("points/edge", i32, "1", "edge index k in the projector table", points),
+        DatasetLayout("points/line", i32, "1", "scan line (image row for axis 'rows', column for 'cols')", points),
+        DatasetLayout("points/sigma_w_mm", f32, "mm",
+                      "standard deviation of the point's height (edge noise, projector table)", points),
+        DatasetLayout("grid/x_mm", None, "mm", "X of the grid nodes", "axis"),
+        DatasetLayout("grid/y_mm", None, "mm", "Y of the grid nodes", "axis"),
+        DatasetLayout("grid/z_mm", f32, "mm", "gridded Z per frame [frame, iy, ix], NaN outside the data", grid),
+        DatasetLayout("grid/sigma_w_mm", f32, "mm",
+                      "standard deviation of the gridded height [frame, iy, ix] (its corners' σ interpolated)", grid),
+        DatasetLayout("peak/w_mm", f64, "mm", "largest deflection w = z − z_flat of the grid"),
+        DatasetLayout("peak/x_mm", f64, "mm", "X of the largest deflection"),
+        DatasetLayout("peak/y_mm", f64, "mm", "Y of the largest deflection"),
+        DatasetLayout("peak/centre_x_mm", f64, "mm", "X of the centroid of the area above half the peak"),
+        DatasetLayout("peak/centre_y_mm", f64, "mm", "Y of the centroid of the area above half the peak"),
+        DatasetLayout("peak/measured", np.int8, "1",
+                      "1: the peak was measured (data on all sides of the maximum within radius_mm), 0: w_mm is only "
+                      "a lower bound"),
+        DatasetLayout("peak/missing_nodes", i32, "1",
+                      "plate grid nodes within radius_mm of the maximum without data (−1: none at all)"),
+        DatasetLayout("qa/n_points", i64, "1", "3-D points of the frame"),
+        DatasetLayout("qa/n_tracks", i64, "1", "tracked (edge, line) points, with or without Z"),
+        DatasetLayout("qa/n_ended", i64, "1", "tracks that ended at this frame"),
+        DatasetLayout("qa/n_out_of_range", i64, "1", "tracked points beyond the calibrated Z range (masked)"),
+        DatasetLayout("qa/n_unmatched", i64, "1", "edge points that belong to no track"),
+        DatasetLayout("qa/edge_noise_px", f64, "px", "edge-location noise estimate"),
+        DatasetLayout("qa/measured_fraction", f64, "1", "measured area / area of the plate the reference frame sees"),
+        DatasetLayout("qa/visible_area_mm2", f64, "mm2", "area of the plate the reference frame sees"),
+        DatasetLayout("qa/measured_area_mm2", f64, "mm2", "area of that plate measured in this frame"),
+        *(DatasetLayout(f"qa/missing_{name}_mm2", f64, "mm2", f"area not measured: {MISSING_DESCRIPTIONS[name]}")
+          for name in MISSING_REASONS),
+        DatasetLayout("qa/n_order_conflicts", i64, "1",
+                      "conflicts between the sources of the fringe order (masked, never guessed)"),
+        DatasetLayout("qa/n_order_unresolved", i64, "1", "edge points whose order no anchor reaches (masked)"),
+        DatasetLayout("qa/n_temporal_jumps", i64, "1",
+                      "points whose change of height from the frame before departs from their neighbouring edges' "
+                      "by more than 3/4 of a stripe step (a cross-check of the order); -1: not checked (the first "
+                      "frame, a frame after a gap)"),
+        DatasetLayout("qa/peak_region_coverage", f64, "1",
+                      "share of the grid nodes around the punch (attrs x_mm, y_mm, radius_mm) with data; NaN where "
+                      "the region is unknown"),
+        DatasetLayout("qa/grid_coverage", f64, "1", "grid nodes with data / those of the first frame"),
+    )  # fmt: skip
+
+
+def _create_dataset(file: h5py.File, spec: DatasetLayout, grid: Grid) -> h5py.Dataset:
+    """Make one declared dataset (empty, or the grid's coordinates) with its unit and description."""
+    group_name, name = spec.path.rsplit("/", 1)
+    group = file.require_group(group_name)
+    described = {"unit": spec.unit, "description": spec.description}
+    if spec.grows == "axis":
+        return unit_dataset(group, name, getattr(grid, name), **described)
+    if spec.grows == "column":
+        rows = np.zeros(spec.initial_rows, spec.dtype)
+        return unit_dataset(group, name, rows, maxshape=(None,), chunks=(1024,), **described)
+    compressed: dict[str, Any] = {"compression": "gzip", "compression_opts": GZIP_LEVEL, "shuffle": True}
+    if spec.grows == "points":
+        rows = np.zeros(0, spec.dtype)
+        return unit_dataset(group, name, rows, maxshape=(None,), chunks=(POINTS_CHUNK_ROWS,), **compressed, **described)
+    ny, nx = grid.shape
+    return unit_dataset(group, name, np.zeros((0, ny, nx), spec.dtype), maxshape=(None, ny, nx), chunks=(1, ny, nx),
+                        fillvalue=np.nan, **compressed, **described)  # fmt: skip
+
+
+# The points' columns and what each is stored as (the writer buffers them by these names).
+_POINT_DTYPES = {spec.name: spec.dtype for spec in topography_layout() if spec.grows == "points"}
 
 
 class TopographyWriter:
@@ -175,179 +276,24 @@ class TopographyWriter:
         calibration = file.create_group("calibration")
         for key, value in calibration_attrs.items():
             calibration.attrs[key] = value
-        ny, nx = grid.shape
-        frames = file.create_group("frames")
-        unit_dataset(
-            frames,
-            "index",
-            np.zeros(0, np.int64),
-            unit="1",
-            description="frame index in the recording",
-            maxshape=(None,),
-            chunks=(1024,),
-        )
-        unit_dataset(
-            frames,
-            "camera_frame",
-            np.zeros(0, np.int64),
-            unit="1",
-            description="frame number as the camera counts it (a .cine counts from its trigger frame 0)",
-            maxshape=(None,),
-            chunks=(1024,),
-        )
-        for name, unit, description in (
-            ("time_s", "s", "time of the frame (frames.csv, else the recording's time stamps; see time_source)"),
-            ("punch_displacement_mm", "mm", "punch displacement (frames.csv)"),
-            ("force_kN", "kN", "punch force (frames.csv)"),
-        ):
-            unit_dataset(
-                frames, name, np.zeros(0), unit=unit, description=description, maxshape=(None,), chunks=(1024,)
-            )
-        points = file.create_group("points")
-        unit_dataset(
-            points,
-            "offsets",
-            np.zeros(1, np.int64),
-            unit="1",
-            description="frame i's points are rows offsets[i]:offsets[i+1]",
-            maxshape=(None,),
-            chunks=(1024,),
-        )
-        for name, dtype, unit, description in (
-            ("x_mm", np.float32, "mm", "X of each edge point"),
-            ("y_mm", np.float32, "mm", "Y of each edge point"),
-            ("z_mm", np.float32, "mm", "Z of each edge point (the deflection is z − z_flat_mm)"),
-            ("edge", np.int32, "1", "edge index k in the projector table"),
-            ("line", np.int32, "1", "scan line (image row for axis 'rows', column for 'cols')"),
-            ("sigma_w_mm", np.float32, "mm", "standard deviation of the point's height (edge noise, projector table)"),
-        ):
-            unit_dataset(
-                points,
-                name,
-                np.zeros(0, dtype),
-                unit=unit,
-                description=description,
-                maxshape=(None,),
-                chunks=(POINTS_CHUNK_ROWS,),
-                compression="gzip",
-                compression_opts=GZIP_LEVEL,
-                shuffle=True,
-            )
-        grid_group = file.create_group("grid")
-        unit_dataset(grid_group, "x_mm", grid.x_mm, unit="mm", description="X of the grid nodes")
-        unit_dataset(grid_group, "y_mm", grid.y_mm, unit="mm", description="Y of the grid nodes")
-        for name, description in (
-            ("z_mm", "gridded Z per frame [frame, iy, ix], NaN outside the data"),
-            ("sigma_w_mm", "standard deviation of the gridded height [frame, iy, ix] (its corners' σ interpolated)"),
-        ):
-            unit_dataset(
-                grid_group,
-                name,
-                np.zeros((0, ny, nx), np.float32),
-                unit="mm",
-                description=description,
-                maxshape=(None, ny, nx),
-                chunks=(1, ny, nx),
-                compression="gzip",
-                compression_opts=GZIP_LEVEL,
-                shuffle=True,
-                fillvalue=np.nan,
-            )
+        for spec in topography_layout():
+            _create_dataset(file, spec, grid)
         self._xdmf_views = _start_xdmf_views(file, grid)
         self._views_made = 0
         self.max_edge_mm = max_edge_mm
         # Dimension scales: tools that read HDF5 generically (h5py, HDFView, xarray/h5netcdf) see z_mm's axes.
-        for dim, scale, label in ((0, frames["index"], "frame"), (1, grid_group["y_mm"], "y_mm"),
+        grid_group = file["grid"]
+        for dim, scale, label in ((0, file["frames/index"], "frame"), (1, grid_group["y_mm"], "y_mm"),
                                   (2, grid_group["x_mm"], "x_mm")):  # fmt: skip
             scale.make_scale(label)
             for gridded in (grid_group["z_mm"], grid_group["sigma_w_mm"]):
                 gridded.dims[dim].attach_scale(scale)
                 gridded.dims[dim].label = label
-        peak = file.create_group("peak")
-        for name, description in (
-            ("w_mm", "largest deflection w = z − z_flat of the grid"),
-            ("x_mm", "X of the largest deflection"),
-            ("y_mm", "Y of the largest deflection"),
-            ("centre_x_mm", "X of the centroid of the area above half the peak"),
-            ("centre_y_mm", "Y of the centroid of the area above half the peak"),
-        ):
-            unit_dataset(peak, name, np.zeros(0), unit="mm", description=description, maxshape=(None,), chunks=(1024,))
-        for name, flag_dtype, description in (
-            ("measured", np.int8, "1: the peak was measured (data on all sides of the maximum within radius_mm), "
-             "0: w_mm is only a lower bound"),
-            ("missing_nodes", np.int32, "plate grid nodes within radius_mm of the maximum without data (−1: none "
-             "at all)"),
-        ):  # fmt: skip
-            unit_dataset(
-                peak, name, np.zeros(0, flag_dtype), unit="1", description=description, maxshape=(None,), chunks=(1024,)
-            )
-            peak[name].attrs["radius_mm"] = punch_radius_mm
-        qa = file.create_group("qa")
-        for name, description in (
-            ("n_points", "3-D points of the frame"),
-            ("n_tracks", "tracked (edge, line) points, with or without Z"),
-            ("n_ended", "tracks that ended at this frame"),
-            ("n_out_of_range", "tracked points beyond the calibrated Z range (masked)"),
-            ("n_unmatched", "edge points that belong to no track"),
-        ):
-            unit_dataset(
-                qa, name, np.zeros(0, np.int64), unit="1", description=description, maxshape=(None,), chunks=(1024,)
-            )
-        unit_dataset(
-            qa,
-            "edge_noise_px",
-            np.zeros(0),
-            unit="px",
-            description="edge-location noise estimate",
-            maxshape=(None,),
-            chunks=(1024,),
-        )
-        coverage_columns = [
-            ("measured_fraction", "1", "measured area / area of the plate the reference frame sees"),
-            ("visible_area_mm2", "mm2", "area of the plate the reference frame sees"),
-            ("measured_area_mm2", "mm2", "area of that plate measured in this frame"),
-        ]
-        coverage_columns += [
-            (f"missing_{name}_mm2", "mm2", f"area not measured: {MISSING_DESCRIPTIONS[name]}")
-            for name in MISSING_REASONS
-        ]
-        for name, unit, description in coverage_columns:
-            unit_dataset(qa, name, np.zeros(0), unit=unit, description=description, maxshape=(None,), chunks=(1024,))
-        for name, description in (
-            ("n_order_conflicts", "conflicts between the sources of the fringe order (masked, never guessed)"),
-            ("n_order_unresolved", "edge points whose order no anchor reaches (masked)"),
-            (
-                "n_temporal_jumps",
-                "points whose change of height from the frame before departs from their "
-                "neighbouring edges' by more than 3/4 of a stripe step (a cross-check of the order); -1: not checked "
-                "(the first frame, a frame after a gap)",
-            ),
-        ):
-            unit_dataset(
-                qa, name, np.zeros(0, np.int64), unit="1", description=description, maxshape=(None,), chunks=(1024,)
-            )
-        unit_dataset(
-            qa,
-            "peak_region_coverage",
-            np.zeros(0),
-            unit="1",
-            description="share of the grid nodes around the punch (attrs x_mm, y_mm, radius_mm) with data; NaN "
-            "where the region is unknown",
-            maxshape=(None,),
-            chunks=(1024,),
-        )
+        for name in ("peak/measured", "peak/missing_nodes"):
+            file[name].attrs["radius_mm"] = punch_radius_mm
         if peak_region_mm is not None:
             for key, value in zip(("x_mm", "y_mm", "radius_mm"), peak_region_mm, strict=True):
-                qa["peak_region_coverage"].attrs[key] = float(value)
-        unit_dataset(
-            qa,
-            "grid_coverage",
-            np.zeros(0),
-            unit="1",
-            description="grid nodes with data / those of the first frame",
-            maxshape=(None,),
-            chunks=(1024,),
-        )
+                file["qa/peak_region_coverage"].attrs[key] = float(value)
 
     def __enter__(self) -> TopographyWriter:
         return self
