@@ -111,11 +111,46 @@ def decode_grey(data: bytes, *, name: str) -> np.ndarray:
     return _decode(data, name=name)[0]
 
 
+# Time stamps jitter (a .cine's by about 1 µs, 1 % of a 10 kHz step); a header's rate within 2 % of the stamps'
+# median step is the same rate, a tenfold one (a .cine stating 90 000 fps with stamps 9 000 Hz apart) is not.
+RATE_AGREEMENT = 0.02
+
+
+def frame_rate_from_times(
+    times_s: np.ndarray, *, frame_index: np.ndarray | None = None, stated_hz: float | None = None
+) -> tuple[float | None, float | None]:
+    """The one rule for a recording's frame rate: (rate, stated rate where it differs) from per-frame times.
+
+    The rate is 1 / the median step between consecutive frames (frame_index (n,): the frames' positions, when the
+    times are of some frames only; steps over several frames are divided by their count). stated_hz, the rate a
+    header states, is returned beside it when the two differ by more than RATE_AGREEMENT, and replaces it when they
+    agree (the same rate without the time stamps' jitter and round-off). Fewer than two finite, increasing times:
+    (stated_hz, None).
+
+    >>> frame_rate_from_times(np.arange(5) / 9000.0, stated_hz=90000.0)
+    (9000.0, 90000.0)
+    """
+    times = np.asarray(times_s, np.float64)
+    index = np.arange(len(times)) if frame_index is None else np.asarray(frame_index, np.float64)
+    order = np.argsort(index)
+    steps = np.diff(times[order]) / np.diff(index[order])
+    steps = steps[np.isfinite(steps) & (steps > 0)]
+    if len(steps) == 0:
+        return stated_hz, None
+    rate = 1.0 / float(np.median(steps))
+    if stated_hz and abs(rate - stated_hz) <= RATE_AGREEMENT * stated_hz:
+        return float(stated_hz), None
+    return rate, (float(stated_hz) if stated_hz else None)
+
+
 class FrameSource(Sequence[np.ndarray]):
     """A recording: a lazy sequence of 2-D grey frames with the facts its container states.
 
     format: one of `containers.FORMATS`. frame_names: one name per frame (the entry or file name for image
-    sequences, "frame N" otherwise). fps: the frame rate the container states, or None. bit_depth: significant
+    sequences, "frame N" otherwise). fps: the recording's frame rate: where per-frame times exist, the one they
+    give (`frame_rate_from_times`), else the one the container states, or None. fps_header: the rate the
+    container's header states, kept only where it differs from fps (a .cine whose time stamps are 9 000 Hz apart
+    under a header of 90 000 fps; a Photron recording saved every 36th frame), else None. bit_depth: significant
     bits of a sample as stored (8 or 16; a .cine states its real depth, e.g. 12). colour_converted: colour
     frames were met and converted to grey. frame_numbers: shape (n,), each frame's number as the camera counts
     it (0, 1, ... unless the container says otherwise, e.g. a .cine counts from its trigger). frame_times_s:
@@ -130,6 +165,7 @@ class FrameSource(Sequence[np.ndarray]):
         self.path = path
         self.frame_names: tuple[str, ...] = tuple(frame_names)
         self.fps = fps
+        self.fps_header: float | None = None
         self.bit_depth = bit_depth
         self.colour_converted = False
         self.frame_numbers: np.ndarray = np.arange(len(self.frame_names), dtype=np.int64)
@@ -139,6 +175,18 @@ class FrameSource(Sequence[np.ndarray]):
 
     def __len__(self) -> int:
         return len(self.frame_names)
+
+    def _set_frame_times(self, times_s: np.ndarray, note: str) -> None:
+        """Per-frame times (n,) from the container: they give the frame rate, the header's beside it if it differs."""
+        self.frame_times_s = np.asarray(times_s, np.float64)
+        self.notes.append(note)
+        stated = self.fps
+        self.fps, self.fps_header = frame_rate_from_times(self.frame_times_s, stated_hz=stated)
+        if self.fps_header is not None:
+            self.notes.append(
+                f"frame rate {self.fps:.6g} frames/s from the frame times (median step); the header states "
+                f"{self.fps_header:.6g}"
+            )
 
     @overload
     def __getitem__(self, index: int) -> np.ndarray: ...
@@ -366,11 +414,14 @@ class CineFrames(FrameSource):
         )
         self.frame_numbers = header.frame_numbers
         if header.frame_time_s is not None:
-            self.frame_times_s = header.frame_time_s
-            self.notes.append("frame times from the .cine time stamps, relative to the trigger")
+            self._set_frame_times(
+                header.frame_time_s, "frame times from the .cine time stamps, relative to the trigger"
+            )
         elif header.frame_rate_hz:
-            self.frame_times_s = header.frame_numbers / header.frame_rate_hz
-            self.notes.append("frame times from the .cine frame rate and frame numbers (no time stamps)")
+            self._set_frame_times(
+                header.frame_numbers / header.frame_rate_hz,
+                "frame times from the .cine frame rate and frame numbers (no time stamps)",
+            )
         if header.packing == "P10":
             self.notes.append("P10 packed .cine: grey levels are the camera's companded 10-bit codes, not linear")
         self._handle: BinaryIO | None = None
@@ -400,7 +451,8 @@ class CineFrames(FrameSource):
 class MrawFrames(FrameSource):
     """Frames of a Photron MRAW recording (.mraw data + .cih/.cihx header): 8-bit, 12-bit (packed, unpacked to
     uint16 with numpy) or 16-bit mono, read one frame at a time at its offset. frame_numbers are the camera's
-    (the header's Start Frame; the trigger frame is 0); frame_times_s from those numbers and the record rate."""
+    (the header's Start Frame, then every Save Step; the trigger frame is 0); frame_times_s from those numbers and
+    the record rate."""
 
     format = "mraw"
 
@@ -415,9 +467,13 @@ class MrawFrames(FrameSource):
             bit_depth=header.effective_bits,
         )
         self.frame_numbers = header.frame_numbers
-        if header.frame_rate_hz:
-            self.frame_times_s = header.frame_numbers / header.frame_rate_hz
-            self.notes.append("frame times from the MRAW record rate and start frame (relative to the trigger)")
+        self.notes.extend(header.notes)
+        if header.frame_times_s is not None:
+            step = f", one frame saved every {header.save_step}" if header.save_step > 1 else ""
+            self._set_frame_times(
+                header.frame_times_s,
+                f"frame times from the MRAW record rate and start frame{step} (relative to the trigger)",
+            )
         self._handle: BinaryIO | None = None
         self._pid = 0
 

@@ -103,6 +103,7 @@ def write_cine(
     time_stamps: bool = True,
     jitter_s: float = 0.0,
     compression: int = 0,
+    stamp_fps: float | None = None,
 ) -> Path:
     """A Phantom .cine laid out as a camera writes it: CINEFILEHEADER, BITMAPINFOHEADER, a full SETUP, tagged
     blocks (1002 frame time stamps, 1003 exposures), the frame offsets, then per frame an annotation block
@@ -111,7 +112,8 @@ def write_cine(
     Unpacked frames are stored bottom-up as Phantom writes them; colour frames (rows, cols, 3) as BGR, 24 or 48
     bits; packed frames ("P10", "P12L"; uint16 frames of 10/12-bit values) top-down as a bit stream.
     first_image_no: the camera's number of the first stored frame (trigger frame 0). Frame i is stamped at
-    trigger + (first_image_no + i) / fps + jitter_s * (i % 3 - 1).
+    trigger + (first_image_no + i) / fps + jitter_s * (i % 3 - 1); at stamp_fps instead of fps where given (a
+    header whose rate disagrees with its stamps).
     """
     frame0 = frames[0]
     height, width = frame0.shape[:2]
@@ -128,7 +130,7 @@ def write_cine(
     struct.pack_into("<I", setup, 800, 780)  # software version: every SETUP field present
     struct.pack_into("<I", setup, 896, real_bpp or bits or depth)
     n = len(frames)
-    after_trigger_s = (first_image_no + np.arange(n)) / fps + jitter_s * (np.arange(n) % 3 - 1)
+    after_trigger_s = (first_image_no + np.arange(n)) / (stamp_fps or fps) + jitter_s * (np.arange(n) % 3 - 1)
     blocks = b""
     if time_stamps:
         ticks = [time64(CINE_TRIGGER_TIME_S) + round(t * 2**32) for t in after_trigger_s]
@@ -168,10 +170,15 @@ def write_mraw(
     header: str = "cih",
     effective_bits: int | None = None,
     colour: str = "Mono",
+    camera: str | None = None,
+    save_step: int = 1,
+    trigger_mode: str = "Start",
+    fields: dict[str, object] | None = None,
 ) -> Path:
     """A Photron MRAW as the camera software saves it: `<stem>.mraw` (frames back to back: 8-bit, 12-bit packed
-    big-endian 2 pixels in 3 bytes, or 16-bit little-endian) and `<stem>.cih` (text) or `<stem>.cihx` (binary
-    preamble + XML). Returns the header path."""
+    big-endian 2 pixels in 3 bytes, or 16-bit little-endian) and `<stem>.cih` (text, PFV 3) or `<stem>.cihx` (binary
+    preamble + XML, PFV 4). Returns the header path. save_step: PFV's Save Step (.cihx frameInfo/skipFrame and
+    basicInfo/skipFrame); fields: further or replaced `.cih` lines."""
     height, width = frames[0].shape
     with path.with_suffix(".mraw").open("wb") as out:
         for frame in frames:
@@ -181,26 +188,28 @@ def write_mraw(
                 out.write(frame.astype(np.uint8 if bits == 8 else "<u2").tobytes())
     effective = effective_bits or bits
     if header == "cih":
-        lines = {"Date": "2026/11/23", "Camera Type": "FASTCAM SA-Z type 2100K-M-64GB", "Record Rate(fps)": f"{fps:g}",
-                 "Shutter Speed(s)": "1/100000", "Total Frame": len(frames), "Start Frame": start_frame,
-                 "Correct Trigger Frame": 0, "Original Total Frame": len(frames), "Image Width": width,
-                 "Image Height": height, "Color Type": colour, "Color Bit": bits, "File Format": "MRaw",
-                 "EffectiveBit Depth": effective, "EffectiveBit Side": "Lower", "Comment Text": ""}  # fmt: skip
+        lines = {"Date": "2026/11/23", "Camera Type": camera or "FASTCAM SA-Z type 2100K-M-64GB",
+                 "Record Rate(fps)": f"{fps:g}", "Shutter Speed(s)": "1/100000", "Trigger Mode": trigger_mode,
+                 "Original Total Frame": len(frames) * save_step, "Save Step": save_step, "Total Frame": len(frames),
+                 "Start Frame": start_frame, "Correct Trigger Frame": 0, "Image Width": width, "Image Height": height,
+                 "Color Type": colour, "Color Bit": bits, "File Format": "MRaw", "EffectiveBit Depth": effective,
+                 "EffectiveBit Side": "Lower", "Comment Text": "", "Edge Enhance": "Off", **(fields or {})}  # fmt: skip
         text = "#Camera Information Header\n" + "".join(f"{k} : {v}\n" for k, v in lines.items()) + "\nEND\n"
         target = path.with_suffix(".cih")
         target.write_bytes(text.encode("ascii"))
         return target
     xml = f"""<cih>
 <fileInfo><date>2026/11/23</date><time>04:40</time></fileInfo>
-<deviceInfo><deviceName>FASTCAM Nova S12</deviceName></deviceInfo>
-<recordInfo><recordRate>{fps:g}</recordRate><shutterSpeed>0.00001</shutterSpeed></recordInfo>
-<frameInfo><totalFrame>{len(frames)}</totalFrame><startFrame>{start_frame}</startFrame>
-<recordedFrame>{len(frames)}</recordedFrame></frameInfo>
+<deviceInfo><deviceName>{camera or "FASTCAM Nova S12 type 1000K-M-32GB"}</deviceName></deviceInfo>
+<recordInfo><recordRate>{fps:g}</recordRate><shutterSpeed>0.00001</shutterSpeed>
+<triggerMode>{trigger_mode}</triggerMode></recordInfo>
+<frameInfo><recordedFrame>{len(frames) * save_step}</recordedFrame><totalFrame>{len(frames)}</totalFrame>
+<startFrame>{start_frame}</startFrame><skipFrame>{save_step}</skipFrame></frameInfo>
 <imageDataInfo><resolution><width>{width}</width><height>{height}</height></resolution>
 <colorInfo><type>{colour}</type><bit>{bits}</bit></colorInfo>
 <effectiveBit><depth>{effective}</depth><side>Lower</side></effectiveBit></imageDataInfo>
 <imageFileInfo><fileFormat>MRaw</fileFormat></imageFileInfo>
-<basicInfo><comment>test</comment></basicInfo>
+<basicInfo><skipFrame>{save_step}</skipFrame><comment>test</comment></basicInfo>
 </cih>
 """
     target = path.with_suffix(".cihx")
