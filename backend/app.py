@@ -38,8 +38,8 @@ from backend.polls import SharedPolls
 from backend.security import SecurityHeaders
 from fringelab.core.accounts import TokenCache, dummy_hash
 from fringelab.core.db import make_engine, make_sessionmaker
-from fringelab.core.jobs import reconcile_periodically, reconcile_quietly
 from fringelab.core.queue import create_celery
+from fringelab.core.reconcile import reconcile_periodically, reconcile_quietly
 from fringelab.core.settings import Settings, load_settings
 from fringelab.core.state import AppState
 

@@ -44,20 +44,17 @@ from sqlalchemy import func, select, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, sessionmaker
 
-from fringelab.core.job_kinds import spec_of
-from fringelab.core.jobs import (
+from fringelab.core.broker import (
     CHUNK_DONE_KEEP_S,
     CHUNK_TASK,
-    FINAL_STATES,
     MERGE_TASK,
     WORKER_SEND_RETRY,
-    add_log,
-    as_utc,
     chunk_done_key,
     chunk_task_id,
-    heartbeat_interval_s,
     merge_task_id,
 )
+from fringelab.core.job_kinds import spec_of
+from fringelab.core.jobs import FINAL_STATES, add_log, as_utc, heartbeat_interval_s
 from fringelab.core.models import Job, JobChunk, utcnow
 from fringelab.core.settings import Settings
 from fringelab.formats.atomic import atomic_path

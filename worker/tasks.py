@@ -21,8 +21,8 @@ from typing import Any
 from celery import Task, shared_task
 from sqlalchemy import select
 
+from fringelab.core.broker import CHUNK_TASK, DEMO_ADVANCE_TASK, DEMO_TASK, MERGE_TASK, PING_TASK
 from fringelab.core.job_kinds import JOB_KINDS, JobKind
-from fringelab.core.jobs import CHUNK_TASK, DEMO_ADVANCE_TASK, DEMO_TASK, MERGE_TASK, PING_TASK
 from fringelab.core.models import Job
 from worker.jobs import demo as demo_job
 from worker.runner import ChunkBody, JobBody, MergeBody, run_chunk, run_job, run_merge

@@ -413,7 +413,7 @@ def _terminate_later(state: AppState, job_id: str) -> None:
         try:
             with state.sessions() as session:
                 terminate_unstopped(session, state.celery, job_id, grace_s=grace_s)
-        except Exception:  # the next API start-up closes the job instead (fringelab.core.jobs.reconcile)
+        except Exception:  # the next API start-up closes the job instead (fringelab.core.reconcile)
             log.exception("could not terminate the task of cancelled job %s", job_id)
 
     timer = threading.Timer(grace_s, terminate)

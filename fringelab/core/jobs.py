@@ -1,8 +1,9 @@
 """Jobs: the database row is the source of truth; Celery only carries the work out.
 
 What belongs here: creating a job (row first, then its task by name), checking a spec against the database
-before anything is queued (`fringelab.core.preparation`), cancel, retry, the job log, and reconciling the database
-with the broker after a restart. Route handlers and Celery tasks are thin layers over these functions. The backend
+before anything is queued (`fringelab.core.preparation`), cancel, retry, progress and the job log. What is said to
+the broker and read from it is `fringelab.core.broker`; reconciling the database with the broker after a restart,
+`fringelab.core.reconcile`. Route handlers and Celery tasks are thin layers over these functions. The backend
 never imports task code: each job kind's entry in `fringelab.core.job_kinds` names its task.
 
 State machine (the `state` column):
@@ -27,74 +28,37 @@ fire the merge early; a row that goes `-> done` once cannot.
 
 from __future__ import annotations
 
-import contextlib
-import json
-import logging
 import uuid
-from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
-from datetime import UTC, date, datetime, timedelta
+from collections.abc import Sequence
+from datetime import UTC, date, datetime
 from typing import Any, overload
 
-import redis
 from celery import Celery
 from kombu.exceptions import OperationalError
 from pydantic import BaseModel
 from sqlalchemy import select, update
-from sqlalchemy.exc import SQLAlchemyError
-from sqlalchemy.orm import Session, sessionmaker
+from sqlalchemy.orm import Session
 
 from fringelab import __version__
 from fringelab.core.accounts import Principal, access_level, audit, can_access
+from fringelab.core.broker import DEMO_TASK, job_task_ids, revoke
 from fringelab.core.errors import Conflict, Forbidden, NotFound, Unavailable
-from fringelab.core.job_kinds import job_kind, kind_of, spec_of
+from fringelab.core.job_kinds import kind_of, spec_of
 from fringelab.core.models import (
     Experiment,
     Job,
-    JobChunk,
     JobLog,
     utcnow,
 )
 from fringelab.core.preparation import Authorize, NotVisible, Prepared, job_error, nobody_checks, prepare_inputs
 from fringelab.core.settings import Settings
 
-CHUNK_TASK = "fringelab.job_chunk"
-MERGE_TASK = "fringelab.job_merge"
-DEMO_TASK = "fringelab.demo"  # makes a virtual experiment; its jobs are ordinary jobs
-DEMO_ADVANCE_TASK = "fringelab.demo_advance"
-PING_TASK = "fringelab.ping"
-
-# How workers send the tasks that continue a job (chunks, merge): while Redis restarts they wait for it, up to
-# about two minutes, rather than drop the job's next step. The API does not wait: it answers 503 at once.
-WORKER_SEND_RETRY = {"max_retries": 60, "interval_start": 0.5, "interval_step": 0.5, "interval_max": 2.0}
-
 ACTIVE_STATES = ("queued", "running")
 FINAL_STATES = ("succeeded", "failed", "cancelled")
-
-MAX_REQUEUES = 3  # a job lost more often than this is failed instead of re-queued again
-log = logging.getLogger(__name__)
 
 
 class QueueUnavailable(Exception):
     """The broker did not take the task; the job is marked failed with the reason."""
-
-
-def chunk_task_id(job_id: str, phase: int, index: int) -> str:
-    return f"{job_id}:{phase}:{index}"
-
-
-def merge_task_id(job_id: str, phase: int) -> str:
-    return f"{job_id}:merge:{phase}"
-
-
-CHUNK_DONE_KEEP_S = 3600  # a list nobody pops (its merge died) is gone after this
-
-
-def chunk_done_key(job_id: str, phase: int) -> str:
-    """A Redis list each chunk task pushes its index to when it is done, so that the phase's merge, waiting for a
-    chunk, wakes at once instead of polling the database. The database stays the truth: a push that is lost only
-    delays the merge until its wait times out."""
-    return f"fringelab:chunk-done:{job_id}:{phase}"
 
 
 @overload
@@ -255,21 +219,6 @@ def start_job_as(session: Session, celery: Celery, principal: Principal, spec: B
 # ------------------------------------------------------------------------------------------- cancel and retry
 
 
-def job_task_ids(session: Session, job: Job) -> list[str]:
-    """Every Celery task id this job may have in flight: its entry task, its chunks and its merge."""
-    chunks = session.execute(select(JobChunk.phase, JobChunk.index).where(JobChunk.job_id == job.id)).all()
-    merges = [merge_task_id(job.id, phase) for phase in range(job.phase + 1)]
-    return [job.id, *(chunk_task_id(job.id, phase, index) for phase, index in chunks), *merges]
-
-
-def _revoke(celery: Celery, task_ids: list[str], *, terminate: bool) -> str:
-    try:
-        celery.control.revoke(task_ids, terminate=terminate, signal="SIGTERM")
-    except (OperationalError, redis.RedisError, OSError) as error:
-        return f"; the queue could not be told ({error}), so waiting tasks are skipped when a worker takes them"
-    return ""
-
-
 def cancel_job(session: Session, celery: Celery, job_id: str) -> Job:
     """Cancel a queued or running job: the state changes now; a queued task is revoked, a running one stops at
     its next frame (cooperative; every pool). `terminate_unstopped` ends one that does not (prefork)."""
@@ -293,7 +242,7 @@ def cancel_job(session: Session, celery: Celery, job_id: str) -> Job:
         # task revoked would have nobody left to say that it stopped), and the rest return at once.
         add_log(session, job.id, "cancel requested: the worker stops after its current frame")
     else:
-        note = _revoke(celery, [job.id], terminate=False)
+        note = revoke(celery, [job.id], terminate=False)
         add_log(session, job.id, "cancelled before it started" + note)
     session.commit()
     session.refresh(job)
@@ -306,7 +255,7 @@ def terminate_unstopped(session: Session, celery: Celery, job_id: str, *, grace_
     job = session.get(Job, job_id)
     if job is None or job.state != "cancelled" or job.finished_at is not None:
         return False
-    note = _revoke(celery, job_task_ids(session, job), terminate=True)
+    note = revoke(celery, job_task_ids(session, job), terminate=True)
     done = session.execute(
         update(Job).where(Job.id == job.id, Job.finished_at.is_(None)).values(finished_at=utcnow())
     ).rowcount  # type: ignore[attr-defined]
@@ -358,267 +307,9 @@ def eta_seconds(job: Job, *, now: datetime | None = None) -> float | None:
     return elapsed / job.progress_done * (job.progress_total - job.progress_done)
 
 
-# ------------------------------------------------------------------------------------------ reconciliation
-
-
-@dataclass(frozen=True)
-class Delivery:
-    """A message delivered to a worker and not yet acknowledged: kombu's delivery tag and when it was handed out."""
-
-    tag: str
-    delivered_at: datetime
-
-
-@dataclass(frozen=True)
-class BrokerTasks:
-    """What the broker holds, by task id: `waiting` in a queue, `delivered` to a worker and unacknowledged."""
-
-    waiting: set[str]
-    delivered: dict[str, Delivery]
-
-
-UNACKED, UNACKED_INDEX = "unacked", "unacked_index"  # kombu's Redis keys of delivered, unacknowledged messages
-
-
-def broker_tasks(redis_url: str, queues: Iterable[str]) -> BrokerTasks:
-    """Read kombu's Redis layout: one list per queue and priority (`name`, `name\x06\x16<p>`), the `unacked`
-    hash (tag -> `[message, exchange, routing_key]`) and the `unacked_index` sorted set (tag -> delivery time)."""
-    client = redis.Redis.from_url(redis_url, socket_timeout=10, socket_connect_timeout=5)
-    try:
-        waiting: list[bytes] = []
-        for queue in queues:
-            for key in (queue, *(f"{queue}\x06\x16{p}" for p in (3, 6, 9))):
-                waiting.extend(client.lrange(key, 0, -1))  # type: ignore[arg-type]
-        unacked = client.hgetall(UNACKED)
-        index = dict(client.zrange(UNACKED_INDEX, 0, -1, withscores=True))  # type: ignore[arg-type]
-    finally:
-        client.close()
-
-    def task_id(message: dict[str, Any]) -> str | None:
-        return (message.get("headers") or {}).get("id")
-
-    delivered = {}
-    for tag, raw in unacked.items():
-        found = task_id(json.loads(raw)[0])
-        if found:
-            moment = datetime.fromtimestamp(index.get(tag, 0.0), UTC)
-            delivered[found] = Delivery(tag=tag.decode() if isinstance(tag, bytes) else tag, delivered_at=moment)
-    return BrokerTasks(waiting={t for raw in waiting if (t := task_id(json.loads(raw)))}, delivered=delivered)
-
-
-def forget_delivery(redis_url: str, delivery: Delivery) -> None:
-    """Drop a delivery whose worker is gone, so that kombu does not hand it out again after the visibility timeout
-    (the task is sent anew instead; were its worker alive after all, its acknowledgement finds nothing: harmless)."""
-    client = redis.Redis.from_url(redis_url, socket_timeout=10, socket_connect_timeout=5)
-    try:
-        pipeline = client.pipeline()
-        pipeline.hdel(UNACKED, delivery.tag)
-        pipeline.zrem(UNACKED_INDEX, delivery.tag)
-        pipeline.execute()
-    finally:
-        client.close()
-
-
-def tasks_held_by_live_workers(celery: Celery, *, timeout_s: float) -> set[str]:
-    """Ids of the tasks live workers report as running or reserved (a bounded broadcast; none answer: empty)."""
-    inspector = celery.control.inspect(timeout=timeout_s)
-    held: set[str] = set()
-    for replies in (inspector.active(), inspector.reserved()):
-        for requests in (replies or {}).values():
-            held.update(request["id"] for request in requests)
-    return held
-
-
-@dataclass(frozen=True)
-class TaskToSend:
-    """A task an active job needs, with what the database knows of its run: `started` (a worker began it) and
-    `last_sign_s` (when the run, or the job if it has not started, last showed life)."""
-
-    name: str
-    args: list[Any]
-    task_id: str
-    started: bool
-    last_sign: datetime | None
-
-
-def _latest(*moments: datetime | None) -> datetime | None:
-    known = [as_utc(m) for m in moments if m is not None]
-    return max(known) if known else None
-
-
-def tasks_in_flight(session: Session, job: Job) -> list[TaskToSend]:
-    """The tasks that must exist somewhere for this active job to progress, from what the database records."""
-    chunks = list(
-        session.scalars(
-            select(JobChunk).where(JobChunk.job_id == job.id, JobChunk.phase == job.phase).order_by(JobChunk.index)
-        )
-    )
-    job_sign = _latest(job.heartbeat_at, job.created_at)
-    if job.state == "queued" or not chunks:
-        running = job.state == "running"
-        sign = as_utc(job.heartbeat_at) if running else as_utc(job.created_at)
-        return [TaskToSend(job_kind(job.kind).task, [job.id], job.id, running, sign)]
-    pending = [c for c in chunks if c.state != "done"]
-    if pending:
-        return [
-            TaskToSend(
-                CHUNK_TASK,
-                [job.id, c.phase, c.index],
-                chunk_task_id(job.id, c.phase, c.index),
-                c.state == "running",
-                as_utc(c.heartbeat_at) if c.state == "running" else job_sign,
-            )
-            for c in pending
-        ]
-    queued_at, beat = as_utc(job.merge_queued_at), as_utc(job.heartbeat_at)
-    merging = queued_at is not None and beat is not None and beat >= queued_at  # run_merge beats as it starts
-    return [TaskToSend(MERGE_TASK, [job.id, job.phase], merge_task_id(job.id, job.phase), merging, job_sign)]
-
-
-def is_lost(
-    task: TaskToSend, broker: BrokerTasks, *, now: datetime, lost_after_s: float, live: Callable[[], set[str]]
-) -> bool:
-    """Whether a task an active job needs exists nowhere any more. Waiting in a queue: not lost. Delivered but not
-    started: lost only if no live worker (`live()`, asked only then) holds it after `lost_after_s` (its worker
-    died with it reserved). Otherwise (started, or not in the broker): lost when its run, or the job, has shown
-    no sign of life for `lost_after_s` (a run whose message Redis lost still finishes, and a message passing
-    from the queue to a worker is briefly in neither place)."""
-    limit = now - timedelta(seconds=lost_after_s)
-    if task.task_id in broker.waiting:
-        return False
-    delivery = broker.delivered.get(task.task_id)
-    if delivery is not None and not task.started:
-        return delivery.delivered_at < limit and task.task_id not in live()
-    return task.last_sign is None or task.last_sign < limit
-
-
-def _recently_alive(session: Session, job: Job, now: datetime, lost_after_s: float) -> bool:
-    beats = [as_utc(job.heartbeat_at)]
-    beats += [as_utc(b) for b in session.scalars(select(JobChunk.heartbeat_at).where(JobChunk.job_id == job.id))]
-    limit = now - timedelta(seconds=lost_after_s)
-    return any(b is not None and b > limit for b in beats)
-
-
-def reconcile(
-    session: Session,
-    celery: Celery,
-    *,
-    redis_url: str,
-    queues: Iterable[str],
-    lost_after_s: float,
-    inspect_timeout_s: float = 1.0,
-) -> list[str]:
-    """Make the broker hold every task the database says an active job needs (at API start-up and then every
-    FRINGELAB_RECONCILE_INTERVAL_S).
-
-    Lost tasks (`is_lost`: Redis restarted without its append-only file, a whole worker died with the message)
-    are sent again (every task is idempotent), or the job fails with the reason after MAX_REQUEUES. A cancelled
-    job whose worker never confirmed is closed. Returns one line per action, also written to each job's log.
-    """
-    broker = broker_tasks(redis_url, queues)  # read the broker BEFORE the database: a task acked in between
-    now = utcnow()  # has already written its final state, so it is not mistaken for a lost one
-    actions: list[str] = []
-    asked: list[set[str]] = []
-
-    def live() -> set[str]:
-        if not asked:
-            asked.append(tasks_held_by_live_workers(celery, timeout_s=inspect_timeout_s))
-        return asked[0]
-
-    for job in session.scalars(select(Job).where(Job.state.in_(ACTIVE_STATES)).order_by(Job.created_at)).all():
-        session.refresh(job)
-        wanted = tasks_in_flight(session, job)
-        lost = [t for t in wanted if is_lost(t, broker, now=now, lost_after_s=lost_after_s, live=live)]
-        if not lost:
-            continue
-        if job.requeues >= MAX_REQUEUES:
-            message = (
-                f"the job queue lost this job {job.requeues + 1} times (a worker may be crashing on it, e.g. out "
-                "of memory; see the worker log); retry it, with fewer frames per chunk if memory is short"
-            )
-            done = session.execute(
-                update(Job)
-                .where(Job.id == job.id, Job.state.in_(ACTIVE_STATES))
-                .values(state="failed", error=message, finished_at=now)
-            ).rowcount  # type: ignore[attr-defined]
-            if done:
-                add_log(session, job.id, message, level="error")
-                actions.append(f"{job.id}: failed ({message})")
-            session.commit()
-            continue
-        job.requeues += 1
-        message = (
-            f"the job queue no longer held this {job.state} job (Redis restarted without its data, or its worker "
-            f"vanished); re-queued {len(lost)} task(s) (re-queue {job.requeues} of {MAX_REQUEUES})"
-        )
-        add_log(session, job.id, message, level="warning")
-        session.commit()
-        for task in lost:
-            if task.task_id in broker.delivered:
-                forget_delivery(redis_url, broker.delivered[task.task_id])
-            celery.send_task(task.name, args=task.args, task_id=task.task_id, ignore_result=True)
-        actions.append(f"{job.id}: {message}")
-    stuck = select(Job).where(Job.state == "cancelled", Job.finished_at.is_(None))
-    for job in session.scalars(stuck).all():
-        if not _recently_alive(session, job, now, lost_after_s):
-            _revoke(celery, job_task_ids(session, job), terminate=True)
-            job.finished_at = now
-            add_log(session, job.id, "closed the cancelled job: its worker is gone")
-            actions.append(f"{job.id}: closed after cancel")
-    session.commit()
-    return actions
-
-
-RECONCILE_LOCK = "fringelab:reconcile-lock"
-RECONCILE_LOCK_S = 120  # longer than a reconciliation takes; a process that died holding it frees it by then
-
-
-def reconcile_quietly(sessions: sessionmaker[Session], celery: Celery, settings: Settings) -> list[str]:
-    """`reconcile` as the API runs it: a broker or database that is down is logged, not fatal (the health
-    endpoint reports it, and the next round reconciles). One API process at a time (a lock in Redis): two
-    processes reading the broker at once could both find a task lost and send it twice."""
-    from fringelab.core.queue import QUEUE
-
-    try:
-        connection = redis.Redis.from_url(settings.redis_url, socket_timeout=5, socket_connect_timeout=5)
-        lock = connection.lock(RECONCILE_LOCK, timeout=RECONCILE_LOCK_S, blocking=False)
-        if not lock.acquire():
-            connection.close()
-            return []  # another API process is reconciling right now
-        try:
-            with sessions() as session:
-                actions = reconcile(
-                    session,
-                    celery,
-                    redis_url=settings.redis_url,
-                    queues=[QUEUE],
-                    lost_after_s=settings.worker_lost_after_s,
-                    inspect_timeout_s=settings.health_worker_timeout_s,
-                )
-        finally:
-            with contextlib.suppress(redis.RedisError):
-                lock.release()
-            connection.close()
-    except (SQLAlchemyError, redis.RedisError, OperationalError, OSError) as error:
-        log.warning("jobs not reconciled with the queue: %s", error)
-        return []
-    for action in actions:
-        log.warning("reconciled job %s", action)
-    return actions
-
-
 def heartbeat_interval_s(settings: Settings) -> float:
     """How often a running task reports: often enough that `worker_lost_after_s` means a dead worker."""
     return min(10.0, settings.worker_lost_after_s / 6)
-
-
-async def reconcile_periodically(sessions: sessionmaker[Session], celery: Celery, settings: Settings) -> None:
-    """The API's sweep: `reconcile_quietly` every FRINGELAB_RECONCILE_INTERVAL_S, in a thread, until cancelled."""
-    import anyio
-
-    while True:
-        await anyio.sleep(settings.reconcile_interval_s)
-        await anyio.to_thread.run_sync(reconcile_quietly, sessions, celery, settings)
 
 
 def start_demo(

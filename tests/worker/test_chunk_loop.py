@@ -13,8 +13,8 @@ from collections.abc import Iterator
 import pytest
 from sqlalchemy import select
 
+from fringelab.core.broker import CHUNK_TASK
 from fringelab.core.db import make_engine, make_sessionmaker
-from fringelab.core.jobs import CHUNK_TASK
 from fringelab.core.models import Job, JobChunk, utcnow
 from fringelab.core.settings import Settings
 from worker.app import create_worker_app

@@ -8,9 +8,10 @@ import pytest
 from fastapi.testclient import TestClient
 
 from backend.app import create_app
+from fringelab.core.broker import BrokerTasks, Delivery
 from fringelab.core.db import make_engine, make_sessionmaker
-from fringelab.core.jobs import MAX_REQUEUES, BrokerTasks, Delivery, TaskToSend, is_lost
 from fringelab.core.models import Job, JobChunk, utcnow
+from fringelab.core.reconcile import MAX_REQUEUES, TaskToSend, is_lost
 from tests.worker.conftest import log_messages, wait_job
 
 SELFTEST = {"kind": "selftest", "frames": 12, "frame_size_px": 32, "chunk_frames": 4}
