@@ -8,6 +8,7 @@ labelled. The VTK series of both are written by one writer (`write_surface_serie
 
 from __future__ import annotations
 
+import io
 import shutil
 import time
 import warnings
@@ -69,7 +70,8 @@ class SpreadsheetLimitWarning(UserWarning):
 def export_points_csv(
     result: TopographyResult, path: str | Path, *, frames: FrameRange | None = None, per_frame: bool = False
 ) -> Path:
-    """CSV of every 3-D point: frame,x_mm,y_mm,z_mm (written frame by frame).
+    """CSV of every 3-D point: frame,x_mm,y_mm,z_mm,w_mm,sigma_w_mm (w = z − z_flat_mm, σ_w its standard
+    deviation, empty where unknown; written frame by frame).
 
     per_frame: write one CSV per frame into the folder `path` (frame_<n>.csv, same columns) instead, so each opens
     in a spreadsheet. A single file of more than SPREADSHEET_MAX_ROWS rows is still written whole (scripts read
@@ -98,35 +100,45 @@ def export_points_csv(
 
 
 def _write_points(out: Any, result: TopographyResult, positions: list[int], *, progress: bool = False) -> None:
-    out.write("frame,x_mm,y_mm,z_mm\n")
+    out.write("frame,x_mm,y_mm,z_mm,w_mm,sigma_w_mm\n")
     for k, i in enumerate(positions):
         points = result.points(i)
-        block = np.column_stack([np.full(len(points), result.frames[i]), points])
-        np.savetxt(out, block, fmt=["%d", "%.4f", "%.4f", "%.4f"], delimiter=",")
+        sigma = result.sigma_points(i)
+        sigma = np.full(len(points), np.nan) if sigma is None else sigma
+        block = np.column_stack([np.full(len(points), result.frames[i]), points, points[:, 2] - result.z_flat_mm,
+                                 sigma])  # fmt: skip
+        text = io.StringIO()
+        np.savetxt(text, block, fmt=["%d", "%.4f", "%.4f", "%.4f", "%.4f", "%.4f"], delimiter=",")
+        out.write(text.getvalue().replace("nan", ""))  # unknown σ: an empty cell
         if progress:
             _tick(k + 1, len(positions), "points")
 
 
 def read_points_csv(path: str | Path) -> np.ndarray:
-    """The rows (P, 4) frame, x_mm, y_mm, z_mm of a points CSV."""
-    return np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    """The rows (P, 6) frame, x_mm, y_mm, z_mm, w_mm, sigma_w_mm of a points CSV (NaN where a cell is empty)."""
+    return np.genfromtxt(path, delimiter=",", skip_header=1, ndmin=2, filling_values=np.nan)
 
 
-def _grid_stack(result: TopographyResult, positions: np.ndarray) -> np.ndarray:
-    def frame(k: int, i: int) -> np.ndarray:
+def _grid_stacks(result: TopographyResult, positions: np.ndarray, *names: str) -> dict[str, np.ndarray]:
+    """The stacks (frames, ny, nx) float32 of "z_mm", "w_mm" (z − z_flat) and "sigma_w_mm" (NaN: unknown) asked
+    for, read frame by frame (progress per frame)."""
+    stacks = {name: np.empty((len(positions), *result.grid.shape), np.float32) for name in names}
+    for k, i in enumerate(positions):
+        z = result.file["grid/z_mm"][i]
+        for name, stack in stacks.items():
+            if name == "sigma_w_mm":
+                sigma = result.sigma_grid(i)
+                stack[k] = np.nan if sigma is None else sigma
+            else:
+                stack[k] = z - np.float32(result.z_flat_mm) if name == "w_mm" else z
         _tick(k + 1, len(positions), "grids")
-        return result.file["grid/z_mm"][i]
-
-    return (
-        np.stack([frame(k, i) for k, i in enumerate(positions)])
-        if len(positions)
-        else np.zeros((0, *result.grid.shape), np.float32)
-    )
+    return stacks
 
 
 def export_grid_npz(result: TopographyResult, path: str | Path, *, frames: FrameRange | None = None) -> Path:
-    """NPZ with x_mm (nx), y_mm (ny), z_mm (frames, ny, nx) NaN outside the data, frames (recording indices),
-    and z_flat_mm (w = z − z_flat_mm). Holds the whole grid stack in memory (as `numpy.load` will)."""
+    """NPZ with x_mm (nx), y_mm (ny), z_mm, w_mm (= z − z_flat_mm) and sigma_w_mm (σ of w; NaN: unknown)
+    (frames, ny, nx) NaN outside the data, frames (recording indices), and z_flat_mm. Holds the grid stacks in
+    memory (as `numpy.load` will)."""
     path = Path(path)
     positions = frame_positions(result, frames)
     with atomic_path(path) as temp, open(temp, "wb") as out:
@@ -134,7 +146,7 @@ def export_grid_npz(result: TopographyResult, path: str | Path, *, frames: Frame
             out,
             x_mm=result.grid.x_mm,
             y_mm=result.grid.y_mm,
-            z_mm=_grid_stack(result, positions),
+            **_grid_stacks(result, positions, "z_mm", "w_mm", "sigma_w_mm"),
             frames=result.frames[positions],
             z_flat_mm=np.float64(result.z_flat_mm),
         )
@@ -152,7 +164,11 @@ _MAT_UNITS = {
 
 
 def _mat_variables(result: TopographyResult, positions: np.ndarray) -> dict[str, Any]:
-    """The small variables of the MAT export (the grid stack and the points are written separately)."""
+    """The small variables of the MAT export (the grid stacks and the points are written separately).
+
+    peak_w_mm is NaN where the frame's peak was not measured (docs/method.md §8): there peak_w_lower_bound_mm holds
+    the largest measured w; peak_measured is 1, 0 or NaN (unknown, a result written before the flag)."""
+    peaks, measured = result.column("peak/w_mm")[positions], result.peak_measured()[positions]
     return {
         "x_mm": result.grid.x_mm,
         "y_mm": result.grid.y_mm,
@@ -161,7 +177,9 @@ def _mat_variables(result: TopographyResult, positions: np.ndarray) -> dict[str,
         "time_s": result.column("frames/time_s")[positions],
         "punch_displacement_mm": result.column("frames/punch_displacement_mm")[positions],
         "force_kN": result.column("frames/force_kN")[positions],
-        "peak_w_mm": result.column("peak/w_mm")[positions],
+        "peak_w_mm": np.where(measured == 0.0, np.nan, peaks),
+        "peak_measured": measured,
+        "peak_w_lower_bound_mm": np.where(measured == 0.0, peaks, np.nan),
         "z_flat_mm": result.z_flat_mm,
     }
 
@@ -174,10 +192,12 @@ def export_mat(
     version: MatVersion = "auto",
     v5_max_variable_bytes: int | None = None,
 ) -> Path:
-    """MATLAB .mat: grid x_mm, y_mm, z_mm (frames × ny × nx, single), frames, camera_frames, time_s,
-    punch_displacement_mm, force_kN, peak_w_mm, z_flat_mm, points (P × 4 single: frame, x_mm, y_mm, z_mm), units.
+    """MATLAB .mat: grid x_mm, y_mm, w_mm (the deflection), sigma_w_mm (its σ; NaN: unknown) and z_mm (frames ×
+    ny × nx, single), frames, camera_frames, time_s, punch_displacement_mm, force_kN, peak_w_mm (NaN where not
+    measured), peak_measured, peak_w_lower_bound_mm, z_flat_mm, points (P × 6 single: frame, x_mm, y_mm, z_mm,
+    w_mm, sigma_w_mm), units.
 
-    z_mm and points are single precision: the result stores them as float32, so double would add bytes, not
+    The grids and points are single precision: the result stores them as float32, so double would add bytes, not
     digits. version "auto" writes v5 (scipy.io.savemat, compressed) while every variable fits v5's 2 GB per
     variable (a 1024² grid passes it after ~500 frames), else v7.3 (HDF5, written frame by frame; MATLAB `load`,
     h5py, or `mat73` in Python read it).
@@ -186,25 +206,34 @@ def export_mat(
     positions = frame_positions(result, frames)
     ny, nx = result.grid.shape
     n_points = sum(int(result.offsets[i + 1] - result.offsets[i]) for i in positions)
-    largest = max(len(positions) * ny * nx * 4, n_points * 4 * 4)
+    largest = max(len(positions) * ny * nx * 4, n_points * POINT_COLUMNS * 4)
     limit = MAT_V5_MAX_VARIABLE_BYTES if v5_max_variable_bytes is None else v5_max_variable_bytes
     if version == "7.3" or (version == "auto" and largest > limit):
         return _export_mat_v73(result, path, positions, n_points)
     from scipy.io import savemat
 
-    points = [
-        np.column_stack([np.full(len(p), result.frames[i]), p]).astype(np.float32)
-        for i, p in ((i, result.points(i)) for i in positions)
-    ]
+    points = [_point_rows(result, i) for i in positions]
     data = {
         **_mat_variables(result, positions),
-        "z_mm": _grid_stack(result, positions).astype(np.float32),
-        "points": np.vstack(points) if points else np.zeros((0, 4), np.float32),
+        **_grid_stacks(result, positions, "w_mm", "sigma_w_mm", "z_mm"),
+        "points": np.vstack(points) if points else np.zeros((0, POINT_COLUMNS), np.float32),
         "units": _MAT_UNITS,
     }
     with atomic_path(path) as temp, open(temp, "wb") as out:
         savemat(out, data, do_compression=True)
     return path
+
+
+POINT_COLUMNS = 6  # frame, x_mm, y_mm, z_mm, w_mm, sigma_w_mm
+
+
+def _point_rows(result: TopographyResult, i: int) -> np.ndarray:
+    """Frame position i's points as rows (N, POINT_COLUMNS) float32 of the MAT export."""
+    points = result.points(i)
+    sigma = result.sigma_points(i)
+    sigma = np.full(len(points), np.nan) if sigma is None else sigma
+    columns = [np.full(len(points), result.frames[i]), points, points[:, 2] - result.z_flat_mm, sigma]
+    return np.column_stack(columns).astype(np.float32)
 
 
 def _export_mat_v73(result: TopographyResult, path: Path, positions: np.ndarray, n_points: int) -> Path:
@@ -220,18 +249,25 @@ def _export_mat_v73(result: TopographyResult, path: Path, positions: np.ndarray,
                 array = np.asarray(value, dtype=np.float64)
                 array = array.reshape(1, 1) if array.ndim == 0 else array.reshape(-1, 1)  # MATLAB 1 × n
                 _mat_dataset(file, name, array, "double")
-            z = file.create_dataset("z_mm", shape=(nx, ny, n), dtype=np.float32, chunks=(nx, ny, 1) if n else None,
-                                    compression="gzip", compression_opts=1, fillvalue=np.nan)  # fmt: skip
-            z.attrs["MATLAB_class"] = np.bytes_("single")
-            points = file.create_dataset("points", shape=(4, n_points), dtype=np.float32,
-                                         chunks=(4, min(max(n_points, 1), 1 << 16)), compression="gzip",
+            stacks = {}
+            for name in ("w_mm", "sigma_w_mm", "z_mm"):
+                stacks[name] = file.create_dataset(name, shape=(nx, ny, n), dtype=np.float32,
+                                                   chunks=(nx, ny, 1) if n else None, compression="gzip",
+                                                   compression_opts=1, fillvalue=np.nan)  # fmt: skip
+                stacks[name].attrs["MATLAB_class"] = np.bytes_("single")
+            points = file.create_dataset("points", shape=(POINT_COLUMNS, n_points), dtype=np.float32,
+                                         chunks=(POINT_COLUMNS, min(max(n_points, 1), 1 << 16)), compression="gzip",
                                          compression_opts=1)  # fmt: skip
             points.attrs["MATLAB_class"] = np.bytes_("single")
             start = 0
             for k, i in enumerate(positions):
-                z[:, :, k] = result.file["grid/z_mm"][i].T
-                block = result.points(i)
-                rows = np.column_stack([np.full(len(block), result.frames[i]), block]).astype(np.float32)
+                z_frame = result.file["grid/z_mm"][i]
+                sigma = result.sigma_grid(i)
+                stacks["z_mm"][:, :, k] = z_frame.T
+                stacks["w_mm"][:, :, k] = (z_frame - np.float32(result.z_flat_mm)).T
+                if sigma is not None:
+                    stacks["sigma_w_mm"][:, :, k] = sigma.astype(np.float32).T
+                rows = _point_rows(result, i)
                 points[:, start : start + len(rows)] = rows.T
                 start += len(rows)
                 _tick(k + 1, n, "frames")
@@ -309,7 +345,8 @@ def write_surface_series(
 
 def export_vtk(result: TopographyResult, path: str | Path, *, frames: FrameRange | None = None) -> Path:
     """A ParaView time series (`write_surface_series`): per frame the gridded surface at its measured height, with
-    point data z_mm and w_mm; each frame at its time (time_s where logged, else the frame index)."""
+    point data z_mm, w_mm and sigma_w_mm (σ of w; NaN: unknown); each frame at its time (time_s where logged,
+    else the frame index)."""
     times = result.column("frames/time_s")
     positions = frame_positions(result, frames)
 
@@ -318,7 +355,9 @@ def export_vtk(result: TopographyResult, path: str | Path, *, frames: FrameRange
             frame = int(result.frames[i])
             z = result.z_grid(i)
             time_s = float(times[i]) if np.isfinite(times[i]) else float(frame)
-            yield frame, time_s, z, {"z_mm": z, "w_mm": z - result.z_flat_mm}
+            sigma = result.sigma_grid(i)
+            sigma = np.full(z.shape, np.nan) if sigma is None else sigma
+            yield frame, time_s, z, {"z_mm": z, "w_mm": z - result.z_flat_mm, "sigma_w_mm": sigma}
 
     return write_surface_series(path, result.grid, surfaces(), count=len(positions))
 
@@ -353,7 +392,8 @@ def export_profile_csv(
     frames: FrameRange | None = None,
 ) -> Path:
     """CSV of section profiles along lines X0,Y0 → X1,Y1 (mm) for every frame, sampled on the result grid:
-    line,frame,time_s,s_mm,x_mm,y_mm,z_mm,w_mm (s along the line; NaN where the grid has no data). `lines` are
+    line,frame,time_s,s_mm,x_mm,y_mm,z_mm,w_mm,sigma_w_mm (s along the line; NaN where the grid has no data or
+    σ is unknown). `lines` are
     labelled A, B, … in their order (as the viewer names them); `line` is one line labelled A; neither: a line
     along X through the punch axis."""
     path = Path(path)
@@ -365,14 +405,20 @@ def export_profile_csv(
     positions = frame_positions(result, frames)
     times = result.column("frames/time_s")
     with atomic_path(path) as temp, open(temp, "w", newline="") as out:
-        out.write("line,frame,time_s,s_mm,x_mm,y_mm,z_mm,w_mm\n")
+        out.write("line,frame,time_s,s_mm,x_mm,y_mm,z_mm,w_mm,sigma_w_mm\n")
         done, total = 0, len(chosen) * len(positions)
         for label, (x0, y0, x1, y1) in zip(LINE_LABELS, chosen, strict=False):
             for i in positions:
                 done += 1
                 _tick(done, total, "profiles")
                 profile = line_profile(result.z_grid(i), result.grid, (x0, y0), (x1, y1))
+                sigma_grid = result.sigma_grid(i)
                 m = len(profile.s_mm)
+                sigma = (
+                    np.full(m, np.nan)
+                    if sigma_grid is None
+                    else line_profile(sigma_grid, result.grid, (x0, y0), (x1, y1)).values
+                )
                 block = np.column_stack(
                     [
                         np.full(m, result.frames[i]),
@@ -382,12 +428,13 @@ def export_profile_csv(
                         profile.y_mm,
                         profile.values,
                         profile.values - result.z_flat_mm,
+                        sigma,
                     ]
                 )
                 for row in block:
                     out.write(
                         f"{label},{int(row[0])},{row[1]:.6g},{row[2]:.4f},{row[3]:.4f},{row[4]:.4f},"
-                        f"{row[5]:.4f},{row[6]:.4f}\n"
+                        f"{row[5]:.4f},{row[6]:.4f},{row[7]:.4f}\n"
                     )
     return path
 

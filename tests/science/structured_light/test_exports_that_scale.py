@@ -36,13 +36,16 @@ def test_mat_v73_is_a_mat_file_with_every_variable_as_matlab_sees_it(result_path
         assert mat["z_mm"].shape == (*result.grid.shape[::-1], result.n_frames)
         for i in range(result.n_frames):
             np.testing.assert_array_equal(mat["z_mm"][:, :, i].T, result.file["grid/z_mm"][i])  # exact: float32
+            np.testing.assert_array_equal(mat["sigma_w_mm"][:, :, i].T, result.file["grid/sigma_w_mm"][i])
+            w = result.file["grid/z_mm"][i] - np.float32(result.z_flat_mm)
+            np.testing.assert_array_equal(mat["w_mm"][:, :, i].T, w)  # w itself, as float32 arithmetic gives it
         np.testing.assert_array_equal(mat["x_mm"][:, 0], result.grid.x_mm)
         np.testing.assert_array_equal(mat["time_s"][:, 0], result.column("frames/time_s"))
         np.testing.assert_array_equal(mat["camera_frames"][:, 0], result.camera_frames)
         assert mat["z_flat_mm"].shape == (1, 1) and mat["z_flat_mm"][0, 0] == result.z_flat_mm
         points = mat["points"][()].T
-        assert points.shape == (int(result.offsets[-1]), 4)
-        np.testing.assert_array_equal(points[: len(result.points(0)), 1:], result.points(0))
+        assert points.shape == (int(result.offsets[-1]), 6)  # frame, x_mm, y_mm, z_mm, w_mm, sigma_w_mm
+        np.testing.assert_array_equal(points[: len(result.points(0)), 1:4], result.points(0))
         length = mat["units/length"][()].ravel().astype(np.uint16).tobytes().decode("utf-16-le")
         assert length == "mm" and mat["units"].attrs["MATLAB_class"] == b"struct"
 
@@ -77,7 +80,7 @@ def test_points_csv_past_spreadsheet_rows_warns_or_splits(result_path: Path, tmp
     files = sorted(folder.glob("frame_*.csv"))
     assert [int(f.stem.split("_")[1]) for f in files] == frames
     for f, points in zip(files, total, strict=True):
-        np.testing.assert_allclose(read_points_csv(f)[:, 1:], points, atol=6e-5)  # 4 decimals of float32 mm
+        np.testing.assert_allclose(read_points_csv(f)[:, 1:4], points, atol=6e-5)  # 4 decimals of float32 mm
 
 
 def test_every_export_reports_progress_per_frame(result_path: Path, tmp_path: Path) -> None:

@@ -35,16 +35,18 @@ def result_path(kodak: RenderedExperiment, tmp_path_factory) -> Path:
 
 def test_points_csv_round_trip(result_path: Path, tmp_path: Path) -> None:
     rows = read_points_csv(export_result(result_path, "points-csv", tmp_path / "points.csv"))
-    assert (tmp_path / "points.csv").read_text().startswith("frame,x_mm,y_mm,z_mm\n")
+    assert (tmp_path / "points.csv").read_text().startswith("frame,x_mm,y_mm,z_mm,w_mm,sigma_w_mm\n")
     with TopographyResult(result_path) as result:
         expected = np.vstack(
             [
-                np.column_stack([np.full(len(result.points(i)), f), result.points(i)])
+                np.column_stack([np.full(len(result.points(i)), f), result.points(i),
+                                 result.points(i)[:, 2] - result.z_flat_mm, result.sigma_points(i)])
                 for i, f in enumerate(result.frames)
             ]
-        )
+        )  # fmt: skip
     # Written with 4 decimals (0.1 µm), from float32 storage.
     np.testing.assert_allclose(rows, expected, atol=6e-5)
+    assert np.all(np.isfinite(rows[:, 5]))  # σ_w beside every w
 
 
 def test_grid_npz_round_trip(result_path: Path, tmp_path: Path) -> None:
@@ -56,6 +58,8 @@ def test_grid_npz_round_trip(result_path: Path, tmp_path: Path) -> None:
         assert data["z_mm"].shape == (result.n_frames, *result.grid.shape)
         for i in range(result.n_frames):
             np.testing.assert_array_equal(data["z_mm"][i], result.z_grid(i).astype(np.float32))
+            np.testing.assert_allclose(data["w_mm"][i], result.w_grid(i), atol=1e-5)  # float32 of ~mm values
+            np.testing.assert_array_equal(data["sigma_w_mm"][i], result.sigma_grid(i).astype(np.float32))
         assert float(data["z_flat_mm"]) == result.z_flat_mm
 
 
@@ -65,11 +69,18 @@ def test_mat_round_trip(result_path: Path, tmp_path: Path) -> None:
         np.testing.assert_array_equal(data["x_mm"].ravel(), result.grid.x_mm)
         np.testing.assert_array_equal(data["frames"].ravel(), result.frames)
         np.testing.assert_array_equal(data["force_kN"].ravel(), result.column("frames/force_kN"))
-        np.testing.assert_array_equal(data["peak_w_mm"].ravel(), result.column("peak/w_mm"))
+        # w itself and its σ, beside z; the peak as measured, with its flag
+        np.testing.assert_array_equal(data["peak_measured"].ravel(), result.peak_measured())
+        measured = result.peak_measured() == 1.0
+        np.testing.assert_array_equal(data["peak_w_mm"].ravel()[measured], result.column("peak/w_mm")[measured])
+        assert np.all(np.isnan(data["peak_w_mm"].ravel()[~measured]))
         for i in range(result.n_frames):
             np.testing.assert_array_equal(data["z_mm"][i], result.z_grid(i))
+            np.testing.assert_allclose(data["w_mm"][i], result.w_grid(i), atol=1e-5)  # float32 of ~mm values
+            np.testing.assert_array_equal(data["sigma_w_mm"][i], result.sigma_grid(i).astype(np.float32))
         assert len(data["points"]) == int(result.offsets[-1])
-        np.testing.assert_allclose(data["points"][: len(result.points(0)), 1:], result.points(0))
+        np.testing.assert_allclose(data["points"][: len(result.points(0)), 1:4], result.points(0))
+        np.testing.assert_allclose(data["points"][: len(result.points(0)), 5], result.sigma_points(0), rtol=1e-6)
 
 
 def test_vtk_time_series_round_trip(result_path: Path, tmp_path: Path) -> None:
@@ -86,14 +97,15 @@ def test_vtk_time_series_round_trip(result_path: Path, tmp_path: Path) -> None:
             np.testing.assert_allclose(mesh.points[:, 0], gx[iy, ix])
             np.testing.assert_allclose(mesh.points[:, 2], z[iy, ix])
             np.testing.assert_allclose(mesh.point_data["w_mm"], z[iy, ix] - result.z_flat_mm)
+            np.testing.assert_allclose(mesh.point_data["sigma_w_mm"], result.sigma_grid(i)[iy, ix])
             assert len(mesh.get_cells_type("quad")) > 0.9 * np.count_nonzero(np.isfinite(z))
 
 
 def test_profile_csv_round_trip(result_path: Path, tmp_path: Path) -> None:
     line = (-200.0, -5.0, 200.0, 40.0)
     path = export_result(result_path, "profile-csv", tmp_path / "p.csv", line=line)
-    assert path.read_text().splitlines()[0] == "line,frame,time_s,s_mm,x_mm,y_mm,z_mm,w_mm"
-    rows = np.loadtxt(path, delimiter=",", skiprows=1, usecols=range(1, 8))  # after the line's label
+    assert path.read_text().splitlines()[0] == "line,frame,time_s,s_mm,x_mm,y_mm,z_mm,w_mm,sigma_w_mm"
+    rows = np.loadtxt(path, delimiter=",", skiprows=1, usecols=range(1, 9))  # after the line's label
     with TopographyResult(result_path) as result:
         for i, frame in enumerate(result.frames):
             block = rows[rows[:, 0] == frame]
@@ -101,6 +113,8 @@ def test_profile_csv_round_trip(result_path: Path, tmp_path: Path) -> None:
             np.testing.assert_allclose(block[:, 2], profile.s_mm, atol=1e-4)
             np.testing.assert_allclose(block[:, 5], profile.values, atol=1e-4)
             np.testing.assert_allclose(block[:, 6], profile.values - result.z_flat_mm, atol=1e-4)
+            sigma = line_profile(result.sigma_grid(i), result.grid, line[:2], line[2:]).values
+            np.testing.assert_allclose(block[:, 7], sigma, atol=1e-4)
     with pytest.raises(ValueError, match="only used by the profile-csv format"):
         export_result(result_path, "mat", tmp_path / "x.mat", line=line)
     with pytest.raises(ValueError, match="format: expected one of"):
