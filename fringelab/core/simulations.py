@@ -354,7 +354,7 @@ def preview_comparison(
             alignment = pairing.alignment
             aligned = np.flatnonzero(alignment.aligned)
             if frame is None:
-                peaks = result.column("peak/w_mm")
+                peaks = result.measured_peaks()
                 i = int(aligned[np.argmax(np.nan_to_num(peaks[aligned], nan=-np.inf))])
             else:
                 hits = np.flatnonzero(result.frames == frame)
@@ -388,7 +388,7 @@ def preview_comparison(
                     "state_lo": alignment.state_lo.astype(int).tolist(),
                     "state_fraction": alignment.fraction,
                     "reason": list(alignment.reason),
-                    "peak_w_mm": result.column("peak/w_mm"),
+                    "peak_w_mm": result.measured_peaks(),
                 },
                 "simulation": {"n_states": simulation.n_states, "peak_w_mm": pairing.state_peak_mm},
                 "profiles": profiles,

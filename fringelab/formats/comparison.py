@@ -46,7 +46,8 @@ FRAME_COLUMNS: tuple[tuple[str, str, str], ...] = (
     ("time_s", "s", "time of the frame (frames.csv)"),
     ("punch_displacement_mm", "mm", "punch displacement (frames.csv)"),
     ("force_kN", "kN", "punch force (frames.csv)"),
-    ("peak_w_mm", "mm", "largest measured deflection"),
+    ("peak_w_mm", "mm", "largest measured deflection where the peak was measured (NaN: not, see peak_measured)"),
+    ("peak_measured", "1", "1: the frame's peak was measured, 0: only a lower bound (docs/method.md §8), NaN: unknown"),
     ("state_fraction", "1", "the simulation compared is state_lo + this fraction toward the next state"),
     ("sim_time_s", "s", "simulation time of the compared blend"),
     ("sim_punch_displacement_mm", "mm", "simulated punch displacement of the compared blend"),
@@ -100,7 +101,7 @@ def pair_result(
     return compare.pair_with_measurement(
         simulation, grid=result.grid, plate=plate_frame_of(result), measured_w=result.w_grid,
         frame_time_s=result.column("frames/time_s"), frame_punch_mm=result.column("frames/punch_displacement_mm"),
-        frame_peak_mm=result.column("peak/w_mm"), mapping=mapping, align=align,
+        frame_peak_mm=result.measured_peaks(), mapping=mapping, align=align,
     )  # fmt: skip
 
 
@@ -236,7 +237,10 @@ class ComparisonResult:
         """A per-frame column ("rms_diff_mm", "state_lo", …) or a per-state one ("simulation/peak_w_mm")."""
         if name == "reason":
             return np.array([r.decode() if isinstance(r, bytes) else str(r) for r in self.file["frames/reason"][()]])
-        return self.file[name if "/" in name else f"frames/{name}"][()]
+        key = name if "/" in name else f"frames/{name}"
+        if key not in self.file and key.startswith("frames/"):  # a column newer than the file (peak_measured)
+            return np.full(self.n_frames, np.nan)
+        return self.file[key][()]
 
     def field(self, name: str, i: int) -> np.ndarray:
         """One of FIELDS (ny, nx) of frame position i."""

@@ -751,6 +751,11 @@ class TopographyResult:
         radius = float(dataset.attrs.get("radius_mm", PUNCH_RADIUS_MM))
         return [PeakMeasurement(int(n), radius) for n in dataset[()]]
 
+    def measured_peaks(self) -> np.ndarray:
+        """Per frame: peak/w_mm where the peak was measured (or the file does not say), NaN where it is only a lower
+        bound: what every per-frame peak curve, table and export shows as the peak."""
+        return np.where(self.peak_measured() == 0.0, np.nan, self.column("peak/w_mm"))
+
     def peak_measured(self) -> np.ndarray:
         """Per frame: 1.0 where the peak was measured, 0.0 where peak/w_mm is a lower bound, NaN: unknown (a file
         written before peak/measured existed)."""
