@@ -141,15 +141,15 @@ def export_grid_npz(result: TopographyResult, path: str | Path, *, frames: Frame
     memory (as `numpy.load` will)."""
     path = Path(path)
     positions = frame_positions(result, frames)
+    arrays: dict[str, Any] = {
+        "x_mm": result.grid.x_mm,
+        "y_mm": result.grid.y_mm,
+        **_grid_stacks(result, positions, "z_mm", "w_mm", "sigma_w_mm"),
+        "frames": result.frames[positions],
+        "z_flat_mm": np.float64(result.z_flat_mm),
+    }
     with atomic_path(path) as temp, open(temp, "wb") as out:
-        np.savez_compressed(
-            out,
-            x_mm=result.grid.x_mm,
-            y_mm=result.grid.y_mm,
-            **_grid_stacks(result, positions, "z_mm", "w_mm", "sigma_w_mm"),
-            frames=result.frames[positions],
-            z_flat_mm=np.float64(result.z_flat_mm),
-        )
+        np.savez_compressed(out, **arrays)
     return path
 
 
