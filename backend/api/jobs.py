@@ -43,6 +43,7 @@ from backend.schemas.jobs import (
 from fringelab.core.accounts import Principal, audit, readable_experiments
 from fringelab.core.deletion import execute, plan_job
 from fringelab.core.errors import Gone, NotFound, Unauthorized, Unavailable
+from fringelab.core.job_kinds import named_by
 from fringelab.core.jobs import (
     QueueUnavailable,
     as_utc,
@@ -54,7 +55,7 @@ from fringelab.core.jobs import (
     start_job_as,
     terminate_unstopped,
 )
-from fringelab.core.models import Experiment, Job, JobChunk, JobLog, utcnow
+from fringelab.core.models import Camera, Experiment, Job, JobChunk, JobLog, Recording, utcnow
 from fringelab.core.state import AppState
 
 router = APIRouter(tags=["jobs"])
@@ -95,10 +96,42 @@ def job_outs(session: Session, jobs: Sequence[Job], *, now: datetime | None = No
         retries = select(Job.retry_of, Job.id).where(Job.retry_of.in_(ids)).order_by(Job.created_at, Job.id)
         for retry_of, retry_id in session.execute(retries):
             retried_by[retry_of] = retry_id  # the newest retry last
-    return [_job_out(job, chunks_of[job.id], retried_by.get(job.id), now) for job in jobs]
+    names = _names_of(session, jobs)
+    return [_job_out(job, chunks_of[job.id], retried_by.get(job.id), now, names[job.id]) for job in jobs]
 
 
-def _job_out(job: Job, chunks: list[JobChunk], retried_by: str | None, now: datetime) -> JobOut:
+def _names_of(session: Session, jobs: Sequence[Job]) -> dict[str, tuple[str | None, str | None]]:
+    """Each job's experiment name and camera name: the camera of the recording it reads, or of the recording of the
+    job it reads (an export, a comparison), as its kind's inputs name them; three queries for all the jobs. A list
+    names what each job is about."""
+
+    def first(ids: set[Any]) -> Any:
+        return min(ids) if ids else None
+
+    sources = {job.id: first(named_by(job.kind, job.spec, "job")) for job in jobs}
+    found = session.execute(select(Job.id, Job.kind, Job.spec).where(Job.id.in_(set(sources.values()) - {None})))
+    recording_of_source = {job_id: first(named_by(kind, spec, "recording")) for job_id, kind, spec in found}
+    recording_of = {job.id: first(named_by(job.kind, job.spec, "recording")) for job in jobs}
+    for job in jobs:
+        recording_of[job.id] = recording_of[job.id] or recording_of_source.get(sources[job.id])
+    cameras = select(Recording.id, Camera.name).join(Camera, Camera.id == Recording.camera_id)
+    cameras = cameras.where(Recording.id.in_(set(recording_of.values()) - {None}))
+    camera_of_recording = dict(session.execute(cameras).tuples().all())
+    experiment_ids = {job.experiment_id for job in jobs if job.experiment_id is not None}
+    experiments = select(Experiment.id, Experiment.name).where(Experiment.id.in_(experiment_ids))
+    experiment_names = dict(session.execute(experiments).tuples().all())
+    return {
+        job.id: (
+            experiment_names.get(job.experiment_id) if job.experiment_id is not None else None,
+            camera_of_recording.get(recording_of[job.id]),
+        )
+        for job in jobs
+    }
+
+
+def _job_out(
+    job: Job, chunks: list[JobChunk], retried_by: str | None, now: datetime, names: tuple[str | None, str | None]
+) -> JobOut:
     total = job.progress_total
     return JobOut(
         id=job.id,
@@ -107,6 +140,8 @@ def _job_out(job: Job, chunks: list[JobChunk], retried_by: str | None, now: date
         stopping=job.state == "cancelled" and job.finished_at is None,
         spec=job.spec,
         experiment_id=job.experiment_id,
+        experiment_name=names[0],
+        camera_name=names[1],
         progress=Progress(
             stage=job.stage,
             done=job.progress_done,

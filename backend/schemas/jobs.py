@@ -58,6 +58,10 @@ class JobOut(BaseModel):
     stopping: bool = Field(description="Cancelled, and the worker has not stopped yet.")
     spec: dict[str, Any]
     experiment_id: int | None
+    experiment_name: str | None = Field(None, description="The experiment's name (null: no experiment).")
+    camera_name: str | None = Field(
+        None, description="The camera whose recording the job reads, itself or through the job it reads (null: none)."
+    )
     progress: Progress
     error: str = Field(description="Why it failed and what to do; empty unless failed.")
     worker: str

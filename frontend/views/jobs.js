@@ -146,7 +146,9 @@ export class JobList {
     this.table = h(
       "table",
       { "aria-label": label, class: "jobs", hidden: true },
-      h("thead", {}, h("tr", {}, ["Job", "Input", "Progress", "Started", "Results", ""].map((t) => h("th", { scope: "col" }, t)))),
+      // The list of all jobs names each one's experiment; an experiment's own list does not repeat it.
+      h("thead", {}, h("tr", {}, ["Job", experimentId === null ? "Experiment" : null, "Camera", "Input", "Progress", "Started", "Results", ""]
+        .map((t) => (t === null ? null : h("th", { scope: "col" }, t))))),
       this.tbody,
     );
     this.element = h("div", {}, this.empty, this.table);
@@ -201,6 +203,10 @@ export class JobList {
           "tr",
           { "data-job": job.id },
           h("td", {}, h("a", { href: `#/jobs/${job.id}` }, jobName(job))),
+          this.experimentId === null
+            ? h("td", {}, job.experiment_id === null ? "–" : h("a", { href: `#/experiments/${job.experiment_id}` }, job.experiment_name || `#${job.experiment_id}`))
+            : null,
+          h("td", {}, job.camera_name || "–"),
           h("td", { class: "job-input" }, describeInput(job)),
           h("td", {}, progress.element),
           h("td", {}, formatTime(job.created_at)),

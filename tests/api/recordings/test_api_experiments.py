@@ -92,6 +92,21 @@ def _stored_recording(client, settings) -> tuple[int, int, int]:
         return eid, cid, recording.id
 
 
+def test_jobs_name_their_experiment_and_camera(client, settings):
+    """The jobs list names each job's experiment and camera: through its recording, or the job it reads."""
+    eid, _, rid = _stored_recording(client, settings)
+    state = client.app.state.fringelab
+    with state.sessions() as session:
+        spec = {"recording_id": rid}
+        session.add(Job(id="job-1", kind="topography", state="succeeded", experiment_id=eid, spec=spec))
+        session.add(Job(id="job-2", kind="export", state="succeeded", experiment_id=eid, spec={"job_id": "job-1"}))
+        session.add(Job(id="job-3", kind="selftest", state="succeeded", spec={}))
+        session.commit()
+    jobs = {job["id"]: job for job in client.get("/api/v1/jobs").json()["items"]}
+    names = {job_id: (job["experiment_name"], job["camera_name"]) for job_id, job in jobs.items()}
+    assert names == {"job-1": ("x", "left"), "job-2": ("x", "left"), "job-3": (None, None)}
+
+
 # A job uses what its kind's inputs name (fringelab.core.job_kinds; `named_by` is tested in tests/core): the
 # key-suffix scan of any spec (`recording_ids`, nested `..._recording_id`) that this test also covered is retired.
 @pytest.mark.parametrize("spec_key", ["recording_id"])
