@@ -22,7 +22,7 @@ function notFound(target, { path }) {
 }
 
 function highlight(path) {
-  for (const link of document.querySelectorAll("nav a")) {
+  for (const link of document.querySelectorAll("header.top nav a")) {
     const target = link.getAttribute("href").replace(/^#/, "");
     if (target.startsWith("/api")) continue;
     if (path === target || path.startsWith(`${target}/`)) link.setAttribute("aria-current", "page");

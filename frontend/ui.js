@@ -76,9 +76,16 @@ export function table(label, columns, rows, { empty = "None yet." } = {}) {
 const statusNode = () => document.getElementById("status");
 const alertNode = () => document.getElementById("alert");
 
-/** A passing message for people ("Experiment created."); replaces the previous one. */
+// A passing message goes after this long: left up, it covered plot buttons and axes for good. Errors stay until
+// dismissed (or the page changes): they ask for something to be done.
+export const SAY_MS = 8000;
+let sayTimer = null;
+
+/** A passing message for people ("Experiment created."); replaces the previous one and goes after SAY_MS. */
 export function say(message) {
   statusNode().textContent = message;
+  clearTimeout(sayTimer);
+  if (message) sayTimer = setTimeout(() => say(""), SAY_MS);
 }
 
 /** Show an error (an ApiError, an Error or a string) in the alert region, with what was being done. */

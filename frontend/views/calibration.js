@@ -11,7 +11,7 @@ import { attempt, field, h, num, page, showError, table } from "../ui.js";
 import { describeInput, jobName } from "./jobs.js";
 
 const PARAMETER_NAMES = {
-  su: "scale factor s_u",
+  su: "scale factor s_u", // on v when the calibration scaled on v: see parameterName
   f_mm: "focal length f",
   u0_px: "principal point u₀",
   v0_px: "principal point v₀",
@@ -70,12 +70,18 @@ function verdictBox(verdict, section) {
   );
 }
 
+/** A camera parameter's name for people; the scale factor names the axis it scales (the spec's scale_on). */
+export function parameterName(name, sensor) {
+  if (name === "su" && sensor && sensor.scale_on === "v") return "scale factor s_v";
+  return PARAMETER_NAMES[name] || name;
+}
+
 function parametersTable(document) {
   const rows = Object.entries(document.parameters).map(([name, p]) => ({ name, ...p }));
   return table(
     "Camera parameters",
     [
-      { title: "Parameter", value: (p) => explained(PARAMETER_NAMES[p.name] || p.name, "3-camera-model") },
+      { title: "Parameter", value: (p) => explained(parameterName(p.name, document.sensor), "3-camera-model") },
       { title: "Value ± standard error", value: (p) => plusMinus(p.value, p.standard_error), class: "num" },
       { title: "Unit", value: (p) => (p.unit === "1" ? "–" : p.unit.replace(/\^-(\d)/, (_, d) => `⁻${"⁰¹²³⁴⁵⁶⁷⁸⁹"[d]}`)) },
     ],
@@ -105,7 +111,7 @@ function summary(document, job) {
       ["Input", describeInput(job)],
       ["Mode", document.mode === "zstack" ? "board moved along Z (Z-stack)" : "free board poses"],
       ["Image", `${size.width} × ${size.height} px`],
-      ["Sensor", `D_u ${num(sensor.du_px_per_mm, 3)} px/mm, D_v ${num(sensor.dv_px_per_mm, 3)} px/mm`],
+      ["Sensor", `D_u ${num(sensor.du_px_per_mm, 3)} px/mm, D_v ${num(sensor.dv_px_per_mm, 3)} px/mm${sensor.scale_on ? `, scale factor on ${sensor.scale_on}` : ""}`],
       ["RMS reprojection error", `${num(document.rms_px, 4)} px over ${document.n_points} corners`],
       ["Residual standard deviation", `${num(document.residual_std_px, 4)} px per coordinate`],
       ["Systematic residual", `${num(document.residual_map.systematic_px, 4)} px (image coverage ${num(100 * document.residual_map.coverage, 0)} %)`],
@@ -348,13 +354,15 @@ async function projectorReport(container, job, context) {
   const zCoverage = new Figure({
     name: "Coverage over Z",
     filename: `${name}-coverage-z`,
-    height: 260,
+    height: 300,
     csv: () => ({ columns: ["z_mm", "share_of_entries"], rows: report.z_mm.map((z, i) => [z, report.coverage_z[i]]) }),
   });
+  // A short axis title (a long one was clipped by the plot's height); what it counts is said under the plot.
   const drawZ = () => zCoverage.react(
-    [{ type: "bar", x: report.z_mm, y: report.coverage_z.map((v) => (v === null ? NaN : 100 * v)), marker: { color: "#2ca02c" }, hovertemplate: "Z %{x:.1f} mm: %{y:.1f} %<extra></extra>" }],
-    layout({ xaxis: axis("plate height Z", "mm"), yaxis: axis("entries whose fitted range holds Z", "%", { range: [0, 100] }), showlegend: false }),
+    [{ type: "bar", x: report.z_mm, y: report.coverage_z.map((v) => (v === null ? NaN : 100 * v)), marker: { color: "#2ca02c" }, hovertemplate: "Z %{x:.1f} mm: %{y:.1f} % of the entries<extra></extra>" }],
+    layout({ xaxis: axis("plate height Z", "mm"), yaxis: axis("entries", "%", { range: [0, 100] }), showlegend: false }),
   );
+  const zCoverageNote = h("p", { class: "hint" }, "Share of the table's entries (edge × scan line) whose fitted range holds each height Z.");
 
   const qa = Object.entries(first.qa || {}).filter(([, v]) => v === null || ["number", "string", "boolean"].includes(typeof v));
   const limits = Object.entries(report.limits).map(([key, l]) => `${key}: good ${l.good}, bad ${l.bad}`).join("; ");
@@ -378,6 +386,7 @@ async function projectorReport(container, job, context) {
     h("div", { class: "plot-controls" }, lineInput.wrap),
     h("div", { class: "plot-grid" }, curves.element, h("div", {}, h("div", { class: "plot-controls" }, mapKind.wrap), map.element, mapNote)),
     zCoverage.element,
+    zCoverageNote,
   );
   context.onLeave(() => {
     curves.purge();

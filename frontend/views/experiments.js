@@ -155,10 +155,11 @@ function recordingsTable(camera, recordings, onDeleted) {
 }
 
 function cameraForm(experimentId, onAdded) {
-  const name = field("Camera name", h("input", { type: "text", required: true, maxlength: 100, placeholder: "left" }));
-  const width = field("Image width (px)", h("input", { type: "number", required: true, min: 1, step: 1, value: 1024 }));
-  const height = field("Image height (px)", h("input", { type: "number", required: true, min: 1, step: 1, value: 1024 }));
-  const pitch = field("Pixel pitch u (µm)", h("input", { type: "number", required: true, min: 0.01, step: "any", value: 20 }),
+  // Examples as placeholders, never as values: a camera added in a hurry must not get a made-up sensor.
+  const name = field("Camera name", h("input", { type: "text", required: true, maxlength: 100, placeholder: "e.g. left" }));
+  const width = field("Image width (px)", h("input", { type: "number", required: true, min: 1, step: 1, placeholder: "e.g. 1024" }));
+  const height = field("Image height (px)", h("input", { type: "number", required: true, min: 1, step: 1, placeholder: "e.g. 1024" }));
+  const pitch = field("Pixel pitch u (µm)", h("input", { type: "number", required: true, min: 0.01, step: "any", placeholder: "e.g. 20" }),
     "Along a row (the image's width). Data sheets give the pixel pitch (or pixel size, cell size) in µm: one number for square pixels, or horizontal × vertical = u × v.");
   const pitchV = field("Pixel pitch v (µm)", h("input", { type: "number", min: 0.01, step: "any", placeholder: "as u" }),
     "Along a column (the height); empty for square pixels. From a sensor size instead: pitch = sensor width (mm) × 1000 / width (px), and with the heights for v.");

@@ -26,7 +26,7 @@ export async function renderHelp(container, { name }, context) {
   const body = h("article", { class: "doc", "aria-label": doc.title });
   // The server renders our own docs/*.md with raw HTML disabled: this HTML is not user input.
   body.innerHTML = doc.html;
-  const contents = h("nav", { class: "doc-contents", "aria-label": "Sections" },
+  const contents = h("nav", { class: "doc-contents", "aria-label": "Sections" }, h("h2", {}, "Contents"),
     h("ul", {}, doc.sections.filter((_, i) => i > 0).map((s) => h("li", {}, h("a", { href: `#/help/${name}?section=${s.id}` }, s.title)))));
   page(container, doc.title, h("p", {}, h("a", { href: "#/help" }, "All documents")), h("div", { class: "doc-layout" }, contents, body));
   document.title = `${doc.title} · fringelab`;

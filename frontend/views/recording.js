@@ -109,7 +109,7 @@ export async function renderRecording(container, { id }, context) {
     number.value = frame;
     image.src = apiUrl(`recordings/${recording.id}/frames/${frame}`);
     image.alt = `Frame ${frame} of the recording`;
-    const parts = [`Frame ${frame} of ${last}`];
+    const parts = [`Frame ${frame} (${frame + 1} of ${recording.frame_count})`]; // frames count from 0
     if (qaFrames) {
       parts.push(`grey level ${(100 * qaFrames.mean_fraction[frame]).toFixed(1)} %`);
       parts.push(`saturated ${qaFrames.saturation_pct[frame].toFixed(2)} %`);

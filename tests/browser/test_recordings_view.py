@@ -45,6 +45,7 @@ def new_experiment_with_camera(page, name: str) -> None:
     cameras.get_by_label("Camera name").fill("left")
     cameras.get_by_label("Image width (px)").fill("160")
     cameras.get_by_label("Image height (px)").fill("120")
+    cameras.get_by_label("Pixel pitch u (µm)").fill("20")
     cameras.get_by_role("button", name="Add camera").click()
     expect(page.get_by_role("region", name="Camera left")).to_be_visible()
 
@@ -76,7 +77,7 @@ def test_upload_through_the_page_then_scrub_the_recording(page, tmp_path, expect
     slider.focus()
     for _ in range(3):
         slider.press("ArrowRight")
-    expect(page.get_by_text("Frame 3 of 11")).to_be_visible()
+    expect(page.get_by_text("Frame 3 (4 of 12)")).to_be_visible()  # 12 frames, numbered from 0
     image = page.get_by_role("img", name="Frame 3 of the recording")
     page.wait_for_function(
         "() => { const i = document.querySelector('img.frame'); return i.complete && i.naturalWidth === 160; }"
