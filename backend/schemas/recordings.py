@@ -40,7 +40,13 @@ class RecordingOut(BaseModel):
     width_px: int
     height_px: int
     bit_depth: int
-    fps: float | None
+    fps: float | None = Field(
+        description="Frame rate: 1 / the median step of the per-frame times where they exist (time stamps, frame "
+        "numbers with the record rate, frames.csv time_s), else the header's."
+    )
+    fps_header: float | None = Field(
+        default=None, description="The rate the file's header states, where it differs from fps by more than 2 %."
+    )
     sidecars: dict[str, Any] = Field(description="Summary of each sidecar found: z.csv, frames.csv, board.json.")
     warnings: list[QaWarningOut]
     notes: list[str]
@@ -99,6 +105,7 @@ def recording_out(recording: Recording) -> RecordingOut:
         height_px=recording.height_px,
         bit_depth=recording.bit_depth,
         fps=recording.fps,
+        fps_header=qa.get("fps_header"),
         sidecars=dict(recording.sidecar or {}),
         warnings=list(qa.get("warnings", [])),
         notes=list(qa.get("notes", [])),

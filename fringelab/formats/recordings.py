@@ -184,8 +184,8 @@ class FrameSource(Sequence[np.ndarray]):
         self.fps, self.fps_header = frame_rate_from_times(self.frame_times_s, stated_hz=stated)
         if self.fps_header is not None:
             self.notes.append(
-                f"frame rate {self.fps:.6g} frames/s from the frame times (median step); the header states "
-                f"{self.fps_header:.6g}"
+                f"frame rate {self.fps:.5g} frames/s from the frame times (median step); the header states "
+                f"{self.fps_header:.5g}"
             )
 
     @overload

@@ -7,13 +7,20 @@ import { KIND_NAMES } from "./experiments.js";
 
 const BOARD_TEXT = { true: "board found", false: "board NOT found", null: "board not checked" };
 
+/** The frame rate (from the frame times where they exist), with the header's beside it where the two differ. */
+function frameRate(recording) {
+  if (!recording.fps) return "–";
+  const rate = `${Number(recording.fps.toPrecision(5))} frames/s`;
+  return recording.fps_header ? `${rate} (header: ${Number(recording.fps_header.toPrecision(5))} frames/s)` : rate;
+}
+
 function facts(recording) {
   const rows = [
     ["Kind", KIND_NAMES[recording.kind] || recording.kind],
     ["State", recording.state + (recording.error ? `: ${recording.error}` : "")],
     ["File", `${recording.filename} (${recording.format || "?"}, ${formatBytes(recording.size_bytes)})`],
     ["Frames", recording.frame_count ? `${recording.frame_count} × ${recording.width_px}×${recording.height_px} px, ${recording.bit_depth} bit` : "–"],
-    ["Frame rate", recording.fps ? `${recording.fps} frames/s` : "–"],
+    ["Frame rate", frameRate(recording)],
     ["Sidecars", Object.entries(recording.sidecars || {}).map(([name, found]) => (found && found.error ? `${name} (unreadable)` : name)).join(", ") || "none"],
     ["SHA-256", h("code", {}, recording.sha256 || "–")],
     ["Uploaded", formatTime(recording.created_at)],

@@ -25,7 +25,7 @@ from fringelab.core.specs import IngestSpec
 from fringelab.core.storage import recording_dir
 from fringelab.formats.containers import STATES_BIT_DEPTH, RecordingLayout
 from fringelab.formats.previews import PREVIEW_FILE, THUMBNAIL_PX, PreviewWriter
-from fringelab.formats.recordings import FrameSource, open_recording
+from fringelab.formats.recordings import FrameSource, frame_rate_from_times, open_recording
 from fringelab.formats.sidecars import frame_indices, read_board_json, read_frames_csv, read_z_csv
 from fringelab.science import Cancelled, MeasurementError
 from fringelab.science.chessboard import Board
@@ -69,6 +69,7 @@ class Inspection:
     notes: list[str] = field(default_factory=list)
     reasons: list[str] = field(default_factory=list)
     summary: dict[str, Any] = field(default_factory=dict)
+    fps_header: float | None = None  # the header's rate where it differs from probe.fps (frame_rate_from_times)
 
 
 def ingest_recording(context: JobContext[IngestSpec]) -> dict[str, Any]:
@@ -127,6 +128,7 @@ def ingest_recording(context: JobContext[IngestSpec]) -> dict[str, Any]:
             "warnings": [{"code": w.code, "message": w.message, "frames": list(w.frames)} for w in found.warnings],
             "notes": found.notes,
             "summary": found.summary,
+            "fps_header": found.fps_header,
         },
         **probe.__dict__,
     )
@@ -161,7 +163,8 @@ def inspect_recording(
         first = source[0]
         if first.size == 0:
             raise ValueError("frame 0 is empty (0 × 0 px)")
-        found = Inspection(probe=_probe(source, first))
+        found = Inspection(probe=_probe(source, first), fps_header=source.fps_header)
+        found.notes.extend(source.notes)  # how the container's frames and times were read (e.g. Save Step)
         on_probe(found.probe)
         # Before the preview store is created: the frames the decoder found (a video's may differ from its
         # header's) against the cap and the disk as it is now, not as it was at upload.
@@ -221,10 +224,13 @@ def _check_sidecars(source: FrameSource, found: Inspection, *, kind: str) -> Boa
                 indices = frame_indices(table.frame, count, name=name)
                 found.sidecar[name] = {"rows": len(indices), "columns": table.columns()}
                 _missing_rows(found, indices, count, "missing_frame_data", "frames.csv has no row for")
-                if table.time_s is not None and len(indices) > 1 and found.probe.fps is None:
-                    dt_s = float(np.median(np.diff(np.sort(table.time_s))))
-                    found.probe.fps = 1.0 / dt_s
-                    found.notes.append("frame rate from the time_s column of frames.csv")
+                if table.time_s is not None and len(indices) > 1:
+                    # frames.csv's times are the result's time axis: they give the rate (the one rule)
+                    stated = found.fps_header or found.probe.fps
+                    rate, differs = frame_rate_from_times(table.time_s, frame_index=indices, stated_hz=stated)
+                    if rate is not None and rate != found.probe.fps:
+                        found.probe.fps, found.fps_header = rate, differs
+                        found.notes.append("frame rate from the time_s column of frames.csv (median step)")
             else:
                 try:
                     board = read_board_json(text)
