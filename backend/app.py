@@ -17,6 +17,7 @@ from fastapi import FastAPI
 from backend import __version__
 from backend.api import (
     auth,
+    camera_against_camera,
     comparisons,
     demo,
     docs,
@@ -131,6 +132,7 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(comparisons.router, prefix="/api/v1")
     app.include_router(jobs.router, prefix="/api/v1")
     app.include_router(results.router, prefix="/api/v1")
+    app.include_router(camera_against_camera.router, prefix="/api/v1")
     app.include_router(demo.router, prefix="/api/v1")
     app.include_router(docs.router, prefix="/api/v1")
     app.include_router(overview.router, prefix="/api/v1")

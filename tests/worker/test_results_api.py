@@ -165,3 +165,39 @@ def test_a_peak_not_measured_is_no_peak_but_a_lower_bound_with_its_reason(client
         "data missing within 10 mm of the maximum (12 grid nodes): the value is a lower bound"
     )
     assert body["peak_reason"][0] is None
+
+
+def register_result(settings, job_id: str, measured: list[int], *, peak_shift_mm: float = 0.0) -> None:
+    """A result of `write_result` as job `job_id`, with peak/measured flags and its peaks shifted."""
+    directory = settings.data_path / "results" / "jobs" / job_id
+    directory.mkdir(parents=True)
+    path = directory / "topography.h5"
+    write_result(path)
+    with h5py.File(path, "a") as out:
+        out["peak/w_mm"][...] += peak_shift_mm
+        out["peak/measured"] = np.array(measured, np.int8)
+        out["peak/missing_nodes"] = np.where(np.array(measured) == 1, 0, 9).astype(np.int32)
+    engine = make_engine(settings.resolved_database_url)
+    with make_sessionmaker(engine)() as session:
+        entry = {"name": "topography.h5", "path": f"results/jobs/{job_id}/topography.h5", "size_bytes": 1,
+                 "sha256": "", "media_type": "application/x-hdf5"}  # fmt: skip
+        session.add(Job(id=job_id, kind="topography", state="succeeded", files=[entry]))
+        session.commit()
+    engine.dispose()
+
+
+def test_camera_against_camera_leaves_out_what_either_did_not_measure(client, settings):
+    register_result(settings, "cam-a", [1, 1, 0, 1])
+    register_result(settings, "cam-b", [1, 0, 1, 1], peak_shift_mm=0.5)
+    body = client.get("/api/v1/jobs/cam-a/topography/against/cam-b").json()
+    assert body["aligned_by"] == "time" and body["other_frame"] == [10, 11, 12, 13]
+    assert body["compared"] == [True, False, False, True]
+    assert body["difference_w_mm"][0] == pytest.approx(-0.5, abs=TOLERANCE_MM)
+    assert body["difference_w_mm"][1:3] == [None, None] and body["peak_w_mm"][1:3] == [None, None]
+    assert body["left_out_frames"] == [
+        {"frame": 11, "reason": "the other camera did not measure the peak at this instant"},
+        {"frame": 12, "reason": "this camera did not measure the peak (a lower bound)"},
+    ]
+    assert body["n_compared"] == 2 and body["largest_difference_mm"] == pytest.approx(0.5, abs=TOLERANCE_MM)
+    missing = client.get("/api/v1/jobs/cam-a/topography/against/no-such-job")
+    assert missing.status_code == 404

@@ -98,6 +98,7 @@ PATH_VALUES: dict[str, Callable[[World, str], object]] = {
     "filename": lambda w, _: "again.zip",
     "name": lambda w, path: "z.csv" if "/sidecars/" in path else "method" if "/docs/" in path else w.ids["job_file"],
     "job_id": lambda w, _: w.ids["job"],
+    "other_job_id": lambda w, _: w.ids["job"],
     "calibration_id": lambda w, _: w.ids["calibration"],
     "simulation_id": lambda w, _: w.ids["simulation"],
 }
