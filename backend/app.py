@@ -37,6 +37,7 @@ from backend.limits import BodySizeLimit, PlainJsonNumbers, SharedRateLimiter
 from backend.openapi import install_openapi, operation_id
 from backend.polls import SharedPolls
 from backend.security import SecurityHeaders
+from backend.shedding import LoadShedding
 from fringelab.core.accounts import TokenCache, dummy_hash
 from fringelab.core.db import make_engine, make_sessionmaker
 from fringelab.core.queue import create_celery
@@ -58,6 +59,12 @@ HEALTH_REQUEST_BURST = 60
 
 def is_upload_path(path: str) -> bool:
     return UPLOAD_PATHS.match(path) is not None
+
+
+def is_unshed_path(path: str) -> bool:
+    """Requests the load shedding does not count: the health check (from a cache), event streams (long-lived,
+    capped per user) and uploads (streamed to disk)."""
+    return path == "/api/v1/health" or path.endswith("/events") or is_upload_path(path)
 
 
 def create_app(settings: Settings) -> FastAPI:
@@ -123,6 +130,9 @@ def create_app(settings: Settings) -> FastAPI:
         allowed_hosts=settings.allowed_host_names,
         check_every_origin=not settings.auth_enabled,
     )
+    # Outermost: a request beyond the bound is refused before anything else is done for it.
+    app.add_middleware(LoadShedding, max_in_flight=settings.resolved_api_threads + settings.api_queue,
+                       exempt=is_unshed_path)  # fmt: skip
     app.include_router(health.router, prefix="/api/v1")
     app.include_router(auth.router, prefix="/api/v1")
     app.include_router(experiments.router, prefix="/api/v1")

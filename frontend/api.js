@@ -51,6 +51,8 @@ async function errorOf(response) {
   return new ApiError(response.status, code, detail, (body && body.field) || null);
 }
 
+const BUSY_RETRIES = 2;
+
 async function send(method, path, { json, text, as = "json", headers = {} } = {}) {
   const init = { method, headers: { Accept: as === "json" ? "application/json" : "*/*", ...headers } };
   if (json !== undefined) {
@@ -61,10 +63,16 @@ async function send(method, path, { json, text, as = "json", headers = {} } = {}
     init.body = text;
   }
   let response;
-  try {
-    response = await fetch(path.startsWith("/") ? path : `${API}/${path}`, init);
-  } catch (error) {
-    throw new ApiError(0, "network", `cannot reach the server (${error.message}); is fringelab still running?`);
+  for (let attempt = 0; ; attempt += 1) {
+    try {
+      response = await fetch(path.startsWith("/") ? path : `${API}/${path}`, init);
+    } catch (error) {
+      throw new ApiError(0, "network", `cannot reach the server (${error.message}); is fringelab still running?`);
+    }
+    // A busy server sheds load with 503 and Retry-After: a read is asked again, twice at most, after the pause.
+    const retryAfterS = Number(response.headers.get("Retry-After"));
+    if (response.status !== 503 || method !== "GET" || attempt >= BUSY_RETRIES || !(retryAfterS > 0)) break;
+    await new Promise((resolve) => setTimeout(resolve, Math.min(retryAfterS, 10) * 1000));
   }
   if (!response.ok) {
     const error = await errorOf(response);

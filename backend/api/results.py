@@ -16,14 +16,14 @@ from pathlib import Path as PathType
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from fastapi import APIRouter, Depends, Path, Query, Response
+from fastapi import APIRouter, Depends, Path, Query, Request, Response
 from fastapi.responses import FileResponse
 from pydantic import BaseModel, Field
 from sqlalchemy import select
 
 from backend.api.deps import CurrentUser, SessionDep, StateDep, experiment_for
 from backend.api.jobs import ERRORS, JobDep
-from backend.cache import AnswerCache
+from backend.cache import AnswerCache, cached_json
 from backend.results import camera_report, plain, projector_report, projector_table, result_path
 from backend.schemas.jobs import MAX_ID, CalibrationOut, ErrorOut
 from fringelab.core.accounts import readable_experiments
@@ -359,7 +359,7 @@ class TopographyOverview(BaseModel):
 
 
 @router.get("/jobs/{job_id}/topography", response_model=TopographyOverview, responses=RESULT_ERRORS)
-def topography_overview(job: JobDep, state: StateDep) -> TopographyOverview:
+def topography_overview(job: JobDep, state: StateDep, request: Request) -> TopographyOverview:
     """The frames of a topography result with the test log and the peak deflection of each (for the frame
     slider and the plots of peak deflection against time, punch displacement and force), the grid's extent and
     the result's summary."""
@@ -367,8 +367,8 @@ def topography_overview(job: JobDep, state: StateDep) -> TopographyOverview:
     def render() -> bytes:
         return _overview(job, state).model_dump_json().encode()
 
-    body = ANSWERS.get_or_render(topography_file(job, state.settings.data_path), ("overview",), render)
-    return Response(body, media_type="application/json")  # type: ignore[return-value]
+    path = topography_file(job, state.settings.data_path)
+    return cached_json(ANSWERS, request.headers.get("accept-encoding", ""), path, ("overview",), render)  # type: ignore[return-value]
 
 
 def _overview(job: Job, state: AppState) -> TopographyOverview:
@@ -432,6 +432,7 @@ class GridOut(BaseModel):
 def topography_grid(
     job: JobDep,
     state: StateDep,
+    request: Request,
     frame: Annotated[int, Query(ge=0, le=MAX_ID, description="Recording frame index.")],
     budget: Annotated[int, Query(ge=8, le=2000, description="Largest number of nodes per side.")] = GRID_BUDGET_NODES,
     x_min: Annotated[float | None, Query(allow_inf_nan=False)] = None,
@@ -458,8 +459,8 @@ def topography_grid(
             return grid.model_dump_json().encode()
 
         key = ("grid", frame, budget, window)
-        body = ANSWERS.get_or_render(topography_file(job, state.settings.data_path), key, render)
-        return Response(body, media_type="application/json")
+        path = topography_file(job, state.settings.data_path)
+        return cached_json(ANSWERS, request.headers.get("accept-encoding", ""), path, key, render)
     with topography(job, state.settings.data_path) as reader:
         cut = reader.grid_cut(frame, budget=budget, window_mm=window)  # type: ignore[arg-type]
     if format == "f32":
@@ -493,6 +494,7 @@ class ProfileOut(BaseModel):
 def topography_profile(
     job: JobDep,
     state: StateDep,
+    request: Request,
     frames: Annotated[
         list[Annotated[int, Field(ge=0, le=MAX_ID)]],
         Query(min_length=1, max_length=50, description="Recording frame indices."),
@@ -528,8 +530,8 @@ def topography_profile(
         )
 
     key = ("profile", tuple(frames), *line, n_points)
-    body = ANSWERS.get_or_render(topography_file(job, state.settings.data_path), key, render)
-    return Response(body, media_type="application/json")  # type: ignore[return-value]
+    path = topography_file(job, state.settings.data_path)
+    return cached_json(ANSWERS, request.headers.get("accept-encoding", ""), path, key, render)  # type: ignore[return-value]
 
 
 class HistoryOut(BaseModel):

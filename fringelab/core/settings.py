@@ -113,6 +113,12 @@ class Settings(BaseSettings):
     api_threads: int = Field(
         40, ge=4, le=1000, description="Threads that run the web server's blocking routes (database, files)."
     )
+    api_queue: int = Field(
+        10,
+        ge=0,
+        le=1000,
+        description="Requests a web server process holds beyond its busy threads; more get 503 with Retry-After.",
+    )
     db_pool_size: int = Field(
         0,
         ge=0,

@@ -18,8 +18,11 @@ pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
 @pytest.fixture(scope="module")
 def laptop(tmp_path_factory: pytest.TempPathFactory) -> Iterator[UpProcess]:
-    """`fringelab up` as on a laptop: accounts off, one worker process."""
-    up = UpProcess(tmp_path_factory.mktemp("laptop") / "var", extra_env={"FRINGELAB_WORKER_CONCURRENCY": "1"})
+    """`fringelab up` as on a laptop: accounts off, one worker process; one web server process of 4 threads that
+    holds 4 requests more (so that a test's flood reaches its bound)."""
+    env = {"FRINGELAB_WORKER_CONCURRENCY": "1", "FRINGELAB_API_PROCESSES": "1", "FRINGELAB_API_THREADS": "4",
+           "FRINGELAB_API_QUEUE": "4"}  # fmt: skip
+    up = UpProcess(tmp_path_factory.mktemp("laptop") / "var", extra_env=env)
     up.start()
     yield up
     assert up.stop() == 0
@@ -85,6 +88,43 @@ def test_head_of_the_page_and_of_health_is_answered(laptop):
     with httpx.Client(base_url=laptop.base_url, timeout=10) as client:
         assert client.head("/").status_code == 200
         assert client.head("/api/v1/health").status_code == 200
+
+
+# ------------------------------------------------------------------------------------------- 8: load
+
+
+def test_beyond_its_bound_a_web_server_answers_503_with_retry_after_at_once(laptop):
+    """Finding 8: at 500 requests/s, 60 % of requests waited over 10 s, with no 503. Now 60 clients against one
+    process bounded at 8 requests in flight: each request gets an answer, 200 or 503 with Retry-After, and once
+    the flood ends the server serves normally."""
+    retry_after: list[str] = []
+
+    async def flood() -> list[object]:
+        async with httpx.AsyncClient(base_url=laptop.base_url, timeout=20) as client:
+            deadline = time.monotonic() + 2.5
+
+            async def one_client() -> list[object]:
+                outcomes: list[object] = []
+                while time.monotonic() < deadline:
+                    try:
+                        answer = await client.get("/api/v1/jobs", params={"limit": 50})
+                    except httpx.HTTPError as error:
+                        outcomes.append(type(error).__name__)
+                        continue
+                    outcomes.append(answer.status_code)
+                    if answer.status_code == 503:
+                        retry_after.append(answer.headers.get("Retry-After", ""))
+                        assert answer.json()["code"] == "busy"
+                return outcomes
+
+            return [o for outcomes in await asyncio.gather(*(one_client() for _ in range(60))) for o in outcomes]
+
+    outcomes = _run(flood)
+    assert set(outcomes) <= {200, 503}, sorted(set(map(str, outcomes)))
+    assert outcomes.count(503) >= 1 and outcomes.count(200) >= 1, (outcomes.count(200), outcomes.count(503))
+    assert set(retry_after) == {"1"}
+    with httpx.Client(base_url=laptop.base_url, timeout=10) as client:
+        assert client.get("/api/v1/jobs").status_code == 200
 
 
 # ------------------------------------------------------------------------------------ 7: accounts off
