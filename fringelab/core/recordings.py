@@ -267,7 +267,8 @@ def zip_limits(settings: Settings) -> ZipLimits:
 
 
 def check_budget(layout: RecordingLayout, settings: Settings, *, name: str) -> None:
-    """The ingest budget of a recording (frames × frame size against FRINGELAB_MAX_FRAMES_BYTES, its previews
+    """The ingest budget of a recording (its first frame's size against FRINGELAB_MAX_FRAME_BYTES, frames × frame
+    size against FRINGELAB_MAX_FRAMES_BYTES, its previews
     against the free disk less FRINGELAB_MIN_FREE_DISK_BYTES), checked at upload and again by the ingest before
     it writes anything. Raises OverBudget."""
     check_ingest_budget(
@@ -278,6 +279,7 @@ def check_budget(layout: RecordingLayout, settings: Settings, *, name: str) -> N
         reserve_bytes=settings.min_free_disk_bytes,
         preview_size_px=settings.preview_size_px,
         thumbnail_px=THUMBNAIL_PX,
+        max_frame_bytes=settings.max_frame_bytes,
     )
 
 

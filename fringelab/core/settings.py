@@ -157,6 +157,12 @@ class Settings(BaseSettings):
         description="A recording whose frames decode to more bytes than this (frames × frame size, from its "
         "headers) is refused before its ingest writes anything.",
     )
+    max_frame_bytes: int = Field(
+        256 * 2**20,
+        ge=1024,
+        description="A frame that decodes to more bytes than this (width × height × channels × bytes per sample, "
+        "from its header) is refused before it is decoded.",
+    )
     zip_max_uncompressed_bytes: int = Field(
         256 * 2**30, ge=1, description="A ZIP whose entries expand to more than this in total is refused."
     )

@@ -88,6 +88,29 @@ def read_tiff_layout(path: str | Path) -> TiffLayout:
     return TiffLayout(pages, first[_TAG_WIDTH][0], first[_TAG_HEIGHT][0], max(1, bits // 8) * max(1, samples))
 
 
+def read_first_page_tags(handle: BinaryIO, *, size: int, name: str = "the TIFF") -> dict[int, list[int]]:
+    """The integer tags (size, depth, strips) of a TIFF's first page from a seekable `handle` of `size` bytes,
+    without reading its pixels (`frame_header` reads a frame's size from them before it is decoded)."""
+    head = read_at(handle, 0, 16)
+    if len(head) < 8 or head[:2] not in (b"II", b"MM"):
+        raise CorruptRecording(f"{name}: shorter than a TIFF header")
+    order = "<" if head[:2] == b"II" else ">"
+    big = struct.unpack_from(order + "H", head, 2)[0] == 43
+    if big and len(head) < 16:
+        raise CorruptRecording(f"{name}: shorter than a BigTIFF header")
+    count_code, offset_code, entry_size = ("Q", "Q", 20) if big else ("H", "I", 12)
+    first_ifd = struct.unpack_from(order + offset_code, head, 8 if big else 4)[0]
+    count_bytes = struct.calcsize(count_code)
+    if not first_ifd or first_ifd + count_bytes > size:
+        raise CorruptRecording(f"{name}: its first page lies past the end of the file")
+    entry_count = struct.unpack(order + count_code, read_at(handle, first_ifd, count_bytes))[0]
+    table_length = entry_count * entry_size
+    if first_ifd + count_bytes + table_length > size:
+        raise CorruptRecording(f"{name}: the directory of its first page runs past the end of the file")
+    table = read_at(handle, first_ifd + count_bytes, table_length)
+    return _tiff_tags(handle, table, entry_count, order=order, big=big, size=size, name=name)
+
+
 def _tiff_tags(
     handle: BinaryIO, table: bytes, entry_count: int, *, order: str, big: bool, size: int, name: str
 ) -> dict[int, list[int]]:

@@ -4,9 +4,9 @@
   encrypted or exotic entries, truncation and ZIP bombs (total size, per-entry size, compression ratio,
   overlapping entries); a Photron recording stored in a ZIP is found too (`mraw_header_in_zip`).
 - `IMAGE_SUFFIXES`, `SIDECAR_NAMES`: what a frame and a sidecar are called, in a ZIP or a folder.
-- `declared_image_size(data)`: the size a PNG, BMP or JPEG frame's header declares.
 
-Not here: decoding frames (`recordings`), parsing sidecars (`sidecars`), the list of formats (`containers`).
+Not here: decoding frames (`recordings`), a frame's size from its header (`frame_header`), parsing sidecars
+(`sidecars`), the list of formats (`containers`).
 """
 
 from __future__ import annotations
@@ -208,24 +208,3 @@ def mraw_header_in_zip(path: Path, entries: tuple[str, str]) -> MrawHeader:
         PurePosixPath(header_name), header_bytes, data_path=path, data_name=data_name,
         data_offset=zip_entry_data_offset(path, data_info), data_bytes=data_info.file_size,
     )  # fmt: skip
-
-
-def declared_image_size(data: bytes) -> tuple[int, int] | None:
-    """(width, height) the header of a PNG, BMP or JPEG declares; None when not found in `data`."""
-    if data.startswith(b"\x89PNG") and len(data) >= 24:
-        width, height = struct.unpack(">II", data[16:24])
-        return int(width), int(height)
-    if data.startswith(b"BM") and len(data) >= 26:
-        width, height = struct.unpack("<ii", data[18:26])
-        return abs(width), abs(height)
-    if data.startswith(b"\xff\xd8"):
-        position = 2
-        while position + 9 <= len(data) and data[position] == 0xFF:
-            marker, length = data[position + 1], struct.unpack(">H", data[position + 2 : position + 4])[0]
-            if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):  # start of frame
-                height, width = struct.unpack(">HH", data[position + 5 : position + 9])
-                return int(width), int(height)
-            position += 2 + length
-    if data.startswith((b"II*\x00", b"MM\x00*")):
-        return None  # a TIFF frame: its IFD may lie anywhere; the ingest checks it when decoding
-    return None

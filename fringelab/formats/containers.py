@@ -21,13 +21,22 @@ import struct
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO, cast
 
 from fringelab.formats.container_cine import CINE_HEADER_SIZE, read_cine_header
 from fringelab.formats.container_common import CorruptRecording, OverBudget, UnsupportedRecording
 from fringelab.formats.container_mraw import MRAW_HEADER_SUFFIXES, MrawHeader, read_mraw_header
 from fringelab.formats.container_tiff import read_tiff_layout
 from fringelab.formats.container_video import check_video_container
-from fringelab.formats.container_zip import ZipLimits, declared_image_size, inspect_zip, mraw_header_in_zip
+from fringelab.formats.container_zip import ZipLimits, inspect_zip, mraw_header_in_zip
+from fringelab.formats.frame_header import (
+    HEADER_BYTES,
+    MAX_FRAME_BYTES,
+    FrameHeader,
+    check_frame,
+    image_header,
+    tiff_header_from,
+)
 
 # Single-file recordings by name; a ZIP holds frames. A folder of frames is read from disk, not uploaded.
 UPLOAD_SUFFIXES = {".zip": "zip", ".tif": "tiff", ".tiff": "tiff", ".avi": "avi", ".mp4": "mp4", ".cine": "cine"}
@@ -120,10 +129,15 @@ def recording_layout(path: str | Path, *, zip_limits: ZipLimits | None = None) -
         contents = inspect_zip(path, limits=zip_limits)
         if contents.mraw_entries is not None:
             return _mraw_layout(format, mraw_header_in_zip(path, contents.mraw_entries))
-        with zipfile.ZipFile(path) as archive, archive.open(contents.frame_names[0]) as entry:
-            declared = declared_image_size(entry.read(64 * 1024))
-        width, height = declared or (0, 0)
-        return RecordingLayout(format, len(contents.frame_names), width, height)
+        first = contents.frame_names[0]
+        with zipfile.ZipFile(path) as archive, archive.open(first) as entry:
+            header = image_header(entry.read(HEADER_BYTES))
+            if header is None and first.lower().endswith((".tif", ".tiff")):  # its directory lies further on
+                header = tiff_header_from(cast(BinaryIO, entry), size=archive.getinfo(first).file_size)
+        if header is None:
+            return RecordingLayout(format, len(contents.frame_names), 0, 0)
+        return RecordingLayout(format, len(contents.frame_names), header.width_px, header.height_px,
+                               header.channels * header.bytes_per_sample)  # fmt: skip
     if format == "cine":
         cine = read_cine_header(path)
         return RecordingLayout(
@@ -153,9 +167,15 @@ def check_ingest_budget(
     reserve_bytes: int,
     preview_size_px: int,
     thumbnail_px: int,
+    max_frame_bytes: int = MAX_FRAME_BYTES,
 ) -> None:
-    """Refuse a recording whose frames would decode to more than `max_frames_bytes`, or whose preview store
-    would leave less than `reserve_bytes` free on the data volume. Raises OverBudget saying which and by how much."""
+    """Refuse a recording one of whose frames would decode to more than `max_frame_bytes` (its first frame's
+    header, for every container), whose frames would decode to more than `max_frames_bytes`, or whose preview
+    store would leave less than `reserve_bytes` free on the data volume. Raises OverBudget saying which and by
+    how much."""
+    if layout.width_px and layout.height_px:
+        frame = FrameHeader(layout.width_px, layout.height_px, 1, layout.bytes_per_pixel)
+        check_frame(frame, name=f"{name}: a frame", max_frame_bytes=max_frame_bytes)
     if layout.frames_bytes > max_frames_bytes:
         raise OverBudget(
             f"{name}: {layout.frame_count} frames of {layout.width_px} × {layout.height_px} px decode to "

@@ -22,7 +22,7 @@ import zlib
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, BinaryIO, overload
+from typing import TYPE_CHECKING, BinaryIO, cast, overload
 
 import cv2
 import numpy as np
@@ -36,12 +36,19 @@ from fringelab.formats.container_video import check_video_container
 from fringelab.formats.container_zip import (
     IMAGE_SUFFIXES,
     ZipLimits,
-    declared_image_size,
     inspect_zip,
     is_junk_entry,
     mraw_header_in_zip,
 )
 from fringelab.formats.containers import sniff_format
+from fringelab.formats.frame_header import (
+    HEADER_BYTES,
+    MAX_FRAME_BYTES,
+    FrameHeader,
+    check_frame,
+    image_header,
+    tiff_header_from,
+)
 from fringelab.formats.sidecars import FRAMES_CSV_COLUMNS, check_sidecar_size, read_sidecar_file
 from fringelab.formats.sidecars import sidecar_text as decode_sidecar
 from fringelab.science import natural_key
@@ -57,8 +64,6 @@ __all__ = [
     "open_recording",
     "write_recording",
 ]
-
-MAX_FRAME_PIXELS = 1 << 27  # 134 Mpx; a high-speed camera frame is a few Mpx
 
 
 def _as_grey(image: np.ndarray, *, name: str) -> tuple[np.ndarray, bool]:
@@ -87,19 +92,11 @@ def _looks_truncated(data: bytes, name: str) -> bool:
     return False
 
 
-def _check_pixels(width: int, height: int, *, name: str) -> None:
-    if width * height > MAX_FRAME_PIXELS:
-        raise ValueError(
-            f"{name}: declares {width} × {height} px, more than {MAX_FRAME_PIXELS} pixels a frame may have"
-        )
-
-
-def _decode(data: bytes, *, name: str) -> tuple[np.ndarray, bool]:
+def _decode(data: bytes, *, name: str, max_frame_bytes: int = MAX_FRAME_BYTES) -> tuple[np.ndarray, bool]:
     if _looks_truncated(data, name):
         raise ValueError(f"{name}: the image is truncated")
-    declared = declared_image_size(data)
-    if declared is not None:
-        _check_pixels(*declared, name=name)  # a small file can declare a huge image: refuse before decoding
+    # a small file can declare a huge image: its size from its header, refused before decoding
+    check_frame(image_header(data), name=name, max_frame_bytes=max_frame_bytes)
     image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)
     if image is None:
         raise ValueError(f"{name}: not a readable image (corrupt, truncated or unsupported format)")
@@ -237,14 +234,62 @@ class FrameSource(Sequence[np.ndarray]):
         return f"<{type(self).__name__} {self.format} {self.path.name}: {len(self)} frames>"
 
 
-class ImageFolder(FrameSource):
+class _CheckedFrames(FrameSource):
+    """Frames as image files (in a folder or a ZIP): before one is read whole and decoded, its header's size is
+    held against the byte budget of a frame and against the first frame's size (`frame_header.check_frame`)."""
+
+    def __init__(self, path: Path, frame_names: Sequence[str], *, max_frame_bytes: int = MAX_FRAME_BYTES):
+        super().__init__(path, frame_names)
+        self.max_frame_bytes = max_frame_bytes
+        self._first: FrameHeader | None = None
+
+    def _open_frame(self, name: str) -> tuple[BinaryIO, int]:
+        """The frame file open for reading, and its size in bytes."""
+        raise NotImplementedError
+
+    def _header(self, name: str) -> FrameHeader:
+        handle, size = self._open_frame(name)
+        with handle:
+            if size > self.max_frame_bytes + HEADER_BYTES:  # no frame file is much larger than its pixels
+                raise OverBudgetFrame(
+                    f"{name}: {size} bytes, more than a frame of the {self.max_frame_bytes}-byte limit "
+                    "(FRINGELAB_MAX_FRAME_BYTES) can take"
+                )
+            try:
+                header = image_header(handle.read(HEADER_BYTES))
+                if header is None and Path(name).suffix.lower() in (".tif", ".tiff"):
+                    header = tiff_header_from(handle, size=size)  # its directory lies further on: seek to it
+            except (zipfile.BadZipFile, EOFError, OSError, zlib.error, lzma.LZMAError) as error:  # damaged data
+                raise ValueError(f"{name}: cannot be read ({error})") from None
+        return check_frame(header, name=name, max_frame_bytes=self.max_frame_bytes, first=self._first)
+
+    def checked(self, index: int) -> FrameHeader:
+        """Frame `index`'s header, refused (ValueError) over the budget or unlike the first frame."""
+        if self._first is None:
+            self._first = self._header(self.frame_names[0])
+        return self._header(self.frame_names[index]) if index else self._first
+
+    def read_bytes(self, name: str) -> bytes:
+        raise NotImplementedError
+
+    def _read(self, index: int) -> tuple[np.ndarray, bool]:
+        self.checked(index)
+        name = self.frame_names[index]
+        return _decode(self.read_bytes(name), name=name, max_frame_bytes=self.max_frame_bytes)
+
+
+class OverBudgetFrame(CorruptRecording):
+    """A frame file larger than any frame within the budget could be."""
+
+
+class ImageFolder(_CheckedFrames):
     """Frames as image files in a folder (not its subfolders), in natural name order."""
 
     format = "folder"
 
-    def _read(self, index: int) -> tuple[np.ndarray, bool]:
-        name = self.frame_names[index]
-        return _decode((self.path / name).read_bytes(), name=name)
+    def _open_frame(self, name: str) -> tuple[BinaryIO, int]:
+        path = self.path / name
+        return path.open("rb"), path.stat().st_size
 
     def read_bytes(self, name: str) -> bytes:
         return (self.path / name).read_bytes()
@@ -254,13 +299,20 @@ class ImageFolder(FrameSource):
         return read_sidecar_file(candidate) if candidate.is_file() else None
 
 
-class ImageZip(FrameSource):
+class ImageZip(_CheckedFrames):
     """Frames as image entries of a ZIP, in natural order of their names; the archive stays open between reads."""
 
     format = "zip"
 
-    def __init__(self, path: Path, frame_names: Sequence[str], sidecar_names: dict[str, str]):
-        super().__init__(path, frame_names)
+    def __init__(
+        self,
+        path: Path,
+        frame_names: Sequence[str],
+        sidecar_names: dict[str, str],
+        *,
+        max_frame_bytes: int = MAX_FRAME_BYTES,
+    ):
+        super().__init__(path, frame_names, max_frame_bytes=max_frame_bytes)
         self._sidecar_names = sidecar_names
         self._archive: zipfile.ZipFile | None = None
         self._pid = 0
@@ -277,9 +329,12 @@ class ImageZip(FrameSource):
         except (zipfile.BadZipFile, EOFError, OSError, zlib.error, lzma.LZMAError) as error:  # bad CRC, damaged data
             raise ValueError(f"{name}: cannot be read from the ZIP ({error})") from None
 
-    def _read(self, index: int) -> tuple[np.ndarray, bool]:
-        name = self.frame_names[index]
-        return _decode(self.read_bytes(name), name=name)
+    def _open_frame(self, name: str) -> tuple[BinaryIO, int]:
+        try:
+            archive = self._open()
+            return cast(BinaryIO, archive.open(name)), archive.getinfo(name).file_size
+        except (zipfile.BadZipFile, EOFError, OSError, zlib.error, lzma.LZMAError) as error:
+            raise ValueError(f"{name}: cannot be read from the ZIP ({error})") from None
 
     def sidecar_text(self, name: str) -> str | None:
         beside = super().sidecar_text(name)
@@ -302,9 +357,10 @@ class TiffStack(FrameSource):
 
     format = "tiff"
 
-    def __init__(self, path: Path):
+    def __init__(self, path: Path, *, max_frame_bytes: int = MAX_FRAME_BYTES):
         import tifffile
 
+        self.max_frame_bytes = max_frame_bytes
         layout = read_tiff_layout(path)  # a truncated stack is refused here, not read as its first pages
         try:
             self._tiff = tifffile.TiffFile(path)
@@ -323,9 +379,11 @@ class TiffStack(FrameSource):
         name = f"{self.path.name} page {index}"
         try:
             page = self._tiff.pages[index]
-            shape: tuple[int, ...] = tuple(getattr(page, "shape", ()))
-            if len(shape) >= 2:
-                _check_pixels(int(shape[1]), int(shape[0]), name=name)
+        except (OSError, IndexError, KeyError, ValueError) as error:
+            raise ValueError(f"{name}: cannot be decoded ({error})") from None
+        check_frame(self._page_header(page), name=name, max_frame_bytes=self.max_frame_bytes,
+                    first=self._page_header(self._tiff.pages.first))  # fmt: skip
+        try:
             image = page.asarray()
         except ValueError as error:
             if "imagecodecs" not in str(error):
@@ -342,6 +400,17 @@ class TiffStack(FrameSource):
             if image.ndim == 3 and image.shape[2] in (3, 4):
                 image = image[:, :, [2, 1, 0, 3][: image.shape[2]]]
         return _as_grey(image, name=name)
+
+    @staticmethod
+    def _page_header(page: object) -> FrameHeader | None:
+        """A page's size from its directory (tifffile reads it without decoding), None when it states none."""
+        shape = tuple(int(n) for n in getattr(page, "shape", ()))
+        samples = int(getattr(page, "samplesperpixel", 1) or 1)
+        bits = int(getattr(page, "bitspersample", 8) or 8)
+        if len(shape) < 2:
+            return None
+        height, width = (shape[-3], shape[-2]) if samples > 1 and len(shape) >= 3 else (shape[-2], shape[-1])
+        return FrameHeader(width, height, samples, max(1, (bits + 7) // 8))
 
     def close(self) -> None:
         self._tiff.close()
@@ -500,8 +569,12 @@ def _mraw_in_zip(path: Path, entries: tuple[str, str]) -> MrawFrames:
     return MrawFrames(path, header=mraw_header_in_zip(path, entries))
 
 
-def open_recording(path: str | Path, *, zip_limits: ZipLimits | None = None) -> FrameSource:
-    """Open a recording lazily, whatever its format (see the module docstring).
+def open_recording(
+    path: str | Path, *, zip_limits: ZipLimits | None = None, max_frame_bytes: int = MAX_FRAME_BYTES
+) -> FrameSource:
+    """Open a recording lazily, whatever its format (see the module docstring). Frames of image files (a folder,
+    a ZIP, a TIFF's pages) are each held against `max_frame_bytes` and the first frame's size from their headers
+    before they are decoded (`frame_header`).
 
     Raises ValueError (`containers.UnsupportedRecording`, `UnsafeArchive`, `CorruptRecording`) when the file is
     not a recording, holds no image, or must not be opened.
@@ -516,14 +589,14 @@ def open_recording(path: str | Path, *, zip_limits: ZipLimits | None = None) -> 
         ]
         if not names:
             raise UnsupportedRecording(f"{path}: no image frames found (accepted: {', '.join(IMAGE_SUFFIXES)})")
-        return ImageFolder(path, sorted(names, key=natural_key))
+        return ImageFolder(path, sorted(names, key=natural_key), max_frame_bytes=max_frame_bytes)
     if kind == "zip":
         contents = inspect_zip(path, limits=zip_limits)
         if contents.mraw_entries is not None:
             return _mraw_in_zip(path, contents.mraw_entries)
-        return ImageZip(path, contents.frame_names, contents.sidecar_names)
+        return ImageZip(path, contents.frame_names, contents.sidecar_names, max_frame_bytes=max_frame_bytes)
     if kind == "tiff":
-        return TiffStack(path)
+        return TiffStack(path, max_frame_bytes=max_frame_bytes)
     if kind == "cine":
         return CineFrames(path)
     if kind == "mraw":

@@ -226,3 +226,58 @@ def write_mraw_zip(path: Path, frames: Sequence[np.ndarray], *, bits: int, **opt
         archive.write(header, header.name)
         archive.write(header.with_suffix(".mraw"), "shot.mraw")
     return path
+
+
+def _zeros_deflated(size: int) -> bytes:
+    """`size` zero bytes, zlib-compressed, made in chunks (never `size` bytes in memory): ~1/1000 of the size."""
+    import zlib
+
+    packer = zlib.compressobj(9)
+    chunk = bytes(1 << 22)
+    parts = [packer.compress(chunk) for _ in range(size // len(chunk))]
+    parts.append(packer.compress(bytes(size % len(chunk))))
+    return b"".join(parts) + packer.flush()
+
+
+def deflated_tiff_bomb(width: int, height: int, *, samples: int = 3, bits: int = 16, ifd_last: bool = True) -> bytes:
+    """A TIFF of one strip, deflate-compressed (TIFF compression 8), of `width` × `height` px of `samples` ×
+    `bits`: a few kB to MB on disk that decode to width × height × samples × bits / 8 bytes. `ifd_last`: the
+    directory after the pixels (where most writers put it), so that a reader must seek to find the size."""
+    strip = _zeros_deflated(width * height * samples * bits // 8)
+    photometric = 2 if samples >= 3 else 1
+    tags = [(256, 4, 1, width), (257, 4, 1, height), (258, 3, 1, bits), (259, 3, 1, 8), (262, 3, 1, photometric),
+            (273, 4, 1, 0), (277, 3, 1, samples), (278, 4, 1, height), (279, 4, 1, len(strip))]  # fmt: skip
+    ifd_offset = 8 + len(strip) if ifd_last else 8
+    strip_offset = 8 if ifd_last else 8 + 2 + 12 * len(tags) + 4
+    if ifd_last and (8 + len(strip)) % 2:
+        strip += b"\x00"
+        ifd_offset += 1
+    entries = b"".join(
+        struct.pack("<HHII", tag, kind, count, strip_offset if tag == 273 else value)
+        if kind == 4
+        else struct.pack("<HHIHH", tag, kind, count, value, 0)
+        for tag, kind, count, value in tags
+    )
+    ifd = struct.pack("<H", len(tags)) + entries + struct.pack("<I", 0)
+    header = b"II*\x00" + struct.pack("<I", ifd_offset)
+    return header + strip + ifd if ifd_last else header + ifd + strip
+
+
+def png_bomb(width: int, height: int, *, bits: int = 16, colour_type: int = 6) -> bytes:
+    """A PNG of `width` × `height` px (16-bit RGBA by default) whose rows are all zero: ~1/1000 of its decoded
+    size on disk."""
+    import zlib
+
+    channels = {0: 1, 2: 3, 4: 2, 6: 4}[colour_type]
+    row = b"\x00" * (1 + width * channels * bits // 8)  # filter byte + zero samples
+    packer = zlib.compressobj(9)
+    parts, rows_per_chunk = [], max(1, (1 << 22) // len(row))
+    for start in range(0, height, rows_per_chunk):
+        parts.append(packer.compress(row * min(rows_per_chunk, height - start)))
+    data = b"".join(parts) + packer.flush()
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    ihdr = struct.pack(">IIBBBBB", width, height, bits, colour_type, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", data) + chunk(b"IEND", b"")

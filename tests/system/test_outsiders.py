@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import time
+import zipfile
 from collections.abc import Awaitable, Callable, Iterator
 
 import httpx
@@ -14,6 +15,7 @@ import pytest
 from tests.support import UpProcess, wait_for
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
+MIB = 1 << 20
 
 
 @pytest.fixture(scope="module")
@@ -21,7 +23,7 @@ def laptop(tmp_path_factory: pytest.TempPathFactory) -> Iterator[UpProcess]:
     """`fringelab up` as on a laptop: accounts off, one worker process; one web server process of 4 threads that
     holds 4 requests more (so that a test's flood reaches its bound)."""
     env = {"FRINGELAB_WORKER_CONCURRENCY": "1", "FRINGELAB_API_PROCESSES": "1", "FRINGELAB_API_THREADS": "4",
-           "FRINGELAB_API_QUEUE": "4"}  # fmt: skip
+           "FRINGELAB_API_QUEUE": "4", "FRINGELAB_MAX_FRAME_BYTES": str(16 * MIB)}  # fmt: skip
     up = UpProcess(tmp_path_factory.mktemp("laptop") / "var", extra_env=env)
     up.start()
     yield up
@@ -232,3 +234,72 @@ def test_a_nul_byte_in_a_simulation_file_name_is_a_422(laptop):
         for name in ("model%00.csv", "model%1B.csv", "%E2%80%AEvsc.exe"):
             answer = client.put(f"/api/v1/experiments/{experiment_id}/simulations/{name}", content=b"x,y\n1,2\n")
             assert answer.status_code == 422 and answer.json()["code"] == "invalid_filename", answer.text
+
+
+# ------------------------------------------------------------------------------------ 3: sizes before bytes
+
+
+def _worker_rss(up: UpProcess) -> int:
+    """RSS of `up`'s worker and its pool processes, bytes."""
+    import psutil
+
+    total = 0
+    for child in psutil.Process(up.process.pid).children():  # type: ignore[union-attr]
+        if "worker" in " ".join(child.cmdline()):
+            for process in (child, *child.children(recursive=True)):
+                total += process.memory_info().rss
+    return total
+
+
+def _ingested(client: httpx.Client, camera_id: int, name: str, data: bytes, up: UpProcess) -> tuple[dict, int]:
+    """Upload `data` as a test recording, wait for its ingest to end; (the recording, the worker's peak RSS)."""
+    answer = client.put(f"/api/v1/uploads/cameras/{camera_id}/{name}", params={"kind": "test"}, content=data)
+    assert answer.status_code == 201, answer.text
+    peak = 0
+
+    def ended() -> dict | None:
+        nonlocal peak
+        peak = max(peak, _worker_rss(up))
+        body = client.get(f"/api/v1/recordings/{answer.json()['id']}").json()
+        return body if body["state"] in ("ready", "invalid") else None
+
+    recording = wait_for(ended, timeout_s=120, what=f"the ingest of {name}", interval_s=0.02)
+    return recording, peak  # type: ignore[return-value]
+
+
+def test_frame_bombs_behind_a_small_first_frame_are_refused_by_the_worker_before_decoding(laptop, tmp_path):
+    """Finding 3: a ZIP of a 64 × 48 PNG and a deflated 20000² 16-bit RGB TIFF (2.3 MB) took a worker from 528 to
+    5090 MiB; an 11000² 16-bit RGBA PNG (0.9 MB) took 1.9 GiB. Here, against a 16 MiB frame budget, a TIFF of
+    7000² × 3 × 16 bits (294 MB decoded) and a PNG of 5000² × 4 × 16 bits (200 MB) behind a small first frame:
+    the upload passes (its first frame is fine), the ingest refuses each from its header, naming it and the
+    limit, and the worker's memory grows by less than either would take decoded."""
+    from tests.formats.recording_files import deflated_tiff_bomb, encode, png_bomb, stripe_frames
+
+    small = encode(stripe_frames(1)[0], ".png")
+    with httpx.Client(base_url=laptop.base_url, timeout=30) as client:
+        experiment_id = _experiment_id(client)
+        camera = {"name": "left", "image_width_px": 64, "image_height_px": 48, "pixel_pitch_um": 20.0}
+        camera_id = client.post(f"/api/v1/experiments/{experiment_id}/cameras", json=camera).json()["id"]
+        for name, bomb in (("tiff.zip", ("f1.tif", deflated_tiff_bomb(7000, 7000))),
+                           ("png.zip", ("f1.png", png_bomb(5000, 5000)))):  # fmt: skip
+            path = tmp_path / name
+            with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as archive:
+                archive.writestr("f0.png", small)
+                archive.writestr(*bomb)
+            # a sound recording first: the worker's pool process has loaded what an ingest needs
+            _ingested(client, camera_id, "warm.zip", _zip_of(small, small), laptop)
+            before = _worker_rss(laptop)
+            recording, peak = _ingested(client, camera_id, name, path.read_bytes(), laptop)
+            assert recording["state"] == "invalid", recording
+            assert bomb[0] in recording["error"] and "FRINGELAB_MAX_FRAME_BYTES" in recording["error"], recording
+            assert peak - before < 150 * MIB, (before / MIB, peak / MIB)
+
+
+def _zip_of(*frames: bytes) -> bytes:
+    import io
+
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w") as archive:
+        for i, frame in enumerate(frames):
+            archive.writestr(f"f{i}.png", frame)
+    return buffer.getvalue()

@@ -23,7 +23,7 @@ from fringelab.core.recordings import check_budget, zip_limits
 from fringelab.core.settings import Settings
 from fringelab.core.specs import IngestSpec
 from fringelab.core.storage import recording_dir
-from fringelab.formats.containers import STATES_BIT_DEPTH, RecordingLayout
+from fringelab.formats.containers import STATES_BIT_DEPTH, RecordingLayout, recording_layout
 from fringelab.formats.previews import PREVIEW_FILE, THUMBNAIL_PX, PreviewWriter
 from fringelab.formats.recordings import FrameSource, frame_rate_from_times, open_recording
 from fringelab.formats.sidecars import frame_indices, read_board_json, read_frames_csv, read_z_csv
@@ -159,7 +159,10 @@ def inspect_recording(
 ) -> Inspection:
     """Probe and check a recording frame by frame, writing its preview store. Raises ValueError when it cannot
     be opened at all; frame-level faults (corrupt frame, mixed sizes, bad sidecar) become `reasons`."""
-    with open_recording(path, zip_limits=zip_limits(settings)) as source:
+    # Sizes before bytes: the container's headers against the budgets before frame 0 is decoded (the settings or
+    # the disk may have changed since the upload), then each frame against the first one's size as it is read.
+    check_budget(recording_layout(path, zip_limits=zip_limits(settings)), settings, name=path.name)
+    with open_recording(path, zip_limits=zip_limits(settings), max_frame_bytes=settings.max_frame_bytes) as source:
         first = source[0]
         if first.size == 0:
             raise ValueError("frame 0 is empty (0 × 0 px)")
