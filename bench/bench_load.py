@@ -358,6 +358,8 @@ class TopographyKeeper(threading.Thread):
         while not self._stopping.wait(0.5):
             with contextlib.suppress(httpx.HTTPError):
                 jobs = self.client.get("/api/v1/jobs", params={"experiment_id": self.experiment_id, "limit": 100})
+                if jobs.status_code != 200:  # shed (503) under the load: ask again at the next turn
+                    continue
                 active = [j for j in jobs.json()["items"] if j["kind"] == "topography" and j["state"] in
                           ("queued", "running")]  # fmt: skip
                 if len(active) < 2:  # one running, one queued behind it: no gap while the next one is picked up

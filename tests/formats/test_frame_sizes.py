@@ -62,7 +62,7 @@ def test_a_frame_unlike_the_first_is_refused_before_decoding(tmp_path):
     frames = stripe_frames(2)
     other = encode(stripe_frames(1, height=96, width=128)[0], ".png")
     path = _zip(tmp_path / "r.zip", {"f0.png": encode(frames[0], ".png"), "f1.png": other})
-    with open_recording(path) as source, pytest.raises(CorruptRecording, match="128 × 96 px, but frame 0 is 64 × 48 px"):
+    with open_recording(path) as source, pytest.raises(CorruptRecording, match="128 × 96 px, but frame 0 is 64 × 48"):
         source[1]
 
 
