@@ -13,6 +13,8 @@ displacement.
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -72,6 +74,20 @@ def _mesh(nc: Any, where: str) -> tuple[np.ndarray, list[CellBlock]]:
     return xyz, blocks
 
 
+@contextlib.contextmanager
+def _damage_named(where: str) -> Iterator[None]:
+    """netCDF4 and HDF5 raise RuntimeError, OSError, KeyError, IndexError … for a damaged file: one sentence."""
+    try:
+        yield
+    except ValueError:
+        raise
+    except Exception as error:
+        raise ValueError(
+            f"{where}: not a readable Exodus II file ({type(error).__name__}: {error}): cut short or damaged? copy it "
+            "again from the solver's folder"
+        ) from None
+
+
 def read_exodus(path: str | Path) -> FEResults:
     """An Exodus II file as `FEResults` (length and time units not declared)."""
     import netCDF4
@@ -82,7 +98,7 @@ def read_exodus(path: str | Path) -> FEResults:
         nc = netCDF4.Dataset(path)
     except Exception as error:  # netCDF4 raises OSError and others for a file it cannot parse
         raise ValueError(f"{where}: not a readable Exodus II file ({type(error).__name__}: {error})") from None
-    with nc:
+    with nc, _damage_named(where):
         xyz, blocks = _mesh(nc, where)
         variables = nc.variables
         if "time_whole" not in variables or "name_nod_var" not in variables:
@@ -109,12 +125,12 @@ def read_exodus(path: str | Path) -> FEResults:
     def displacement(i: int) -> np.ndarray:
         if not 0 <= i < len(time):
             raise ValueError(f"{where}: no time step {i}; it has {len(time)}")
-        with netCDF4.Dataset(path) as nc:
+        with _damage_named(where), netCDF4.Dataset(path) as nc:
             return np.column_stack([nodal(nc, k, i) for k in components])
 
     thickness = None
     if thickness_index is not None and len(time):
-        with netCDF4.Dataset(path) as nc:
+        with _damage_named(where), netCDF4.Dataset(path) as nc:
             thickness = nodal(nc, thickness_index, 0)
     return FEResults(
         source=str(path), kind="exodus", node_ids=ids if ids is not None else np.arange(1, n_nodes + 1),

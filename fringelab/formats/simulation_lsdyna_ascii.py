@@ -106,6 +106,16 @@ def _time_of_header(line: str, where: str) -> float:
     return value
 
 
+def _check_block_came(header_line: int, name: str) -> None:
+    """A time step's header (line header_line; 0: none pending) must be followed by its column line and nodes; a
+    header whose nodes never come is a file cut short."""
+    if header_line:
+        raise ValueError(
+            f"{name}: line {header_line}: a time step's header without its nodes: the file is cut short; copy it "
+            "again from the solver's folder"
+        )
+
+
 def read_nodout(path: str | Path) -> NodeHistories:
     """Parse an ASCII nodout file (ValueError naming the file and line of anything not understood)."""
     path = Path(path)
@@ -120,15 +130,27 @@ def read_nodout(path: str | Path) -> NodeHistories:
             line = line.rstrip("\r\n")
             where = f"{path.name}: line {number}"
             if "n o d a l   p r i n t   o u t" in line:
+                _check_block_came(pending_line, path.name)
                 in_block = False
                 pending_time, pending_line = _time_of_header(line, where), number
                 continue
             stripped = line.strip()
             if stripped.startswith("nodal point"):
+                if not pending_line:
+                    raise ValueError(
+                        f"{where}: a column line without its time step's header ('n o d a l   p r i n t   o u t … "
+                        "( at time … )') before it: the file is damaged; copy it again from the solver's folder"
+                    )
+                if "x-disp" not in stripped and "x-rot" not in stripped:
+                    raise ValueError(
+                        f"{where}: a column line neither 'nodal point  x-disp …' nor 'nodal point  x-rot …': "
+                        f"{stripped[:40]!r}; is it an ASCII nodout as LS-DYNA writes it?"
+                    )
                 in_block = "x-disp" in stripped
                 if in_block:
                     times.append(pending_time)
                     blocks.append((pending_line, [], []))
+                pending_line = 0  # its nodes follow (displacements, or rotations: skipped)
                 continue
             if not in_block or not stripped:
                 continue
@@ -157,6 +179,7 @@ def read_nodout(path: str | Path) -> NodeHistories:
             blocks[-1][2].append((values[0], values[1], values[2]))
     if not times:
         raise ValueError(f"{path.name}: no 'nodal print out' block with displacements; is it an ASCII nodout?")
+    _check_block_came(pending_line, path.name)
     first_line, ids, _ = blocks[0]
     for header_line, block_ids, _ in blocks:
         if block_ids != ids:
@@ -227,12 +250,14 @@ def _rcforc_fields(line: str, where: str) -> tuple[int, list[float]]:
         starts.append((found, found + len(label) + 1))
         position = found + len(label) + 1
     end_of_z = rest.find(" mass", position)
+    if end_of_z < 0:
+        raise ValueError(f"{where}: no 'mass' field after z: the line is cut short; copy the file again")
     ident_text = rest[: starts[0][0]].strip()
     if not ident_text.isdigit():
         raise ValueError(f"{where}: interface id {ident_text!r} is not a number")
     values = []
     for k, label in enumerate(_RCFORC_LABELS):
-        stop = starts[k + 1][0] if k + 1 < len(starts) else (end_of_z if end_of_z >= 0 else len(rest))
+        stop = starts[k + 1][0] if k + 1 < len(starts) else end_of_z
         try:
             values.append(fortran_float(rest[starts[k][1] : stop]))
         except FieldError as error:
@@ -258,6 +283,13 @@ def read_rcforc(path: str | Path) -> ContactForces:
             collected.setdefault((ident, side), []).append(values)
     if not collected:
         raise ValueError(f"{path.name}: no 'master|slave ID time T x … y … z …' line; is it an ASCII rcforc?")
+    for ident in {key[0] for key in collected}:
+        sides = [len(collected.get((ident, side), [])) for side in ("master", "slave")]
+        if all(sides) and sides[0] != sides[1]:
+            raise ValueError(
+                f"{path.name}: interface {ident} has {sides[0]} master and {sides[1]} slave lines: the file is cut "
+                "short; copy it again from the solver's folder"
+            )
     series = {}
     for key, rows in collected.items():
         array = np.array(rows)
