@@ -15,6 +15,10 @@ simulations     opening a finite-element simulation (file or folder); one module
                 (lasso-python), simulation_vtu (.pvd/.vtu), simulation_exodus, simulation_csv (nodal and punch
                 CSV), simulation_lsdyna_ascii (nodout, rcforc)
 comparison      the comparison of a topography with a simulation (writer, reader)
+procam          camera–projector calibrations (fringelab JSON; OpenCV FileStorage under SLStudio's or OpenCV's
+                names)
+patterns        the patterns.json sidecar of a coded (Gray-code) sequence
+scan            camera–projector scan results (HDF5) and their points-csv and ply exports
 exports         every export for other tools, of a topography result and of a comparison (one owner per format)
 atomic, hdf5    the one atomic write, and the HDF5 conventions every result file follows
 
@@ -35,6 +39,9 @@ EXPORT_FILES: dict[str, tuple[str, str]] = {
     "mat": ("topography.mat", "application/x-matlab-data"),
     "vtk": ("topography-vtk.zip", "application/zip"),
 }
+# The exports of a camera–projector scan file (formats.scan), declared once.
+ScanExport = Literal["points-csv", "ply"]
+SCAN_EXPORT_FORMATS: tuple[str, ...] = get_args(ScanExport)
 # The exports of a comparison file, declared once.
 ComparisonExport = Literal["csv", "hdf5", "mat", "vtk", "profile-csv"]
 COMPARISON_EXPORTS: tuple[str, ...] = get_args(ComparisonExport)

@@ -568,6 +568,31 @@ def build_projector_calibration(
     return calibration
 
 
+def calibration_from_positions(
+    lut_t_px: np.ndarray,
+    z_mm: np.ndarray,
+    polarity: np.ndarray,
+    camera_model: CameraModel,
+    *,
+    settings: ProjectorSettings,
+    edge_settings: EdgeSettings,
+    image_shape_hw_px: tuple[int, int],
+    provenance: dict[str, Any] | None = None,
+) -> ProjectorCalibration:
+    """The table's fits and QA from edge positions known already, (K, S, J) over heights z_mm (J,) in increasing
+    order, in stripe order along +t: what a camera–projector model gives (`procam_table.py`) instead of a Z-stack.
+    The reference is the height nearest settings.reference_z_mm; there is no edge noise (NaN) and no step shift."""
+    z = np.asarray(z_mm, dtype=np.float64)
+    if z.ndim != 1 or not np.all(np.diff(z) > 0):
+        raise ValueError("z_mm: expected strictly increasing heights")
+    j_ref = int(np.argmin(np.abs(z - settings.reference_z_mm)))
+    return _fit_table(
+        np.asarray(lut_t_px, np.float32), z, np.asarray(polarity, np.int8), j_ref=j_ref, settings=settings,
+        edge_settings=edge_settings, image_shape_hw_px=image_shape_hw_px, camera_model=camera_model,
+        noise_px=float("nan"), max_step_shift=0.0, provenance=dict(provenance or {}),
+    )  # fmt: skip
+
+
 def _refuse_aliased_steps(
     lut: np.ndarray,
     z_sorted: np.ndarray,
