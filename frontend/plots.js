@@ -434,6 +434,73 @@ export function lineLayout({ xAxis, yAxis, y2Axis = null, shapes = [], note = nu
   return out;
 }
 
+/**
+ * Marks of the samples a curve lacks (`missing[k]` true: not measured there), drawn on the curve's line of missing
+ * values, never at 0: each at the value interpolated (in x) between the nearest known samples on either side (the
+ * nearest one at an end), the run joined to them by a thin dotted line that reads as "not measured". Returns [] when
+ * nothing is missing or no sample is known. `hover(k)` says why sample k is missing.
+ */
+export function missingMarkTraces(xs, ys, missing, { name, color = "#c2185b", lineColor = color, hover = () => name, yaxis = "y" }) {
+  const known = (k) => Number.isFinite(ys[k]) && Number.isFinite(xs[k]) && !missing[k];
+  const marks = { x: [], y: [], text: [] };
+  const line = { x: [], y: [] };
+  let k = 0;
+  while (k < ys.length) {
+    if (!missing[k] || !Number.isFinite(xs[k])) {
+      k += 1;
+      continue;
+    }
+    let end = k;
+    while (end + 1 < ys.length && missing[end + 1]) end += 1;
+    let before = k - 1;
+    while (before >= 0 && !known(before)) before -= 1;
+    let after = end + 1;
+    while (after < ys.length && !known(after)) after += 1;
+    const hasBefore = before >= 0;
+    const hasAfter = after < ys.length;
+    if (hasBefore || hasAfter) {
+      const at = (x) => {
+        if (!hasBefore) return ys[after];
+        if (!hasAfter || xs[after] === xs[before]) return ys[before];
+        return ys[before] + ((x - xs[before]) / (xs[after] - xs[before])) * (ys[after] - ys[before]);
+      };
+      const add = (into, x, y) => {
+        into.x.push(x);
+        into.y.push(y);
+      };
+      if (hasBefore) add(line, xs[before], ys[before]);
+      for (let m = k; m <= end; m += 1) {
+        if (!Number.isFinite(xs[m])) continue;
+        const y = at(xs[m]);
+        add(marks, xs[m], y);
+        marks.text.push(hover(m));
+        add(line, xs[m], y);
+      }
+      if (hasAfter) add(line, xs[after], ys[after]);
+      add(line, null, null);
+    }
+    k = end + 1;
+  }
+  if (!marks.x.length) return [];
+  return [
+    { type: "scatter", mode: "lines", name: `${name} (line)`, x: line.x, y: line.y, yaxis, showlegend: false, hoverinfo: "skip",
+      line: { color: lineColor, width: 1, dash: "dot" } },
+    { type: "scatter", mode: "markers", name, x: marks.x, y: marks.y, yaxis, text: marks.text, hovertemplate: "%{text}<extra></extra>",
+      marker: { size: 10, symbol: "x-thin-open", color, line: { width: 2, color } } },
+  ];
+}
+
+/** Lower bounds (the value is at least y) as upward triangles, never on the curve: [] when there are none. */
+export function lowerBoundTraces(xs, lower, { name = "lower bound (peak not measured)", color = "#c2185b", hover = () => "" } = {}) {
+  const ks = lower.map((v, k) => (Number.isFinite(v) && Number.isFinite(xs[k]) ? k : -1)).filter((k) => k >= 0);
+  if (!ks.length) return [];
+  return [{
+    type: "scatter", mode: "markers", name, x: ks.map((k) => xs[k]), y: ks.map((k) => lower[k]), text: ks.map((k) => hover(k)),
+    hovertemplate: "at least %{y:.3f} mm<br>%{text}<extra></extra>",
+    marker: { size: 10, symbol: "triangle-up-open", color, line: { width: 2, color } },
+  }];
+}
+
 /** A vertical marker line at x on a line plot (the current frame's time on a history plot). */
 export function verticalMarker(x) {
   return { type: "line", xref: "x", yref: "paper", x0: x, x1: x, y0: 0, y1: 1, line: { color: "#888", width: 1, dash: "dash" } };

@@ -5,7 +5,7 @@
 // frame, where a frame without a simulation partner is a gap marked with its reason, never a drop to zero; the
 // mapping used; exports. Every plot downloads its data (CSV) and its image (PNG).
 import { getJSON, query } from "../api.js";
-import { COLORS, Figure, axis, fieldRows, lineLayout, lineTraces, mapLayout, mapTraces, verticalMarker } from "../plots.js";
+import { COLORS, Figure, axis, fieldRows, lineLayout, lineTraces, mapLayout, mapTraces, missingMarkTraces, verticalMarker } from "../plots.js";
 import { attempt, field, fill, h, latestOnly, num, page, showError } from "../ui.js";
 import { comparisonExportPanel } from "./exports.js";
 import { jobName, shortId } from "./jobs.js";
@@ -297,6 +297,10 @@ class ComparisonView {
         : { name: "force, simulated", x: x.frames, y: f.sim_force_kN, color: COLORS[3], dash: "dash", yaxis: "y2" });
     }
     const traces = lineTraces(series);
+    // A frame whose peak was not measured (only a lower bound; its peak_w_mm is null) is a gap, marked on the
+    // measured curve's line of missing values, never at w = 0.
+    const unmeasured = (f.peak_measured || []).map((v) => v === 0 || v === false);
+    traces.push(...missingMarkTraces(x.frames, f.peak_w_mm, unmeasured, { name: "peak not measured", lineColor: COLORS[0], hover: (k) => `frame ${this.frames[k]}: peak not measured (a lower bound only)` }));
     const i = this.position;
     traces.push({ type: "scatter", mode: "markers", name: "this frame", x: [x.frames[i]], y: [f.peak_w_mm[i]], marker: { size: 12, color: "#111", symbol: "circle-open", line: { width: 2 } } });
     return this.curvesFigure.react(traces, lineLayout({ xAxis: x.title, yAxis: axis("peak deflection w", "mm"), y2Axis: haveForce ? axis("force", "kN") : null }));
@@ -305,9 +309,10 @@ class ComparisonView {
   curvesCSV() {
     const f = this.overview.frames;
     const s = this.overview.simulation;
-    const rows = this.frames.map((frame, i) => ["measured frame", frame, f.time_s[i], f.punch_displacement_mm[i], f.force_kN[i], f.peak_w_mm[i]]);
-    s.time_s.forEach((t, k) => rows.push(["simulation state", k, t, s.punch_displacement_mm[k], s.force_kN[k], s.peak_w_mm[k]]));
-    return { columns: ["source", "frame_or_state", "time_s", "punch_displacement_mm", "force_kN", "peak_w_mm"], rows };
+    const measured = f.peak_measured || [];
+    const rows = this.frames.map((frame, i) => ["measured frame", frame, f.time_s[i], f.punch_displacement_mm[i], f.force_kN[i], f.peak_w_mm[i], measured[i] ?? ""]);
+    s.time_s.forEach((t, k) => rows.push(["simulation state", k, t, s.punch_displacement_mm[k], s.force_kN[k], s.peak_w_mm[k], ""]));
+    return { columns: ["source", "frame_or_state", "time_s", "punch_displacement_mm", "force_kN", "peak_w_mm", "peak_measured"], rows };
   }
 
   /** RMS and largest |w_meas − w_sim| per frame: a frame not compared is a gap (null), marked on the axis with its

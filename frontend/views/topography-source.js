@@ -37,7 +37,10 @@ export class TopographySource {
         time_s: numbers(body.time_s),
         punch_displacement_mm: numbers(body.punch_displacement_mm),
         force_kN: numbers(body.force_kN),
-        peak_w_mm: peaks,
+        peak_w_mm: peaks, // NaN where the peak was not measured (coverage.peak_measured false)
+        // Where the peak was not measured: the largest measured w (the peak is at least this), and why not.
+        peak_w_lower_bound_mm: numbers(body.peak_w_lower_bound_mm || body.frames.map(() => null)),
+        peak_reason: Array.from(body.peak_reason || body.frames.map(() => null)),
       },
       w_range_mm: finite.length ? [Math.min(0, ...finite), Math.max(...finite)] : [-1, 1],
       // Per frame: what of the plate was measured, what is missing by reason (mm²), order conflicts, the temporal

@@ -1,7 +1,8 @@
 // The viewer's camera against camera: this topography against another camera's of the same experiment (peak
 // over time, the first section line's profile at this instant, or the difference map of this frame), each with
-// the difference this − other and its RMS and largest value.
-import { COLORS, Figure, axis, fieldRange, lineLayout, lineTraces, mapLayout, mapTraces, resampleField, verticalMarker } from "../../plots.js";
+// the difference this − other and its RMS and largest value. Only what both cameras measured is compared: a frame
+// either camera did not measure the peak of has no difference (a gap, never a drop), and is listed with why.
+import { COLORS, Figure, axis, fieldRange, lineLayout, lineTraces, mapLayout, mapTraces, missingMarkTraces, resampleField, verticalMarker } from "../../plots.js";
 import { attempt, fill, h, num } from "../../ui.js";
 import { gridOf, timeAxis } from "./shared.js";
 
@@ -15,6 +16,14 @@ function interpolate(xs, ys, x) {
     }
   }
   return xs.length === 1 && xs[0] === x ? ys[0] : NaN;
+}
+
+/** The indices of the samples around x (xs increasing): [i, i + 1], [i] on a sample, or [] outside them. */
+function around(xs, x) {
+  const exact = xs.indexOf(x);
+  if (exact >= 0) return [exact];
+  for (let i = 0; i + 1 < xs.length; i += 1) if (x > xs[i] && x < xs[i + 1]) return [i, i + 1];
+  return [];
 }
 
 export class CamerasPanel {
@@ -34,6 +43,7 @@ export class CamerasPanel {
         h("div", { class: "field inline" }, h("label", { for: "compare-with" }, "Compare with the topography of"), this.compareSelect),
         h("div", { class: "field inline" }, h("label", { for: "compare-what" }, "Compare"), this.compareWhat)),
       (this.compareStats = h("p", { class: "facts", "aria-label": "Difference between the cameras" })),
+      (this.leftOut = h("ul", { class: "warnings", "aria-label": "Frames left out of the difference" })),
       this.figure.element);
   }
 
@@ -91,11 +101,12 @@ export class CamerasPanel {
       difference: { color: "#111111", dash: "dot", yaxis: "y2" },
     };
     const differenceAxis = axis("difference w (this − other)", "mm");
-    const show = (series, differences, xAxis, yAxis, extra = {}) => {
+    const show = (series, differences, xAxis, yAxis, extra = {}, marks = []) => {
       const traces = lineTraces(series);
       traces.forEach((trace, i) => {
         if (i === 1) trace.marker = { size: 7, symbol: "x" };
       });
+      traces.push(...marks);
       const finite = differences.filter(Number.isFinite);
       const rms = finite.length ? Math.sqrt(finite.reduce((a, d) => a + d * d, 0) / finite.length) : NaN;
       this.compareStats.textContent = other
@@ -103,6 +114,7 @@ export class CamerasPanel {
         : "Choose another camera to see the difference.";
       return this.figure.react(traces, { ...lineLayout({ xAxis, yAxis, y2Axis: other ? differenceAxis : null, ...extra }), uirevision: this.compareWhat.value });
     };
+    fill(this.leftOut);
     if (this.compareWhat.value === "map") return this.drawDifferenceMap(other);
     if (this.compareWhat.value === "profile" && !viewer.lines.length) {
       this.comparedSeries = null;
@@ -126,22 +138,49 @@ export class CamerasPanel {
       return show(series, differences, axis(`distance along line ${line.label}`, "mm"), axis("deflection w", "mm"));
     }
     const time = timeAxis(viewer.meta);
-    const series = [{ name: mine, x: time.values, y: viewer.meta.frames.peak_w_mm, mode: "lines+markers", ...styles.mine }];
+    const ours = viewer.meta.frames;
+    const series = [{ name: mine, x: time.values, y: ours.peak_w_mm, mode: "lines+markers", ...styles.mine }];
+    const marks = [];
+    const notMeasured = (frames, k) => `peak not measured${frames.peak_reason[k] ? ` (${frames.peak_reason[k]})` : ""}`;
+    marks.push(...missingMarkTraces(time.values, ours.peak_w_mm, ours.peak_w_mm.map((w) => !Number.isFinite(w)),
+      { name: `${mine}: peak not measured`, color: styles.mine.color, hover: (k) => `${mine}, frame ${ours.index[k]}: ${notMeasured(ours, k)}` }));
     let differences = [];
+    const leftOut = [];
     if (other) {
-      const t = other.meta.frames.time_s;
+      const theirs = other.meta.frames;
+      const t = theirs.time_s;
       const byTime = time.key === "time" && t.every(Number.isFinite);
-      const x = byTime ? t.map((v) => v * time.scale) : other.meta.frames.index;
-      const y = other.meta.frames.peak_w_mm;
+      const x = byTime ? t.map((v) => v * time.scale) : theirs.index;
+      const y = theirs.peak_w_mm;
       series.push({ name: other.label, x, y, mode: "lines+markers", ...styles.theirs });
-      // The other camera's peak at this camera's instants (linear in time; by frame number without times).
-      differences = time.values.map((v, i) => viewer.meta.frames.peak_w_mm[i] - interpolate(x, y, v));
-      series.push({ name: "difference (this − other)", x: time.values, y: differences, ...styles.difference });
+      marks.push(...missingMarkTraces(x, y, y.map((w) => !Number.isFinite(w)),
+        { name: `${other.label}: peak not measured`, color: styles.theirs.color, hover: (k) => `${other.label}, frame ${theirs.index[k]}: ${notMeasured(theirs, k)}` }));
+      // The other camera's peak at this camera's instants (linear in time; by frame number without times), only
+      // where both measured it: a frame either camera did not measure is left out, with why.
+      differences = time.values.map((v, i) => {
+        if (!Number.isFinite(ours.peak_w_mm[i])) {
+          leftOut.push(`Frame ${ours.index[i]}: ${mine}: ${notMeasured(ours, i)}.`);
+          return NaN;
+        }
+        const near = around(x, v);
+        const missing = near.find((k) => !Number.isFinite(y[k]));
+        if (!near.length || missing !== undefined) {
+          leftOut.push(`Frame ${ours.index[i]}: ${other.label}: ${near.length ? `frame ${theirs.index[missing]}, ${notMeasured(theirs, missing)}` : "no frame at this instant"}.`);
+          return NaN;
+        }
+        return ours.peak_w_mm[i] - interpolate(x, y, v);
+      });
+      // Markers too: a compared frame between two left out is a point, not an invisible line.
+      series.push({ name: "difference (this − other)", x: time.values, y: differences, mode: "lines+markers", ...styles.difference });
     }
     this.comparedSeries = { columns: ["series", time.key === "time" ? `time_${time.unit}` : "frame", "peak_w_mm", "grid", "grid_step_mm"], series, grid: "result" };
-    await show(series, differences, time.title, axis("peak deflection w", "mm"), { shapes: [verticalMarker(time.values[viewer.position])] });
+    await show(series, differences, time.title, axis("peak deflection w", "mm"), { shapes: [verticalMarker(time.values[viewer.position])] }, marks);
     // Each peak is the largest w over that camera's own measured area: say so, since areas differ.
-    if (other) this.compareStats.append(" Each peak is taken over that camera's own measured area; the difference map compares the same points.");
+    if (other) {
+      this.compareStats.append(` Compared: ${time.values.length - leftOut.length} of ${time.values.length} frames; left out: ${leftOut.length}${leftOut.length ? " (listed below, with why)" : ""}.`,
+        " Each peak is taken over that camera's own measured area; the difference map compares the same points.");
+      fill(this.leftOut, leftOut.map((text) => h("li", {}, text)));
+    }
     return null;
   }
 

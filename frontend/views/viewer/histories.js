@@ -1,6 +1,7 @@
 // The viewer's point histories: w over the test at each clicked or typed point (time, or frame numbers without
-// times), the current frame marked.
-import { Figure, axis, lineLayout, lineTraces, verticalMarker } from "../../plots.js";
+// times), the current frame marked; frames where a point was not measured are marked on its curve's line of
+// missing values, never at w = 0.
+import { Figure, axis, lineLayout, lineTraces, missingMarkTraces, verticalMarker } from "../../plots.js";
 import { field, h, num } from "../../ui.js";
 import { timeAxis } from "./shared.js";
 
@@ -31,12 +32,20 @@ export class HistoriesPanel {
     const time = timeAxis(viewer.meta);
     const series = viewer.points.filter((p) => p.history).map((p) => ({
       name: `${p.label} (${num(p.x, 1)}, ${num(p.y, 1)}) mm`,
+      label: p.label,
       x: p.history.frame.map((f) => time.values[viewer.frames.indexOf(f)]),
       y: p.history.w,
+      frames: p.history.frame,
       color: p.color,
       mode: "lines+markers",
     }));
-    return this.figure.react(lineTraces(series), lineLayout({
+    const traces = lineTraces(series);
+    for (const one of series) {
+      traces.push(...missingMarkTraces(one.x, one.y, one.y.map((w) => !Number.isFinite(w)), {
+        name: `${one.label} not measured`, color: one.color, hover: (k) => `${one.label}, frame ${one.frames[k]}: not measured at this point`,
+      }));
+    }
+    return this.figure.react(traces, lineLayout({
       note: series.length ? null : "Click a point on the map to see its deflection over time",
       xAxis: time.title,
       yAxis: axis("deflection w", "mm"),

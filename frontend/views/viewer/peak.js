@@ -1,6 +1,7 @@
-// The viewer's peak deflection against punch displacement (or time), force on a second axis; a frame whose peak
-// region was not measured is a gap with a mark on the axis, never a drop.
-import { COLORS, Figure, axis, lineLayout, lineTraces } from "../../plots.js";
+// The viewer's peak deflection against punch displacement (or time), force on a second axis. A frame whose peak
+// was not measured is a gap in the curve, marked on the curve's line of missing values (never at w = 0), with its
+// lower bound (the largest w measured, when there is one) drawn as a lower bound, not as the peak.
+import { COLORS, Figure, axis, lineLayout, lineTraces, lowerBoundTraces, missingMarkTraces } from "../../plots.js";
 import { timeAxis } from "./shared.js";
 
 export class PeakPanel {
@@ -17,18 +18,18 @@ export class PeakPanel {
     const havePunch = m.punch_displacement_mm.some(Number.isFinite);
     const xs = havePunch ? m.punch_displacement_mm : timeAxis(meta).values;
     const xAxis = havePunch ? axis("punch displacement", "mm") : timeAxis(meta).title;
-    // A frame whose peak region was not measured has no peak: a gap in the line and a mark on the axis, not a drop.
     const unmeasured = meta.coverage.peak_measured.map((v) => v === false);
     const peaks = m.peak_w_mm.map((w, k) => (unmeasured[k] ? NaN : w));
     const series = [{ name: "peak deflection", x: xs, y: peaks, color: COLORS[0], mode: "lines+markers" }];
     if (haveForce) series.push({ name: "force", x: xs, y: m.force_kN, color: COLORS[1], yaxis: "y2", dash: "dot" });
-    const traces = lineTraces(series);
-    if (unmeasured.some(Boolean)) {
-      const gaps = xs.map((x, k) => (unmeasured[k] ? x : NaN));
-      traces.push({ type: "scatter", mode: "markers", name: "peak region not measured", x: gaps, y: gaps.map(() => 0),
-        marker: { size: 10, symbol: "x-thin-open", color: "#c2185b", line: { width: 2 } }, hovertemplate: "peak region not measured<extra></extra>" });
-    }
-    traces.push({ type: "scatter", mode: "markers", name: "this frame", x: [xs[i]], y: [peaks[i]], marker: { size: 12, color: "#111", symbol: "circle-open", line: { width: 2 } } });
+    const why = (k) => `frame ${this.viewer.frames[k]}: peak not measured${m.peak_reason[k] ? ` (${m.peak_reason[k]})` : ""}`;
+    const traces = [
+      ...lineTraces(series),
+      ...missingMarkTraces(xs, peaks, unmeasured, { name: "peak not measured", lineColor: COLORS[0], hover: why }),
+      ...lowerBoundTraces(xs, m.peak_w_lower_bound_mm, { hover: why }),
+    ];
+    const here = Number.isFinite(peaks[i]) ? peaks[i] : m.peak_w_lower_bound_mm[i];
+    traces.push({ type: "scatter", mode: "markers", name: "this frame", x: [xs[i]], y: [here], marker: { size: 12, color: "#111", symbol: "circle-open", line: { width: 2 } } });
     return this.figure.react(traces, lineLayout({
       xAxis,
       yAxis: axis("peak deflection w", "mm"),
@@ -41,8 +42,8 @@ export class PeakPanel {
     const m = meta.frames;
     const measured = meta.coverage.peak_measured;
     return {
-      columns: ["frame", "time_s", "punch_displacement_mm", "force_kN", "peak_w_mm", "peak_region_measured", "grid", "grid_step_mm"],
-      rows: this.viewer.frames.map((frame, i) => [frame, m.time_s[i], m.punch_displacement_mm[i], m.force_kN[i], m.peak_w_mm[i], measured[i] ?? "", "result", meta.grid.step_mm]),
+      columns: ["frame", "time_s", "punch_displacement_mm", "force_kN", "peak_w_mm", "peak_measured", "peak_w_lower_bound_mm", "peak_reason", "grid", "grid_step_mm"],
+      rows: this.viewer.frames.map((frame, i) => [frame, m.time_s[i], m.punch_displacement_mm[i], m.force_kN[i], m.peak_w_mm[i], measured[i] ?? "", m.peak_w_lower_bound_mm[i], m.peak_reason[i] ?? "", "result", meta.grid.step_mm]),
     };
   }
 }

@@ -1,0 +1,88 @@
+"""What was not measured is drawn as not measured (issue 27), in real Chromium with the viewer's own panels fed a
+small known result: a frame whose peak was not measured is a gap marked on the curve's line of missing values (the
+value between its measured neighbours, never w = 0), its lower bound a lower bound; camera against camera draws
+no difference for a frame either camera did not measure, and lists it with why."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from playwright.sync_api import expect
+
+from tests.browser.conftest import screenshot
+
+pytestmark = [pytest.mark.browser, pytest.mark.integration]
+
+LOWER_BOUND = "data missing within 10 mm of the maximum (12 grid nodes): the value is a lower bound"
+# Six frames, 2 mm of punch travel apart; the peak of frames 3 and 4 not measured (3 has a lower bound, 4 nothing).
+SETUP = """async ([lowerBoundReason]) => {
+    const { PeakPanel } = await import("/views/viewer/peak.js");
+    const { CamerasPanel } = await import("/views/viewer/cameras.js");
+    const { HistoriesPanel } = await import("/views/viewer/histories.js");
+    const meta = (peaks, reasons, lower) => ({
+        grid: { step_mm: 2 },
+        frames: { index: [0, 1, 2, 3, 4, 5], time_s: [0, 0.1, 0.2, 0.3, 0.4, 0.5],
+                  punch_displacement_mm: [0, 2, 4, 6, 8, 10], force_kN: [0, 1, 2, 3, 4, 5], peak_w_mm: peaks,
+                  peak_w_lower_bound_mm: lower, peak_reason: reasons },
+        coverage: { peak_measured: peaks.map((w) => Number.isFinite(w)) },
+    });
+    const none = [NaN, NaN, NaN, NaN, NaN, NaN];
+    const ours = meta([0, 2, 4, NaN, NaN, 10], [null, null, null, lowerBoundReason, "no data near the axis", null],
+                      [NaN, NaN, NaN, 5.5, NaN, NaN]);
+    const theirs = meta([0, 2.1, NaN, 6.1, 8.1, 10.1], [null, null, "shadow over the dome top", null, null, null],
+                        none);
+    const history = { frame: [0, 1, 2, 3, 4, 5], time_s: ours.frames.time_s, w: [0, 1, NaN, NaN, 4, 5] };
+    const points = [{ label: "P1", x: 0, y: 0, color: "#111111", history }];
+    const viewer = { job: { id: "0123456789ab" }, meta: ours, frames: ours.frames.index, position: 5, lines: [],
+                     points };
+    const peak = new PeakPanel(viewer);
+    const cameras = new CamerasPanel(viewer);
+    cameras.label = "camera kodak";
+    cameras.comparison = { label: "camera phantom", meta: theirs, source: null };
+    cameras.element.hidden = false;
+    const histories = new HistoriesPanel(viewer);
+    document.querySelector("main").append(peak.figure.element, histories.figure.element, cameras.element);
+    await histories.draw();
+    await peak.draw();
+    await cameras.draw();
+    window.panels = { peak, cameras, histories };
+}"""
+TRACE = "([panel, name]) => { const t = window.panels[panel].figure.plot.data.find((d) => d.name === name); return t ? { x: Array.from(t.x), y: Array.from(t.y) } : null; }"  # noqa: E501
+
+
+def gap(value: float | None) -> bool:
+    return value is None or math.isnan(value)
+
+
+def test_unmeasured_peaks_are_gaps_marked_on_the_line_and_cameras_compare_only_what_both_measured(page):
+    page.goto("/#/system")
+    expect(page.get_by_role("heading", name="System health")).to_be_visible()
+    page.evaluate(SETUP, [LOWER_BOUND])
+    expect(page.get_by_role("img", name="Camera against camera").locator(".main-svg").first).to_be_visible()
+
+    marks = page.evaluate(TRACE, ["peak", "peak not measured"])
+    # On the line between frame 2 (4 mm at 4 mm of travel) and frame 5 (10 mm at 10 mm): 6 and 8 mm, not 0.
+    assert marks["x"] == [6, 8] and marks["y"] == pytest.approx([6, 8])
+    lower = page.evaluate(TRACE, ["peak", "lower bound (peak not measured)"])
+    assert lower == {"x": [6], "y": [5.5]}
+    curve = page.evaluate(TRACE, ["peak", "peak deflection"])
+    assert gap(curve["y"][3]) and gap(curve["y"][4])  # gaps, not drops
+
+    # A point not measured in frames 2 and 3: marked on its line, between 1 mm (100 ms) and 4 mm (400 ms).
+    history = page.evaluate(TRACE, ["histories", "P1 not measured"])
+    assert history["x"] == pytest.approx([200, 300]) and history["y"] == pytest.approx([2, 3])
+
+    difference = page.evaluate(TRACE, ["cameras", "difference (this − other)"])["y"]
+    assert difference[0] == pytest.approx(0) and difference[1] == pytest.approx(-0.1)
+    assert all(gap(d) for d in difference[2:5]) and difference[5] == pytest.approx(-0.1)
+    left_out = page.get_by_role("list", name="Frames left out of the difference").get_by_role("listitem")
+    expect(left_out).to_have_text([
+        "Frame 2: camera phantom: frame 2, peak not measured (shadow over the dome top).",
+        f"Frame 3: camera kodak: peak not measured ({LOWER_BOUND}).",
+        "Frame 4: camera kodak: peak not measured (no data near the axis).",
+    ])  # fmt: skip
+    stats = page.get_by_label("Difference between the cameras")
+    expect(stats).to_contain_text("largest 0.100 mm over 3 points where both measured")
+    expect(stats).to_contain_text("Compared: 3 of 6 frames; left out: 3")
+    screenshot(page, "peak-marks")
