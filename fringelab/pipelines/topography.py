@@ -1,15 +1,18 @@
 """Topography of a whole test recording into its result file (docs/method.md §5–6).
 
-What the command line calls, and the sequential reference the worker's frame-parallel topography job must equal
-bit for bit. The stages (edges, identity, Z, X and Y, gridding) live in `fringelab.science.topography`; the
-result file is written by `fringelab.formats.topography`.
+What the command line calls. Its two stages, the reference (`reference_stage`, frame 0) and the frames
+(`frame_stage`, each frame on its own against the reference), are also what the worker's frame-parallel
+topography job calls (its entry task and its chunks), so the two write the same file; `TopographyReference` and
+`PackedFrame` are what the job hands from one task to the next (`as_record` / `from_record`). The science of each
+step (edges, identity, Z, X and Y, gridding) lives in `fringelab.science.topography`; the result file is written
+by `fringelab.formats.topography`.
 """
 
 from __future__ import annotations
 
 import itertools
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -18,12 +21,21 @@ import numpy as np
 from fringelab.formats.camera import calibration_as_dict
 from fringelab.formats.hdf5 import json_text
 from fringelab.formats.recordings import recording_log
-from fringelab.formats.topography import PEAK_REGION_RADIUS_MM, WRITER_THREADS, TopographyWriter, write_xdmf
+from fringelab.formats.topography import (
+    PEAK_REGION_RADIUS_MM,
+    WRITER_THREADS,
+    PackedGrids,
+    TopographyWriter,
+    pack_grids,
+    write_xdmf,
+)
 from fringelab.pipelines.provenance import code_versions
 from fringelab.science import Cancelled
 from fringelab.science.calibration import CameraCalibration, ProgressCallback
-from fringelab.science.fields import Grid, field_peak
+from fringelab.science.coverage import MISSING_REASONS, FrameCoverage
+from fringelab.science.fields import Grid, Peak, field_peak
 from fringelab.science.fringes import FrameEdges
+from fringelab.science.order import OrderReference
 from fringelab.science.projector import CameraModel, ProjectorCalibration, camera_fingerprint
 from fringelab.science.topography import (
     FrameMeasurement,
@@ -92,10 +104,8 @@ def topography_recording(
     settings = TopographySettings() if settings is None else settings
     n_frames = len(source)
     wanted = frame_range(frames, n_frames)
-    # Every frame is measured on its own against the reference (frame 0); only temporal smoothing looks h frames
-    # either way, so frames lo..stop − 1 are read besides frame 0.
-    h = settings.temporal_smoothing_frames
-    lo, stop = max(0, wanted.start - h), min(wanted.stop + h, n_frames)
+    read = frames_read(wanted, n_frames, settings)  # besides frame 0
+    lo, stop = read.start, read.stop
     first_image = source[0]
     check_recording_against(np.shape(first_image)[:2], projector, camera_model)
     if edges is None:
@@ -130,49 +140,34 @@ def topography_recording(
     stream = located()
     try:
         reference_edges = next(stream)
-        reference = reference_for(reference_edges, projector, camera_model, settings)
-        # Frame 0 is never smoothed (no frame before it), so measured alone it is what the stream gives.
-        first = measure_frame(reference_edges, reference, projector, camera_model, frame=0, settings=settings)
-        grid, max_edge_mm = grid_for_first_frame(first, projector, settings)
-        z = first.points_obj_mm[:, 2]
-        z_flat = float(np.median(z))
-        flat_rms = float(np.sqrt(np.mean((z - z_flat) ** 2)))
-        clamp = clamp_circle(first.points_obj_mm[:, :2])
-        n_first_tracks = first.n_tracks
+        reference = reference_stage(reference_edges, projector, camera_model, settings)
         writer = result_writer(
-            out_path, grid=grid, max_edge_mm=max_edge_mm, z_flat_mm=z_flat, camera_model=camera_model,
-            projector=projector, settings=settings, where=where, n_frames=n_frames, wanted=wanted,
-            centre_xy_mm=(clamp[0], clamp[1]), time_source=log.time_source, threads=writer_threads,
-            plate_nodes=plate_nodes(first, projector, grid, max_edge_mm=max_edge_mm),
+            out_path, reference=reference, camera_model=camera_model, projector=projector, settings=settings,
+            where=where, n_frames=n_frames, wanted=wanted, time_source=log.time_source, threads=writer_threads,
         )  # fmt: skip
         rest = itertools.chain([reference_edges], stream) if lo == 0 else stream
         cross_check = TemporalCrossCheck(projector)
-        for measurement in track_and_measure(
-            rest, projector, camera_model, settings=settings, first_frame=lo, reference=reference
-        ):
-            if measurement.frame not in wanted:
-                continue
-            measurement = cross_check.checked(measurement)
-            z_grid, sigma_grid = grid_measurement_with_sigma(measurement, projector, grid, max_edge_mm=max_edge_mm)
-            peak = field_peak(z_grid - z_flat, grid)
+        for frame in frame_stage(rest, reference, projector, camera_model, settings, first_frame=lo, wanted=wanted):
+            measurement = cross_check.checked(frame.measurement)
             writer.append(
-                measurement, z_grid, peak, log=log.row(measurement.frame), sigma_grid_mm=sigma_grid,
-                camera_frame=int(log.camera_frame[measurement.frame]),
+                measurement, frame.z_grid_mm, frame.peak, log=log.row(measurement.frame),
+                sigma_grid_mm=frame.sigma_grid_mm, camera_frame=int(log.camera_frame[measurement.frame]),
             )  # fmt: skip
-            tally.add(peak, n_out_of_range=measurement.n_out_of_range, measurement=measurement)
+            tally.add(frame.peak, n_out_of_range=measurement.n_out_of_range, measurement=measurement)
         if writer is None:
             raise TopographyError(f"{where}: the recording has no frames")
         tally.require_ordered(where)
-        path = writer.close(tally.attrs(flat_rms_mm=flat_rms, n_tracks_first_frame=n_first_tracks, clamp=clamp))
+        path = writer.close(reference.summary_attrs(tally))
         write_xdmf(path)  # the ParaView sidecar beside the result
     except BaseException:
         if writer is not None:
             writer.abort()
         raise
+    clamp = reference.clamp
     return TopographySummary(
         path=path,
         frames=wanted,
-        flat_rms_mm=flat_rms,
+        flat_rms_mm=reference.flat_rms_mm,
         max_peak_w_mm=tally.max_peak_w_mm,
         n_out_of_range_total=tally.n_out_of_range,
         clamp_centre_xy_mm=(clamp[0], clamp[1]),
@@ -184,9 +179,7 @@ def topography_recording(
 def result_writer(
     path: str | Path,
     *,
-    grid: Grid,
-    max_edge_mm: float,
-    z_flat_mm: float,
+    reference: TopographyReference,
     camera_model: CameraModel,
     projector: ProjectorCalibration,
     settings: TopographySettings,
@@ -194,19 +187,17 @@ def result_writer(
     n_frames: int,
     wanted: range,
     time_source: str = "",
-    centre_xy_mm: tuple[float, float] = (float("nan"), float("nan")),
     threads: int = WRITER_THREADS,
-    plate_nodes: np.ndarray | None = None,
 ) -> TopographyWriter:
     """The result file's writer with everything a result records of how it was made (settings, provenance,
-    the calibrations it used). plate_nodes: the grid nodes the reference frame measured (`plate_nodes`)."""
+    the calibrations it used), on the reference's grid."""
 
     provenance = {"input": where, "n_frames_in_recording": n_frames, "frames_written": [wanted.start, wanted.stop]}
     return TopographyWriter(
         path,
-        grid=grid,
-        max_edge_mm=max_edge_mm,
-        z_flat_mm=z_flat_mm,
+        grid=reference.grid,
+        max_edge_mm=reference.max_edge_mm,
+        z_flat_mm=reference.z_flat_mm,
         axis=projector.axis,
         attrs={
             "time_source": time_source,
@@ -215,8 +206,8 @@ def result_writer(
             "provenance_json": json_text({**provenance, **code_versions()}),
         },
         calibration_attrs=_calibration_attrs(camera_model, projector),
-        peak_region_mm=(centre_xy_mm[0], centre_xy_mm[1], PEAK_REGION_RADIUS_MM),
-        plate_nodes=plate_nodes,
+        peak_region_mm=(reference.clamp[0], reference.clamp[1], PEAK_REGION_RADIUS_MM),
+        plate_nodes=reference.plate_nodes,
         punch_radius_mm=settings.punch_radius_mm,
         threads=threads,
     )
@@ -246,3 +237,188 @@ def _calibration_attrs(camera_model: CameraModel, projector: ProjectorCalibratio
         "projector_json": json_text(projector_doc),
         "projector_camera_fingerprint": projector.camera_fingerprint,
     }
+
+
+# ------------------------------------------------------------------------------------------------------ stages
+# The two stages of a topography, called by `topography_recording` (one sequential pass) and by the worker's
+# topography job (the reference in its entry task, the frames in chunks on any worker, written in frame order by
+# its merge): one orchestration, so the two give the same file.
+
+
+@dataclass(frozen=True)
+class TopographyReference:
+    """The reference stage's answer (frame 0, the flat plate): what anchors the fringe order in every frame, the
+    grid, and what the result records of the flat plate. clamp: (X, Y, radius) of the clamp circle, mm;
+    plate_nodes: (ny, nx) bool, the grid nodes frame 0 measured (`plate_nodes`)."""
+
+    order: OrderReference
+    grid: Grid
+    max_edge_mm: float
+    z_flat_mm: float
+    flat_rms_mm: float
+    clamp: tuple[float, float, float]
+    n_tracks_first_frame: int
+    plate_nodes: np.ndarray
+
+    def summary_attrs(self, tally: SummaryTally) -> dict[str, Any]:
+        """The result file's /summary attributes, of the frames `tally` counted."""
+        return tally.attrs(flat_rms_mm=self.flat_rms_mm, n_tracks_first_frame=self.n_tracks_first_frame,
+                           clamp=self.clamp)  # fmt: skip
+
+    def as_record(self) -> dict[str, np.ndarray]:
+        """Arrays by name (a hand-over record; `from_record` reads it back exactly)."""
+        order = self.order
+        return {
+            "reference_t_px": order.reference_t_px, "rim": order.rim, "rim_circle_mm": np.array(order.rim_circle_mm),
+            "cell_area_mm2": order.cell_area_mm2, "x_mm": self.grid.x_mm, "y_mm": self.grid.y_mm,
+            "max_edge_mm": np.array(self.max_edge_mm), "z_flat_mm": np.array(self.z_flat_mm),
+            "flat_rms_mm": np.array(self.flat_rms_mm), "clamp": np.array(self.clamp),
+            "n_tracks_first_frame": np.array(self.n_tracks_first_frame), "plate_nodes": self.plate_nodes,
+        }  # fmt: skip
+
+    @classmethod
+    def from_record(cls, record: dict[str, np.ndarray]) -> TopographyReference:
+        rim_x, rim_y, rim_r = (float(v) for v in record["rim_circle_mm"])
+        clamp_x, clamp_y, clamp_r = (float(v) for v in record["clamp"])
+        order = OrderReference(reference_t_px=record["reference_t_px"], rim=record["rim"],
+                               rim_circle_mm=(rim_x, rim_y, rim_r), cell_area_mm2=record["cell_area_mm2"])  # fmt: skip
+        return cls(
+            order=order, grid=Grid(x_mm=record["x_mm"], y_mm=record["y_mm"]),
+            max_edge_mm=float(record["max_edge_mm"]), z_flat_mm=float(record["z_flat_mm"]),
+            flat_rms_mm=float(record["flat_rms_mm"]), clamp=(clamp_x, clamp_y, clamp_r),
+            n_tracks_first_frame=int(record["n_tracks_first_frame"]), plate_nodes=record["plate_nodes"],
+        )  # fmt: skip
+
+
+def reference_stage(
+    edges: FrameEdges, projector: ProjectorCalibration, camera_model: CameraModel, settings: TopographySettings
+) -> TopographyReference:
+    """The reference stage: frame 0's located edges matched to the table, the rim that anchors the order, frame 0
+    measured, and the grid from it."""
+    order = reference_for(edges, projector, camera_model, settings)
+    # Frame 0 is never smoothed (no frame before it), so measured alone it is what a pass over the frames gives.
+    first = measure_frame(edges, order, projector, camera_model, frame=0, settings=settings)
+    grid, max_edge_mm = grid_for_first_frame(first, projector, settings)
+    z = first.points_obj_mm[:, 2]
+    z_flat = float(np.median(z))
+    return TopographyReference(
+        order=order, grid=grid, max_edge_mm=max_edge_mm, z_flat_mm=z_flat,
+        flat_rms_mm=float(np.sqrt(np.mean((z - z_flat) ** 2))), clamp=clamp_circle(first.points_obj_mm[:, :2]),
+        n_tracks_first_frame=first.n_tracks, plate_nodes=plate_nodes(first, projector, grid, max_edge_mm=max_edge_mm),
+    )  # fmt: skip
+
+
+def frames_read(wanted: range, n_frames: int, settings: TopographySettings) -> range:
+    """The frames the frame stage reads to measure `wanted` (besides frame 0): every frame is measured on its own
+    against the reference; only temporal smoothing looks h frames either way."""
+    h = settings.temporal_smoothing_frames
+    return range(max(0, wanted.start - h), min(wanted.stop + h, n_frames))
+
+
+@dataclass(frozen=True)
+class MeasuredFrame:
+    """The frame stage's answer for one frame: its measurement, its gridded Z and σ (ny, nx), and its peak."""
+
+    measurement: FrameMeasurement
+    z_grid_mm: np.ndarray
+    sigma_grid_mm: np.ndarray
+    peak: Peak
+
+
+def frame_stage(
+    located: Iterable[FrameEdges],
+    reference: TopographyReference,
+    projector: ProjectorCalibration,
+    camera_model: CameraModel,
+    settings: TopographySettings,
+    *,
+    first_frame: int,
+    wanted: range,
+) -> Iterator[MeasuredFrame]:
+    """The frame stage: the located edges of frames first_frame, first_frame + 1, ... (`frames_read`) ordered,
+    measured and gridded, each on its own against the reference; the frames in `wanted`, one at a time."""
+    for measurement in track_and_measure(
+        located, projector, camera_model, settings=settings, first_frame=first_frame, reference=reference.order
+    ):
+        if measurement.frame not in wanted:
+            continue
+        z_grid, sigma_grid = grid_measurement_with_sigma(
+            measurement, projector, reference.grid, max_edge_mm=reference.max_edge_mm
+        )
+        yield MeasuredFrame(measurement, z_grid, sigma_grid, field_peak(z_grid - reference.z_flat_mm, reference.grid))
+
+
+_COUNTS = ("n_tracks", "n_ended", "n_out_of_range", "n_unmatched", "n_order_unresolved", "n_order_conflict_points",
+           "n_order_conflicts")  # fmt: skip
+# A frame's scalars in one structured record (one header per frame, not one per number), by name; counts exact.
+FRAME_SCALARS = np.dtype(
+    [("frame", np.int64), ("edge_noise_px", np.float64), ("visible_area_mm2", np.float64),
+     ("measured_area_mm2", np.float64)]
+    + [(f"missing_{reason}_mm2", np.float64) for reason in MISSING_REASONS]
+    + [(f"peak_{f.name}", np.float64) for f in fields(Peak)]
+    + [(name, np.int64) for name in _COUNTS]
+)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class PackedFrame:
+    """A measured frame as the result file takes it: its measurement, peak and grids packed (`pack_grids`). What
+    the worker's chunks hand over to its merge (`as_record` / `from_record`): X, Y and σ of the points as the file
+    stores them (float32), Z in full (the merge's temporal cross-check reads it)."""
+
+    measurement: FrameMeasurement
+    peak: Peak
+    packed: PackedGrids
+
+    @classmethod
+    def of(cls, frame: MeasuredFrame) -> PackedFrame:
+        return cls(frame.measurement, frame.peak, pack_grids(frame.z_grid_mm, frame.sigma_grid_mm))
+
+    def as_record(self) -> dict[str, np.ndarray]:
+        m, coverage = self.measurement, self.measurement.coverage
+        if coverage is None:
+            raise RuntimeError(f"frame {m.frame}: a measurement came without its coverage")
+        scalars = np.zeros(1, FRAME_SCALARS)
+        scalars["frame"], scalars["edge_noise_px"] = m.frame, m.edge_noise_px
+        scalars["visible_area_mm2"], scalars["measured_area_mm2"] = (
+            coverage.visible_area_mm2,
+            coverage.measured_area_mm2,
+        )
+        for reason in MISSING_REASONS:
+            scalars[f"missing_{reason}_mm2"] = coverage.missing_mm2[reason]
+        for f in fields(Peak):
+            scalars[f"peak_{f.name}"] = getattr(self.peak, f.name)
+        for name in _COUNTS:
+            scalars[name] = getattr(m, name)
+        sigma = np.full(len(m.k), np.nan) if m.sigma_z_mm is None else m.sigma_z_mm
+        return {
+            "k": m.k, "line": m.line, "xy_mm": m.points_obj_mm[:, :2].astype(np.float32), "z_mm": m.points_obj_mm[:, 2],
+            "sigma_z_mm": np.asarray(sigma, np.float32), "packed_z_mm": np.frombuffer(self.packed.z_mm, np.uint8),
+            "packed_sigma_w_mm": np.frombuffer(self.packed.sigma_w_mm, np.uint8),
+            "z_finite": np.packbits(self.packed.z_finite), "scalars": scalars,
+        }  # fmt: skip
+
+    @classmethod
+    def from_record(cls, record: dict[str, np.ndarray], grid_shape: tuple[int, int]) -> PackedFrame:
+        """The frame `as_record` wrote; grid_shape: (ny, nx) of the reference's grid."""
+        scalars = record["scalars"][0]
+        counts = {name: int(scalars[name]) for name in _COUNTS}
+        points = np.empty((len(record["k"]), 3))  # float64 as measured: X, Y in float32 lose nothing written
+        points[:, :2], points[:, 2] = record["xy_mm"], record["z_mm"]
+        coverage = FrameCoverage(
+            visible_area_mm2=float(scalars["visible_area_mm2"]), measured_area_mm2=float(scalars["measured_area_mm2"]),
+            missing_mm2={reason: float(scalars[f"missing_{reason}_mm2"]) for reason in MISSING_REASONS},
+            n_order_conflicts=counts["n_order_conflicts"],
+        )  # fmt: skip
+        measurement = FrameMeasurement(
+            frame=int(scalars["frame"]), k=record["k"], line=record["line"], points_obj_mm=points,
+            n_tracks=counts["n_tracks"], n_ended=counts["n_ended"], n_out_of_range=counts["n_out_of_range"],
+            n_unmatched=counts["n_unmatched"], edge_noise_px=float(scalars["edge_noise_px"]),
+            n_order_unresolved=counts["n_order_unresolved"], n_order_conflict_points=counts["n_order_conflict_points"],
+            n_order_conflicts=counts["n_order_conflicts"], coverage=coverage, sigma_z_mm=record["sigma_z_mm"],
+        )  # fmt: skip
+        peak = Peak(**{f.name: float(scalars[f"peak_{f.name}"]) for f in fields(Peak)})
+        finite = np.unpackbits(record["z_finite"], count=grid_shape[0] * grid_shape[1]).reshape(grid_shape)
+        packed = PackedGrids(z_mm=record["packed_z_mm"].tobytes(), sigma_w_mm=record["packed_sigma_w_mm"].tobytes(),
+                             z_finite=finite.view(bool))  # fmt: skip
+        return cls(measurement, peak, packed)

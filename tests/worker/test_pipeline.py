@@ -1,6 +1,8 @@
 """The whole measurement through the API on a virtual test (`fringelab virtual-test`): uploads and their ingest,
 camera calibration, projector calibration, topography in chunks, results and exports; and the same topography in
-one chunk, in many, and in one sequential pass without any job gives identical files."""
+one chunk, in many, and by the command line's pipeline (one sequential pass without any job) gives identical files:
+the job and the pipeline call the same stages (`fringelab.pipelines.topography.reference_stage`, `frame_stage`),
+the job hands them over between its tasks (`TopographyReference`, `PackedFrame` records)."""
 
 from __future__ import annotations
 
