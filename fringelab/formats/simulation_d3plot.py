@@ -136,6 +136,8 @@ def read_d3plot(path: str | Path) -> FEResults:
                         word_bytes=int(header.wordsize))  # fmt: skip
     times = np.asarray(timeline.arrays.get(ArrayType.global_timesteps, np.zeros(0)), np.float64)
     arrays = timeline.arrays
+    if ArrayType.node_coordinates not in arrays:
+        raise ValueError(f"{path.name}: a d3plot without node coordinates in its geometry: is it damaged?")
     xyz = np.asarray(arrays[ArrayType.node_coordinates], np.float64)
     n_nodes = len(xyz)
     shells = np.asarray(arrays.get(ArrayType.element_shell_node_indexes, np.zeros((0, 4))), np.int64)
