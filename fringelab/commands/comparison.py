@@ -30,8 +30,9 @@ def register(subparsers: Any) -> None:
         help="compare a topography result with a finite-element simulation",
         description="Map a simulation (d3plot family, .pvd/.vtu series, Exodus, nodal CSV; with nodout, rcforc or "
         "a punch CSV beside it) onto the plate, pair every test frame with it and write the differences. "
-        "Every mapping choice left out is detected and reported; a simulation in plate coordinates and mm whose "
-        "punch displacement covers the test's needs no option.",
+        "Every mapping choice left out is detected and reported; the model's own punch axis goes on the measured "
+        "one (--origin 0,0 keeps it in plate coordinates); a simulation in mm whose punch displacement covers "
+        "the test's needs no option.",
     )
     parser.add_argument("result", help="topography result (.h5)")
     parser.add_argument("simulation", help="simulation file or folder")
@@ -46,7 +47,13 @@ def register(subparsers: Any) -> None:
     )
     parser.add_argument("--w-sign", type=int, choices=(1, -1), help="+1 or -1: the sign that makes deflection "
                         "toward the cameras positive (default: detect)")  # fmt: skip
-    parser.add_argument("--origin", type=_pair, metavar="X,Y", help="where the model's origin lies on the plate, mm")
+    parser.add_argument(
+        "--origin",
+        type=_pair,
+        metavar="X,Y",
+        help="where the model's origin lies on the plate, mm (default: its punch axis on the measured one; "
+        "0,0 keeps a model in plate coordinates)",
+    )
     parser.add_argument("--rotation", type=float, default=0.0, metavar="DEG", help="model rotation about Z")
     parser.add_argument("--surface", choices=("toward-cameras", "away", "mid"), default="toward-cameras",
                         help="the model surface the cameras see (default: the one facing them)")  # fmt: skip

@@ -76,8 +76,9 @@ class MappingSettings:
     length_unit: "mm" or "m". symmetry: "none", "half-x" (the model is one side of X = 0), "half-y", "quarter".
     normal_axis: the model axis out of the plate ("x", "y", "z"). w_sign: +1 or −1, the sign that makes the
     deflection toward the cameras positive. origin_xy_mm: where the model's origin lies in the plate frame
-    (None: a full model already centred on the measured punch axis stays where it is, else its centre goes on
-    the punch axis; a symmetric model's origin goes on the punch axis). rotation_deg: about Z, after unfolding.
+    (None: the model's own punch axis goes on the measured punch axis, and the fit to the measurement refines it:
+    a symmetric model's symmetry axis, a full model's centre of deflection at its first loaded state; (0, 0)
+    keeps a model that is in plate coordinates where it is). rotation_deg: about Z, after unfolding.
     surface: which surface the cameras see: "toward-cameras" (the side +Z points to: the rear of the plate in the
     paper's set-up), "away", or "mid" (the shell mid-surface, no thickness offset). shell_thickness_mm: overrides
     the file's. punch_node: the node whose travel is the punch displacement (when the file has no punch curve).
@@ -447,14 +448,20 @@ def map_model(results: FEResults, plate: PlateFrame, settings: MappingSettings |
         detected.append("origin_xy_mm")
         axis = np.asarray(plate.axis_xy_mm, np.float64)
         if symmetry == "none":
-            centre = 0.5 * (lo + hi) * scale
-            if np.hypot(*(centre - axis)) <= 0.1 * measured:
-                origin = (0.0, 0.0)
-                notes.append("model centred on the measured punch axis: taken as in plate coordinates")
-            else:
-                origin = (float(axis[0] - centre[0]), float(axis[1] - centre[1]))
-                origin_on_axis = True
-                notes.append("model centre moved onto the measured punch axis")
+            own_axis, how = _model_punch_axis(results, surface.nodes, scale * surface_xyz[:, :2],
+                                              normal_axis=normal_axis, w_sign=w_sign)  # fmt: skip
+            if own_axis is None:
+                own_axis, how = 0.5 * (lo + hi) * scale, "the centre of its extent (no state deflects it)"
+            angle = np.deg2rad(settings.rotation_deg)
+            turned = np.array([np.cos(angle) * own_axis[0] - np.sin(angle) * own_axis[1],
+                               np.sin(angle) * own_axis[0] + np.cos(angle) * own_axis[1]])  # fmt: skip
+            origin = (float(axis[0] - turned[0]), float(axis[1] - turned[1]))
+            origin_on_axis = True
+            notes.append(
+                f"model's punch axis ({how}, at ({own_axis[0]:.2f}, {own_axis[1]:.2f}) mm in its own frame) put on "
+                f"the measured punch axis ({axis[0]:.2f}, {axis[1]:.2f}) mm: model moved by ({origin[0]:.2f}, "
+                f"{origin[1]:.2f}) mm (an origin of 0, 0 keeps a model in plate coordinates)"
+            )
         else:
             origin = (float(axis[0]), float(axis[1]))
             origin_on_axis = True
@@ -484,6 +491,32 @@ def map_model(results: FEResults, plate: PlateFrame, settings: MappingSettings |
         notes=tuple(notes), origin_on_axis=origin_on_axis,
     )  # fmt: skip
     return MappedModel(results, mapping, surface, reference_mm)
+
+
+def _model_punch_axis(
+    results: FEResults, nodes: np.ndarray, reference_xy_mm: np.ndarray, *, normal_axis: str, w_sign: int
+) -> tuple[np.ndarray | None, str]:
+    """A full model's own punch axis, (X, Y) mm in its oriented, scaled frame: the centroid of the area above
+    half the deflection (as `fields.field_peak` locates the measured one) at the first loaded state, the first
+    whose largest deflection reaches a tenth of the last state's; None when no state deflects the surface.
+
+    nodes: the surface nodes; reference_xy_mm (M, 2): their oriented, scaled reference positions."""
+
+    def deflection(state: int) -> np.ndarray:
+        return _oriented(results.displacement(state)[nodes], normal_axis, w_sign)[:, 2]
+
+    last = deflection(results.n_states - 1)
+    largest = float(np.nanmax(last)) if np.any(np.isfinite(last)) else 0.0
+    if not largest > 0:
+        return None, ""
+    for state in range(results.n_states):
+        w = deflection(state)
+        peak = float(np.nanmax(w)) if np.any(np.isfinite(w)) else 0.0
+        if peak > 0 and peak >= 0.1 * largest:
+            weight = np.nan_to_num(np.where(w >= 0.5 * peak, w - 0.5 * peak, 0.0))
+            centre = (weight[:, None] * reference_xy_mm).sum(axis=0) / weight.sum()
+            return centre, f"the centre of its deflection at state {state}"
+    return None, ""
 
 
 # ----------------------------------------------------------------------------------------------------------------
