@@ -10,7 +10,7 @@ import pytest
 
 from fringelab.formats.container_common import UnsupportedRecording
 from fringelab.formats.recordings import open_recording
-from tests.formats.recording_files import write_cine, write_mraw
+from tests.formats.recording_files import write_cine, write_mraw, write_mraw_zip
 
 pymraw = pytest.importorskip("pyMRAW")
 
@@ -40,6 +40,10 @@ def test_pfv4_mono_camera_with_colour_type_raw_is_read_as_mono(tmp_path) -> None
             np.testing.assert_array_equal(source[i], frames[i])
             np.testing.assert_array_equal(source[i], np.asarray(reference[i]))
         assert any("Color Type Raw read as mono: camera 'FASTCAM Nova S16" in note for note in source.notes)
+    zipped = write_mraw_zip(tmp_path / "nova.zip", frames, bits=12, header="cihx", colour="Raw", camera="FASTCAM")
+    with open_recording(zipped) as source:  # the pixels checked where they lie in the ZIP
+        np.testing.assert_array_equal(source[2], frames[2])
+        assert any("the camera model does not say, and the 2 × 2 pixel phases agree" in n for n in source.notes)
 
 
 def test_raw_bayer_is_refused_with_what_to_save_instead(tmp_path) -> None:
