@@ -2,7 +2,9 @@
 
 Nodal table, one row per (state, node), header `state,time_s,node,x_mm,y_mm,z_mm,ux_mm,uy_mm,uz_mm` (columns in
 any order): x, y, z are the node's reference coordinates (the same in every state), ux, uy, uz its displacement
-in that state. Lengths in mm, times in s. No connectivity: the surface is triangulated from the nodes.
+in that state. Lengths in mm, times in s. No connectivity: the surface is triangulated from the nodes. A state may
+leave nodes out (the nodes of eroded elements after a perforation, as solvers and post-processors write them): a
+node missing from a state is missing there (its displacement NaN, a hole in that state's surface).
 
 Punch table, header `time_s,force_kN` with an optional `punch_displacement_mm` column: the punch's force and
 travel over time (on their own time base).
@@ -72,7 +74,9 @@ def _raise_bad_line(path: Path, n_columns: int) -> None:
 
 
 def read_nodes_csv(path: str | Path) -> FEResults:
-    """The nodal table as `FEResults` (mm, s; no elements). States are numbered by their `state` value."""
+    """The nodal table as `FEResults` (mm, s; no elements). States are numbered by their `state` value; the
+    nodes are every node of any state, and a node a state leaves out (an eroded element's) has a NaN displacement
+    there (`FEResults`)."""
     path = Path(path)
     table = _table(path, NODES_COLUMNS)
     state = table["state"].astype(np.int64)
@@ -80,19 +84,16 @@ def read_nodes_csv(path: str | Path) -> FEResults:
     states, state_pos = np.unique(state, return_inverse=True)
     node_ids, node_pos = np.unique(node, return_inverse=True)
     n_states, n_nodes = len(states), len(node_ids)
-    count = np.bincount(state_pos, minlength=n_states)
-    if np.any(count != n_nodes):
-        bad = int(states[np.flatnonzero(count != n_nodes)[0]])
-        raise ValueError(
-            f"{path.name}: state {bad} has {count[count != n_nodes][0]} rows, expected one per node ({n_nodes})"
-        )
     flat = state_pos * n_nodes + node_pos
-    if len(np.unique(flat)) != len(flat):
-        raise ValueError(f"{path.name}: a (state, node) pair appears twice")
+    unique_flat, first_row = np.unique(flat, return_index=True)
+    if len(unique_flat) != len(flat):
+        twice = np.setdiff1d(np.arange(len(flat)), first_row)[0]
+        raise ValueError(f"{path.name}: line {twice + 2}: node {node[twice]} appears twice in state {state[twice]}")
+    # Each node's reference position from the first row that lists it (a node may join after state 0).
+    _, first = np.unique(node_pos, return_index=True)
     xyz = np.full((n_nodes, 3), np.nan)
-    first = np.flatnonzero(state_pos == 0)
     xyz[node_pos[first]] = np.column_stack([table["x_mm"][first], table["y_mm"][first], table["z_mm"][first]])
-    disp = np.zeros((n_states, n_nodes, 3))
+    disp = np.full((n_states, n_nodes, 3), np.nan)
     disp[state_pos, node_pos] = np.column_stack([table["ux_mm"], table["uy_mm"], table["uz_mm"]])
     time_s = np.zeros(n_states)
     time_s[state_pos] = table["time_s"]

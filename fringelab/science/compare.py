@@ -182,6 +182,7 @@ class ModelSurface:
         a, b, c = (xyz[self.triangles[:, i]] for i in range(3))
         face = np.cross(b - a, c - a)
         face *= np.where(face[:, 2:3] < 0, -1.0, 1.0)
+        face = np.nan_to_num(face)  # a face with an eroded corner (NaN) adds nothing to its neighbours' normals
         nodal = np.zeros_like(xyz)
         for i in range(3):
             np.add.at(nodal, self.triangles[:, i], face)
@@ -340,11 +341,14 @@ class MappedModel:
         return self._rasterize((1.0 - fraction) * xy0 + fraction * xy1, (1.0 - fraction) * w0 + fraction * w1, grid)
 
     def _rasterize(self, xy: np.ndarray, w: np.ndarray, grid: Grid) -> np.ndarray:
+        # A triangle with a node the state does not have (an eroded element's, NaN) is a hole in that state.
+        present = np.isfinite(w) & np.all(np.isfinite(xy), axis=1)
+        triangles = self.surface.triangles[np.all(present[self.surface.triangles], axis=1)]
         corner_xy, corner_w = [], []
         for sx, sy in _unfolds(self.mapping.symmetry):
             plate_xy = self._to_plate_xy(xy * np.array([sx, sy]))
-            corner_xy.append(plate_xy[self.surface.triangles])
-            corner_w.append(w[self.surface.triangles])
+            corner_xy.append(plate_xy[triangles])
+            corner_w.append(w[triangles])
         return rasterize_triangles(np.concatenate(corner_xy), np.concatenate(corner_w), grid)
 
     def footprint_xy_mm(self) -> np.ndarray:
@@ -385,7 +389,8 @@ def map_model(results: FEResults, plate: PlateFrame, settings: MappingSettings |
     w_sign = settings.w_sign
     if w_sign is None:
         u_last = results.displacement(results.n_states - 1)[candidates, AXES.index(normal_axis)]
-        w_sign = -1 if u_last.size and u_last[int(np.argmax(np.abs(u_last)))] < 0 else 1
+        finite = np.isfinite(u_last)  # (an eroded node has no displacement in the last state)
+        w_sign = -1 if np.any(finite) and u_last[finite][int(np.argmax(np.abs(u_last[finite])))] < 0 else 1
         detected.append("w_sign")
     oriented = _oriented(xyz, normal_axis, w_sign)
     surface = model_surface(results, oriented, surface=settings.surface, thickness=None)

@@ -36,7 +36,9 @@ class FEResults:
     node_ids (N,) int64; node_xyz (N, 3) reference coordinates in the model's length unit; shells (E, 3|4) and
     solids (F, 4|6|8) node positions of the elements (empty (0, 4) arrays where there are none);
     shell_thickness (N,) nodal shell thickness in the model's length unit, or None (no shells, or not in the
-    file); time (S,) of each state in the model's time unit; displacement(i) → (N, 3).
+    file); time (S,) of each state in the model's time unit; displacement(i) → (N, 3), NaN rows for the nodes
+    that state does not have (the nodes of eroded elements: node sets that change between states are read, and a
+    node missing from a state is missing there, a hole in its surface).
     punch_time, punch_displacement (P,): the punch's travel (positive along its motion) when the file has it, in
     the model's length unit (in mm where punch_in_mm: a punch CSV);
     force_time, force (Q,): the punch force, in kN times `force_unit_kN`.

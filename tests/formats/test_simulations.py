@@ -103,8 +103,8 @@ def test_bad_files_are_named(tmp_path: Path) -> None:
     bad.write_text("state,time_s,node,x_mm,y_mm,z_mm,ux_mm,uy_mm\n0,0,1,0,0,0,0,0\n")
     with pytest.raises(ValueError, match=r"line 1: missing column\(s\) uz_mm"):
         open_simulation(bad)
-    bad.write_text("state,time_s,node,x_mm,y_mm,z_mm,ux_mm,uy_mm,uz_mm\n0,0,1,0,0,0,0,0,0\n1,1,2,0,0,0,0,0,0\n")
-    with pytest.raises(ValueError, match=r"state 0 has 1 rows, expected one per node \(2\)"):
+    bad.write_text("state,time_s,node,x_mm,y_mm,z_mm,ux_mm,uy_mm,uz_mm\n0,0,1,0,0,0,0,0,0\n0,0,1,0,0,0,0,0,0\n")
+    with pytest.raises(ValueError, match=r"bad.csv: line 3: node 1 appears twice in state 0"):
         open_simulation(bad)
     (tmp_path / "x.vtu").write_text("not xml")
     with pytest.raises(ValueError, match=r"x.vtu: not a readable mesh file"):
@@ -114,3 +114,15 @@ def test_bad_files_are_named(tmp_path: Path) -> None:
         simulation_lsdyna_ascii.read_nodout(tmp_path / "nodout")
     with pytest.raises(ValueError, match=r"no such file or folder"):
         open_simulation(tmp_path / "missing")
+
+
+def test_a_node_missing_from_a_state_is_missing_there(tmp_path: Path) -> None:
+    """Node sets that change between states (eroded elements after a perforation): each state keeps its own."""
+    table = tmp_path / "eroded.csv"
+    table.write_text("state,time_s,node,x_mm,y_mm,z_mm,ux_mm,uy_mm,uz_mm\n"
+                     "0,0,1,0,0,0,0,0,0\n0,0,2,10,0,0,0,0,0\n0,0,3,0,10,0,0,0,0\n"
+                     "1,1,2,10,0,0,0,0,2\n1,1,3,0,10,0,0,0,3\n")  # fmt: skip
+    results = open_simulation(table)
+    assert results.n_states == 2 and list(results.node_ids) == [1, 2, 3]
+    np.testing.assert_array_equal(results.displacement(0)[:, 2], [0.0, 0.0, 0.0])
+    assert np.all(np.isnan(results.displacement(1)[0])) and list(results.displacement(1)[1:, 2]) == [2.0, 3.0]

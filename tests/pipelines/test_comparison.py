@@ -190,3 +190,39 @@ def test_a_model_about_its_own_axis_goes_on_the_measured_punch_axis(measured, tm
         measured.result, folder, tmp_path / "kept.h5", mapping=MappingSettings(origin_xy_mm=(0.0, 0.0))
     )
     assert kept.mapping["origin_xy_mm"] == [0.0, 0.0]
+
+
+def test_a_csv_without_the_eroded_nodes_after_perforation_compares_the_perforated_frames(measured, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """A nodal CSV whose states after the perforation leave out the nodes of the eroded elements (inside the
+    hole), as solvers write them: read, each state with its own nodes, and the perforated frames compared (before,
+    the file was refused: "state 6 has … rows, expected one per node")."""
+    from fringelab.formats.simulation_csv import NODES_COLUMNS, write_punch_csv
+    from fringelab.pipelines.virtual_test import scenario_of
+    from fringelab.science.virtual_test import preset, true_plate_model
+
+    scene = measured.scene
+    _, timeline = scenario_of("quasi-static", preset("kodak"), 8)
+    model = true_plate_model(scene, timeline, resolution=0.04)
+    folder = tmp_path / "eroded"
+    folder.mkdir()
+    r = np.hypot(*(model.node_xyz_mm[:, :2] - np.asarray(scene.centre_xy_mm)).T)
+    lines = [",".join(NODES_COLUMNS)]
+    for s, state in enumerate(timeline.states):
+        kept = np.flatnonzero(r >= state.hole_radius_mm) if state.hole_radius_mm > 0 else np.arange(len(r))
+        for n in kept:
+            x, y, z = model.node_xyz_mm[n]
+            ux, uy, uz = model.displacement_mm[s, n]
+            lines.append(f"{s},{model.time_s[s]:.9g},{n + 1},{x:.6f},{y:.6f},{z:.6f},{ux:.6f},{uy:.6f},{uz:.6f}")
+    (folder / "plate.csv").write_text("\n".join(lines) + "\n")
+    write_punch_csv(folder / "punch.csv", time_s=model.time_s, force_kN=model.force_kN,
+                    punch_displacement_mm=model.punch_displacement_mm)  # fmt: skip
+    perforated = [i for i, state in enumerate(timeline.states) if state.hole_radius_mm > 0]
+    assert perforated and len(lines) - 1 < len(r) * len(timeline.states)  # the file does leave nodes out
+    summary = compare_result(measured.result, folder, tmp_path / "comparison.h5")
+    assert_difference_is_the_measurement_error(measured, summary.path)
+    with ComparisonResult(summary.path) as comparison:
+        assert all(comparison.column("state_lo")[perforated] >= 0)  # compared, not refused or left out
+        # the simulated surface has the hole: no simulated w within the hole of the last state
+        gx, gy = np.meshgrid(comparison.grid.x_mm, comparison.grid.y_mm)
+        hole = np.hypot(gx - scene.centre_xy_mm[0], gy - scene.centre_xy_mm[1]) < timeline.states[-1].hole_radius_mm - 2
+        assert np.all(np.isnan(comparison.field("w_sim_mm", comparison.n_frames - 1)[hole]))
