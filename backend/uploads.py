@@ -242,14 +242,8 @@ class TusUploadStorage(TusStorage):
             hasher = sha256_of_file(self._path(uid), length=size)
         return str(hasher.hexdigest())
 
-    def reserved_bytes(self) -> int:
-        """Bytes that unfinished uploads have announced but not sent yet: the disk must keep room for them."""
-        total = 0
-        for info_path in self.directory.glob("*.info"):
-            info = self.read_info_now(info_path.stem) if UPLOAD_ID.fullmatch(info_path.stem) else None
-            if info and "recording_id" not in info.get("metadata", {}):
-                total += max(0, int(info.get("size") or 0) - int(info.get("offset") or 0))
-        return total
+    def reserved_bytes(self, owner_id: int | None) -> int:
+        return reserved_upload_bytes(self.settings, owner_id)
 
     def sweep(self, *, now: float | None = None) -> None:
         """Delete expired uploads (and stale PUT leftovers); at most once every SWEEP_INTERVAL_S."""
@@ -262,11 +256,54 @@ class TusUploadStorage(TusStorage):
             info = self.read_info_now(uid) if UPLOAD_ID.fullmatch(uid) else None
             if info is not None and _expires_at(info) < now:
                 self.delete_now(uid)
-        stale = now - self.settings.upload_expiry_days * 86400
-        for part in put_dir(self.settings.data_path).glob("*.part"):
-            with contextlib.suppress(OSError):
-                if part.stat().st_mtime < stale:
-                    part.unlink()
+        sweep_put_parts(self.settings, now=now)
+
+
+PUT_PART_STALE_S = 3600.0
+"""A PUT's `.part` file not written to for this long belongs to a request that died (a crashed or killed web
+server): a live one writes as its bytes arrive."""
+
+
+def sweep_put_parts(settings: Settings, *, now: float | None = None) -> int:
+    """Delete the `.part` files of dead PUT uploads (they stayed five days); how many were deleted."""
+    now = time.time() if now is None else now
+    deleted = 0
+    for part in put_dir(settings.data_path).glob("*.part"):
+        with contextlib.suppress(OSError):
+            if part.stat().st_mtime < now - PUT_PART_STALE_S:
+                part.unlink()
+                deleted += 1
+    return deleted
+
+
+def reserved_upload_bytes(settings: Settings, owner_id: int | None, *, now: float | None = None) -> int:
+    """Bytes that `owner_id`'s unfinished uploads have announced but not sent yet: the disk keeps room for them,
+    for their owner only (an upload announcing the whole disk locked every other user out for days), and only
+    for FRINGELAB_UPLOAD_RESERVATION_H after the upload's last byte (an abandoned one stops reserving)."""
+    now = time.time() if now is None else now
+    window_s = settings.upload_reservation_h * 3600
+    directory = tus_dir(settings.data_path)
+    total = 0
+    for info_path in directory.glob("*.info"):
+        uid = info_path.stem
+        if not UPLOAD_ID.fullmatch(uid):
+            continue
+        try:
+            info = dict(json.loads(info_path.read_text()))
+            last_s = max(info_path.stat().st_mtime, _mtime(directory / uid))
+        except (OSError, ValueError):
+            continue
+        if info.get("owner") != owner_id or "recording_id" in info.get("metadata", {}) or now - last_s > window_s:
+            continue
+        total += max(0, int(info.get("size") or 0) - int(info.get("offset") or 0))
+    return total
+
+
+def _mtime(path: Path) -> float:
+    try:
+        return path.stat().st_mtime
+    except OSError:
+        return 0.0
 
 
 def _expires_at(info: dict[str, Any]) -> float:
@@ -353,7 +390,7 @@ def make_pre_create_dep(storage: TusUploadStorage) -> Callable[..., Any]:
                 raise Invalid(f"camera_id must be an id from 1 to {MAX_ID}", code="invalid_metadata")
             camera_id = int(camera_id_text)
             await run_in_threadpool(storage.sweep)
-            reserved = await run_in_threadpool(storage.reserved_bytes)
+            reserved = await run_in_threadpool(storage.reserved_bytes, principal.user_id)
             await run_in_threadpool(
                 lambda: check_upload_request(
                     state, principal, camera_id=camera_id, kind=metadata["kind"], filename=metadata["filename"],

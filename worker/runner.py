@@ -57,6 +57,7 @@ from fringelab.core.job_kinds import spec_of
 from fringelab.core.jobs import FINAL_STATES, add_log, as_utc, heartbeat_interval_s
 from fringelab.core.models import Job, JobChunk, utcnow
 from fringelab.core.settings import Settings
+from fringelab.core.text import public_text
 from fringelab.formats.atomic import atomic_path
 from fringelab.science import Cancelled, MeasurementError
 from worker.runtime import job_dir, redis_of, sessions_of, settings_of
@@ -660,6 +661,7 @@ def finish(
     context: JobContext | None = None,
 ) -> bool:
     """End the job, once. A cancel that came first wins over success or failure. True if this call ended it."""
+    error = public_text(error)  # no server path or memory address in what a user reads
     files = [_file_entry(context, n, t) for n, t in sorted(context.files.items())] if context else []
     with sessions() as session:
         moment = utcnow()

@@ -29,7 +29,14 @@ from backend.api.deps import CurrentUser, StateDep, WritableCameraId
 from backend.errors import error_responses
 from backend.schemas.recordings import RecordingKind, RecordingOut, recording_out_by_id
 from backend.streaming import declared_length, staged_body
-from backend.uploads import TusUploadStorage, make_access_dep, make_complete_dep, make_pre_create_dep
+from backend.uploads import (
+    TusUploadStorage,
+    make_access_dep,
+    make_complete_dep,
+    make_pre_create_dep,
+    reserved_upload_bytes,
+    sweep_put_parts,
+)
 from fringelab.core.recordings import check_upload_request, register_upload
 from fringelab.core.state import AppState
 from fringelab.core.storage import tus_dir
@@ -102,8 +109,13 @@ async def put_recording(
     """Upload a recording in one streamed request (e.g. `curl -T plate.cine URL?kind=test`)."""
     settings = state.settings
     length = declared_length(request)
+    await run_in_threadpool(sweep_put_parts, settings)
+    # The uploader's own unfinished resumable uploads keep their room; other users' do not count against them.
+    reserved = await run_in_threadpool(reserved_upload_bytes, settings, principal.user_id)
     await run_in_threadpool(
-        lambda: check_upload_request(state, principal, camera_id=camera_id, kind=kind, filename=filename, length=length)
+        lambda: check_upload_request(
+            state, principal, camera_id=camera_id, kind=kind, filename=filename, length=length, reserved_bytes=reserved
+        )  # fmt: skip
     )
     async with staged_body(request, settings, length) as body:
         recording_id = await run_in_threadpool(

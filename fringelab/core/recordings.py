@@ -30,6 +30,7 @@ from fringelab.core.errors import (
 from fringelab.core.job_kinds import named_by
 from fringelab.core.jobs import ACTIVE_STATES, QueueUnavailable, submit_job
 from fringelab.core.models import Camera, Experiment, Group, Job, Recording
+from fringelab.core.quota import check_quota
 from fringelab.core.settings import Settings
 from fringelab.core.specs import IngestSpec
 from fringelab.core.state import AppState
@@ -221,6 +222,8 @@ def check_upload_request(
         )
     with state.sessions() as session:
         camera_for(session, principal, camera_id, write=True)
+        if length is not None:
+            check_quota(session, state.settings, principal, incoming_bytes=length + reserved_bytes)
     if length is not None:
         check_upload_size(state.settings, length, reserved_bytes=reserved_bytes)
 

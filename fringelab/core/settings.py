@@ -148,6 +148,19 @@ class Settings(BaseSettings):
         ge=0,
         description="Uploads are refused when they would leave less free space than this on the data volume.",
     )
+    user_quota_bytes: int = Field(
+        0,
+        ge=0,
+        description="Bytes of recordings, simulations and results one user's experiments may hold, plus their "
+        "unfinished uploads; 0: no quota.",
+    )
+    upload_reservation_h: float = Field(
+        6.0,
+        gt=0,
+        le=24 * 30,
+        description="An unfinished resumable upload keeps room for the bytes it announced for this long after its "
+        "last byte, counted against its owner only.",
+    )
     upload_expiry_days: int = Field(
         5, ge=1, description="An unfinished resumable upload is deleted after this many days."
     )

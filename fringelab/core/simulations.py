@@ -29,6 +29,7 @@ from fringelab.core.errors import Conflict, Invalid, NotFound, TooLarge
 from fringelab.core.job_kinds import TOPOGRAPHY_FILE, named_by
 from fringelab.core.jobs import ACTIVE_STATES
 from fringelab.core.models import Experiment, Job, Simulation
+from fringelab.core.quota import check_quota
 from fringelab.core.recordings import check_upload_size
 from fringelab.core.settings import Settings
 from fringelab.core.specs import ComparisonSpec
@@ -59,6 +60,8 @@ def check_simulation_request(
         if experiment is None:
             raise NotFound(f"experiment {experiment_id} not found")
         require_access(session, principal, experiment, write=True, what=f"experiment {experiment_id}")
+        if length is not None:
+            check_quota(session, state.settings, principal, incoming_bytes=length)
     if length is not None:
         # a ZIP unpacks beside itself: room for twice the bytes
         check_upload_size(state.settings, length, reserved_bytes=length)

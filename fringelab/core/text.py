@@ -77,3 +77,15 @@ def check_file_name(filename: str) -> None:
     problem = text_problem(filename)
     if problem:
         raise Invalid(f"filename {problem}", code="invalid_filename")
+
+
+# An absolute POSIX or Windows path (at least two parts), and a memory address as Python prints it (0x7f3a...).
+_ABSOLUTE_PATH = re.compile(r"(?<![\w.~:/])(?:/[^\s'\"/:,;()\[\]]+){2,}/?|\b[A-Za-z]:\\(?:[^\s'\"\\:,;()\[\]]+\\?)+")
+_ADDRESS = re.compile(r"\b0x[0-9a-fA-F]{6,}\b")
+
+
+def public_text(message: str) -> str:
+    """An error text as a user may see it: a server path becomes its last part (the file's name, which the user
+    knows), a memory address `0x…`. What the server log keeps stays whole."""
+    shown = _ABSOLUTE_PATH.sub(lambda found: found.group().rstrip("/\\").replace("\\", "/").rsplit("/", 1)[-1], message)
+    return _ADDRESS.sub("0x…", shown)

@@ -303,3 +303,59 @@ def _zip_of(*frames: bytes) -> bytes:
         for i, frame in enumerate(frames):
             archive.writestr(f"f{i}.png", frame)
     return buffer.getvalue()
+
+
+# ------------------------------------------------------------------------------------------- 6: disk
+
+
+def _tus_create(client: httpx.Client, camera_id: int, length: int) -> httpx.Response:
+    import base64
+
+    def b64(text: str) -> str:
+        return base64.b64encode(text.encode()).decode()
+
+    metadata = f"filename {b64('r.cine')},filetype {b64('application/octet-stream')},camera_id {b64(str(camera_id))},"
+    metadata += f"kind {b64('test')}"
+    return client.post("/api/v1/uploads", headers={"Tus-Resumable": "1.0.0", "Upload-Length": str(length),
+                                                   "Upload-Metadata": metadata})  # fmt: skip
+
+
+def test_an_unfinished_upload_reserves_room_for_its_owner_only_within_a_quota(tmp_path):
+    """Finding 6: one member's tus POST announcing the whole free disk, sending nothing, made every other user's
+    upload fail with 413 for five days, and PUT uploads ignored reservations. Now a reservation counts against its
+    owner only (whose own uploads it does hold back), and within a per-user quota."""
+    import shutil
+
+    import numpy as np
+
+    from tests.formats.recording_files import stripe_frames, write_cine
+    from tests.system.conftest import start_lab_server
+
+    gib = 1 << 30
+    reserve = shutil.disk_usage(tmp_path).free - 2 * gib  # 2 GiB usable for uploads on this server
+    server = start_lab_server(tmp_path / "var", FRINGELAB_MIN_FREE_DISK_BYTES=str(reserve),
+                              FRINGELAB_USER_QUOTA_BYTES=str(3 * gib))  # fmt: skip
+    cine = write_cine(tmp_path / "r.cine", stripe_frames(400, dtype=np.uint16)).read_bytes()  # 2.5 MB
+    assert len(cine) > 2 * MIB
+    try:
+        with server.client("ada") as ada, server.client("bob") as bob:
+            experiment_id = _experiment_id(ada)
+            camera = {"name": "left", "image_width_px": 64, "image_height_px": 48, "pixel_pitch_um": 20.0}
+            ada_camera = ada.post(f"/api/v1/experiments/{experiment_id}/cameras", json=camera).json()["id"]
+            bob_camera = bob.post(f"/api/v1/experiments/{_experiment_id(bob)}/cameras", json=camera).json()["id"]
+            # ada announces nearly all the disk may take (as much as is free, less what others write meanwhile:
+            # the first length accepted in steps of 128 kB), and sends nothing
+            for margin in range(0, 64 * MIB, MIB // 8):
+                created = _tus_create(ada, ada_camera, shutil.disk_usage(tmp_path).free - reserve - margin)
+                if created.status_code == 201:
+                    break
+            assert created.status_code == 201, created.text
+            put = bob.put(f"/api/v1/uploads/cameras/{bob_camera}/r.cine", params={"kind": "test"}, content=cine)
+            assert put.status_code == 201, put.text  # before: 413 for five days
+            own = ada.put(f"/api/v1/uploads/cameras/{ada_camera}/r.cine", params={"kind": "test"}, content=cine)
+            assert own.status_code == 413 and own.json()["code"] == "insufficient_storage", own.text
+            over = _tus_create(ada, ada_camera, gib + gib // 2)  # her 2 GiB reserved + 1.5 GiB > 3 GiB quota
+            assert over.status_code == 413 and over.json()["code"] == "over_quota", over.text
+            assert "FRINGELAB_USER_QUOTA_BYTES" in over.json()["detail"]
+    finally:
+        assert server.up.stop() == 0

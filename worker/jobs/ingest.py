@@ -23,6 +23,7 @@ from fringelab.core.recordings import check_budget, zip_limits
 from fringelab.core.settings import Settings
 from fringelab.core.specs import IngestSpec
 from fringelab.core.storage import recording_dir
+from fringelab.core.text import public_text
 from fringelab.formats.containers import STATES_BIT_DEPTH, RecordingLayout, recording_layout
 from fringelab.formats.previews import PREVIEW_FILE, THUMBNAIL_PX, PreviewWriter
 from fringelab.formats.recordings import FrameSource, frame_rate_from_times, open_recording
@@ -144,7 +145,7 @@ def _update(context: JobContext, recording_id: int, **fields: Any) -> None:
         if recording is None:
             raise Cancelled(f"recording {recording_id} was deleted")
         for name, value in fields.items():
-            setattr(recording, name, value)
+            setattr(recording, name, public_text(value) if name == "error" else value)  # no server path shown
         session.commit()
 
 
