@@ -86,6 +86,16 @@ export class TopographySource {
     return body.profiles.map((p) => ({ frame: p.frame, s, x, y, w: numbers(p.w_mm) }));
   }
 
+  /**
+   * This camera's peaks against another camera's topography job, frame by frame (GET .../against/{id}): compared
+   * only where both measured the peak; { frames, difference_w_mm (NaN: not compared), left_out_frames [{ frame,
+   * reason }], n_compared, rms_difference_mm, largest_difference_mm }.
+   */
+  async against(otherJobId) {
+    const body = await getJSON(`${this.base}/against/${encodeURIComponent(otherJobId)}`);
+    return { ...body, difference_w_mm: numbers(body.difference_w_mm) };
+  }
+
   /** w at a point in every frame. */
   async history(point) {
     const body = await getJSON(`${this.base}/history${query({ x_mm: point.x, y_mm: point.y })}`);

@@ -6,26 +6,6 @@ import { COLORS, Figure, axis, fieldRange, lineLayout, lineTraces, mapLayout, ma
 import { attempt, fill, h, num } from "../../ui.js";
 import { gridOf, timeAxis } from "./shared.js";
 
-/** y at x by linear interpolation between the samples (xs increasing); NaN outside them or next to a gap. */
-function interpolate(xs, ys, x) {
-  if (!Number.isFinite(x)) return NaN;
-  for (let i = 0; i + 1 < xs.length; i += 1) {
-    if (x >= xs[i] && x <= xs[i + 1]) {
-      const f = xs[i + 1] === xs[i] ? 0 : (x - xs[i]) / (xs[i + 1] - xs[i]);
-      return ys[i] * (1 - f) + ys[i + 1] * f;
-    }
-  }
-  return xs.length === 1 && xs[0] === x ? ys[0] : NaN;
-}
-
-/** The indices of the samples around x (xs increasing): [i, i + 1], [i] on a sample, or [] outside them. */
-function around(xs, x) {
-  const exact = xs.indexOf(x);
-  if (exact >= 0) return [exact];
-  for (let i = 0; i + 1 < xs.length; i += 1) if (x > xs[i] && x < xs[i + 1]) return [i, i + 1];
-  return [];
-}
-
 export class CamerasPanel {
   constructor(viewer) {
     this.viewer = viewer;
@@ -155,21 +135,12 @@ export class CamerasPanel {
       series.push({ name: other.label, x, y, mode: "lines+markers", ...styles.theirs });
       marks.push(...missingMarkTraces(x, y, y.map((w) => !Number.isFinite(w)),
         { name: `${other.label}: peak not measured`, color: styles.theirs.color, hover: (k) => `${other.label}, frame ${theirs.index[k]}: ${notMeasured(theirs, k)}` }));
-      // The other camera's peak at this camera's instants (linear in time; by frame number without times), only
-      // where both measured it: a frame either camera did not measure is left out, with why.
-      differences = time.values.map((v, i) => {
-        if (!Number.isFinite(ours.peak_w_mm[i])) {
-          leftOut.push(`Frame ${ours.index[i]}: ${mine}: ${notMeasured(ours, i)}.`);
-          return NaN;
-        }
-        const near = around(x, v);
-        const missing = near.find((k) => !Number.isFinite(y[k]));
-        if (!near.length || missing !== undefined) {
-          leftOut.push(`Frame ${ours.index[i]}: ${other.label}: ${near.length ? `frame ${theirs.index[missing]}, ${notMeasured(theirs, missing)}` : "no frame at this instant"}.`);
-          return NaN;
-        }
-        return ours.peak_w_mm[i] - interpolate(x, y, v);
-      });
+      // The difference is the server's (one rule: compared only where both cameras measured the peak, the other's
+      // interpolated in time); every frame it leaves out is listed with its reason.
+      const against = await attempt("compare the peaks with the other camera", () => viewer.source.against(other.source.job.id));
+      if (!against || !this.viewer.context.current()) return null;
+      differences = against.difference_w_mm;
+      leftOut.push(...against.left_out_frames.map((f) => `Frame ${f.frame}: ${f.reason}`));
       // Markers too: a compared frame between two left out is a point, not an invisible line.
       series.push({ name: "difference (this − other)", x: time.values, y: differences, mode: "lines+markers", ...styles.difference });
     }
