@@ -435,6 +435,44 @@ export function lineLayout({ xAxis, yAxis, y2Axis = null, shapes = [], note = nu
 }
 
 /**
+ * A band between `lower` and `upper` (arrays with null where unknown) along `s`: one closed polygon per run of
+ * known values (filled "toself", runs apart by a null), so that a gap in the data stays a gap in the band.
+ */
+export function bandTrace(s, lower, upper, { name, color, yaxis = "y" }) {
+  const xs = [];
+  const ys = [];
+  let run = [];
+  const flush = () => {
+    if (run.length > 1) {
+      const back = [...run].reverse();
+      xs.push(...run.map((k) => s[k]), ...back.map((k) => s[k]), null);
+      ys.push(...run.map((k) => upper[k]), ...back.map((k) => lower[k]), null);
+    }
+    run = [];
+  };
+  s.forEach((_, k) => (upper[k] === null || lower[k] === null ? flush() : run.push(k)));
+  flush();
+  return { type: "scatter", mode: "lines", name, x: xs, y: ys, yaxis, fill: "toself", fillcolor: color, line: { width: 0 }, hoverinfo: "skip" };
+}
+
+/**
+ * The ±k·σ band of a curve (`w`, `sigma` arrays, NaN or null where unknown) along `s`, filled in `color`: a gap in
+ * either stays a gap in the band. k = 2 by default: the band a 95 % interval of each value spans.
+ */
+export function sigmaBandTrace(s, w, sigma, { name, color, k = 2, yaxis = "y" }) {
+  const known = (i) => Number.isFinite(w[i]) && Number.isFinite(sigma[i]);
+  const upper = s.map((_, i) => (known(i) ? w[i] + k * sigma[i] : null));
+  const lower = s.map((_, i) => (known(i) ? w[i] - k * sigma[i] : null));
+  return bandTrace(s, lower, upper, { name, color, yaxis });
+}
+
+/** `#rrggbb` as an rgba() colour of opacity `alpha`: a band in the colour of its curve. */
+export function translucent(hex, alpha = 0.2) {
+  const [r, g, b] = [1, 3, 5].map((i) => parseInt(hex.slice(i, i + 2), 16));
+  return `rgba(${r},${g},${b},${alpha})`;
+}
+
+/**
  * Marks of the samples a curve lacks (`missing[k]` true: not measured there), drawn on the curve's line of missing
  * values, never at 0: each at the value interpolated (in x) between the nearest known samples on either side (the
  * nearest one at an end), the run joined to them by a thin dotted line that reads as "not measured". Returns [] when

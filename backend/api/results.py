@@ -487,7 +487,10 @@ class ProfileOut(BaseModel):
     s_mm: list[float]
     x_mm: list[float]
     y_mm: list[float]
-    profiles: list[dict[str, Any]] = Field(description="[{frame, w_mm: [...]}] in the order asked.")
+    profiles: list[dict[str, Any]] = Field(
+        description="[{frame, w_mm: [...], sigma_w_mm: [...] | null}] in the order asked; sigma_w_mm is σ of w "
+        "(mm, null where unknown; null for the whole profile in a result written before σ was stored)."
+    )
 
 
 @router.get("/jobs/{job_id}/topography/profile", response_model=ProfileOut, responses=RESULT_ERRORS)
@@ -523,7 +526,14 @@ def topography_profile(
                 s_mm=_listed(cut["s_mm"]),
                 x_mm=_listed(cut["x_mm"]),
                 y_mm=_listed(cut["y_mm"]),
-                profiles=[{"frame": p["frame"], "w_mm": _listed(p["w_mm"])} for p in cut["profiles"]],
+                profiles=[
+                    {
+                        "frame": p["frame"],
+                        "w_mm": _listed(p["w_mm"]),
+                        "sigma_w_mm": None if p["sigma_w_mm"] is None else _listed(p["sigma_w_mm"]),
+                    }
+                    for p in cut["profiles"]
+                ],  # fmt: skip
             )
             .model_dump_json()
             .encode()
@@ -540,6 +550,9 @@ class HistoryOut(BaseModel):
     frames: list[int]
     time_s: list[float | None]
     w_mm: list[float | None]
+    sigma_w_mm: list[float | None] | None = Field(
+        None, description="σ of w per frame (mm; null where unknown; null in a result written before σ was stored)."
+    )
 
 
 @router.get("/jobs/{job_id}/topography/history", response_model=HistoryOut, responses=RESULT_ERRORS)
@@ -552,4 +565,5 @@ def topography_history(job: JobDep, state: StateDep, x_mm: MM, y_mm: MM) -> Hist
             frames=reader.frames.astype(int).tolist(),
             time_s=_listed(reader.column("frames/time_s"), 6),
             w_mm=_listed(reader.history(x_mm, y_mm)),
+            sigma_w_mm=None if (sigma := reader.sigma_history(x_mm, y_mm)) is None else _listed(sigma),
         )

@@ -815,7 +815,8 @@ class TopographyResult:
 
     def profile(self, frames: list[int], line_mm: tuple[float, float, float, float], *, n_points: int) -> dict:
         """w along the segment (x0, y0) → (x1, y1) for each frame, bilinear between grid nodes (NaN when a
-        neighbouring node has no data); s_mm is the distance from (x0, y0)."""
+        neighbouring node has no data), with its σ_w sampled the same way (None for a file written before σ was
+        stored); s_mm is the distance from (x0, y0)."""
         x0, y0, x1, y1 = line_mm
         t = np.linspace(0.0, 1.0, n_points)
         x, y = x0 + t * (x1 - x0), y0 + t * (y1 - y0)
@@ -823,22 +824,31 @@ class TopographyResult:
         profiles = []
         for frame in frames:
             z = self.file["grid/z_mm"][self.position(frame)].astype(np.float64)
-            profiles.append({"frame": frame, "w_mm": _sample(z, weights) - self.z_flat_mm})
+            sigma = self.sigma_grid(self.position(frame))
+            profiles.append({"frame": frame, "w_mm": _sample(z, weights) - self.z_flat_mm,
+                             "sigma_w_mm": None if sigma is None else _sample(sigma, weights)})  # fmt: skip
         return {"s_mm": t * math.hypot(x1 - x0, y1 - y0), "x_mm": x, "y_mm": y, "profiles": profiles}
 
     def history(self, x_mm: float, y_mm: float) -> np.ndarray:
         """w(t) at one object point over every frame of the result (bilinear; NaN where it has no data). Reads
         only the 2 × 2 nodes around the point from each frame; OutsideGrid for a point outside the grid."""
+        return self._at_point("grid/z_mm", x_mm, y_mm) - self.z_flat_mm
+
+    def sigma_history(self, x_mm: float, y_mm: float) -> np.ndarray | None:
+        """σ_w(t) at one object point over every frame, sampled as `history` samples w; None for a file written
+        before σ was stored."""
+        return self._at_point("grid/sigma_w_mm", x_mm, y_mm) if "grid/sigma_w_mm" in self.file else None
+
+    def _at_point(self, name: str, x_mm: float, y_mm: float) -> np.ndarray:
         (iy, ix, wy, wx) = self._bilinear(np.array([x_mm]), np.array([y_mm]))
         rows, cols = slice(int(iy[0]), int(iy[0]) + 2), slice(int(ix[0]), int(ix[0]) + 2)
-        block = self.file["grid/z_mm"][:, rows, cols].astype(np.float64)
-        w = (
+        block = self.file[name][:, rows, cols].astype(np.float64)
+        return (
             block[:, 0, 0] * (1 - wy[0]) * (1 - wx[0])
             + block[:, 0, 1] * (1 - wy[0]) * wx[0]
             + block[:, 1, 0] * wy[0] * (1 - wx[0])
             + block[:, 1, 1] * wy[0] * wx[0]
         )
-        return w - self.z_flat_mm
 
     def _bilinear(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Lower-left node indices and fractional weights of points on the (regular, increasing) grid."""

@@ -5,11 +5,11 @@
 // frame, where a frame without a simulation partner is a gap marked with its reason, never a drop to zero; the
 // mapping used; exports. Every plot downloads its data (CSV) and its image (PNG).
 import { getJSON, query } from "../api.js";
-import { COLORS, Figure, axis, fieldRows, lineLayout, lineTraces, mapLayout, mapTraces, missingMarkTraces, verticalMarker } from "../plots.js";
+import { COLORS, Figure, axis, bandTrace, fieldRows, lineLayout, lineTraces, mapLayout, mapTraces, missingMarkTraces, verticalMarker } from "../plots.js";
 import { attempt, field, fill, h, latestOnly, num, page, showError } from "../ui.js";
 import { comparisonExportPanel } from "./exports.js";
 import { jobName, shortId } from "./jobs.js";
-import { bandTrace, profileTraces, stateText } from "./simulations.js";
+import { profileTraces, stateText } from "./simulations.js";
 
 const FIELDS = {
   diff_mm: { label: "difference w_meas − w_sim", value: "Δw" },

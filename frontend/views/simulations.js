@@ -4,7 +4,7 @@
 // choices as they are now). Every choice the server detects is shown in its control and can be changed there; the
 // spec the form sends is the comparison job's own (POST /api/v1/jobs, kind "comparison").
 import { getJSON, postJSON, putFile } from "../api.js";
-import { COLORS, Figure, axis, lineLayout } from "../plots.js";
+import { COLORS, Figure, axis, bandTrace, lineLayout } from "../plots.js";
 import { attempt, field, fill, formatBytes, h, num, say, showError, table } from "../ui.js";
 import { filesOfDrop } from "../upload.js";
 import { storedZip } from "../zip.js";
@@ -17,27 +17,6 @@ const PREVIEW_DELAY_MS = 350; // the preview follows typing without a request pe
 /** A select whose first option is "detect" (empty value); `choices` = [[value, text]]. */
 function detectSelect(choices, detectText = "detect") {
   return h("select", {}, h("option", { value: "" }, detectText), choices.map(([value, text]) => h("option", { value }, text)));
-}
-
-/**
- * A band between `lower` and `upper` (arrays with null where unknown) along `s`: one closed polygon per run of
- * known values (filled "toself", runs apart by a null), so that a gap in the data stays a gap in the band.
- */
-export function bandTrace(s, lower, upper, { name, color, yaxis = "y" }) {
-  const xs = [];
-  const ys = [];
-  let run = [];
-  const flush = () => {
-    if (run.length > 1) {
-      const back = [...run].reverse();
-      xs.push(...run.map((k) => s[k]), ...back.map((k) => s[k]), null);
-      ys.push(...run.map((k) => upper[k]), ...back.map((k) => lower[k]), null);
-    }
-    run = [];
-  };
-  s.forEach((_, k) => (upper[k] === null || lower[k] === null ? flush() : run.push(k)));
-  flush();
-  return { type: "scatter", mode: "lines", name, x: xs, y: ys, yaxis, fill: "toself", fillcolor: color, line: { width: 0 }, hoverinfo: "skip" };
 }
 
 /** The ±σ band, the measured and the simulated profile: traces of one preview or comparison profile. */

@@ -1,6 +1,6 @@
 // Where the viewer's numbers come from: the topography results API of a job (GET /jobs/{id}/topography,
 // .../grid, .../profile, .../history). One place to change when that API changes; the viewer only sees fields
-// ({ x, y, z rows }), profiles ({ s, x, y, w }) and histories ({ frame, time_s, w }).
+// ({ x, y, z rows }), profiles ({ s, x, y, w, sigma }) and histories ({ frame, time_s, w, sigma }).
 import { getBuffer, getJSON, query } from "../api.js";
 
 /** NaN for JSON nulls: the API's arrays carry null where there is no number. */
@@ -75,7 +75,7 @@ export class TopographySource {
     };
   }
 
-  /** Profiles along `line` for several frames at once, from the full-resolution grid: [{ frame, s, x, y, w }]. */
+  /** Profiles along `line` for several frames at once, from the full-resolution grid: [{ frame, s, x, y, w, sigma }]. */
   async profiles(frames, line) {
     const params = new URLSearchParams({ x0: line.x0, y0: line.y0, x1: line.x1, y1: line.y1, n_points: PROFILE_POINTS });
     for (const frame of frames) params.append("frames", frame);
@@ -83,7 +83,8 @@ export class TopographySource {
     const s = numbers(body.s_mm);
     const x = numbers(body.x_mm);
     const y = numbers(body.y_mm);
-    return body.profiles.map((p) => ({ frame: p.frame, s, x, y, w: numbers(p.w_mm) }));
+    // sigma: σ of w at each sample (NaN where unknown; all NaN for a result written before σ was stored).
+    return body.profiles.map((p) => ({ frame: p.frame, s, x, y, w: numbers(p.w_mm), sigma: numbers(p.sigma_w_mm || s.map(() => null)) }));
   }
 
   /**
@@ -96,10 +97,10 @@ export class TopographySource {
     return { ...body, difference_w_mm: numbers(body.difference_w_mm) };
   }
 
-  /** w at a point in every frame. */
+  /** w and its σ at a point in every frame. */
   async history(point) {
     const body = await getJSON(`${this.base}/history${query({ x_mm: point.x, y_mm: point.y })}`);
-    return { frame: body.frames, time_s: numbers(body.time_s), w: numbers(body.w_mm) };
+    return { frame: body.frames, time_s: numbers(body.time_s), w: numbers(body.w_mm), sigma: numbers(body.sigma_w_mm || body.frames.map(() => null)) };
   }
 
   /** "camera left, recording 3": what the result was measured from. */

@@ -21,6 +21,7 @@ SETUP = """async ([lowerBoundReason]) => {
     const { PeakPanel } = await import("/views/viewer/peak.js");
     const { CamerasPanel } = await import("/views/viewer/cameras.js");
     const { HistoriesPanel } = await import("/views/viewer/histories.js");
+    const { ProfilesPanel } = await import("/views/viewer/profiles.js");
     const meta = (peaks, reasons, lower) => ({
         grid: { step_mm: 2 },
         frames: { index: [0, 1, 2, 3, 4, 5], time_s: [0, 0.1, 0.2, 0.3, 0.4, 0.5],
@@ -33,7 +34,8 @@ SETUP = """async ([lowerBoundReason]) => {
                       [NaN, NaN, NaN, 5.5, NaN, NaN]);
     const theirs = meta([0, 2.1, NaN, 6.1, 8.1, 10.1], [null, null, "shadow over the dome top", null, null, null],
                         none);
-    const history = { frame: [0, 1, 2, 3, 4, 5], time_s: ours.frames.time_s, w: [0, 1, NaN, NaN, 4, 5] };
+    const history = { frame: [0, 1, 2, 3, 4, 5], time_s: ours.frames.time_s, w: [0, 1, NaN, NaN, 4, 5],
+                      sigma: [0.1, 0.1, NaN, NaN, 0.2, 0.2] };
     const points = [{ label: "P1", x: 0, y: 0, color: "#111111", history }];
     const viewer = { job: { id: "0123456789ab" }, meta: ours, frames: ours.frames.index, position: 5, lines: [],
                      points, context: { current: () => true } };
@@ -49,11 +51,17 @@ SETUP = """async ([lowerBoundReason]) => {
     cameras.comparison = { label: "camera phantom", meta: theirs, source: { job: { id: "fedcba987654" } } };
     cameras.element.hidden = false;
     const histories = new HistoriesPanel(viewer);
-    document.querySelector("main").append(peak.figure.element, histories.figure.element, cameras.element);
+    const profiles = new ProfilesPanel(viewer);
+    ours.w_range_mm = [0, 10];
+    document.querySelector("main").append(peak.figure.element, profiles.figure.element, histories.figure.element,
+                                          cameras.element);
     await histories.draw();
+    const profile = { s: [0, 10, 20, 30], x: [0, 10, 20, 30], y: [0, 0, 0, 0], w: [9, 8, NaN, 5],
+                      sigma: [0.25, 0.5, 0.5, 0.5] };
+    await profiles.draw([{ line: { label: "A", color: "#e6a100" }, frame: 5, profile }]);
     await peak.draw();
     await cameras.draw();
-    window.panels = { peak, cameras, histories };
+    window.panels = { peak, cameras, histories, profiles };
 }"""
 TRACE = "([panel, name]) => { const t = window.panels[panel].figure.plot.data.find((d) => d.name === name); return t ? { x: Array.from(t.x), y: Array.from(t.y) } : null; }"  # noqa: E501
 
@@ -79,6 +87,14 @@ def test_unmeasured_peaks_are_gaps_marked_on_the_line_and_cameras_compare_only_w
     # A point not measured in frames 2 and 3: marked on its line, between 1 mm (100 ms) and 4 mm (400 ms).
     history = page.evaluate(TRACE, ["histories", "P1 not measured"])
     assert history["x"] == pytest.approx([200, 300]) and history["y"] == pytest.approx([2, 3])
+
+    # ±2σ_w bands: one closed polygon per run of known values (upper edge out, lower edge back), a gap kept a gap.
+    band = page.evaluate(TRACE, ["profiles", "A, t = 500.000 ms ±2σ_w"])
+    assert band["x"] == [0, 10, 10, 0, None]  # the lone sample after the gap makes no polygon
+    assert band["y"][:4] == pytest.approx([9 + 0.5, 8 + 1, 8 - 1, 9 - 0.5])
+    band = page.evaluate(TRACE, ["histories", "P1 ±2σ_w"])
+    assert band["x"][:4] == pytest.approx([0, 100, 100, 0]) and band["x"][4] is None  # ms; a polygon per run
+    assert band["y"][:4] == pytest.approx([0.2, 1.2, 0.8, -0.2])
 
     difference = page.evaluate(TRACE, ["cameras", "difference (this − other)"])["y"]
     assert difference[0] == pytest.approx(0) and difference[1] == pytest.approx(-0.1)

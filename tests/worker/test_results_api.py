@@ -25,6 +25,11 @@ def plane_w_mm(frame: int, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return 0.05 * (frame - 10) * (x + 100.0) + 0.01 * y
 
 
+def sigma_w_mm(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """σ_w of the test's result: linear in x and y (bilinear sampling gives it back exactly), the same every frame."""
+    return 0.02 + 1e-4 * (x + 100.0) + 5e-5 * (y + 100.0)
+
+
 def write_result(path) -> None:
     y, x = np.meshgrid(Y_MM, X_MM, indexing="ij")
     with h5py.File(path, "w") as out:
@@ -38,6 +43,8 @@ def write_result(path) -> None:
         z = np.stack([Z_FLAT_MM + plane_w_mm(f, x, y) for f in FRAMES]).astype(np.float32)
         z[:, 30:34, 50:54] = np.nan  # a hole: nodes X, Y = 0..6 mm
         out.create_dataset("grid/z_mm", data=z, chunks=(1, *z.shape[1:]))
+        sigma = np.where(np.isnan(z), np.nan, sigma_w_mm(x, y)).astype(np.float32)
+        out.create_dataset("grid/sigma_w_mm", data=sigma, chunks=(1, *z.shape[1:]))
         out["peak/w_mm"] = np.nanmax(z.reshape(len(FRAMES), -1), axis=1) - Z_FLAT_MM
         out["peak/x_mm"] = np.full(FRAMES.shape, 100.0)
         out["peak/y_mm"] = np.full(FRAMES.shape, 60.0)
@@ -116,12 +123,14 @@ def test_profiles_and_histories_sample_the_grid(client, job_id):
     assert [p["frame"] for p in body["profiles"]] == [13, 11]
     x, y = np.array(body["x_mm"]), np.array(body["y_mm"])
     np.testing.assert_allclose(body["profiles"][0]["w_mm"], plane_w_mm(13, x, y), atol=TOLERANCE_MM)
+    np.testing.assert_allclose(body["profiles"][1]["sigma_w_mm"], sigma_w_mm(x, y), atol=TOLERANCE_MM)
 
     history = client.get(f"/api/v1/jobs/{job_id}/topography/history", params={"x_mm": 33.3, "y_mm": -7.1}).json()
     assert history["frames"] == FRAMES.tolist() and history["time_s"] == [0.0, 0.001, 0.002, 0.003]
     np.testing.assert_allclose(history["w_mm"], [plane_w_mm(f, 33.3, -7.1) for f in FRAMES], atol=TOLERANCE_MM)
+    np.testing.assert_allclose(history["sigma_w_mm"], [sigma_w_mm(33.3, -7.1)] * 4, atol=TOLERANCE_MM)
     in_hole = client.get(f"/api/v1/jobs/{job_id}/topography/history", params={"x_mm": 3.0, "y_mm": 1.0}).json()
-    assert in_hole["w_mm"] == [None] * 4
+    assert in_hole["w_mm"] == [None] * 4 and in_hole["sigma_w_mm"] == [None] * 4
 
 
 def test_bad_result_requests_say_what_is_wrong(client, job_id):

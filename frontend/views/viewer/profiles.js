@@ -1,6 +1,7 @@
 // The viewer's section profiles: w along every section line, for the current frame and the pinned ones (one dash
-// per frame, one colour per line), sampled by the server on the full-resolution result grid.
-import { Figure, axis, lineLayout, lineTraces } from "../../plots.js";
+// per frame, one colour per line), sampled by the server on the full-resolution result grid, each with its ±2σ_w
+// band (shaded in the line's colour; a gap where σ is unknown).
+import { Figure, axis, lineLayout, lineTraces, sigmaBandTrace, translucent } from "../../plots.js";
 import { field, h, showError } from "../../ui.js";
 import { timeLabel } from "./shared.js";
 
@@ -50,7 +51,8 @@ export class ProfilesPanel {
       color: line.color,
       dash: DASHES[frames.indexOf(frame) % DASHES.length],
     }));
-    return this.figure.react(lineTraces(series), lineLayout({
+    const bands = this.shownProfiles.map(({ profile }, i) => sigmaBandTrace(profile.s, profile.w, profile.sigma, { name: `${series[i].name} ±2σ_w`, color: translucent(series[i].color, 0.18) }));
+    return this.figure.react([...bands, ...lineTraces(series)], lineLayout({
       note: series.length ? null : "Drag on the map to draw a section line",
       xAxis: axis("distance along the line", "mm"),
       yAxis: axis("deflection w", "mm", { range: meta.w_range_mm }),
@@ -60,10 +62,10 @@ export class ProfilesPanel {
   csv() {
     const rows = [];
     for (const { line, frame, profile } of this.shownProfiles || []) {
-      for (let i = 0; i < profile.s.length; i += 1) rows.push([line.label, frame, profile.s[i], profile.x[i], profile.y[i], profile.w[i]]);
+      for (let i = 0; i < profile.s.length; i += 1) rows.push([line.label, frame, profile.s[i], profile.x[i], profile.y[i], profile.w[i], profile.sigma[i]]);
     }
     // Profiles are sampled (bilinear) from the result grid on the server, whatever the map shows.
     const step = this.viewer.meta.grid.step_mm;
-    return { columns: ["line", "frame", "s_mm", "x_mm", "y_mm", "w_mm", "grid", "grid_step_mm"], rows: rows.map((r) => [...r, "result", step]) };
+    return { columns: ["line", "frame", "s_mm", "x_mm", "y_mm", "w_mm", "sigma_w_mm", "grid", "grid_step_mm"], rows: rows.map((r) => [...r, "result", step]) };
   }
 }
