@@ -119,14 +119,16 @@ def update_user(
     return user
 
 
-def _group_out(session: SessionDep, group: Group) -> GroupOut:
-    return GroupOut(id=group.id, name=group.name, members=accounts.group_members(session, group))
+def _group_out(session: SessionDep, group: Group, *, with_members: bool = True) -> GroupOut:
+    members = accounts.group_members(session, group) if with_members else []
+    return GroupOut(id=group.id, name=group.name, members=members)
 
 
 @router.get("/groups", response_model=list[GroupOut], responses=error_responses(401))
-def list_groups(session: SessionDep, _principal: CurrentUser) -> list[GroupOut]:
-    """Groups that experiments can be shared with."""
-    return [_group_out(session, group) for group in accounts.all_groups(session)]
+def list_groups(session: SessionDep, principal: CurrentUser) -> list[GroupOut]:
+    """Groups that experiments can be shared with; their members are listed to admins only (to anyone else a
+    list of usernames would be a directory of the lab's accounts)."""
+    return [_group_out(session, group, with_members=principal.is_admin) for group in accounts.all_groups(session)]
 
 
 @router.post("/groups", response_model=GroupOut, status_code=201, responses=error_responses(401, 403, 409))

@@ -224,21 +224,21 @@ def _calibration(
     session: Session, calibration_id: int, *, kind: str, recording: Recording, field_name: str
 ) -> Calibration:
     calibration = session.get(Calibration, calibration_id)
+    # A calibration of another experiment, perhaps someone else's, gets the very answer of an id that does not
+    # exist (a different one told which ids exist).
+    missing = job_error(
+        Invalid,
+        "calibration_not_found",
+        f"there is no {kind} calibration {calibration_id} of camera {recording.camera_id} (the recording's); "
+        f"see GET /api/v1/calibrations?camera_id={recording.camera_id}",
+        field=field_name,
+    )
     if calibration is None or calibration.kind != kind:
-        raise job_error(
-            Invalid, "calibration_not_found", f"there is no {kind} calibration {calibration_id}", field=field_name
-        )
+        raise missing
     if calibration.camera_id != recording.camera_id:
         other = session.get(Camera, calibration.camera_id)
         if other is None or other.experiment_id != recording.camera.experiment_id:
-            # of another experiment, perhaps someone else's: said no more about than an id that does not exist
-            raise job_error(
-                Invalid,
-                "calibration_not_found",
-                f"there is no {kind} calibration {calibration_id} of camera {recording.camera_id} (the recording's); "
-                f"see GET /api/v1/calibrations?camera_id={recording.camera_id}",
-                field=field_name,
-            )
+            raise missing
         raise job_error(
             Invalid,
             "calibration_mismatch",

@@ -240,3 +240,15 @@ def test_redis_down_at_submit_is_a_503_and_the_job_says_why(tmp_path):
         [job] = client.get("/api/v1/jobs").json()["items"]
     assert job["state"] == "failed"
     assert "the job queue (Redis) is unreachable" in job["error"] and "try again" in job["error"]
+
+
+def test_a_calibration_of_another_experiment_gets_the_answer_of_a_missing_one(client, add_rows):
+    """Issue 26: a foreign calibration id got a different message from a missing one (an existence oracle)."""
+    ids, foreign = add_rows(), add_rows()
+    base = {"kind": "topography", "recording_id": ids["test"], "projector_calibration_id": ids["projector_cal"]}
+    answers = [
+        client.post("/api/v1/jobs", json=base | {"camera_calibration_id": calibration_id}).json()
+        for calibration_id in (foreign["camera_cal"], 99_999)
+    ]
+    assert answers[0]["code"] == "calibration_not_found"
+    assert answers[0]["detail"].replace(str(foreign["camera_cal"]), "N") == answers[1]["detail"].replace("99999", "N")

@@ -129,3 +129,12 @@ def test_strangers_get_404_before_their_body_is_validated(lab_client, tokens):
         assert owner.status_code == 422, (path, owner.text)  # the owner is told what is wrong with the body
     upload = lab_client.put(f"/api/v1/uploads/cameras/{cid}/r.zip", params={"kind": "sideways"}, headers=cy)
     assert upload.status_code == 404, upload.text
+
+
+def test_group_members_are_listed_to_admins_only(lab_client, tokens):
+    """Issue 26: `/groups` listed every member's username to any member."""
+    _shared_setup(lab_client, tokens)
+    as_admin = lab_client.get("/api/v1/groups", headers=bearer(tokens["admin"])).json()
+    as_member = lab_client.get("/api/v1/groups", headers=bearer(tokens["bob"])).json()
+    assert [g["members"] for g in as_admin] == [["bob"]]
+    assert [(g["name"], g["members"]) for g in as_member] == [("impact-lab", [])]
