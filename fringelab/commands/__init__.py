@@ -1,5 +1,5 @@
 """Science subcommands of the `fringelab` CLI (calibrate-camera, calibrate-projector, topography, export,
-virtual-test, compare, export-comparison).
+virtual-test, compare, export-comparison, calibrate-procam, scan).
 
 Each module listed in COMMAND_MODULES defines `register(subparsers)`, which adds its subcommands to the
 argparse tree built by `backend.cli`. Registration must stay cheap: import numpy, OpenCV and
@@ -11,4 +11,5 @@ COMMAND_MODULES = (
     "fringelab.commands.topography",
     "fringelab.commands.virtual_test",
     "fringelab.commands.comparison",
+    "fringelab.commands.procam",
 )

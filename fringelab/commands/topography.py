@@ -10,7 +10,7 @@ import argparse
 from typing import Any
 
 from fringelab.commands.output import emit, fail, line_mm, progress_bar
-from fringelab.formats import EXPORT_FORMATS
+from fringelab.formats import EXPORT_FORMATS, SCAN_EXPORT_FORMATS
 
 
 def _frames(text: str) -> slice:
@@ -79,12 +79,14 @@ def register(subparsers: Any) -> None:
 
     export = subparsers.add_parser(
         "export",
-        help="export a topography result (CSV, NPZ, MATLAB, VTK)",
+        help="export a topography result (CSV, NPZ, MATLAB, VTK) or a scan (CSV, PLY)",
         description="Export a topography result: points-csv (frame,x_mm,y_mm,z_mm), grid-npz, mat (MATLAB), vtk "
-        "(a .pvd time series of .vtu surfaces for ParaView) or profile-csv (a section along --line).",
+        "(a .pvd time series of .vtu surfaces for ParaView) or profile-csv (a section along --line); a scan file "
+        "(`fringelab scan`): points-csv (x_mm,y_mm,z_mm,sigma_mm,...) or ply (binary, sigma_mm per vertex).",
     )
-    export.add_argument("result", help="result .h5 written by `fringelab topography`")
-    export.add_argument("--format", required=True, choices=EXPORT_FORMATS)
+    export.add_argument("result", help="result .h5 written by `fringelab topography` or `fringelab scan`")
+    export.add_argument("--format", required=True, choices=sorted(set(EXPORT_FORMATS) | set(SCAN_EXPORT_FORMATS)),
+                        help="a scan: points-csv or ply")  # fmt: skip
     export.add_argument(
         "-o", "--output", required=True, help="file to write (.csv, .npz, .mat, .pvd; a folder with --per-frame)"
     )
@@ -181,8 +183,12 @@ def topography_command(args: argparse.Namespace) -> int:
 
 def export_command(args: argparse.Namespace) -> int:
     from fringelab.formats.exports import export_result
+    from fringelab.formats.scan import export_scan, is_scan_file
 
     try:
+        if is_scan_file(args.result):
+            path = export_scan(args.result, args.format, args.output)
+            return emit(args, {"path": path, "format": args.format}, [f"{path}: {args.format} written"])
         with progress_bar(args, "export") as progress:
             path = export_result(
                 args.result, args.format, args.output, line=args.line, per_frame=args.per_frame,

@@ -39,6 +39,11 @@ class ScanSettings:
     decode: DecodeSettings = field(default_factory=DecodeSettings)
     edges: EdgeSettings | None = None
     code_points: bool = True
+    projector_scale_xy: tuple[float, float] = (1.0, 1.0)
+
+    def __post_init__(self) -> None:
+        if len(self.projector_scale_xy) != 2 or not all(v > 0 for v in self.projector_scale_xy):
+            raise ValueError(f"projector_scale_xy: expected two positive factors, got {self.projector_scale_xy}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -138,8 +143,11 @@ def scan(
         parts_src.append(np.full(len(vv), SOURCE_CODE, np.uint8))
     q = np.vstack(parts_q) if parts_q else np.zeros((0, 2))
     x = np.concatenate(parts_x) if parts_x else np.zeros(0)
+    factor = settings.projector_scale_xy[0 if axis == "columns" else 1]
+    x_model = (x + 0.5) * factor - 0.5
+    sigma_pattern = np.concatenate(parts_sp) if parts_sp else np.zeros(0)
     points, sigma = point_sigma_mm(
-        model, q, x, axis=axis, sigma_projector_px=np.concatenate(parts_sp) if parts_sp else np.zeros(0),
+        model, q, x_model, axis=axis, sigma_projector_px=sigma_pattern * factor,
         sigma_camera_px=np.concatenate(parts_sc) if parts_sc else np.zeros(0), scan_axis=edges.scan_axis,
     )  # fmt: skip
     source = np.concatenate(parts_src) if parts_src else np.zeros(0, np.uint8)

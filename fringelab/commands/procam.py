@@ -1,0 +1,142 @@
+"""`fringelab calibrate-procam` and `fringelab scan`: rigs with a digital projector on the command line
+(docs/procam.md).
+
+Thin: parse arguments, call `fringelab.pipelines.scan`, print a summary. numpy, OpenCV and the measurement package
+are imported inside the handlers so registering the commands stays instant. Scan files are exported by
+`fringelab export` (commands/topography.py), which recognises them.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from fringelab.commands.output import emit, fail, progress_bar
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        width, height = (int(part) for part in text.lower().replace("x", ",").split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTH,HEIGHT in pixels, got {text!r}") from None
+    if width < 1 or height < 1:
+        raise argparse.ArgumentTypeError(f"expected positive WIDTH,HEIGHT, got {text!r}")
+    return width, height
+
+
+def _scale(text: str) -> tuple[float, float]:
+    try:
+        sx, sy = (float(part) for part in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected SX,SY (e.g. 1,0.5), got {text!r}") from None
+    if not (sx > 0 and sy > 0):
+        raise argparse.ArgumentTypeError(f"expected positive SX,SY, got {text!r}")
+    return sx, sy
+
+
+def register(subparsers: Any) -> None:
+    """Add `calibrate-procam` and `scan` to the CLI's subparsers."""
+    from fringelab.commands.output import add_output_options
+
+    calibrate = subparsers.add_parser(
+        "calibrate-procam",
+        help="calibrate a camera–projector pair from chessboard poses under Gray code",
+        description="Calibrate a camera and a digital projector (docs/procam.md §1) from one recording per "
+        "chessboard pose, each with an all-white and an all-black frame and Gray codes along projector columns and "
+        "rows, described by patterns-columns.json and patterns-rows.json beside its frames (or --columns/--rows).",
+    )
+    calibrate.add_argument("poses", nargs="+", help="folders or ZIPs of frames, one per chessboard pose")
+    calibrate.add_argument("--board-cols", type=int, required=True, help="inner corners along a row of the board")
+    calibrate.add_argument("--board-rows", type=int, required=True, help="inner corners along a column of the board")
+    calibrate.add_argument("--square-mm", type=float, required=True, help="side of a board square in mm")
+    calibrate.add_argument("--columns", help="patterns.json of the columns sequence (default: beside each pose)")
+    calibrate.add_argument("--rows", help="patterns.json of the rows sequence (default: beside each pose)")
+    calibrate.add_argument("--white-frame", type=int, help="frame for the board's corners (default: the white one)")
+    calibrate.add_argument("-o", "--output", required=True, help="calibration JSON to write")
+    calibrate.add_argument("--opencv-yaml", help="also write the pair as OpenCV FileStorage (OpenCV's stereo names)")
+    add_output_options(calibrate)
+    calibrate.set_defaults(handler=calibrate_procam_command)
+
+    scan = subparsers.add_parser(
+        "scan",
+        help="3-D points of a Gray-code recording with a camera–projector calibration",
+        description="Scan a surface (docs/procam.md §3): decode the coded sequence, locate and name its stripe edges "
+        "and triangulate them against the projector; points in the camera frame in mm, with σ, a depth map and the "
+        "decoding's QA. patterns.json is read from beside the frames unless --patterns is given.",
+    )
+    scan.add_argument("recording", help="folder or ZIP of the coded sequence's frames")
+    scan.add_argument("--calibration", required=True,
+                      help="fringelab procam JSON, or OpenCV FileStorage (XML/YAML) under SLStudio's or "
+                      "OpenCV's names")  # fmt: skip
+    scan.add_argument("--patterns", help="the sequence's patterns.json (default: the one beside the frames)")
+    scan.add_argument("--camera-size", type=_size, metavar="W,H", help="camera size when the calibration has none")
+    scan.add_argument("--projector-size", type=_size, metavar="W,H",
+                      help="projector size when the calibration has none")  # fmt: skip
+    scan.add_argument("--projector-scale", type=_scale, metavar="SX,SY", default=(1.0, 1.0),
+                      help="patterns' projector pixels → the calibration's (1,0.5: a diamond-pixel DLP calibrated in "
+                      "square pixels; default 1,1)")  # fmt: skip
+    scan.add_argument("--no-code-points", action="store_true",
+                      help="leave out the per-pixel code points (a band wide); keep the stripe edges and the "
+                      "phase")  # fmt: skip
+    scan.add_argument("-o", "--output", required=True, help="scan result (.h5) to write")
+    add_output_options(scan)
+    scan.set_defaults(handler=scan_command)
+
+
+def calibrate_procam_command(args: argparse.Namespace) -> int:
+    from fringelab.formats.procam import write_opencv_procam
+    from fringelab.pipelines.scan import calibrate_procam_recordings
+    from fringelab.science import MeasurementError
+    from fringelab.science.chessboard import Board
+
+    try:
+        board = Board(cols=args.board_cols, rows=args.board_rows, square_mm=args.square_mm)
+        with progress_bar(args, "calibrate-procam") as progress:
+            calibration = calibrate_procam_recordings(
+                args.poses, args.output, board=board, columns=args.columns, rows=args.rows,
+                white_frame=args.white_frame, progress=progress,
+            )  # fmt: skip
+        if args.opencv_yaml:
+            write_opencv_procam(args.opencv_yaml, calibration.model, naming="opencv")
+    except (ValueError, MeasurementError, OSError) as error:
+        return fail(args, error)
+    lines = [
+        f"{args.output}: verdict {calibration.verdict.level}; RMS camera {calibration.camera_rms_px:.3f} px, "
+        f"projector {calibration.projector_rms_px:.3f} px, stereo {calibration.stereo_rms_px:.3f} px over "
+        f"{len(calibration.poses)} poses ({calibration.n_corners} corners)"
+    ]
+    lines += [f"  {p.pose}: camera {p.camera_rms_px:.3f} px, projector {p.projector_rms_px:.3f} px"
+              for p in calibration.poses]  # fmt: skip
+    lines += [f"  {reason}" for reason in (calibration.verdict.reasons if calibration.verdict.level != "good" else ())]
+    result = {
+        "path": args.output, "verdict": calibration.verdict.level, "camera_rms_px": calibration.camera_rms_px,
+        "projector_rms_px": calibration.projector_rms_px, "stereo_rms_px": calibration.stereo_rms_px,
+        "poses": [{"pose": p.pose, "camera_rms_px": p.camera_rms_px, "projector_rms_px": p.projector_rms_px}
+                  for p in calibration.poses],
+    }  # fmt: skip
+    return emit(args, result, lines)
+
+
+def scan_command(args: argparse.Namespace) -> int:
+    from fringelab.formats.scan import scan_qa
+    from fringelab.pipelines.scan import scan_recording
+    from fringelab.science import MeasurementError
+    from fringelab.science.scan import ScanSettings
+
+    try:
+        settings = ScanSettings(code_points=not args.no_code_points, projector_scale_xy=args.projector_scale)
+        with progress_bar(args, "scan") as progress:
+            result = scan_recording(
+                args.recording, args.calibration, args.output, patterns=args.patterns, settings=settings,
+                camera_size_wh_px=args.camera_size, projector_size_wh_px=args.projector_size, progress=progress,
+            )  # fmt: skip
+    except (ValueError, MeasurementError, OSError) as error:
+        return fail(args, error)
+    qa = scan_qa(result)
+    lines = [
+        f"{args.output}: {qa['n_points']} points ({qa['points_by_source']['stripe edge']} on stripe edges); "
+        f"{100 * qa['valid_share']:.1f} % of the pixels decoded",
+    ]
+    if not result.calibration_sigma:
+        lines.append(f"  note: {qa['calibration_sigma_note']}")
+    return emit(args, {"path": args.output, "qa": qa}, lines)
