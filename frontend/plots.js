@@ -291,15 +291,30 @@ export function mapTraces(field, { range = null, points = [], valueName = "w", u
 }
 
 /**
- * Outlines of the regions of a field that are missing where a reference field (the flat first frame) had data:
- * the plate there was not measured in this frame (its reasons are in the coverage plot). One contour line at the
- * edge of the 0/1 mask; none when nothing is missing.
+ * Outlines of the regions of a field that are missing on the plate: where a reference field (the flat first frame)
+ * had data, and where it had a gap inside its data (along both the row and the column: a highlight or a shadow
+ * there from the start), but not outside the plate the reference saw. The reasons are in the coverage plot. One
+ * contour line at the edge of the 0/1 mask; none when nothing is missing.
  */
 export function missingOutlineTraces(field, reference) {
   if (!reference || reference.x.length !== field.x.length || reference.y.length !== field.y.length) return [];
+  const span = (values) => {
+    let lo = -1;
+    let hi = -1;
+    values.forEach((v, i) => {
+      if (Number.isFinite(v)) {
+        if (lo < 0) lo = i;
+        hi = i;
+      }
+    });
+    return [lo, hi];
+  };
+  const rows = reference.z.map((row) => span(Array.from(row)));
+  const columns = reference.x.map((_, i) => span(reference.z.map((row) => row[i])));
+  const inside = (j, i) => i >= rows[j][0] && i <= rows[j][1] && j >= columns[i][0] && j <= columns[i][1];
   let any = false;
   const mask = field.z.map((row, j) => Array.from(row, (v, i) => {
-    const missing = Number.isFinite(reference.z[j][i]) && !Number.isFinite(v);
+    const missing = (Number.isFinite(reference.z[j][i]) || inside(j, i)) && !Number.isFinite(v);
     any = any || missing;
     return missing ? 1 : 0;
   }));

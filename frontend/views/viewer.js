@@ -44,12 +44,19 @@ export async function renderViewer(container, { id }, context) {
   if (!meta || !context.current()) return;
   const viewer = new Viewer(job, source, meta, context);
   window.fringelab = { frameSwitchMs: [], viewer };
-  page(container, `Topography: ${jobName(job)}`, viewer.element);
+  page(container, viewerTitle(job), viewer.element);
   context.onLeave(() => {
     viewer.dispose();
     window.fringelab.viewer = null;
   });
   await viewer.start();
+}
+
+/** "Topography of camera left, recording 12": what was measured, not only the job's id. */
+export function viewerTitle(job) {
+  const recording = job.spec.recording_id ? `recording ${job.spec.recording_id}` : null;
+  const what = [job.camera_name ? `camera ${job.camera_name}` : null, recording].filter(Boolean).join(", ");
+  return what ? `Topography of ${what}` : `Topography: ${jobName(job)}`;
 }
 
 class Viewer {
@@ -145,6 +152,7 @@ class Viewer {
       { class: "viewer" },
       h("p", { class: "facts" },
         h("a", { href: `#/jobs/${this.job.id}` }, jobName(this.job)), " · ",
+        this.job.experiment_id ? [h("a", { href: `#/experiments/${this.job.experiment_id}` }, `experiment ${this.job.experiment_name || this.job.experiment_id}`), " · "] : null,
         `${this.frames.length} frames · grid ${m.grid.nx} × ${m.grid.ny} nodes, ${num(m.grid.step_mm, 2)} mm apart · `,
         `peak deflection up to ${num(m.w_range_mm[1], 2)} mm · `,
         explained("how w is measured and what is left unmeasured", "6-topography-and-results")),

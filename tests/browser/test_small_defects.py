@@ -66,3 +66,21 @@ def test_the_scale_factor_names_the_axis_it_scales(page):
     }"""
     )
     assert names == ["scale factor s_u", "scale factor s_v", "focal length f"]
+
+
+def test_a_gap_present_from_the_first_frame_is_outlined_but_not_the_area_off_the_plate(page):
+    """The hard demo's highlight: missing in every frame, the first too; it is outlined as the hole is."""
+    page.goto("/#/system")
+    mask = page.evaluate(
+        """async () => {
+        const { missingOutlineTraces } = await import("/plots.js");
+        const rows = (values) => values.map((row) => Float32Array.from(row, (v) => (v === null ? NaN : v)));
+        const x = [0, 1, 2, 3, 4];
+        const y = [0, 1, 2];
+        // Off the plate: columns 0 and 4; a highlight at (2, 1) from the first frame on; a hole at (3, 0) later.
+        const reference = { x, y, z: rows([[null, 1, 1, 1, null], [null, 1, null, 1, null], [null, 1, 1, 1, null]]) };
+        const frame = { x, y, z: rows([[null, 1, 1, null, null], [null, 1, null, 1, null], [null, 1, 1, 1, null]]) };
+        return missingOutlineTraces(frame, reference)[0].z;
+    }"""
+    )
+    assert mask == [[0, 0, 0, 1, 0], [0, 0, 1, 0, 0], [0, 0, 0, 0, 0]]

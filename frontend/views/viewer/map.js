@@ -1,5 +1,6 @@
 // The viewer's 2-D map of a frame's deflection field: the section lines and points drawn on it, and the regions
-// the first frame measured and this one did not outlined. Drawing on it (lines, points) is the viewer's to handle.
+// not measured in this frame outlined (what the first frame saw, and the gaps inside it: a highlight, a shadow).
+// Drawing on it (lines, points) is the viewer's to handle.
 import { Figure, mapLayout, mapTraces, missingOutlineTraces } from "../../plots.js";
 
 export class MapPanel {
