@@ -81,7 +81,7 @@ OPERATION_IDS = {
     "calibration_file": "download_calibration_file",
     "topography_overview": "get_topography", "topography_grid": "get_topography_grid",
     "topography_profile": "get_topography_profile", "topography_history": "get_topography_history",
-    "camera_against_camera": "get_camera_against_camera",
+    "camera_against_camera": "get_camera_against_camera", "list_calibration_pairs": "list_calibration_pairs",
     "make_demo": "create_demo",
     "experiment_deletion": "preview_experiment_deletion", "camera_deletion": "preview_camera_deletion",
     "recording_deletion": "preview_recording_deletion", "job_deletion": "preview_job_deletion",

@@ -41,6 +41,7 @@ from backend.schemas.jobs import (
     Progress,
 )
 from fringelab.core.accounts import Principal, audit, readable_experiments
+from fringelab.core.calibration_pairs import warnings_of
 from fringelab.core.deletion import execute, plan_job
 from fringelab.core.errors import Gone, NotFound, Unauthorized, Unavailable
 from fringelab.core.job_kinds import named_by
@@ -163,6 +164,7 @@ def _job_out(
         ],
         result=job.result,
         provenance=job.provenance,
+        warnings=warnings_of(job.provenance),
         attempt=job.attempt,
         retry_of=job.retry_of,
         retried_by=retried_by,

@@ -20,6 +20,7 @@ from fastapi import APIRouter, Depends, Path, Query, Request, Response
 from fastapi.responses import FileResponse
 from pydantic import BaseModel, Field
 from sqlalchemy import select
+from sqlalchemy.orm import Session
 
 from backend.api.deps import CurrentUser, SessionDep, StateDep, experiment_for
 from backend.api.jobs import ERRORS, JobDep
@@ -27,6 +28,7 @@ from backend.cache import AnswerCache, cached_json
 from backend.results import camera_report, plain, projector_report, projector_table, result_path
 from backend.schemas.jobs import MAX_ID, CalibrationOut, ErrorOut
 from fringelab.core.accounts import readable_experiments
+from fringelab.core.calibration_pairs import consistent_pairs, standing, warnings_of
 from fringelab.core.errors import Conflict, Gone, Invalid, NotFound
 from fringelab.core.jobs import as_utc, job_error
 from fringelab.core.models import Calibration, Camera, Experiment, Job
@@ -71,7 +73,9 @@ def _listed(values: np.ndarray, decimals: int = 4) -> list[Any]:
     return [None if not math.isfinite(v) else v for v in rounded.tolist()]
 
 
-def calibration_out(row: Calibration) -> CalibrationOut:
+def calibration_out(row: Calibration, session: Session) -> CalibrationOut:
+    state = standing(session, row)
+    report = "projector-report" if row.kind == "projector" else "report"
     return CalibrationOut(
         id=row.id,
         kind=row.kind,  # type: ignore[arg-type]
@@ -85,7 +89,12 @@ def calibration_out(row: Calibration) -> CalibrationOut:
         summary=row.summary,
         created_at=as_utc(row.created_at),
         file_url=f"/api/v1/calibrations/{row.id}/file",
-        report_url=f"/api/v1/calibrations/{row.id}/report",
+        report_url=f"/api/v1/calibrations/{row.id}/{report}",
+        label=state.label,
+        verdict=state.verdict,
+        bad=state.bad,
+        bad_reason=state.bad_reason,
+        camera_calibration_id=state.camera_calibration_id,
     )
 
 
@@ -125,12 +134,39 @@ def list_calibrations(
     if kind is not None:
         query = query.where(Calibration.kind == kind)
     rows = session.scalars(query.order_by(Calibration.camera_id, Calibration.kind, Calibration.version.desc()))
-    return [calibration_out(row) for row in rows]
+    return [calibration_out(row, session) for row in rows]
+
+
+class CalibrationPairOut(BaseModel):
+    camera_calibration: CalibrationOut
+    projector_calibration: CalibrationOut
+    bad: bool = Field(description="Either is bad: a topography job with this pair needs accept_bad_calibration.")
+
+
+@router.get("/calibrations/pairs", response_model=list[CalibrationPairOut])
+def list_calibration_pairs(
+    session: SessionDep, principal: CurrentUser, camera_id: Annotated[int, Query(ge=1, le=MAX_ID)]
+) -> list[CalibrationPairOut]:
+    """The consistent pairs of a camera: each projector calibration with the camera calibration it was built on
+    (the only pairs a topography job accepts), newest first."""
+    camera = session.get(Camera, camera_id)
+    if camera is None:
+        return []  # a list, like /calibrations?camera_id=: what the caller may not see is simply not in it
+    try:
+        experiment_for(session, principal, camera.experiment_id)
+    except NotFound:
+        return []
+    pairs = []
+    for base, projector in consistent_pairs(session, camera_id):
+        base_out, projector_out = calibration_out(base, session), calibration_out(projector, session)
+        pairs.append(CalibrationPairOut(camera_calibration=base_out, projector_calibration=projector_out,
+                                        bad=base_out.bad or projector_out.bad))  # fmt: skip
+    return pairs
 
 
 @router.get("/calibrations/{calibration_id}", response_model=CalibrationOut, responses=ERRORS)
-def read_calibration(calibration: CalibrationDep) -> CalibrationOut:
-    return calibration_out(calibration)
+def read_calibration(calibration: CalibrationDep, session: SessionDep) -> CalibrationOut:
+    return calibration_out(calibration, session)
 
 
 class CalibrationReport(BaseModel):
@@ -139,7 +175,7 @@ class CalibrationReport(BaseModel):
 
 
 @router.get("/calibrations/{calibration_id}/report", response_model=CalibrationReport, responses=RESULT_ERRORS)
-def calibration_report(calibration: CalibrationDep, state: StateDep) -> CalibrationReport:
+def calibration_report(calibration: CalibrationDep, state: StateDep, session: SessionDep) -> CalibrationReport:
     """A camera calibration's report: parameters ± standard errors, per-frame RMS, residual vectors over the
     image, the residual map and the verdict (the fields of `camera.json`, units in every name)."""
     if calibration.kind != "camera":
@@ -148,7 +184,7 @@ def calibration_report(calibration: CalibrationDep, state: StateDep) -> Calibrat
         report = camera_report(state.settings.data_path, calibration.path)
     except ResultUnavailable as error:
         raise job_error(Gone, "result_missing", str(error)) from None
-    return CalibrationReport(calibration=calibration_out(calibration), report=report)
+    return CalibrationReport(calibration=calibration_out(calibration, session), report=report)
 
 
 class VerdictCheckOut(BaseModel):
@@ -194,6 +230,7 @@ class ProjectorReport(BaseModel):
 def projector_calibration_report(
     calibration: CalibrationDep,
     state: StateDep,
+    session: SessionDep,
     cell_px: Annotated[int, Query(ge=4, le=256, description="Side of the maps' image cells, px.")] = 16,
 ) -> ProjectorReport:
     """A projector calibration's report, on a par with the camera's: the verdict with each rule's value,
@@ -211,7 +248,7 @@ def projector_calibration_report(
     report["coverage_z"] = _listed(report["coverage_z"])
     for check in report["verdict"]["checks"]:
         check["value"] = check["value"] if math.isfinite(check["value"]) else None
-    return ProjectorReport(calibration=calibration_out(calibration), **report)
+    return ProjectorReport(calibration=calibration_out(calibration, session), **report)
 
 
 class ProjectorTable(BaseModel):
@@ -231,6 +268,7 @@ class ProjectorTable(BaseModel):
 def projector_table_curves(
     calibration: CalibrationDep,
     state: StateDep,
+    session: SessionDep,
     line: Annotated[int | None, Query(ge=0, le=MAX_ID, description="Scan line; empty: the middle one.")] = None,
     edges: Annotated[
         list[Annotated[int, Field(ge=0, le=MAX_ID)]] | None, Query(description="Edge indices; empty: all.")
@@ -249,7 +287,7 @@ def projector_table_curves(
     table["z_mm"] = _listed(table["z_mm"])
     for curve in table["curves"]:
         curve["t_px"] = _listed(curve["t_px"])
-    return ProjectorTable(calibration=calibration_out(calibration), **table)
+    return ProjectorTable(calibration=calibration_out(calibration, session), **table)
 
 
 @router.get(
@@ -356,6 +394,9 @@ class TopographyOverview(BaseModel):
         "this); null elsewhere."
     )
     peak_reason: list[str | None] = Field(description="Per frame: why the peak is not measured (null: it is).")
+    warnings: list[str] = Field(
+        default_factory=list, description="What the result must be read with (a bad calibration used by consent)."
+    )
 
 
 @router.get("/jobs/{job_id}/topography", response_model=TopographyOverview, responses=RESULT_ERRORS)
@@ -407,6 +448,7 @@ def _overview(job: Job, state: AppState) -> TopographyOverview:
             peak_measured=[None if v is None else v.measured for v in verdicts],
             peak_w_lower_bound_mm=_listed(np.where(not_measured, peaks, np.nan)),
             peak_reason=[v.reason if v is not None and not v.measured else None for v in verdicts],
+            warnings=warnings_of(job.provenance),
         )
 
 

@@ -68,6 +68,11 @@ class JobOut(BaseModel):
     files: list[JobFileOut]
     result: dict[str, Any]
     provenance: dict[str, Any]
+    warnings: list[str] = Field(
+        default_factory=list,
+        description="What the results must be read with: each calibration used whose verdict is bad (the user "
+        "consented with accept_bad_calibration).",
+    )
     attempt: int
     retry_of: str | None
     retried_by: str | None
@@ -109,4 +114,13 @@ class CalibrationOut(BaseModel):
     summary: dict[str, Any]
     created_at: datetime
     file_url: str = Field(description=RELATIVE_URL)
-    report_url: str = Field(description=RELATIVE_URL)
+    report_url: str = Field(description=RELATIVE_URL + " (camera: /report, projector: /projector-report)")
+    label: str = Field("", description="How to name it: kind, id, camera and date.")
+    verdict: str | None = Field(None, description="good, acceptable or bad (null: none stored).")
+    bad: bool = Field(
+        False, description="Its verdict is bad, or it is a projector calibration built on a bad camera calibration."
+    )
+    bad_reason: str | None = Field(None, description="Why it is bad (null: it is not).")
+    camera_calibration_id: int | None = Field(
+        None, description="A projector calibration: the camera calibration it was built on (null: unknown)."
+    )

@@ -16,6 +16,7 @@ from typing import Any, ClassVar
 from pydantic import BaseModel
 from sqlalchemy.orm import Session
 
+from fringelab.core.calibration_pairs import check_calibration_use
 from fringelab.core.errors import Conflict, DomainError, Invalid
 from fringelab.core.models import Calibration, Camera, Job, Recording, Simulation
 from fringelab.formats import COMPARISON_EXPORTS, EXPORT_FORMATS
@@ -111,8 +112,10 @@ class CalibrationInput(Input):
         for calibration_id in self.ids(spec):
             calibration = _calibration(session, calibration_id, kind=self.calibration_kind, recording=found.recording,
                                        field_name=self.field)  # fmt: skip
+            use = check_calibration_use(session, calibration, spec, field=self.field)  # pairing and consent
             prepared.calibrations.append({"id": calibration.id, "kind": calibration.kind,
-                                          "version": calibration.version, "sha256": calibration.sha256})  # fmt: skip
+                                          "version": calibration.version, "sha256": calibration.sha256,
+                                          **use})  # fmt: skip
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -111,6 +111,11 @@ class ProjectorCalibrationSpec(_Spec):
     camera_calibration_id: int = Field(
         ge=1, le=MAX_ID, description="A camera calibration of the same camera and image size."
     )
+    accept_bad_calibration: bool = Field(
+        False,
+        description='Use a calibration whose verdict is "bad" (or a projector calibration built on one) anyway: '
+        "the user's explicit consent; the results carry the warning. Without it such a job is refused (422).",
+    )
     axis: Literal["auto", "rows", "cols"] = Field(
         "auto", description="Scan along image rows (vertical stripes) or columns; auto detects it."
     )
@@ -154,6 +159,11 @@ class TopographySpec(_Spec):
     grid_step_mm: float = Field(2.0, ge=0.1, le=50, description="Spacing of the deflection grid, mm.")
     temporal_smoothing_frames: int = Field(0, ge=0, le=50, description="Half-width of the temporal filter; 0: off.")
     chunk_frames: ChunkFrames = None
+    accept_bad_calibration: bool = Field(
+        False,
+        description='Use a calibration whose verdict is "bad" (or a projector calibration built on one) anyway: '
+        "the user's explicit consent; the results carry the warning. Without it such a job is refused (422).",
+    )
 
 
 class ExportSpec(_Spec):

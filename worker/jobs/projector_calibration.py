@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import asdict
 from typing import Any
 
 from fringelab.core.specs import ProjectorCalibrationSpec
@@ -16,6 +17,7 @@ def projector_calibration_body(context: JobContext[ProjectorCalibrationSpec]) ->
     from fringelab.pipelines.projector_calibration import calibrate_projector_recording
     from fringelab.science.fringes import EdgeSettings
     from fringelab.science.projector import ProjectorSettings
+    from fringelab.science.projector_quality import judge_projector
 
     spec = context.spec
     recording, camera, path = recording_input(context)
@@ -46,6 +48,9 @@ def projector_calibration_body(context: JobContext[ProjectorCalibrationSpec]) ->
         "coverage": qa.coverage,
         "sensitivity_px_per_mm": float(qa.sensitivity_px_per_mm[1]),
         "fit_rms_mm": qa.fit_rms_mm,
+        # what the calibration lists show: the camera calibration it is built on, and its verdict
+        "camera_calibration_id": spec.camera_calibration_id,
+        "verdict": judge_projector(asdict(qa)).level,
     }
     height, width = calibration.image_shape_hw_px
     row = record_calibration(

@@ -159,6 +159,7 @@ def _request(world: World, method: str, path: str) -> dict[str, Any]:
             "params": {"x0_mm": 0, "y0_mm": 0, "x1_mm": 10, "y1_mm": 0, "frames": [0]}
         },
         ("GET", "/api/v1/jobs/{job_id}/topography/history"): {"params": {"x_mm": 0, "y_mm": 0}},
+        ("GET", "/api/v1/calibrations/pairs"): {"params": {"camera_id": world.ids["camera"]}},
         ("HEAD", "/api/v1/uploads/{uuid}"): {"headers": TUS},
         ("DELETE", "/api/v1/uploads/{uuid}"): {"headers": TUS},
         ("PATCH", "/api/v1/uploads/{uuid}"): {
