@@ -104,7 +104,7 @@ async def put_recording(
     request: Request,
     state: StateDep,
     principal: CurrentUser,
-    kind: Annotated[RecordingKind, Query(description="camera_calibration, projector_calibration or test")],
+    kind: Annotated[RecordingKind, Query(description="camera_calibration, projector_calibration, test or coded")],
 ) -> JSONResponse:
     """Upload a recording in one streamed request (e.g. `curl -T plate.cine URL?kind=test`)."""
     settings = state.settings

@@ -103,7 +103,7 @@ class ErrorOut(BaseModel):
 
 class CalibrationOut(BaseModel):
     id: int
-    kind: Literal["camera", "projector"]
+    kind: Literal["camera", "projector", "procam"]
     camera_id: int
     recording_id: int | None
     job_id: str | None

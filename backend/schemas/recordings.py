@@ -10,7 +10,7 @@ from backend.schemas.common import PLAIN_NAME, UtcDatetime
 from fringelab.core.models import Recording
 from fringelab.core.state import AppState
 
-RecordingKind = Literal["camera_calibration", "projector_calibration", "test"]
+RecordingKind = Literal["camera_calibration", "projector_calibration", "test", "coded"]
 RecordingState = Literal["uploading", "ingesting", "ready", "invalid"]
 SidecarName = Literal["z.csv", "frames.csv", "board.json"]
 FileName = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=255), PLAIN_NAME]

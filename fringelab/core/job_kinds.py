@@ -32,7 +32,9 @@ from fringelab.core.specs import (
     ComparisonSpec,
     ExportSpec,
     IngestSpec,
+    ProcamCalibrationSpec,
     ProjectorCalibrationSpec,
+    ScanSpec,
     SelftestSpec,
     TopographySpec,
 )
@@ -190,6 +192,36 @@ JOB_KINDS: dict[str, JobKind] = {
             ),
             body="comparison_body",
             result_files=(COMPARISON_FILE, "the `format`'s export, if one is named"),
+        ),
+        JobKind(
+            kind="procam_calibration",
+            spec=ProcamCalibrationSpec,
+            task="fringelab.procam_calibration",
+            inputs=(
+                RecordingInput(
+                    field="recording_ids",
+                    recording_kind="coded",
+                    many=True,
+                    role="the chessboard poses under Gray code, one recording each",
+                ),
+            ),
+            body="procam_calibration_body",
+            result_files=("procam.json",),
+        ),
+        JobKind(
+            kind="scan",
+            spec=ScanSpec,
+            task="fringelab.scan",
+            inputs=(
+                RecordingInput(field="recording_id", recording_kind="coded", role="the coded sequence to scan"),
+                CalibrationInput(
+                    field="procam_calibration_id",
+                    calibration_kind="procam",
+                    role="the camera–projector calibration (same camera, same image size)",
+                ),
+            ),
+            body="scan_body",
+            result_files=("scan.h5",),
         ),
     )  # fmt: skip
 }

@@ -264,3 +264,44 @@ class IngestSpec(_Spec):
 
 
 JobState = Literal["queued", "running", "succeeded", "failed", "cancelled"]
+
+
+class ProcamCalibrationSpec(_Spec):
+    """Calibrate a camera and a digital projector (docs/procam.md §1) from ready recordings of kind `coded`, one
+    per chessboard pose, each with an all-white and an all-black frame and Gray codes along projector columns and
+    rows, described by patterns-columns.json and patterns-rows.json beside its frames."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [{"kind": "procam_calibration", "recording_ids": [4, 5, 6, 7, 8, 9],
+                          "board": {"cols": 9, "rows": 7, "square_mm": 8.0}}]
+        },
+    )  # fmt: skip
+
+    kind: Literal["procam_calibration"]
+    recording_ids: list[int] = Field(
+        min_length=3, max_length=200, description="Ready recordings of kind coded, one per chessboard pose."
+    )
+    board: BoardSpec = Field(description="The chessboard.")
+
+
+class ScanSpec(_Spec):
+    """3-D points of a ready Gray-code recording (kind `coded`, with its patterns.json) from a camera–projector
+    calibration (docs/procam.md §3): points in the camera frame, mm, with σ, a depth map and the decoding's QA."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={"examples": [{"kind": "scan", "recording_id": 10, "procam_calibration_id": 3}]},
+    )
+
+    kind: Literal["scan"]
+    recording_id: int = Field(ge=1, le=MAX_ID, description="A ready recording of kind coded.")
+    procam_calibration_id: int = Field(
+        ge=1, le=MAX_ID, description="A camera–projector calibration of the same camera and image size."
+    )
+    projector_scale_x: float = Field(1.0, gt=0, le=16, description="Patterns' projector columns → calibration's.")
+    projector_scale_y: float = Field(
+        1.0, gt=0, le=16, description="Patterns' projector rows → calibration's (0.5: a diamond-pixel DLP)."
+    )
+    code_points: bool = Field(True, description="Add a point per decoded pixel without an edge (a band wide).")

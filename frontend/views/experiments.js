@@ -14,6 +14,7 @@ export const KIND_NAMES = {
   camera_calibration: "Camera calibration",
   projector_calibration: "Projector calibration",
   test: "Test",
+  coded: "Coded sequence (Gray code)",
 };
 
 // ---- the list -----------------------------------------------------------------------------------------------------

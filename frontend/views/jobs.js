@@ -15,6 +15,8 @@ export const JOB_KIND_NAMES = {
   export: "Export",
   comparison: "Comparison",
   selftest: "Self-test",
+  procam_calibration: "Camera–projector calibration",
+  scan: "Scan",
 };
 const ACTIVE = ["queued", "running"];
 const MAX_STREAMS = 2; // a browser keeps 6 connections per server: the list's own stream, uploads and requests need the rest
@@ -268,6 +270,7 @@ const RECORDING_KIND_OF_JOB = {
   camera_calibration: "camera_calibration",
   projector_calibration: "projector_calibration",
   topography: "test",
+  scan: "coded",
 };
 
 /**

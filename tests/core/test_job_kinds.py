@@ -72,5 +72,5 @@ def test_the_inputs_a_stored_spec_names_by_their_kind() -> None:
 
 
 def test_an_unknown_kind_is_named_with_the_known_ones() -> None:
-    with pytest.raises(ValueError, match="unknown job kind 'scan'; expected one of"):
-        job_kind("scan")
+    with pytest.raises(ValueError, match="unknown job kind 'levitate'; expected one of"):
+        job_kind("levitate")
