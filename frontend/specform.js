@@ -71,6 +71,7 @@ function control(name, property, required, root, prefix, pickers) {
   const path = prefix ? `${prefix}.${name}` : name;
   const fallback = property.default !== undefined ? property.default : schema.default;
 
+  if (pickers[path] && pickers[path].control) return pickers[path].control; // the caller's own { element, value }
   if (pickers[path]) {
     const select = pickers[path].select;
     return { element: field(pickers[path].label || label, select, description).wrap, value: () => (select.value === "" ? null : Number(select.value) || select.value) };
@@ -163,7 +164,8 @@ function specControls(schema, root, prefix, pickers) {
 
 /**
  * Inputs for the spec of `kind`, from the server's schema: { elements, spec() → the JSON to POST }. `pickers`
- * maps a property path ("recording_id") to { select, label } made by the caller.
+ * maps a property path ("recording_id") to { select, label } made by the caller, or to { control: { element,
+ * value() } } for a control the caller makes whole (the consent to use a bad calibration).
  */
 export async function specInputs(kind, pickers = {}) {
   const root = await apiSchema();

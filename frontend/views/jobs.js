@@ -5,7 +5,7 @@ import { getJSON, postJSON, query, subscribe } from "../api.js";
 import { specInputs } from "../specform.js";
 import { exportPanel } from "./exports.js";
 import { deleteButton } from "./deletion.js";
-import { attempt, field, fill, formatBytes, formatDuration, formatTime, h, page, say, showError, table } from "../ui.js";
+import { attempt, field, fill, formatBytes, formatDuration, formatTime, h, newId, page, say, showError, table } from "../ui.js";
 
 export const JOB_KIND_NAMES = {
   ingest: "Ingest",
@@ -41,6 +41,17 @@ export function resultLink(job) {
   if (job.kind === "topography") return h("a", { href: `#/jobs/${job.id}/viewer` }, "Topography viewer");
   if (job.kind === "comparison") return h("a", { href: `#/jobs/${job.id}/comparison` }, "Comparison view");
   return null;
+}
+
+/** What a finished job's results must be read with: a calibration whose verdict is bad, the warnings a job using
+ * one carries (consented to). Shown wherever the job is listed. */
+export function resultMarks(job) {
+  const marks = [];
+  if (job.state === "succeeded" && job.result && job.result.verdict === "bad") {
+    marks.push(" ", h("span", { class: "badge verdict-bad", title: (job.result.reasons || []).join("; ") }, "verdict: bad"));
+  }
+  for (const warning of job.warnings || []) marks.push(h("p", { class: "result-warning" }, `⚠ ${warning}`));
+  return marks;
 }
 
 // ---- one job's progress, with its buttons ------------------------------------------------------------------
@@ -219,7 +230,7 @@ export class JobList {
         this.rows.set(job.id, entry);
       }
       if (!this.streams.has(job.id)) entry.progress.update(job);
-      fill(entry.results, resultLink(entry.progress.job));
+      fill(entry.results, resultLink(entry.progress.job), resultMarks(entry.progress.job));
       // Finished jobs can go (with their results); a queued or running one is cancelled first.
       fill(entry.actions, isActive(entry.progress.job) ? null : deleteButton(`jobs/${job.id}`, jobName(job), () => {
         this.rows.delete(job.id);
@@ -235,7 +246,7 @@ export class JobList {
     const close = followJob(jobId, {
       onJob: (job) => {
         entry.progress.update(job);
-        fill(entry.results, resultLink(job));
+        fill(entry.results, resultLink(job), resultMarks(job));
         // Who listens to the list hears of each live change too, not only of the next refresh.
         if (this.latest) {
           this.latest = this.latest.map((known) => (known.id === job.id ? job : known));
@@ -289,6 +300,12 @@ export function jobForm({ recordings, calibrations, onStarted }) {
     camera_calibration_id: { label: "Camera calibration", select: h("select", { required: true }) },
     projector_calibration_id: { label: "Projector calibration", select: h("select", { required: true }) },
   };
+  // Consent to use a calibration whose verdict is bad: shown (and required) only when a chosen one is bad.
+  const consentBox = h("input", { type: "checkbox", id: newId("consent") });
+  const consentText = h("label", { for: consentBox.id }, consentBox, " Use it although its verdict is bad (the results will carry the warning)");
+  const consentWhy = h("small", { class: "hint" });
+  const consent = h("div", { class: "field check-field consent wide-row", hidden: true }, consentText, consentWhy);
+  pickers.accept_bad_calibration = { control: { element: consent, value: () => (consent.hidden ? null : consentBox.checked) } };
   const inputs = h("div", { class: "spec-inputs grid-form" });
   const about = h("p", { class: "hint wide-row" });
   const specView = h("pre", { class: "spec", "aria-label": "Job spec (JSON)" });
@@ -324,15 +341,32 @@ export function jobForm({ recordings, calibrations, onStarted }) {
     }
     showSpec();
   };
+  let cameraCals = [];
+  let projectorCals = [];
+  /** Only consistent pairs: the projector calibrations built on the chosen camera calibration (and those whose
+   * camera calibration is not known, named so); then the consent when a chosen calibration is bad. */
+  const refreshPairs = () => {
+    const cameraId = Number(pickers.camera_calibration_id.select.value);
+    const paired = projectorCals.filter((p) => p.builtOn === null || p.builtOn === cameraId);
+    options(pickers.projector_calibration_id.select, paired,
+      projectorCals.length ? "no projector calibration built on this camera calibration" : "no projector calibration yet");
+    const chosenBad = [[pickers.camera_calibration_id.select, cameraCals], [pickers.projector_calibration_id.select, paired]]
+      .map(([select, items]) => items.find((c) => String(c.id) === select.value && select.isConnected))
+      .filter((c) => c && c.bad);
+    consent.hidden = chosenBad.length === 0;
+    consentBox.required = !consent.hidden;
+    if (consent.hidden) consentBox.checked = false;
+    consentWhy.textContent = chosenBad.map((c) => c.label).join("; ");
+    showSpec();
+  };
   const refreshCalibrations = async () => {
     const chosen = recordings().find((r) => String(r.id) === pickers.recording_id.select.value);
     prefillBoard(chosen);
     if (chosen) {
-      const [cameraCals, projectorCals] = await Promise.all([calibrations(chosen.camera_id, "camera"), calibrations(chosen.camera_id, "projector")]);
+      [cameraCals, projectorCals] = await Promise.all([calibrations(chosen.camera_id, "camera"), calibrations(chosen.camera_id, "projector")]);
       options(pickers.camera_calibration_id.select, cameraCals, "no camera calibration yet");
-      options(pickers.projector_calibration_id.select, projectorCals, "no projector calibration yet");
     }
-    showSpec();
+    refreshPairs();
   };
   const refreshRecordings = () => {
     const wanted = RECORDING_KIND_OF_JOB[kind.input.value];
@@ -360,7 +394,7 @@ export function jobForm({ recordings, calibrations, onStarted }) {
         prefilledFor = null;
         about.textContent = current.description;
         inputs.replaceChildren(...current.elements, boardNote);
-        for (const picker of Object.values(pickers)) picker.select.closest(".field")?.classList.add("wide");
+        for (const picker of Object.values(pickers)) picker.select?.closest(".field")?.classList.add("wide");
         await refreshRecordings();
       } catch (error) {
         showError(error, "read the job parameters from the server");
@@ -369,6 +403,8 @@ export function jobForm({ recordings, calibrations, onStarted }) {
 
   kind.input.addEventListener("change", changeKind);
   pickers.recording_id.select.addEventListener("change", () => busy(refreshCalibrations));
+  pickers.camera_calibration_id.select.addEventListener("change", refreshPairs);
+  pickers.projector_calibration_id.select.addEventListener("change", refreshPairs);
   const form = h(
     "form",
     {
@@ -400,16 +436,28 @@ export function jobForm({ recordings, calibrations, onStarted }) {
   return { element: form, refresh: () => ready.then(() => busy(refreshRecordings)) };
 }
 
-/** The calibrations of a camera, from its succeeded calibration jobs. */
+/**
+ * The calibrations of a camera, newest first: { id, label, bad, builtOn } (builtOn: a projector calibration's
+ * camera calibration, null when unknown). The label names the calibration by id, camera and date, says what a
+ * projector calibration was built on, and marks a bad verdict.
+ */
+export function calibrationChoice(c) {
+  const verdict = c.verdict || (c.summary && c.summary.verdict) || null;
+  const rms = c.summary && Number.isFinite(c.summary.rms_px) ? ` · RMS ${c.summary.rms_px.toFixed(3)} px` : "";
+  const name = c.label || `${c.kind} calibration #${c.id} · ${formatTime(c.created_at)}`;
+  const builtOn = c.kind === "projector" ? (c.camera_calibration_id ?? null) : null;
+  const on = c.kind === "projector" ? ` · built on camera calibration #${builtOn ?? "?"}` : "";
+  const bad = Boolean(c.bad) || verdict === "bad";
+  // The mark first: a select shows only the start of a long option.
+  const label = bad ? `⚠ BAD: ${name}${on}${rms}${c.bad_reason ? ` · ${c.bad_reason}` : ""}` : `${name}${on}${rms}${verdict ? ` · ${verdict}` : ""}`;
+  return { id: c.id, label, bad, builtOn };
+}
+
 async function calibrationsOf(experimentId, cameraId, kind) {
   const found = await attempt(`list the ${kind} calibrations`, () =>
     getJSON(`calibrations${query({ camera_id: cameraId, kind })}`),
   );
-  return (found || []).map((c) => {
-    const verdict = c.summary && c.summary.verdict ? ` · ${c.summary.verdict}` : "";
-    const rms = c.summary && Number.isFinite(c.summary.rms_px) ? ` · RMS ${c.summary.rms_px.toFixed(3)} px` : "";
-    return { id: c.id, label: `#${c.id} v${c.version}${rms}${verdict} · ${formatTime(c.created_at)}` };
-  });
+  return (found || []).map(calibrationChoice);
 }
 
 /** The jobs section of an experiment page: the live list and the form. */

@@ -1,6 +1,7 @@
 """What a result is of, said where it is shown (issue 27): the viewer's title names the camera and the recording,
-and the list of all jobs has experiment and camera columns. The result is a small synthetic topography file (the
-results API's test file, 4 frames) registered as a succeeded job of a real experiment, camera and recording."""
+and the list of all jobs has experiment and camera columns and marks a calibration whose verdict is bad. The result
+is a small synthetic topography file (the results API's test file, 4 frames) registered as a succeeded job of a
+real experiment, camera and recording."""
 
 from __future__ import annotations
 
@@ -40,6 +41,11 @@ def test_the_viewer_and_the_jobs_list_name_the_camera_and_the_experiment(page, l
         session.add(Job(id=job_id, kind="topography", state="succeeded", experiment_id=experiment["id"],
                         files=[entry], spec={"kind": "topography", "recording_id": recording_id},
                         result={"frames": [10, 13]}, finished_at=utcnow()))  # fmt: skip
+        # A camera calibration whose verdict is bad: marked so in every jobs list.
+        spec = {"kind": "camera_calibration", "recording_id": recording_id}
+        session.add(Job(id=str(uuid.uuid4()), kind="camera_calibration", state="succeeded",
+                        experiment_id=experiment["id"], spec=spec,
+                        result={"verdict": "bad", "reasons": ["f = 21.7 mm"]}, finished_at=utcnow()))  # fmt: skip
         session.commit()
     engine.dispose()
 
@@ -52,4 +58,6 @@ def test_the_viewer_and_the_jobs_list_name_the_camera_and_the_experiment(page, l
     row = jobs.get_by_role("row").filter(has_text=job_id[:8])
     expect(row.get_by_role("cell").nth(1)).to_have_text("plate 7")
     expect(row.get_by_role("cell").nth(2)).to_have_text("kodak")
+    calibration = jobs.get_by_role("row").filter(has_text="Camera calibration")
+    expect(calibration.get_by_text("verdict: bad")).to_be_visible()
     screenshot(page, "jobs-with-experiment-and-camera", full_page=False)
