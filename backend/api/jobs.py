@@ -147,7 +147,8 @@ def _job_out(
             stage=job.stage,
             done=job.progress_done,
             total=total,
-            fraction=job.progress_done / total if total else None,
+            # a failed job stopped where it failed: no share done to show (it is not 93 % of anything)
+            fraction=job.progress_done / total if total and job.state != "failed" else None,
             eta_s=eta_seconds(job, now=now),
         ),
         error=job.error,

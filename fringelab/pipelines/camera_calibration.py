@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -60,7 +61,9 @@ def calibrate_camera_recording(
     """
     if mode not in MODES:
         raise ValueError(f"mode: expected one of {MODES}, got {mode!r}")
-    where = str(getattr(source, "path", "recording"))
+    # Messages name the recording by its file name only (never a server path); the provenance keeps the path.
+    path_text = str(getattr(source, "path", "recording"))
+    where = Path(path_text).name or path_text
     n_frames = len(source)
     names = list(getattr(source, "frame_names", [f"frame {i}" for i in range(n_frames)]))
     board_text = source.sidecar_text("board.json")
@@ -111,14 +114,21 @@ def calibrate_camera_recording(
             views.append(CornerView(name, np.column_stack([corners.points_board_mm, z_column]), corners.q_px, z_mm))
         if progress is not None:
             progress(i + 1, total, "corners")
-    if not views:
-        sizes = [f for f in found_sizes if f is not None]
-        hint = ""
-        if sizes:
-            cols, rows = max(sizes, key=lambda size: size[0] * size[1])
-            hint = f"; the frames show a board of at least {cols} × {rows} inner corners: check the declared size"
+    sizes = [f for f in found_sizes if f is not None]
+    if sizes and (not views or len(sizes) >= len(views)):
+        # The board is another size than declared: one sentence with both sizes, whether or not a few frames
+        # matched the declared one (never a calibration on a sub-board). The detector may stop short of a board's
+        # outer corners, so the largest size any frame showed is the best lower bound.
+        cols, rows = max(sizes, key=lambda size: size[0] * size[1])
+        full = "" if len(set(sizes)) == 1 else "at least "
         raise BoardNotFoundError(
-            f"{where}: no {board.cols} × {board.rows} chessboard found in any of the {n_frames} frames{hint}"
+            f"{where}: the board has {full}{cols} × {rows} inner corners, {board.cols} × {board.rows} declared: "
+            "declare its full size",
+            found_size=(cols, rows),
+        )
+    if not views:
+        raise BoardNotFoundError(
+            f"{where}: no {board.cols} × {board.rows} chessboard found in any of the {n_frames} frames"
         )
     assert image_size is not None  # at least one frame was read
     if should_cancel is not None and should_cancel():
@@ -136,7 +146,7 @@ def calibrate_camera_recording(
         views, image_size_wh_px=image_size, mode=mode, du_px_per_mm=du_px_per_mm, dv_px_per_mm=dv_px_per_mm,
         scale_on=scale_on, reject_outliers=reject_outliers, skipped=skipped, board=board,
         pixel_pitch_um=pixel_pitch_um,
-        provenance={"input": where, "input_sha256": digest.hexdigest(), "n_frames": n_frames, "settings": settings,
+        provenance={"input": path_text, "input_sha256": digest.hexdigest(), "n_frames": n_frames, "settings": settings,
                     **code_versions()},
     )  # fmt: skip
     if progress is not None:

@@ -15,6 +15,7 @@ covariance is carried over to the Heikkilä parameters with the Jacobian of the 
 from __future__ import annotations
 
 import contextlib
+from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal, get_args
@@ -629,11 +630,13 @@ def calibrate_from_views(
 
 def _require_enough(views: Sequence[CornerView], *, mode: str, skipped: Sequence[FrameResult]) -> None:
     need = MIN_FRAMES[mode]
-    lost = "; ".join(f"{f.frame}: {f.reason}" for f in skipped)
     if len(views) < need:
+        # One short sentence: why frames were skipped, each reason once (a reason names its frame first).
+        reasons = Counter(f.reason.split(": ", 1)[-1] for f in skipped)
+        lost = "; ".join(f"{n} × {reason}" for reason, n in reasons.most_common(3))
         raise CalibrationError(
             f"{mode} calibration needs at least {need} frames with the board, got {len(views)}"
-            + (f" (skipped: {lost})" if lost else "")
+            + (f" ({len(skipped)} skipped: {lost})" if lost else "")
         )
     if mode == "zstack":
         levels = {v.z_mm for v in views}

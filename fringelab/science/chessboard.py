@@ -156,15 +156,20 @@ def find_board_corners(
     if detector not in DETECTORS:
         raise ValueError(f"detector: expected one of {DETECTORS}, got {detector!r}")
     image_u8 = _as_uint8(image)
-    grid, used = _detect_grid(image_u8, (board.cols, board.rows), detector)
-    found = _found_size(image_u8) if grid is None else (grid.shape[1], grid.shape[0])
-    if found is not None and sorted(found) != sorted((board.cols, board.rows)):
+    declared = (board.cols, board.rows)
+    grid, used = _detect_grid(image_u8, declared, detector)
+    found = _found_size(image_u8, declared) if grid is None else (grid.shape[1], grid.shape[0])
+    if grid is not None and used != "findChessboardCornersSB":
+        # The classic detector finds the declared pattern inside a larger board too: never take a sub-board.
+        whole = _found_size(image_u8, declared)
+        if whole is not None and max(whole) * min(whole) > board.cols * board.rows:
+            found = whole
+    if found is not None and sorted(found) != sorted(declared):
         # Name the found size in the declared orientation (larger count first if declared so).
         big, small = max(found), min(found)
         found_cols, found_rows = (big, small) if board.cols >= board.rows else (small, big)
         raise BoardNotFoundError(
-            f"{frame}: found a board of at least {found_cols} × {found_rows} inner corners, "
-            f"declared {board.cols} × {board.rows}",
+            f"{frame}: the board has {found_cols} × {found_rows} inner corners, {board.cols} × {board.rows} declared",
             found_size=(found_cols, found_rows),
         )
     if grid is None:
@@ -172,15 +177,23 @@ def find_board_corners(
     return _refine_subpixel(image_u8, grid, subpix_half_window_px), used
 
 
-def _found_size(image_u8: np.ndarray) -> tuple[int, int] | None:
-    """The inner-corner count (cols, rows) of whatever chessboard is in the image, for error messages."""
+def _found_size(image_u8: np.ndarray, declared: tuple[int, int]) -> tuple[int, int] | None:
+    """The inner-corner count (cols, rows) of whatever chessboard is in the image: the larger of the boards grown
+    (CALIB_CB_LARGER) from the declared pattern and from the smallest (3 × 3); either may stop short of the board's
+    full extent, so it is a lower bound."""
     height, width = image_u8.shape
     scale = min(1.0, DETECTION_MAX_SIDE_PX / max(height, width))
     small = cv2.resize(image_u8, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA) if scale < 1 else image_u8
-    found, _, meta = cv2.findChessboardCornersSBWithMeta(
-        small, (3, 3), cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_LARGER
-    )
-    return (int(meta.shape[1]), int(meta.shape[0])) if found else None
+    flags = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_LARGER
+    sizes = []
+    for image in (small, image_u8) if scale < 1 else (image_u8,):
+        for start in (declared, (3, 3)):
+            found, _, meta = cv2.findChessboardCornersSBWithMeta(image, start, flags)
+            if found:
+                sizes.append((int(meta.shape[1]), int(meta.shape[0])))
+        if sizes:
+            break
+    return max(sizes, key=lambda size: size[0] * size[1]) if sizes else None
 
 
 def label_board_corners(grid_px: np.ndarray, *, board: Board) -> BoardCorners:

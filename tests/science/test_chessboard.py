@@ -77,7 +77,7 @@ def test_sixteen_bit_frames_are_detected(even_board_renderer):
 def test_wrong_board_size_names_what_was_found(cols, rows, even_board_renderer):
     image = even_board_renderer.render(board_pose_at_z(0.0), rng=np.random.default_rng(8))
     with pytest.raises(
-        BoardNotFoundError, match=rf"frame7.png: found a board of at least 12 × 8 .*declared {cols} × {rows}"
+        BoardNotFoundError, match=rf"^frame7.png: the board has 12 × 8 inner corners, {cols} × {rows} declared$"
     ):
         detect_board(image, board=Board(cols, rows, 25.0), frame="frame7.png")
 
@@ -97,3 +97,12 @@ def test_board_json():
         read_board_json("{cols: 9")
     with pytest.raises(ValueError, match="at least 2 × 2"):
         read_board_json('{"cols": 1, "rows": 6, "square_mm": 25}')
+
+
+@pytest.mark.parametrize("detector", ["auto", "classic"])
+def test_a_sub_board_of_a_larger_board_is_never_accepted(detector, even_board_renderer):
+    """Declaring 9 × 6 on the 12 × 8 board: the classic detector finds a 9 × 6 pattern inside it, which would
+    calibrate on a sub-board; it is refused in one sentence naming both sizes."""
+    image = even_board_renderer.render(board_pose_at_z(0.0), rng=np.random.default_rng(9))
+    with pytest.raises(BoardNotFoundError, match=r"^frame3.png: the board has 12 × 8 inner corners, 9 × 6 declared$"):
+        detect_board(image, board=Board(9, 6, 25.0), frame="frame3.png", detector=detector)
