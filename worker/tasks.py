@@ -24,8 +24,10 @@ from sqlalchemy import select
 from fringelab.core.broker import CHUNK_TASK, DEMO_ADVANCE_TASK, DEMO_TASK, MERGE_TASK, PING_TASK
 from fringelab.core.job_kinds import JOB_KINDS, JobKind
 from fringelab.core.models import Job
+from worker.chunks import ChunkBody, MergeBody
+from worker.context import JobBody
 from worker.jobs import demo as demo_job
-from worker.runner import ChunkBody, JobBody, MergeBody, run_chunk, run_job, run_merge
+from worker.runner import run_chunk, run_job, run_merge
 from worker.runtime import sessions_of
 
 

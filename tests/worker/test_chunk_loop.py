@@ -18,7 +18,8 @@ from fringelab.core.db import make_engine, make_sessionmaker
 from fringelab.core.models import Job, JobChunk, utcnow
 from fringelab.core.settings import Settings
 from worker.app import create_worker_app
-from worker.runner import JobContext, run_chunk
+from worker.context import JobContext
+from worker.runner import run_chunk
 
 
 def _gone_pid() -> int:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from fringelab.core.settings import Settings
-from worker.runner import GUIDED_PARTS, MIN_CHUNK_FRAMES, guided_frame_ranges, planned_frame_ranges
+from worker.chunks import GUIDED_PARTS, MIN_CHUNK_FRAMES, guided_frame_ranges, planned_frame_ranges
 
 
 @pytest.mark.parametrize("count", [1, 4, 5, 7, 40, 160, 799, 2000])

@@ -1,4 +1,4 @@
-"""Hand-overs between a job's tasks (`worker.runner.array_records`): in a file, or kept in the process that wrote
+"""Hand-overs between a job's tasks (`worker.handover.array_records`): in a file, or kept in the process that wrote
 it (a merge's own later chunk), read back record by record, the same either way."""
 
 from __future__ import annotations
@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from fringelab.core.settings import Settings
-from worker.runner import JobContext, array_records, has_hand_over, read_array_records
+from worker.context import JobContext
+from worker.handover import array_records, has_hand_over, read_array_records
 
 
 def _context(tmp_path, *, hold: bool) -> JobContext:
@@ -45,7 +46,7 @@ def test_a_hand_over_whose_writing_failed_is_not_kept(tmp_path) -> None:
 
 
 def test_a_kept_hand_over_beyond_its_memory_budget_goes_on_in_a_temporary_file(tmp_path, monkeypatch) -> None:
-    import worker.runner as runner
+    import worker.handover as runner
 
     monkeypatch.setattr(runner, "HELD_HAND_OVER_BYTES", 2 * 8 * 100)  # two records of 100 float64 in memory
     context = _context(tmp_path, hold=True)

@@ -5,8 +5,8 @@ from __future__ import annotations
 from typing import Any
 
 from fringelab.core.specs import CameraCalibrationSpec
+from worker.context import JobContext
 from worker.jobs.inputs import record_calibration, recording_input
-from worker.runner import JobContext
 
 
 def camera_calibration_body(context: JobContext[CameraCalibrationSpec]) -> dict[str, Any]:

@@ -12,8 +12,8 @@ from typing import Any
 from fringelab.core.job_kinds import COMPARISON_FILE, TOPOGRAPHY_FILE
 from fringelab.core.models import Job, Simulation
 from fringelab.core.specs import ComparisonSpec
+from worker.context import JobContext
 from worker.jobs.export import write_download
-from worker.runner import JobContext
 
 
 def comparison_body(context: JobContext[ComparisonSpec]) -> dict[str, Any]:

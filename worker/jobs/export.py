@@ -12,7 +12,7 @@ from typing import Any
 
 from fringelab.core.models import Job
 from fringelab.core.specs import ExportSpec
-from worker.runner import JobContext
+from worker.context import JobContext
 
 SOURCE_FILES = {"topography": "topography.h5", "comparison": "comparison.h5"}
 

@@ -43,7 +43,7 @@ from fringelab.science.quality import (
     saturated_pct,
     to_uint8,
 )
-from worker.runner import JobContext
+from worker.context import JobContext
 
 MAX_REASONS = 10
 PROBE_FRAMES = 5

@@ -11,7 +11,7 @@ from sqlalchemy import func, select
 from sqlalchemy.exc import IntegrityError
 
 from fringelab.core.models import Calibration, Camera, Recording
-from worker.runner import JobContext
+from worker.context import JobContext
 
 
 def recording_input(context: JobContext[Any]) -> tuple[Recording, Camera, Path]:

@@ -6,8 +6,8 @@ from dataclasses import asdict
 from typing import Any
 
 from fringelab.core.specs import ProjectorCalibrationSpec
+from worker.context import JobContext
 from worker.jobs.inputs import calibration_file, record_calibration, recording_input
-from worker.runner import JobContext
 
 
 def projector_calibration_body(context: JobContext[ProjectorCalibrationSpec]) -> dict[str, Any]:

@@ -14,16 +14,9 @@ from sqlalchemy import select
 from fringelab.core.jobs import as_utc
 from fringelab.core.models import Job, utcnow
 from fringelab.core.specs import SelftestSpec
-from worker.runner import (
-    Chunked,
-    InOrder,
-    JobContext,
-    handed_over,
-    load_arrays,
-    planned_frame_ranges,
-    save_arrays,
-    this_worker,
-)
+from worker.chunks import InOrder, handed_over, planned_frame_ranges
+from worker.context import Chunked, JobContext, this_worker
+from worker.handover import load_arrays, save_arrays
 
 
 def selftest_frame(frame: int, *, size_px: int) -> tuple[float, str]:

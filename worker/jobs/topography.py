@@ -38,19 +38,10 @@ from fringelab.pipelines.topography import (
     result_writer,
 )
 from fringelab.science.topography import SummaryTally, TemporalCrossCheck
+from worker.chunks import InOrder, planned_frame_ranges
+from worker.context import Chunked, JobContext, finite_or_none
+from worker.handover import array_records, has_hand_over, load_arrays, read_array_records, save_arrays
 from worker.jobs.inputs import calibration_file, recording_input
-from worker.runner import (
-    Chunked,
-    InOrder,
-    JobContext,
-    array_records,
-    finite_or_none,
-    has_hand_over,
-    load_arrays,
-    planned_frame_ranges,
-    read_array_records,
-    save_arrays,
-)
 
 
 @dataclass
