@@ -7,7 +7,7 @@ from typing import Any
 
 from fringelab.core.specs import ScanSpec
 from worker.jobs.inputs import calibration_file, recording_input
-from worker.runner import JobContext
+from worker.context import JobContext
 
 
 def scan_body(context: JobContext[ScanSpec]) -> dict[str, Any]:
