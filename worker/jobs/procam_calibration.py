@@ -7,8 +7,8 @@ from typing import Any
 
 from fringelab.core.models import Recording
 from fringelab.core.specs import ProcamCalibrationSpec
-from worker.jobs.inputs import record_calibration
 from worker.context import JobContext
+from worker.jobs.inputs import record_calibration
 
 
 def procam_calibration_body(context: JobContext[ProcamCalibrationSpec]) -> dict[str, Any]:

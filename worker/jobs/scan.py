@@ -6,8 +6,8 @@ from __future__ import annotations
 from typing import Any
 
 from fringelab.core.specs import ScanSpec
-from worker.jobs.inputs import calibration_file, recording_input
 from worker.context import JobContext
+from worker.jobs.inputs import calibration_file, recording_input
 
 
 def scan_body(context: JobContext[ScanSpec]) -> dict[str, Any]:
