@@ -148,6 +148,14 @@ class Settings(BaseSettings):
         ge=0,
         description="Uploads are refused when they would leave less free space than this on the data volume.",
     )
+    simulation_check_bytes: int = Field(
+        2 * 2**30,
+        ge=256 * 2**20,
+        description="Memory (address space) the child process that reads an uploaded simulation may take.",
+    )
+    simulation_check_s: float = Field(
+        300.0, gt=0, le=86400, description="Time the child process that reads an uploaded simulation may take."
+    )
     user_quota_bytes: int = Field(
         0,
         ge=0,

@@ -24,19 +24,27 @@ import numpy as np
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from fringelab.core import simulation_check
 from fringelab.core.accounts import Principal, audit, require_access
 from fringelab.core.errors import Conflict, Invalid, NotFound, TooLarge
 from fringelab.core.job_kinds import TOPOGRAPHY_FILE, named_by
 from fringelab.core.jobs import ACTIVE_STATES
 from fringelab.core.models import Experiment, Job, Simulation
 from fringelab.core.quota import check_quota
-from fringelab.core.recordings import check_upload_size
+from fringelab.core.recordings import check_upload_size, zip_limits
 from fringelab.core.settings import Settings
 from fringelab.core.specs import ComparisonSpec
 from fringelab.core.state import AppState
-from fringelab.core.storage import place_file, put_dir, remove_tree, simulation_dir
+from fringelab.core.storage import (
+    InsufficientStorage,
+    check_room,
+    place_file,
+    put_dir,
+    remove_tree,
+    simulation_dir,
+)
 from fringelab.core.text import check_file_name
-from fringelab.formats.container_zip import is_junk_entry, unsafe_entry_reason
+from fringelab.formats.container_zip import check_archive, is_junk_entry
 
 MODEL_DIR = "model"
 
@@ -68,33 +76,34 @@ def check_simulation_request(
 
 
 def _unpack(archive_path: Path, target: Path, *, filename: str, settings: Settings) -> None:
-    """Unpack a ZIP of a simulation folder into `target`, refusing unsafe entries and bombs (Invalid naming them)."""
+    """Unpack a ZIP of a simulation folder into `target` under the rule of every ZIP (`container_zip.check_archive`:
+    unsafe entries, entry count, per-entry and whole-archive size and ratio), with the room it expands to checked
+    against the free disk and its reserve before and while it is written (Invalid or TooLarge naming it)."""
     try:
         with zipfile.ZipFile(archive_path) as archive:
             infos = archive.infolist()
-            total = 0
-            for info in infos:
-                reason = unsafe_entry_reason(info)
-                if reason:
-                    raise Invalid(f"{filename}: {reason}; refused", code="unsafe_archive")
-                total += info.file_size
-                if total > settings.zip_max_uncompressed_bytes:
-                    raise Invalid(
-                        f"{filename}: expands to more than {settings.zip_max_uncompressed_bytes} bytes "
-                        "(FRINGELAB_ZIP_MAX_UNCOMPRESSED_BYTES); refused",
-                        code="unsafe_archive",
-                    )
-                if info.file_size > 2**20 and info.file_size > settings.zip_max_ratio * max(info.compress_size, 1):
-                    raise Invalid(f"{filename}: entry {info.filename!r} is a ZIP bomb; refused", code="unsafe_archive")
+            try:
+                total = check_archive(filename, infos, limits=zip_limits(settings), size=archive_path.stat().st_size)
+            except ValueError as error:
+                raise Invalid(f"{error}", code="unsafe_archive") from None
+            _room(settings, total, filename=filename)
             for info in infos:
                 if info.is_dir() or is_junk_entry(info.filename):
                     continue
+                _room(settings, info.file_size, filename=filename)  # others write too: again before each entry
                 out = target.joinpath(*PurePosixPath(info.filename.replace("\\", "/")).parts)
                 out.parent.mkdir(parents=True, exist_ok=True)
                 with archive.open(info) as source, out.open("wb") as sink:
                     shutil.copyfileobj(source, sink, 2**20)
     except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, NotImplementedError) as error:
         raise Invalid(f"{filename}: not a readable ZIP archive ({error})", code="corrupt_archive") from None
+
+
+def _room(settings: Settings, size_bytes: int, *, filename: str) -> None:
+    try:
+        check_room(settings.data_path, size_bytes, reserve_bytes=settings.min_free_disk_bytes)
+    except InsufficientStorage as error:
+        raise TooLarge(f"{filename}: {error}", code="insufficient_storage") from None
 
 
 def _model_folder(root: Path) -> Path:
@@ -106,36 +115,8 @@ def _model_folder(root: Path) -> Path:
     return root
 
 
-def _finite_range(values: np.ndarray | None) -> list[float] | None:
-    if values is None or len(values) == 0 or not np.any(np.isfinite(values)):
-        return None
-    return [float(np.nanmin(values)), float(np.nanmax(values))]
-
-
-def read_simulation_summary(folder: Path, *, filename: str) -> dict[str, Any]:
-    """Open the simulation in `folder` (`open_simulation`): its kind, size and what it holds; Invalid with the
-    reader's message when it is no simulation fringelab reads."""
-    from fringelab.formats.simulations import open_simulation
-
-    try:
-        results = open_simulation(folder, punch_needed=False)  # a nodout of several nodes: chosen when compared
-    except (ValueError, KeyError, IndexError, OSError, EOFError) as error:
-        message = str(error).replace(str(folder) + "/", "").replace(str(folder), filename)
-        raise Invalid(f"{filename}: not a simulation fringelab reads: {message}", code="invalid_simulation") from None
-    return {
-        "kind": results.kind,
-        "n_states": results.n_states,
-        "n_nodes": results.n_nodes,
-        "info": {
-            "time": _finite_range(results.time),
-            "length_unit": results.length_unit,
-            "time_unit_s": results.time_unit_s,
-            "has_punch_displacement": results.punch_displacement is not None,
-            "has_force": results.force is not None,
-            "n_shells": int(len(results.shells)),
-            "n_solids": int(len(results.solids)),
-        },
-    }
+# One reader of an upload's summary; it runs in the child process of `simulation_check` (tests call it directly).
+read_simulation_summary = simulation_check.read_simulation_summary
 
 
 def register_simulation(
@@ -166,7 +147,8 @@ def register_simulation(
             (work / "upload").mkdir(parents=True)
             shutil.copyfile(staged, work / "upload" / filename)
         folder = _model_folder(work)
-        summary = read_simulation_summary(folder, filename=filename)
+        # read by a child process within a memory and a time limit, never by this (the web server's) process
+        summary = simulation_check.checked_summary(folder, filename=filename, settings=settings)
         with state.sessions() as session:
             experiment = session.get(Experiment, experiment_id)
             if experiment is None:

@@ -42,12 +42,13 @@ class ZipLimits:
     max_total_bytes: sum of the uncompressed sizes of all entries. max_entry_bytes: one entry (one frame).
     max_ratio: uncompressed / compressed size of one entry over 1 MiB, and of the whole archive once it
     expands to more than 1 MiB (deflate alone cannot pass ~1030, so a higher ratio means bzip2/LZMA tricks; the
-    total keeps many entries each just under 1 MiB from passing one by one).
+    total keeps many entries each just under 1 MiB from passing one by one). max_entries: entries at most.
     """
 
     max_total_bytes: int = 256 * GiB
     max_entry_bytes: int = 2 * GiB
     max_ratio: float = 200.0
+    max_entries: int = 100_000
 
 
 @dataclass(frozen=True)
@@ -93,46 +94,12 @@ def inspect_zip(path: str | Path, *, limits: ZipLimits | None = None) -> ZipCont
             infos = archive.infolist()
     except (zipfile.BadZipFile, zipfile.LargeZipFile, OSError, EOFError) as error:
         raise CorruptRecording(f"{path.name}: not a readable ZIP archive ({error})") from None
-    total = compressed = 0
+    total = check_archive(path.name, infos, limits=limits, size=size)
     frames: list[str] = []
     sidecars: dict[str, str] = {}
     for info in infos:
-        reason = unsafe_entry_reason(info)
-        if reason:
-            raise UnsafeArchive(f"{path.name}: {reason}; refused")
         if info.is_dir():
             continue
-        if info.flag_bits & 0x1:
-            raise UnsupportedRecording(f"{path.name}: entry {info.filename!r} is encrypted")
-        if info.compress_type not in _SUPPORTED_COMPRESSION:
-            raise UnsupportedRecording(
-                f"{path.name}: entry {info.filename!r} uses compression method {info.compress_type}; "
-                "use stored, deflate, bzip2 or LZMA"
-            )
-        if info.file_size > limits.max_entry_bytes:
-            raise UnsafeArchive(
-                f"{path.name}: entry {info.filename!r} expands to {info.file_size} bytes, over the "
-                f"{limits.max_entry_bytes}-byte limit of one entry"
-            )
-        if info.file_size > MiB and info.file_size > limits.max_ratio * max(info.compress_size, 1):
-            ratio = info.file_size / max(info.compress_size, 1)
-            raise UnsafeArchive(
-                f"{path.name}: entry {info.filename!r} expands {ratio:.0f}× (limit {limits.max_ratio:.0f}×); "
-                "refused as a ZIP bomb"
-            )
-        total += info.file_size
-        compressed += info.compress_size
-        if total > MiB and total > limits.max_ratio * max(compressed, 1):
-            raise UnsafeArchive(
-                f"{path.name}: its entries expand {total / max(compressed, 1):.0f}× in total (limit "
-                f"{limits.max_ratio:.0f}×); refused as a ZIP bomb"
-            )
-        if total > limits.max_total_bytes:
-            raise UnsafeArchive(
-                f"{path.name}: expands to more than {limits.max_total_bytes} bytes in total; refused as a ZIP bomb"
-            )
-        if info.header_offset + info.compress_size > size:
-            raise CorruptRecording(f"{path.name}: entry {info.filename!r} runs past the end of the file (truncated)")
         if is_junk_entry(info.filename):
             continue
         base = PurePosixPath(info.filename).name
@@ -144,7 +111,6 @@ def inspect_zip(path: str | Path, *, limits: ZipLimits | None = None) -> ZipCont
             except ValueError as error:
                 raise UnsafeArchive(f"{path.name}: {error}; refused") from None
             sidecars.setdefault(base, info.filename)
-    _refuse_overlapping_entries(path.name, infos)
     if not frames:
         mraw = _mraw_entries(path.name, infos)
         if mraw is not None:
@@ -154,6 +120,56 @@ def inspect_zip(path: str | Path, *, limits: ZipLimits | None = None) -> ZipCont
             ".cihx/.cih with its .mraw)"
         )
     return ZipContents(tuple(sorted(frames, key=natural_key)), sidecars, total)
+
+
+def check_archive(name: str, infos: list[zipfile.ZipInfo], *, limits: ZipLimits, size: int) -> int:
+    """The one rule for every ZIP fringelab reads or unpacks (recordings and simulations alike), from its central
+    directory: no unsafe, encrypted or exotic entry, no more than `limits.max_entries` entries, no entry or whole
+    archive over its size or ratio limit, no entry past the end of the file (`size` bytes) and no overlapping
+    entries. Raises UnsafeArchive, UnsupportedRecording or CorruptRecording naming the archive (`name`) and the
+    entry; returns the bytes all entries expand to."""
+    if len(infos) > limits.max_entries:
+        raise UnsafeArchive(f"{name}: {len(infos)} entries, more than the {limits.max_entries} a ZIP may hold")
+    total = compressed = 0
+    for info in infos:
+        reason = unsafe_entry_reason(info)
+        if reason:
+            raise UnsafeArchive(f"{name}: {reason}; refused")
+        if info.is_dir():
+            continue
+        if info.flag_bits & 0x1:
+            raise UnsupportedRecording(f"{name}: entry {info.filename!r} is encrypted")
+        if info.compress_type not in _SUPPORTED_COMPRESSION:
+            raise UnsupportedRecording(
+                f"{name}: entry {info.filename!r} uses compression method {info.compress_type}; "
+                "use stored, deflate, bzip2 or LZMA"
+            )
+        if info.file_size > limits.max_entry_bytes:
+            raise UnsafeArchive(
+                f"{name}: entry {info.filename!r} expands to {info.file_size} bytes, over the "
+                f"{limits.max_entry_bytes}-byte limit of one entry"
+            )
+        if info.file_size > MiB and info.file_size > limits.max_ratio * max(info.compress_size, 1):
+            ratio = info.file_size / max(info.compress_size, 1)
+            raise UnsafeArchive(
+                f"{name}: entry {info.filename!r} expands {ratio:.0f}× (limit {limits.max_ratio:.0f}×); "
+                "refused as a ZIP bomb"
+            )
+        total += info.file_size
+        compressed += info.compress_size
+        if total > MiB and total > limits.max_ratio * max(compressed, 1):
+            raise UnsafeArchive(
+                f"{name}: its entries expand {total / max(compressed, 1):.0f}× in total (limit "
+                f"{limits.max_ratio:.0f}×); refused as a ZIP bomb"
+            )
+        if total > limits.max_total_bytes:
+            raise UnsafeArchive(
+                f"{name}: expands to more than {limits.max_total_bytes} bytes in total; refused as a ZIP bomb"
+            )
+        if info.header_offset + info.compress_size > size:
+            raise CorruptRecording(f"{name}: entry {info.filename!r} runs past the end of the file (truncated)")
+    _refuse_overlapping_entries(name, infos)
+    return total
 
 
 def _mraw_entries(name: str, infos: list[zipfile.ZipInfo]) -> tuple[str, str] | None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures
+import contextlib
 import time
 import zipfile
 from collections.abc import Awaitable, Callable, Iterator
@@ -23,7 +24,8 @@ def laptop(tmp_path_factory: pytest.TempPathFactory) -> Iterator[UpProcess]:
     """`fringelab up` as on a laptop: accounts off, one worker process; one web server process of 4 threads that
     holds 4 requests more (so that a test's flood reaches its bound)."""
     env = {"FRINGELAB_WORKER_CONCURRENCY": "1", "FRINGELAB_API_PROCESSES": "1", "FRINGELAB_API_THREADS": "4",
-           "FRINGELAB_API_QUEUE": "4", "FRINGELAB_MAX_FRAME_BYTES": str(16 * MIB)}  # fmt: skip
+           "FRINGELAB_API_QUEUE": "4", "FRINGELAB_MAX_FRAME_BYTES": str(16 * MIB),
+           "FRINGELAB_SIMULATION_CHECK_BYTES": str(1 << 30)}  # fmt: skip
     up = UpProcess(tmp_path_factory.mktemp("laptop") / "var", extra_env=env)
     up.start()
     yield up
@@ -359,3 +361,72 @@ def test_an_unfinished_upload_reserves_room_for_its_owner_only_within_a_quota(tm
             assert "FRINGELAB_USER_QUOTA_BYTES" in over.json()["detail"]
     finally:
         assert server.up.stop() == 0
+
+
+# ------------------------------------------------------------------------------------ 4, 5: simulations
+
+
+def _web_rss(up: UpProcess) -> int:
+    """RSS of `up`'s web server processes, bytes."""
+    import psutil
+
+    total = 0
+    for child in psutil.Process(up.process.pid).children():  # type: ignore[union-attr]
+        if "api" in child.cmdline():
+            for process in (child, *child.children(recursive=True)):
+                with contextlib.suppress(psutil.Error):
+                    if "simulation_check" not in " ".join(process.cmdline()):
+                        total += process.memory_info().rss
+    return total
+
+
+def test_a_simulation_declaring_60_m_nodes_is_read_outside_the_web_process(laptop, tmp_path):
+    """Finding 4: a 16 KB Exodus file declaring 60 M nodes took the web process to 2176 MiB before its 422. Now
+    the upload is read by a child process with a memory limit (1 GiB here): a 422, and the web server's memory
+    does not move; a sound model still registers."""
+    import netCDF4
+
+    from fringelab.formats.simulation_exodus import write_exodus
+    from tests.formats.test_simulations import DISP, IDS, QUADS, TIME, XYZ
+
+    huge = tmp_path / "huge.exo"
+    with netCDF4.Dataset(huge, "w") as nc:  # what the header declares; nothing of it is stored
+        for name, size in (("num_nodes", 60_000_000), ("num_dim", 3), ("num_el_blk", 1), ("num_el_in_blk1", 1),
+                           ("num_nod_per_el1", 4)):  # fmt: skip
+            nc.createDimension(name, size)
+        nc.createDimension("time_step", None)
+        for axis in "xyz":
+            nc.createVariable(f"coord{axis}", "f8", ("num_nodes",), fill_value=0.0, chunksizes=(1_000_000,))
+        nc.createVariable("connect1", "i4", ("num_el_in_blk1", "num_nod_per_el1"))[:] = [[1, 2, 3, 4]]
+        nc.createVariable("time_whole", "f8", ("time_step",))[0] = 0.0
+    assert huge.stat().st_size < 64_000
+    sound = write_exodus(tmp_path / "m.exo", node_xyz=XYZ, cells=[("quad", QUADS)], time=TIME, displacement=DISP,
+                         node_ids=IDS)  # fmt: skip
+    with httpx.Client(base_url=laptop.base_url, timeout=120) as client:
+        experiment_id = _experiment_id(client)
+        before = _web_rss(laptop)
+        assert before > 50 * MIB  # the web server's processes were found
+        refused = client.put(f"/api/v1/experiments/{experiment_id}/simulations/huge.exo", content=huge.read_bytes())
+        after = _web_rss(laptop)
+        assert refused.status_code == 422 and "huge.exo" in refused.json()["detail"], refused.text
+        assert after - before < 100 * MIB, (before / MIB, after / MIB)
+        stored = client.put(f"/api/v1/experiments/{experiment_id}/simulations/m.exo", content=sound.read_bytes())
+        assert stored.status_code == 201 and stored.json()["kind"] == "exodus", stored.text
+
+
+def test_a_simulation_zip_bomb_gets_the_rule_of_every_zip(laptop, tmp_path):
+    """Finding 5: simulation ZIPs had no whole-archive ratio check: 460 KB of 3000 × 1 MiB entries took the free
+    space below the reserve. Now the one rule of recordings' ZIPs holds: 300 such entries (300 MiB from ~300 kB)
+    are refused before a byte is unpacked."""
+    path = tmp_path / "model.zip"
+    zero = bytes(MIB - 1)  # each entry just under the per-entry check's 1 MiB
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as archive:
+        for i in range(300):
+            archive.writestr(f"part{i}.csv", zero)
+    assert path.stat().st_size < 1_000_000
+    with httpx.Client(base_url=laptop.base_url, timeout=60) as client:
+        experiment_id = _experiment_id(client)
+        answer = client.put(f"/api/v1/experiments/{experiment_id}/simulations/model.zip", content=path.read_bytes())
+    assert answer.status_code == 422 and answer.json()["code"] == "unsafe_archive", answer.text
+    assert "ZIP bomb" in answer.json()["detail"]
+    assert not list(laptop.data_dir.rglob("part0.csv"))
