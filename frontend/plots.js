@@ -110,18 +110,29 @@ export class Figure {
       { type: "button", class: "small", "aria-label": `Download ${name} PNG`, onclick: () => this.downloadPNG() },
       "PNG",
     );
+    this.title = h("span", { id: titleId }, name);
     this.element = h(
       "figure",
       { class: `plot ${className}`, "aria-labelledby": titleId },
       h(
         "figcaption",
         {},
-        h("span", { id: titleId }, name),
+        this.title,
         h("span", { class: "downloads" }, "Download ", this.csvButton, " ", this.pngButton),
       ),
       this.plot,
     );
     this.drawn = false;
+  }
+
+  /** A new title (and accessible name, and button labels): a plot's title says what it shows. */
+  rename(name) {
+    if (name === this.name) return;
+    this.name = name;
+    this.title.textContent = name;
+    this.plot.setAttribute("aria-label", name);
+    this.csvButton.setAttribute("aria-label", `Download ${name} CSV`);
+    this.pngButton.setAttribute("aria-label", `Download ${name} PNG`);
   }
 
   async react(traces, plotLayout) {

@@ -61,7 +61,14 @@ SETUP = """async ([lowerBoundReason]) => {
     await profiles.draw([{ line: { label: "A", color: "#e6a100" }, frame: 5, profile }]);
     await peak.draw();
     await cameras.draw();
-    window.panels = { peak, cameras, histories, profiles };
+    // A recording without frames.csv: no punch travel, no force; the peak plot's title and note say so.
+    const bare = meta([0, 2, 4, 6, 8, 10], [null, null, null, null, null, null], none);
+    bare.frames.punch_displacement_mm = none;
+    bare.frames.force_kN = none;
+    const withoutLog = new PeakPanel({ ...viewer, meta: bare });
+    document.querySelector("main").append(withoutLog.figure.element);
+    await withoutLog.draw();
+    window.panels = { peak, cameras, histories, profiles, withoutLog };
 }"""
 TRACE = "([panel, name]) => { const t = window.panels[panel].figure.plot.data.find((d) => d.name === name); return t ? { x: Array.from(t.x), y: Array.from(t.y) } : null; }"  # noqa: E501
 
@@ -108,4 +115,9 @@ def test_unmeasured_peaks_are_gaps_marked_on_the_line_and_cameras_compare_only_w
     stats = page.get_by_label("Difference between the cameras")
     expect(stats).to_contain_text("largest 0.100 mm over 3 points where both measured")
     expect(stats).to_contain_text("Compared: 3 of 6 frames; left out: 3")
+    # Without a test log: titled for what it shows (no "and force"), its x axis time, and a note why.
+    bare = page.get_by_role("figure", name="Peak deflection", exact=True)
+    expect(bare.get_by_role("button", name="Download Peak deflection CSV")).to_be_visible()
+    expect(bare).to_contain_text("No punch displacement or force in this recording's test log (frames.csv)")
+    expect(bare).to_contain_text("time (ms)")
     screenshot(page, "peak-marks")

@@ -18,6 +18,9 @@ export class PeakPanel {
     const havePunch = m.punch_displacement_mm.some(Number.isFinite);
     const xs = havePunch ? m.punch_displacement_mm : timeAxis(meta).values;
     const xAxis = havePunch ? axis("punch displacement", "mm") : timeAxis(meta).title;
+    // The title says what the recording's test log (frames.csv) holds: no "and force" without a force.
+    this.figure.rename(haveForce ? "Peak deflection and force" : "Peak deflection");
+    const note = havePunch || haveForce ? null : (meta.notes || []).find((n) => /frames\.csv/.test(n)) || "No punch displacement or force in this recording's test log (frames.csv)";
     const unmeasured = meta.coverage.peak_measured.map((v) => v === false);
     const peaks = m.peak_w_mm.map((w, k) => (unmeasured[k] ? NaN : w));
     const series = [{ name: "peak deflection", x: xs, y: peaks, color: COLORS[0], mode: "lines+markers" }];
@@ -30,11 +33,18 @@ export class PeakPanel {
     ];
     const here = Number.isFinite(peaks[i]) ? peaks[i] : m.peak_w_lower_bound_mm[i];
     traces.push({ type: "scatter", mode: "markers", name: "this frame", x: [xs[i]], y: [here], marker: { size: 12, color: "#111", symbol: "circle-open", line: { width: 2 } } });
-    return this.figure.react(traces, lineLayout({
+    return this.figure.react(traces, PeakPanel.annotate(lineLayout({
       xAxis,
       yAxis: axis("peak deflection w", "mm"),
       y2Axis: haveForce ? axis("force", "kN") : null,
-    }));
+    }), note));
+  }
+
+  /** A note over the plot's top when the test log lacks what it usually holds (it is not the empty-plot note). */
+  static annotate(plotLayout, note) {
+    if (!note) return plotLayout;
+    const text = { text: note, xref: "paper", yref: "paper", x: 0, y: 1.14, xanchor: "left", yanchor: "bottom", showarrow: false, font: { size: 12, color: "#a35f00" } };
+    return { ...plotLayout, annotations: [...(plotLayout.annotations || []), text], margin: { ...plotLayout.margin, t: 64 } };
   }
 
   csv() {
