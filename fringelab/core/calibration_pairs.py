@@ -45,6 +45,8 @@ def built_on(session: Session, calibration: Calibration) -> int | None:
     if isinstance(stored, int):
         return stored
     job = session.get(Job, calibration.job_id) if calibration.job_id else None
+    # A stored-JSON read: the projector calibration job's spec names the camera calibration it was built on (this
+    # module is below the registry, fringelab.core.preparation imports it, so job_kinds.named_by is not reachable).
     value = (job.spec or {}).get("camera_calibration_id") if job is not None else None
     return int(value) if isinstance(value, int) else None
 
