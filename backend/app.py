@@ -27,6 +27,7 @@ from backend.api import (
     overview,
     recordings,
     results,
+    scans,
     simulations,
     uploads,
 )
@@ -142,6 +143,7 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(comparisons.router, prefix="/api/v1")
     app.include_router(jobs.router, prefix="/api/v1")
     app.include_router(results.router, prefix="/api/v1")
+    app.include_router(scans.router, prefix="/api/v1")
     app.include_router(camera_against_camera.router, prefix="/api/v1")
     app.include_router(demo.router, prefix="/api/v1")
     app.include_router(docs.router, prefix="/api/v1")

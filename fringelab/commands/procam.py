@@ -118,10 +118,9 @@ def calibrate_procam_command(args: argparse.Namespace) -> int:
 
 
 def scan_command(args: argparse.Namespace) -> int:
-    from fringelab.formats.scan import scan_qa
     from fringelab.pipelines.scan import scan_recording
     from fringelab.science import MeasurementError
-    from fringelab.science.scan import ScanSettings
+    from fringelab.science.scan import ScanSettings, scan_qa
 
     try:
         settings = ScanSettings(code_points=not args.no_code_points, projector_scale_xy=args.projector_scale)

@@ -1,7 +1,8 @@
 """Scan result files (HDF5) and their exports: points CSV and binary PLY (docs/file-formats.md "Scan result").
 
-Belongs here: writing a `science.scan.ScanResult` atomically (`write_scan`), its one reader (`read_scan`), and the
-exports `points-csv` and `ply` (`export_scan`). Not here: computing the scan (`science/scan.py`).
+Belongs here: writing a `science.scan.ScanResult` atomically (`write_scan`), its one reader (`read_scan`, numpy and
+h5py only: the API reads scans), and the exports `points-csv` and `ply` (`export_scan`). Not here: computing the
+scan (`science/scan.py`).
 
 Layout (schema "fringelab.scan", version 1; every dataset with its unit and description):
   attrs: schema, schema_version, axis, scan_axis, calibration_sigma, qa (JSON), provenance (JSON), patterns (JSON)
@@ -17,7 +18,7 @@ import csv
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import h5py
 import numpy as np
@@ -25,40 +26,16 @@ import numpy as np
 from fringelab.formats import SCAN_EXPORT_FORMATS
 from fringelab.formats.atomic import atomic_path
 from fringelab.formats.hdf5 import json_text, require_schema, unit_dataset
-from fringelab.science.graycode import REASON_LABELS
-from fringelab.science.scan import SOURCE_LABELS, ScanResult
+
+if TYPE_CHECKING:
+    from fringelab.science.scan import ScanResult
 
 SCHEMA = "fringelab.scan"
 
 
-def scan_qa(result: ScanResult) -> dict[str, Any]:
-    """The decoding's and the points' quality numbers, as stored and shown."""
-    decoding = result.decoding
-    counts = np.bincount(decoding.reason.ravel(), minlength=len(REASON_LABELS))
-    total = decoding.reason.size
-    by_source = np.bincount(result.source, minlength=len(SOURCE_LABELS)) if len(result) else np.zeros(3, int)
-    return {
-        "valid_share": decoding.valid_share,
-        "pixels_by_reason": {REASON_LABELS[i]: int(counts[i]) for i in REASON_LABELS},
-        "share_by_reason": {REASON_LABELS[i]: float(counts[i] / total) for i in REASON_LABELS},
-        "n_points": len(result),
-        "points_by_source": {SOURCE_LABELS[i]: int(by_source[i]) for i in SOURCE_LABELS},
-        "n_edge_points": len(result.edges),
-        "n_rejected_edge_points": result.edges.n_rejected,
-        "median_sigma_mm_by_source": {
-            SOURCE_LABELS[i]: float(np.median(result.sigma_mm[result.source == i])) if by_source[i] else None
-            for i in SOURCE_LABELS
-        },
-        "phase_offset_px": decoding.phase_offset_px,
-        "calibration_sigma": result.calibration_sigma,
-        "calibration_sigma_note": None if result.calibration_sigma else (
-            "the calibration file gives no reprojection RMS: σ holds the decoding's part only"),
-    }  # fmt: skip
-
-
-def write_scan(path: str | Path, result: ScanResult, *, patterns: dict[str, Any] | None = None,
+def write_scan(path: str | Path, result: ScanResult, *, qa: dict[str, Any], patterns: dict[str, Any] | None = None,
                provenance: dict[str, Any] | None = None) -> Path:  # fmt: skip
-    """Write a scan result file atomically (nothing under `path` until it is whole)."""
+    """Write a scan result file atomically (nothing under `path` until it is whole); qa: `science.scan.scan_qa`."""
     path = Path(path)
     decoding = result.decoding
     gzip = {"compression": "gzip", "compression_opts": 4, "shuffle": True}
@@ -68,7 +45,7 @@ def write_scan(path: str | Path, result: ScanResult, *, patterns: dict[str, Any]
         file.attrs["axis"] = decoding.sequence.axis
         file.attrs["scan_axis"] = result.edges.scan_axis
         file.attrs["calibration_sigma"] = bool(result.calibration_sigma)
-        file.attrs["qa"] = json_text(scan_qa(result))
+        file.attrs["qa"] = json_text(qa)
         file.attrs["provenance"] = json_text(provenance or {})
         file.attrs["patterns"] = json_text(patterns or {})
         points = file.create_group("points")

@@ -24,7 +24,7 @@ from fringelab.science.chessboard import Board
 from fringelab.science.graycode import PatternSequence
 from fringelab.science.procam import ProcamModel
 from fringelab.science.procam_calibration import ProcamCalibration, ProgressCallback, calibrate_procam_from_recordings
-from fringelab.science.scan import ScanResult, ScanSettings, check_scan_inputs, scan
+from fringelab.science.scan import ScanResult, ScanSettings, check_scan_inputs, scan, scan_qa
 
 
 def sequence_of(source: Any, recording: str, patterns: str | Path | None) -> tuple[PatternSequence, str]:
@@ -75,7 +75,7 @@ def scan_recording(
     source_name = Path(calibration).name if not isinstance(calibration, ProcamModel) else "(in memory)"
     provenance = {"recording": name, "calibration": source_name,
                   "projector_scale_xy": list(settings.projector_scale_xy), **code_versions()}  # fmt: skip
-    write_scan(output, result, patterns=json.loads(text), provenance=provenance)
+    write_scan(output, result, qa=scan_qa(result), patterns=json.loads(text), provenance=provenance)
     if progress is not None:
         progress(len(used) + 2, len(used) + 2, "done")
     return result

@@ -11,12 +11,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from . import MeasurementError
 from .fringes import EdgeSettings
-from .graycode import CodedEdges, DecodeSettings, Decoding, PatternSequence, coded_edges, decode
+from .graycode import REASON_LABELS, CodedEdges, DecodeSettings, Decoding, PatternSequence, coded_edges, decode
 from .procam import ProcamModel, point_sigma_mm
 
 # Where each point came from (`ScanResult.source`).
@@ -158,6 +159,31 @@ def scan(
         points_cam_mm=points, sigma_mm=sigma, source=source, q_px=q, projector_px=x, depth_z_mm=depth,
         depth_sigma_mm=depth_sigma, decoding=decoding, edges=edges, calibration_sigma=calibration_sigma,
     )  # fmt: skip
+
+
+def scan_qa(result: ScanResult) -> dict[str, Any]:
+    """The decoding's and the points' quality numbers, as stored and shown."""
+    decoding = result.decoding
+    counts = np.bincount(decoding.reason.ravel(), minlength=len(REASON_LABELS))
+    total = decoding.reason.size
+    by_source = np.bincount(result.source, minlength=len(SOURCE_LABELS)) if len(result) else np.zeros(3, int)
+    return {
+        "valid_share": decoding.valid_share,
+        "pixels_by_reason": {REASON_LABELS[i]: int(counts[i]) for i in REASON_LABELS},
+        "share_by_reason": {REASON_LABELS[i]: float(counts[i] / total) for i in REASON_LABELS},
+        "n_points": len(result),
+        "points_by_source": {SOURCE_LABELS[i]: int(by_source[i]) for i in SOURCE_LABELS},
+        "n_edge_points": len(result.edges),
+        "n_rejected_edge_points": result.edges.n_rejected,
+        "median_sigma_mm_by_source": {
+            SOURCE_LABELS[i]: float(np.median(result.sigma_mm[result.source == i])) if by_source[i] else None
+            for i in SOURCE_LABELS
+        },
+        "phase_offset_px": decoding.phase_offset_px,
+        "calibration_sigma": result.calibration_sigma,
+        "calibration_sigma_note": None if result.calibration_sigma else (
+            "the calibration file gives no reprojection RMS: σ holds the decoding's part only"),
+    }  # fmt: skip
 
 
 def _depth_map(

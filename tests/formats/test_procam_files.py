@@ -12,7 +12,7 @@ from fringelab.formats.procam import read_procam_calibration, write_opencv_proca
 from fringelab.formats.scan import export_scan, read_ply_vertices, read_scan, write_scan
 from fringelab.science.graycode import InverseFrames, MeanOf, PatternSequence, PhaseFrames, WhiteBlack
 from fringelab.science.procam import ProcamModel
-from fringelab.science.scan import scan
+from fringelab.science.scan import scan, scan_qa
 from fringelab.science.virtual_procam import (
     Plane,
     ProcamRenderer,
@@ -139,7 +139,7 @@ def test_a_scan_file_and_its_exports(tmp_path: Path) -> None:
     frames = ProcamRenderer(RIG).render([Plane((0.0, 0.0, -1.0), -300.0)], in_frame_order(gray_code_patterns(sequence)),
                                         rng=np.random.default_rng(0))  # fmt: skip
     result = scan(frames, sequence, RIG)
-    path = write_scan(tmp_path / "scan.h5", result, provenance={"recording": "plane"})
+    path = write_scan(tmp_path / "scan.h5", result, qa=scan_qa(result), provenance={"recording": "plane"})
     stored = read_scan(path)
     assert np.allclose(stored.points_cam_mm, result.points_cam_mm, atol=1e-4)  # float32 at 300 mm
     assert stored.qa["n_points"] == len(result) and stored.qa["calibration_sigma"] is False

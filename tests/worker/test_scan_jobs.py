@@ -77,6 +77,15 @@ def test_a_scan_job_measures_the_sphere(client, celery_worker, settings, frames)
     radial = np.linalg.norm(stored.points_cam_mm[edge] - np.array([0.0, 0.0, 300.0]), axis=1) - 20.0
     # One sample per pixel here (supersample 1): the sphere's points within the science test's 0.05 mm.
     assert np.sqrt(np.mean(radial[np.abs(radial) < 1.0] ** 2)) < 0.05
+    # The scan view's data: a sample of the points (stripe edges first), the depth map and the decoding's maps.
+    view = client.get(f"/api/v1/jobs/{job['id']}/scan", params={"max_points": 2000}).json()
+    assert view["points"]["n_total"] == len(stored.sigma_mm) and len(view["points"]["z_mm"]) == 2000
+    assert view["points"]["source"][0] == 0 and 0 in view["points"]["source"] and 2 in view["points"]["source"]
+    assert view["qa"]["valid_share"] == pytest.approx(stored.qa["valid_share"])
+    assert view["code"]["width"] == 360 and len(view["code"]["values"]) == 270 // view["code"]["step_px"] + (
+        270 % view["code"]["step_px"] > 0)  # fmt: skip
+    other = client.get(f"/api/v1/jobs/{job['id']}/topography")
+    assert other.status_code == 404 and "not a topography" in other.json()["detail"]
 
 
 def test_a_calibration_of_another_image_size_is_refused_before_queueing(client, celery_worker, settings,

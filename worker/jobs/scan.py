@@ -11,9 +11,8 @@ from worker.jobs.inputs import calibration_file, recording_input
 
 
 def scan_body(context: JobContext[ScanSpec]) -> dict[str, Any]:
-    from fringelab.formats.scan import scan_qa
     from fringelab.pipelines.scan import scan_recording
-    from fringelab.science.scan import ScanSettings
+    from fringelab.science.scan import ScanSettings, scan_qa
 
     spec = context.spec
     recording, camera, path = recording_input(context)
