@@ -85,7 +85,7 @@ class Supervisor:
     log_dir: Path
     children: list[Child] = field(default_factory=list)
     stopping: bool = False
-    embedded_redis_url: str = ""  # the Redis `up` started (loopback, no password): the CLI finds it here
+    embedded_redis_url: str = ""  # the Redis `up` started (loopback, its generated password): the CLI finds it here
 
     def start(self, name: str, argv: list[str], env: dict[str, str], log: IO[bytes] | None = None) -> Child:
         child = Child(name, _spawn(argv, env, log), argv, env, log)
@@ -125,7 +125,9 @@ class Supervisor:
         ]  # fmt: skip
         with contextlib.suppress(OSError):
             status = {"supervisor_pid": os.getpid(), "children": children, "redis_url": self.embedded_redis_url}
-            write_json(self.settings.data_path / STATUS_FILE, status)
+            path = self.settings.data_path / STATUS_FILE
+            write_json(path, status)
+            path.chmod(0o600)  # it holds the Redis password: this user's only (health reads the children alone)
 
     def stop_all(self) -> None:
         for child in reversed(self.children):  # web first, Redis last
@@ -264,11 +266,23 @@ def run_up(settings: Settings) -> int:
 
 
 def _start_redis(supervisor: Supervisor, env: dict[str, str]) -> str:
+    """Start the embedded Redis on a free loopback port with a password made now: any local user can reach a
+    loopback port, and the queue's tasks name the jobs a worker runs. The password is in a configuration file only
+    this user can read (not on the command line, which `ps` shows to everyone), in the children's environment and
+    in `up`'s status file (mode 0600, for the `fringelab user` commands); never in the health answer or a log."""
+    import secrets
+
     redis_dir = supervisor.settings.data_path / "redis"
     redis_dir.mkdir(parents=True, exist_ok=True)
     port = free_port()
+    password = secrets.token_urlsafe(24)
+    config = redis_dir / "redis.conf"
+    config.touch(mode=0o600)
+    config.chmod(0o600)
+    config.write_text(f"requirepass {password}\n")
     argv = [
         redis_server_binary(),
+        str(config),
         "--bind", "127.0.0.1",
         "--port", str(port),
         "--dir", str(redis_dir),
@@ -278,7 +292,7 @@ def _start_redis(supervisor: Supervisor, env: dict[str, str]) -> str:
         "--logfile", str(supervisor.log_dir / "redis.log"),
     ]  # fmt: skip
     supervisor.start("redis-server", argv, env)
-    url = f"redis://127.0.0.1:{port}/0"
+    url = f"redis://:{password}@127.0.0.1:{port}/0"
     deadline = time.monotonic() + 15
     while True:
         try:

@@ -430,3 +430,26 @@ def test_a_simulation_zip_bomb_gets_the_rule_of_every_zip(laptop, tmp_path):
     assert answer.status_code == 422 and answer.json()["code"] == "unsafe_archive", answer.text
     assert "ZIP bomb" in answer.json()["detail"]
     assert not list(laptop.data_dir.rglob("part0.csv"))
+
+
+# ------------------------------------------------------------------------------------------- 10: smaller
+
+
+def test_the_redis_that_up_starts_has_a_password_no_answer_shows(laptop):
+    """Finding 10: the Redis that `fringelab up` starts had no password, so any local user could reach it."""
+    import json
+    import stat
+    from urllib.parse import urlsplit
+
+    import redis
+
+    status_path = laptop.data_dir / "supervisor.json"
+    url = urlsplit(json.loads(status_path.read_text())["redis_url"])
+    assert url.password and stat.S_IMODE(status_path.stat().st_mode) == 0o600
+    with pytest.raises(redis.AuthenticationError):
+        redis.Redis(host="127.0.0.1", port=url.port, socket_timeout=5).ping()
+    assert redis.Redis(host="127.0.0.1", port=url.port, password=url.password, socket_timeout=5).ping()
+    health = httpx.get(f"{laptop.base_url}/api/v1/health", timeout=10)
+    assert url.password not in health.text and url.password not in laptop.log()
+    config = laptop.data_dir / "redis" / "redis.conf"
+    assert stat.S_IMODE(config.stat().st_mode) == 0o600
