@@ -12,6 +12,7 @@ import { renderJob, renderJobs } from "./views/jobs.js";
 import { renderCalibration } from "./views/calibration.js";
 import { renderViewer } from "./views/viewer.js";
 import { renderComparison } from "./views/comparison.js";
+import { renderScan } from "./views/scan.js";
 import { renderHelp, renderHelpIndex } from "./views/help.js";
 import { renderQueue } from "./views/queue.js";
 
@@ -55,6 +56,7 @@ router
   .add("/jobs/:id/report", renderCalibration)
   .add("/jobs/:id/viewer", renderViewer)
   .add("/jobs/:id/comparison", renderComparison)
+  .add("/jobs/:id/scan", renderScan)
   .add("/queue", renderQueue)
   .add("/help", renderHelpIndex)
   .add("/help/:name", renderHelp)

@@ -40,6 +40,7 @@ export function resultLink(job) {
   }
   if (job.kind === "topography") return h("a", { href: `#/jobs/${job.id}/viewer` }, "Topography viewer");
   if (job.kind === "comparison") return h("a", { href: `#/jobs/${job.id}/comparison` }, "Comparison view");
+  if (job.kind === "scan") return h("a", { href: `#/jobs/${job.id}/scan` }, "Scan view");
   return null;
 }
 
