@@ -555,7 +555,8 @@ export async function renderJob(container, { id }, context) {
         ["Created", formatTime(current.created_at)],
         ["Started", formatTime(current.started_at)],
         ["Finished", formatTime(current.finished_at)],
-        ["Experiment", current.experiment_id ? h("a", { href: `#/experiments/${current.experiment_id}` }, `#${current.experiment_id}`) : null],
+        ["Experiment", current.experiment_id ? h("a", { href: `#/experiments/${current.experiment_id}` }, current.experiment_name || `#${current.experiment_id}`) : null],
+        ["Camera", current.camera_name || null],
       ]
         .filter(([, value]) => value !== null)
         .map(([term, value]) => [h("dt", {}, term), h("dd", {}, value)]),
@@ -573,7 +574,7 @@ export async function renderJob(container, { id }, context) {
         { empty: "No files." },
       ),
     );
-    fill(links, resultLink(current));
+    fill(links, resultLink(current), resultMarks(current));
     const scalars = Object.entries(current.result || {}).filter(([, v]) => v === null || ["number", "string", "boolean"].includes(typeof v));
     fill(
       resultBox,

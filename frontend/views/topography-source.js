@@ -32,6 +32,8 @@ export class TopographySource {
     return {
       grid: body.grid,
       summary: body.summary,
+      warnings: body.warnings || [], // what the result must be read with (a bad calibration used by consent)
+      notes: body.notes || [],
       frames: {
         index: body.frames,
         time_s: numbers(body.time_s),

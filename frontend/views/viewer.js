@@ -156,6 +156,7 @@ class Viewer {
         `${this.frames.length} frames · grid ${m.grid.nx} × ${m.grid.ny} nodes, ${num(m.grid.step_mm, 2)} mm apart · `,
         `peak deflection up to ${num(m.w_range_mm[1], 2)} mm · `,
         explained("how w is measured and what is left unmeasured", "6-topography-and-results")),
+      m.warnings.length ? h("ul", { class: "warnings result-warnings", "aria-label": "Warnings about this result" }, m.warnings.map((w) => h("li", {}, `⚠ ${w}`))) : null,
       h("div", { class: "player", role: "group", "aria-label": "Frames" },
         this.playButton,
         h("button", { type: "button", class: "small", "aria-label": "Previous frame", onclick: () => this.goTo(this.position - 1) }, "◀"),

@@ -62,6 +62,18 @@ def test_the_topography_form_offers_only_consistent_pairs_and_marks_a_bad_verdic
         "⚠ BAD: projector calibration #4, camera 'left', 2026-11-27 07:50 · built on camera calibration #1 · built on"
         " a bad camera calibration",
     ])  # fmt: skip
-    expect(form.get_by_label("Job spec (JSON)")).to_contain_text('"projector_calibration_id": 4')
-    form.scroll_into_view_if_needed()
+    spec = form.get_by_label("Job spec (JSON)")
+    expect(spec).to_contain_text('"projector_calibration_id": 4')
+    # A bad calibration chosen: the job needs the person's explicit consent (the spec's accept_bad_calibration).
+    consent = form.get_by_role("checkbox", name="Use it although its verdict is bad")
+    expect(consent).to_be_visible()
+    expect(consent).not_to_be_checked()
+    assert consent.evaluate("(box) => box.required")
+    expect(form).to_contain_text("⚠ BAD: camera calibration #1")  # which one, under the checkbox
+    expect(spec).to_contain_text('"accept_bad_calibration": false')
+    consent.check()
+    expect(spec).to_contain_text('"accept_bad_calibration": true')
     screenshot(page, "calibration-pairs")
+    camera.select_option("2")  # a good pair: no consent asked, none sent
+    expect(consent).to_be_hidden()
+    expect(spec).not_to_contain_text("accept_bad_calibration")

@@ -33,13 +33,15 @@ def test_the_viewer_and_the_jobs_list_name_the_camera_and_the_experiment(page, l
     entry = {"name": "topography.h5", "path": str(target.relative_to(data_dir)), "size_bytes": target.stat().st_size,
              "sha256": "", "media_type": "application/x-hdf5"}  # fmt: skip
     engine = make_engine(Settings(_env_file=None, data_dir=data_dir).resolved_database_url)  # type: ignore[call-arg]
+    # Measured with a bad calibration, by consent: the result carries the warning wherever it is shown.
+    used = {"calibrations": [{"id": 1, "warning": "camera calibration #1 has the verdict bad: f = 21.7 mm"}]}
     with make_sessionmaker(engine)() as session:
         recording = Recording(camera_id=camera_id, kind="test", state="ready", filename="punch.zip")
         session.add(recording)
         session.flush()
         recording_id = recording.id
         session.add(Job(id=job_id, kind="topography", state="succeeded", experiment_id=experiment["id"],
-                        files=[entry], spec={"kind": "topography", "recording_id": recording_id},
+                        files=[entry], spec={"kind": "topography", "recording_id": recording_id}, provenance=used,
                         result={"frames": [10, 13]}, finished_at=utcnow()))  # fmt: skip
         # A camera calibration whose verdict is bad: marked so in every jobs list.
         spec = {"kind": "camera_calibration", "recording_id": recording_id}
@@ -52,12 +54,15 @@ def test_the_viewer_and_the_jobs_list_name_the_camera_and_the_experiment(page, l
     page.goto(f"/#/jobs/{job_id}/viewer")
     expect(page.get_by_role("heading", name=f"Topography of camera kodak, recording {recording_id}")).to_be_visible()
     expect(page.get_by_role("link", name="experiment plate 7")).to_be_visible()
+    warnings = page.get_by_role("list", name="Warnings about this result")
+    expect(warnings).to_have_text("⚠ camera calibration #1 has the verdict bad: f = 21.7 mm")
     page.goto("/#/jobs")
     jobs = page.get_by_role("table", name="All jobs")
     expect(jobs.get_by_role("columnheader")).to_contain_text(["Job", "Experiment", "Camera"])
     row = jobs.get_by_role("row").filter(has_text=job_id[:8])
     expect(row.get_by_role("cell").nth(1)).to_have_text("plate 7")
     expect(row.get_by_role("cell").nth(2)).to_have_text("kodak")
+    expect(row).to_contain_text("⚠ camera calibration #1 has the verdict bad")
     calibration = jobs.get_by_role("row").filter(has_text="Camera calibration")
     expect(calibration.get_by_text("verdict: bad")).to_be_visible()
     screenshot(page, "jobs-with-experiment-and-camera", full_page=False)
