@@ -397,6 +397,12 @@ class TopographyOverview(BaseModel):
     warnings: list[str] = Field(
         default_factory=list, description="What the result must be read with (a bad calibration used by consent)."
     )
+    log_columns: list[str] = Field(
+        default_factory=list,
+        description="Which of time_s, punch_displacement_mm, force_kN the test log gives for any frame: plots and "
+        "their titles show only these (empty: no frames.csv and no time stamps).",
+    )
+    notes: list[str] = Field(default_factory=list, description="What the frames lack, for people (no frames.csv).")
 
 
 @router.get("/jobs/{job_id}/topography", response_model=TopographyOverview, responses=RESULT_ERRORS)
@@ -449,7 +455,27 @@ def _overview(job: Job, state: AppState) -> TopographyOverview:
             peak_w_lower_bound_mm=_listed(np.where(not_measured, peaks, np.nan)),
             peak_reason=[v.reason if v is not None and not v.measured else None for v in verdicts],
             warnings=warnings_of(job.provenance),
+            **_log_of(reader),
         )
+
+
+def _log_of(reader: TopographyResult) -> dict[str, list[str]]:
+    """The test log's columns that have any value, and a note for what is missing (nothing silent)."""
+    columns = [name for name in ("time_s", "punch_displacement_mm", "force_kN")
+               if np.any(np.isfinite(reader.column(f"frames/{name}")))]  # fmt: skip
+    notes = []
+    missing = [label for name, label in (("punch_displacement_mm", "punch displacement"), ("force_kN", "force"))
+               if name not in columns]  # fmt: skip
+    if missing:
+        why = (
+            "its frames.csv has no such column"
+            if reader.time_source == "frames.csv"
+            else "the recording has no frames.csv with those columns"
+        )
+        notes.append(f"no {' or '.join(missing)} for any frame: {why}")
+    if "time_s" not in columns:
+        notes.append("no time for any frame: plots are against the frame number")
+    return {"log_columns": columns, "notes": notes}
 
 
 class GridOut(BaseModel):

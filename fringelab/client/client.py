@@ -25,6 +25,10 @@ FINAL_STATES = ("succeeded", "failed", "cancelled")
 Log = Callable[[str], None]
 
 
+# The API's largest grid budget (nodes per side): what get_topography_grid asks for the result grid itself.
+RESULT_GRID_MAX_NODES = 2000
+
+
 class ClientError(Exception):
     """Something the user must act on; the message says what."""
 
@@ -350,9 +354,14 @@ class Client:
                 series[name] = np.array(values, np.int64) if name == "frames" else _nan_array(values)
         return series
 
-    def get_topography_grid(self, job_id: str, frame: int, **params: Any) -> Grid:
-        """One frame's deflection on the grid as numpy arrays (the server's f32 binary answer, no JSON parsing);
-        params as the API takes them (max_nodes, x_min_mm, ... for a zoom window)."""
+    def get_topography_grid(self, job_id: str, frame: int, *, display: bool = False, **params: Any) -> Grid:
+        """One frame's deflection on the result grid as numpy arrays (the server's f32 binary answer, no JSON
+        parsing): the grid the result holds (step 1), up to RESULT_GRID_MAX_NODES nodes per side (a larger grid is
+        block-averaged to that, and `step` says so). display=True: the dashboard's block-averaged display grid
+        (at most 250 nodes per side) instead. params as the API takes them (budget, x_min, ... for a zoom
+        window)."""
+        if not display:
+            params.setdefault("budget", RESULT_GRID_MAX_NODES)
         response = self._checked(
             self.http.get(f"/api/v1/jobs/{job_id}/topography/grid", params={"frame": frame, **params, "format": "f32"})
         )

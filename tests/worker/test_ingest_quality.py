@@ -166,3 +166,14 @@ def test_the_api_process_never_imports_opencv():
     code = "import sys, backend.app, backend.cli; print('cv2' in sys.modules)"
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert result.stdout.strip() == "False"
+
+
+def test_a_test_recording_without_frames_csv_says_so(settings, tmp_path):
+    """Nothing silent (issue 27): a test recording with no frames.csv has no punch travel or force to plot."""
+    path = write_zip(tmp_path / "t.zip", stripe_frames(3))
+    found = inspect(path, settings, "test")
+    assert found.reasons == []
+    (warning,) = [w for w in found.warnings if w.code == "no_test_log"]
+    assert "no frames.csv" in warning.message and "force" in warning.message
+    logged = write_zip(tmp_path / "l.zip", stripe_frames(3), sidecars={"frames.csv": "frame,time_s\n0,0\n1,1\n2,2\n"})
+    assert "no_test_log" not in {w.code for w in inspect(logged, settings, "test").warnings}

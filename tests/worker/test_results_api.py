@@ -174,6 +174,9 @@ def test_a_peak_not_measured_is_no_peak_but_a_lower_bound_with_its_reason(client
         "data missing within 10 mm of the maximum (12 grid nodes): the value is a lower bound"
     )
     assert body["peak_reason"][0] is None
+    # the test log has no force: said, and the plots' titles follow what the recording has
+    assert body["log_columns"] == ["time_s", "punch_displacement_mm"]
+    assert body["notes"] == ["no force for any frame: the recording has no frames.csv with those columns"]
 
 
 def register_result(settings, job_id: str, measured: list[int], *, peak_shift_mm: float = 0.0) -> None:

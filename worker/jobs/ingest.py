@@ -258,6 +258,14 @@ def _check_sidecars(source: FrameSource, found: Inspection, *, kind: str) -> Boa
             found.reasons.append(str(error) if str(error).startswith(name) else f"{name}: {error}")
     if kind in CALIBRATION_KINDS and "z.csv" not in found.sidecar and not found.reasons:
         found.warnings.append(QaWarning("missing_z", "missing Z values: no z.csv (a Z-stack calibration needs one)"))
+    if kind == "test" and "frames.csv" not in found.sidecar and not found.reasons:
+        found.warnings.append(
+            QaWarning(
+                "no_test_log",
+                "no frames.csv: the frames have no punch displacement or force (times come from the recording's own "
+                "stamps, if it has them); add one on this page for plots against punch travel and force",
+            )
+        )
     if kind == "camera_calibration" and board is None and "board.json" not in found.sidecar:
         found.warnings.append(
             QaWarning(
