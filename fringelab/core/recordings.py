@@ -48,7 +48,13 @@ from fringelab.core.storage import (
 from fringelab.core.text import check_file_name
 from fringelab.formats.container_common import CorruptRecording, OverBudget, UnsafeArchive, UnsupportedRecording
 from fringelab.formats.container_zip import ZipLimits
-from fringelab.formats.containers import UPLOAD_SUFFIXES, RecordingLayout, check_ingest_budget, recording_layout
+from fringelab.formats.containers import (
+    ACCEPTED_UPLOADS,
+    UPLOAD_SUFFIXES,
+    RecordingLayout,
+    check_ingest_budget,
+    recording_layout,
+)
 from fringelab.formats.previews import THUMBNAIL_PX
 
 KINDS = ("camera_calibration", "projector_calibration", "test")
@@ -216,8 +222,8 @@ def check_upload_request(
     suffix = Path(filename).suffix.lower()
     if suffix not in UPLOAD_SUFFIXES:
         raise UnsupportedFormat(
-            f"{filename}: {suffix or 'no extension'} is not a recording format fringelab reads "
-            f"(accepted: {', '.join(sorted(UPLOAD_SUFFIXES))}; zip a folder of frames)",
+            f"{filename}: {suffix or 'no extension'} is not a recording format fringelab reads; it reads "
+            f"{ACCEPTED_UPLOADS} (zip a folder of frames)",
             code="unsupported_format",
         )
     with state.sessions() as session:

@@ -41,6 +41,11 @@ from fringelab.formats.frame_header import (
 # Single-file recordings by name; a ZIP holds frames. A folder of frames is read from disk, not uploaded.
 UPLOAD_SUFFIXES = {".zip": "zip", ".tif": "tiff", ".tiff": "tiff", ".avi": "avi", ".mp4": "mp4", ".cine": "cine"}
 FORMATS = ("folder", "zip", "tiff", "avi", "mp4", "cine", "mraw")
+# What an upload may be, for people: the one list every refusal names (each suffix of UPLOAD_SUFFIXES in it).
+ACCEPTED_UPLOADS = (
+    "a ZIP of PNG/TIFF/BMP/JPEG frames or of a Photron .cih/.cihx with its .mraw (.zip), a multi-page TIFF (.tif, "
+    ".tiff), an AVI (.avi), an MP4 (.mp4) or a Phantom .cine (.cine)"
+)
 # Containers whose header states the significant bits of a pixel (others: measured from the largest value).
 STATES_BIT_DEPTH = ("cine", "mraw")
 
@@ -77,10 +82,7 @@ def sniff_format(path: str | Path) -> str:
         raise UnsupportedRecording(
             f"{path.name}: a single {kind} image is not a recording; upload a ZIP of frames or a multi-page TIFF"
         )
-    raise UnsupportedRecording(
-        f"{path.name}: not a recording format fringelab reads (accepted: ZIP of PNG/TIFF/BMP/JPEG frames, "
-        "multi-page TIFF, AVI, MP4, Phantom .cine, Photron .cih/.cihx + .mraw)"
-    )
+    raise UnsupportedRecording(f"{path.name}: not a recording format fringelab reads; it reads {ACCEPTED_UPLOADS}")
 
 
 def _single_image_kind(head: bytes) -> str:

@@ -233,3 +233,10 @@ def test_truncated_tiff_is_refused_never_fewer_pages(tmp_path, keep):
         for i in range(len(source)):
             source[i]
         assert len(source) == 5  # reached only if every frame read: then all five must be there
+
+
+def test_the_accepted_formats_sentence_names_every_upload_suffix() -> None:
+    from fringelab.formats.containers import ACCEPTED_UPLOADS, UPLOAD_SUFFIXES
+
+    for suffix in UPLOAD_SUFFIXES:
+        assert f"({suffix}" in ACCEPTED_UPLOADS or f", {suffix})" in ACCEPTED_UPLOADS, suffix

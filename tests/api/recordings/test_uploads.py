@@ -288,6 +288,11 @@ def test_bad_files_are_refused_with_a_clear_4xx_by_put_and_by_tus(api, tmp_path)
     created = tus_create(api.client, 10, filename="one.png", filetype="image/png", camera_id=camera_id, kind="test")
     assert (created.status_code, created.json()["code"]) == (415, "unsupported_format")
     assert "zip a folder of frames" in created.json()["detail"]
+    # Both 415s, by name before any byte and by content after, list the same formats: one list, declared once.
+    from fringelab.formats.containers import ACCEPTED_UPLOADS
+
+    by_content = put(api, camera_id, "text.zip", b"these are not the frames you are looking for")
+    assert ACCEPTED_UPLOADS in created.json()["detail"] and ACCEPTED_UPLOADS in by_content.json()["detail"]
     assert_nothing_kept(api)
     assert not list(tus_dir(api.settings.data_path).glob("*.info"))  # refused uploads are removed
 
