@@ -39,6 +39,7 @@ from backend.openapi import install_openapi, operation_id
 from backend.polls import SharedPolls
 from backend.security import SecurityHeaders
 from backend.shedding import LoadShedding
+from backend.streams import StreamSlots
 from fringelab.core.accounts import TokenCache, dummy_hash
 from fringelab.core.db import make_engine, make_sessionmaker
 from fringelab.core.queue import create_celery
@@ -106,6 +107,7 @@ def create_app(settings: Settings) -> FastAPI:
     )
     app.state.fringelab = state
     app.state.polls = SharedPolls(max_age_s=jobs.EVENTS_POLL_S)
+    app.state.stream_slots = StreamSlots(per_user=settings.event_streams_per_user)
     app.state.user_limiter = SharedRateLimiter(
         redis_url=settings.redis_url,
         rate_per_s=settings.user_requests_per_s,

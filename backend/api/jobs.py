@@ -40,6 +40,7 @@ from backend.schemas.jobs import (
     LogLineOut,
     Progress,
 )
+from backend.streams import StreamSlots
 from fringelab.core.accounts import Principal, audit, readable_experiments
 from fringelab.core.calibration_pairs import warnings_of
 from fringelab.core.deletion import execute, plan_job
@@ -269,12 +270,23 @@ def polls_of(request: Request) -> SharedPolls:
     return request.app.state.polls
 
 
-@router.get("/jobs/events", response_class=EventSourceResponse, responses=error_responses(401, 422))
+def stream_slot(request: Request, principal: CurrentUser) -> int:
+    """One of the caller's event-stream slots in this process (429 beyond FRINGELAB_EVENT_STREAMS_PER_USER),
+    taken before the stream's answer starts; the stream gives it back when it ends."""
+    slots: StreamSlots = request.app.state.stream_slots
+    return slots.take(principal.username, name=principal.username)
+
+
+StreamSlot = Annotated[int, Depends(stream_slot)]
+
+
+@router.get("/jobs/events", response_class=EventSourceResponse, responses=error_responses(401, 422, 429))
 async def jobs_events(
     state: StateDep,
     request: Request,
     principal: CurrentUser,
     credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer_scheme)],
+    slot: StreamSlot,
     experiment_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
 ) -> AsyncIterator[ServerSentEvent]:
     """Changes of the jobs list as Server-Sent Events: `jobs` ({"changed": [ids], "total": n}) whenever a job the
@@ -283,6 +295,18 @@ async def jobs_events(
     and the browser's EventSource reconnects (the first event after a reconnect names every job). The reader's
     token is checked again every few seconds: once it is revoked (or the account disabled) the stream sends
     `end` with the reason and closes."""
+    with request.app.state.stream_slots.held(principal.username, slot):
+        async for event in _jobs_events(state, request, principal, credentials, experiment_id):
+            yield event
+
+
+async def _jobs_events(
+    state: AppState,
+    request: Request,
+    principal: Principal,
+    credentials: HTTPAuthorizationCredentials | None,
+    experiment_id: int | None,
+) -> AsyncIterator[ServerSentEvent]:
     secret = request_secret(request, credentials)
     polls = polls_of(request)
     last: dict[str, str] | None = None
@@ -346,17 +370,28 @@ def _streamable_job_id(job_id: str, state: StateDep, principal: CurrentUser) -> 
         return job_for(session, principal, job_id).id
 
 
-@router.get("/jobs/{job_id}/events", response_class=EventSourceResponse, responses=ERRORS)
+@router.get("/jobs/{job_id}/events", response_class=EventSourceResponse, responses={**ERRORS, **error_responses(429)})
 async def job_events(
     job_id: Annotated[str, Depends(_streamable_job_id)],
     state: StateDep,
     request: Request,
     credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer_scheme)],
+    principal: CurrentUser,
+    slot: StreamSlot,
 ) -> AsyncIterator[ServerSentEvent]:
     """Live progress as Server-Sent Events: `job` (the job as `GET /jobs/{id}` shows it) whenever it changes,
     `log` for each new log line, and `end` once the job has ended; then the stream closes. Access is checked
     again every few seconds while the stream is open: a revoked token, a disabled account or a lost share ends
-    it with an `end` event whose error says so."""
+    it with an `end` event whose error says so. A user holds at most FRINGELAB_EVENT_STREAMS_PER_USER streams
+    per web server process (429 beyond)."""
+    with request.app.state.stream_slots.held(principal.username, slot):
+        async for event in _job_events(job_id, state, request, credentials):
+            yield event
+
+
+async def _job_events(
+    job_id: str, state: AppState, request: Request, credentials: HTTPAuthorizationCredentials | None
+) -> AsyncIterator[ServerSentEvent]:
     secret = request_secret(request, credentials)
     polls = polls_of(request)
     last_view: dict[str, Any] | None = None

@@ -156,6 +156,9 @@ class Settings(BaseSettings):
     simulation_check_s: float = Field(
         300.0, gt=0, le=86400, description="Time the child process that reads an uploaded simulation may take."
     )
+    event_streams_per_user: int = Field(
+        32, ge=1, le=10_000, description="Event streams one user may hold open in one web server process."
+    )
     user_quota_bytes: int = Field(
         0,
         ge=0,
