@@ -1,8 +1,9 @@
-"""The scan view's data: a scan job's points (decimated), its depth map and its decoding's QA (docs/procam.md §3).
+"""Results of rigs with a digital projector (docs/procam.md): the scan view's data (a scan job's points, decimated,
+its depth map and its decoding's QA) and a camera–projector calibration's report.
 
-Thin: find the succeeded scan job's file, read it with `fringelab.formats.scan` (numpy and h5py only), thin it to
-what a browser draws, answer. Not here: computing scans (the worker) or exporting them (an export of the file is
-`fringelab export`).
+Thin: find the succeeded job's or calibration's file, read it (`fringelab.formats.scan`, numpy and h5py only; the
+calibration's JSON), thin it to what a browser draws, answer. Not here: computing them (the worker) or exporting a
+scan (`fringelab export`).
 """
 
 from __future__ import annotations
@@ -13,10 +14,15 @@ import numpy as np
 from fastapi import APIRouter, Query
 from pydantic import BaseModel, Field
 
-from backend.api.deps import StateDep
+from backend.api.deps import SessionDep, StateDep
 from backend.api.jobs import JobDep
-from backend.api.results import RESULT_ERRORS, succeeded_file
+from backend.api.results import RESULT_ERRORS, CalibrationDep, calibration_out, succeeded_file
+from backend.results import read_json
+from backend.schemas.jobs import CalibrationOut
+from fringelab.core.errors import Gone, NotFound
+from fringelab.core.jobs import job_error
 from fringelab.formats.scan import read_scan
+from fringelab.formats.topography import ResultUnavailable
 
 router = APIRouter(tags=["results"])
 
@@ -96,3 +102,26 @@ def scan_view(job: JobDep, state: StateDep, max_points: int = Query(MAX_POINTS, 
         shading_grey=_map(scan.shading_grey, decimals=1),
         reason=_map(scan.reason, decimals=0),
     )  # fmt: skip
+
+
+class ProcamReport(BaseModel):
+    calibration: CalibrationOut
+    report: dict[str, Any] = Field(
+        description="The calibration's document (schema fringelab.procam-calibration): camera and projector "
+        "models, stereo pose, RMS of the camera, the projector and the pair, each pose's RMS and residual vectors "
+        "in both images, and the verdict."
+    )
+
+
+@router.get("/calibrations/{calibration_id}/procam-report", response_model=ProcamReport, responses=RESULT_ERRORS)
+def procam_report(calibration: CalibrationDep, state: StateDep, session: SessionDep) -> ProcamReport:
+    """A camera–projector calibration's report (the fields of its procam.json)."""
+    if calibration.kind != "procam":
+        raise job_error(NotFound, "no_report", f"calibration {calibration.id} is a {calibration.kind} calibration")
+    try:
+        document = read_json(state.settings.data_path, calibration.path)
+    except ResultUnavailable as error:
+        raise job_error(Gone, "result_missing", str(error)) from None
+    if document.get("schema") != "fringelab.procam-calibration":
+        raise job_error(Gone, "result_missing", f"{calibration.path} is not a camera–projector calibration")
+    return ProcamReport(calibration=calibration_out(calibration, session), report=document)

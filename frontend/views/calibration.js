@@ -9,6 +9,7 @@ import { getJSON } from "../api.js";
 import { Figure, axis, barTraces, imageLayout, layout, vectorTraces } from "../plots.js";
 import { attempt, field, h, num, page, showError, table } from "../ui.js";
 import { describeInput, jobName } from "./jobs.js";
+import { procamReport } from "./procam-report.js";
 
 const PARAMETER_NAMES = {
   su: "scale factor s_u", // on v when the calibration scaled on v: see parameterName
@@ -223,6 +224,7 @@ export async function renderCalibration(container, { id }, context) {
   }
   if (job.kind === "camera_calibration") return cameraReport(container, job, context);
   if (job.kind === "projector_calibration") return projectorReport(container, job, context);
+  if (job.kind === "procam_calibration") return procamReport(container, job, context);
   page(container, "Calibration report", h("p", {}, `${jobName(job)} is not a calibration.`));
 }
 

@@ -35,7 +35,7 @@ export function downloadLinks(job) {
 export function resultLink(job) {
   if (job.state !== "succeeded") return null;
   if (job.kind === "export") return downloadLinks(job);
-  if (job.kind === "camera_calibration" || job.kind === "projector_calibration") {
+  if (["camera_calibration", "projector_calibration", "procam_calibration"].includes(job.kind)) {
     return h("a", { href: `#/jobs/${job.id}/report` }, "Calibration report");
   }
   if (job.kind === "topography") return h("a", { href: `#/jobs/${job.id}/viewer` }, "Topography viewer");

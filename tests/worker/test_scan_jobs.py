@@ -151,3 +151,7 @@ def test_a_procam_calibration_job_records_a_versioned_calibration(client, celery
     assert [f["name"] for f in job["files"]] == ["procam.json"]
     [calibration] = client.get("/api/v1/calibrations", params={"camera_id": camera_id}).json()
     assert calibration["kind"] == "procam" and calibration["version"] == 1
+    report = client.get(f"/api/v1/calibrations/{calibration['id']}/procam-report").json()["report"]
+    assert [p["pose"] for p in report["poses"]] == ["pose0", "pose1", "pose2", "pose3"]
+    assert report["verdict"]["level"] == job["result"]["verdict"] and report["rms"]["stereo_px"] < 0.2
+    assert len(report["poses"][0]["projector_residual_px"]) == 63
