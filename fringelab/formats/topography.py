@@ -236,6 +236,8 @@ class TopographyWriter:
         # measured peak (`science.peaks`).
         self._plate_nodes = plate_nodes
         self._punch_radius_mm = punch_radius_mm
+        # The largest peak of the frames whose peak was measured (NaN: none): the run's headline peak.
+        self.max_measured_peak_w_mm = float("nan")
         # Grid nodes of the region around the punch (X, Y, radius), where the peak is: whether a frame measured it.
         self._peak_nodes: np.ndarray | None = None
         if peak_region_mm is not None and all(np.isfinite(peak_region_mm)):
@@ -346,6 +348,8 @@ class TopographyWriter:
         peak_measured = peak_measurement(
             finite, self.grid, (peak.x_mm, peak.y_mm), plate_nodes=self._plate_nodes, radius_mm=self._punch_radius_mm
         )
+        if peak_measured.measured and not peak.w_mm <= self.max_measured_peak_w_mm:
+            self.max_measured_peak_w_mm = float(peak.w_mm)
         coverage = measurement.coverage
         peak_nodes = self._peak_nodes
         row: dict[str, Any] = {

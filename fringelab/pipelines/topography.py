@@ -168,7 +168,7 @@ def topography_recording(
         path=path,
         frames=wanted,
         flat_rms_mm=reference.flat_rms_mm,
-        max_peak_w_mm=tally.max_peak_w_mm,
+        max_peak_w_mm=writer.max_measured_peak_w_mm,  # of the frames whose peak was measured
         n_out_of_range_total=tally.n_out_of_range,
         clamp_centre_xy_mm=(clamp[0], clamp[1]),
         clamp_radius_mm=clamp[2],

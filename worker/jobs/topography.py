@@ -203,7 +203,7 @@ def topography_write(context: JobContext[TopographySpec], turns: Iterator[InOrde
     result = {
         "frames": [wanted.start, wanted.stop - 1],
         "flat_rms_mm": reference.flat_rms_mm,
-        "max_peak_w_mm": tally.max_peak_w_mm,
+        "max_peak_w_mm": writer.max_measured_peak_w_mm,  # of the frames whose peak was measured
         "n_out_of_range_total": tally.n_out_of_range,
         "punch_axis_xy_mm": list(tally.punch_axis_xy_mm),
         "clamp_centre_xy_mm": list(clamp[:2]),

@@ -65,6 +65,7 @@ class Shaded:
     scene: PlateScene
     states: list[PlateState]
     n_edges_lines: tuple[int, int]
+    max_peak_w_mm: float
 
 
 @pytest.fixture(scope="module")
@@ -89,8 +90,8 @@ def shaded(tmp_path_factory) -> Shaded:
                      punch_displacement_mm=np.array([w for w, _ in FRAMES]))  # fmt: skip
     source = MemorySource(images, {"frames.csv": frames_csv_text(log)})
     path = tmp_path_factory.mktemp("shadows") / "result.h5"
-    topography_recording(source, camera, projector, out_path=path)
-    return Shaded(path, setup.scene, states, (projector.n_edges, projector.n_lines))
+    summary = topography_recording(source, camera, projector, out_path=path)
+    return Shaded(path, setup.scene, states, (projector.n_edges, projector.n_lines), summary.max_peak_w_mm)
 
 
 def truth_as_gridded(shaded: Shaded, result: TopographyResult, i: int) -> np.ndarray:
@@ -128,6 +129,8 @@ def test_every_peak_is_within_half_a_mm_of_the_truth_or_said_not_measured(shaded
     assert all(measured[unshaded] == 1.0)
     # The shadows this test draws do take data off the dome top: the rule is exercised, not passed by default.
     assert np.count_nonzero(measured == 0.0) >= 4
+    # The run's headline peak is the largest measured one, never a lower bound.
+    assert shaded.max_peak_w_mm == np.nanmax(np.where(measured == 1.0, peaks, np.nan))
 
 
 def test_a_maximum_on_the_rim_of_a_gap_is_not_measured() -> None:
