@@ -9,6 +9,7 @@ are imported inside the handlers so registering the commands stays instant. Scan
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 from typing import Any
 
 from fringelab.commands.output import emit, fail, progress_bar
@@ -81,6 +82,7 @@ def register(subparsers: Any) -> None:
     scan.add_argument("-o", "--output", required=True, help="scan result (.h5) to write")
     add_output_options(scan)
     scan.set_defaults(handler=scan_command)
+    register_table(subparsers)
 
 
 def calibrate_procam_command(args: argparse.Namespace) -> int:
@@ -139,3 +141,70 @@ def scan_command(args: argparse.Namespace) -> int:
     if not result.calibration_sigma:
         lines.append(f"  note: {qa['calibration_sigma_note']}")
     return emit(args, {"path": args.output, "qa": qa}, lines)
+
+
+def _z_range(text: str) -> list[float]:
+    try:
+        start, stop, step = (float(part) for part in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected FIRST:LAST:STEP in mm, got {text!r}") from None
+    if not (step > 0 and stop > start) or (stop - start) / step > 1000:
+        raise argparse.ArgumentTypeError(f"expected FIRST < LAST and 0 < STEP (at most 1000 heights), got {text!r}")
+    import numpy as np
+
+    return [float(z) for z in np.arange(start, stop + 0.5 * step, step)]
+
+
+def register_table(subparsers: Any) -> None:
+    """Add `projector-table`: the topography's projector table from a camera–projector calibration."""
+    from fringelab.commands.output import add_output_options
+
+    table = subparsers.add_parser(
+        "projector-table",
+        help="the topography's projector table from a camera–projector calibration (no Z stage)",
+        description="Generate the projector look-up table of docs/method.md §4 for the stripes a digital projector "
+        "shows during a deformation test, from the camera–projector calibration and the camera's calibration (which "
+        "fixes the plate's frame), over the Z range the test needs (docs/procam.md §5). The result is what "
+        "`calibrate-projector` writes from a Z-stack: `topography --projector` takes either.",
+    )
+    table.add_argument("--procam", required=True, help="camera–projector calibration (procam.json or OpenCV file)")
+    table.add_argument("--camera", required=True, help="camera.json of the same camera (the plate's frame)")
+    table.add_argument("--stripe-period-px", type=float, required=True, help="stripe period in projector pixels")
+    table.add_argument("--stripe-axis", choices=("columns", "rows"), default="columns",
+                       help="columns: vertical stripes (bright where x mod period < period/2); rows: "
+                       "horizontal")  # fmt: skip
+    table.add_argument("--stripe-offset-px", type=float, default=-0.5,
+                       help="projector coordinate of a rising edge (default −0.5: pixel 0 starts bright)")  # fmt: skip
+    table.add_argument("--z-mm", type=_z_range, required=True, metavar="FIRST:LAST:STEP", help="heights, mm")
+    table.add_argument("--scan-axis", choices=("auto", "rows", "cols"), default="auto",
+                       help="image axis to scan along (auto: the one the stripes cross most)")  # fmt: skip
+    table.add_argument("-o", "--output", required=True, help="projector calibration to write (.h5)")
+    add_output_options(table)
+    table.set_defaults(handler=projector_table_command)
+
+
+def projector_table_command(args: argparse.Namespace) -> int:
+    from fringelab.formats.camera import read_camera_json
+    from fringelab.formats.procam import read_procam_calibration
+    from fringelab.formats.projector import write_projector_calibration
+    from fringelab.science import MeasurementError
+    from fringelab.science.procam_table import StripePattern, projector_table_from_model
+
+    try:
+        pattern = StripePattern(args.stripe_axis, period_px=args.stripe_period_px, offset_px=args.stripe_offset_px)
+        table = projector_table_from_model(
+            read_procam_calibration(args.procam), read_camera_json(args.camera), pattern, args.z_mm,
+            scan_axis=None if args.scan_axis == "auto" else args.scan_axis,
+            provenance={"procam": Path(args.procam).name, "camera": Path(args.camera).name},
+        )  # fmt: skip
+        write_projector_calibration(table, args.output)
+    except (ValueError, MeasurementError, OSError) as error:
+        return fail(args, error)
+    qa = table.qa
+    lines = [
+        f"{args.output}: {qa.n_edges} edges, {qa.n_entries} table entries over Z {qa.z_range_mm[0]:g}–"
+        f"{qa.z_range_mm[1]:g} mm; sensitivity {qa.sensitivity_px_per_mm[1]:.3f} px/mm (median), fit RMS "
+        f"{qa.fit_rms_mm:.2g} mm; scan along image {table.axis}, stripe period {table.period_px:.2f} px"
+    ]
+    return emit(args, {"path": args.output, "n_edges": qa.n_edges, "n_entries": qa.n_entries,
+                       "axis": table.axis, "period_px": table.period_px}, lines)  # fmt: skip

@@ -126,13 +126,28 @@ def procam_table_positions(
     return lut[order], (edge_polarity[order] * int(direction_sign)).astype(np.int8)
 
 
+def stripe_scan_axis(
+    model: ProcamModel, camera_model: CameraModel, pattern: StripePattern, *, reference_z_mm: float = 0.0
+) -> Literal["rows", "cols"]:
+    """ "rows" when the stripes cross the image's rows more than its columns at the reference height (the projector
+    coordinate along the pattern's axis changes faster along u than along v at the image centre), else "cols"."""
+    camera = camera_model.camera
+    u, v = 0.5 * (camera.image_width_px - 1), 0.5 * (camera.image_height_px - 1)
+    q = np.array([[u, v], [u + 10.0, v], [u, v + 10.0]])
+    centre_obj, directions_obj = rays_from_pixels(camera, q, inverse=camera_model.inverse)
+    lam = (reference_z_mm - centre_obj[2]) / directions_obj[:, 2]
+    points_cam = rigid_transform(camera.rotation, camera.translation_mm, centre_obj + lam[:, None] * directions_obj)
+    coordinate = project_to_projector(model, points_cam)[:, 0 if pattern.axis == "columns" else 1]
+    return "rows" if abs(coordinate[1] - coordinate[0]) >= abs(coordinate[2] - coordinate[0]) else "cols"
+
+
 def projector_table_from_model(
     model: ProcamModel,
     camera_model: CameraModel,
     pattern: StripePattern,
     z_mm: Sequence[float],
     *,
-    scan_axis: Literal["rows", "cols"],
+    scan_axis: Literal["rows", "cols"] | None = None,
     settings: ProjectorSettings | None = None,
     edges: EdgeSettings | None = None,
     provenance: dict[str, Any] | None = None,
@@ -140,8 +155,11 @@ def projector_table_from_model(
     """The topography's projector table for heights z_mm (increasing; the Z range the test needs) from the model.
 
     edges: the edge settings the test's frames will be processed with (axis and period); None fixes them from the
-    table: the scan axis given and the median stripe period in the image at the reference height."""
+    table: the scan axis given and the median stripe period in the image at the reference height.
+    scan_axis: None takes the image axis along which the pattern's projector coordinate changes most."""
     settings = ProjectorSettings() if settings is None else settings
+    if scan_axis is None:
+        scan_axis = stripe_scan_axis(model, camera_model, pattern, reference_z_mm=settings.reference_z_mm)
     lut, polarity = procam_table_positions(model, camera_model, pattern, z_mm, scan_axis=scan_axis)
     z = np.asarray(z_mm, np.float64)
     j_ref = int(np.argmin(np.abs(z - settings.reference_z_mm)))

@@ -89,3 +89,34 @@ def test_a_camera_of_another_size_is_refused(kodak: RenderedExperiment) -> None:
     rig = virtual_procam_rig()
     with pytest.raises(CalibrationMismatchError, match="must describe one camera"):
         projector_table_from_model(rig, kodak.camera, StripePattern("columns", 8.0), [0.0, 10.0], scan_axis="rows")
+
+
+def test_projector_table_on_the_command_line(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    import argparse
+    import json
+
+    from fringelab.commands import procam as procam_commands
+    from fringelab.formats.camera import write_camera_json
+    from fringelab.formats.procam import write_procam_json
+    from fringelab.formats.projector import read_projector_calibration
+    from fringelab.science.projector import exact_camera_model
+    from fringelab.science.virtual_test import Imaging, preset, true_camera_calibration
+
+    setup = preset("kodak", imaging=Imaging(supersample=1))
+    model, pattern = digital_projector_of(setup.camera, setup.projector)
+    write_procam_json(tmp_path / "procam.json", model)
+    write_camera_json(true_camera_calibration(setup.camera), tmp_path / "camera.json")
+    parser = argparse.ArgumentParser(prog="fringelab")
+    procam_commands.register(parser.add_subparsers())
+    args = parser.parse_args(["projector-table", "--procam", str(tmp_path / "procam.json"), "--camera",
+                              str(tmp_path / "camera.json"), "--stripe-period-px", str(pattern.period_px),
+                              "--stripe-offset-px", str(pattern.offset_px), "--z-mm", "0:20:2", "-o",
+                              str(tmp_path / "projector.h5"), "--json"])  # fmt: skip
+    assert args.handler(args) == 0, capsys.readouterr().err
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["axis"] == "rows"  # the kodak preset's stripes run roughly vertically in the image
+    table = read_projector_calibration(tmp_path / "projector.h5")
+    direct = projector_table_from_model(model, exact_camera_model(setup.camera), pattern, list(np.arange(0, 21, 2.0)))
+    assert table.n_edges == direct.n_edges and table.period_px == pytest.approx(direct.period_px)
+    assert np.allclose(table.lut_t_px, direct.lut_t_px, equal_nan=True, atol=1e-4)
+    assert table.provenance["source"] == "camera–projector model"
