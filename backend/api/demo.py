@@ -66,7 +66,7 @@ class DemoOut(BaseModel):
     experiment_id: int = Field(description="The new experiment; its cameras, recordings and jobs appear as made.")
 
 
-@router.post("/demo", status_code=202, response_model=DemoOut, responses=error_responses(401, 422, 503))
+@router.post("/demo", status_code=202, response_model=DemoOut, responses=error_responses(401, 413, 422, 503))
 def make_demo(
     session: SessionDep,
     state: StateDep,

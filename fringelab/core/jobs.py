@@ -42,7 +42,7 @@ from sqlalchemy.orm import Session
 from fringelab import __version__
 from fringelab.core.accounts import Principal, access_level, audit, can_access
 from fringelab.core.broker import DEMO_TASK, job_task_ids, revoke
-from fringelab.core.errors import Conflict, Forbidden, NotFound, Unavailable
+from fringelab.core.errors import Conflict, Forbidden, NotFound, TooLarge, Unavailable
 from fringelab.core.job_kinds import kind_of, spec_of
 from fringelab.core.models import (
     Experiment,
@@ -52,6 +52,7 @@ from fringelab.core.models import (
 )
 from fringelab.core.preparation import Authorize, NotVisible, Prepared, job_error, nobody_checks, prepare_inputs
 from fringelab.core.settings import Settings
+from fringelab.core.storage import InsufficientStorage, check_room
 
 ACTIVE_STATES = ("queued", "running")
 FINAL_STATES = ("succeeded", "failed", "cancelled")
@@ -325,6 +326,11 @@ def start_demo(
 
     scenario: the virtual test (`fringelab.science.virtual_test.SCENARIOS`: the paper's quasi-static test, or a hard
     one: fast motion with springback at perforation, petals and cracks, a highlight, the punch's shadow)."""
+    settings: Settings = celery.fringelab_settings
+    try:  # below the disk's reserve a demo cannot be made: said now, not as an empty experiment
+        check_room(settings.data_path, 0, reserve_bytes=settings.min_free_disk_bytes)
+    except InsufficientStorage as error:
+        raise TooLarge(f"the demo cannot be made: {error}", code="insufficient_storage") from None
     today = date.today().isoformat()
     kind = "virtual punch test" if scenario == "quasi-static" else f"virtual punch test, {scenario}"
     experiment = Experiment(

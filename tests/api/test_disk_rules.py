@@ -43,3 +43,18 @@ def test_error_texts_show_no_server_path_or_memory_address():
     assert public_text("<h5py File object at 0x7f3a2b1c9d30> is closed") == "<h5py File object at 0x…> is closed"
     kept = "frame 3 of r.zip: 64 × 48 px; see https://example.org/a/b and 2026/11/27; z.csv line 2"
     assert public_text(kept) == kept
+
+
+def test_a_demo_below_the_disk_reserve_is_refused_saying_why_and_makes_no_experiment(settings):
+    """Finding 6: a demo started below the reserve left an empty experiment, its error only in the worker log."""
+    from fastapi.testclient import TestClient
+
+    from backend.app import create_app
+    from fringelab.core.storage import free_disk_bytes
+
+    full = settings.model_copy(update={"min_free_disk_bytes": free_disk_bytes(settings.data_path) + 2**40})
+    with TestClient(create_app(full)) as client:
+        answer = client.post("/api/v1/demo", json={})
+        assert answer.status_code == 413 and answer.json()["code"] == "insufficient_storage", answer.text
+        assert "the demo cannot be made" in answer.json()["detail"]
+        assert client.get("/api/v1/experiments").json() == []

@@ -31,7 +31,8 @@ from fringelab.core.jobs import QueueUnavailable, create_job
 from fringelab.core.models import Camera, Experiment, Job, Recording, User
 from fringelab.core.recordings import register_upload
 from fringelab.core.state import AppState
-from fringelab.core.storage import put_dir, sha256_of_file
+from fringelab.core.storage import InsufficientStorage, check_room, put_dir, sha256_of_file
+from fringelab.core.text import public_text
 from fringelab.pipelines.virtual_test import write_virtual_test
 from fringelab.science.virtual_test import preset
 from worker.runtime import sessions_of, settings_of
@@ -65,8 +66,32 @@ def simulate_demo(
     first_camera_ready: Callable[[], None],
 ) -> None:
     """Add each preset's camera to the experiment and register its simulated recordings of the virtual test
-    `scenario` (`virtual_test.SCENARIOS`) (idempotent)."""
+    `scenario` (`virtual_test.SCENARIOS`) (idempotent). A demo that cannot be made (a full disk, a refused
+    recording) says why in its experiment's notes, where its page shows it, not only in the worker log."""
+    try:
+        _simulate_demo(state, experiment_id, presets, test_frames, scenario=scenario,
+                       first_camera_ready=first_camera_ready)  # fmt: skip
+    except (OSError, ValueError, DomainError, InsufficientStorage) as error:
+        reason = public_text(error.detail if isinstance(error, DomainError) else str(error))
+        log.warning("demo experiment %s could not be made: %s", experiment_id, error)
+        with state.sessions() as session:
+            experiment = session.get(Experiment, experiment_id)
+            if experiment is not None:
+                experiment.notes = f"The demo could not be made: {reason}\n\n{experiment.notes}"[:20_000]
+                session.commit()
+
+
+def _simulate_demo(
+    state: AppState,
+    experiment_id: int,
+    presets: list[str],
+    test_frames: int,
+    *,
+    scenario: str,
+    first_camera_ready: Callable[[], None],
+) -> None:
     settings = state.settings
+    check_room(settings.data_path, 0, reserve_bytes=settings.min_free_disk_bytes)  # before writing anything
     with state.sessions() as session:
         experiment = session.get(Experiment, experiment_id)
         if experiment is None:
