@@ -111,13 +111,29 @@ def read_vtu_series(path: str | Path) -> FEResults:
     files = [f for _, f in entries]
     displacement_field(first.point_data, where)  # fails early on a file without one
 
+    ids = first.point_data.get("node_id")
+
     def displacement(i: int) -> np.ndarray:
         mesh = first if i == 0 else _read_mesh(files[i])
-        if len(mesh.points) != n_nodes:
-            raise ValueError(f"{files[i].name}: {len(mesh.points)} nodes, the first file has {n_nodes}")
-        return displacement_field(mesh.point_data, files[i].name)
+        if len(mesh.points) == n_nodes:
+            return displacement_field(mesh.point_data, files[i].name)
+        # A state that leaves nodes out (eroded elements): matched by node_id, the missing ones NaN (FEResults).
+        later = mesh.point_data.get("node_id")
+        if ids is None or later is None:
+            raise ValueError(
+                f"{files[i].name}: {len(mesh.points)} nodes, the first file has {n_nodes}; a series whose node set "
+                "changes (eroded elements) needs a node_id point array in every file"
+            )
+        first_ids = np.asarray(ids, np.int64).ravel()
+        order = np.argsort(first_ids)
+        later_ids = np.asarray(later, np.int64).ravel()
+        at = np.clip(np.searchsorted(first_ids, later_ids, sorter=order), 0, n_nodes - 1)
+        if not np.array_equal(first_ids[order[at]], later_ids):
+            raise ValueError(f"{files[i].name}: node ids that the first file does not have")
+        u = np.full((n_nodes, 3), np.nan)
+        u[order[at]] = displacement_field(mesh.point_data, files[i].name)
+        return u
 
-    ids = first.point_data.get("node_id")
     return FEResults(
         source=str(path), kind="vtu", node_ids=np.arange(1, n_nodes + 1) if ids is None else np.asarray(ids, np.int64),
         node_xyz=np.asarray(first.points, np.float64), shells=shells, solids=solids,

@@ -126,3 +126,23 @@ def test_a_node_missing_from_a_state_is_missing_there(tmp_path: Path) -> None:
     assert results.n_states == 2 and list(results.node_ids) == [1, 2, 3]
     np.testing.assert_array_equal(results.displacement(0)[:, 2], [0.0, 0.0, 0.0])
     assert np.all(np.isnan(results.displacement(1)[0])) and list(results.displacement(1)[1:, 2]) == [2.0, 3.0]
+
+
+def test_a_vtu_series_whose_later_state_leaves_eroded_nodes_out(tmp_path: Path) -> None:
+    """.vtu files of one series with a smaller node set after a perforation: matched by node_id, the nodes a state
+    lacks are missing there (NaN), never a refusal."""
+    import meshio
+
+    points = np.array([[0.0, 0, 0], [10, 0, 0], [0, 10, 0], [10, 10, 0]])
+    cells = [("triangle", np.array([[0, 1, 2], [1, 3, 2]]))]
+    ids = np.array([11, 12, 13, 14])
+    u0 = np.zeros((4, 3))
+    meshio.write(tmp_path / "s0.vtu", meshio.Mesh(points, cells, point_data={"displacement": u0, "node_id": ids}))
+    kept = np.array([1, 2, 3])  # node 11 eroded
+    u1 = np.column_stack([np.zeros(3), np.zeros(3), [2.0, 3.0, 4.0]])
+    meshio.write(tmp_path / "s1.vtu", meshio.Mesh(points[kept], [("triangle", np.array([[0, 2, 1]]))],
+                                                  point_data={"displacement": u1, "node_id": ids[kept]}))  # fmt: skip
+    results = open_simulation(tmp_path)
+    assert results.n_states == 2
+    later = results.displacement(1)
+    assert np.all(np.isnan(later[0])) and list(later[1:, 2]) == [2.0, 3.0, 4.0]
