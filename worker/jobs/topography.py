@@ -42,6 +42,7 @@ from worker.chunks import InOrder, planned_frame_ranges
 from worker.context import Chunked, JobContext, finite_or_none
 from worker.handover import array_records, has_hand_over, load_arrays, read_array_records, save_arrays
 from worker.jobs.inputs import calibration_file, recording_input
+from worker.reserve import require_reserve
 
 
 @dataclass
@@ -120,6 +121,7 @@ def _reference(context: JobContext[TopographySpec]) -> TopographyReference:
 
 def topography_measure(context: JobContext[TopographySpec], first: int, stop: int) -> None:
     """Phase 0, any worker: frames [first, stop) measured (`_measured`) and handed over one record per frame."""
+    require_reserve(context.settings, what=f"writing frames {first} to {stop - 1}")
     with array_records(context, _hand_over_name(first)) as write:
         for frame in _measured(context, first, stop):
             write(**frame.as_record())
@@ -188,6 +190,7 @@ def topography_write(context: JobContext[TopographySpec], turns: Iterator[InOrde
         )  # fmt: skip
         with writer:
             for turn in turns:
+                require_reserve(context.settings, what="writing the next frames of the result")
                 for frame in _frames_of(context, turn, reference.grid.shape):
                     measurement = cross_check.checked(frame.measurement)
                     row, camera_frame = log.row(measurement.frame), int(log.camera_frame[measurement.frame])
