@@ -119,7 +119,7 @@ def scan(
     if len(edges):
         parts_q.append(edges.q_px)
         parts_x.append(edges.projector_px)
-        parts_sp.append(np.full(len(edges), proj_cal))
+        parts_sp.append(np.zeros(len(edges)))
         parts_sc.append(np.hypot(edges.sigma_t_px, cam_cal))
         parts_src.append(np.full(len(edges), SOURCE_EDGE, np.uint8))
     height, width = decoding.code.shape
@@ -132,23 +132,25 @@ def scan(
         vv, uu = np.nonzero(np.isfinite(decoding.phase_px))
         parts_q.append(np.column_stack([uu, vv]).astype(np.float64))
         parts_x.append(decoding.phase_px[vv, uu])
-        parts_sp.append(np.hypot(decoding.phase_sigma_px[vv, uu], proj_cal))
+        parts_sp.append(decoding.phase_sigma_px[vv, uu])
         parts_sc.append(np.full(len(vv), cam_cal))
         parts_src.append(np.full(len(vv), SOURCE_PHASE, np.uint8))
     elif settings.code_points:
         vv, uu = np.nonzero(decoding.valid & ~near_edge)
         parts_q.append(np.column_stack([uu, vv]).astype(np.float64))
         parts_x.append(decoding.code_centre_px()[vv, uu])
-        parts_sp.append(np.hypot(decoding.code_sigma_px()[vv, uu], proj_cal))
+        parts_sp.append(decoding.code_sigma_px()[vv, uu])
         parts_sc.append(np.full(len(vv), cam_cal))
         parts_src.append(np.full(len(vv), SOURCE_CODE, np.uint8))
     q = np.vstack(parts_q) if parts_q else np.zeros((0, 2))
     x = np.concatenate(parts_x) if parts_x else np.zeros(0)
     factor = settings.projector_scale_xy[0 if axis == "columns" else 1]
     x_model = (x + 0.5) * factor - 0.5
+    # The decoding's σ is in the patterns' projector pixels, the calibration's in the model's.
     sigma_pattern = np.concatenate(parts_sp) if parts_sp else np.zeros(0)
+    sigma_projector = np.hypot(sigma_pattern * factor, proj_cal)
     points, sigma = point_sigma_mm(
-        model, q, x_model, axis=axis, sigma_projector_px=sigma_pattern * factor,
+        model, q, x_model, axis=axis, sigma_projector_px=sigma_projector,
         sigma_camera_px=np.concatenate(parts_sc) if parts_sc else np.zeros(0), scan_axis=edges.scan_axis,
     )  # fmt: skip
     source = np.concatenate(parts_src) if parts_src else np.zeros(0, np.uint8)
