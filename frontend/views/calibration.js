@@ -46,6 +46,20 @@ export function plusMinus(value, error) {
   return `${value.toFixed(digits)} ± ${error.toFixed(digits)}`;
 }
 
+/** What a calibration was built on and whether it may be used without consent (CalibrationOut: camera_calibration_id,
+ * bad, bad_reason): a projector calibration built on a bad camera calibration is bad too, whatever its own verdict. */
+function standingNote(calibration) {
+  const parts = [];
+  if (calibration.camera_calibration_id) {
+    parts.push(h("p", {}, "Built on camera calibration #", String(calibration.camera_calibration_id), "."));
+  }
+  if (calibration.bad) {
+    parts.push(h("p", { class: "calibration-bad", role: "note" },
+      `⚠ Bad: ${calibration.bad_reason || "its verdict is bad"}. A job uses it only with the person's explicit consent, and its results carry the warning.`));
+  }
+  return parts;
+}
+
 /** A check that holds or does not (the solver converged): shown as yes/no, not as 1.000 (older reports have no
  * unit for it). */
 const yesNo = (check) => check.unit === "yes/no" || (check.name === "solver" && !check.unit);
@@ -196,6 +210,7 @@ async function cameraReport(container, job, context) {
     container,
     `Camera calibration ${calibration.id} (version ${calibration.version})`,
     h("p", {}, h("a", { href: `#/jobs/${job.id}` }, jobName(job)), " · ", h("a", { href: file.url, download: file.name }, `Download ${file.name}`)),
+    standingNote(calibration),
     verdictBox(document.verdict, "3-1-calibration"),
     h(
       "div",
@@ -372,6 +387,7 @@ async function projectorReport(container, job, context) {
     container,
     `Projector calibration ${calibration.id} (version ${calibration.version})`,
     h("p", {}, h("a", { href: `#/jobs/${job.id}` }, jobName(job)), " · ", h("a", { href: calibration.file_url }, "Download the table (HDF5)")),
+    standingNote(calibration),
     verdictBox(report.verdict, "4-projector-calibration-look-up-table"),
     h("p", { class: "hint" }, "Thresholds, with units as in the table above: ", limits, ". ", explained("What the table's numbers mean", "4-projector-calibration-look-up-table")),
     h("div", { class: "two-columns" },
