@@ -65,6 +65,7 @@ SETUP = """async ([lowerBoundReason]) => {
     const bare = meta([0, 2, 4, 6, 8, 10], [null, null, null, null, null, null], none);
     bare.frames.punch_displacement_mm = none;
     bare.frames.force_kN = none;
+    bare.notes = ["no punch displacement or force for any frame: the recording has no frames.csv with those columns"];
     const withoutLog = new PeakPanel({ ...viewer, meta: bare });
     document.querySelector("main").append(withoutLog.figure.element);
     await withoutLog.draw();
@@ -118,6 +119,6 @@ def test_unmeasured_peaks_are_gaps_marked_on_the_line_and_cameras_compare_only_w
     # Without a test log: titled for what it shows (no "and force"), its x axis time, and a note why.
     bare = page.get_by_role("figure", name="Peak deflection", exact=True)
     expect(bare.get_by_role("button", name="Download Peak deflection CSV")).to_be_visible()
-    expect(bare).to_contain_text("No punch displacement or force in this recording's test log (frames.csv)")
+    expect(bare).to_contain_text("no punch displacement or force for any frame: the recording has no frames.csv")
     expect(bare).to_contain_text("time (ms)")
     screenshot(page, "peak-marks")

@@ -20,7 +20,9 @@ export class PeakPanel {
     const xAxis = havePunch ? axis("punch displacement", "mm") : timeAxis(meta).title;
     // The title says what the recording's test log (frames.csv) holds: no "and force" without a force.
     this.figure.rename(haveForce ? "Peak deflection and force" : "Peak deflection");
-    const note = havePunch || haveForce ? null : (meta.notes || []).find((n) => /frames\.csv/.test(n)) || "No punch displacement or force in this recording's test log (frames.csv)";
+    // What the server notes about the test log (a column missing from frames.csv, or no frames.csv), else ours.
+    const logNotes = (meta.notes || []).filter((n) => /frames\.csv/.test(n));
+    const note = logNotes.length ? logNotes.join(" ") : havePunch || haveForce ? null : "No punch displacement or force in this recording's test log (frames.csv)";
     const unmeasured = meta.coverage.peak_measured.map((v) => v === false);
     const peaks = m.peak_w_mm.map((w, k) => (unmeasured[k] ? NaN : w));
     const series = [{ name: "peak deflection", x: xs, y: peaks, color: COLORS[0], mode: "lines+markers" }];
