@@ -41,11 +41,11 @@ from backend.security import SecurityHeaders
 from backend.shedding import LoadShedding
 from backend.streams import StreamSlots
 from fringelab.core.accounts import TokenCache, dummy_hash
+from fringelab.core.app_state import AppState
 from fringelab.core.db import make_engine, make_sessionmaker
 from fringelab.core.queue import create_celery
 from fringelab.core.reconcile import reconcile_periodically, reconcile_quietly
 from fringelab.core.settings import Settings, load_settings
-from fringelab.core.state import AppState
 
 # The routes that stream a request body to disk under FRINGELAB_MAX_UPLOAD_BYTES instead of the JSON cap: the
 # recordings' uploads and a simulation's PUT (a model of many MB).

@@ -43,7 +43,7 @@ def cmd_api(_args: argparse.Namespace) -> int:
 
     from backend.app import uvicorn_options
     from fringelab.core.db import upgrade_database
-    from fringelab.core.services import check_port_free, check_redis
+    from fringelab.core.startup_checks import check_port_free, check_redis
 
     settings = load_settings()
     require_safe_binding(settings)
@@ -64,7 +64,7 @@ def cmd_api(_args: argparse.Namespace) -> int:
 
 def cmd_worker(_args: argparse.Namespace) -> int:
     """The worker is its own application (`python -m worker`): this process becomes it, so signals reach it."""
-    from fringelab.core.services import check_redis
+    from fringelab.core.startup_checks import check_redis
 
     settings = load_settings()
     _require_redis_url(settings)
@@ -111,7 +111,7 @@ def cmd_up(_args: argparse.Namespace) -> int:
 
 
 def require_safe_binding(settings: Settings) -> None:
-    from fringelab.core.services import ServiceError
+    from fringelab.core.startup_checks import ServiceError
 
     if not settings.auth_enabled and not settings.binds_loopback_only:
         raise ServiceError(
@@ -214,7 +214,7 @@ def _days(text: str) -> int:
 
 
 def _require_redis_url(settings: Settings) -> None:
-    from fringelab.core.services import ServiceError
+    from fringelab.core.startup_checks import ServiceError
 
     if not settings.redis_url:
         raise ServiceError("FRINGELAB_REDIS_URL is empty; set it, or run `fringelab up` to start Redis too")
@@ -284,7 +284,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     from fringelab.core.db import DatabaseError
-    from fringelab.core.services import ServiceError
+    from fringelab.core.startup_checks import ServiceError
 
     args = build_parser().parse_args(argv)
     try:

@@ -16,7 +16,7 @@ from backend import __version__
 from backend.limits import UserRateLimiter
 from fringelab.core.db import DatabaseError, check_database
 from fringelab.core.liveness import live_workers
-from fringelab.core.services import redacted_url
+from fringelab.core.startup_checks import redacted_url
 
 
 class PartHealth(BaseModel):

@@ -28,8 +28,8 @@ from typing import IO
 import httpx
 
 from fringelab.core.db import upgrade_database
-from fringelab.core.services import ServiceError, check_port_free, check_redis, free_port, redacted_url
 from fringelab.core.settings import Settings
+from fringelab.core.startup_checks import ServiceError, check_port_free, check_redis, free_port, redacted_url
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 STARTUP_TIMEOUT_S = 120.0

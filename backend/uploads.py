@@ -40,10 +40,10 @@ from backend.errors import error_headers, http_status
 from backend.schemas.common import MAX_ID
 from backend.schemas.recordings import RecordingOut, recording_out_by_id
 from fringelab.core.accounts import Principal
+from fringelab.core.app_state import AppState
 from fringelab.core.errors import Conflict, DomainError, Gone, Invalid, NotFound, TooLarge
 from fringelab.core.recordings import check_upload_request, recording_of_upload, register_upload
 from fringelab.core.settings import Settings
-from fringelab.core.state import AppState
 from fringelab.core.storage import (
     InsufficientStorage,
     StreamingWriter,

@@ -73,8 +73,8 @@ from backend.supervisor import redis_server_binary  # noqa: E402
 from fringelab.core.db import upgrade_database  # noqa: E402
 from fringelab.core.jobs import as_utc  # noqa: E402
 from fringelab.core.queue import create_celery  # noqa: E402
-from fringelab.core.services import free_port  # noqa: E402
 from fringelab.core.settings import Settings  # noqa: E402
+from fringelab.core.startup_checks import free_port  # noqa: E402
 
 
 def wait(predicate: Any, *, timeout_s: float, what: str, interval_s: float = 0.05) -> Any:

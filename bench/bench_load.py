@@ -52,7 +52,7 @@ import psutil
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from fringelab.core.services import free_port  # noqa: E402
+from fringelab.core.startup_checks import free_port  # noqa: E402
 
 USERS = ("admin", "lab", "ada", "bob")  # two admins, two members of the group the demos are shared with
 ADMINS = ("admin", "lab")

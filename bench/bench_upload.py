@@ -37,7 +37,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from backend.supervisor import redis_server_binary  # noqa: E402
-from fringelab.core.services import free_port  # noqa: E402
+from fringelab.core.startup_checks import free_port  # noqa: E402
 
 READ_BLOCK = 1 << 20
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import redis
 
 from backend.supervisor import redis_server_binary
-from fringelab.core.services import free_port
+from fringelab.core.startup_checks import free_port
 
 
 def wait_for(predicate: Callable[[], object], *, timeout_s: float, what: str, interval_s: float = 0.05) -> object:

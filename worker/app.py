@@ -11,8 +11,8 @@ from celery.signals import worker_process_init
 
 from fringelab.core.liveness import Heartbeat
 from fringelab.core.queue import create_celery
-from fringelab.core.services import ServiceError, check_redis
 from fringelab.core.settings import Settings, SettingsError, load_settings
+from fringelab.core.startup_checks import ServiceError, check_redis
 
 TASK_MODULES = ("worker.tasks",)
 

@@ -17,10 +17,10 @@ from sqlalchemy.orm import Session
 
 from backend.schemas.common import MAX_ID
 from fringelab.core.accounts import LOCAL_ADMIN, AuthError, Principal, require_access
+from fringelab.core.app_state import AppState
 from fringelab.core.errors import Forbidden, NotFound, RateLimited, Unauthorized
 from fringelab.core.models import Camera, Experiment, Recording
 from fringelab.core.recordings import camera_for, recording_for
-from fringelab.core.state import AppState
 
 SESSION_COOKIE = "fringelab_session"
 bearer_scheme = _bearer = HTTPBearer(

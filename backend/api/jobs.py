@@ -42,6 +42,7 @@ from backend.schemas.jobs import (
 )
 from backend.streams import StreamSlots
 from fringelab.core.accounts import Principal, audit, readable_experiments
+from fringelab.core.app_state import AppState
 from fringelab.core.calibration_pairs import warnings_of
 from fringelab.core.deletion import execute, plan_job
 from fringelab.core.errors import Gone, NotFound, Unauthorized, Unavailable
@@ -58,7 +59,6 @@ from fringelab.core.jobs import (
     terminate_unstopped,
 )
 from fringelab.core.models import Camera, Experiment, Job, JobChunk, JobLog, Recording, utcnow
-from fringelab.core.state import AppState
 
 router = APIRouter(tags=["jobs"])
 log = logging.getLogger(__name__)

@@ -1,5 +1,5 @@
 """`/api/v1/queue` and `/api/v1/storage`: for a shared server, what runs and waits (on which worker) and what each
-user's experiments take on disk. Thin: the rules are `fringelab.core.overview`."""
+user's experiments take on disk. Thin: the rules are `fringelab.core.server_usage`."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from pydantic import BaseModel, Field
 from backend.api.deps import CurrentUser, SessionDep
 from backend.errors import error_responses
 from backend.schemas.common import UtcDatetime
-from fringelab.core.overview import queue_overview, storage_by_user
+from fringelab.core.server_usage import queue_overview, storage_by_user
 
 router = APIRouter(tags=["queue"])
 

@@ -2,7 +2,7 @@
 what the dashboard draws (frame list and time histories, a frame's grid within a display budget, profiles,
 point histories).
 
-Thin: files are read through `fringelab.formats` (`backend.results` for paths and reports); access follows the
+Thin: files are read through `fringelab.formats` (`backend.result_files` for paths and reports); access follows the
 experiment (of the calibration's camera, or of the job). Arrays come as JSON lists with null where there is no
 data, or, for a grid, as raw float32.
 """
@@ -25,14 +25,14 @@ from sqlalchemy.orm import Session
 from backend.api.deps import CurrentUser, SessionDep, StateDep, experiment_for
 from backend.api.jobs import ERRORS, JobDep
 from backend.cache import AnswerCache, cached_json
-from backend.results import camera_report, plain, projector_report, projector_table, result_path
+from backend.result_files import camera_report, plain, projector_report, projector_table, result_path
 from backend.schemas.jobs import MAX_ID, CalibrationOut, ErrorOut
 from fringelab.core.accounts import readable_experiments
+from fringelab.core.app_state import AppState
 from fringelab.core.calibration_pairs import consistent_pairs, standing, warnings_of
 from fringelab.core.errors import Conflict, Gone, Invalid, NotFound
 from fringelab.core.jobs import as_utc, job_error
 from fringelab.core.models import Calibration, Camera, Experiment, Job
-from fringelab.core.state import AppState
 from fringelab.formats.topography import (
     GRID_BUDGET_NODES,
     MISSING_REASONS,

@@ -17,7 +17,7 @@ from pydantic import BaseModel, Field
 from backend.api.deps import SessionDep, StateDep
 from backend.api.jobs import JobDep
 from backend.api.results import RESULT_ERRORS, CalibrationDep, calibration_out, succeeded_file
-from backend.results import read_json
+from backend.result_files import read_json
 from backend.schemas.jobs import CalibrationOut
 from fringelab.core.errors import Gone, NotFound
 from fringelab.core.jobs import job_error

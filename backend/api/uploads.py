@@ -37,8 +37,8 @@ from backend.uploads import (
     reserved_upload_bytes,
     sweep_put_parts,
 )
+from fringelab.core.app_state import AppState
 from fringelab.core.recordings import check_upload_request, register_upload
-from fringelab.core.state import AppState
 from fringelab.core.storage import tus_dir
 
 

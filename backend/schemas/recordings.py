@@ -7,8 +7,8 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints
 
 from backend.schemas.common import PLAIN_NAME, UtcDatetime
+from fringelab.core.app_state import AppState
 from fringelab.core.models import Recording
-from fringelab.core.state import AppState
 
 RecordingKind = Literal["camera_calibration", "projector_calibration", "test", "coded"]
 RecordingState = Literal["uploading", "ingesting", "ready", "invalid"]

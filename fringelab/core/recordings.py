@@ -17,6 +17,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from fringelab.core.accounts import Principal, access_level, audit, readable_experiments, require_access
+from fringelab.core.app_state import AppState
 from fringelab.core.errors import (
     Conflict,
     DomainError,
@@ -33,7 +34,6 @@ from fringelab.core.models import Camera, Experiment, Group, Job, Recording
 from fringelab.core.quota import check_quota
 from fringelab.core.settings import Settings
 from fringelab.core.specs import IngestSpec
-from fringelab.core.state import AppState
 from fringelab.core.storage import (
     InsufficientStorage,
     check_room,

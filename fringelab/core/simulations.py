@@ -26,6 +26,7 @@ from sqlalchemy.orm import Session
 
 from fringelab.core import simulation_check
 from fringelab.core.accounts import Principal, audit, require_access
+from fringelab.core.app_state import AppState
 from fringelab.core.errors import Conflict, Invalid, NotFound, TooLarge
 from fringelab.core.job_kinds import TOPOGRAPHY_FILE, named_by
 from fringelab.core.jobs import ACTIVE_STATES
@@ -34,7 +35,6 @@ from fringelab.core.quota import check_quota
 from fringelab.core.recordings import check_upload_size, zip_limits
 from fringelab.core.settings import Settings
 from fringelab.core.specs import ComparisonSpec
-from fringelab.core.state import AppState
 from fringelab.core.storage import (
     InsufficientStorage,
     check_room,

@@ -48,7 +48,7 @@ def calibrate_camera_recording(
 ) -> CameraCalibration:
     """Calibrate a camera from a recording of a chessboard: the function the CLI and the Celery task call.
 
-    source: a frame source from `readers.open_recording` (a sequence of grey frames with `frame_names` and
+    source: a frame source from `formats.recordings.open_recording` (a sequence of grey frames with `frame_names` and
     `sidecar_text(name)`). board: the chessboard; None reads `board.json` from the recording. origin overrides
     the board's origin corner. mode: "zstack" (frames with `z.csv`, one shared pose) or "poses" (free views).
     detector and subpix_half_window_px are passed to `chessboard.detect_board` ("classic" and 11 reproduce

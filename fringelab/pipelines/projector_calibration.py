@@ -34,10 +34,11 @@ def calibrate_projector_recording(
 ) -> ProjectorCalibration:
     """Calibrate the projector from a recording of the flat plate moved along Z: what the CLI and tasks call.
 
-    source: a frame source from `readers.open_recording` (a sequence of grey frames with `sidecar_text`), with
-    `z.csv` (frame,z_mm). camera_model: the camera calibration (`camera_files.read_camera_json` gives one) of
-    the camera that took the frames. progress(done, total, stage) is called after each frame ("edges") and at
-    the end ("done"); should_cancel() is polled between frames (Cancelled).
+    source: a frame source from `formats.recordings.open_recording` (a sequence of grey frames with
+    `sidecar_text`), with `z.csv` (frame,z_mm). camera_model: the camera calibration
+    (`formats.camera.read_camera_json` gives one) of the camera that took the frames. progress(done, total,
+    stage) is called after each frame ("edges") and at the end ("done"); should_cancel() is polled between frames
+    (Cancelled).
 
     Raises ValueError for malformed input (z.csv), CalibrationMismatchError for frames of another size than the
     camera's, NoStripesError, ProjectorCalibrationError for a table that cannot be built.

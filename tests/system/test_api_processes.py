@@ -26,8 +26,8 @@ import psutil
 import pytest
 
 from backend.supervisor import STATUS_FILE, Supervisor, running_redis_url
-from fringelab.core.services import free_port
 from fringelab.core.settings import Settings
+from fringelab.core.startup_checks import free_port
 from tests.support import RedisServer, add_people, bearer, wait_for
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]

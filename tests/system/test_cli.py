@@ -14,8 +14,8 @@ import pytest
 from backend import __version__
 from backend.cli import build_parser
 from fringelab.core.queue import create_celery
-from fringelab.core.services import free_port
 from fringelab.core.settings import Settings
+from fringelab.core.startup_checks import free_port
 from tests.support import RedisServer, wait_for
 
 

@@ -7,8 +7,8 @@ from fastapi.testclient import TestClient
 
 from backend.app import create_app
 from backend.frontend import PLOTLY_JS_URL
-from fringelab.core.services import free_port
 from fringelab.core.settings import Settings
+from fringelab.core.startup_checks import free_port
 
 
 @pytest.mark.integration

@@ -9,8 +9,8 @@ import h5py
 import numpy as np
 import pytest
 
-from fringelab.core.services import free_port
 from fringelab.core.settings import Settings
+from fringelab.core.startup_checks import free_port
 from tests.worker.conftest import log_messages, wait_job
 from worker.jobs.selftest import selftest_frame
 

@@ -1,4 +1,4 @@
-"""The topography results API on a result file in the documented layout (fringelab/science/topography_files.py),
+"""The topography results API on a result file in the documented layout (fringelab/formats/topography.py),
 with a field whose answers are known exactly: a tilted plane rising frame by frame (bilinear interpolation of a
 plane is exact), and a hole without data."""
 

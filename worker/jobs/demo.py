@@ -25,12 +25,12 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from fringelab.core.accounts import LOCAL_ADMIN, Principal
+from fringelab.core.app_state import AppState
 from fringelab.core.errors import DomainError
 from fringelab.core.job_kinds import JobSpec, named_by
 from fringelab.core.jobs import QueueUnavailable, create_job
 from fringelab.core.models import Camera, Experiment, Job, Recording, User
 from fringelab.core.recordings import register_upload
-from fringelab.core.state import AppState
 from fringelab.core.storage import InsufficientStorage, check_room, put_dir, sha256_of_file
 from fringelab.core.text import public_text
 from fringelab.pipelines.virtual_test import write_virtual_test

@@ -11,8 +11,8 @@ from backend.limits import SharedRateLimiter
 from fringelab.core.accounts import AuthError, TokenCache, create_user, issue_token
 from fringelab.core.db import make_engine, make_sessionmaker
 from fringelab.core.models import ApiToken, utcnow
-from fringelab.core.services import free_port
 from fringelab.core.settings import Settings
+from fringelab.core.startup_checks import free_port
 
 HOUR_S = 3600.0  # a cache lifetime no test outlasts: what is refused is refused because of the generation
 

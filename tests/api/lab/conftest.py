@@ -15,8 +15,8 @@ from fastapi.testclient import TestClient
 from backend.app import create_app
 from fringelab.core.accounts import create_user, issue_token
 from fringelab.core.db import make_engine, make_sessionmaker
-from fringelab.core.services import free_port
 from fringelab.core.settings import Settings
+from fringelab.core.startup_checks import free_port
 from tests.support import wait_for
 
 PEOPLE = (("admin", "admin"), ("ada", "member"), ("bob", "member"), ("cy", "member"))

@@ -14,8 +14,8 @@ import pytest
 import uvicorn
 
 from backend.app import create_app
-from fringelab.core.services import free_port
 from fringelab.core.settings import Settings
+from fringelab.core.startup_checks import free_port
 from tests.support import wait_for
 
 TUS = {"Tus-Resumable": "1.0.0"}
