@@ -1,8 +1,11 @@
-"""The one place where the backend reads result files (JSON with `json`, HDF5 with `h5py`).
+"""A job's or a calibration's result files for the API: found by their stored path under the data directory, and
+the calibration reports cut out of them (JSON with `json`, HDF5 with `h5py`) without loading more than asked.
 
-Belongs here: opening a job's or a calibration's files by their stored path under the data directory, and
-cutting what the dashboard asks for out of them (a report, a decimated grid, a profile) without loading more
-than that. Not here: computing results (worker/), HTTP (backend/api/). Never imports OpenCV or task code.
+Belongs here: `result_path` and `succeeded_file` (a stored file, or the error that says what to do), a succeeded
+topography job's result opened (`topography`), the camera and projector calibration reports and tables, and
+turning what is read into JSON-able values (`plain`, `listed`). Not here: cutting topography and comparison
+results for the dashboard (the routes, through `fringelab.formats.topography` and `fringelab.formats.comparison`);
+computing results (worker/); HTTP (backend/api/). Never imports OpenCV or task code.
 """
 
 from __future__ import annotations
@@ -17,7 +20,10 @@ from typing import Any
 import h5py
 import numpy as np
 
-from fringelab.formats.topography import OutsideGrid, ResultUnavailable
+from fringelab.core.errors import Conflict, Gone, Invalid, NotFound
+from fringelab.core.jobs import job_error
+from fringelab.core.models import Job
+from fringelab.formats.topography import FrameNotInResult, OutsideGrid, ResultUnavailable, TopographyResult
 from fringelab.science.projector_quality import PROJECTOR_LIMITS, judge_projector, projector_maps
 
 
@@ -67,6 +73,56 @@ def plain(value: Any) -> Any:
     if isinstance(value, float) and not math.isfinite(value):
         return None
     return value
+
+
+def listed(values: np.ndarray, decimals: int = 4) -> list[Any]:
+    """JSON list of a float array, rounded, with null for NaN (nested for 2-D)."""
+    rounded = np.round(np.asarray(values, dtype=np.float64), decimals)
+    if rounded.ndim > 1:
+        return [listed(row, decimals) for row in rounded]
+    return [None if not math.isfinite(v) else v for v in rounded.tolist()]
+
+
+# ---------------------------------------------------------------------------------------------- jobs' files
+
+TOPOGRAPHY_FILE = "topography.h5"
+
+
+def succeeded_file(job: Job, data_path: Path, *, kind: str, name: str) -> Path:
+    """The file `name` of a succeeded job of `kind`; a job error (404/409/410) with what to do otherwise."""
+    if job.kind != kind:
+        raise job_error(NotFound, f"not_{kind}", f"job {job.id} is a {job.kind} job, not a {kind}")
+    if job.state != "succeeded":
+        raise job_error(
+            Conflict, "job_not_succeeded", f"job {job.id} is {job.state}; its results come when it succeeds"
+        )
+    entry = next((f for f in job.files if f["name"] == name), None)
+    if entry is None:
+        raise job_error(Gone, "result_missing", f"job {job.id} has no {name}; retry the job")
+    try:
+        return result_path(data_path, entry["path"])
+    except ResultUnavailable as error:
+        raise job_error(Gone, "result_missing", str(error)) from None
+
+
+def topography_file(job: Job, data_path: Path) -> Path:
+    """The result file of a succeeded topography job (`succeeded_file`)."""
+    return succeeded_file(job, data_path, kind="topography", name=TOPOGRAPHY_FILE)
+
+
+@contextmanager
+def topography(job: Job, data_path: Path) -> Iterator[TopographyResult]:
+    """The result of a succeeded topography job, open; a job error (409/410/422) with what to do otherwise."""
+    path = topography_file(job, data_path)
+    try:
+        with TopographyResult(path) as reader:
+            yield reader
+    except FrameNotInResult as error:
+        raise job_error(Invalid, "frame_not_in_result", str(error), field="frame") from None
+    except OutsideGrid as error:
+        raise job_error(Invalid, "outside_grid", str(error)) from None
+    except ResultUnavailable as error:
+        raise job_error(Gone, "result_missing", str(error)) from None
 
 
 # ---------------------------------------------------------------------------------------------- projector

@@ -11,9 +11,9 @@ import numpy as np
 from fastapi import APIRouter, Path
 from pydantic import BaseModel, Field
 
-from backend.api.deps import CurrentUser, SessionDep, StateDep
-from backend.api.jobs import JobDep
-from backend.api.results import RESULT_ERRORS, _listed, topography
+from backend.api.deps import CurrentUser, JobDep, SessionDep, StateDep
+from backend.result_files import listed, topography
+from backend.schemas.jobs import RESULT_ERRORS
 from fringelab.core.jobs import job_for
 from fringelab.formats.topography import TopographyResult
 from fringelab.science.camera_against_camera import PeakSeries, peaks_against
@@ -75,11 +75,11 @@ def camera_against_camera(
         other_job_id=other_job.id,
         aligned_by=result.aligned_by,
         frames=ours.frames.astype(int).tolist(),
-        time_s=_listed(ours.time_s, 6),
+        time_s=listed(ours.time_s, 6),
         other_frame=[int(f) if f >= 0 else None for f in result.other_frame],
-        peak_w_mm=_listed(np.where(compared, ours.peak_w_mm, np.nan)),
-        other_peak_w_mm=_listed(result.other_peak_w_mm),
-        difference_w_mm=_listed(result.difference_w_mm),
+        peak_w_mm=listed(np.where(compared, ours.peak_w_mm, np.nan)),
+        other_peak_w_mm=listed(result.other_peak_w_mm),
+        difference_w_mm=listed(result.difference_w_mm),
         compared=compared.tolist(),
         left_out=reasons,
         left_out_frames=[LeftOutFrame(frame=int(f), reason=r) for f, r in zip(ours.frames, reasons, strict=True) if r],

@@ -17,11 +17,10 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Query
 from pydantic import BaseModel, ConfigDict, Field
 
-from backend.api.deps import CurrentUser, SessionDep, StateDep
-from backend.api.jobs import JobDep
-from backend.api.results import RESULT_ERRORS, _listed, succeeded_file
+from backend.api.deps import CurrentUser, JobDep, SessionDep, StateDep
 from backend.errors import error_responses
-from backend.schemas.jobs import MAX_ID
+from backend.result_files import listed, succeeded_file
+from backend.schemas.jobs import MAX_ID, RESULT_ERRORS
 from fringelab.core.errors import Gone, Invalid
 from fringelab.core.jobs import job_error
 from fringelab.core.models import Job
@@ -89,8 +88,8 @@ def comparison_overview(job: JobDep, state: StateDep) -> ComparisonOverview:
             "reason": reader.column("reason").tolist(),
         }
         for name, _, _ in FRAME_COLUMNS:
-            frames[name] = _listed(reader.column(name), 6)
-        simulation = {name: _listed(reader.column(f"simulation/{name}"), 6) for name, _, _ in SIMULATION_COLUMNS}
+            frames[name] = listed(reader.column(name), 6)
+        simulation = {name: listed(reader.column(f"simulation/{name}"), 6) for name, _, _ in SIMULATION_COLUMNS}
         x, y = reader.grid.x_mm, reader.grid.y_mm
         return ComparisonOverview(
             job_id=job.id,
@@ -132,7 +131,7 @@ def comparison_grid(
     with comparison(job, state.settings.data_path) as reader:
         x, y, values, step = reader.field_cut(field, _position(reader, frame), budget=budget)
     return ComparisonGridOut(
-        frame=frame, field=field, step=step, x_mm=_listed(x), y_mm=_listed(y), values_mm=_listed(values)
+        frame=frame, field=field, step=step, x_mm=listed(x), y_mm=listed(y), values_mm=listed(values)
     )
 
 
@@ -157,7 +156,7 @@ def comparison_profile(
     """The profile through the punch axis along X or Y: measured and simulated deflection with σ_w."""
     with comparison(job, state.settings.data_path) as reader:
         profile = reader.profile(axis, _position(reader, frame))
-    return ComparisonProfileOut(frame=frame, axis=axis, **{name: _listed(values) for name, values in profile.items()})
+    return ComparisonProfileOut(frame=frame, axis=axis, **{name: listed(values) for name, values in profile.items()})
 
 
 class ComparisonPreviewIn(BaseModel):
@@ -220,9 +219,9 @@ def preview_comparison_route(body: ComparisonPreviewIn, session: SessionDep, sta
         mapping=json.loads(json_text(preview["mapping"])), overlap_fraction=preview["overlap_fraction"],
         axis_xy_mm=[float(v) for v in preview["axis_xy_mm"]],
         frames={"frame": frames["frame"], "state_lo": frames["state_lo"], "reason": frames["reason"],
-                "state_fraction": _listed(frames["state_fraction"], 4), "peak_w_mm": _listed(frames["peak_w_mm"], 4)},
+                "state_fraction": listed(frames["state_fraction"], 4), "peak_w_mm": listed(frames["peak_w_mm"], 4)},
         simulation={"n_states": preview["simulation"]["n_states"],
-                    "peak_w_mm": _listed(preview["simulation"]["peak_w_mm"], 4)},
-        profiles={axis: PreviewProfile(**{name: _listed(values) for name, values in profile.items()})
+                    "peak_w_mm": listed(preview["simulation"]["peak_w_mm"], 4)},
+        profiles={axis: PreviewProfile(**{name: listed(values) for name, values in profile.items()})
                   for axis, profile in preview["profiles"].items()},
     )  # fmt: skip

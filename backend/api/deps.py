@@ -1,4 +1,5 @@
-"""Typed dependencies shared by the routers: state, database session, the principal and access checks.
+"""Typed dependencies shared by the routers: state, database session, the principal and access checks (of
+experiments, cameras, recordings, jobs and calibrations).
 
 The access checks are dependencies on the path parameters (`ReadableExperiment`, `WritableCamera`, ...): FastAPI
 solves dependencies before it validates a request body, so someone without access gets a 404 (or 401) whatever
@@ -19,7 +20,8 @@ from backend.schemas.common import MAX_ID
 from fringelab.core.accounts import LOCAL_ADMIN, AuthError, Principal, require_access
 from fringelab.core.app_state import AppState
 from fringelab.core.errors import Forbidden, NotFound, RateLimited, Unauthorized
-from fringelab.core.models import Camera, Experiment, Recording
+from fringelab.core.jobs import job_error, job_for
+from fringelab.core.models import Calibration, Camera, Experiment, Job, Recording
 from fringelab.core.recordings import camera_for, recording_for
 
 SESSION_COOKIE = "fringelab_session"
@@ -151,3 +153,35 @@ WritableRecording = Annotated[Recording, Depends(writable_recording)]
 ReadableRecordingId = Annotated[int, Depends(readable_recording_id)]
 WritableRecordingId = Annotated[int, Depends(writable_recording_id)]
 WritableCameraId = Annotated[int, Depends(writable_camera_id)]
+
+
+def readable_job(job_id: str, session: SessionDep, principal: CurrentUser) -> Job:
+    return job_for(session, principal, job_id)
+
+
+def writable_job(job_id: str, session: SessionDep, principal: CurrentUser) -> Job:
+    return job_for(session, principal, job_id, write=True)
+
+
+JobDep = Annotated[Job, Depends(readable_job)]
+
+
+WritableJobDep = Annotated[Job, Depends(writable_job)]
+
+
+def readable_calibration(
+    calibration_id: Annotated[int, Path(ge=1, le=MAX_ID)], session: SessionDep, principal: CurrentUser
+) -> Calibration:
+    missing = job_error(NotFound, "calibration_not_found", f"there is no calibration {calibration_id}")
+    row = session.get(Calibration, calibration_id)
+    camera = session.get(Camera, row.camera_id) if row else None
+    if row is None or camera is None:
+        raise missing
+    try:
+        experiment_for(session, principal, camera.experiment_id)
+    except NotFound:
+        raise missing from None
+    return row
+
+
+CalibrationDep = Annotated[Calibration, Depends(readable_calibration)]

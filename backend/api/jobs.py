@@ -24,11 +24,21 @@ from fastapi.sse import EventSourceResponse, ServerSentEvent
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from backend.api.deps import CurrentUser, SessionDep, StateDep, bearer_scheme, principal_of, request_secret
+from backend.api.deps import (
+    CurrentUser,
+    JobDep,
+    SessionDep,
+    StateDep,
+    WritableJobDep,
+    bearer_scheme,
+    principal_of,
+    request_secret,
+)
 from backend.errors import error_responses
 from backend.polls import SharedPolls
 from backend.schemas.deletion import DeletionOut, deletion_out
 from backend.schemas.jobs import (
+    JOB_ERRORS,
     MAX_ID,
     ChunkOut,
     ErrorOut,
@@ -64,15 +74,6 @@ router = APIRouter(tags=["jobs"])
 log = logging.getLogger(__name__)
 EVENTS_POLL_S = 0.25
 EVENTS_ACCESS_CHECK_S = 2.0  # an open event stream checks its reader's token and access this often
-ERRORS: dict[int | str, dict[str, Any]] = {
-    status: {"model": ErrorOut, "description": description}
-    for status, description in (
-        (404, "No such job."),
-        (409, "Not possible in the job's state, or its inputs are not ready."),
-        (422, "The spec is invalid; `field` names the part at fault."),
-        (503, "The job queue (Redis) is unreachable."),
-    )
-}
 
 
 def _seconds(start: datetime | None, end: datetime | None) -> float | None:
@@ -191,18 +192,8 @@ def _job_out(
     )
 
 
-def readable_job(job_id: str, session: SessionDep, principal: CurrentUser) -> Job:
-    return job_for(session, principal, job_id)
-
-
-def writable_job(job_id: str, session: SessionDep, principal: CurrentUser) -> Job:
-    return job_for(session, principal, job_id, write=True)
-
-
-JobDep = Annotated[Job, Depends(readable_job)]
-WritableJobDep = Annotated[Job, Depends(writable_job)]
 WRITE_ERRORS: dict[int | str, dict[str, Any]] = {
-    **ERRORS,
+    **JOB_ERRORS,
     403: {"model": ErrorOut, "description": "Read-only access to the experiment (or a selftest without admin)."},
 }
 
@@ -338,12 +329,12 @@ async def _jobs_events(
         idle_s += EVENTS_POLL_S * 2
 
 
-@router.get("/jobs/{job_id}", response_model=JobOut, responses=ERRORS)
+@router.get("/jobs/{job_id}", response_model=JobOut, responses=JOB_ERRORS)
 def read_job(job: JobDep, session: SessionDep) -> JobOut:
     return job_out(session, job)
 
 
-@router.get("/jobs/{job_id}/log", response_model=list[LogLineOut], responses=ERRORS)
+@router.get("/jobs/{job_id}/log", response_model=list[LogLineOut], responses=JOB_ERRORS)
 def read_log(
     job: JobDep,
     session: SessionDep,
@@ -370,7 +361,9 @@ def _streamable_job_id(job_id: str, state: StateDep, principal: CurrentUser) -> 
         return job_for(session, principal, job_id).id
 
 
-@router.get("/jobs/{job_id}/events", response_class=EventSourceResponse, responses={**ERRORS, **error_responses(429)})
+@router.get(
+    "/jobs/{job_id}/events", response_class=EventSourceResponse, responses={**JOB_ERRORS, **error_responses(429)}
+)
 async def job_events(
     job_id: Annotated[str, Depends(_streamable_job_id)],
     state: StateDep,
@@ -510,7 +503,7 @@ def retry(writable: WritableJobDep, session: SessionDep, state: StateDep, princi
     "/jobs/{job_id}/files/{name:path}",
     response_class=FileResponse,
     responses={
-        **ERRORS,
+        **JOB_ERRORS,
         200: {"content": {"application/octet-stream": {"schema": {"type": "string", "format": "binary"}}}},
         410: {"model": ErrorOut, "description": "The file is no longer on disk; retry the job."},
     },

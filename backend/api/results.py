@@ -10,33 +10,36 @@ data, or, for a grid, as raw float32.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
-from contextlib import contextmanager
-from pathlib import Path as PathType
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from fastapi import APIRouter, Depends, Path, Query, Request, Response
+from fastapi import APIRouter, Query, Request, Response
 from fastapi.responses import FileResponse
 from pydantic import BaseModel, Field
 from sqlalchemy import select
-from sqlalchemy.orm import Session
 
-from backend.api.deps import CurrentUser, SessionDep, StateDep, experiment_for
-from backend.api.jobs import ERRORS, JobDep
+from backend.api.deps import CalibrationDep, CurrentUser, JobDep, SessionDep, StateDep, experiment_for
 from backend.cache import AnswerCache, cached_json
-from backend.result_files import camera_report, plain, projector_report, projector_table, result_path
-from backend.schemas.jobs import MAX_ID, CalibrationOut, ErrorOut
+from backend.result_files import (
+    camera_report,
+    listed,
+    plain,
+    projector_report,
+    projector_table,
+    result_path,
+    topography,
+    topography_file,
+)
+from backend.schemas.jobs import JOB_ERRORS, MAX_ID, RESULT_ERRORS, CalibrationOut, calibration_out
 from fringelab.core.accounts import readable_experiments
 from fringelab.core.app_state import AppState
-from fringelab.core.calibration_pairs import consistent_pairs, standing, warnings_of
-from fringelab.core.errors import Conflict, Gone, Invalid, NotFound
-from fringelab.core.jobs import as_utc, job_error
+from fringelab.core.calibration_pairs import consistent_pairs, warnings_of
+from fringelab.core.errors import Gone, Invalid, NotFound
+from fringelab.core.jobs import job_error
 from fringelab.core.models import Calibration, Camera, Experiment, Job
 from fringelab.formats.topography import (
     GRID_BUDGET_NODES,
     MISSING_REASONS,
-    FrameNotInResult,
     OutsideGrid,
     ResultUnavailable,
     TopographyResult,
@@ -44,10 +47,6 @@ from fringelab.formats.topography import (
 from fringelab.science.coverage import MISSING_DESCRIPTIONS, MISSING_LABELS
 
 router = APIRouter(tags=["results"])
-RESULT_ERRORS: dict[int | str, dict[str, Any]] = {
-    **ERRORS,
-    410: {"model": ErrorOut, "description": "The result file is no longer on disk (or unreadable); retry the job."},
-}
 MM = Annotated[float, Query(allow_inf_nan=False, description="mm, in the object frame")]
 OptionalMM = Annotated[float | None, Query(allow_inf_nan=False, description="mm, in the object frame (required)")]
 DeprecatedMM = Annotated[
@@ -63,57 +62,6 @@ def _line_mm(named: tuple[float | None, ...], old: tuple[float | None, ...]) -> 
             return x0, y0, x1, y1
     missing = [n for n, v in zip(("x0_mm", "y0_mm", "x1_mm", "y1_mm"), named, strict=True) if v is None]
     raise Invalid(f"the line needs x0_mm, y0_mm, x1_mm and y1_mm (missing: {', '.join(missing)})", code="invalid_line")
-
-
-def _listed(values: np.ndarray, decimals: int = 4) -> list[Any]:
-    """JSON list of a float array, rounded, with null for NaN (nested for 2-D)."""
-    rounded = np.round(np.asarray(values, dtype=np.float64), decimals)
-    if rounded.ndim > 1:
-        return [_listed(row, decimals) for row in rounded]
-    return [None if not math.isfinite(v) else v for v in rounded.tolist()]
-
-
-def calibration_out(row: Calibration, session: Session) -> CalibrationOut:
-    state = standing(session, row)
-    report = "projector-report" if row.kind == "projector" else "report"
-    return CalibrationOut(
-        id=row.id,
-        kind=row.kind,  # type: ignore[arg-type]
-        camera_id=row.camera_id,
-        recording_id=row.recording_id,
-        job_id=row.job_id,
-        version=row.version,
-        image_width_px=row.image_width_px,
-        image_height_px=row.image_height_px,
-        sha256=row.sha256,
-        summary=row.summary,
-        created_at=as_utc(row.created_at),
-        file_url=f"/api/v1/calibrations/{row.id}/file",
-        report_url=f"/api/v1/calibrations/{row.id}/{report}",
-        label=state.label,
-        verdict=state.verdict,
-        bad=state.bad,
-        bad_reason=state.bad_reason,
-        camera_calibration_id=state.camera_calibration_id,
-    )
-
-
-def readable_calibration(
-    calibration_id: Annotated[int, Path(ge=1, le=MAX_ID)], session: SessionDep, principal: CurrentUser
-) -> Calibration:
-    missing = job_error(NotFound, "calibration_not_found", f"there is no calibration {calibration_id}")
-    row = session.get(Calibration, calibration_id)
-    camera = session.get(Camera, row.camera_id) if row else None
-    if row is None or camera is None:
-        raise missing
-    try:
-        experiment_for(session, principal, camera.experiment_id)
-    except NotFound:
-        raise missing from None
-    return row
-
-
-CalibrationDep = Annotated[Calibration, Depends(readable_calibration)]
 
 
 @router.get("/calibrations", response_model=list[CalibrationOut])
@@ -164,7 +112,7 @@ def list_calibration_pairs(
     return pairs
 
 
-@router.get("/calibrations/{calibration_id}", response_model=CalibrationOut, responses=ERRORS)
+@router.get("/calibrations/{calibration_id}", response_model=CalibrationOut, responses=JOB_ERRORS)
 def read_calibration(calibration: CalibrationDep, session: SessionDep) -> CalibrationOut:
     return calibration_out(calibration, session)
 
@@ -243,9 +191,9 @@ def projector_calibration_report(
     except ResultUnavailable as error:
         raise job_error(Gone, "result_missing", str(error)) from None
     for name in ("sensitivity_px_per_mm", "z_resolution_mm", "coverage"):
-        report[name] = _listed(report[name])
-    report["z_mm"] = _listed(report["z_mm"])
-    report["coverage_z"] = _listed(report["coverage_z"])
+        report[name] = listed(report[name])
+    report["z_mm"] = listed(report["z_mm"])
+    report["coverage_z"] = listed(report["coverage_z"])
     for check in report["verdict"]["checks"]:
         check["value"] = check["value"] if math.isfinite(check["value"]) else None
     return ProjectorReport(calibration=calibration_out(calibration, session), **report)
@@ -284,9 +232,9 @@ def projector_table_curves(
         raise job_error(Invalid, "outside_table", str(error)) from None
     except ResultUnavailable as error:
         raise job_error(Gone, "result_missing", str(error)) from None
-    table["z_mm"] = _listed(table["z_mm"])
+    table["z_mm"] = listed(table["z_mm"])
     for curve in table["curves"]:
-        curve["t_px"] = _listed(curve["t_px"])
+        curve["t_px"] = listed(curve["t_px"])
     return ProjectorTable(calibration=calibration_out(calibration, session), **table)
 
 
@@ -316,46 +264,8 @@ def calibration_file(calibration: CalibrationDep, state: StateDep) -> FileRespon
 
 # ---------------------------------------------------------------------------------------------- topography
 
-TOPOGRAPHY_FILE = "topography.h5"
 # Rendered grids, overviews and profiles of results (immutable once their job succeeded), shared by the viewers.
 ANSWERS = AnswerCache(max_bytes=16 * 2**20)
-
-
-def succeeded_file(job: Job, data_path: Any, *, kind: str, name: str) -> PathType:
-    """The file `name` of a succeeded job of `kind`; a job error (404/409/410) with what to do otherwise."""
-    if job.kind != kind:
-        raise job_error(NotFound, f"not_{kind}", f"job {job.id} is a {job.kind} job, not a {kind}")
-    if job.state != "succeeded":
-        raise job_error(
-            Conflict, "job_not_succeeded", f"job {job.id} is {job.state}; its results come when it succeeds"
-        )
-    entry = next((f for f in job.files if f["name"] == name), None)
-    if entry is None:
-        raise job_error(Gone, "result_missing", f"job {job.id} has no {name}; retry the job")
-    try:
-        return result_path(data_path, entry["path"])
-    except ResultUnavailable as error:
-        raise job_error(Gone, "result_missing", str(error)) from None
-
-
-def topography_file(job: Job, data_path: Any) -> PathType:
-    """The result file of a succeeded topography job (`succeeded_file`)."""
-    return succeeded_file(job, data_path, kind="topography", name=TOPOGRAPHY_FILE)
-
-
-@contextmanager
-def topography(job: Job, data_path: Any) -> Iterator[TopographyResult]:
-    """The result of a succeeded topography job, open; a job error (409/410/422) with what to do otherwise."""
-    path = topography_file(job, data_path)
-    try:
-        with TopographyResult(path) as reader:
-            yield reader
-    except FrameNotInResult as error:
-        raise job_error(Invalid, "frame_not_in_result", str(error), field="frame") from None
-    except OutsideGrid as error:
-        raise job_error(Invalid, "outside_grid", str(error)) from None
-    except ResultUnavailable as error:
-        raise job_error(Gone, "result_missing", str(error)) from None
 
 
 class TopographyOverview(BaseModel):
@@ -427,12 +337,12 @@ def _overview(job: Job, state: AppState) -> TopographyOverview:
         return TopographyOverview(
             job_id=job.id,
             frames=reader.frames.astype(int).tolist(),
-            time_s=_listed(reader.column("frames/time_s"), 6),
-            punch_displacement_mm=_listed(reader.column("frames/punch_displacement_mm")),
-            force_kN=_listed(reader.column("frames/force_kN")),
-            peak_w_mm=_listed(np.where(not_measured, np.nan, peaks)),
-            peak_x_mm=_listed(reader.column("peak/x_mm")),
-            peak_y_mm=_listed(reader.column("peak/y_mm")),
+            time_s=listed(reader.column("frames/time_s"), 6),
+            punch_displacement_mm=listed(reader.column("frames/punch_displacement_mm")),
+            force_kN=listed(reader.column("frames/force_kN")),
+            peak_w_mm=listed(np.where(not_measured, np.nan, peaks)),
+            peak_x_mm=listed(reader.column("peak/x_mm")),
+            peak_y_mm=listed(reader.column("peak/y_mm")),
             grid={
                 "x_min_mm": float(x[0]),
                 "x_max_mm": float(x[-1]),
@@ -443,16 +353,16 @@ def _overview(job: Job, state: AppState) -> TopographyOverview:
                 "step_mm": float(x[1] - x[0]) if x.size > 1 else 0.0,
             },  # fmt: skip
             summary={key: plain(value) for key, value in reader.summary().items()},
-            measured_fraction=_listed(coverage["measured_fraction"]),
-            missing_mm2={name: _listed(coverage[f"missing_{name}_mm2"], 1) for name in MISSING_REASONS},
+            measured_fraction=listed(coverage["measured_fraction"]),
+            missing_mm2={name: listed(coverage[f"missing_{name}_mm2"], 1) for name in MISSING_REASONS},
             missing_reasons={
                 name: {"label": MISSING_LABELS[name], "description": MISSING_DESCRIPTIONS[name]}
                 for name in MISSING_REASONS
             },
-            n_order_conflicts=_listed(coverage["n_order_conflicts"], 0),
-            n_temporal_jumps=_listed(coverage["n_temporal_jumps"], 0),
+            n_order_conflicts=listed(coverage["n_order_conflicts"], 0),
+            n_temporal_jumps=listed(coverage["n_temporal_jumps"], 0),
             peak_measured=[None if v is None else v.measured for v in verdicts],
-            peak_w_lower_bound_mm=_listed(np.where(not_measured, peaks, np.nan)),
+            peak_w_lower_bound_mm=listed(np.where(not_measured, peaks, np.nan)),
             peak_reason=[v.reason if v is not None and not v.measured else None for v in verdicts],
             warnings=warnings_of(job.provenance),
             **_log_of(reader),
@@ -522,8 +432,8 @@ def topography_grid(
         def render() -> bytes:
             with topography(job, state.settings.data_path) as reader:
                 cut = reader.grid_cut(frame, budget=budget, window_mm=window)  # type: ignore[arg-type]
-            grid = GridOut(frame=cut.frame, step=cut.step, x_mm=_listed(cut.x_mm), y_mm=_listed(cut.y_mm),
-                           w_mm=_listed(cut.w_mm))  # fmt: skip
+            grid = GridOut(frame=cut.frame, step=cut.step, x_mm=listed(cut.x_mm), y_mm=listed(cut.y_mm),
+                           w_mm=listed(cut.w_mm))  # fmt: skip
             return grid.model_dump_json().encode()
 
         key = ("grid", frame, budget, window)
@@ -546,9 +456,7 @@ def topography_grid(
                 "X-Grid-Step": str(cut.step),
             },  # fmt: skip
         )
-    return GridOut(
-        frame=cut.frame, step=cut.step, x_mm=_listed(cut.x_mm), y_mm=_listed(cut.y_mm), w_mm=_listed(cut.w_mm)
-    )
+    return GridOut(frame=cut.frame, step=cut.step, x_mm=listed(cut.x_mm), y_mm=listed(cut.y_mm), w_mm=listed(cut.w_mm))
 
 
 class ProfileOut(BaseModel):
@@ -591,14 +499,14 @@ def topography_profile(
             cut = reader.profile(frames, line, n_points=n_points)
         return (
             ProfileOut(
-                s_mm=_listed(cut["s_mm"]),
-                x_mm=_listed(cut["x_mm"]),
-                y_mm=_listed(cut["y_mm"]),
+                s_mm=listed(cut["s_mm"]),
+                x_mm=listed(cut["x_mm"]),
+                y_mm=listed(cut["y_mm"]),
                 profiles=[
                     {
                         "frame": p["frame"],
-                        "w_mm": _listed(p["w_mm"]),
-                        "sigma_w_mm": None if p["sigma_w_mm"] is None else _listed(p["sigma_w_mm"]),
+                        "w_mm": listed(p["w_mm"]),
+                        "sigma_w_mm": None if p["sigma_w_mm"] is None else listed(p["sigma_w_mm"]),
                     }
                     for p in cut["profiles"]
                 ],  # fmt: skip
@@ -631,7 +539,7 @@ def topography_history(job: JobDep, state: StateDep, x_mm: MM, y_mm: MM) -> Hist
             x_mm=x_mm,
             y_mm=y_mm,
             frames=reader.frames.astype(int).tolist(),
-            time_s=_listed(reader.column("frames/time_s"), 6),
-            w_mm=_listed(reader.history(x_mm, y_mm)),
-            sigma_w_mm=None if (sigma := reader.sigma_history(x_mm, y_mm)) is None else _listed(sigma),
+            time_s=listed(reader.column("frames/time_s"), 6),
+            w_mm=listed(reader.history(x_mm, y_mm)),
+            sigma_w_mm=None if (sigma := reader.sigma_history(x_mm, y_mm)) is None else listed(sigma),
         )

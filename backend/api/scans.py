@@ -14,11 +14,9 @@ import numpy as np
 from fastapi import APIRouter, Query
 from pydantic import BaseModel, Field
 
-from backend.api.deps import SessionDep, StateDep
-from backend.api.jobs import JobDep
-from backend.api.results import RESULT_ERRORS, CalibrationDep, calibration_out, succeeded_file
-from backend.result_files import read_json
-from backend.schemas.jobs import CalibrationOut
+from backend.api.deps import CalibrationDep, JobDep, SessionDep, StateDep
+from backend.result_files import listed, read_json, succeeded_file
+from backend.schemas.jobs import RESULT_ERRORS, CalibrationOut, calibration_out
 from fringelab.core.errors import Gone, NotFound
 from fringelab.core.jobs import job_error
 from fringelab.formats.scan import read_scan
@@ -57,17 +55,12 @@ class ScanView(BaseModel):
     reason: ScanMap = Field(description="0 decoded, 1 a bit not clear, 2 shading too low, 3 beyond the projector.")
 
 
-def _listed(values: np.ndarray, decimals: int) -> list[float | None]:
-    rounded = np.round(values.astype(np.float64), decimals)
-    return [float(v) if np.isfinite(v) else None for v in rounded]
-
-
 def _map(values: np.ndarray, *, invalid: np.ndarray | None = None, decimals: int = 3) -> ScanMap:
     step = max(1, int(np.ceil(max(values.shape) / MAP_SIDE)))
     sampled = values[::step, ::step].astype(np.float64)
     if invalid is not None:
         sampled = np.where(invalid[::step, ::step], np.nan, sampled)
-    rows = [_listed(row, decimals) for row in sampled]
+    rows = [listed(row, decimals) for row in sampled]
     return ScanMap(step_px=step, width=int(values.shape[1]), height=int(values.shape[0]), values=rows)
 
 
@@ -94,8 +87,8 @@ def scan_view(job: JobDep, state: StateDep, max_points: int = Query(MAX_POINTS, 
     points = scan.points_cam_mm[take]
     return ScanView(
         job_id=job.id, axis=scan.axis, qa=scan.qa,
-        points=ScanPoints(x_mm=_listed(points[:, 0], 3), y_mm=_listed(points[:, 1], 3), z_mm=_listed(points[:, 2], 3),
-                          sigma_mm=_listed(scan.sigma_mm[take], 4), source=scan.source[take].astype(int).tolist(),
+        points=ScanPoints(x_mm=listed(points[:, 0], 3), y_mm=listed(points[:, 1], 3), z_mm=listed(points[:, 2], 3),
+                          sigma_mm=listed(scan.sigma_mm[take], 4), source=scan.source[take].astype(int).tolist(),
                           n_total=len(scan.sigma_mm)),
         depth_z_mm=_map(scan.depth_z_mm),
         code=_map(scan.code, invalid=scan.code < 0, decimals=0),

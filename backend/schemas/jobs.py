@@ -11,8 +11,12 @@ from datetime import datetime
 from typing import Any, Literal
 
 from pydantic import BaseModel, Field
+from sqlalchemy.orm import Session
 
+from fringelab.core.calibration_pairs import standing
 from fringelab.core.job_kinds import JobSpec  # noqa: F401  (re-exported for the routes)
+from fringelab.core.jobs import as_utc
+from fringelab.core.models import Calibration
 from fringelab.core.specs import MAX_ID, JobState  # noqa: F401  (re-exported for the routes)
 
 
@@ -123,4 +127,46 @@ class CalibrationOut(BaseModel):
     bad_reason: str | None = Field(None, description="Why it is bad (null: it is not).")
     camera_calibration_id: int | None = Field(
         None, description="A projector calibration: the camera calibration it was built on (null: unknown)."
+    )
+
+
+# The error answers every job route declares, and those of routes that read a job's result files (OpenAPI
+# `responses=`; shared by the routes of jobs, results, comparisons, scans and camera against camera).
+JOB_ERRORS: dict[int | str, dict[str, Any]] = {
+    status: {"model": ErrorOut, "description": description}
+    for status, description in (
+        (404, "No such job."),
+        (409, "Not possible in the job's state, or its inputs are not ready."),
+        (422, "The spec is invalid; `field` names the part at fault."),
+        (503, "The job queue (Redis) is unreachable."),
+    )
+}
+RESULT_ERRORS: dict[int | str, dict[str, Any]] = {
+    **JOB_ERRORS,
+    410: {"model": ErrorOut, "description": "The result file is no longer on disk (or unreadable); retry the job."},
+}
+
+
+def calibration_out(row: Calibration, session: Session) -> CalibrationOut:
+    state = standing(session, row)
+    report = "projector-report" if row.kind == "projector" else "report"
+    return CalibrationOut(
+        id=row.id,
+        kind=row.kind,  # type: ignore[arg-type]
+        camera_id=row.camera_id,
+        recording_id=row.recording_id,
+        job_id=row.job_id,
+        version=row.version,
+        image_width_px=row.image_width_px,
+        image_height_px=row.image_height_px,
+        sha256=row.sha256,
+        summary=row.summary,
+        created_at=as_utc(row.created_at),
+        file_url=f"/api/v1/calibrations/{row.id}/file",
+        report_url=f"/api/v1/calibrations/{row.id}/{report}",
+        label=state.label,
+        verdict=state.verdict,
+        bad=state.bad,
+        bad_reason=state.bad_reason,
+        camera_calibration_id=state.camera_calibration_id,
     )
