@@ -18,26 +18,32 @@ or `invalid`.
 
 from __future__ import annotations
 
-from typing import Annotated
+from collections.abc import Callable
+from pathlib import Path
+from typing import Annotated, Any
 
-from fastapi import APIRouter, Depends, Query, Request, Response
+from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response
 from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 from tuspyserver import create_tus_router
 
 from backend.api.deps import CurrentUser, StateDep, WritableCameraId
 from backend.errors import error_responses
+from backend.schemas.common import MAX_ID
 from backend.schemas.recordings import RecordingKind, RecordingOut, recording_out_by_id
 from backend.streaming import declared_length, staged_body
 from backend.uploads import (
+    MAX_CREATION_BODY_BYTES,
+    TUS_VERSION,
+    UPLOAD_ID,
     TusUploadStorage,
-    make_access_dep,
-    make_complete_dep,
-    make_pre_create_dep,
+    complete_upload,
+    current_uploader,
     reserved_upload_bytes,
     sweep_put_parts,
 )
 from fringelab.core.app_state import AppState
+from fringelab.core.errors import Conflict, DomainError, Invalid, NotFound, TooLarge
 from fringelab.core.recordings import check_upload_request, register_upload
 from fringelab.core.storage import tus_dir
 
@@ -136,3 +142,110 @@ async def put_recording(
         status_code=201,
         headers={"Location": f"/api/v1/recordings/{recording.id}"},
     )
+
+
+# ---------------------------------------------------------------------------------------------- the hooks
+
+
+def _state(request: Request) -> AppState:
+    return request.app.state.fringelab
+
+
+def make_access_dep(storage: TusUploadStorage) -> Callable[..., Any]:
+    """A dependency of every tus route: who asks, and (for one upload) whether it is theirs."""
+
+    async def upload_access(request: Request, principal: CurrentUser) -> None:
+        current_uploader.set(principal)
+        if request.method != "OPTIONS" and request.headers.get("tus-resumable") != TUS_VERSION:
+            # tuspyserver checks this only after a PATCH body has been written
+            raise HTTPException(412, f"send Tus-Resumable: {TUS_VERSION}", headers={"Tus-Version": TUS_VERSION})
+        uid = request.path_params.get("uuid")
+        if uid is not None:
+            info = await storage.read_info(uid) if UPLOAD_ID.fullmatch(uid) else None
+            if info is not None and not (principal.is_admin or info.get("owner") == principal.user_id):
+                raise NotFound("upload not found", code="upload_not_found")
+            if request.method == "PATCH" and info is not None:
+                _check_patch_headers(request, info)
+
+    return upload_access
+
+
+def _check_patch_headers(request: Request, info: dict[str, Any]) -> None:
+    """Every header a PATCH is judged by, checked before its body is read: tuspyserver writes the body first and
+    checks afterwards, so a refused PATCH (415, 409) used to keep its bytes, and a refused last one left a
+    complete file and no recording."""
+    if request.headers.get("content-type") != "application/offset+octet-stream":
+        raise HTTPException(415, "Content-Type must be application/offset+octet-stream")
+    offset = request.headers.get("upload-offset", "")
+    if not offset.isdigit():
+        raise Invalid("send Upload-Offset: the number of bytes already received", code="invalid_offset")
+    if int(offset) != int(info.get("offset") or 0):
+        raise Conflict(
+            f"Upload-Offset {offset} does not match the {int(info.get('offset') or 0)} bytes received; ask HEAD",
+            code="conflict",  # as tus clients know it
+        )
+    length = request.headers.get("content-length", "")
+    if length.isdigit() and int(offset) + int(length) > int(info.get("size") or 0):
+        raise TooLarge(f"the PATCH would end past Upload-Length ({info.get('size')} bytes)", code="upload_too_large")
+
+
+def make_pre_create_dep(storage: TusUploadStorage) -> Callable[..., Any]:
+    """tuspyserver's pre-create dependency: refuse an upload before it is created, with the reason."""
+
+    async def pre_create_dep(
+        request: Request, principal: CurrentUser
+    ) -> Callable[[dict[str, str], dict[str, Any]], Any]:
+        state = _state(request)
+
+        async def check(metadata: dict[str, str], upload_info: dict[str, Any]) -> None:
+            if request.headers.get("upload-concat"):
+                raise DomainError("tus concatenation is not supported; send one upload", code="unsupported_extension")
+            body_length = int(request.headers.get("content-length") or 0)
+            if body_length > MAX_CREATION_BODY_BYTES:
+                raise TooLarge("send the bytes with PATCH requests", code="creation_body_too_large")
+            missing = [key for key in ("filename", "filetype", "camera_id", "kind") if not metadata.get(key)]
+            if missing:
+                raise DomainError(
+                    f"Upload-Metadata lacks {', '.join(missing)} (send filename, filetype, camera_id and kind)",
+                    code="missing_metadata",
+                )
+            if upload_info.get("size") is None:
+                raise DomainError("send Upload-Length (a deferred length is not supported)", code="length_required")
+            camera_id_text = metadata["camera_id"]
+            if not (camera_id_text.isdigit() and 1 <= int(camera_id_text) <= MAX_ID):
+                raise Invalid(f"camera_id must be an id from 1 to {MAX_ID}", code="invalid_metadata")
+            camera_id = int(camera_id_text)
+            await run_in_threadpool(storage.sweep)
+            reserved = await run_in_threadpool(storage.reserved_bytes, principal.user_id)
+            await run_in_threadpool(
+                lambda: check_upload_request(
+                    state, principal, camera_id=camera_id, kind=metadata["kind"], filename=metadata["filename"],
+                    length=upload_info["size"], reserved_bytes=reserved,
+                )
+            )  # fmt: skip
+
+        return check
+
+    return pre_create_dep
+
+
+def make_complete_dep(storage: TusUploadStorage) -> Callable[..., Any]:
+    """tuspyserver's completion dependency: the finished upload becomes a recording and its ingest is queued.
+
+    The last PATCH answers with `Fringelab-Recording-Id` and `Content-Location` naming the recording; a refused
+    file (not a recording, unsafe ZIP, camera deleted meanwhile) is removed and the PATCH answers 4xx.
+    """
+
+    async def complete_dep(
+        request: Request, response: Response, principal: CurrentUser
+    ) -> Callable[[str, dict[str, Any]], Any]:
+        state = _state(request)
+
+        async def on_complete(file_path: str, _metadata: dict[str, Any]) -> None:
+            recording = await run_in_threadpool(complete_upload, state, storage, Path(file_path).name, principal)
+            response.headers["Fringelab-Recording-Id"] = str(recording.id)
+            response.headers["Content-Location"] = f"/api/v1/recordings/{recording.id}"
+
+        return on_complete
+
+    return complete_dep
