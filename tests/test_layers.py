@@ -8,11 +8,17 @@
 
 An import inside a function counts like one at the top of a module (it runs as soon as the function is called);
 one under `if TYPE_CHECKING:` does not (it never runs).
+
+Within the layers: no module import cycle (Python, and the dashboard's ES modules), no route module of the API
+(`backend/api/*.py` but `deps`) importing another one (what routes share goes to `backend/api/deps.py`, schemas to
+`backend/schemas/`), and nothing of the backend below the routes importing `backend.api`.
 """
 
 from __future__ import annotations
 
 import ast
+import re
+from collections.abc import Iterable, Mapping
 from functools import cache
 from pathlib import Path
 
@@ -145,3 +151,131 @@ def test_the_checker_sees_a_wrong_import() -> None:
     assert layer_of("fringelab.science.fringes") == "science" and layer_of("fringelab.core.jobs") == "core"
     assert "cv2" in closure("fringelab.science.fringes")
     assert "numba" in closure("fringelab.science.fringes")
+
+
+# ---------------------------------------------------------------------------------------------- cycles and routes
+
+
+def cycles(graph: Mapping[str, Iterable[str]]) -> list[list[str]]:
+    """The import cycles of `graph` (module -> the modules it imports): its strongly connected components of more
+    than one module, and modules that import themselves (Tarjan's algorithm, iterative)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+    for root in sorted(graph):
+        if root in index:
+            continue
+        work = [(root, iter(sorted(graph.get(root, ()))))]
+        index[root] = low[root] = len(index)
+        stack.append(root)
+        on_stack.add(root)
+        while work:
+            node, targets = work[-1]
+            target = next(targets, None)
+            if target is not None:
+                if target not in index:
+                    index[target] = low[target] = len(index)
+                    stack.append(target)
+                    on_stack.add(target)
+                    work.append((target, iter(sorted(graph.get(target, ())))))
+                elif target in on_stack:
+                    low[node] = min(low[node], index[target])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[node])
+            if low[node] == index[node]:
+                component = []
+                while True:
+                    member = stack.pop()
+                    on_stack.discard(member)
+                    component.append(member)
+                    if member == node:
+                        break
+                if len(component) > 1 or node in graph.get(node, ()):
+                    found.append(sorted(component))
+    return found
+
+
+def python_graph() -> dict[str, set[str]]:
+    return {m: {t for t in imports_of(m) if t in MODULES and t != m} for m in MODULES}
+
+
+FRONTEND = ROOT / "frontend"
+_JS_IMPORT = re.compile(
+    r"""^\s*(?:import|export)\b[^;'"]*?\bfrom\s*["'](\.{1,2}/[^"']+)["']"""  # import { x } from "./x.js"
+    r"""|\bimport\s*\(\s*["'](\.{1,2}/[^"']+)["']""",  # import("./x.js")
+    re.M,
+)
+
+
+def js_imports(path: Path) -> set[str]:
+    """The project modules an ES module imports (static `import ... from "./x.js"`, and `import("./x.js")`), as
+    paths relative to frontend/."""
+    found = set()
+    for match in _JS_IMPORT.finditer(path.read_text(encoding="utf-8")):
+        target = (path.parent / (match.group(1) or match.group(2))).resolve()
+        found.add(target.relative_to(FRONTEND.resolve()).as_posix())
+    return found
+
+
+def frontend_graph() -> dict[str, set[str]]:
+    modules = [p for p in FRONTEND.rglob("*.js") if "vendor" not in p.relative_to(FRONTEND).parts]
+    return {p.relative_to(FRONTEND).as_posix(): js_imports(p) for p in modules}
+
+
+ROUTE_PACKAGE = "backend.api"
+SHARED_BY_ROUTES = {"backend.api", "backend.api.deps"}  # the package, and the dependencies routes share
+
+
+def route_modules() -> set[str]:
+    return {m for m in MODULES if m.startswith(f"{ROUTE_PACKAGE}.") and m not in SHARED_BY_ROUTES}
+
+
+def test_no_python_module_import_cycle() -> None:
+    found = cycles(python_graph())
+    assert not found, "modules importing each other (directly or through others): " + "; ".join(
+        " -> ".join(cycle) for cycle in found
+    )
+
+
+def test_no_frontend_module_import_cycle() -> None:
+    graph = frontend_graph()
+    assert "views/viewer.js" in graph and "views/viewer/map.js" in graph["views/viewer.js"]  # the reader works
+    found = cycles(graph)
+    assert not found, "ES modules importing each other: " + "; ".join(" -> ".join(cycle) for cycle in found)
+
+
+def test_no_route_module_imports_another() -> None:
+    routes = route_modules()
+    wrong = sorted(f"{m} imports {t}" for m in routes for t in imports_of(m) if t in routes and t != m)
+    assert not wrong, "route modules importing route modules (share through backend/api/deps.py or schemas/):\n" + (
+        "\n".join(wrong)
+    )
+
+
+def test_nothing_below_the_routes_imports_them() -> None:
+    """The backend's own floors (uploads storage, result files, errors, schemas, ...) never reach up into
+    `backend.api`; only the application that assembles the routes does."""
+    above = {"backend.app"} | {m for m in MODULES if m == ROUTE_PACKAGE or m.startswith(f"{ROUTE_PACKAGE}.")}
+    wrong = sorted(
+        f"{m} imports {t}"
+        for m in MODULES
+        if m.startswith("backend") and m not in above
+        for t in imports_of(m)
+        if t == ROUTE_PACKAGE or t.startswith(f"{ROUTE_PACKAGE}.")
+    )
+    assert not wrong, "below the routes, importing them:\n" + "\n".join(wrong)
+
+
+def test_the_cycle_and_route_checks_can_fail() -> None:
+    """The checks above see what they are for: a cycle of two and of three, a self-import, in Python names and in
+    frontend paths; a route importing a route."""
+    assert cycles({"a": {"b"}, "b": {"a"}, "c": {"a"}}) == [["a", "b"]]
+    assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": set()}) == [["a", "b", "c"]]
+    assert cycles({"a": {"a"}}) == [["a"]] and cycles({"a": {"b"}, "b": set()}) == []
+    assert cycles({"views/jobs.js": {"views/exports.js"}, "views/exports.js": {"views/jobs.js"}})
+    assert {"backend.api.jobs", "backend.api.results"} <= route_modules()
+    assert "backend.api.deps" not in route_modules()

@@ -8,7 +8,7 @@
 import { getJSON } from "../api.js";
 import { Figure, axis, barTraces, imageLayout, layout, vectorTraces } from "../plots.js";
 import { attempt, field, h, num, page, showError, table } from "../ui.js";
-import { describeInput, jobName } from "./jobs.js";
+import { describeInput, jobName } from "./job-helpers.js";
 import { procamReport } from "./procam-report.js";
 
 const PARAMETER_NAMES = {

@@ -8,7 +8,7 @@ import { getJSON, query } from "../api.js";
 import { COLORS, Figure, axis, bandTrace, fieldRows, lineLayout, lineTraces, mapLayout, mapTraces, missingMarkTraces, verticalMarker } from "../plots.js";
 import { attempt, field, fill, h, latestOnly, num, page, showError } from "../ui.js";
 import { comparisonExportPanel } from "./exports.js";
-import { jobName, shortId } from "./jobs.js";
+import { jobName, shortId } from "./job-helpers.js";
 import { profileTraces, stateText } from "./simulations.js";
 
 const FIELDS = {

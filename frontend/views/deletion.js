@@ -3,7 +3,7 @@
 // shows that in a confirmation dialog; "Delete" is only offered when nothing stops it.
 import { deleteJSON, getJSON } from "../api.js";
 import { h, say, showError } from "../ui.js";
-import { jobName } from "./jobs.js";
+import { jobName } from "./job-helpers.js";
 
 /** A confirmation dialog for `plan`; resolves true when the user confirms. */
 function confirmPlan(plan, label) {

@@ -3,7 +3,8 @@
 import { apiUrl, getJSON, postJSON } from "../api.js";
 import { attempt, field, fill, formatBytes, formatTime, h, page, say, showError, table } from "../ui.js";
 import { Uploader } from "../upload.js";
-import { jobName, jobsPanel } from "./jobs.js";
+import { jobName } from "./job-helpers.js";
+import { jobsPanel } from "./jobs.js";
 import { deleteButton } from "./deletion.js";
 import { simulationsPanel } from "./simulations.js";
 

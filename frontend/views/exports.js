@@ -2,11 +2,11 @@
 // API's formats for its kind of result (read from its own schema, so the list is the server's one list): of a
 // topography result for a frame range and, for profiles, the viewer's current section lines; of a comparison
 // with a simulation (comparisonExportPanel). The jobs it starts are followed live and each gets its download link
-// when done. The jobs lists show the same links (`downloadLinks` of jobs.js).
+// when done. The jobs lists show the same links (`downloadLinks` of job-helpers.js).
 import { postJSON } from "../api.js";
 import { apiSchema, specSchema } from "../specform.js";
 import { field, fill, formatBytes, h, say, showError } from "../ui.js";
-import { downloadLinks, followJob, jobName } from "./jobs.js";
+import { downloadLinks, followJob, jobName } from "./job-helpers.js";
 
 const FORMAT_NAMES = {
   "points-csv": "points CSV (frame, x, y, z of every point)",

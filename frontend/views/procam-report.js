@@ -4,7 +4,7 @@
 import { getJSON } from "../api.js";
 import { COLORS, Figure, axis, barTraces, imageLayout, layout, vectorTraces } from "../plots.js";
 import { attempt, h, num, page, showError, table } from "../ui.js";
-import { jobName } from "./jobs.js";
+import { jobName } from "./job-helpers.js";
 
 export async function procamReport(container, job, context) {
   const calibrationId = job.result && job.result.calibration_id;

@@ -3,7 +3,7 @@
 // the jobs' event stream (GET /api/v1/jobs/events), which says when any job starts, moves on or ends.
 import { getJSON, subscribe } from "../api.js";
 import { attempt, fill, formatBytes, formatTime, h, page, table } from "../ui.js";
-import { JOB_KIND_NAMES, shortId } from "./jobs.js";
+import { JOB_KIND_NAMES, shortId } from "./job-helpers.js";
 
 const jobLink = (job) => h("a", { href: `#/jobs/${job.id}` }, `${JOB_KIND_NAMES[job.kind] || job.kind} ${shortId(job.id)}`);
 const experimentLink = (job) => (job.experiment_id ? h("a", { href: `#/experiments/${job.experiment_id}` }, job.experiment_name || `#${job.experiment_id}`) : "–");

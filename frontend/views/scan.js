@@ -5,7 +5,7 @@
 import { getJSON } from "../api.js";
 import { Figure, axis, layout } from "../plots.js";
 import { attempt, field, h, num, page } from "../ui.js";
-import { jobName } from "./jobs.js";
+import { jobName } from "./job-helpers.js";
 
 const SOURCES = ["stripe edge", "phase", "per-pixel code"];
 const REASONS = ["decoded", "a bit not clear", "shading too low", "beyond the projector"];

@@ -9,7 +9,7 @@ import { attempt, field, fill, formatBytes, h, num, say, showError, table } from
 import { filesOfDrop } from "../upload.js";
 import { storedZip } from "../zip.js";
 import { deleteButton } from "./deletion.js";
-import { jobName, shortId } from "./jobs.js";
+import { jobName, shortId } from "./job-helpers.js";
 
 const FORMAT_NAMES = { d3plot: "LS-DYNA d3plot", vtu: "VTU", pvd: "VTU series (.pvd)", exodus: "Exodus II", csv: "nodal CSV" };
 const PREVIEW_DELAY_MS = 350; // the preview follows typing without a request per key

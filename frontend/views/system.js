@@ -2,7 +2,7 @@
 import { getHealth, postJSON } from "../api.js";
 import { specInputs } from "../specform.js";
 import { h, page, say, showError, table } from "../ui.js";
-import { JobProgress, followJob, jobName } from "./jobs.js";
+import { followJob, jobName, JobProgress } from "./job-helpers.js";
 
 function part(ok, detail) {
   return ok ? "up" : `down: ${detail}`;

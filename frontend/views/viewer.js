@@ -13,7 +13,7 @@ import { attempt, field, fill, h, latestOnly, num, page, say, showError } from "
 import { TopographySource } from "./topography-source.js";
 import { exportPanel } from "./exports.js";
 import { explained } from "./calibration.js";
-import { jobName } from "./jobs.js";
+import { jobName } from "./job-helpers.js";
 import { CamerasPanel } from "./viewer/cameras.js";
 import { CoveragePanel } from "./viewer/coverage.js";
 import { HistoriesPanel } from "./viewer/histories.js";
