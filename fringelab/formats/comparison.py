@@ -34,7 +34,7 @@ import h5py
 import numpy as np
 
 from fringelab.formats.atomic import commit_partial, partial_path
-from fringelab.formats.hdf5 import SCHEMA_VERSION, json_text, require_schema, unit_dataset
+from fringelab.formats.hdf5 import SCHEMA_VERSION, ResultReader, json_text, open_read_only, require_schema, unit_dataset
 from fringelab.formats.topography import TopographyResult
 from fringelab.science import compare
 from fringelab.science.fe_results import FEResults
@@ -199,15 +199,12 @@ class ComparisonWriter:
             self._temp.unlink(missing_ok=True)
 
 
-class ComparisonResult:
+class ComparisonResult(ResultReader):
     """A comparison file opened read-only (a context manager); frames are read one at a time."""
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
-        try:
-            self.file = h5py.File(self.path, "r")
-        except OSError as error:
-            raise ValueError(f"{self.path.name}: not a readable HDF5 file ({error})") from None
+        self.file = open_read_only(self.path)
         try:
             require_schema(self.file, COMPARISON_SCHEMA, self.path)
             self.grid = Grid(x_mm=self.file["grid/x_mm"][()], y_mm=self.file["grid/y_mm"][()])
@@ -215,19 +212,6 @@ class ComparisonResult:
         except (ValueError, KeyError) as error:
             self.file.close()
             raise ValueError(f"{self.path.name}: not a complete comparison file ({error})") from None
-
-    def __enter__(self) -> ComparisonResult:
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
-
-    def close(self) -> None:
-        self.file.close()
-
-    @property
-    def n_frames(self) -> int:
-        return len(self.frames)
 
     @property
     def mapping(self) -> dict[str, Any]:

@@ -1,18 +1,19 @@
 """HDF5 conventions shared by fringelab's result files: every dataset carries its unit and description, JSON
-documents in attributes have no NaN, and every file names its schema and version."""
+documents in attributes have no NaN, every file names its schema and version, and a result file's reader opens it
+read-only and closes it the same way (`ResultReader`)."""
 
 from __future__ import annotations
 
 import json
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Self
 
 import h5py
 import numpy as np
 
 if TYPE_CHECKING:
-    pass
+    from fringelab.science.fields import Grid
 
 
 SCHEMA_VERSION = 1
@@ -53,3 +54,35 @@ def require_schema(file: h5py.File, schema: str, path: Path, *, version_optional
     version = file.attrs.get("schema_version", SCHEMA_VERSION if version_optional else None)
     if version is None or int(version) != SCHEMA_VERSION:
         raise ValueError(f"{path}: schema version {version} is not supported (expected {SCHEMA_VERSION})")
+
+
+def open_read_only(path: Path, error: type[ValueError] = ValueError) -> h5py.File:
+    """`path` opened read-only; `error` (a ValueError) naming the file when it is not a readable HDF5 file."""
+    try:
+        return h5py.File(path, "r")
+    except OSError as reason:
+        raise error(f"{path.name}: not a readable HDF5 file ({reason})") from None
+
+
+class ResultReader:
+    """What the readers of result files on a grid share (`TopographyResult`, `ComparisonResult`): the open file,
+    its grid and frames, use as a context manager, `close()` and `n_frames`. Each reader opens its file
+    (`open_read_only`) and checks its own schema in its `__init__`."""
+
+    path: Path
+    file: h5py.File
+    grid: Grid
+    frames: np.ndarray
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self.file.close()
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.frames)

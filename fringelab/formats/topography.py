@@ -67,7 +67,7 @@ try:  # ISA-L's deflate makes the zlib streams that HDF5's deflate filter reads 
     from isal.isal_zlib import compress as deflate
 except ImportError:  # a platform without its wheels: the same streams, slower
     from zlib import compress as deflate
-from fringelab.formats.hdf5 import SCHEMA_VERSION, require_schema, unit_dataset
+from fringelab.formats.hdf5 import SCHEMA_VERSION, ResultReader, open_read_only, require_schema, unit_dataset
 
 # MISSING_REASONS is re-exported for the API (it reads results through this module only).
 from fringelab.science.coverage import MISSING_DESCRIPTIONS
@@ -636,7 +636,7 @@ class GridCut:
     step: int
 
 
-class TopographyResult:
+class TopographyResult(ResultReader):
     """A topography result file opened read-only: the one reader, for the API, the worker and scripts.
 
     Reads are windowed: one frame's grid (or a window of it), one frame's points, the 2 × 2 nodes around a point
@@ -648,10 +648,7 @@ class TopographyResult:
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
-        try:
-            self.file = h5py.File(self.path, "r")
-        except OSError as error:
-            raise ResultUnavailable(f"{self.path.name}: not a readable HDF5 file ({error})") from None
+        self.file = open_read_only(self.path, ResultUnavailable)
         try:
             require_schema(self.file, TOPOGRAPHY_SCHEMA, self.path, version_optional=True)
             self.grid = Grid(x_mm=self.file["grid/x_mm"][()], y_mm=self.file["grid/y_mm"][()])
@@ -663,19 +660,6 @@ class TopographyResult:
         except KeyError as error:
             self.file.close()
             raise ResultUnavailable(f"{self.path.name} is not a complete topography result ({error})") from None
-
-    def __enter__(self) -> TopographyResult:
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
-
-    def close(self) -> None:
-        self.file.close()
-
-    @property
-    def n_frames(self) -> int:
-        return len(self.frames)
 
     @property
     def x_mm(self) -> np.ndarray:
