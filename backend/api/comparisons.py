@@ -20,6 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from backend.api.deps import CurrentUser, JobDep, SessionDep, StateDep
 from backend.errors import error_responses
 from backend.result_files import listed, succeeded_file
+from backend.schemas.common import GridExtentOut
 from backend.schemas.jobs import MAX_ID, RESULT_ERRORS
 from fringelab.core.errors import Gone, Invalid
 from fringelab.core.jobs import job_error
@@ -90,22 +91,13 @@ def comparison_overview(job: JobDep, state: StateDep) -> ComparisonOverview:
         for name, _, _ in FRAME_COLUMNS:
             frames[name] = listed(reader.column(name), 6)
         simulation = {name: listed(reader.column(f"simulation/{name}"), 6) for name, _, _ in SIMULATION_COLUMNS}
-        x, y = reader.grid.x_mm, reader.grid.y_mm
         return ComparisonOverview(
             job_id=job.id,
             alignment=str(reader.file.attrs.get("alignment", "")),
             mapping=_in_form_terms(json.loads(json.dumps(reader.mapping, default=str))),
             frames=frames,
             simulation=simulation,
-            grid={
-                "x_min_mm": float(x[0]),
-                "x_max_mm": float(x[-1]),
-                "y_min_mm": float(y[0]),
-                "y_max_mm": float(y[-1]),
-                "nx": int(x.size),
-                "ny": int(y.size),
-                "step_mm": float(x[1] - x[0]) if x.size > 1 else 0.0,
-            },  # fmt: skip
+            grid=GridExtentOut.of(reader.grid).model_dump(),
         )
 
 

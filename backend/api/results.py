@@ -10,7 +10,7 @@ data, or, for a grid, as raw float32.
 from __future__ import annotations
 
 import math
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, get_type_hints
 
 import numpy as np
 from fastapi import APIRouter, Query, Request, Response
@@ -30,6 +30,7 @@ from backend.result_files import (
     topography,
     topography_file,
 )
+from backend.schemas.common import GridExtentOut
 from backend.schemas.jobs import JOB_ERRORS, MAX_ID, RESULT_ERRORS, CalibrationOut, calibration_out
 from fringelab.core.accounts import readable_experiments
 from fringelab.core.app_state import AppState
@@ -45,6 +46,7 @@ from fringelab.formats.topography import (
     TopographyResult,
 )
 from fringelab.science.coverage import MISSING_DESCRIPTIONS, MISSING_LABELS
+from fringelab.science.verdict import VerdictCheck
 
 router = APIRouter(tags=["results"])
 MM = Annotated[float, Query(allow_inf_nan=False, description="mm, in the object frame")]
@@ -135,15 +137,11 @@ def calibration_report(calibration: CalibrationDep, state: StateDep, session: Se
     return CalibrationReport(calibration=calibration_out(calibration, session), report=report)
 
 
+# One check of a verdict: the fields of `fringelab.science.verdict.VerdictCheck`, read from it (a value that was
+# not measured, NaN there, is null here). No docstring: it would become the schema's description.
 class VerdictCheckOut(BaseModel):
-    name: str
-    value: float | None = Field(description="null: not measured")
-    unit: str
-    good_limit: float
-    bad_limit: float
-    higher_is_better: bool
-    level: str
-    message: str
+    __annotations__ = {**get_type_hints(VerdictCheck), "value": float | None}
+    value = Field(description="null: not measured")
 
 
 class VerdictOut(BaseModel):
@@ -330,7 +328,6 @@ def topography_overview(job: JobDep, state: StateDep, request: Request) -> Topog
 
 def _overview(job: Job, state: AppState) -> TopographyOverview:
     with topography(job, state.settings.data_path) as reader:
-        x, y = reader.x_mm, reader.y_mm
         coverage = reader.coverage()
         peaks, verdicts = reader.column("peak/w_mm"), reader.peak_measurements()
         not_measured = np.array([v is not None and not v.measured for v in verdicts], bool)
@@ -343,15 +340,7 @@ def _overview(job: Job, state: AppState) -> TopographyOverview:
             peak_w_mm=listed(np.where(not_measured, np.nan, peaks)),
             peak_x_mm=listed(reader.column("peak/x_mm")),
             peak_y_mm=listed(reader.column("peak/y_mm")),
-            grid={
-                "x_min_mm": float(x[0]),
-                "x_max_mm": float(x[-1]),
-                "y_min_mm": float(y[0]),
-                "y_max_mm": float(y[-1]),
-                "nx": int(x.size),
-                "ny": int(y.size),
-                "step_mm": float(x[1] - x[0]) if x.size > 1 else 0.0,
-            },  # fmt: skip
+            grid=GridExtentOut.of(reader.grid).model_dump(),
             summary={key: plain(value) for key, value in reader.summary().items()},
             measured_fraction=listed(coverage["measured_fraction"]),
             missing_mm2={name: listed(coverage[f"missing_{name}_mm2"], 1) for name in MISSING_REASONS},
