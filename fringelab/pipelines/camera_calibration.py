@@ -122,7 +122,7 @@ def calibrate_camera_recording(
         cols, rows = max(sizes, key=lambda size: size[0] * size[1])
         full = "" if len(set(sizes)) == 1 else "at least "
         raise BoardNotFoundError(
-            f"{where}: the board has {full}{cols} × {rows} inner corners, {board.cols} × {board.rows} declared: "
+            f"{where}: the chessboard has {full}{cols} × {rows} inner corners, {board.cols} × {board.rows} declared: "
             "declare its full size",
             found_size=(cols, rows),
         )

@@ -139,7 +139,7 @@ def test_no_board_anywhere(tmp_path):
 def test_wrong_board_size_is_reported(small_stack, tmp_path):
     # One short sentence naming both sizes, the recording by its name (never a server path). The detector stops
     # short of this 14 × 9 board's outer columns in some frames: the largest size found, as a lower bound.
-    with pytest.raises(BoardNotFoundError, match=r"^stack: the board has at least 1[2-4] × 9 inner corners, 9 × 6 "
+    with pytest.raises(BoardNotFoundError, match=r"^stack: the chessboard has at least 1[2-4] × 9 inner corners, 9 × 6 "
                        r"declared: declare its full size$"):  # fmt: skip
         calibrate_camera_recording(open_recording(small_stack.path), board=Board(9, 6, 25.0), du_px_per_mm=96,
                                    dv_px_per_mm=96)  # fmt: skip
@@ -169,7 +169,7 @@ def test_bad_z_csv(z_csv, message, small_stack, tmp_path):
 def test_mixed_image_sizes(small_stack, tmp_path):
     path = copy_of(small_stack, tmp_path)
     cv2.imwrite(str(path / "frame0003.png"), np.full((400, 512), 90, np.uint8))
-    with pytest.raises(ValueError, match="frame0003.png: image size 512 × 400 differs from 512 × 480 of frame0000"):
+    with pytest.raises(ValueError, match=r"^frame0003.png: 512 × 400 px, but frame 0 is 512 × 480 px \(mixed frame sizes"):
         calibrate_camera_recording(open_recording(path), board=small_stack.board, du_px_per_mm=96, dv_px_per_mm=96)
 
 
