@@ -169,7 +169,8 @@ def find_board_corners(
         big, small = max(found), min(found)
         found_cols, found_rows = (big, small) if board.cols >= board.rows else (small, big)
         raise BoardNotFoundError(
-            f"{frame}: the chessboard has {found_cols} × {found_rows} inner corners, {board.cols} × {board.rows} declared",
+            f"{frame}: the chessboard has {found_cols} × {found_rows} inner corners, "
+            f"{board.cols} × {board.rows} declared",
             found_size=(found_cols, found_rows),
         )
     if grid is None:

@@ -169,7 +169,8 @@ def test_bad_z_csv(z_csv, message, small_stack, tmp_path):
 def test_mixed_image_sizes(small_stack, tmp_path):
     path = copy_of(small_stack, tmp_path)
     cv2.imwrite(str(path / "frame0003.png"), np.full((400, 512), 90, np.uint8))
-    with pytest.raises(ValueError, match=r"^frame0003.png: 512 × 400 px, but frame 0 is 512 × 480 px \(mixed frame sizes"):
+    mixed = r"^frame0003.png: 512 × 400 px, but frame 0 is 512 × 480 px \(mixed frame sizes"
+    with pytest.raises(ValueError, match=mixed):
         calibrate_camera_recording(open_recording(path), board=small_stack.board, du_px_per_mm=96, dv_px_per_mm=96)
 
 

@@ -104,5 +104,6 @@ def test_a_sub_board_of_a_larger_board_is_never_accepted(detector, even_board_re
     """Declaring 9 × 6 on the 12 × 8 board: the classic detector finds a 9 × 6 pattern inside it, which would
     calibrate on a sub-board; it is refused in one sentence naming both sizes."""
     image = even_board_renderer.render(board_pose_at_z(0.0), rng=np.random.default_rng(9))
-    with pytest.raises(BoardNotFoundError, match=r"^frame3.png: the chessboard has 12 × 8 inner corners, 9 × 6 declared$"):
+    sizes = r"^frame3.png: the chessboard has 12 × 8 inner corners, 9 × 6 declared$"
+    with pytest.raises(BoardNotFoundError, match=sizes):
         detect_board(image, board=Board(9, 6, 25.0), frame="frame3.png", detector=detector)
