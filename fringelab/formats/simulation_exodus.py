@@ -9,6 +9,13 @@ block). The states: `time_whole` (time_step,) and the nodal displacement as thre
 num_nodes). Node ids from `node_num_map` where the file has it. An optional nodal variable `thickness` gives shell
 thickness. A 2-D file (num_dim 2, or displacements in x and y only) is refused: it has no out-of-plane
 displacement.
+
+Element death (eroded elements): Exodus II has no one convention for it (SEACAS's BLOT asks the user which element
+variable marks death and which value means alive). Read here: an element variable named `death_status` (Sierra/SM's
+element death output) or `status` (Abaqus's STATUS, as translators carry it), case ignored, 1 alive and 0 dead, in
+`vals_elem_var{v}eb{b}` (time_step, num_el_in_blk{b}); a block without it (truth table 0) counts as alive. A node all
+of whose elements are dead in a state is missing there (NaN displacement: `FEResults`' rule). Values outside 0..1 are
+refused: they are some other convention, and guessing it would show the wrong nodes as the hole.
 """
 
 from __future__ import annotations
@@ -24,6 +31,7 @@ from fringelab.formats.simulation_mesh import CellBlock, displacement_components
 from fringelab.science.fe_results import FEResults
 
 EXODUS_SUFFIXES = (".e", ".exo", ".ex2", ".exodus")
+STATUS_NAMES = ("death_status", "status")  # element variables marking element death, 1 alive, 0 dead; in this order
 
 
 def _text(value: Any) -> str:
@@ -42,8 +50,9 @@ def _values(variable: Any, index: Any = slice(None)) -> np.ndarray:
     return np.asarray(variable[index])
 
 
-def _mesh(nc: Any, where: str) -> tuple[np.ndarray, list[CellBlock]]:
-    """Node coordinates (N, 3) and the element blocks of an open Exodus file."""
+def _mesh(nc: Any, where: str) -> tuple[np.ndarray, list[CellBlock], list[int]]:
+    """Node coordinates (N, 3), the element blocks of an open Exodus file and each block's number k (its
+    `connect{k}`, `vals_elem_var{v}eb{k}`)."""
     variables, dimensions = nc.variables, nc.dimensions
     n_dim = len(dimensions["num_dim"]) if "num_dim" in dimensions else 3
     if "num_nodes" not in dimensions:
@@ -60,7 +69,7 @@ def _mesh(nc: Any, where: str) -> tuple[np.ndarray, list[CellBlock]]:
         raise ValueError(f"{where}: no node coordinates (coordx/coordy/coordz or coord)")
     n_blocks = len(dimensions["num_el_blk"]) if "num_el_blk" in dimensions else 0
     block_ids = _values(variables["eb_prop1"]) if "eb_prop1" in variables else np.arange(1, n_blocks + 1)
-    blocks = []
+    blocks, numbers = [], []
     for k in range(1, n_blocks + 1):
         name = f"connect{k}"
         if name not in variables:  # a block without elements
@@ -71,7 +80,49 @@ def _mesh(nc: Any, where: str) -> tuple[np.ndarray, list[CellBlock]]:
         if connectivity.size and (connectivity.min() < 0 or connectivity.max() >= len(xyz)):
             raise ValueError(f"{where}: element block {block_ids[k - 1]} refers to nodes outside 1..{len(xyz)}")
         blocks.append(CellBlock(elem_type, connectivity, f"element block {block_ids[k - 1]}"))
-    return xyz, blocks
+        numbers.append(k)
+    return xyz, blocks, numbers
+
+
+def _status_variable(nc: Any) -> tuple[int, str] | None:
+    """The index and name of the element variable that marks element death (STATUS_NAMES), or None."""
+    if "name_elem_var" not in nc.variables:
+        return None
+    names = _names(nc.variables["name_elem_var"])
+    lower = [name.lower() for name in names]
+    for wanted in STATUS_NAMES:
+        if wanted in lower:
+            return lower.index(wanted), names[lower.index(wanted)]
+    return None
+
+
+def _missing_nodes(nc: Any, blocks: list[CellBlock], numbers: list[int], status: tuple[int, str], i: int,
+                   n_nodes: int, where: str) -> np.ndarray:  # fmt: skip
+    """(N,) bool: the nodes all of whose elements are dead at time step i (nodes of no element are not missing)."""
+    index, name = status
+    in_element = np.zeros(n_nodes, bool)
+    alive = np.zeros(n_nodes, bool)
+    for block, k in zip(blocks, numbers, strict=True):
+        connectivity = np.asarray(block.connectivity, np.int64)
+        in_element[connectivity.ravel()] = True
+        variable = nc.variables.get(f"vals_elem_var{index + 1}eb{k}")
+        if variable is None:  # the truth table leaves this block out: its elements never die
+            alive[connectivity.ravel()] = True
+            continue
+        values = _values(variable, i).astype(np.float64)
+        if values.shape != (len(connectivity),):
+            raise ValueError(
+                f"{where}: element variable {name!r}, {block.where}, step {i}: {values.shape} values, "
+                f"{len(connectivity)} elements"
+            )
+        if not np.all((values >= 0.0) & (values <= 1.0)):
+            raise ValueError(
+                f"{where}: element variable {name!r}, {block.where}, step {i}: values outside 0..1 (from "
+                f"{np.nanmin(values):.6g} to {np.nanmax(values):.6g}); fringelab reads element death as 1 alive, 0 "
+                "dead: rename the variable if it means something else"
+            )
+        alive[connectivity[values >= 0.5].ravel()] = True
+    return in_element & ~alive
 
 
 @contextlib.contextmanager
@@ -99,13 +150,14 @@ def read_exodus(path: str | Path) -> FEResults:
     except Exception as error:  # netCDF4 raises OSError and others for a file it cannot parse
         raise ValueError(f"{where}: not a readable Exodus II file ({type(error).__name__}: {error})") from None
     with nc, _damage_named(where):
-        xyz, blocks = _mesh(nc, where)
+        xyz, blocks, numbers = _mesh(nc, where)
         variables = nc.variables
         if "time_whole" not in variables or "name_nod_var" not in variables:
             raise ValueError(f"{where}: no time steps with nodal variables (time_whole, name_nod_var)")
         time = _values(variables["time_whole"]).astype(np.float64)
         names = _names(variables["name_nod_var"])
         ids = _values(variables["node_num_map"]).astype(np.int64) if "node_num_map" in variables else None
+        status = _status_variable(nc)
     shells, solids = shells_and_solids(blocks, where)
     components = displacement_components(names, where)
     thickness_index = next((i for i, n in enumerate(names) if n.lower() == "thickness"), None)
@@ -126,7 +178,10 @@ def read_exodus(path: str | Path) -> FEResults:
         if not 0 <= i < len(time):
             raise ValueError(f"{where}: no time step {i}; it has {len(time)}")
         with _damage_named(where), netCDF4.Dataset(path) as nc:
-            return np.column_stack([nodal(nc, k, i) for k in components])
+            u = np.column_stack([nodal(nc, k, i) for k in components])
+            if status is not None:  # eroded elements: their nodes are a hole in this state
+                u[_missing_nodes(nc, blocks, numbers, status, i, n_nodes, where)] = np.nan
+            return u
 
     thickness = None
     if thickness_index is not None and len(time):
@@ -147,9 +202,13 @@ def write_exodus(
     displacement: np.ndarray,
     node_ids: np.ndarray | None = None,
     names: tuple[str, ...] = ("DISPX", "DISPY", "DISPZ"),
+    element_status: np.ndarray | None = None,
+    status_name: str = "death_status",
 ) -> Path:
     """Write an Exodus II file: the mesh through meshio (cells as meshio names them: "quad", "triangle6",
-    "vertex" for SPHERE, …), then time steps (S,) and one nodal variable per name, displacement[..., k] (S, N)."""
+    "vertex" for SPHERE, …), then time steps (S,) and one nodal variable per name, displacement[..., k] (S, N);
+    element_status (S, E) over the cells' elements in order (1 alive, 0 dead), as the element variable
+    `status_name`, one block after another."""
     import meshio
     import netCDF4
 
@@ -170,6 +229,16 @@ def write_exodus(
                 values = nc.createVariable(f"vals_nod_var{k + 1}", "f8", ("time_step", "num_nodes"))
                 for s in range(len(time)):
                     values[s] = displacement[s, :, k]
+            if element_status is not None:
+                nc.createDimension("num_elem_var", 1)
+                elem_names = nc.createVariable("name_elem_var", "S1", ("num_elem_var", "len_string"))
+                elem_names[0, : len(status_name)] = np.array(list(status_name), "S1")
+                start = 0
+                for b, (_, connectivity) in enumerate(cells, start=1):
+                    values = nc.createVariable(f"vals_elem_var1eb{b}", "f8", ("time_step", f"num_el_in_blk{b}"))
+                    for s in range(len(time)):
+                        values[s] = element_status[s, start : start + len(connectivity)]
+                    start += len(connectivity)
             if node_ids is not None:
                 mapping = nc.createVariable("node_num_map", "i4", ("num_nodes",))
                 mapping[:] = node_ids

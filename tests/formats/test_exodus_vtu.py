@@ -141,3 +141,28 @@ def test_vtu_series_writer_still_round_trips(tmp_path: Path) -> None:
     pvd = write_vtu_series(tmp_path / "v", node_xyz=XYZ, cells=[("quad", QUADS)], time=TIME, displacement=DISP,
                            node_ids=IDS)  # fmt: skip
     check(open_simulation(pvd), atol=1e-12)
+
+
+def test_exodus_element_death_leaves_the_nodes_of_dead_elements_out(tmp_path: Path) -> None:
+    """Eroded elements as Sierra/SM writes them (element variable death_status, 1 alive, 0 dead), over two blocks:
+    a node all of whose elements are dead is missing (NaN) in that state, a node with one live element is not;
+    a status variable with other values (Abaqus-style STATUS of 2) is refused rather than guessed."""
+    status = np.ones((N_STATES, len(QUADS)))
+    status[2:, [6, 7, 11, 12]] = 0.0  # the four quads around node 14, across blocks 1 (0..9) and 2 (10..19)
+    status[3, 0] = 0.0  # the corner quad: node 0 is its alone
+    write_exodus(tmp_path / "m.exo", node_xyz=XYZ, cells=[("quad", QUADS[:10]), ("quad", QUADS[10:])], time=TIME,
+                 displacement=DISP, node_ids=IDS, element_status=status)  # fmt: skip
+    results = open_simulation(tmp_path / "m.exo")
+    for state, missing in enumerate([[], [], [14], [0, 14]]):
+        u = results.displacement(state)
+        expected = DISP[state].copy()
+        expected[missing] = np.nan
+        np.testing.assert_array_equal(np.flatnonzero(np.isnan(u[:, 0])), missing)
+        np.testing.assert_allclose(u, expected)  # NaN where expected NaN, the file's numbers elsewhere
+    status[3, 0] = 2.0
+    write_exodus(tmp_path / "odd.exo", node_xyz=XYZ, cells=[("quad", QUADS)], time=TIME, displacement=DISP,
+                 element_status=status, status_name="STATUS")  # fmt: skip
+    odd = open_simulation(tmp_path / "odd.exo")
+    refusal = r"odd.exo: element variable 'STATUS', element block 0, step 3: values outside 0..1 \(from 0 to 2\)"
+    with pytest.raises(ValueError, match=refusal + "; fringelab reads element death as 1 alive, 0 dead"):
+        odd.displacement(3)
