@@ -87,6 +87,7 @@ OPERATION_IDS = {
     "recording_deletion": "preview_recording_deletion", "job_deletion": "preview_job_deletion",
     "jobs_events": "stream_jobs_events", "remove_job": "delete_job",
     "projector_calibration_report": "get_projector_calibration_report",
+    "procam_report": "get_procam_calibration_report", "scan_view": "get_scan",
     "list_docs": "list_docs", "read_doc": "get_doc", "queue": "get_queue", "storage": "get_storage",
     "put_simulation": "upload_simulation", "list_simulations": "list_simulations",
     "read_simulation": "get_simulation", "remove_simulation": "delete_simulation",
