@@ -445,12 +445,18 @@ def main() -> int:
         help="heavy: grids of random frames, profiles of random lines, 50-job lists (issue 26)",
     )
     parser.add_argument("--api-processes", type=int, default=2, help="web server processes")
+    parser.add_argument("--api-threads", type=int, default=0, help="FRINGELAB_API_THREADS (0: the default)")
+    parser.add_argument("--api-queue", type=int, default=-1, help="FRINGELAB_API_QUEUE (-1: the default)")
     args = parser.parse_args()
 
     with tempfile.TemporaryDirectory(prefix="fringelab-bench-load-") as temp:
         system = System(Path(temp) / "var")
         Path(temp, "var").mkdir()
         system.env["FRINGELAB_API_PROCESSES"] = str(args.api_processes)
+        if args.api_threads:
+            system.env["FRINGELAB_API_THREADS"] = str(args.api_threads)
+        if args.api_queue >= 0:
+            system.env["FRINGELAB_API_QUEUE"] = str(args.api_queue)
         for name in (*USERS, PROBE_USER):
             flags = ["--admin"] if name in ADMINS or name == PROBE_USER else []
             cli(system.env, "user", "add", name, *flags, "--password-stdin", stdin=f"{name}-password-16\n")
