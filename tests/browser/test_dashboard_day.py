@@ -260,8 +260,11 @@ def test_exports_from_the_viewer_and_their_downloads_in_the_jobs_list(page, demo
     page.get_by_role("button", name="Add line").click()
     expect(page.get_by_role("list", name="Section lines")).to_contain_text("A")
     form = page.get_by_role("form", name="Export the result")
-    formats = form.get_by_label("Export format").locator("option").evaluate_all("(os) => os.map((o) => o.value)")
-    assert formats == ["points-csv", "grid-npz", "mat", "vtk", "profile-csv"]  # EXPORT_FORMATS, in its order
+    options = form.get_by_label("Export format").locator("option")
+    expected = ["points-csv", "grid-npz", "mat", "vtk", "profile-csv"]  # EXPORT_FORMATS, in its order
+    expect(options).to_have_count(len(expected))  # the list comes from the API after the form is drawn
+    formats = options.evaluate_all("(os) => os.map((o) => o.value)")
+    assert formats == expected
     form.get_by_label("First frame").fill("2")
     form.get_by_label("Last frame").fill("4")
     for fmt in formats:
