@@ -8,6 +8,12 @@ gigabytes is never in memory at once. A d3plot stores the current coordinates of
 file has it, is taken from the first state and averaged onto the nodes. (`buffered_reading=True` is passed
 with every `state_filter`: lasso 2.0 takes a filter of state 0 alone, `{0}`, as no filter and reads all states.)
 
+Eroded elements: a d3plot written with deletion flags (MDLOPT 2 in the header: lasso's `element_shell_is_alive`,
+`element_solid_is_alive` per state, 0 deleted, otherwise alive) is read state by state; a node all of whose shells
+and solids are deleted in a state is missing there (NaN displacement: `FEResults`' rule), a hole in that state's
+surface. LS-DYNA still writes positions for those nodes, frozen where the element died: they are no plate surface.
+Node deletion flags (MDLOPT 1, lasso's `node_is_alive`, 0 deleted) mark the nodes themselves.
+
 Checked before anything is read, because lasso reads what it finds without a word: the family's numbering has no
 gap (d3plot01, d3plot02, … each there), every file holds whole states (a file that ends inside a state, shorter
 than the header's state size says, is a copy cut short), the states carry nodal positions (a thermal-only result
@@ -174,18 +180,25 @@ def read_d3plot(path: str | Path) -> FEResults:
                 thickness = np.where(count > 0, total / count, np.nan)
     ids = arrays.get(ArrayType.node_ids)
     cache: dict[int, np.ndarray] = {}
+    # node_is_alive is left out of the filter: lasso 2.0 refuses it there ("not a state array") and reads it anyway
+    alive_arrays = [ArrayType.element_shell_is_alive, ArrayType.element_solid_is_alive]
+    has_deletion = bool(header.has_node_deletion_data or header.has_element_deletion_data)
 
     def displacement(i: int) -> np.ndarray:
         if i not in cache:
             if not 0 <= i < len(times):
                 raise ValueError(f"{path.name}: no state {i}; it has {len(times)}")
-            state = _open(D3plot, path, state_filter={i}, state_array_filter=[ArrayType.node_displacement],
-                          buffered_reading=True)  # fmt: skip
+            wanted = [ArrayType.node_displacement, *(alive_arrays if has_deletion else [])]
+            state = _open(D3plot, path, state_filter={i}, state_array_filter=wanted, buffered_reading=True)
             current = np.asarray(state.arrays.get(ArrayType.node_displacement, np.zeros(0)), np.float64)
             if current.shape != (1, n_nodes, 3):
                 raise ValueError(f"{path.name}: state {i}: expected positions (1, {n_nodes}, 3), got {current.shape}")
+            u = current[0] - xyz
+            if has_deletion:  # eroded elements: their nodes are a hole in this state
+                u[_deleted_nodes(state.arrays, ArrayType, shells=shells, solids=solids, n_nodes=n_nodes,
+                                 where=f"{path.name}: state {i}")] = np.nan  # fmt: skip
             cache.clear()
-            cache[i] = current[0] - xyz
+            cache[i] = u
         return cache[i]
 
     return FEResults(
@@ -193,6 +206,28 @@ def read_d3plot(path: str | Path) -> FEResults:
         node_ids=np.asarray(ids, np.int64) if ids is not None else np.arange(1, n_nodes + 1), node_xyz=xyz,
         shells=shells, solids=solids, shell_thickness=thickness, time=times, displacement=displacement,
     )  # fmt: skip
+
+
+def _deleted_nodes(arrays: dict[Any, Any], ArrayType: Any, *, shells: np.ndarray, solids: np.ndarray,
+                   n_nodes: int, where: str) -> np.ndarray:  # fmt: skip
+    """(N,) bool for the one state in `arrays`: the nodes marked deleted, and the nodes all of whose shells and
+    solids are deleted (a node of no shell or solid is not)."""
+
+    def flags_of(name: Any, n: int, what: str) -> np.ndarray:
+        flags = np.asarray(arrays[name]) if name in arrays else np.ones((1, n))
+        if flags.shape != (1, n):
+            raise ValueError(f"{where}: {what} deletion flags of shape {flags.shape}, expected (1, {n})")
+        return flags[0]
+
+    # MDLOPT 1 (untested here: lasso 2.0's writer cannot write node deletion flags)
+    deleted = flags_of(ArrayType.node_is_alive, n_nodes, "node") == 0
+    in_element = np.zeros(n_nodes, bool)
+    alive = np.zeros(n_nodes, bool)
+    for cells, name in ((shells, ArrayType.element_shell_is_alive), (solids, ArrayType.element_solid_is_alive)):
+        if len(cells):
+            in_element[cells.ravel()] = True
+            alive[cells[flags_of(name, len(cells), "element") != 0].ravel()] = True
+    return deleted | (in_element & ~alive)
 
 
 def write_d3plot(
@@ -205,11 +240,13 @@ def write_d3plot(
     node_ids: np.ndarray | None = None,
     shell_thickness: float | None = None,
     one_state_per_file: bool = False,
+    shell_is_alive: np.ndarray | None = None,
 ) -> Path:
     """Write a d3plot family with lasso-python's writer: shells (E, 4) (triangles repeat their last corner),
     states (S, N, 3) of displacement at times (S,); the geometry in `path`, the states in `path`01 (or one state
     per file, `path`01, `path`02, …, as LS-DYNA splits a long run). For tests and examples; the state files are
-    moved into place before the geometry, so a reader never sees a family without its states."""
+    moved into place before the geometry, so a reader never sees a family without its states. shell_is_alive
+    (S, E), 1 alive and 0 deleted, writes element deletion flags (MDLOPT 2), as a run with eroded shells has them."""
     from fringelab.formats.atomic import commit_partial, partial_path
 
     D3plot, ArrayType = _lasso()
@@ -222,6 +259,8 @@ def write_d3plot(
     d3plot.arrays[ArrayType.element_shell_part_indexes] = np.zeros(len(shells), np.int64)
     d3plot.arrays[ArrayType.global_timesteps] = np.asarray(time, np.float64)
     d3plot.arrays[ArrayType.node_displacement] = np.asarray(node_xyz, np.float64)[None] + np.asarray(displacement)
+    if shell_is_alive is not None:
+        d3plot.arrays[ArrayType.element_shell_is_alive] = np.asarray(shell_is_alive, np.float64)
     if shell_thickness is not None:
         d3plot.arrays[ArrayType.element_shell_thickness] = np.full((len(time), len(shells)), float(shell_thickness))
     path = Path(path)

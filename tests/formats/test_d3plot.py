@@ -154,3 +154,48 @@ def test_a_damaged_geometry_file_is_a_value_error_naming_it(tmp_path: Path) -> N
                 results.displacement(state)
         except ValueError as error:
             assert "d3plot" in str(error), str(error)
+
+
+def test_eroded_shells_leave_their_nodes_out_of_the_states_they_are_deleted_in(tmp_path: Path) -> None:
+    """Element deletion flags (MDLOPT 2) as LS-DYNA writes them after a perforation: the four quads around node
+    14 deleted from state 2 on, the corner quad (node 0 is its alone) in state 3. Compared with lasso's own full
+    read: a node all of whose shells are deleted is NaN in that state, every other node as lasso reads it."""
+    alive = np.ones((N_STATES, len(QUADS)))
+    alive[2:, [6, 7, 11, 12]] = 0.0
+    alive[3, 0] = 0.0
+    write_d3plot(tmp_path / "d3plot", node_xyz=XYZ, shells=QUADS, time=TIME, displacement=DISP, node_ids=IDS,
+                 shell_is_alive=alive)  # fmt: skip
+    results = open_simulation(tmp_path)
+    reference = lasso_dyna.D3plot(str(tmp_path / "d3plot"))
+    np.testing.assert_array_equal(reference.arrays[A.element_shell_is_alive], alive)
+    for state, missing in enumerate([[], [], [14], [0, 14]]):
+        u = results.displacement(state)
+        np.testing.assert_array_equal(np.flatnonzero(np.isnan(u).any(axis=1)), missing)
+        expected = reference.arrays[A.node_displacement][state] - reference.arrays[A.node_coordinates]
+        expected[missing] = np.nan
+        np.testing.assert_allclose(u, expected, atol=1e-5)  # float32 round-off of the subtraction, as above
+
+
+def test_eroded_solids_leave_their_nodes_out(tmp_path: Path) -> None:
+    """The plate as one layer of hexahedra with element_solid_is_alive: the four hexes around the column of node
+    14 deleted in the last state, its two nodes (bottom and top) NaN there, the rest as lasso reads it."""
+    n = len(XYZ)
+    xyz = np.concatenate([XYZ, XYZ + [0.0, 0.0, 1.0]])
+    d3plot = lasso_dyna.D3plot()
+    d3plot.arrays[A.node_coordinates] = xyz
+    d3plot.arrays[A.element_solid_node_indexes] = np.concatenate([QUADS, QUADS + n], axis=1)
+    d3plot.arrays[A.element_solid_part_indexes] = np.zeros(len(QUADS), np.int64)
+    d3plot.arrays[A.global_timesteps] = TIME
+    d3plot.arrays[A.node_displacement] = xyz[None] + np.concatenate([DISP, DISP], axis=1)
+    alive = np.ones((N_STATES, len(QUADS)))
+    alive[3, [6, 7, 11, 12]] = 0.0
+    d3plot.arrays[A.element_solid_is_alive] = alive
+    d3plot.write_d3plot(str(tmp_path / "d3plot"))
+    results = open_simulation(tmp_path)
+    reference = lasso_dyna.D3plot(str(tmp_path / "d3plot"))
+    for state, missing in enumerate([[], [], [], [14, 14 + n]]):
+        u = results.displacement(state)
+        np.testing.assert_array_equal(np.flatnonzero(np.isnan(u).any(axis=1)), missing)
+        expected = reference.arrays[A.node_displacement][state] - reference.arrays[A.node_coordinates]
+        expected[missing] = np.nan
+        np.testing.assert_allclose(u, expected, atol=1e-5)  # float32 round-off of the subtraction
