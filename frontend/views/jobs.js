@@ -147,7 +147,8 @@ const RECORDING_KIND_OF_JOB = {
  * The form that starts a calibration or topography job, its inputs made from the API's schema of each kind's
  * spec (specform.js): the same parameters and defaults a script sends to POST /api/v1/jobs, shown as JSON under
  * the form. `recordings()` returns the experiment's recordings (with `camera_name`); `calibrations(cameraId,
- * kind)` resolves to [{ id, label }] of its calibrations, newest first.
+ * kind)` resolves to [{ id, label, bad }] of its calibrations, newest first, and with kind "pairs" to its
+ * consistent pairs [{ cameraCalibrationId, projector }].
  */
 export function jobForm({ recordings, calibrations, onStarted }) {
   const kind = field(
@@ -201,14 +202,14 @@ export function jobForm({ recordings, calibrations, onStarted }) {
     showSpec();
   };
   let cameraCals = [];
-  let projectorCals = [];
-  /** Only consistent pairs: the projector calibrations built on the chosen camera calibration (and those whose
-   * camera calibration is not known, named so); then the consent when a chosen calibration is bad. */
+  let pairs = [];
+  /** Only consistent pairs (the server's, GET /calibrations/pairs): the projector calibrations built on the chosen
+   * camera calibration; then the consent when a chosen calibration is bad. */
   const refreshPairs = () => {
     const cameraId = Number(pickers.camera_calibration_id.select.value);
-    const paired = projectorCals.filter((p) => p.builtOn === null || p.builtOn === cameraId);
+    const paired = pairs.filter((p) => p.cameraCalibrationId === cameraId).map((p) => p.projector);
     options(pickers.projector_calibration_id.select, paired,
-      projectorCals.length ? "no projector calibration built on this camera calibration" : "no projector calibration yet");
+      pairs.length ? "no projector calibration built on this camera calibration" : "no projector calibration yet");
     const chosenBad = [[pickers.camera_calibration_id.select, cameraCals], [pickers.projector_calibration_id.select, paired]]
       .map(([select, items]) => items.find((c) => String(c.id) === select.value && select.isConnected))
       .filter((c) => c && c.bad);
@@ -222,7 +223,7 @@ export function jobForm({ recordings, calibrations, onStarted }) {
     const chosen = recordings().find((r) => String(r.id) === pickers.recording_id.select.value);
     prefillBoard(chosen);
     if (chosen) {
-      [cameraCals, projectorCals] = await Promise.all([calibrations(chosen.camera_id, "camera"), calibrations(chosen.camera_id, "projector")]);
+      [cameraCals, pairs] = await Promise.all([calibrations(chosen.camera_id, "camera"), calibrations(chosen.camera_id, "pairs")]);
       options(pickers.camera_calibration_id.select, cameraCals, "no camera calibration yet");
     }
     refreshPairs();
@@ -312,11 +313,22 @@ export function calibrationChoice(c) {
   return { id: c.id, label, bad, builtOn };
 }
 
+/** The calibrations of a camera of `kind` ("camera", "projector"), or its consistent pairs ("pairs": [{
+ * cameraCalibrationId, projector }], each projector calibration with the camera calibration it was built on). */
 async function calibrationsOf(experimentId, cameraId, kind) {
+  if (kind === "pairs") {
+    const found = await attempt("list the calibration pairs", () => getJSON(`calibrations/pairs${query({ camera_id: cameraId })}`));
+    return (found || []).map(pairChoice);
+  }
   const found = await attempt(`list the ${kind} calibrations`, () =>
     getJSON(`calibrations${query({ camera_id: cameraId, kind })}`),
   );
   return (found || []).map(calibrationChoice);
+}
+
+/** One consistent pair as the form offers it (GET /calibrations/pairs). */
+export function pairChoice(pair) {
+  return { cameraCalibrationId: pair.camera_calibration.id, projector: calibrationChoice(pair.projector_calibration) };
 }
 
 /** The jobs section of an experiment page: the live list and the form. */

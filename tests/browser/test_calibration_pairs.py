@@ -1,7 +1,8 @@
 """Calibrations in the job form (issue 27): the topography form offers only consistent pairs (the projector
 calibrations built on the chosen camera calibration), names each calibration by id, camera and date with what a
 projector calibration was built on, and marks a bad verdict. The form is the dashboard's own (jobForm, with the
-server's schema of the topography spec), fed a camera's calibrations as GET /calibrations lists them."""
+server's schema of the topography spec), fed a camera's calibrations and pairs as GET /calibrations and
+GET /calibrations/pairs list them."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from tests.browser.conftest import screenshot
 pytestmark = [pytest.mark.browser, pytest.mark.integration]
 
 SETUP = """async () => {
-    const { jobForm, calibrationChoice } = await import("/views/jobs.js");
+    const { jobForm, calibrationChoice, pairChoice } = await import("/views/jobs.js");
     const at = "2026-11-27T07:40:00Z";
     const listed = {
         camera: [
@@ -33,7 +34,14 @@ SETUP = """async () => {
     const form = jobForm({
         recordings: () => [{ id: 5, kind: "test", state: "ready", camera_id: 7, camera_name: "left",
                              filename: "punch.zip", frame_count: 20 }],
-        calibrations: async (cameraId, kind) => (cameraId === 7 ? listed[kind].map(calibrationChoice) : []),
+        // As GET /calibrations?camera_id=7&kind=... and GET /calibrations/pairs?camera_id=7 answer.
+        calibrations: async (cameraId, kind) => {
+            if (cameraId !== 7) return [];
+            if (kind !== "pairs") return listed[kind].map(calibrationChoice);
+            const byId = Object.fromEntries(listed.camera.map((c) => [c.id, c]));
+            return listed.projector.map((p) => pairChoice({ camera_calibration: byId[p.camera_calibration_id],
+                                                            projector_calibration: p, bad: p.bad }));
+        },
         onStarted: () => {},
     });
     document.querySelector("main").append(form.element);
