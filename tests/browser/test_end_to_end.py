@@ -133,7 +133,7 @@ def test_upload_calibrate_measure_and_explore(page, live_server, virtual_test, c
     page.mouse.up()
     expect(page.get_by_role("list", name="Section lines")).to_contain_text("A")
     profiles = page.get_by_role("img", name="Section profiles")
-    expect(profiles.locator(".scatterlayer .trace")).to_have_count(1)
+    expect(profiles.locator(".scatterlayer .trace")).to_have_count(2)  # the profile and its ±2σ_w band
 
     screenshot(page, "viewer")
     with page.expect_download() as download:
