@@ -105,9 +105,13 @@ def test_a_simulation_that_is_the_truth_differs_from_the_measurement_by_its_erro
     peaks = np.array(preview["frames"]["peak_w_mm"], dtype=float)
     assert preview["frame"] == preview["frames"]["frame"][int(np.nanargmax(peaks))]
     for axis in ("x", "y"):
-        cut = preview["profiles"][axis]
-        both = np.array(cut["measured_mm"], dtype=float) - np.array(cut["simulated_mm"], dtype=float)
-        assert np.count_nonzero(np.isfinite(both)) > 20 and np.nanmax(np.abs(both)) < 1.0, axis
+        cut = {name: np.array(values, dtype=float) for name, values in preview["profiles"][axis].items()}
+        both = cut["measured_mm"] - cut["simulated_mm"]
+        own_error = cut["measured_mm"] - measured.true_w_mm(preview["frame"], cut["x_mm"], cut["y_mm"])
+        # the difference is the measurement's own error against the truth, up to the model's mesh and the states'
+        # interpolation (0.07-0.14 mm seen). The measurement's error itself is not this test's: at the punch
+        # shadow's rim it reaches 1 mm in the deepest measured frame (the edge locator's open defect, issue 29)
+        assert np.count_nonzero(np.isfinite(both)) > 20 and np.nanmax(np.abs(both - own_error)) < 0.2, axis
     # a wrong choice is a 422 naming the form's setting, not a command-line option
     wrong_unit = client.post("/api/v1/comparisons/preview",
                              json={"spec": {**spec, "job_id": jobs["done"], "units": "m"}})  # fmt: skip
