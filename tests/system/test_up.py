@@ -3,6 +3,7 @@ and after SIGTERM no child left alive (checked by PID)."""
 
 from __future__ import annotations
 
+import json
 import re
 import subprocess
 
@@ -29,8 +30,12 @@ def test_up_runs_everything_and_sigterm_leaves_no_child(tmp_path):
         assert {c.nice() for c in children if "worker" in " ".join(c.cmdline())} == {10}
         assert {c.nice() for c in children if " api" in " ".join(c.cmdline())} == {psutil.Process().nice()}
 
-        redis_url = re.search(r"Redis (redis://\S+)\)", up.log()).group(1)  # type: ignore[union-attr]
-        assert redis_url != "redis://127.0.0.1:6379/0"  # its own Redis, not the user's
+        logged_url = re.search(r"Redis (redis://\S+)\)", up.log()).group(1)  # type: ignore[union-attr]
+        assert logged_url != "redis://127.0.0.1:6379/0"  # its own Redis, not the user's
+        # its password is in the supervisor's file (this user's only), never in the log
+        redis_url = json.loads((tmp_path / "var" / "supervisor.json").read_text())["redis_url"]
+        password = redis_url.split("@")[0].rsplit(":", 1)[-1]
+        assert password and password not in up.log()
         app = create_celery(Settings(_env_file=None, redis_url=redis_url))  # type: ignore[call-arg]
         assert app.send_task("fringelab.ping", args=["end-to-end"]).get(timeout=30)["payload"] == "end-to-end"
 
