@@ -177,6 +177,15 @@ def test_concurrent_wrong_logins_get_no_more_checks_than_the_limit(lab_server):
     assert set(outcomes) <= {401, 429}, outcomes
     assert 1 <= outcomes.count(401) <= 10, outcomes
     with lab_server.client() as anyone:
+        # A login refused because every check slot was busy is not counted (on a busy machine many are): wrong ones
+        # one at a time until the account's limit answers, never more than the limit's ten checks in all.
+        checked = outcomes.count(401)
+        while (
+            wrong := anyone.post("/api/v1/auth/login", json={"username": "ada", "password": "wrong"})
+        ).status_code == 401:
+            checked += 1
+            assert checked <= 10, "more password checks than the limit"
+        assert wrong.status_code == 429, wrong.text
         right = anyone.post("/api/v1/auth/login", json={"username": "ada", "password": "ada-password"})
     assert right.status_code == 429 and int(right.headers["Retry-After"]) >= 1, right.text
 
