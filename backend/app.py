@@ -46,6 +46,7 @@ from fringelab.core.db import make_engine, make_sessionmaker
 from fringelab.core.queue import create_celery
 from fringelab.core.reconcile import reconcile_periodically, reconcile_quietly
 from fringelab.core.settings import Settings, load_settings
+from fringelab.formats.hdf5 import FrameCache
 
 # The routes that stream a request body to disk under FRINGELAB_MAX_UPLOAD_BYTES instead of the JSON cap: the
 # recordings' uploads and a simulation's PUT (a model of many MB).
@@ -77,6 +78,7 @@ def create_app(settings: Settings) -> FastAPI:
         sessions=make_sessionmaker(engine),
         celery=create_celery(settings, for_requests=True),
         tokens=TokenCache(ttl_s=settings.token_cache_s, redis_url=settings.redis_url),
+        frames=FrameCache(max_bytes=settings.frame_cache_bytes),
     )
 
     @asynccontextmanager

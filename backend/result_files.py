@@ -23,6 +23,7 @@ import numpy as np
 from fringelab.core.errors import Conflict, Gone, Invalid, NotFound
 from fringelab.core.jobs import job_error
 from fringelab.core.models import Job
+from fringelab.formats.hdf5 import FrameCache
 from fringelab.formats.topography import FrameNotInResult, OutsideGrid, ResultUnavailable, TopographyResult
 from fringelab.science.projector_quality import PROJECTOR_LIMITS, judge_projector, projector_maps
 
@@ -111,11 +112,12 @@ def topography_file(job: Job, data_path: Path) -> Path:
 
 
 @contextmanager
-def topography(job: Job, data_path: Path) -> Iterator[TopographyResult]:
-    """The result of a succeeded topography job, open; a job error (409/410/422) with what to do otherwise."""
+def topography(job: Job, data_path: Path, *, frames: FrameCache | None = None) -> Iterator[TopographyResult]:
+    """The result of a succeeded topography job, open (its grids' frames through `frames`, the process's cache of
+    frames read, when given); a job error (409/410/422) with what to do otherwise."""
     path = topography_file(job, data_path)
     try:
-        with TopographyResult(path) as reader:
+        with TopographyResult(path, frame_cache=frames) as reader:
             yield reader
     except FrameNotInResult as error:
         raise job_error(Invalid, "frame_not_in_result", str(error), field="frame") from None

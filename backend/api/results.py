@@ -327,7 +327,7 @@ def topography_overview(job: JobDep, state: StateDep, request: Request) -> Topog
 
 
 def _overview(job: Job, state: AppState) -> TopographyOverview:
-    with topography(job, state.settings.data_path) as reader:
+    with topography(job, state.settings.data_path, frames=state.frames) as reader:
         coverage = reader.coverage()
         peaks, verdicts = reader.column("peak/w_mm"), reader.peak_measurements()
         not_measured = np.array([v is not None and not v.measured for v in verdicts], bool)
@@ -419,7 +419,7 @@ def topography_grid(
     if format == "json":
 
         def render() -> bytes:
-            with topography(job, state.settings.data_path) as reader:
+            with topography(job, state.settings.data_path, frames=state.frames) as reader:
                 cut = reader.grid_cut(frame, budget=budget, window_mm=window)  # type: ignore[arg-type]
             grid = GridOut(frame=cut.frame, step=cut.step, x_mm=listed(cut.x_mm), y_mm=listed(cut.y_mm),
                            w_mm=listed(cut.w_mm))  # fmt: skip
@@ -428,7 +428,7 @@ def topography_grid(
         key = ("grid", frame, budget, window)
         path = topography_file(job, state.settings.data_path)
         return cached_json(ANSWERS, request.headers.get("accept-encoding", ""), path, key, render)
-    with topography(job, state.settings.data_path) as reader:
+    with topography(job, state.settings.data_path, frames=state.frames) as reader:
         cut = reader.grid_cut(frame, budget=budget, window_mm=window)  # type: ignore[arg-type]
     if format == "f32":
 
@@ -484,7 +484,7 @@ def topography_profile(
     line = _line_mm((x0_mm, y0_mm, x1_mm, y1_mm), (x0, y0, x1, y1))
 
     def render() -> bytes:
-        with topography(job, state.settings.data_path) as reader:
+        with topography(job, state.settings.data_path, frames=state.frames) as reader:
             cut = reader.profile(frames, line, n_points=n_points)
         return (
             ProfileOut(
@@ -523,7 +523,7 @@ class HistoryOut(BaseModel):
 @router.get("/jobs/{job_id}/topography/history", response_model=HistoryOut, responses=RESULT_ERRORS)
 def topography_history(job: JobDep, state: StateDep, x_mm: MM, y_mm: MM) -> HistoryOut:
     """The deflection w(t) at one point of the plate over every frame of the result."""
-    with topography(job, state.settings.data_path) as reader:
+    with topography(job, state.settings.data_path, frames=state.frames) as reader:
         return HistoryOut(
             x_mm=x_mm,
             y_mm=y_mm,

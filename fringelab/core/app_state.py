@@ -10,6 +10,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from fringelab.core.accounts import TokenCache
 from fringelab.core.settings import Settings
+from fringelab.formats.hdf5 import FrameCache
 
 
 @dataclass
@@ -19,3 +20,5 @@ class AppState:
     sessions: sessionmaker[Session]
     celery: Celery
     tokens: TokenCache = field(default_factory=lambda: TokenCache(ttl_s=5.0))
+    # Result frames recently read (grids, profiles), by the file's identity: `FrameCache`.
+    frames: FrameCache = field(default_factory=lambda: FrameCache(max_bytes=0))

@@ -119,6 +119,12 @@ class Settings(BaseSettings):
         le=1000,
         description="Requests a web server process holds beyond its busy threads; more get 503 with Retry-After.",
     )
+    frame_cache_bytes: int = Field(
+        64 * 2**20,
+        ge=0,
+        le=2**40,
+        description="Bytes of result frames a web server process keeps in memory for grid and profile reads (0: none).",
+    )
     db_pool_size: int = Field(
         0,
         ge=0,

@@ -67,7 +67,15 @@ try:  # ISA-L's deflate makes the zlib streams that HDF5's deflate filter reads 
     from isal.isal_zlib import compress as deflate
 except ImportError:  # a platform without its wheels: the same streams, slower
     from zlib import compress as deflate
-from fringelab.formats.hdf5 import SCHEMA_VERSION, ResultReader, open_read_only, require_schema, unit_dataset
+from fringelab.formats.hdf5 import (
+    SCHEMA_VERSION,
+    FrameCache,
+    ResultReader,
+    file_key,
+    open_read_only,
+    require_schema,
+    unit_dataset,
+)
 
 # MISSING_REASONS is re-exported for the API (it reads results through this module only).
 from fringelab.science.coverage import MISSING_DESCRIPTIONS
@@ -646,9 +654,12 @@ class TopographyResult(ResultReader):
     not a complete result.
     """
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, *, frame_cache: FrameCache | None = None) -> None:
         self.path = Path(path)
         self.file = open_read_only(self.path, ResultUnavailable)
+        # Whole frames of the grids (one stored chunk each) come from `frame_cache` when one is given (the API's).
+        self._frame_cache = frame_cache
+        self._file_key = file_key(self.file) if frame_cache is not None else None
         try:
             require_schema(self.file, TOPOGRAPHY_SCHEMA, self.path, version_optional=True)
             self.grid = Grid(x_mm=self.file["grid/x_mm"][()], y_mm=self.file["grid/y_mm"][()])
@@ -709,9 +720,15 @@ class TopographyResult(ResultReader):
         lo, hi = int(self.offsets[i]), int(self.offsets[i + 1])
         return self.file["points/edge"][lo:hi], self.file["points/line"][lo:hi]
 
+    def _stored_frame(self, name: str, i: int) -> np.ndarray:
+        """Frame position i of the gridded dataset `name` as stored (float32, read-only when cached)."""
+        if self._frame_cache is None:
+            return self.file[name][i]
+        return self._frame_cache.get_or_read((self._file_key, name, i), lambda: self.file[name][i])
+
     def z_grid(self, i: int) -> np.ndarray:
         """Gridded Z (ny, nx) of frame position i (NaN outside the data)."""
-        return self.file["grid/z_mm"][i].astype(np.float64)
+        return self._stored_frame("grid/z_mm", i).astype(np.float64)
 
     def sigma_points(self, i: int) -> np.ndarray | None:
         """σ_w (N,) of the points of frame position i; None for a file written before σ was stored."""
@@ -724,7 +741,7 @@ class TopographyResult(ResultReader):
         """σ_w (ny, nx) of the grid of frame position i; None for a file written before σ was stored."""
         if "grid/sigma_w_mm" not in self.file:
             return None
-        return self.file["grid/sigma_w_mm"][i].astype(np.float64)
+        return self._stored_frame("grid/sigma_w_mm", i).astype(np.float64)
 
     def w_grid(self, i: int) -> np.ndarray:
         """Gridded deflection w = z − z_flat (ny, nx) of frame position i."""
@@ -791,7 +808,7 @@ class TopographyResult(ResultReader):
                     f"Y {self.y_mm[0]:g}..{self.y_mm[-1]:g} mm"
                 )
         rows, cols = slice(iy[0], iy[-1] + 1), slice(ix[0], ix[-1] + 1)
-        w = self.file["grid/z_mm"][i, rows, cols].astype(np.float32) - np.float32(self.z_flat_mm)
+        w = self._stored_frame("grid/z_mm", i)[rows, cols].astype(np.float32) - np.float32(self.z_flat_mm)
         step = max(1, math.ceil(max(w.shape) / budget))
         return GridCut(
             frame=frame,
@@ -809,10 +826,13 @@ class TopographyResult(ResultReader):
         t = np.linspace(0.0, 1.0, n_points)
         x, y = x0 + t * (x1 - x0), y0 + t * (y1 - y0)
         weights = self._bilinear(x, y)
+        has_sigma = "grid/sigma_w_mm" in self.file
         profiles = []
         for frame in frames:
-            z = self.file["grid/z_mm"][self.position(frame)].astype(np.float64)
-            sigma = self.sigma_grid(self.position(frame))
+            i = self.position(frame)
+            # Sampled as stored (float32, promoted by the float64 weights: the same values as converting first).
+            z = self._stored_frame("grid/z_mm", i)
+            sigma = self._stored_frame("grid/sigma_w_mm", i) if has_sigma else None
             profiles.append({"frame": frame, "w_mm": _sample(z, weights) - self.z_flat_mm,
                              "sigma_w_mm": None if sigma is None else _sample(sigma, weights)})  # fmt: skip
         return {"s_mm": t * math.hypot(x1 - x0, y1 - y0), "x_mm": x, "y_mm": y, "profiles": profiles}

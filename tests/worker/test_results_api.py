@@ -5,6 +5,7 @@ plane is exact), and a hole without data."""
 from __future__ import annotations
 
 import math
+import os
 
 import h5py
 import numpy as np
@@ -213,3 +214,56 @@ def test_camera_against_camera_leaves_out_what_either_did_not_measure(client, se
     assert body["n_compared"] == 2 and body["largest_difference_mm"] == pytest.approx(0.5, abs=TOLERANCE_MM)
     missing = client.get("/api/v1/jobs/cam-a/topography/against/no-such-job")
     assert missing.status_code == 404
+
+
+def test_a_result_written_again_is_read_again_not_from_the_frames_kept(client, job_id, settings):
+    """Each web server process keeps the frames it read (FRINGELAB_FRAME_CACHE_BYTES), by the file's identity
+    (device, inode, size, modification time): a result written again and renamed into place is read anew, and one
+    deleted is gone (410), never answered from the frames kept of the old file."""
+    base = f"/api/v1/jobs/{job_id}/topography"
+    line = {"x0_mm": -90.0, "y0_mm": -50.0, "x1_mm": 90.0, "y1_mm": 40.0, "frames": [12]}
+    first = client.get(f"{base}/profile", params=line | {"n_points": 7}).json()
+    x, y = np.array(first["x_mm"]), np.array(first["y_mm"])
+    np.testing.assert_allclose(first["profiles"][0]["w_mm"], plane_w_mm(12, x, y), atol=TOLERANCE_MM)
+    frames = client.app.state.fringelab.frames
+    assert frames.held_bytes > 0  # frame 12 (and its σ) kept
+    path = settings.data_path / "results" / "jobs" / "topo-1" / "topography.h5"
+    again = path.with_name("again.h5")
+    write_result(again)
+    with h5py.File(again, "r+") as result:  # the same layout and size, every height 1 mm higher
+        result["grid/z_mm"][...] = result["grid/z_mm"][()] + np.float32(1.0)
+    os.replace(again, path)
+    # Another line than before (no rendered answer kept for it): frame 12 must come from the new file.
+    moved = client.get(f"{base}/profile", params=line | {"n_points": 5}).json()
+    x, y = np.array(moved["x_mm"]), np.array(moved["y_mm"])
+    np.testing.assert_allclose(moved["profiles"][0]["w_mm"], plane_w_mm(12, x, y) + 1.0, atol=TOLERANCE_MM)
+    window = {"frame": 12, "x_min": 0, "x_max": 10, "y_min": 0, "y_max": 10, "format": "f32"}
+    values = np.frombuffer(client.get(f"{base}/grid", params=window).content, dtype="<f4").reshape(6, 6)
+    assert values[4, 5] == pytest.approx(plane_w_mm(12, 10.0, 8.0) + 1.0, abs=TOLERANCE_MM)
+    path.unlink()
+    gone = client.get(f"{base}/profile", params=line | {"n_points": 6})
+    assert gone.status_code == 410 and gone.json()["code"] == "result_missing", gone.text
+
+
+def test_the_frames_kept_stay_within_their_bytes(tmp_path):
+    """The frame cache holds at most its bytes (least recently used out first) and never one frame over an eighth
+    of them, so one huge frame cannot flush the rest."""
+    from fringelab.formats.hdf5 import FrameCache
+
+    cache = FrameCache(max_bytes=8 * 4000)
+    reads: list[int] = []
+
+    def read(i: int, size: int = 1000) -> np.ndarray:
+        reads.append(i)
+        return np.full(size, i, dtype=np.float32)  # 4000 bytes
+
+    for i in range(10):
+        cache.get_or_read(("file", i), lambda i=i: read(i))
+    assert cache.held_bytes == 8 * 4000 and reads == list(range(10))
+    assert cache.get_or_read(("file", 9), lambda: read(99))[0] == 9 and reads[-1] == 9  # kept
+    cache.get_or_read(("file", 0), lambda: read(0))
+    assert reads[-1] == 0  # the oldest went first
+    kept = cache.get_or_read(("file", "big"), lambda: read(-1, size=2000))
+    assert kept.nbytes == 8000 and cache.held_bytes == 8 * 4000 and not kept.flags.writeable
+    cache.get_or_read(("file", "big"), lambda: read(-2, size=2000))
+    assert reads[-1] == -2  # over an eighth of the bound: never kept
