@@ -24,6 +24,11 @@ frames, and 50-job lists; it also prints how many requests were shed (503, and h
 any answer, and how soon after the load the server serves a plain read normally again. Its targets: no 5xx but
 503, no timeouts, p99 < 1 s for what is served, 503 within 100 ms (p99), no wait over 2 s, serving within 5 s
 after. E.g. `--mix heavy --rate 200 --duration 30` and `--mix heavy --rate 500 --duration 20`.
+
+The issue's three scenarios on one server (one setup): `--mix heavy --rate 200 --duration 30 --then 500:20
+--health-flood 200` (`--then RATE:SECONDS`: another load after a `--pause`; `--health-flood N`: at the end, N
+concurrent health requests for 5 s, then 20 plain reads, each a 200 within 2 s). On a loaded machine, shorter
+durations (`--duration 10 --then 500:8`) still show each figure.
 """
 
 from __future__ import annotations
@@ -425,98 +430,106 @@ def recovery_s(base_url: str, token: str, job_id: str, *, within_s: float = 30.0
     return float("inf")
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--rate", type=float, default=200.0, help="requests per second")
-    parser.add_argument("--duration", type=float, default=30.0, help="seconds of load")
-    parser.add_argument("--connections", type=int, default=100, help="concurrent connections at most")
-    parser.add_argument("--test-frames", type=int, default=8, help="frames of the first demo's simulated test")
-    parser.add_argument(
-        "--running-frames",
-        type=int,
-        default=48,
-        help="frames of the second demo's test: enough that its topography runs through the load",
-    )
-    parser.add_argument("--seed", type=int, default=16)
-    parser.add_argument(
-        "--mix",
-        choices=("standard", "heavy"),
-        default="standard",
-        help="heavy: grids of random frames, profiles of random lines, 50-job lists (issue 26)",
-    )
-    parser.add_argument("--api-processes", type=int, default=2, help="web server processes")
-    parser.add_argument("--api-threads", type=int, default=0, help="FRINGELAB_API_THREADS (0: the default)")
-    parser.add_argument("--api-queue", type=int, default=-1, help="FRINGELAB_API_QUEUE (-1: the default)")
-    args = parser.parse_args()
+def health_flood(base_url: str, token: str, job_id: str, *, connections: int, seconds: float = 5.0) -> int:
+    """`connections` clients asking for the health check back to back for `seconds` (issue 26: 100 of them hung
+    both web server processes for good), then 20 plain reads one after another: each must be a 200 within 2 s.
+    Prints what the flood got and the reads' slowest answer; 1 when a read was not served normally."""
+    import aiohttp
 
-    with tempfile.TemporaryDirectory(prefix="fringelab-bench-load-") as temp:
-        system = System(Path(temp) / "var")
-        Path(temp, "var").mkdir()
-        system.env["FRINGELAB_API_PROCESSES"] = str(args.api_processes)
-        if args.api_threads:
-            system.env["FRINGELAB_API_THREADS"] = str(args.api_threads)
-        if args.api_queue >= 0:
-            system.env["FRINGELAB_API_QUEUE"] = str(args.api_queue)
-        for name in (*USERS, PROBE_USER):
-            flags = ["--admin"] if name in ADMINS or name == PROBE_USER else []
-            cli(system.env, "user", "add", name, *flags, "--password-stdin", stdin=f"{name}-password-16\n")
-        tokens = [cli(system.env, "token", "create", name, "--name", "bench") for name in USERS]
-        probe_token = cli(system.env, "token", "create", PROBE_USER, "--name", "bench")
-        try:
-            system.start()
-            setup_started = time.monotonic()
-            admin = httpx.Client(base_url=system.base_url, headers={"Authorization": f"Bearer {tokens[0]}"},
-                                 timeout=30)  # fmt: skip
-            first = demo(admin, test_frames=args.test_frames)
-            job = wait(lambda: topography_job(admin, first, finished=True), timeout_s=SETUP_TIMEOUT_S,
-                       what="finished topography job of the first demo", interval_s=2)  # fmt: skip
-            print(f"setup: first demo measured in {time.monotonic() - setup_started:.0f} s", flush=True)
-            second = demo(admin, test_frames=args.running_frames)
-            # The load starts once the second demo's topography job runs (its ingest and calibrations first).
-            wait(lambda: _topography_running(admin, second), timeout_s=SETUP_TIMEOUT_S,
-                 what="running topography job of the second demo", interval_s=0.5)  # fmt: skip
-            spec = topography_job(admin, second, finished=False)["spec"]  # type: ignore[index]
-            running = running_jobs(admin, second)
-            share_with_members(admin, [first, second])
-            api = system.api_processes()
-            workers = system.worker_processes()
-            rss_before, api_cpu_before, worker_cpu_before = rss_bytes(api), cpu_s(api), cpu_s(workers)
-            each_before = {process.pid: cpu_s([process]) for process in serving(api)}
-            load_before = os.getloadavg()
-            start_at = time.time() + 3.0  # every client process started by then
-            # One topography of 200 frames takes a few seconds: the keeper starts more, so that one always runs.
-            keeper = TopographyKeeper(system.base_url, tokens[0], second, spec, frames=args.running_frames)
-            keeper.start()
+    async def flood() -> Counter:
+        outcomes: Counter = Counter()
+        connector = aiohttp.TCPConnector(limit=connections)
+        async with aiohttp.ClientSession(base_url, connector=connector) as session:
+            deadline = time.monotonic() + seconds
+
+            async def one() -> None:
+                while time.monotonic() < deadline:
+                    try:
+                        async with asyncio.timeout(REQUEST_TIMEOUT_S):
+                            async with session.get("/api/v1/health") as answer:
+                                await answer.read()
+                                outcomes[str(answer.status)] += 1
+                    except (TimeoutError, aiohttp.ClientError) as error:
+                        outcomes[type(error).__name__] += 1
+
+            await asyncio.gather(*(one() for _ in range(connections)))
+        return outcomes
+
+    load_before = os.getloadavg()
+    outcomes = asyncio.run(flood())
+    slowest, statuses = 0.0, Counter()
+    with httpx.Client(base_url=base_url, headers={"Authorization": f"Bearer {token}"}, timeout=10) as client:
+        for _ in range(20):
+            asked = time.monotonic()
             try:
-                results, probed, elapsed = load(
-                    system.base_url, tokens, probe_token, job["id"], running, rate=args.rate,
-                    duration_s=args.duration, connections=args.connections, seed=args.seed, start_at=start_at,
-                    heavy=args.test_frames if args.mix == "heavy" else 0,
-                )  # fmt: skip
-                recovered_s = recovery_s(system.base_url, tokens[0], job["id"])
-            finally:
-                keeper.stop()
-            load_after = os.getloadavg()
-            api = system.api_processes()  # the same ones unless one was restarted (then the figure says so)
-            serving_count = len(serving(api))
-            # How evenly the kernel spread the connections: each serving process's share of the CPU time.
-            each_cpu = [cpu_s([process]) - each_before.get(process.pid, 0.0) for process in serving(api)]
-            rss_after, api_cpu, worker_cpu = (
-                rss_bytes(api),
-                cpu_s(api) - api_cpu_before,
-                cpu_s(workers) - worker_cpu_before,
-            )
-            try:
-                second_jobs = admin.get("/api/v1/jobs", params={"experiment_id": second, "limit": 100}).json()
-                states = Counter(f"{j['kind']}:{j['state']}" for j in second_jobs["items"])
-                spans = {f"{j['kind']} {j['id'][:6]}": (j["started_at"], j["finished_at"])
-                         for j in second_jobs["items"]}  # fmt: skip
-            except httpx.HTTPError as error:  # a server still swamped after the load: say so, keep the figures
-                states = Counter({f"unanswered after the load ({type(error).__name__})": 1})
-                spans = {}
-            admin.close()
-        finally:
-            system.stop()
+                statuses[str(client.get(f"/api/v1/jobs/{job_id}").status_code)] += 1
+            except httpx.HTTPError as error:
+                statuses[type(error).__name__] += 1
+            slowest = max(slowest, time.monotonic() - asked)
+    flooded = json.dumps(dict(sorted(outcomes.items())))
+    print(f"\n--- {connections} concurrent health requests for {seconds:.0f} s: {flooded}")
+    print(
+        f"then 20 reads: {json.dumps(dict(statuses))}, the slowest {slowest * 1000:.0f} ms; load average "
+        f"{' '.join(f'{v:.2f}' for v in load_before)} before, {' '.join(f'{v:.2f}' for v in os.getloadavg())} after"
+    )
+    served = statuses.get("200", 0) == 20 and slowest <= 2.0
+    print("health flood target (every later request served normally): " + ("met" if served else "missed"))
+    return 0 if served else 1
+
+
+def run_load(
+    system: System,
+    args: argparse.Namespace,
+    admin: httpx.Client,
+    tokens: list[str],
+    probe_token: str,
+    job: dict,
+    second: int,
+    spec: dict,
+    running: list[str],
+    *,
+    rate: float,
+    duration_s: float,
+) -> int:
+    """One load at `rate` requests/s for `duration_s` while the second demo's topography jobs run; prints its
+    figures; 1 when a target is missed."""
+    args = argparse.Namespace(**{**vars(args), "rate": rate, "duration": duration_s})
+    api = system.api_processes()
+    workers = system.worker_processes()
+    rss_before, api_cpu_before, worker_cpu_before = rss_bytes(api), cpu_s(api), cpu_s(workers)
+    each_before = {process.pid: cpu_s([process]) for process in serving(api)}
+    load_before = os.getloadavg()
+    start_at = time.time() + 3.0  # every client process started by then
+    # One topography of 200 frames takes a few seconds: the keeper starts more, so that one always runs.
+    keeper = TopographyKeeper(system.base_url, tokens[0], second, spec, frames=args.running_frames)
+    keeper.start()
+    try:
+        results, probed, elapsed = load(
+            system.base_url, tokens, probe_token, job["id"], running, rate=args.rate,
+            duration_s=args.duration, connections=args.connections, seed=args.seed, start_at=start_at,
+            heavy=args.test_frames if args.mix == "heavy" else 0,
+        )  # fmt: skip
+        recovered_s = recovery_s(system.base_url, tokens[0], job["id"])
+    finally:
+        keeper.stop()
+    load_after = os.getloadavg()
+    api = system.api_processes()  # the same ones unless one was restarted (then the figure says so)
+    serving_count = len(serving(api))
+    # How evenly the kernel spread the connections: each serving process's share of the CPU time.
+    each_cpu = [cpu_s([process]) - each_before.get(process.pid, 0.0) for process in serving(api)]
+    rss_after, api_cpu, worker_cpu = (
+        rss_bytes(api),
+        cpu_s(api) - api_cpu_before,
+        cpu_s(workers) - worker_cpu_before,
+    )
+    try:
+        second_jobs = admin.get("/api/v1/jobs", params={"experiment_id": second, "limit": 100}).json()
+        states = Counter(f"{j['kind']}:{j['state']}" for j in second_jobs["items"])
+        spans = {f"{j['kind']} {j['id'][:6]}": (j["started_at"], j["finished_at"])
+                 for j in second_jobs["items"]}  # fmt: skip
+    except httpx.HTTPError as error:  # a server still swamped after the load: say so, keep the figures
+        states = Counter({f"unanswered after the load ({type(error).__name__})": 1})
+        spans = {}
 
     outcomes = Counter(outcome for _kind, _latency, outcome, _at in results)
     answered = [latency for _kind, latency, outcome, _at in results if outcome[0].isdigit() and outcome != "503"]
@@ -581,6 +594,112 @@ def main() -> int:
     missed = [name for name, ok in targets if not ok]
     print("targets: all met" if not missed else f"targets missed: {', '.join(missed)}")
     return 1 if missed else 0
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--rate", type=float, default=200.0, help="requests per second")
+    parser.add_argument("--duration", type=float, default=30.0, help="seconds of load")
+    parser.add_argument("--connections", type=int, default=100, help="concurrent connections at most")
+    parser.add_argument("--test-frames", type=int, default=8, help="frames of the first demo's simulated test")
+    parser.add_argument(
+        "--running-frames",
+        type=int,
+        default=48,
+        help="frames of the second demo's test: enough that its topography runs through the load",
+    )
+    parser.add_argument("--seed", type=int, default=16)
+    parser.add_argument(
+        "--mix",
+        choices=("standard", "heavy"),
+        default="standard",
+        help="heavy: grids of random frames, profiles of random lines, 50-job lists (issue 26)",
+    )
+    parser.add_argument(
+        "--then",
+        action="append",
+        default=[],
+        metavar="RATE:SECONDS",
+        help="another load after the first, on the same server (repeatable; e.g. 500:20)",
+    )
+    parser.add_argument("--pause", type=float, default=5.0, help="seconds between the loads")
+    parser.add_argument(
+        "--health-flood",
+        type=int,
+        default=0,
+        metavar="N",
+        help="at the end, N concurrent health requests, then normal requests",
+    )
+    parser.add_argument("--api-processes", type=int, default=2, help="web server processes")
+    parser.add_argument("--api-threads", type=int, default=0, help="FRINGELAB_API_THREADS (0: the default)")
+    parser.add_argument("--api-queue", type=int, default=-1, help="FRINGELAB_API_QUEUE (-1: the default)")
+    args = parser.parse_args()
+
+    with tempfile.TemporaryDirectory(prefix="fringelab-bench-load-") as temp:
+        system = System(Path(temp) / "var")
+        Path(temp, "var").mkdir()
+        system.env["FRINGELAB_API_PROCESSES"] = str(args.api_processes)
+        if args.api_threads:
+            system.env["FRINGELAB_API_THREADS"] = str(args.api_threads)
+        if args.api_queue >= 0:
+            system.env["FRINGELAB_API_QUEUE"] = str(args.api_queue)
+        for name in (*USERS, PROBE_USER):
+            flags = ["--admin"] if name in ADMINS or name == PROBE_USER else []
+            cli(system.env, "user", "add", name, *flags, "--password-stdin", stdin=f"{name}-password-16\n")
+        tokens = [cli(system.env, "token", "create", name, "--name", "bench") for name in USERS]
+        probe_token = cli(system.env, "token", "create", PROBE_USER, "--name", "bench")
+        try:
+            system.start()
+            setup_started = time.monotonic()
+            admin = httpx.Client(base_url=system.base_url, headers={"Authorization": f"Bearer {tokens[0]}"},
+                                 timeout=30)  # fmt: skip
+            first = demo(admin, test_frames=args.test_frames)
+            job = wait(lambda: topography_job(admin, first, finished=True), timeout_s=SETUP_TIMEOUT_S,
+                       what="finished topography job of the first demo", interval_s=2)  # fmt: skip
+            print(f"setup: first demo measured in {time.monotonic() - setup_started:.0f} s", flush=True)
+            second = demo(admin, test_frames=args.running_frames)
+            # The load starts once the second demo's topography job runs (its ingest and calibrations first).
+            wait(lambda: _topography_running(admin, second), timeout_s=SETUP_TIMEOUT_S,
+                 what="running topography job of the second demo", interval_s=0.5)  # fmt: skip
+            spec = topography_job(admin, second, finished=False)["spec"]  # type: ignore[index]
+            running = running_jobs(admin, second)
+            share_with_members(admin, [first, second])
+            missed = run_load(
+                system,
+                args,
+                admin,
+                tokens,
+                probe_token,
+                job,
+                second,
+                spec,
+                running,
+                rate=args.rate,
+                duration_s=args.duration,
+            )
+            for then in args.then:
+                rate_s, _, seconds = then.partition(":")
+                time.sleep(args.pause)
+                print(f"\n--- then {rate_s}/s for {seconds} s", flush=True)
+                missed |= run_load(
+                    system,
+                    args,
+                    admin,
+                    tokens,
+                    probe_token,
+                    job,
+                    second,
+                    spec,
+                    running,
+                    rate=float(rate_s),
+                    duration_s=float(seconds),
+                )
+            if args.health_flood:
+                missed |= health_flood(system.base_url, tokens[0], job["id"], connections=args.health_flood)
+            admin.close()
+        finally:
+            system.stop()
+    return missed
 
 
 if __name__ == "__main__":

@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import contextlib
+import socket
 import time
 import zipfile
 from collections.abc import Awaitable, Callable, Iterator
@@ -129,6 +130,37 @@ def test_beyond_its_bound_a_web_server_answers_503_with_retry_after_at_once(lapt
     assert set(retry_after) == {"1"}
     with httpx.Client(base_url=laptop.base_url, timeout=10) as client:
         assert client.get("/api/v1/jobs").status_code == 200
+
+
+def test_a_request_beyond_the_bound_is_refused_with_503_and_retry_after_whatever_the_timing(laptop):
+    """Finding 8, made deterministic: the laptop's process holds at most 8 requests in flight (4 threads + a queue
+    of 4). Eight requests held open (headers and half a JSON body sent, the rest never) fill it; the next read is
+    answered 503 `busy` with Retry-After (not queued behind them), and once they are dropped it is served again."""
+    url = httpx.URL(laptop.base_url)
+    head = (f"POST /api/v1/experiments HTTP/1.1\r\nHost: {url.host}:{url.port}\r\nContent-Type: application/json\r\n"
+            "Content-Length: 100\r\n\r\n{\"name\": ").encode()  # fmt: skip
+    held: list[socket.socket] = []
+    try:
+        for _ in range(8):
+            connection = socket.create_connection((url.host, url.port), timeout=10)
+            connection.sendall(head)
+            held.append(connection)
+
+        def refused() -> httpx.Response | None:
+            answer = httpx.get(f"{laptop.base_url}/api/v1/jobs", timeout=10)
+            assert answer.status_code in (200, 503), answer.text
+            return answer if answer.status_code == 503 else None
+
+        # Polled only until the server has read the eight requests' headers; no figure of time is asserted.
+        answer = wait_for(refused, timeout_s=60, what="a 503 while 8 requests are held in flight", interval_s=0.1)
+        assert answer.headers["Retry-After"] == "1" and answer.json()["code"] == "busy", answer.text
+        health = httpx.get(f"{laptop.base_url}/api/v1/health", timeout=10)  # never counted: never shed
+        assert health.status_code in (200, 503) and "ok" in health.json(), health.text
+    finally:
+        for connection in held:
+            connection.close()
+    wait_for(lambda: httpx.get(f"{laptop.base_url}/api/v1/jobs", timeout=10).status_code == 200, timeout_s=60,
+             what="the server serving again once the held requests are dropped", interval_s=0.1)  # fmt: skip
 
 
 # ------------------------------------------------------------------------------------ 7: accounts off
