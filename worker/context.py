@@ -10,6 +10,7 @@ hand-over files between tasks (`worker.handover`), what a job computes (worker/j
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import logging
 import os
@@ -36,6 +37,7 @@ from fringelab.core.settings import Settings
 from fringelab.core.text import public_text
 from fringelab.formats.atomic import atomic_path
 from fringelab.science import Cancelled, MeasurementError
+from worker.reserve import BelowReserve, require_reserve
 from worker.runtime import job_dir
 
 log = logging.getLogger(__name__)
@@ -126,9 +128,21 @@ class JobContext(Generic[Spec]):
     ) -> Iterator[Path]:
         """Write a file atomically: yields a temporary path in the job directory; on success it is renamed to
         `name`, so readers and a second run of the task see the old complete file or the new one, never a part.
-        Published files are listed on the job (size, SHA-256) when it succeeds."""
-        with atomic_path(self.directory / name) as partial:
-            yield partial
+        Published files are listed on the job (size, SHA-256) when it succeeds.
+
+        Every job's files keep the disk's reserve (FRINGELAB_MIN_FREE_DISK_BYTES, `worker.reserve`): checked
+        before the file is begun and once it is written, before it is renamed into place; a file that took the
+        volume below the reserve, or met a full disk, is removed and the job fails saying so (BelowReserve)."""
+        require_reserve(self.settings, what=f"writing {name}")
+        try:
+            with atomic_path(self.directory / name) as partial:
+                yield partial
+                require_reserve(self.settings, what=f"keeping {name} (removed)")
+        except OSError as error:
+            if error.errno not in (errno.ENOSPC, errno.EDQUOT):
+                raise
+            raise BelowReserve(f"the data volume filled up while {name} was written (removed); free some space "
+                               "and retry the job") from None  # fmt: skip
         if publish:
             self.files[name] = media_type
 

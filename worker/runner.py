@@ -30,6 +30,7 @@ from typing import Any
 
 from celery import Task
 
+from fringelab.core.job_kinds import JOB_KINDS
 from fringelab.core.jobs import FINAL_STATES, add_log
 from fringelab.core.models import Job, JobChunk, utcnow
 from worker.chunks import (
@@ -56,6 +57,7 @@ from worker.context import (
     worker_name,
 )
 from worker.handover import drop_held, remove_chunk_files
+from worker.reserve import require_reserve
 from worker.runtime import sessions_of, settings_of
 
 log = logging.getLogger(__name__)
@@ -74,6 +76,7 @@ def run_job(task: Task, job_id: str, body: JobBody) -> dict[str, Any]:
             confirm_cancel(sessions, job)
             return dict(job.result)
         again = job.state == "running"
+        writes_files = bool(JOB_KINDS[job.kind].result_files) if job.kind in JOB_KINDS else False
         moment = utcnow()
         job.state = "running"
         job.started_at = job.started_at or moment
@@ -91,7 +94,15 @@ def run_job(task: Task, job_id: str, body: JobBody) -> dict[str, Any]:
         finish(sessions, job_id, state="failed", error=unread)
         return {}
     context = JobContext(job_id=job_id, spec=spec, settings=settings_of(task.app), sessions=sessions)
-    ok, outcome = run_guarded(context, lambda: body(context))
+
+    def within_reserve() -> dict[str, Any] | Chunked:
+        # A kind that writes result files does not begin below the disk's reserve (its files check it again
+        # as they are written: `JobContext.output`); an ingest has its own checks and must end its recording.
+        if writes_files:
+            require_reserve(context.settings, what="starting the job")
+        return body(context)
+
+    ok, outcome = run_guarded(context, within_reserve)
     if not ok:
         return {}
     if isinstance(outcome, Chunked):

@@ -13,6 +13,7 @@ from typing import Any
 from fringelab.core.models import Job
 from fringelab.core.specs import ExportSpec
 from worker.context import JobContext
+from worker.reserve import require_reserve
 
 SOURCE_FILES = {"topography": "topography.h5", "comparison": "comparison.h5"}
 
@@ -26,15 +27,29 @@ def write_download(context: JobContext, fmt: str, name: str, media: str, write: 
         return
     work = context.directory / "vtk"
     shutil.rmtree(work, ignore_errors=True)  # a previous run's leftovers
-    write(work / f"{Path(name).stem.removesuffix('-vtk')}.pvd")
-    with (
-        context.output(name, media_type=media) as temporary,
-        zipfile.ZipFile(temporary, "w", compression=zipfile.ZIP_DEFLATED) as archive,
-    ):
-        for path in sorted(work.rglob("*")):
-            if path.is_file():
-                archive.write(path, path.relative_to(work))
-    shutil.rmtree(work)
+    try:
+        require_reserve(context.settings, what=f"writing {name}")
+        write(work / f"{Path(name).stem.removesuffix('-vtk')}.pvd")
+        with (
+            context.output(name, media_type=media) as temporary,
+            zipfile.ZipFile(temporary, "w", compression=zipfile.ZIP_DEFLATED) as archive,
+        ):
+            for path in sorted(work.rglob("*")):
+                if path.is_file():
+                    require_reserve(context.settings, what=f"writing the rest of {name}")
+                    archive.write(path, path.relative_to(work))
+    finally:  # the .vtu files are only the ZIP's parts: never left behind, whatever ended the job
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def keeping_reserve(context: JobContext, name: str) -> Callable[[int, int, str], None]:
+    """A progress callback for a format's writer that stops it (BelowReserve) once the data volume has fallen
+    below its reserve while `name` is written frame by frame (issue 26: only topography jobs checked)."""
+
+    def check(done: int, total: int, _stage: str) -> None:
+        require_reserve(context.settings, what=f"writing frame {done + 1} of {total} of {name}")
+
+    return check
 
 
 def export_body(context: JobContext[ExportSpec]) -> dict[str, Any]:
@@ -59,8 +74,8 @@ def export_body(context: JobContext[ExportSpec]) -> dict[str, Any]:
     else:
         name, media = EXPORT_FILES[fmt]
         write_download(context, fmt, name, media,
-                       lambda path: export_result(source_path, fmt, path, line=line, lines=lines,
-                                                  frames=frame_range))  # fmt: skip
+                       lambda path: export_result(source_path, fmt, path, line=line, lines=lines, frames=frame_range,
+                                                  progress=keeping_reserve(context, name)))  # fmt: skip
     context.progress(1, 1, "exporting")
     frames_json = None if frames is None else frames.model_dump(mode="json")
     return {"format": fmt, "file": name, "source_job_id": spec.job_id, "frames": frames_json, "lines": len(lines or [])}
