@@ -119,10 +119,10 @@ def _names_of(session: Session, jobs: Sequence[Job]) -> dict[str, tuple[str | No
         recording_of[job.id] = recording_of[job.id] or recording_of_source.get(sources[job.id])
     cameras = select(Recording.id, Camera.name).join(Camera, Camera.id == Recording.camera_id)
     cameras = cameras.where(Recording.id.in_(set(recording_of.values()) - {None}))
-    camera_of_recording = dict(session.execute(cameras).tuples().all())
+    camera_of_recording = {recording_id: name for recording_id, name in session.execute(cameras)}
     experiment_ids = {job.experiment_id for job in jobs if job.experiment_id is not None}
     experiments = select(Experiment.id, Experiment.name).where(Experiment.id.in_(experiment_ids))
-    experiment_names = dict(session.execute(experiments).tuples().all())
+    experiment_names = {experiment_id: name for experiment_id, name in session.execute(experiments)}
     return {
         job.id: (
             experiment_names.get(job.experiment_id) if job.experiment_id is not None else None,
