@@ -157,10 +157,17 @@ class Settings(BaseSettings):
     simulation_check_bytes: int = Field(
         2 * 2**30,
         ge=256 * 2**20,
-        description="Memory (address space) the child process that reads an uploaded simulation may take.",
+        description="Memory (address space) of the process in a worker that checks an uploaded simulation.",
     )
     simulation_check_s: float = Field(
-        300.0, gt=0, le=86400, description="Time the child process that reads an uploaded simulation may take."
+        300.0, gt=0, le=86400, description="Time the process in a worker that checks an uploaded simulation may take."
+    )
+    simulation_max_bytes: int = Field(
+        2**30,
+        ge=2**20,
+        description="Memory the arrays a simulation declares may take (its nodes, elements and the states a reader "
+        "holds at once, from the file's header or size); a model declaring more is refused before they are "
+        "allocated, at its check and in comparisons.",
     )
     event_streams_per_user: int = Field(
         32, ge=1, le=10_000, description="Event streams one user may hold open in one web server process."

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from fringelab.formats.atomic import atomic_path
+from fringelab.formats.simulation_budget import DEFAULT_MAX_BYTES, check_declared, estimated_rows
 from fringelab.science.fe_results import FEResults
 
 NODES_COLUMNS = ("state", "time_s", "node", "x_mm", "y_mm", "z_mm", "ux_mm", "uy_mm", "uz_mm")
@@ -33,7 +34,12 @@ def csv_header(path: str | Path) -> list[str]:
     return [c.strip() for c in first.strip().split(",")] if first.strip() else []
 
 
-def _table(path: Path, required: tuple[str, ...], optional: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
+PARSE_COPIES = 3  # the parsed table, the parser's growing buffer and the index arrays made from its columns
+
+
+def _table(
+    path: Path, required: tuple[str, ...], optional: tuple[str, ...] = (), *, max_bytes: int = DEFAULT_MAX_BYTES
+) -> dict[str, np.ndarray]:
     header = csv_header(path)
     missing = [c for c in required if c not in header]
     if missing:
@@ -43,6 +49,9 @@ def _table(path: Path, required: tuple[str, ...], optional: tuple[str, ...] = ()
         raise ValueError(
             f"{path.name}: line 1: unknown column(s) {', '.join(unknown)}; expected {','.join(required + optional)}"
         )
+    rows = estimated_rows(path)  # before the parser allocates them: its rows from its size
+    check_declared(path.name, max_bytes=max_bytes, n_nodes=0, n_values=PARSE_COPIES * rows * len(header),
+                   what=f"about {rows} rows of {len(header)} columns, from its size")  # fmt: skip
     try:
         data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, dtype=np.float64)
     except ValueError:
@@ -73,17 +82,22 @@ def _raise_bad_line(path: Path, n_columns: int) -> None:
                     raise ValueError(f"{path.name}: line {number}: {cell.strip()!r} is not a number") from None
 
 
-def read_nodes_csv(path: str | Path) -> FEResults:
+def read_nodes_csv(path: str | Path, *, max_bytes: int = DEFAULT_MAX_BYTES) -> FEResults:
     """The nodal table as `FEResults` (mm, s; no elements). States are numbered by their `state` value; the
     nodes are every node of any state, and a node a state leaves out (an eroded element's) has a NaN displacement
-    there (`FEResults`)."""
+    there (`FEResults`). Refused (ValueError) before it is parsed when its rows, estimated from its size, would
+    take more than `max_bytes` (`simulation_budget`), and before its states are laid out when states × nodes
+    would."""
     path = Path(path)
-    table = _table(path, NODES_COLUMNS)
+    table = _table(path, NODES_COLUMNS, max_bytes=max_bytes)
     state = table["state"].astype(np.int64)
     node = table["node"].astype(np.int64)
     states, state_pos = np.unique(state, return_inverse=True)
     node_ids, node_pos = np.unique(node, return_inverse=True)
     n_states, n_nodes = len(states), len(node_ids)
+    # every state holds every node: a few rows naming far-apart states and nodes declare a large table
+    check_declared(path.name, max_bytes=max_bytes, n_nodes=n_nodes, n_states_held=n_states, n_states=n_states,
+                   n_values=PARSE_COPIES * len(state) * len(table), what="its state and node numbers")  # fmt: skip
     flat = state_pos * n_nodes + node_pos
     unique_flat, first_row = np.unique(flat, return_index=True)
     if len(unique_flat) != len(flat):
@@ -104,10 +118,10 @@ def read_nodes_csv(path: str | Path) -> FEResults:
     )  # fmt: skip
 
 
-def read_punch_csv(path: str | Path) -> dict[str, np.ndarray]:
+def read_punch_csv(path: str | Path, *, max_bytes: int = DEFAULT_MAX_BYTES) -> dict[str, np.ndarray]:
     """The punch table: time_s, force_kN and, if present, punch_displacement_mm, each (Q,)."""
     path = Path(path)
-    table = _table(path, ("time_s", "force_kN"), ("punch_displacement_mm",))
+    table = _table(path, ("time_s", "force_kN"), ("punch_displacement_mm",), max_bytes=max_bytes)
     return dict(table)
 
 

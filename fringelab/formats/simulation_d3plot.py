@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from fringelab.formats.simulation_budget import DEFAULT_MAX_BYTES, check_declared
 from fringelab.science.fe_results import FEResults
 
 INSTALL_HINT = "reading d3plot files needs lasso-python: pip install 'fringelab[lsdyna]'"
@@ -126,11 +127,30 @@ def _open(D3plot: Any, path: Path, **options: Any) -> Any:
         raise ValueError(f"{path.name}: not a readable d3plot ({type(error).__name__}: {error})") from None
 
 
-def read_d3plot(path: str | Path) -> FEResults:
-    """The first file of a d3plot family as `FEResults` (length and time units not declared)."""
+def _check_header(path: Path, max_bytes: int) -> None:
+    """The sizes the control header declares (nodes; shells, solids, thick shells and beams with their nodes and
+    part) against the budget (`simulation_budget`), before lasso reads the geometry they size. Only the header is
+    read (lasso's `D3plotHeader`); the states are read one at a time."""
+    from lasso.dyna import D3plotHeader
+
+    try:
+        header = D3plotHeader().load_file(str(path))
+    except Exception as error:  # lasso raises many kinds for a file it cannot parse
+        raise ValueError(f"{path.name}: not a readable d3plot ({type(error).__name__}: {error})") from None
+    counts = {"shells": 4, "solids": 8, "thick_shells": 8, "beams": 5}  # nodes (and a beam's orientation) each
+    n_elements = sum(max(0, int(getattr(header, f"n_{name}", 0))) for name in counts)
+    n_corners = sum(max(0, int(getattr(header, f"n_{name}", 0))) * (k + 1) for name, k in counts.items())
+    check_declared(path.name, max_bytes=max_bytes, n_nodes=max(0, int(header.n_nodes)), n_elements=n_elements,
+                   n_corners=n_corners, what="its control header")  # fmt: skip
+
+
+def read_d3plot(path: str | Path, *, max_bytes: int = DEFAULT_MAX_BYTES) -> FEResults:
+    """The first file of a d3plot family as `FEResults` (length and time units not declared); ValueError before
+    its geometry is read when its header declares more than `max_bytes` (`simulation_budget`)."""
     D3plot, ArrayType = _lasso()
     path = Path(path)
     files = family_files(path)
+    _check_header(path, max_bytes)
     timeline = _open(D3plot, path, state_array_filter=[ArrayType.global_timesteps], buffered_reading=True)
     header = timeline.header
     try:  # lasso's own sizes (private, pinned below lasso 3): the bytes of one state and of the geometry

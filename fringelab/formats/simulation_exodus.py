@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from fringelab.formats.simulation_budget import DEFAULT_MAX_BYTES, check_declared
 from fringelab.formats.simulation_mesh import CellBlock, displacement_components, shells_and_solids, two_d_message
 from fringelab.science.fe_results import FEResults
 
@@ -139,8 +140,24 @@ def _damage_named(where: str) -> Iterator[None]:
         ) from None
 
 
-def read_exodus(path: str | Path) -> FEResults:
-    """An Exodus II file as `FEResults` (length and time units not declared)."""
+def _check_dimensions(nc: Any, where: str, max_bytes: int) -> None:
+    """The sizes the file's dimensions declare (nodes, each block's elements × nodes per element, time steps)
+    against the budget (`simulation_budget`), before any variable is read: a dimension costs nothing to declare."""
+    dimensions = nc.dimensions
+
+    def size(name: str) -> int:
+        return len(dimensions[name]) if name in dimensions else 0
+
+    n_blocks = size("num_el_blk")
+    n_elements = sum(size(f"num_el_in_blk{k}") for k in range(1, n_blocks + 1))
+    n_corners = sum(size(f"num_el_in_blk{k}") * size(f"num_nod_per_el{k}") for k in range(1, n_blocks + 1))
+    check_declared(where, max_bytes=max_bytes, n_nodes=size("num_nodes"), n_elements=n_elements,
+                   n_corners=n_corners, n_states=size("time_step"), what="its header's dimensions")  # fmt: skip
+
+
+def read_exodus(path: str | Path, *, max_bytes: int = DEFAULT_MAX_BYTES) -> FEResults:
+    """An Exodus II file as `FEResults` (length and time units not declared); ValueError before anything is read
+    when its dimensions declare more than `max_bytes` (`simulation_budget`)."""
     import netCDF4
 
     path = Path(path)
@@ -150,6 +167,7 @@ def read_exodus(path: str | Path) -> FEResults:
     except Exception as error:  # netCDF4 raises OSError and others for a file it cannot parse
         raise ValueError(f"{where}: not a readable Exodus II file ({type(error).__name__}: {error})") from None
     with nc, _damage_named(where):
+        _check_dimensions(nc, where, max_bytes)
         xyz, blocks, numbers = _mesh(nc, where)
         variables = nc.variables
         if "time_whole" not in variables or "name_nod_var" not in variables:

@@ -28,10 +28,21 @@ from pathlib import Path
 import numpy as np
 
 from fringelab.formats.atomic import atomic_write
+from fringelab.formats.simulation_budget import DEFAULT_MAX_BYTES, check_declared, estimated_rows
 
 NODOUT_ID_COLUMNS = 10  # the node id ends at column 10
 NODOUT_FIELD_COLUMNS = 12  # each value after it is 12 columns wide
 _RCFORC_LABELS = ("time", "x", "y", "z")
+# A parsed line is held as Python objects (an id, a tuple or list of floats, the list's slot) until the arrays are
+# made: about 190 bytes, counted as this many 8-byte values against the budget (`simulation_budget`).
+VALUES_PER_LINE = 24
+
+
+def _check_lines(path: Path, max_bytes: int) -> None:
+    """The lines of a file, estimated from its size, held as parsed against the budget, before it is parsed."""
+    lines = estimated_rows(path)
+    check_declared(path.name, max_bytes=max_bytes, n_nodes=0, n_values=VALUES_PER_LINE * lines,
+                   what=f"about {lines} lines, from its size")  # fmt: skip
 
 
 class FieldError(ValueError):
@@ -116,9 +127,11 @@ def _check_block_came(header_line: int, name: str) -> None:
         )
 
 
-def read_nodout(path: str | Path) -> NodeHistories:
-    """Parse an ASCII nodout file (ValueError naming the file and line of anything not understood)."""
+def read_nodout(path: str | Path, *, max_bytes: int = DEFAULT_MAX_BYTES) -> NodeHistories:
+    """Parse an ASCII nodout file (ValueError naming the file and line of anything not understood, or, before it
+    is parsed, its size when its lines would take more than `max_bytes`)."""
     path = Path(path)
+    _check_lines(path, max_bytes)
     times: list[float] = []
     blocks: list[tuple[int, list[int], list[tuple[float, float, float]]]] = []  # (header line, ids, disp)
     missing: list[int] = []
@@ -265,9 +278,11 @@ def _rcforc_fields(line: str, where: str) -> tuple[int, list[float]]:
     return int(ident_text), values
 
 
-def read_rcforc(path: str | Path) -> ContactForces:
-    """Parse an ASCII rcforc file (ValueError naming the file and line of anything not understood)."""
+def read_rcforc(path: str | Path, *, max_bytes: int = DEFAULT_MAX_BYTES) -> ContactForces:
+    """Parse an ASCII rcforc file (ValueError naming the file and line of anything not understood, or, before it
+    is parsed, its size when its lines would take more than `max_bytes`)."""
     path = Path(path)
+    _check_lines(path, max_bytes)
     collected: dict[tuple[int, str], list[list[float]]] = {}
     missing: list[int] = []
     with open(path, encoding="latin-1") as handle:

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from fringelab.formats.atomic import atomic_path
+from fringelab.formats.simulation_budget import DEFAULT_MAX_BYTES, check_declared
 from fringelab.formats.simulation_mesh import CellBlock, displacement_vector, shells_and_solids
 from fringelab.science.fe_results import FEResults
 
@@ -27,9 +28,31 @@ def _natural_key(path: Path) -> list[object]:
     return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", path.name)]
 
 
-def _read_mesh(path: Path):
+HEAD_BYTES = 1 << 16  # where a .vtu's <Piece NumberOfPoints=… NumberOfCells=…> must be
+_PIECE = re.compile(rb"<Piece\b([^>]*)>")
+_COUNT = re.compile(rb"\b(NumberOfPoints|NumberOfCells)\s*=\s*[\"']\s*([0-9]+)\s*[\"']")
+MAX_CELL_NODES = 8  # corners counted per declared cell (a hexahedron's; higher-order cells keep their corners)
+
+
+def _check_piece(path: Path, max_bytes: int) -> None:
+    """The sizes a .vtu's Piece declares (NumberOfPoints, NumberOfCells) and the file's text, which meshio holds
+    whole while it parses, against the budget (`simulation_budget`), before meshio reads it."""
+    with open(path, "rb") as handle:
+        head = handle.read(HEAD_BYTES)
+    piece = _PIECE.search(head)  # none: no .vtu, which meshio says (its text is still counted)
+    counts = {name.decode(): int(value) for name, value in _COUNT.findall(piece.group(1) if piece else b"")}
+    n_cells = counts.get("NumberOfCells", 0)
+    # the cells' connectivity, offsets and types (MAX_CELL_NODES + 2 values a cell), and the text twice (the text
+    # and the arrays decoded from it)
+    check_declared(path.name, max_bytes=max_bytes, n_nodes=counts.get("NumberOfPoints", 0), n_elements=n_cells,
+                   n_corners=n_cells * (MAX_CELL_NODES + 2), file_bytes=2 * path.stat().st_size,
+                   what="its Piece's NumberOfPoints and NumberOfCells, and its size")  # fmt: skip
+
+
+def _read_mesh(path: Path, max_bytes: int = DEFAULT_MAX_BYTES):
     import meshio
 
+    _check_piece(path, max_bytes)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -79,14 +102,15 @@ def read_pvd(path: str | Path) -> list[tuple[float, Path]]:
     return sorted(entries, key=lambda entry: entry[0])
 
 
-def read_vtu_series(path: str | Path) -> FEResults:
+def read_vtu_series(path: str | Path, *, max_bytes: int = DEFAULT_MAX_BYTES) -> FEResults:
     """A .pvd collection or a folder of .vtu files (or one .vtu) as `FEResults` (length and time units not
-    declared)."""
+    declared). Each file is read one at a time, each refused before meshio reads it when its Piece declares more
+    than `max_bytes` (`simulation_budget`)."""
     path = Path(path)
     if path.is_dir():
         pvds = sorted(path.glob("*.pvd"))
         if pvds:
-            return read_vtu_series(pvds[0])
+            return read_vtu_series(pvds[0], max_bytes=max_bytes)
         files = sorted(path.glob("*.vtu"), key=_natural_key)
         if not files:
             raise ValueError(f"{path.name}: no .pvd or .vtu file in the folder")
@@ -95,14 +119,14 @@ def read_vtu_series(path: str | Path) -> FEResults:
         entries = read_pvd(path)
     else:
         entries = [(float("nan"), path)]
-    first = _read_mesh(entries[0][1])
+    first = _read_mesh(entries[0][1], max_bytes)
     where = entries[0][1].name
     shells, solids = mesh_cells(first.cells, where)
     times = np.array([t for t, _ in entries])
     if np.any(np.isnan(times)):
         values = []
         for index, (_, file) in enumerate(entries):
-            mesh = first if index == 0 else _read_mesh(file)
+            mesh = first if index == 0 else _read_mesh(file, max_bytes)
             value = mesh.field_data.get("TimeValue")
             values.append(float(np.ravel(value)[0]) if value is not None else float(index))
         times = np.array(values)
@@ -114,7 +138,7 @@ def read_vtu_series(path: str | Path) -> FEResults:
     ids = first.point_data.get("node_id")
 
     def displacement(i: int) -> np.ndarray:
-        mesh = first if i == 0 else _read_mesh(files[i])
+        mesh = first if i == 0 else _read_mesh(files[i], max_bytes)
         if len(mesh.points) == n_nodes:
             return displacement_field(mesh.point_data, files[i].name)
         # A state that leaves nodes out (eroded elements): matched by node_id, the missing ones NaN (FEResults).

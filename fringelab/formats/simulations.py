@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fringelab.formats.simulation_budget import DEFAULT_MAX_BYTES
 from fringelab.science.fe_results import FEResults, with_updates
 
 SIMULATION_FORMATS = ("d3plot", "vtu", "pvd", "exodus", "csv", "nodout", "rcforc")
@@ -43,6 +44,7 @@ def open_simulation(
     punch_node: int | None = None,
     contact_interface: int | None = None,
     punch_needed: bool = True,
+    max_bytes: int = DEFAULT_MAX_BYTES,
 ) -> FEResults:
     """Read a simulation (file or folder) into `FEResults`, with its punch travel and force where it has them.
 
@@ -50,6 +52,8 @@ def open_simulation(
     only node, or none. contact_interface: the rcforc interface of the punch; None: the one with the largest force.
     punch_needed: a nodout of several nodes without a punch_node is a ValueError naming them (for a comparison);
     False reads it without a punch travel (an upload: the punch node is chosen when it is compared).
+    max_bytes: the memory each file's declared arrays may take (`simulation_budget`: FRINGELAB_SIMULATION_MAX_BYTES),
+    checked by its reader before it allocates them.
     """
     from fringelab.formats import simulation_csv, simulation_lsdyna_ascii
 
@@ -73,30 +77,30 @@ def open_simulation(
     if kind == "d3plot":
         from fringelab.formats.simulation_d3plot import read_d3plot
 
-        results = read_d3plot(kinds["d3plot"][0])
+        results = read_d3plot(kinds["d3plot"][0], max_bytes=max_bytes)
     elif kind in ("pvd", "vtu"):
         from fringelab.formats.simulation_vtu import read_vtu_series
 
-        results = read_vtu_series(kinds["pvd"][0] if kind == "pvd" else (path if path.is_dir() else path))
+        results = read_vtu_series(kinds["pvd"][0] if kind == "pvd" else path, max_bytes=max_bytes)
     elif kind == "exodus":
         from fringelab.formats.simulation_exodus import read_exodus
 
-        results = read_exodus(kinds["exodus"][0])
+        results = read_exodus(kinds["exodus"][0], max_bytes=max_bytes)
     else:
-        results = simulation_csv.read_nodes_csv(kinds["nodes-csv"][0])
+        results = simulation_csv.read_nodes_csv(kinds["nodes-csv"][0], max_bytes=max_bytes)
     updates: dict[str, object] = {}
     if "nodout" in kinds:
-        histories = simulation_lsdyna_ascii.read_nodout(kinds["nodout"][0])
+        histories = simulation_lsdyna_ascii.read_nodout(kinds["nodout"][0], max_bytes=max_bytes)
         ambiguous = punch_node is None and len(histories.node_ids) > 1
         if (punch_node is None or punch_node in histories.node_ids) and (punch_needed or not ambiguous):
             travel = histories.punch_travel(punch_node, where=kinds["nodout"][0].name)
             updates.update(punch_time=histories.time, punch_displacement=travel)
     if "rcforc" in kinds:
-        forces = simulation_lsdyna_ascii.read_rcforc(kinds["rcforc"][0])
+        forces = simulation_lsdyna_ascii.read_rcforc(kinds["rcforc"][0], max_bytes=max_bytes)
         time, force, _ = forces.punch_force(contact_interface, where=kinds["rcforc"][0].name)
         updates.update(force_time=time, force=force, force_unit_kN=None)
     if "punch-csv" in kinds:
-        table = simulation_csv.read_punch_csv(kinds["punch-csv"][0])
+        table = simulation_csv.read_punch_csv(kinds["punch-csv"][0], max_bytes=max_bytes)
         updates.update(force_time=table["time_s"], force=table["force_kN"], force_unit_kN=1.0)
         if "punch_displacement_mm" in table and "punch_displacement" not in updates:
             updates.update(

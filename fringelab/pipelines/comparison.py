@@ -18,6 +18,7 @@ import numpy as np
 
 from fringelab.formats.comparison import ComparisonWriter, pair_result, plate_frame_of
 from fringelab.formats.hdf5 import json_text
+from fringelab.formats.simulation_budget import DEFAULT_MAX_BYTES
 from fringelab.formats.simulations import open_simulation
 from fringelab.formats.topography import TopographyResult
 from fringelab.science import compare
@@ -77,15 +78,18 @@ def compare_result(
     punch_node: int | None = None,
     contact_interface: int | None = None,
     progress: Callable[[int, int, str], None] | None = None,
+    max_simulation_bytes: int = DEFAULT_MAX_BYTES,
 ) -> ComparisonSummary:
     """Compare a topography result with a simulation into a comparison file (layout in `formats.comparison`).
 
     Raises ValueError for unreadable input and `compare.ComparisonError` (naming the setting) when the model
-    cannot be mapped or aligned or does not overlap the measurement; nothing is written then.
+    cannot be mapped or aligned or does not overlap the measurement; nothing is written then. The model's
+    declared arrays may take `max_simulation_bytes` (`formats.simulation_budget`).
     """
     if align not in compare.ALIGNMENTS:
         raise ValueError(f"align: expected one of {compare.ALIGNMENTS}, got {align!r}")
-    simulation = open_simulation(simulation_path, punch_node=punch_node, contact_interface=contact_interface)
+    simulation = open_simulation(simulation_path, punch_node=punch_node, contact_interface=contact_interface,
+                                 max_bytes=max_simulation_bytes)  # fmt: skip
     with TopographyResult(result_path) as result:
         grid = result.grid
         plate = plate_frame_of(result)

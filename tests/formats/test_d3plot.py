@@ -102,7 +102,7 @@ def test_a_thermal_result_is_refused_at_upload_with_a_sentence(tmp_path: Path) -
     """Node temperatures and no positions: refused when it is opened (the upload's check), not with a KeyError
     when a comparison asks for a displacement."""
     from fringelab.core.errors import Invalid
-    from fringelab.core.simulations import read_simulation_summary
+    from fringelab.core.simulation_check import read_simulation_summary
 
     d3plot = lasso_geometry()
     d3plot.arrays[A.global_timesteps] = TIME  # type: ignore[attr-defined]
@@ -112,7 +112,7 @@ def test_a_thermal_result_is_refused_at_upload_with_a_sentence(tmp_path: Path) -
     with pytest.raises(ValueError, match=refusal + " written by a thermal-only run"):
         open_simulation(tmp_path)
     with pytest.raises(Invalid, match=r"thermal.zip: not a simulation fringelab reads: d3plot: no nodal displacements"):
-        read_simulation_summary(tmp_path, filename="thermal.zip")
+        read_simulation_summary(tmp_path, filename="thermal.zip", max_bytes=2**30)
 
 
 def test_geometry_only_says_so(tmp_path: Path) -> None:
@@ -132,6 +132,33 @@ def test_not_a_d3plot_is_named(tmp_path: Path) -> None:
     (tmp_path / "d3plot").write_bytes(b"\x01" * 300)
     with pytest.raises(ValueError, match=r"d3plot: not a readable d3plot \("):
         open_simulation(tmp_path)
+
+
+def test_a_header_declaring_60_m_nodes_is_refused_before_the_geometry_is_read(tmp_path: Path) -> None:
+    """Issue 26, finding 4: the control header's NUMNP (word 16) says 60 M nodes in a file of a few KB; refused by
+    the budget (`simulation_budget`) from the header alone, before lasso reads a geometry that size (tracemalloc's
+    peak: numpy's buffers are traced)."""
+    import tracemalloc
+
+    write_d3plot(tmp_path / "d3plot", node_xyz=XYZ, shells=QUADS, time=TIME, displacement=DISP, node_ids=IDS)
+    data = bytearray((tmp_path / "d3plot").read_bytes())
+    assert np.frombuffer(bytes(data[64:68]), np.int32)[0] == len(XYZ)  # lasso writes 4-byte words
+    data[64:68] = np.array([60_000_000], np.int32).tobytes()
+    (tmp_path / "d3plot").write_bytes(bytes(data))
+    tracemalloc.start()
+    try:
+        with pytest.raises(ValueError, match=r"d3plot: declares 60000000 nodes, 20 elements \(its control header\): "
+                                             r"reading it would take about 3204 MiB"):  # fmt: skip
+            open_simulation(tmp_path)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak < 16 * 2**20, peak
+    (tmp_path / "sound").mkdir()
+    write_d3plot(tmp_path / "sound" / "d3plot", node_xyz=XYZ, shells=QUADS, time=TIME, displacement=DISP)
+    assert open_simulation(tmp_path / "sound", max_bytes=2**20).n_nodes == len(XYZ)
+    with pytest.raises(ValueError, match="FRINGELAB_SIMULATION_MAX_BYTES"):
+        open_simulation(tmp_path / "sound", max_bytes=1024)
 
 
 def test_a_damaged_geometry_file_is_a_value_error_naming_it(tmp_path: Path) -> None:

@@ -44,6 +44,7 @@ def comparison_body(context: JobContext[ComparisonSpec]) -> dict[str, Any]:
                 punch_node=spec.punch_node,
                 contact_interface=spec.contact_interface,
                 progress=lambda done, total, stage: context.progress(done, total, stage),
+                max_simulation_bytes=context.settings.simulation_max_bytes,
             )
     except (ComparisonError, ValueError) as error:  # the setting to change named as the mapping form names it
         raise type(error)(in_form_terms(str(error))) from None
