@@ -1,7 +1,8 @@
 """Simulations of an experiment: a streamed upload (one model file, or a ZIP of a folder format), list, read, delete.
 
 `PUT /api/v1/experiments/{experiment_id}/simulations/{filename}` with the file as the body answers 201 with the
-simulation once `open_simulation` has read it; a file that is no simulation is a 422 naming the problem and leaves
+simulation stored and `checking`: its check job reads it in a worker (never in this process), and it turns `ready`
+or `failed` with the reason. A name, size or archive that cannot be a simulation is refused at once (4xx) and leaves
 nothing behind. Access follows the experiment (write access to upload or delete). The work is in
 `fringelab.core.simulations`.
 """
@@ -88,7 +89,8 @@ async def put_simulation(
 ) -> JSONResponse:
     """Upload a simulation in one streamed request (e.g. `curl -T plate.zip URL`): a model file (.csv, .vtu,
     .e/.exo) or a ZIP of a folder (a d3plot family with nodout/rcforc, a .pvd with its .vtu files, a nodal CSV
-    with its punch CSV). Within FRINGELAB_MAX_UPLOAD_BYTES and the free disk; read before it is registered."""
+    with its punch CSV). Within FRINGELAB_MAX_UPLOAD_BYTES and the free disk. Answers the simulation `checking`;
+    its check job reads it in a worker (GET /api/v1/simulations/{id} until `ready` or `failed`)."""
     settings = state.settings
     length = declared_length(request)
     await run_in_threadpool(

@@ -2,22 +2,28 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
 from backend.schemas.common import UtcDatetime
 
+SimulationState = Literal["checking", "ready", "failed"]
+
 
 class SimulationOut(BaseModel):
-    """A simulation that reads (only those are registered): its format, size and what it holds."""
+    """A simulation: `checking` until its check job has read it in a worker, then `ready` with its format and what
+    it holds, or `failed` with the reason in `error`. Only a ready one can be compared."""
 
     model_config = ConfigDict(from_attributes=True)
 
     id: int
     experiment_id: int
     filename: str = Field(description="The name it was uploaded under (a ZIP for folder formats).")
-    kind: str = Field(description="d3plot, vtu, pvd, exodus or csv: the model format read.")
+    state: SimulationState = Field(description="checking (its check job reads it), ready, or failed (see error).")
+    error: str = Field(description="Why its check failed; empty otherwise.")
+    check_job_id: str | None = Field(description="Its check job (GET /api/v1/jobs/{id}: progress and log).")
+    kind: str = Field(description="d3plot, vtu, pvd, exodus or csv: the model format read (empty while checking).")
     size_bytes: int
     sha256: str
     n_states: int = Field(description="States (time steps) of the model.")

@@ -36,6 +36,7 @@ from fringelab.core.specs import (
     ProjectorCalibrationSpec,
     ScanSpec,
     SelftestSpec,
+    SimulationCheckSpec,
     TopographySpec,
 )
 
@@ -222,6 +223,14 @@ JOB_KINDS: dict[str, JobKind] = {
             ),
             body="scan_body",
             result_files=("scan.h5",),
+        ),
+        JobKind(
+            kind="simulation_check",
+            spec=SimulationCheckSpec,
+            task="fringelab.simulation_check",
+            startable=False,
+            body="check_simulation",
+            inputs=(SimulationInput(field="simulation_id", checked=False, role="the uploaded simulation to check"),),
         ),
     )  # fmt: skip
 }

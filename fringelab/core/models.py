@@ -121,8 +121,9 @@ class Recording(Base):
 
 
 class Simulation(Base):
-    """A finite-element simulation uploaded into an experiment (one file, or a ZIP of a folder format), checked by
-    `fringelab.formats.simulations.open_simulation` before it is registered: a row exists only for a readable one."""
+    """A finite-element simulation uploaded into an experiment (one file, or a ZIP of a folder format). Stored as
+    received (`checking`), then read by its check job in a worker (`worker.jobs.simulation_check`): `ready` with
+    what it holds, or `failed` with the reason in `error`. Only a ready one can be compared."""
 
     __tablename__ = "simulations"
     __table_args__ = {"sqlite_autoincrement": True}  # ids never reused (migration 0006)
@@ -138,6 +139,9 @@ class Simulation(Base):
     n_nodes: Mapped[int] = mapped_column(Integer, default=0)
     info: Mapped[dict[str, Any]] = mapped_column(default=dict)  # time range, punch and force present, units
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+    state: Mapped[str] = mapped_column(String(16), default="checking")  # checking | ready | failed
+    error: Mapped[str] = mapped_column(Text, default="")  # why it failed, for people
+    check_job_id: Mapped[str | None] = mapped_column(ForeignKey("jobs.id", ondelete="SET NULL"), nullable=True)
 
     experiment: Mapped[Experiment] = relationship(back_populates="simulations")
 

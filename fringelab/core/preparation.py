@@ -156,11 +156,15 @@ class JobInput(Input):
 
 @dataclass(frozen=True, kw_only=True)
 class SimulationInput(Input):
-    """A simulation in the experiment of the job named before it."""
+    """A ready simulation (its check job read it) in the experiment of the job named before it. `checked=False`:
+    only named (the check job of an upload)."""
 
     names = "simulation"
+    checked: bool = True
 
     def prepare(self, session: Session, spec: Any, prepared: Prepared, found: _Found, authorize: Authorize) -> None:
+        if not self.checked:
+            return
         source = found.job
         if source is None:
             raise TypeError(f"{self.field}: a simulation input follows the job it is compared with")
@@ -174,7 +178,28 @@ class SimulationInput(Input):
                     f"see GET /api/v1/experiments/{source.experiment_id}/simulations",
                     field=self.field,
                 )
+            check_simulation_ready(simulation, field_name=self.field)
             prepared.inputs.append({"simulation_id": simulation.id, "sha256": simulation.sha256})
+
+
+def check_simulation_ready(simulation: Simulation, *, field_name: str | None = "simulation_id") -> None:
+    """A simulation is compared only once its check job has read it: 409 while it is checked, 422 when it failed
+    (the one rule, for comparison jobs and the mapping form's preview)."""
+    if simulation.state == "checking":
+        raise job_error(
+            Conflict,
+            "simulation_not_ready",
+            f"simulation {simulation.id} ({simulation.filename}) is still being checked; wait until it is ready",
+            field=field_name,
+        )
+    if simulation.state != "ready":
+        raise job_error(
+            Invalid,
+            "simulation_failed",
+            f"simulation {simulation.id} ({simulation.filename}) failed its check: {simulation.error or 'unreadable'}; "
+            "upload a readable model",
+            field=field_name,
+        )
 
 
 def prepare_inputs(

@@ -1,12 +1,18 @@
 """Finite-element simulations uploaded into an experiment, as the API changes them.
 
 What belongs here: who may see or change a simulation (it follows its experiment, `fringelab.core.accounts`), how a
-received file becomes one (a single model file, or a ZIP of a folder format such as a d3plot family or a .pvd/.vtu
-series, unpacked safely), the check that it reads (`fringelab.formats.simulations.open_simulation`) before anything
-is registered, and when a delete is refused (a comparison job still uses it). Routes call these and stay thin.
+received file is stored as one (a single model file, or a ZIP of a folder format such as a d3plot family or a
+.pvd/.vtu series, unpacked under the rule of every ZIP) and its check job queued, when a delete is refused (a
+comparison job still uses it), and the comparison's preview. Routes call these and stay thin.
 
-Storage: `DATA_DIR/simulations/<id>/model/` holds the file or the unpacked folder; the row exists only once the
-folder is in place and read, so a refused upload leaves neither a row nor files.
+No model is read in the web server's process: an upload is stored `checking`, and its check job
+(`worker.jobs.simulation_check`) reads it in a worker, in a process of its own with a memory and a time limit
+(`fringelab.core.simulation_check`), then makes it `ready` (with what it holds) or `failed` (with the reason).
+A check whose job ended without saying (a worker lost too often, a cancel) is failed by `settle_checks`, which the
+reconciliation runs, so none stays `checking` for ever.
+
+Storage: `DATA_DIR/simulations/<id>/model/` holds the file or the unpacked folder; a refused upload (its name, size,
+archive or the disk) leaves neither a row nor files.
 """
 
 from __future__ import annotations
@@ -24,17 +30,17 @@ import numpy as np
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from fringelab.core import simulation_check
 from fringelab.core.accounts import Principal, audit, require_access
 from fringelab.core.app_state import AppState
 from fringelab.core.errors import Conflict, Invalid, NotFound, TooLarge
 from fringelab.core.job_kinds import TOPOGRAPHY_FILE, named_by
-from fringelab.core.jobs import ACTIVE_STATES
+from fringelab.core.jobs import ACTIVE_STATES, FINAL_STATES, QueueUnavailable, add_log, submit_job
 from fringelab.core.models import Experiment, Job, Simulation
+from fringelab.core.preparation import check_simulation_ready
 from fringelab.core.quota import check_quota
 from fringelab.core.recordings import check_upload_size, zip_limits
 from fringelab.core.settings import Settings
-from fringelab.core.specs import ComparisonSpec
+from fringelab.core.specs import ComparisonSpec, SimulationCheckSpec
 from fringelab.core.storage import (
     InsufficientStorage,
     check_room,
@@ -115,10 +121,6 @@ def _model_folder(root: Path) -> Path:
     return root
 
 
-# One reader of an upload's summary; it runs in the child process of `simulation_check` (tests call it directly).
-read_simulation_summary = simulation_check.read_simulation_summary
-
-
 def register_simulation(
     state: AppState,
     principal: Principal,
@@ -129,11 +131,12 @@ def register_simulation(
     sha256: str,
     size_bytes: int,
 ) -> int:
-    """Turn a fully received file into a simulation of the experiment; returns its id.
+    """Store a fully received file as a simulation of the experiment, `checking`, and queue its check job; returns
+    its id. Nothing of the model is read here (the web server's process): the check job reads it in a worker.
 
-    A ZIP is unpacked (a single file is kept as it is) into a staging folder, read with `open_simulation`, and only
-    then registered and moved into `simulations/<id>/model/`. On a refusal the staging folder is removed; the
-    staged upload stays for the caller to remove.
+    A ZIP is unpacked (a single file is kept as it is) into a staging folder under the rule of every ZIP, then
+    moved into `simulations/<id>/model/`. On a refusal the staging folder is removed; the staged upload stays for
+    the caller to remove.
     """
     settings = state.settings
     work = put_dir(settings.data_path) / f"{uuid.uuid4().hex}.simulation"
@@ -147,23 +150,13 @@ def register_simulation(
             (work / "upload").mkdir(parents=True)
             shutil.copyfile(staged, work / "upload" / filename)
         folder = _model_folder(work)
-        # read by a child process within a memory and a time limit, never by this (the web server's) process
-        summary = simulation_check.checked_summary(folder, filename=filename, settings=settings)
         with state.sessions() as session:
             experiment = session.get(Experiment, experiment_id)
             if experiment is None:
                 raise NotFound(f"experiment {experiment_id} not found")
             require_access(session, principal, experiment, write=True, what=f"experiment {experiment_id}")
-            simulation = Simulation(
-                experiment_id=experiment_id,
-                filename=filename,
-                kind=summary["kind"],
-                size_bytes=size_bytes,
-                sha256=sha256,
-                n_states=summary["n_states"],
-                n_nodes=summary["n_nodes"],
-                info=summary["info"],
-            )
+            simulation = Simulation(experiment_id=experiment_id, filename=filename, size_bytes=size_bytes,
+                                    sha256=sha256, state="checking", info={})  # fmt: skip
             session.add(simulation)
             session.flush()
             target = simulation_dir(settings.data_path, simulation.id) / MODEL_DIR
@@ -178,6 +171,7 @@ def register_simulation(
                 session.rollback()
                 remove_tree(settings.data_path, target.parent)
                 raise
+            submit_check(session, state, simulation)
             return simulation.id
     except OSError as error:
         raise TooLarge(
@@ -187,12 +181,46 @@ def register_simulation(
         remove_tree(settings.data_path, work)
 
 
+def submit_check(session: Session, state: AppState, simulation: Simulation) -> None:
+    """Queue the check job of a stored simulation (state `checking`); without a queue it turns `failed`."""
+    simulation.state, simulation.error = "checking", ""
+    session.commit()
+    try:
+        job = submit_job(session, state.celery, spec=SimulationCheckSpec(simulation_id=simulation.id),
+                         experiment_id=simulation.experiment_id)  # fmt: skip
+    except QueueUnavailable as error:
+        simulation.state, simulation.error = "failed", f"the check could not be queued: {error}"
+        session.commit()
+        return
+    simulation.check_job_id = job.id
+    session.commit()
+
+
+def settle_checks(session: Session) -> list[str]:
+    """Fail every simulation still `checking` whose check job has ended (failed or cancelled without saying: its
+    worker was lost too often, or it was cancelled), with the job's error; run by the reconciliation. Returns one
+    line per simulation failed."""
+    settled = []
+    checking = select(Simulation).where(Simulation.state == "checking", Simulation.check_job_id.is_not(None))
+    for simulation in session.scalars(checking).all():
+        job = session.get(Job, simulation.check_job_id)
+        if job is None or job.state not in FINAL_STATES:
+            continue
+        reason = job.error or f"its check job {job.id} ended {job.state} without a result"
+        simulation.state, simulation.error = "failed", f"the check did not finish: {reason}"
+        add_log(session, job.id, f"simulation {simulation.id} marked failed: its check job ended {job.state}")
+        settled.append(f"simulation {simulation.id}: failed ({reason})")
+    session.commit()
+    return settled
+
+
 def jobs_using_simulation(session: Session, simulation_id: int) -> list[Job]:
-    """Queued or running jobs that read the simulation (that name it among their inputs)."""
+    """Queued or running jobs that read the simulation (that name it among their inputs), but its check: a
+    simulation being checked can be deleted (its check then ends without a word)."""
     return [
         job
         for job in session.scalars(select(Job).where(Job.state.in_(ACTIVE_STATES)))
-        if simulation_id in named_by(job.kind, job.spec or {}, "simulation")
+        if job.kind != "simulation_check" and simulation_id in named_by(job.kind, job.spec or {}, "simulation")
     ]
 
 
@@ -260,6 +288,7 @@ def _preview_inputs(
             f"there is no simulation {spec.simulation_id} in the experiment of topography job {job.id}",
             field="simulation_id",
         )  # fmt: skip
+    check_simulation_ready(simulation)
     return result, settings.data_path / simulation.path
 
 

@@ -263,6 +263,13 @@ class IngestSpec(_Spec):
     recording_id: int = Field(ge=1, le=MAX_ID, description="The recording to check.")
 
 
+class SimulationCheckSpec(_Spec):
+    """Read an uploaded simulation in a worker, within a memory and a time limit, and store what it holds (its
+    state becomes ready or failed). Started by the upload itself, not through POST /api/v1/jobs."""
+
+    simulation_id: int = Field(ge=1, le=MAX_ID, description="The simulation to check.")
+
+
 JobState = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 
 

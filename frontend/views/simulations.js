@@ -39,7 +39,13 @@ export function stateText(lo, fraction) {
 
 // ---- the list and the upload -----------------------------------------------------------------------------------
 
+const STATE_NAMES = { checking: "checking…", ready: "ready", failed: "failed" };
+const CHECK_POLL_MS = 1500; // while a simulation is checked, the list is looked at again this often
+
+/** What a simulation holds, or where its check stands (a worker reads it after the upload). */
 function simulationFacts(s) {
+  if (s.state === "checking") return "being read by a worker";
+  if (s.state === "failed") return s.error || "unreadable";
   const info = s.info || {};
   const parts = [`${s.n_states} states`, `${s.n_nodes} nodes`];
   if (info.n_shells) parts.push(`${info.n_shells} shells`);
@@ -55,8 +61,11 @@ function simulationFacts(s) {
 export function simulationsPanel({ experimentId, context, topographies }) {
   const listBox = h("div", {}, h("p", {}, "Loading…"));
   let simulations = [];
-  const mapping = mappingForm({ context, simulations: () => simulations, topographies });
+  let timer = null;
+  context.onLeave(() => clearTimeout(timer));
+  const mapping = mappingForm({ context, simulations: () => simulations.filter((s) => s.state === "ready"), topographies });
   const refresh = async () => {
+    clearTimeout(timer);
     const found = await attempt("list the simulations", () => getJSON(`experiments/${experimentId}/simulations`));
     if (!found || !context.current()) return;
     simulations = found;
@@ -64,7 +73,8 @@ export function simulationsPanel({ experimentId, context, topographies }) {
       "Simulations",
       [
         { title: "Simulation", value: (s) => `#${s.id} ${s.filename}` },
-        { title: "Format", value: (s) => FORMAT_NAMES[s.kind] || s.kind },
+        { title: "State", value: (s) => STATE_NAMES[s.state] || s.state },
+        { title: "Format", value: (s) => FORMAT_NAMES[s.kind] || s.kind || "—" },
         { title: "Holds", value: simulationFacts },
         { title: "Size", value: (s) => formatBytes(s.size_bytes) },
         { title: "", value: (s) => deleteButton(`simulations/${s.id}`, `simulation ${s.id} ${s.filename}`, refresh) },
@@ -73,6 +83,8 @@ export function simulationsPanel({ experimentId, context, topographies }) {
       { empty: "No simulations yet: upload a finite-element result below." },
     ));
     mapping.simulationsChanged();
+    // an upload is checked by a job in a worker: the list follows it until it is ready or failed
+    if (simulations.some((s) => s.state === "checking")) timer = setTimeout(refresh, CHECK_POLL_MS);
   };
 
   // A simulation is one upload: a file as it is, or a folder (a d3plot family with nodout and rcforc, a .pvd with
@@ -109,10 +121,10 @@ export function simulationsPanel({ experimentId, context, topographies }) {
         signal: abort.signal,
         onProgress: (sent, total) => {
           progress.value = total ? sent / total : 0;
-          progressText.textContent = `${formatBytes(sent)} of ${formatBytes(total)}${sent >= total ? ", reading the model…" : ""}`;
+          progressText.textContent = `${formatBytes(sent)} of ${formatBytes(total)}${sent >= total ? ", storing it…" : ""}`;
         },
       });
-      say(`Simulation ${made.id} ${made.filename} uploaded: ${simulationFacts(made)}.`);
+      say(`Simulation ${made.id} ${made.filename} uploaded; a worker is checking it.`);
       progressText.textContent = "";
       await refresh();
     } catch (error) {

@@ -23,6 +23,7 @@ from fringelab.core.models import Job, utcnow
 from fringelab.formats.comparison import ComparisonResult
 from fringelab.pipelines.virtual_test import write_true_simulation
 from tests.pipelines.conftest import measured  # noqa: F401  (the session's measured virtual test)
+from tests.support import wait_for
 from tests.worker.conftest import wait_job
 
 RMS_TOLERANCE = 0.10
@@ -56,6 +57,18 @@ def add_topography_jobs(settings, experiment_id: int, result: Path) -> dict[str,
     return {"done": done, "running": running}
 
 
+def checked(client, answer) -> dict:  # type: ignore[no-untyped-def]
+    """The simulation an upload's answer (201, `checking`) names, once its check job has made it ready or failed."""
+    assert answer.status_code == 201, answer.text
+    assert answer.json()["state"] == "checking", answer.text
+
+    def ended() -> dict | None:
+        body = client.get(f"/api/v1/simulations/{answer.json()['id']}").json()
+        return body if body["state"] != "checking" else None
+
+    return wait_for(ended, timeout_s=120, what=f"the check of simulation {answer.json()['id']}", interval_s=0.1)  # type: ignore[return-value]
+
+
 def leftovers(settings) -> list[Path]:  # type: ignore[no-untyped-def]
     """Files or folders under the upload staging area and the simulations' store."""
     found: list[Path] = []
@@ -76,21 +89,23 @@ def test_a_simulation_that_is_the_truth_differs_from_the_measurement_by_its_erro
     jobs = add_topography_jobs(settings, experiment["id"], measured.result)
     base = f"/api/v1/experiments/{experiment['id']}/simulations"
 
-    # a file that is no simulation: 422 naming the file and what is expected, nothing registered or left behind
-    refused = client.put(f"{base}/notes.txt", content=b"this is not a model\n")
-    assert refused.status_code == 422, refused.text
-    assert refused.json()["code"] == "invalid_simulation"
-    assert "notes.txt" in refused.json()["detail"] and "d3plot" in refused.json()["detail"], refused.text
-    not_a_zip = client.put(f"{base}/broken.zip", content=b"PK\x03\x04 truncated")
-    assert not_a_zip.status_code == 422, not_a_zip.text
+    # a file that is no simulation: its check fails naming the file and what is expected; deleted, nothing is left
+    refused = checked(client, client.put(f"{base}/notes.txt", content=b"this is not a model\n"))
+    assert refused["state"] == "failed", refused
+    assert "notes.txt" in refused["error"] and "d3plot" in refused["error"], refused
+    not_a_zip = checked(client, client.put(f"{base}/broken.zip", content=b"PK\x03\x04 truncated"))
+    assert not_a_zip["state"] == "failed" and "broken.zip" in not_a_zip["error"], not_a_zip
+    failed_check = client.get(f"/api/v1/jobs/{refused['check_job_id']}").json()
+    assert failed_check["kind"] == "simulation_check" and failed_check["state"] == "failed", failed_check
+    assert "notes.txt" in failed_check["error"]
+    for failed in (refused, not_a_zip):
+        assert client.delete(f"/api/v1/simulations/{failed['id']}").status_code == 204
     assert client.get(base).json() == []
     assert leftovers(settings) == []
 
     folder = write_true_simulation(measured.truth_json, tmp_path / "fe", kind="csv")
-    uploaded = client.put(f"{base}/plate-fe.zip", content=zipped(folder))
-    assert uploaded.status_code == 201, uploaded.text
-    simulation = uploaded.json()
-    assert (simulation["kind"], simulation["n_states"]) == ("csv", 8)
+    simulation = checked(client, client.put(f"{base}/plate-fe.zip", content=zipped(folder)))
+    assert (simulation["state"], simulation["kind"], simulation["n_states"]) == ("ready", "csv", 8), simulation
     assert simulation["info"]["has_force"] and simulation["info"]["has_punch_displacement"]
     assert client.get(base).json() == [simulation]
     assert client.get(f"/api/v1/simulations/{simulation['id']}").json() == simulation
@@ -197,7 +212,7 @@ def test_a_simulation_that_is_the_truth_differs_from_the_measurement_by_its_erro
     assert leftovers(settings) == []
 
 
-def test_a_simulation_of_several_mib_is_uploaded_in_one_request(client, settings) -> None:  # type: ignore[no-untyped-def]
+def test_a_simulation_of_several_mib_is_uploaded_in_one_request(client, celery_worker, settings) -> None:  # type: ignore[no-untyped-def]
     """A simulation's PUT streams to disk under FRINGELAB_MAX_UPLOAD_BYTES, not the 1 MiB cap of JSON bodies."""
     experiment = client.post("/api/v1/experiments", json={"name": "plate"}).json()
     n = 120
@@ -209,9 +224,10 @@ def test_a_simulation_of_several_mib_is_uploaded_in_one_request(client, settings
     )
     body = ("state,time_s,node,x_mm,y_mm,z_mm,ux_mm,uy_mm,uz_mm\n" + rows).encode()
     assert len(body) > 2 * settings.max_json_bytes
-    uploaded = client.put(f"/api/v1/experiments/{experiment['id']}/simulations/plate.csv", content=body)
-    assert uploaded.status_code == 201, uploaded.text
-    assert (uploaded.json()["n_states"], uploaded.json()["n_nodes"]) == (3, n * n)
+    uploaded = checked(
+        client, client.put(f"/api/v1/experiments/{experiment['id']}/simulations/plate.csv", content=body)
+    )
+    assert (uploaded["state"], uploaded["n_states"], uploaded["n_nodes"]) == ("ready", 3, n * n), uploaded
     # other request bodies keep their cap
     too_long = client.post("/api/v1/experiments", json={"name": "x", "notes": "n" * (settings.max_json_bytes + 1)})
     assert too_long.status_code == 413, too_long.text
@@ -233,7 +249,7 @@ def test_an_upload_over_the_limit_or_into_no_experiment_is_refused(settings) -> 
     assert leftovers(settings) == []
 
 
-def test_an_unsafe_zip_is_refused_and_a_simulation_in_use_is_not_deleted(client, settings) -> None:  # type: ignore[no-untyped-def]
+def test_an_unsafe_zip_is_refused_and_a_simulation_in_use_is_not_deleted(client, celery_worker, settings) -> None:  # type: ignore[no-untyped-def]
     experiment = client.post("/api/v1/experiments", json={"name": "plate"}).json()
     base = f"/api/v1/experiments/{experiment['id']}/simulations"
     buffer = io.BytesIO()
@@ -250,7 +266,7 @@ def test_an_unsafe_zip_is_refused_and_a_simulation_in_use_is_not_deleted(client,
         for s in (0, 1)
         for n in range(4)
     )
-    simulation = client.put(f"{base}/nodes.csv", content=nodes.encode()).json()
+    simulation = checked(client, client.put(f"{base}/nodes.csv", content=nodes.encode()))
     assert (simulation["kind"], simulation["n_states"], simulation["n_nodes"]) == ("csv", 2, 4)
     engine = make_engine(settings.resolved_database_url)
     with make_sessionmaker(engine)() as session:
@@ -266,6 +282,7 @@ def test_an_unsafe_zip_is_refused_and_a_simulation_in_use_is_not_deleted(client,
 
 def test_a_nodout_of_several_nodes_is_uploaded_and_its_punch_node_chosen_in_the_form(
     client,
+    celery_worker,
     settings,
     measured,  # noqa: F811
     tmp_path,
@@ -281,9 +298,10 @@ def test_a_nodout_of_several_nodes_is_uploaded_and_its_punch_node_chosen_in_the_
     both = np.concatenate([punch.displacement, np.zeros_like(punch.displacement)], axis=1)
     write_nodout(folder / "nodout", time=punch.time, node_ids=np.array([9001, 9002]), displacement=both,
                  coordinates=np.zeros((2, 3)))  # fmt: skip
-    uploaded = client.put(f"/api/v1/experiments/{experiment['id']}/simulations/fe.zip", content=zipped(folder))
-    assert uploaded.status_code == 201, uploaded.text
-    spec = {"kind": "comparison", "job_id": jobs["done"], "simulation_id": uploaded.json()["id"]}
+    uploaded = checked(client, client.put(f"/api/v1/experiments/{experiment['id']}/simulations/fe.zip",
+                                          content=zipped(folder)))  # fmt: skip
+    assert uploaded["state"] == "ready", uploaded
+    spec = {"kind": "comparison", "job_id": jobs["done"], "simulation_id": uploaded["id"]}
     unchosen = client.post("/api/v1/comparisons/preview", json={"spec": spec})
     assert unchosen.status_code == 422, unchosen.text
     assert "9001, 9002" in unchosen.json()["detail"] and "“Punch node”" in unchosen.json()["detail"], unchosen.text

@@ -230,6 +230,13 @@ def template(tmp_path_factory: pytest.TempPathFactory, redis_server) -> Iterator
             f"/api/v1/experiments/{experiment['id']}/simulations/{MARKER}.zip", content=simulation_zip(), headers=ada
         )
         assert simulation.status_code == 201, simulation.text
+
+        def simulation_ready() -> bool:  # its check job, in the worker: a comparison takes only a ready one
+            found = client.get(f"/api/v1/simulations/{simulation.json()['id']}", headers=ada).json()
+            assert found["state"] != "failed", found
+            return found["state"] == "ready"
+
+        wait_for(simulation_ready, timeout_s=60, what="the check of ada's simulation")
         ids.update(
             simulation=simulation.json()["id"],
             experiment=experiment["id"],

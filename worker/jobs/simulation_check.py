@@ -1,0 +1,64 @@
+"""The check job of an uploaded simulation: read it in a process of its own, within a memory and a time limit, and
+store what it holds.
+
+Task "fringelab.simulation_check" takes a job id whose spec is {"simulation_id": N}. The model is read by a child
+of this worker process (`fringelab.core.simulation_check.checked_summary`: its address space and CPU time limited,
+the readers refusing declared sizes beyond FRINGELAB_SIMULATION_MAX_BYTES before allocating them), so a hostile file
+costs that child its limit and nothing else. The simulation ends `ready` with its kind, node and state counts and
+facts, or `failed` with the reason (and the job fails with it); the job's result holds the checking process's
+peak memory. A simulation deleted meanwhile ends the job quietly. Running it twice (acks-late redelivery) writes
+the same result.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fringelab.core.errors import Invalid
+from fringelab.core.models import Simulation
+from fringelab.core.simulation_check import Refused, checked_summary
+from fringelab.core.specs import SimulationCheckSpec
+from fringelab.core.text import public_text
+from fringelab.science import Cancelled
+from worker.context import JobContext
+
+MIB = 2**20
+
+
+def check_simulation(context: JobContext[SimulationCheckSpec]) -> dict[str, Any]:
+    simulation_id = context.spec.simulation_id
+    with context.sessions() as session:
+        simulation = session.get(Simulation, simulation_id)
+        if simulation is None:
+            raise Cancelled(f"simulation {simulation_id} was deleted")
+        simulation.state, simulation.error, simulation.check_job_id = "checking", "", context.job_id
+        folder, filename = context.settings.data_path / simulation.path, simulation.filename
+        session.commit()
+    context.progress(0, 1, "reading the model")
+    try:
+        checked = checked_summary(folder, filename=filename, settings=context.settings)
+    except Invalid as error:
+        peak = error.peak_rss_bytes if isinstance(error, Refused) else 0
+        _store(context, simulation_id, state="failed", error=public_text(error.detail))
+        context.log(f"refused; the checking process's peak memory: {peak / MIB:.0f} MiB")
+        raise ValueError(error.detail) from None
+    except BaseException as error:
+        _store(context, simulation_id, state="failed", error=f"the check stopped: {type(error).__name__}: {error}")
+        raise
+    summary = checked.summary
+    _store(context, simulation_id, state="ready", error="", kind=summary["kind"], n_states=summary["n_states"],
+           n_nodes=summary["n_nodes"], info=summary["info"])  # fmt: skip
+    context.log(f"read; the checking process's peak memory: {checked.peak_rss_bytes / MIB:.0f} MiB")
+    return {"simulation_id": simulation_id, "state": "ready", "kind": summary["kind"],
+            "n_states": summary["n_states"], "n_nodes": summary["n_nodes"],
+            "peak_rss_bytes": checked.peak_rss_bytes}  # fmt: skip
+
+
+def _store(context: JobContext, simulation_id: int, **fields: Any) -> None:
+    with context.sessions() as session:
+        simulation = session.get(Simulation, simulation_id)
+        if simulation is None:
+            raise Cancelled(f"simulation {simulation_id} was deleted")
+        for name, value in fields.items():
+            setattr(simulation, name, value)
+        session.commit()
