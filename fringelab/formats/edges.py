@@ -1,5 +1,9 @@
 """Stored edges of a chunk of frames (HDF5, schema "fringelab.frame-edges"), handed between the workers of a
-topography job."""
+topography job.
+
+Per edge point: line, t_px, polarity, chain, and (since issue 29) sigma_px and contrast_grey. Files written before
+those two lack them; they read with both None, and σ falls back to the frame's estimate from noise_px
+(`uncertainty.edge_sigmas_px`)."""
 
 from __future__ import annotations
 
@@ -47,6 +51,10 @@ def write_edges(path: str | Path, frames: Sequence[int], edges: Sequence[FrameEd
             }
             for e in edges
         ]
+        for name in ("sigma_px", "contrast_grey"):
+            if edges and all(getattr(e, name) is not None for e in edges):
+                data = np.concatenate([np.asarray(getattr(e, name), np.float32) for e in edges])
+                file.create_dataset(name, data=data, compression="gzip", compression_opts=1, shuffle=True)
         file.attrs["frames_json"] = json_text(meta)
         if edges and all(e.unusable is not None for e in edges):
             file.create_dataset(
@@ -63,6 +71,8 @@ def read_edges(path: str | Path) -> tuple[np.ndarray, list[FrameEdges]]:
         require_schema(file, EDGES_SCHEMA, path)
         offsets = file["offsets"][()]
         arrays = {name: file[name][()] for name in ("line", "t_px", "polarity", "chain")}
+        # Absent in files written before the per-edge σ (see the module docstring).
+        per_edge = {name: file[name][()] if name in file else None for name in ("sigma_px", "contrast_grey")}
         meta = json.loads(file.attrs["frames_json"])
         frames = file["frames"][()]
         unusable = file["unusable"][()] if "unusable" in file else None
@@ -82,6 +92,8 @@ def read_edges(path: str | Path) -> tuple[np.ndarray, list[FrameEdges]]:
                 saturated_fraction=float(m["saturated_fraction"]),
                 dark_fraction=float(m["dark_fraction"]),
                 unusable=None if unusable is None else unusable[i],
+                sigma_px=None if per_edge["sigma_px"] is None else per_edge["sigma_px"][lo:hi],
+                contrast_grey=None if per_edge["contrast_grey"] is None else per_edge["contrast_grey"][lo:hi],
             )
         )
     return frames, edges

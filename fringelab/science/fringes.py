@@ -25,7 +25,7 @@ import numba
 import numpy as np
 
 from . import MeasurementError
-from .smoothing import edge_smoothing_weights
+from .smoothing import edge_smoothing_weights, smoothing_noise_tables
 
 Axis = Literal["rows", "cols"]
 AXIS_CHOICES = ("auto", "rows", "cols")
@@ -157,6 +157,12 @@ class FrameEdges:
         hole, a crack, something black in front), UNUSABLE_DARK (no projected light but not black: a shadow),
         UNUSABLE_LOW_CONTRAST (stripes too faint, or clipped by a highlight); the worst in the block. None for
         edges stored before it existed.
+    sigma_px: shape (N,) float32, σ (px) of each smoothed position t_px, from the edge's own slope, the noise
+        its neighbours along the edge show and the evenness of the light around it (`_edge_sigma`): how sure the
+        edge is. None for edges stored before it existed: `uncertainty.edge_sigmas_px` then gives every edge the
+        frame's σ from noise_px.
+    contrast_grey: shape (N,) float32, the stripes' contrast I_max − I_min at each edge (grey levels, 8-bit
+        scale). None for edges stored before it existed.
     """
 
     axis: Axis
@@ -170,6 +176,8 @@ class FrameEdges:
     saturated_fraction: float
     dark_fraction: float
     unusable: np.ndarray | None = None
+    sigma_px: np.ndarray | None = None
+    contrast_grey: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.line)
@@ -379,6 +387,9 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     else:
         t_px = t_raw
         noise_px = float("nan")
+    sigma_px, contrast_grey = _edge_sigma(
+        scan, mid, contrast, line, t_raw, t_px, chain, period_px=float(period_px), settings=settings
+    )
     unusable = _unusable_blocks(scan, dark, contrast, local_max, grow, settings=settings)
     return FrameEdges(
         axis=axis,
@@ -392,7 +403,135 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
         saturated_fraction=float(np.mean(saturated)),
         dark_fraction=float(np.mean(dark)),
         unusable=unusable,
+        sigma_px=sigma_px,
+        contrast_grey=contrast_grey,
     )
+
+
+def _edge_sigma(
+    scan: np.ndarray,
+    mid: np.ndarray,
+    contrast: np.ndarray,
+    line: np.ndarray,
+    t_raw: np.ndarray,
+    t_px: np.ndarray,
+    chain: np.ndarray,
+    *,
+    period_px: float,
+    settings: EdgeSettings,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each edge point's σ (px) of its smoothed position, and the stripes' contrast there (grey levels), both
+    (N,) float32, from the frame itself (docs/method.md §5, "How sure an edge is").
+
+    A crossing placed between the straddling samples I₀, I₁ (a fraction x of the way) by the chord moves by
+    δt = (δI₀·(1 − x) + δI₁·x) / (I₁ − I₀) for noise δI on the presmoothed samples: with the local grey noise σ_I
+    its σ is σ_I·√((1 − x)² + x²) / |I₁ − I₀|, so a faint or blurred edge (small slope) is less sure. σ_I is not
+    assumed: the raw − smoothed residuals of the positions along the edge (over ±2 smoothing half-widths) say how
+    much the edge actually jitters, and divided by what that model predicts for unit noise they give σ_I there,
+    drawn toward the frame's own value where the stretch is short (8 points' weight), since few residuals
+    estimate it poorly. The smoothing then reduces it by its noise gain at that point (`smoothing_noise_tables`:
+    more at an edge's end, where the fit is one-sided). An error the smoothing cannot reduce comes from the
+    mid-level: where the light changes unevenly within the window (a shadow's rim, a highlight) the mid-level at
+    the crossing departs from the mean of the mid-levels half a period either side; half that departure over the
+    slope is added in quadrature. NaN σ (but the contrast) without smoothing along the edges.
+    """
+    contrast_grey = np.empty(len(line), np.float32)
+    sigma = np.full(len(line), np.nan, np.float32)
+    if len(line) == 0:
+        return sigma, contrast_grey
+    smoothing = settings.edge_smoothing_lines
+    if smoothing > 0:
+        gain, residual = smoothing_noise_tables(float(smoothing), presmooth_px=float(settings.presmooth_px))
+    else:
+        gain = residual = np.full((1, 1), np.nan)
+    _edge_sigma_kernel(
+        scan, mid, contrast, np.ascontiguousarray(line, np.int64), np.ascontiguousarray(t_raw, np.float64),
+        np.ascontiguousarray(t_px, np.float64), np.ascontiguousarray(chain, np.int64), gain, residual,
+        max(1, int(round(0.5 * period_px))), sigma, contrast_grey,
+    )  # fmt: skip
+    return sigma, contrast_grey
+
+
+# Weight, in edge points, of the frame's own noise level against an edge's local one (`_edge_sigma`).
+FRAME_NOISE_WEIGHT_POINTS = 8.0
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _edge_sigma_kernel(
+    scan: np.ndarray,
+    mid: np.ndarray,
+    contrast: np.ndarray,
+    line: np.ndarray,
+    t_raw: np.ndarray,
+    t_px: np.ndarray,
+    chain: np.ndarray,
+    gain: np.ndarray,
+    residual: np.ndarray,
+    half_period: int,
+    sigma_out: np.ndarray,
+    contrast_out: np.ndarray,
+) -> None:
+    n = len(line)
+    n_samples = scan.shape[1]
+    half = gain.shape[0] - 1
+    smoothed = np.isfinite(gain[0, 0])
+    # Per point: the σ of its raw position for unit grey noise (model), the mid-level's unevenness, in px.
+    model = np.empty(n)
+    uneven = np.empty(n)
+    for p in range(n):
+        i = line[p]
+        j = min(max(int(t_raw[p]), 0), n_samples - 2)
+        x = t_raw[p] - j
+        slope = max(abs(scan[i, j + 1] - scan[i, j]), 1e-3)
+        model[p] = np.sqrt((1.0 - x) ** 2 + x * x) / slope
+        c = 0.5 * (contrast[i, j] + contrast[i, j + 1])
+        contrast_out[p] = c
+        lo, hi = max(j - half_period, 0), min(j + 1 + half_period, n_samples - 1)
+        departure = 0.5 * (mid[i, j] + mid[i, j + 1]) - 0.5 * (mid[i, lo] + mid[i, hi])
+        uneven[p] = 0.5 * abs(departure) / slope if np.isfinite(departure) else 0.0
+    if not smoothed:
+        return
+    # Counting sort by chain: a chain's points stay in line order (the input is sorted by line).
+    n_chains = chain.max() + 1
+    first = np.zeros(n_chains + 1, np.int64)
+    for p in range(n):
+        first[chain[p] + 1] += 1
+    for c in range(n_chains):
+        first[c + 1] += first[c]
+    order = np.empty(n, np.int64)
+    fill = first[:-1].copy()
+    for p in range(n):
+        order[fill[chain[p]]] = p
+        fill[chain[p]] += 1
+    # Prefix sums along the sorted order of: residual², the model's residual² for unit noise, the model².
+    cum_res = np.zeros(n + 1)
+    cum_pred = np.zeros(n + 1)
+    cum_model = np.zeros(n + 1)
+    for c in range(n_chains):
+        lo, hi = first[c], first[c + 1]
+        for q in range(lo, hi):
+            p = order[q]
+            b, a = min(q - lo, half), min(hi - 1 - q, half)
+            r = t_raw[p] - t_px[p]
+            cum_res[q + 1] = cum_res[q] + r * r
+            cum_pred[q + 1] = cum_pred[q] + (model[p] * residual[b, a]) ** 2
+            cum_model[q + 1] = cum_model[q] + model[p] * model[p]
+    frame_noise2 = cum_res[n] / cum_pred[n] if cum_pred[n] > 0 else np.nan
+    reach = 2 * half
+    for c in range(n_chains):
+        lo, hi = first[c], first[c + 1]
+        for q in range(lo, hi):
+            p = order[q]
+            b, a = min(q - lo, half), min(hi - 1 - q, half)
+            w_lo, w_hi = max(q - reach, lo), min(q + reach + 1, hi)
+            pred = cum_pred[w_hi] - cum_pred[w_lo]
+            prior = FRAME_NOISE_WEIGHT_POINTS * pred / (w_hi - w_lo)
+            noise2 = frame_noise2
+            if pred > 0:
+                noise2 = (cum_res[w_hi] - cum_res[w_lo] + prior * frame_noise2) / (pred + prior)
+            s_lo, s_hi = max(q - half, lo), min(q + half + 1, hi)
+            model2 = (cum_model[s_hi] - cum_model[s_lo]) / (s_hi - s_lo)
+            sigma_out[p] = np.sqrt(gain[b, a] ** 2 * noise2 * model2 + uneven[p] ** 2)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")

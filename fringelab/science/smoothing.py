@@ -45,3 +45,37 @@ def smoothed_noise_ratio(sigma_lines: float, *, presmooth_px: float = 0.0) -> fl
     residual = -w
     residual[len(w) // 2] += 1.0
     return float(np.sqrt((w @ correlation @ w) / (residual @ correlation @ residual)))
+
+
+@functools.lru_cache(maxsize=16)
+def smoothing_noise_tables(sigma_lines: float, *, presmooth_px: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """What the along-edge smoothing does to the noise of a point with b lines of its edge before it and a after
+    it, as two tables (h + 1, h + 1) indexed [min(b, h), min(a, h)], h = ⌈3σ⌉: the σ of the smoothed position and
+    the RMS of raw − smoothed, both over the raw positions' σ (raw noise of constant σ, correlated between lines as
+    in `smoothed_noise_ratio`). Within a half-width of an edge's end the fit is one-sided (or the weighted mean
+    where a quadratic would be ill-conditioned), as `fringes._smooth_along_chains` does, and amplifies the noise.
+    [h, h] is the interior: its ratio is `smoothed_noise_ratio`.
+    """
+    half = max(1, int(np.ceil(3.0 * sigma_lines)))
+    gain = np.full((half + 1, half + 1), np.nan)
+    residual = np.full((half + 1, half + 1), np.nan)
+    for before in range(half + 1):
+        for after in range(half + 1):
+            d = np.arange(-before, after + 1, dtype=np.float64)
+            g = np.exp(-0.5 * (d / sigma_lines) ** 2)
+            moments = [float(np.sum(g * d**m)) for m in range(5)]
+            design = np.array([[moments[i + j] for j in range(3)] for i in range(3)])
+            det = float(np.linalg.det(design))
+            if before == half and after == half:
+                w = edge_smoothing_weights(sigma_lines)
+            elif abs(det) > 1e-9 * moments[0] ** 3 * sigma_lines**6:
+                w = np.linalg.solve(design, np.eye(3))[0] @ np.vstack([g, g * d, g * d * d])
+            else:
+                w = g / moments[0]
+            gap = d[:, None] - d[None, :]
+            correlation = np.exp(-(gap**2) / (4.0 * presmooth_px**2)) if presmooth_px > 0 else np.eye(len(d))
+            rest = -w
+            rest[before] += 1.0
+            gain[before, after] = np.sqrt(w @ correlation @ w)
+            residual[before, after] = np.sqrt(max(rest @ correlation @ rest, 0.0))
+    return gain, residual

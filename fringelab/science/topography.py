@@ -58,7 +58,7 @@ from .projector import (
     camera_fingerprint,
     table_z_at,
 )
-from .uncertainty import edge_sigma_px, point_sigma_z_mm, sigma_edge_halves, sigma_from_halves
+from .uncertainty import edge_sigmas_px, point_sigma_z_mm, sigma_edge_halves, sigma_from_halves
 
 # The first test frame is the reference the order is anchored on (kept under its old name).
 FirstFrameNotFlatError = ReferenceNotFlatError
@@ -313,7 +313,8 @@ def identify_first_frame(edges: FrameEdges, projector: ProjectorCalibration, *, 
 class OrderedFrame:
     """One frame's edge positions by order, and what the order left out.
 
-    positions: (K, S) position of every ordered (edge, line) point, NaN where none; counts: per-frame numbers
+    positions: (K, S) position of every ordered (edge, line) point, NaN where none; sigma_px: (K, S) the σ of each
+    (`uncertainty.edge_sigmas_px`); counts: per-frame numbers
     (n_tracks: ordered points, n_order_unresolved, n_order_conflict_points, n_order_conflicts, n_unmatched:
     edge points without an order).
     """
@@ -321,6 +322,7 @@ class OrderedFrame:
     positions: np.ndarray
     counts: dict[str, int]
     coverage: FrameCoverage
+    sigma_px: np.ndarray
 
 
 def order_positions(
@@ -339,6 +341,10 @@ def order_positions(
     )  # fmt: skip
     # Without a table entry a point can never give Z.
     positions[~projector.valid] = np.nan
+    sigma_px = _scatter(
+        frame_order.k[ordered], edges.line[ordered].astype(np.int64),
+        edge_sigmas_px(edges, projector.edges)[ordered], (projector.n_edges, projector.n_lines),
+    )  # fmt: skip
     n_ordered = int(np.count_nonzero(np.isfinite(positions)))
     counts = {
         "n_tracks": n_ordered,
@@ -352,7 +358,7 @@ def order_positions(
         visible_area_mm2=coverage.visible_area_mm2, measured_area_mm2=coverage.measured_area_mm2,
         missing_mm2=coverage.missing_mm2, n_order_conflicts=frame_order.n_conflicts,
     )  # fmt: skip
-    return OrderedFrame(positions=positions, counts=counts, coverage=coverage)
+    return OrderedFrame(positions=positions, counts=counts, coverage=coverage, sigma_px=sigma_px)
 
 
 def frame_coverage(
@@ -538,7 +544,7 @@ def track_and_measure(
         if reference is None:
             reference = reference_for(frame_edges, projector, camera_model, settings)
         ordered = order_positions(frame_edges, reference, projector, settings)
-        item = (first_frame + offset, ordered.counts, frame_edges.noise_px, ordered.coverage)
+        item = (first_frame + offset, ordered.counts, frame_edges.noise_px, ordered.coverage, ordered.sigma_px)
         for emitted in smoother.push(item, ordered.positions):
             yield _measure(emitted, projector, camera_model)
     for emitted in smoother.flush():
@@ -557,7 +563,7 @@ def measure_frame(
     """One frame measured alone (no temporal smoothing): equal to the same frame measured within its test."""
     settings = TopographySettings() if settings is None else settings
     ordered = order_positions(edges, reference, projector, settings)
-    item = (frame, ordered.counts, edges.noise_px, ordered.coverage)
+    item = (frame, ordered.counts, edges.noise_px, ordered.coverage, ordered.sigma_px)
     return _measure((item, ordered.positions), projector, camera_model)
 
 
@@ -641,12 +647,12 @@ def _scan_rays(camera: Camera, inverse: InverseModel, axis: Literal["rows", "col
 def _measure(
     emitted: tuple[Any, np.ndarray], projector: ProjectorCalibration, camera_model: CameraModel
 ) -> FrameMeasurement:
-    (frame, counts, noise_px, coverage), positions = emitted
+    (frame, counts, noise_px, coverage, sigma_px), positions = emitted
     kk, ll, t, z, entries, n_placed, n_out_of_range = _looked_up_points(positions, projector.lookup_table)
     points = scan_rays(camera_model, projector.axis).backproject_to_z(ll, t, z)
+    # Each point's edge σ as located (temporal smoothing, if on, would reduce it: left out, so σ errs large).
     sigma_z = point_sigma_z_mm(
-        sensitivity_px_per_mm=entries[:, 0], table_sigma_z_mm=entries[:, 1],
-        edge_sigma_px=edge_sigma_px(noise_px, projector.edges),
+        sensitivity_px_per_mm=entries[:, 0], table_sigma_z_mm=entries[:, 1], edge_sigma_px=sigma_px[kk, ll],
     )  # fmt: skip
     return FrameMeasurement(
         frame=int(frame),

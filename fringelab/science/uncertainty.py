@@ -31,12 +31,21 @@ from .gridding import grid_edge_fields
 from .smoothing import smoothed_noise_ratio
 
 if TYPE_CHECKING:
-    from .fringes import EdgeSettings
+    from .fringes import EdgeSettings, FrameEdges
 
 
 def edge_sigma_px(noise_px: float, edges: EdgeSettings) -> float:
     """σ (px) of a smoothed edge position in a frame whose raw − smoothed RMS is noise_px."""
     return float(noise_px) * smoothed_noise_ratio(edges.edge_smoothing_lines, presmooth_px=edges.presmooth_px)
+
+
+def edge_sigmas_px(frame_edges: FrameEdges, edges: EdgeSettings) -> np.ndarray:
+    """σ (px), shape (N,), of each smoothed edge position of a frame: the edge's own (`FrameEdges.sigma_px`), or,
+    for edges stored before it existed (or located without smoothing along the edges), the frame's σ from its
+    noise_px (`edge_sigma_px`) for every edge."""
+    if frame_edges.sigma_px is not None and np.any(np.isfinite(frame_edges.sigma_px)):
+        return np.asarray(frame_edges.sigma_px, np.float64)
+    return np.full(len(frame_edges), edge_sigma_px(frame_edges.noise_px, edges))
 
 
 def table_sigma_z_mm(*, fit_rms_mm: np.ndarray, n_heights: np.ndarray, n_coefficients: int) -> np.ndarray:
@@ -47,10 +56,11 @@ def table_sigma_z_mm(*, fit_rms_mm: np.ndarray, n_heights: np.ndarray, n_coeffic
 
 
 def point_sigma_z_mm(
-    *, sensitivity_px_per_mm: np.ndarray, table_sigma_z_mm: np.ndarray, edge_sigma_px: float
+    *, sensitivity_px_per_mm: np.ndarray, table_sigma_z_mm: np.ndarray, edge_sigma_px: float | np.ndarray
 ) -> np.ndarray:
-    """σ_Z (N,) of points from the edge noise and the table, given per point the table's sensitivity and its own
-    σ (`table_sigma_z_mm`): the two are independent and add in quadrature."""
+    """σ_Z (N,) of points from the edge noise and the table, given per point the table's sensitivity, its own
+    σ (`table_sigma_z_mm`) and the edge's σ (one for all, or (N,)): the two are independent and add in
+    quadrature."""
     sensitivity = np.abs(np.asarray(sensitivity_px_per_mm, np.float64))
     with np.errstate(divide="ignore", invalid="ignore"):
         edge = edge_sigma_px / sensitivity

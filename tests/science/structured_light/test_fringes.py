@@ -61,6 +61,42 @@ def test_edges_of_known_stripes_have_small_bias_and_noise(angle_deg: float) -> N
     assert 0.0 < edges.noise_px < 0.03
 
 
+@pytest.mark.parametrize("angle_deg", [0.0, 20.0])
+def test_each_edge_carries_a_sigma_that_follows_its_contrast_and_noise(angle_deg: float) -> None:
+    """Top: 160 grey levels of contrast; bottom: 40, blurred by a pillbox, both with photon noise (2 electrons per
+    grey level) and 2 % fixed-pattern gain, which the σ model does not assume. One σ per frame would be ~0.06 px
+    for both and cover ~70 % of the dim half's errors; each edge's own σ covers 90–99 % in either half (measured:
+    90–92 % at 0°, where pixel locking, constant along a vertical edge, is an error no residual shows; 98–100 % at
+    20°, where the pixel locking varies along the edge and its residuals make σ err large)."""
+    rng = np.random.default_rng(11)
+    stripes = {
+        "period_px": PERIOD_PX,
+        "angle_deg": angle_deg,
+        "phase_px": PHASE_PX,
+        "rng": rng,
+        "uneven_illumination": False,
+        "noise_grey": 1.0,
+        "electrons_per_grey": 2.0,
+        "pixel_gain_spread": 0.02,
+    }
+    top = render_straight_stripes((120, 256), dark_grey=40.0, bright_grey=200.0, **stripes)  # type: ignore[arg-type]
+    bottom = render_straight_stripes((240, 256), dark_grey=20.0, bright_grey=60.0, blur_kernel="disk",
+                                     **stripes)[120:]  # type: ignore[arg-type]  # fmt: skip
+    edges = locate_edges(np.vstack([top, bottom]))
+    assert edges.sigma_px is not None and edges.contrast_grey is not None
+    assert edges.sigma_px.shape == edges.contrast_grey.shape == (len(edges),)
+    assert np.all(np.isfinite(edges.sigma_px)) and np.all(edges.sigma_px > 0)
+    errors = edge_errors_px(edges, angle_deg=angle_deg, period_px=PERIOD_PX, phase_px=PHASE_PX)
+    bright, dim = edges.line < 110, edges.line > 130  # the stripes' contrast changes at line 120
+    assert np.median(edges.contrast_grey[bright]) == pytest.approx(165, abs=10)
+    assert np.median(edges.contrast_grey[dim]) == pytest.approx(45, abs=5)
+    # Four times less contrast, half the photon noise: σ about twice as large or more.
+    assert np.median(edges.sigma_px[dim]) > 2.0 * np.median(edges.sigma_px[bright])
+    for half in (bright, dim):
+        within = np.mean(np.abs(errors[half]) <= 2.0 * edges.sigma_px[half])
+        assert 0.88 <= within <= 1.0, within
+
+
 @pytest.mark.parametrize(("angle_deg", "axis"), [(0.0, "rows"), (12.0, "rows"), (90.0, "cols"), (-60.0, "cols")])
 def test_detect_stripes_finds_direction_and_period(angle_deg: float, axis: str) -> None:
     rng = np.random.default_rng(1)

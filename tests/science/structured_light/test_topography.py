@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
+import h5py
 import numpy as np
 import pytest
 
@@ -14,15 +15,18 @@ from fringelab.pipelines.topography import topography_recording
 from fringelab.science import Cancelled
 from fringelab.science.camera import backproject_to_z, distortion_mm
 from fringelab.science.fringes import NoStripesError
-from fringelab.science.projector import CalibrationMismatchError, exact_camera_model
+from fringelab.science.projector import TABLE_SENSITIVITY, TABLE_SIGMA_Z, CalibrationMismatchError, exact_camera_model
 from fringelab.science.topography import (
     FirstFrameNotFlatError,
     TopographySettings,
     check_stripes_against,
     locate_test_edges,
+    measure_frame,
+    reference_for,
     scan_rays,
     track_and_measure,
 )
+from fringelab.science.uncertainty import edge_sigma_px, point_sigma_z_mm
 from fringelab.science.virtual_test import PlateState, true_deflection_mm
 
 from .conftest import MemorySource, RenderedExperiment, recorded_test
@@ -72,6 +76,42 @@ def test_chunked_runs_give_identical_results(kodak: RenderedExperiment, tmp_path
         for i in range(6):
             np.testing.assert_array_equal(part_file.points(i), whole_file.points(i + 6))
             np.testing.assert_array_equal(part_file.point_labels(i)[0], whole_file.point_labels(i + 6)[0])
+
+
+def test_edges_stored_before_the_per_edge_sigma_read_with_the_frames_sigma(
+    kodak: RenderedExperiment, tmp_path: Path
+) -> None:
+    edges = list(locate_test_edges(kodak.test_frames[3:4], kodak.projector))
+    path = write_edges(tmp_path / "edges.h5", [3], edges)
+    _, (stored,) = read_edges(path)
+    assert stored.sigma_px is not None and stored.contrast_grey is not None
+    np.testing.assert_array_equal(stored.sigma_px, edges[0].sigma_px)
+    np.testing.assert_array_equal(stored.contrast_grey, edges[0].contrast_grey)
+    with h5py.File(path, "a") as file:
+        del file["sigma_px"], file["contrast_grey"]
+    _, (old,) = read_edges(path)
+    assert old.sigma_px is None and old.contrast_grey is None
+    reference = reference_for(edges[0], kodak.projector, kodak.camera, TopographySettings())
+    new_measured = measure_frame(edges[0], reference, kodak.projector, kodak.camera, frame=3)
+    old_measured = measure_frame(old, reference, kodak.projector, kodak.camera, frame=3)
+    np.testing.assert_array_equal(old_measured.points_obj_mm, new_measured.points_obj_mm)
+    # Old edges: every point's edge term is the frame's σ (`uncertainty.edge_sigma_px`).
+    frame_sigma = edge_sigma_px(old.noise_px, kodak.projector.edges)
+    expected = point_sigma_z_mm(
+        sensitivity_px_per_mm=_sensitivities(old_measured, kodak),
+        table_sigma_z_mm=_table_sigmas(old_measured, kodak),
+        edge_sigma_px=frame_sigma,
+    )
+    np.testing.assert_allclose(old_measured.sigma_z_mm, expected, rtol=1e-12)
+    assert not np.allclose(new_measured.sigma_z_mm, old_measured.sigma_z_mm)
+
+
+def _sensitivities(measured, kodak: RenderedExperiment) -> np.ndarray:  # type: ignore[no-untyped-def]
+    return kodak.projector.lookup_table[measured.line, measured.k, TABLE_SENSITIVITY]
+
+
+def _table_sigmas(measured, kodak: RenderedExperiment) -> np.ndarray:  # type: ignore[no-untyped-def]
+    return kodak.projector.lookup_table[measured.line, measured.k, TABLE_SIGMA_Z]
 
 
 def test_temporal_smoothing_is_chunk_safe_and_reduces_noise(kodak: RenderedExperiment, tmp_path: Path) -> None:
