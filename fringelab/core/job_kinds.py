@@ -55,6 +55,21 @@ class Phase:
     hold_steals: bool = False
 
 
+@dataclass(frozen=True)
+class ResultSize:
+    """What a kind's result files are expected to take, for the per-user quota (`fringelab.core.quota`): reserved
+    against the experiment's owner while a job is queued or running, replaced by its files' real sizes once it
+    ends. `flat_bytes`, plus `bytes_per_pixel_frame` × the pixels of every frame of the recordings its spec names,
+    plus `times_source` × the size of the files of the job it reads. An estimate on the high side, not a limit."""
+
+    flat_bytes: int = 0
+    bytes_per_pixel_frame: float = 0.0
+    times_source: float = 0.0
+
+
+MIB = 2**20
+
+
 @dataclass(frozen=True, kw_only=True)
 class JobKind:
     """One kind of job (see the module's docstring)."""
@@ -66,6 +81,7 @@ class JobKind:
     body: str  # the entry body's name in `module`: `(context) -> result | Chunked`
     phases: tuple[Phase, ...] = ()
     result_files: tuple[str, ...] = ()  # the files it publishes (the download names; an export's depend on its format)
+    result_size: ResultSize = ResultSize()  # what they are expected to take (the quota reserves it while it runs)
     startable: bool = True  # through POST /api/v1/jobs (an ingest is started by its upload)
 
     @property
@@ -118,6 +134,7 @@ JOB_KINDS: dict[str, JobKind] = {
             body="selftest_entry",
             phases=(Phase("selftest_compute", "selftest_chain"), Phase("selftest_verify", "selftest_write")),
             result_files=("selftest.h5",),
+            result_size=ResultSize(flat_bytes=MIB),
         ),
         JobKind(
             kind="camera_calibration",
@@ -130,6 +147,7 @@ JOB_KINDS: dict[str, JobKind] = {
             ),
             body="camera_calibration_body",
             result_files=("camera.json",),
+            result_size=ResultSize(flat_bytes=MIB),
         ),
         JobKind(
             kind="projector_calibration",
@@ -143,6 +161,8 @@ JOB_KINDS: dict[str, JobKind] = {
             ),
             body="projector_calibration_body",
             result_files=("projector.h5",),
+            # the look-up table: edges × scan lines × Z positions, float32 (~1 byte per pixel of each Z frame)
+            result_size=ResultSize(flat_bytes=MIB, bytes_per_pixel_frame=1.0),
         ),
         JobKind(
             kind="topography",
@@ -160,6 +180,8 @@ JOB_KINDS: dict[str, JobKind] = {
             body="topography_entry",
             phases=(Phase("topography_measure", "topography_write", hold_steals=True),),
             result_files=(TOPOGRAPHY_FILE, "topography.xdmf"),
+            # points (one per stripe edge and scan line, ~24 bytes each, compressed) and the grids of every frame
+            result_size=ResultSize(flat_bytes=MIB, bytes_per_pixel_frame=4.0),
         ),
         JobKind(
             kind="export",
@@ -176,6 +198,7 @@ JOB_KINDS: dict[str, JobKind] = {
             ),
             body="export_body",
             result_files=("the format's file (fringelab.formats.exports)",),
+            result_size=ResultSize(flat_bytes=MIB, times_source=3.0),  # a CSV of points: ~3 × the compressed result
         ),
         JobKind(
             kind="comparison",
@@ -193,6 +216,7 @@ JOB_KINDS: dict[str, JobKind] = {
             ),
             body="comparison_body",
             result_files=(COMPARISON_FILE, "the `format`'s export, if one is named"),
+            result_size=ResultSize(flat_bytes=MIB, times_source=2.0),
         ),
         JobKind(
             kind="procam_calibration",
@@ -208,6 +232,7 @@ JOB_KINDS: dict[str, JobKind] = {
             ),
             body="procam_calibration_body",
             result_files=("procam.json",),
+            result_size=ResultSize(flat_bytes=MIB),
         ),
         JobKind(
             kind="scan",
@@ -223,6 +248,7 @@ JOB_KINDS: dict[str, JobKind] = {
             ),
             body="scan_body",
             result_files=("scan.h5",),
+            result_size=ResultSize(flat_bytes=MIB, bytes_per_pixel_frame=1.0),
         ),
         JobKind(
             kind="simulation_check",
