@@ -51,6 +51,7 @@ from fringelab.core.models import (
     utcnow,
 )
 from fringelab.core.preparation import Authorize, NotVisible, Prepared, job_error, nobody_checks, prepare_inputs
+from fringelab.core.quota import check_result_quota
 from fringelab.core.settings import Settings
 from fringelab.core.storage import InsufficientStorage, check_room
 
@@ -149,6 +150,9 @@ def create_job(
             )
             error.job_id = active.id
             raise error
+    # The results' expected size is reserved against the experiment's owner until the job ends (then its files').
+    check_result_quota(session, celery.fringelab_settings, experiment_id=prepared.experiment_id, kind=kind,
+                       stored=stored)  # fmt: skip
     return submit_job(
         session,
         celery,

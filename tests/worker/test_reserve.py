@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -36,19 +37,24 @@ def test_a_job_stops_in_words_below_the_reserve(settings):
 # ------------------------------------------------------------------------- every job kind that writes files
 
 
-def _topography_job(settings) -> str:
-    """A succeeded topography job whose result (6 frames on a 21 × 11 grid) was written by the result writer."""
+def write_topography(path: Path) -> Path:
+    """A topography result (6 frames on a 21 × 11 grid) written by the result writer."""
     from tests.formats.test_topography_writer import GRID, frame
 
-    directory = settings.data_path / "results" / "jobs" / "topo-1"
-    directory.mkdir(parents=True)
+    path.parent.mkdir(parents=True, exist_ok=True)
     peak = Peak(w_mm=1.0, x_mm=0.0, y_mm=0.0, centre_x_mm=0.0, centre_y_mm=0.0)
-    with TopographyWriter(directory / "topography.h5", grid=GRID, max_edge_mm=6.0, z_flat_mm=0.0, axis="rows",
-                          attrs={}, calibration_attrs={}, threads=0) as writer:  # fmt: skip
+    with TopographyWriter(path, grid=GRID, max_edge_mm=6.0, z_flat_mm=0.0, axis="rows", attrs={},
+                          calibration_attrs={}, threads=0) as writer:  # fmt: skip
         for i in range(6):
             measurement, z, sigma = frame(i, 50)
             writer.append(measurement, z, peak, log=(0.0, 0.0, 0.0), sigma_grid_mm=sigma)
         writer.close({})
+    return path
+
+
+def _topography_job(settings) -> str:
+    """A succeeded topography job with its result (`write_topography`)."""
+    write_topography(settings.data_path / "results" / "jobs" / "topo-1" / "topography.h5")
     engine = make_engine(settings.resolved_database_url)
     with make_sessionmaker(engine)() as session:
         entry = {"name": "topography.h5", "path": "results/jobs/topo-1/topography.h5", "size_bytes": 1,
