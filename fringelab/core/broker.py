@@ -25,7 +25,7 @@ from fringelab.core.models import Job, JobChunk
 
 CHUNK_TASK = "fringelab.job_chunk"
 MERGE_TASK = "fringelab.job_merge"
-DEMO_TASK = "fringelab.demo"  # makes a virtual experiment; its jobs are ordinary jobs
+DEMO_TASK = "fringelab.demo"  # makes an experiment from a virtual test; its jobs are ordinary jobs
 DEMO_ADVANCE_TASK = "fringelab.demo_advance"
 PING_TASK = "fringelab.ping"
 

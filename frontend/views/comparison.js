@@ -5,7 +5,8 @@
 // frame, where a frame without a simulation partner is a gap marked with its reason, never a drop to zero; the
 // mapping used; exports. Every plot downloads its data (CSV) and its image (PNG).
 import { getJSON, query } from "../api.js";
-import { COLORS, Figure, axis, bandTrace, fieldRows, lineLayout, lineTraces, mapLayout, mapTraces, missingMarkTraces, verticalMarker } from "../plots.js";
+import { COLORS, Figure, axis, bandTrace, lineLayout, lineTraces, missingMarkTraces, verticalMarker } from "../plots.js";
+import { fieldRows, mapLayout, mapTraces } from "../plot_fields.js";
 import { attempt, field, fill, h, latestOnly, num, page, showError } from "../ui.js";
 import { comparisonExportPanel } from "./exports.js";
 import { jobName, shortId } from "./job-helpers.js";

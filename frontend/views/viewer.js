@@ -8,7 +8,8 @@
 // frames that several panels show, and the page's layout. Each panel is its own module in views/viewer/ (map,
 // surface, profiles, histories, peak, coverage, cameras) and reads the shared state from the viewer it is given.
 import { getJSON } from "../api.js";
-import { MARK_COLORS, fieldRange, fieldRows, listenToMap } from "../plots.js";
+import { MARK_COLORS } from "../plots.js";
+import { fieldRange, fieldRows, listenToMap } from "../plot_fields.js";
 import { attempt, field, fill, h, latestOnly, num, page, say, showError } from "../ui.js";
 import { TopographySource } from "./topography-source.js";
 import { exportPanel } from "./exports.js";

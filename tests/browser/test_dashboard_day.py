@@ -32,8 +32,8 @@ def download_csv(page, button_name: str) -> tuple[str, list[dict[str, str]]]:  #
 
 
 TO_SCREEN = """async ([x, y]) => {
-    const plots = await import("/plots.js");
-    return plots.screenPoint(document.querySelector("#field-map .plot-area"), x, y);
+    const fields = await import("/plot_fields.js");
+    return fields.screenPoint(document.querySelector("#field-map .plot-area"), x, y);
 }"""
 
 

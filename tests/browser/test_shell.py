@@ -46,26 +46,27 @@ def test_map_turns_drags_into_section_lines_and_clicks_into_points(page, tmp_pat
     page.evaluate(
         """async () => {
         const plots = await import("/plots.js");
+        const fields = await import("/plot_fields.js");
         const x = Array.from({ length: 101 }, (_, i) => i * 0.5);      // 0 .. 50 mm
         const y = Array.from({ length: 81 }, (_, j) => -20 + j * 0.5);   // -20 .. 20 mm
         const z = y.map((yy) => Float32Array.from(x, (xx) => xx * 0.01 + yy * 0.1));
         const figure = new plots.Figure({
             name: "Test map", filename: "test-map",
-            csv: () => ({ columns: ["x_mm", "y_mm", "w_mm"], rows: plots.fieldRows({ x, y, z }) }),
+            csv: () => ({ columns: ["x_mm", "y_mm", "w_mm"], rows: fields.fieldRows({ x, y, z }) }),
         });
         document.querySelector("main").append(figure.element);
         window.gestures = { lines: [], points: [] };
         window.testFigure = figure;
-        window.plots = plots;
-        await figure.react(plots.mapTraces({ x, y, z }), plots.mapLayout());
-        plots.listenToMap(figure, {
+        window.fields = fields;
+        await figure.react(fields.mapTraces({ x, y, z }), fields.mapLayout());
+        fields.listenToMap(figure, {
             onLine: (line) => window.gestures.lines.push(line),
             onPoint: (point) => window.gestures.points.push(point),
         });
     }"""
     )
     page.get_by_role("img", name="Test map").scroll_into_view_if_needed()
-    to_screen = "([x, y]) => window.plots.screenPoint(window.testFigure.plot, x, y)"
+    to_screen = "([x, y]) => window.fields.screenPoint(window.testFigure.plot, x, y)"
     start = page.evaluate(to_screen, [10.0, -10.0])
     end = page.evaluate(to_screen, [40.0, 15.0])
     page.mouse.move(start["x"], start["y"])

@@ -73,7 +73,7 @@ def test_a_gap_present_from_the_first_frame_is_outlined_but_not_the_area_off_the
     page.goto("/#/system")
     mask = page.evaluate(
         """async () => {
-        const { missingOutlineTraces } = await import("/plots.js");
+        const { missingOutlineTraces } = await import("/plot_fields.js");
         const rows = (values) => values.map((row) => Float32Array.from(row, (v) => (v === null ? NaN : v)));
         const x = [0, 1, 2, 3, 4];
         const y = [0, 1, 2];

@@ -2,7 +2,8 @@
 // over time, the first section line's profile at this instant, or the difference map of this frame), each with
 // the difference this − other and its RMS and largest value. Only what both cameras measured is compared: a frame
 // either camera did not measure the peak of has no difference (a gap, never a drop), and is listed with why.
-import { COLORS, Figure, axis, fieldRange, lineLayout, lineTraces, mapLayout, mapTraces, missingMarkTraces, resampleField, verticalMarker } from "../../plots.js";
+import { COLORS, Figure, axis, lineLayout, lineTraces, missingMarkTraces, verticalMarker } from "../../plots.js";
+import { fieldRange, mapLayout, mapTraces, resampleField } from "../../plot_fields.js";
 import { attempt, fill, h, num } from "../../ui.js";
 import { gridOf, timeAxis } from "./shared.js";
 

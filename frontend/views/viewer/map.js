@@ -1,7 +1,8 @@
 // The viewer's 2-D map of a frame's deflection field: the section lines and points drawn on it, and the regions
 // not measured in this frame outlined (what the first frame saw, and the gaps inside it: a highlight, a shadow).
 // Drawing on it (lines, points) is the viewer's to handle.
-import { Figure, mapLayout, mapTraces, missingOutlineTraces } from "../../plots.js";
+import { Figure } from "../../plots.js";
+import { mapLayout, mapTraces, missingOutlineTraces } from "../../plot_fields.js";
 
 export class MapPanel {
   constructor(viewer) {

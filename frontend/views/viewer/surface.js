@@ -1,5 +1,6 @@
 // The viewer's 3-D surface of a frame's deflection field (the whole frame; its z axis is the whole test's range).
-import { Figure, surfaceLayout, surfaceTraces } from "../../plots.js";
+import { Figure } from "../../plots.js";
+import { surfaceLayout, surfaceTraces } from "../../plot_fields.js";
 
 export class SurfacePanel {
   constructor(viewer) {
