@@ -14,8 +14,10 @@ returning to the dashboard has it).
 Printed per page, as medians over the repeats: first content (Chromium's `first-contentful-paint`, ms from the
 navigation's start), the page's own heading in place (its `h1`, ms), and, on pages that draw plots, when plotly.js
 had loaded (ms; it is asked for only by the first figure drawn, after the page's content). Goal (issue 27): first
-content within 300 ms on every page. Exit status 1 when a page misses it warm. The load average of the machine is
-printed with the figures: on a shared machine they move with it.
+content within 300 ms on every page. Exit status 1 when a page misses it warm. With the demo, the viewer's frame
+switch is timed too (fetch, decode and Plotly.react of the field and the profile, `window.fringelab.frameSwitchMs`,
+over `--switches` moves of the slider; goal: median within 300 ms). The load average of the machine is printed with
+the figures: on a shared machine they move with it.
 """
 
 from __future__ import annotations
@@ -121,10 +123,35 @@ def measure(browser, base_url: str, path: str, repeats: int) -> dict[str, list[f
     return figures
 
 
+def frame_switches(browser, base_url: str, path: str, switches: int) -> list[float]:  # type: ignore[no-untyped-def]
+    """Times (ms) of `switches` frame moves in the viewer at `path`, back and forth over its frames."""
+    from playwright.sync_api import expect
+
+    context = browser.new_context(viewport={"width": 1280, "height": 800}, base_url=base_url)
+    tab = context.new_page()
+    tab.goto(path)
+    slider = tab.get_by_role("slider", name="Frame")
+    expect(slider).to_be_visible(timeout=30_000)
+    tab.wait_for_function("() => window.fringelab.frameSwitchMs.length >= 1")
+    last = int(slider.get_attribute("max") or 1)
+    slider.focus()
+    slider.press("End")
+    tab.wait_for_function(f"() => Number(document.querySelector('input.scrubber').value) === {last}")
+    tab.wait_for_load_state("networkidle")
+    tab.evaluate("() => { window.fringelab.frameSwitchMs = []; }")
+    for i in range(switches):
+        slider.press("ArrowLeft" if (i // max(1, last)) % 2 == 0 else "ArrowRight")
+        tab.wait_for_function(f"() => window.fringelab.frameSwitchMs.length >= {i + 1}")
+    times = list(tab.evaluate("() => window.fringelab.frameSwitchMs"))
+    context.close()
+    return times
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--repeats", type=int, default=5, help="times each page is opened (the first cold)")
     parser.add_argument("--no-demo", action="store_true", help="skip the demo: only the pages that need no results")
+    parser.add_argument("--switches", type=int, default=20, help="frame switches timed in the demo's viewer")
     args = parser.parse_args()
     if args.repeats < 2:
         parser.error("--repeats must be at least 2 (one cold, one warm)")
@@ -151,6 +178,7 @@ def main() -> int:
             with sync_playwright() as playwright:
                 browser = playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
                 results = {name: measure(browser, up.base_url, path, args.repeats) for name, path in pages.items()}
+                switch_ms = [] if args.no_demo else frame_switches(browser, up.base_url, pages["viewer"], args.switches)
                 browser.close()
         finally:
             up.stop()
@@ -167,6 +195,13 @@ def main() -> int:
         warm = [v for v in f["warm"] if v is not None]
         if not warm or statistics.median(warm) > GOAL_MS:
             missed.append(name)
+    if switch_ms:
+        print(
+            f"viewer frame switch ({len(switch_ms)} moves): median {statistics.median(switch_ms):.0f} ms, "
+            f"max {max(switch_ms):.0f} ms; goal: median {GOAL_MS:.0f} ms"
+        )
+        if statistics.median(switch_ms) > GOAL_MS:
+            missed.append("viewer frame switch")
     load = " ".join(f"{v:.2f}" for v in os.getloadavg())
     print(f"load average {load} on {os.cpu_count()} cores")
     if missed:

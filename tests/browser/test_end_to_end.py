@@ -9,7 +9,6 @@ from __future__ import annotations
 import csv
 import io
 import json
-import statistics
 from pathlib import Path
 
 import httpx
@@ -73,7 +72,7 @@ def start_job(page, kind_label: str) -> str:
     return job["id"]
 
 
-def test_upload_calibrate_measure_and_explore(page, live_server, virtual_test, capsys):
+def test_upload_calibrate_measure_and_explore(page, live_server, virtual_test):
     made, camera = virtual_test
     page.goto("/#/experiments")
     form = page.get_by_role("form", name="New experiment")
@@ -121,8 +120,8 @@ def test_upload_calibrate_measure_and_explore(page, live_server, virtual_test, c
     x_mid, y_mid = (grid["x_min_mm"] + grid["x_max_mm"]) / 2, (grid["y_min_mm"] + grid["y_max_mm"]) / 2
     half = 0.4 * (grid["x_max_mm"] - grid["x_min_mm"])
     to_screen = """async ([x, y]) => {
-        const plots = await import("/plots.js");
-        return plots.screenPoint(document.querySelector("#field-map .plot-area"), x, y);
+        const fields = await import("/plot_fields.js");
+        return fields.screenPoint(document.querySelector("#field-map .plot-area"), x, y);
     }"""
     page.get_by_role("img", name="Deflection map").scroll_into_view_if_needed()
     start = page.evaluate(to_screen, [x_mid - half, y_mid])
@@ -179,18 +178,12 @@ def test_upload_calibrate_measure_and_explore(page, live_server, virtual_test, c
     perforation = json.loads(made.truth_json.read_text())["perforation_frame"]
     assert all(overview["peak_measured"][: FRAMES // 2]) and not any(overview["peak_measured"][perforation:])
 
-    # Frame switches: fetch + decode + Plotly.react of the field and the profile, over SWITCHES moves.
+    # Frame switches: each move of the slider fetches, decodes and draws the field and the profile (its timing is
+    # bench/bench_pages.py's).
     page.evaluate("() => { window.fringelab.frameSwitchMs = []; }")
     for i in range(SWITCHES):
         slider.press("ArrowLeft" if (i // last) % 2 == 0 else "ArrowRight")
         page.wait_for_function(f"() => window.fringelab.frameSwitchMs.length >= {i + 1}")
-    times = page.evaluate("() => window.fringelab.frameSwitchMs")
-    with capsys.disabled():
-        print(
-            f"\nframe switch ({SWITCHES} switches, 250 × 250 budget): median {statistics.median(times):.0f} ms, "
-            f"max {max(times):.0f} ms"
-        )
-    assert statistics.median(times) < 300
 
     # Playback moves the frames on by itself until paused.
     frame_number = page.get_by_role("spinbutton", name="Frame number")
