@@ -5,11 +5,12 @@ Run from the repository root:  .venv/bin/python bench/bench_reads.py [--requests
 The heavy mix that cost 8.2 ms of web CPU per request (issue 26): grids of random frames, profiles along random
 lines over 1 to 10 random frames, and 50-job lists; sent through the whole application (Starlette's TestClient,
 accounts off, gzip accepted) to a result written as the worker writes one (a 201 × 201 grid, 48 frames, one
-gzip-compressed chunk per frame, with holes). The reference is the same application with FRINGELAB_FRAME_CACHE_BYTES
-= 0 (every frame read and decompressed from the file each time; the rendered-answer cache on, as before), run in
-the same process in alternating rounds, each round from empty caches and with the same requests. Printed per
-round and as medians: CPU time per request (of this whole process: the client's share is the same in both) and
-wall time per request by kind; plus the load average (the machine is shared: figures follow it).
+gzip-compressed chunk per frame, with holes). The reference is the application as it was before
+(FRINGELAB_FRAME_CACHE_BYTES = 0: every frame read and decompressed from the file each time; answers compressed at
+gzip level 5; the rendered-answer cache on), run in the same process in alternating rounds, each round from empty
+caches and with the same requests. Printed per round and as medians: CPU time per request (of this whole process:
+the client's share is the same in both) and wall time per request by kind; plus the load average
+(the machine is shared: figures follow it).
 """
 
 from __future__ import annotations
@@ -76,12 +77,19 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--requests", type=int, default=300, help="requests per round")
     parser.add_argument("--rounds", type=int, default=4, help="rounds of each (reference and cached, alternating)")
+    parser.add_argument(
+        "--reference-gzip-level",
+        type=int,
+        default=5,
+        help="the reference's gzip level (5: as before; give the current level to see the cache alone)",
+    )
     parser.add_argument("--cache-mib", type=int, default=64, help="FRINGELAB_FRAME_CACHE_BYTES of the cached run")
     args = parser.parse_args()
     os.environ["FRINGELAB_ALLOWED_HOSTS"] = "testserver"
 
     from fastapi.testclient import TestClient
 
+    from backend import cache
     from backend.api.results import ANSWERS
     from backend.app import create_app
     from fringelab.core.db import make_engine, make_sessionmaker, upgrade_database
@@ -107,10 +115,13 @@ def main() -> int:
                     session.add(Job(id=f"other-{n}", kind="selftest", state="succeeded", spec={"frames": 4}))
                 session.commit()
             engine.dispose()
+            before, after = f"before (no frame cache, gzip {args.reference_gzip_level})", "after (frame cache, gzip 1)"
             variants = {
-                "reference (no frame cache)": base.model_copy(update={"frame_cache_bytes": 0}),
-                "frame cache": base.model_copy(update={"frame_cache_bytes": args.cache_mib * 2**20}),
+                before: base.model_copy(update={"frame_cache_bytes": 0}),
+                after: base.model_copy(update={"frame_cache_bytes": args.cache_mib * 2**20}),
             }
+            # Before issue 26's item 8 was finished: no frame cache and answers compressed at gzip level 5.
+            gzip_levels = {before: args.reference_gzip_level, after: cache.GZIP_LEVEL}
             cpu_ms: dict[str, list[float]] = defaultdict(list)
             wall_ms: dict[tuple[str, str], list[float]] = defaultdict(list)
             load_before = os.getloadavg()
@@ -123,6 +134,7 @@ def main() -> int:
                     for name in order:
                         client = clients[name]
                         ANSWERS.clear()
+                        cache.GZIP_LEVEL = gzip_levels[name]
                         client.app.state.fringelab.frames.clear()  # type: ignore[attr-defined]
                         rng = random.Random(round_number)
                         requests = [heavy_request(rng) for _ in range(args.requests)]
@@ -135,19 +147,19 @@ def main() -> int:
                             wall_ms[(name, kind)].append((time.perf_counter() - began) * 1000)
                         per_request = (time.process_time() - started_cpu) / len(requests) * 1000
                         cpu_ms[name].append(per_request)
-                        print(f"round {round_number + 1} {name:>27}: {per_request:5.2f} ms CPU per request "
+                        print(f"round {round_number + 1} {name:>31}: {per_request:5.2f} ms CPU per request "
                               f"(load {os.getloadavg()[0]:.2f})", flush=True)  # fmt: skip
             finally:
                 for client in clients.values():
                     client.__exit__(None, None, None)
-            frames = clients["frame cache"].app.state.fringelab.frames  # type: ignore[attr-defined]
+            frames = clients[after].app.state.fringelab.frames  # type: ignore[attr-defined]
         finally:
             redis_server.stop()
     print(f"heavy mix, {args.requests} requests a round, {args.rounds} rounds each; medians:")
     for name in variants:
         by_kind = "  ".join(f"{kind} {statistics.median(wall_ms[(name, kind)]):.2f}"
                             for kind in ("grid", "profile", "list"))  # fmt: skip
-        print(f"  {name:>27}: {statistics.median(cpu_ms[name]):5.2f} ms CPU per request; wall ms by kind: {by_kind}")
+        print(f"  {name:>31}: {statistics.median(cpu_ms[name]):5.2f} ms CPU per request; wall ms by kind: {by_kind}")
     print(f"frame cache of the last round: {frames.hits} hits, {frames.misses} misses, "
           f"{frames.held_bytes / 2**20:.1f} MiB held")  # fmt: skip
     print(f"load average (1/5/15 min): before {' '.join(f'{v:.2f}' for v in load_before)}, "
