@@ -210,6 +210,12 @@ def run_guarded(context: JobContext, step: Callable[[], Any]) -> tuple[bool, Any
             return True, step()
     except Cancelled:
         finish(sessions, job_id, state="cancelled")
+    except BelowReserve as error:
+        # The disk is full: the files this run had already published go too (a failed job's are never listed).
+        for name in context.files:
+            (context.directory / name).unlink(missing_ok=True)
+        context.files.clear()
+        finish(sessions, job_id, state="failed", error=str(error))
     except (ValueError, MeasurementError) as error:
         finish(sessions, job_id, state="failed", error=str(error))
     except Exception as error:

@@ -20,7 +20,7 @@ from fringelab.science.fields import Peak
 from tests.worker.conftest import wait_job
 from tests.worker.test_calibration_jobs import Z_MM, add_recording
 from worker.app import create_worker_app
-from worker.context import JobContext
+from worker.context import JobContext, run_guarded
 from worker.jobs.export import keeping_reserve
 from worker.reserve import BelowReserve, require_reserve
 
@@ -141,3 +141,32 @@ def test_a_file_that_takes_the_volume_below_the_reserve_is_removed_not_published
     assert context.files == {} and not any(context.directory.iterdir())
     with pytest.raises(BelowReserve, match=r"stopped before writing frame 3 of 9 of out\.npz: not enough free"):
         keeping_reserve(context, "out.npz")(2, 9, "exporting")
+
+
+def test_a_job_stopped_by_the_reserve_keeps_none_of_the_files_it_had_published(settings):
+    """A job that wrote one file and then met the reserve at the next fails, and the first file goes too: a failed
+    job lists no file, and a full disk gets back what it wrote."""
+    engine = make_engine(settings.resolved_database_url)
+    sessions = make_sessionmaker(engine)
+    with sessions() as session:
+        session.add(Job(id="job-1", kind="comparison", state="running"))
+        session.commit()
+    context = JobContext(job_id="job-1", spec=None, settings=settings, sessions=sessions)  # type: ignore[arg-type]
+
+    def body() -> dict:
+        with context.output("comparison.h5") as partial:
+            partial.write_bytes(b"complete")
+        context.settings = settings.model_copy(
+            update={"min_free_disk_bytes": free_disk_bytes(settings.data_path) + 2**40}
+        )
+        with context.output("comparison.csv") as partial:
+            partial.write_text("never")
+        return {}
+
+    assert run_guarded(context, body) == (False, None)
+    with sessions() as session:
+        job = session.get(Job, "job-1")
+        assert job.state == "failed" and job.files == [], (job.state, job.files)  # type: ignore[union-attr]
+        assert job.error.startswith("stopped before writing comparison.csv: not enough free space")  # type: ignore[union-attr]
+    assert not any(context.directory.iterdir())
+    engine.dispose()
