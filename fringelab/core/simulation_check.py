@@ -7,7 +7,11 @@ FRINGELAB_SIMULATION_MAX_BYTES before they allocate it (`fringelab.formats.simul
 still allocates is bounded by the child process's address space (FRINGELAB_SIMULATION_CHECK_BYTES) and CPU time
 (FRINGELAB_SIMULATION_CHECK_S): such a file costs that child at most its limit, then a failed check naming it.
 
-`python -m fringelab.core.simulation_check FOLDER FILENAME MAX_BYTES` is the child: it prints
+What the child read is stored (`fringelab.formats.simulation_store`, the simulation's `checked.h5`, every state
+read once, within the disk's reserve), so that the web server never opens the uploaded files: the mapping form's
+preview reads that store.
+
+`python -m fringelab.core.simulation_check FOLDER FILENAME MAX_BYTES STORE RESERVE_BYTES` is the child: it prints
 `{"summary": {...}, "peak_rss_bytes": N}` or `{"error": "...", "code": "...", "peak_rss_bytes": N}` and exits 0 or 2.
 """
 
@@ -26,6 +30,7 @@ import numpy as np
 
 from fringelab.core.errors import Invalid
 from fringelab.core.settings import Settings
+from fringelab.core.storage import InsufficientStorage, check_room
 
 
 def _finite_range(values: np.ndarray | None) -> list[float] | None:
@@ -34,14 +39,25 @@ def _finite_range(values: np.ndarray | None) -> list[float] | None:
     return [float(np.nanmin(values)), float(np.nanmax(values))]
 
 
-def read_simulation_summary(folder: Path, *, filename: str, max_bytes: int) -> dict[str, Any]:
-    """Open the simulation in `folder` (`open_simulation`, within `max_bytes` of declared arrays): its kind, size
-    and what it holds; Invalid with the reader's message when it is no simulation fringelab reads."""
-    from fringelab.formats.simulations import open_simulation
+def read_simulation_summary(
+    folder: Path, *, filename: str, max_bytes: int, store: Path | None = None, reserve_bytes: int = 0
+) -> dict[str, Any]:
+    """Read the simulation in `folder` (`read_parts`, within `max_bytes` of declared arrays) and, given a `store`,
+    keep what was read there (`write_checked`, with `reserve_bytes` left on its volume): its kind, size and what
+    it holds; Invalid with the reader's message when it is no simulation fringelab reads."""
+    from fringelab.formats.simulation_store import stored_bytes, write_checked
+    from fringelab.formats.simulations import assemble, read_parts
 
     try:
-        # a nodout of several nodes: its punch node is chosen when it is compared
-        results = open_simulation(folder, punch_needed=False, max_bytes=max_bytes)
+        parts = read_parts(folder, max_bytes=max_bytes)
+        results = assemble(parts, punch_needed=False)  # a nodout of several nodes: its node is chosen when compared
+        if store is not None:
+            try:
+                check_room(store.parent, stored_bytes(parts), reserve_bytes=reserve_bytes)
+            except InsufficientStorage as error:
+                raise Invalid(f"{filename}: its checked copy cannot be stored: {error}",
+                              code="insufficient_storage") from None  # fmt: skip
+            write_checked(store, parts)
     except (ValueError, KeyError, IndexError, OSError, EOFError) as error:
         message = str(error).replace(str(folder) + "/", "").replace(str(folder), filename)
         raise Invalid(f"{filename}: not a simulation fringelab reads: {message}", code="invalid_simulation") from None
@@ -82,9 +98,10 @@ def _peak_rss_bytes() -> int:
     return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024  # Linux: KiB
 
 
-def checked_summary(folder: Path, *, filename: str, settings: Settings) -> Checked:
-    """The summary of the simulation in `folder`, read by a child process within the limits; Invalid with the
-    reader's message, or naming the limit that stopped it (`Refused`)."""
+def checked_summary(folder: Path, *, filename: str, settings: Settings, store: Path) -> Checked:
+    """The summary of the simulation in `folder`, read by a child process within the limits, which stores what it
+    read in `store` (`read_simulation_summary`); Invalid with the reader's message, or naming the limit that
+    stopped it (`Refused`)."""
     limit_bytes = settings.simulation_check_bytes
 
     def limited() -> None:  # in the child, before it starts Python: its address space and CPU time
@@ -94,7 +111,7 @@ def checked_summary(folder: Path, *, filename: str, settings: Settings) -> Check
 
     env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
     command = [sys.executable, "-m", "fringelab.core.simulation_check", str(folder), filename,
-               str(settings.simulation_max_bytes)]  # fmt: skip
+               str(settings.simulation_max_bytes), str(store), str(settings.min_free_disk_bytes)]  # fmt: skip
     try:
         done = subprocess.run(command, capture_output=True, text=True, timeout=settings.simulation_check_s,
                               preexec_fn=limited, env=env)  # fmt: skip
@@ -125,9 +142,10 @@ def checked_summary(folder: Path, *, filename: str, settings: Settings) -> Check
 
 
 def main(argv: list[str]) -> int:
-    folder, filename, max_bytes = Path(argv[0]), argv[1], int(argv[2])
+    folder, filename, max_bytes, store, reserve = Path(argv[0]), argv[1], int(argv[2]), Path(argv[3]), int(argv[4])
     try:
-        summary = read_simulation_summary(folder, filename=filename, max_bytes=max_bytes)
+        summary = read_simulation_summary(folder, filename=filename, max_bytes=max_bytes, store=store,
+                                          reserve_bytes=reserve)  # fmt: skip
     except Invalid as error:
         print(json.dumps({"error": error.detail, "code": error.code, "peak_rss_bytes": _peak_rss_bytes()}))
         return 2

@@ -51,6 +51,7 @@ from fringelab.core.storage import (
 )
 from fringelab.core.text import check_file_name
 from fringelab.formats.container_zip import check_archive, is_junk_entry
+from fringelab.formats.simulation_store import CHECKED_FILE
 
 MODEL_DIR = "model"
 
@@ -264,7 +265,8 @@ def mapping_settings(spec: ComparisonSpec) -> Any:
 def _preview_inputs(
     session: Session, settings: Settings, principal: Principal, spec: ComparisonSpec
 ) -> tuple[Path, Path]:
-    """The topography result file and the simulation folder a preview reads; 404/409/422 naming the field."""
+    """The topography result file and the simulation's checked copy (what its check job read and stored: the web
+    server never opens the uploaded files) a preview reads; 404/409/422 naming the field."""
     from fringelab.core.jobs import job_error, job_for
 
     job = job_for(session, principal, spec.job_id)
@@ -289,7 +291,14 @@ def _preview_inputs(
             field="simulation_id",
         )  # fmt: skip
     check_simulation_ready(simulation)
-    return result, settings.data_path / simulation.path
+    store = simulation_dir(settings.data_path, simulation.id) / CHECKED_FILE
+    if not store.is_file():  # checked before its check stored what it read (an upload of an older version)
+        raise job_error(
+            Conflict, "simulation_not_checked",
+            f"simulation {simulation.id} ({simulation.filename}) has no checked copy to preview; upload it again",
+            field="simulation_id",
+        )  # fmt: skip
+    return result, store
 
 
 class _RecentPairings:
@@ -336,10 +345,12 @@ def preview_comparison(
     """What a comparison with these mapping choices would pair, for the mapping form's live preview: the mapping
     resolved (every detected choice and note), each frame's partner state or why it has none, and the measured and
     simulated profiles through the punch axis along X and Y of one frame (`frame`, else the most deflected one
-    paired). The pairing is the comparison's own (`formats.comparison.pair_result`). A choice that cannot work is
-    an Invalid (422) naming the form's setting to change."""
+    paired). The pairing is the comparison's own (`formats.comparison.pair_result`), of the simulation as its check
+    job stored it (`formats.simulation_store`): no uploaded file is opened here. A choice that cannot work is an
+    Invalid (422) naming the form's setting to change."""
     from fringelab.formats.comparison import pair_result, plate_frame_of
-    from fringelab.formats.simulations import open_simulation
+    from fringelab.formats.simulation_store import read_checked
+    from fringelab.formats.simulations import assemble
     from fringelab.formats.topography import TopographyResult
     from fringelab.science.compare import ComparisonError, in_form_terms
     from fringelab.science.fields import line_profile
@@ -352,7 +363,7 @@ def preview_comparison(
         with TopographyResult(result_path) as result:
 
             def pair() -> Any:
-                simulation = open_simulation(simulation_path, punch_node=punch[0], contact_interface=punch[1])
+                simulation = assemble(read_checked(simulation_path), punch_node=punch[0], contact_interface=punch[1])
                 return pair_result(result, simulation, mapping=mapping_choices, align=align)
 
             key = (

@@ -287,8 +287,8 @@ def test_a_nodout_of_several_nodes_is_uploaded_and_its_punch_node_chosen_in_the_
     measured,  # noqa: F811
     tmp_path,
 ) -> None:  # type: ignore[no-untyped-def]
-    """An upload reads the model whatever its nodout holds; the comparison (and its preview) then needs the punch
-    node when nodout lists several, and says which ones, naming the form's setting."""
+    """An upload's check reads the model whatever its nodout holds; the comparison (and its preview) then needs the
+    punch node when nodout lists several, and says which ones, naming the form's setting."""
     from fringelab.formats.simulation_lsdyna_ascii import read_nodout, write_nodout
 
     experiment = client.post("/api/v1/experiments", json={"name": "plate"}).json()
@@ -301,6 +301,10 @@ def test_a_nodout_of_several_nodes_is_uploaded_and_its_punch_node_chosen_in_the_
     uploaded = checked(client, client.put(f"/api/v1/experiments/{experiment['id']}/simulations/fe.zip",
                                           content=zipped(folder)))  # fmt: skip
     assert uploaded["state"] == "ready", uploaded
+    # the preview reads what the check job stored (checked.h5), never the uploaded files: without them it still works
+    model = settings.data_path / "simulations" / str(uploaded["id"]) / "model"
+    assert (model.parent / "checked.h5").is_file()
+    shutil.rmtree(model)
     spec = {"kind": "comparison", "job_id": jobs["done"], "simulation_id": uploaded["id"]}
     unchosen = client.post("/api/v1/comparisons/preview", json={"spec": spec})
     assert unchosen.status_code == 422, unchosen.text

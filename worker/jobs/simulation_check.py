@@ -4,7 +4,9 @@ store what it holds.
 Task "fringelab.simulation_check" takes a job id whose spec is {"simulation_id": N}. The model is read by a child
 of this worker process (`fringelab.core.simulation_check.checked_summary`: its address space and CPU time limited,
 the readers refusing declared sizes beyond FRINGELAB_SIMULATION_MAX_BYTES before allocating them), so a hostile file
-costs that child its limit and nothing else. The simulation ends `ready` with its kind, node and state counts and
+costs that child its limit and nothing else. What it read is stored beside the upload (`checked.h5`,
+`fringelab.formats.simulation_store`): the web server's preview reads that, never the upload. The simulation ends
+`ready` with its kind, node and state counts and
 facts, or `failed` with the reason (and the job fails with it); the job's result holds the checking process's
 peak memory. A simulation deleted meanwhile ends the job quietly. Running it twice (acks-late redelivery) writes
 the same result.
@@ -18,7 +20,9 @@ from fringelab.core.errors import Invalid
 from fringelab.core.models import Simulation
 from fringelab.core.simulation_check import Refused, checked_summary
 from fringelab.core.specs import SimulationCheckSpec
+from fringelab.core.storage import simulation_dir
 from fringelab.core.text import public_text
+from fringelab.formats.simulation_store import CHECKED_FILE
 from fringelab.science import Cancelled
 from worker.context import JobContext
 
@@ -36,7 +40,8 @@ def check_simulation(context: JobContext[SimulationCheckSpec]) -> dict[str, Any]
         session.commit()
     context.progress(0, 1, "reading the model")
     try:
-        checked = checked_summary(folder, filename=filename, settings=context.settings)
+        store = simulation_dir(context.settings.data_path, simulation_id) / CHECKED_FILE
+        checked = checked_summary(folder, filename=filename, settings=context.settings, store=store)
     except Invalid as error:
         peak = error.peak_rss_bytes if isinstance(error, Refused) else 0
         _store(context, simulation_id, state="failed", error=public_text(error.detail))
