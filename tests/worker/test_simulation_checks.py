@@ -20,7 +20,7 @@ from fringelab.core.db import make_engine, make_sessionmaker
 from fringelab.core.models import Experiment, Job, Simulation, utcnow
 from fringelab.core.reconcile import MAX_REQUEUES
 from tests.support import wait_for
-from tests.worker.conftest import log_messages
+from tests.worker.conftest import log_messages, wait_job
 
 pytestmark = [pytest.mark.integration]
 MIB = 2**20
@@ -83,7 +83,7 @@ def test_an_upload_is_checking_until_a_worker_reads_it_and_cannot_be_compared_be
         "ready", "csv", 2, 4,
     ), simulation  # fmt: skip
     assert simulation["error"] == "" and simulation["info"]["time"] == [0.0, 0.001]
-    check = client.get(f"/api/v1/jobs/{stored['check_job_id']}").json()
+    check = wait_job(client, stored["check_job_id"])  # it ends just after it made the simulation ready
     assert check["state"] == "succeeded" and check["result"]["n_nodes"] == 4, check
     peak = check["result"]["peak_rss_bytes"]
     print(f"checking process of a 4-node CSV: peak {peak / MIB:.0f} MiB")
@@ -128,7 +128,7 @@ def test_a_header_declaring_60_m_nodes_fails_its_check_and_the_web_process_does_
     error = simulation["error"]
     assert error.startswith("huge.exo: not a simulation fringelab reads: huge.exo: declares 60000000 nodes"), error
     assert "FRINGELAB_SIMULATION_MAX_BYTES" in error and "refused before reading it" in error, error
-    check = client.get(f"/api/v1/jobs/{simulation['check_job_id']}").json()
+    check = wait_job(client, simulation["check_job_id"])
     assert check["state"] == "failed" and check["error"] == error, check
     logged = next(m for m in log_messages(client, check["id"]) if "peak memory" in m)
     peak_mib = float(re.search(r"peak memory: (\d+) MiB", logged).group(1))  # type: ignore[union-attr]
@@ -157,6 +157,7 @@ def test_a_check_whose_worker_process_is_killed_runs_again_and_ends_ready(settin
     victim.send_signal(signal.SIGKILL)  # type: ignore[union-attr]
     simulation = ended(client, answer.json()["id"])
     assert (simulation["state"], simulation["n_nodes"]) == ("ready", 4), simulation
+    assert wait_job(client, simulation["check_job_id"])["state"] == "succeeded"
     messages = log_messages(client, simulation["check_job_id"])
     assert any(m.startswith("restarted") for m in messages), messages
     assert sum(m.startswith("succeeded") for m in messages) == 1, messages
