@@ -9,6 +9,7 @@ are imported inside the handlers so registering the commands stays instant. Scan
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +34,16 @@ def _scale(text: str) -> tuple[float, float]:
     if not (sx > 0 and sy > 0):
         raise argparse.ArgumentTypeError(f"expected positive SX,SY, got {text!r}")
     return sx, sy
+
+
+def _offset(text: str) -> tuple[float, float]:
+    try:
+        dx, dy = (float(part) for part in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected DX,DY (e.g. -57,0), got {text!r}") from None
+    if not (math.isfinite(dx) and math.isfinite(dy)):
+        raise argparse.ArgumentTypeError(f"expected finite DX,DY, got {text!r}")
+    return dx, dy
 
 
 def register(subparsers: Any) -> None:
@@ -76,6 +87,9 @@ def register(subparsers: Any) -> None:
     scan.add_argument("--projector-scale", type=_scale, metavar="SX,SY", default=(1.0, 1.0),
                       help="patterns' projector pixels → the calibration's (1,0.5: a diamond-pixel DLP calibrated in "
                       "square pixels; default 1,1)")  # fmt: skip
+    scan.add_argument("--projector-offset", type=_offset, metavar="DX,DY", default=(0.0, 0.0),
+                      help="then added, in the calibration's projector pixels: where the patterns' pixel 0 lies in "
+                      "the calibration's (default 0,0)")  # fmt: skip
     scan.add_argument("--no-code-points", action="store_true",
                       help="leave out the per-pixel code points (a band wide); keep the stripe edges and the "
                       "phase")  # fmt: skip
@@ -125,7 +139,8 @@ def scan_command(args: argparse.Namespace) -> int:
     from fringelab.science.scan import ScanSettings, scan_qa
 
     try:
-        settings = ScanSettings(code_points=not args.no_code_points, projector_scale_xy=args.projector_scale)
+        settings = ScanSettings(code_points=not args.no_code_points, projector_scale_xy=args.projector_scale,
+                                projector_offset_xy_px=args.projector_offset)  # fmt: skip
         with progress_bar(args, "scan") as progress:
             result = scan_recording(
                 args.recording, args.calibration, args.output, patterns=args.patterns, settings=settings,

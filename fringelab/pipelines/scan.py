@@ -74,7 +74,8 @@ def scan_recording(
         progress(len(used) + 1, len(used) + 2, "points")
     source_name = Path(calibration).name if not isinstance(calibration, ProcamModel) else "(in memory)"
     provenance = {"recording": name, "calibration": source_name,
-                  "projector_scale_xy": list(settings.projector_scale_xy), **code_versions()}  # fmt: skip
+                  "projector_scale_xy": list(settings.projector_scale_xy),
+                  "projector_offset_xy_px": list(settings.projector_offset_xy_px), **code_versions()}  # fmt: skip
     write_scan(output, result, qa=scan_qa(result), patterns=json.loads(text), provenance=provenance)
     if progress is not None:
         progress(len(used) + 2, len(used) + 2, "done")

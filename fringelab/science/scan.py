@@ -35,16 +35,25 @@ class ScanMismatchError(MeasurementError):
 class ScanSettings:
     """decode: the decoding's settings; edges: the edge locator's (None: `graycode.GRAY_EDGE_SETTINGS`);
     code_points: add a point from the per-pixel code at every decoded pixel that holds no edge point and has
-    no phase (σ of a whole band: they show the shape, the edges measure it)."""
+    no phase (σ of a whole band: they show the shape, the edges measure it).
+
+    projector_scale_xy, projector_offset_xy_px: how the patterns' projector pixels map to the calibration's, per
+    axis: x_calibration = (x_patterns + ½)·scale − ½ + offset (pixel centres at integers in both). A calibration
+    may count a projector's pixels otherwise than its patterns do: a diamond-pixel DLP calibrated in square
+    pixels (scale 0.5 along its rows), or patterns whose bands start elsewhere than the calibration's pixel 0
+    (docs/procam.md §8)."""
 
     decode: DecodeSettings = field(default_factory=DecodeSettings)
     edges: EdgeSettings | None = None
     code_points: bool = True
     projector_scale_xy: tuple[float, float] = (1.0, 1.0)
+    projector_offset_xy_px: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
         if len(self.projector_scale_xy) != 2 or not all(v > 0 for v in self.projector_scale_xy):
             raise ValueError(f"projector_scale_xy: expected two positive factors, got {self.projector_scale_xy}")
+        if len(self.projector_offset_xy_px) != 2 or not all(np.isfinite(v) for v in self.projector_offset_xy_px):
+            raise ValueError(f"projector_offset_xy_px: expected two finite offsets, got {self.projector_offset_xy_px}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -144,8 +153,9 @@ def scan(
         parts_src.append(np.full(len(vv), SOURCE_CODE, np.uint8))
     q = np.vstack(parts_q) if parts_q else np.zeros((0, 2))
     x = np.concatenate(parts_x) if parts_x else np.zeros(0)
-    factor = settings.projector_scale_xy[0 if axis == "columns" else 1]
-    x_model = (x + 0.5) * factor - 0.5
+    index = 0 if axis == "columns" else 1
+    factor = settings.projector_scale_xy[index]
+    x_model = (x + 0.5) * factor - 0.5 + settings.projector_offset_xy_px[index]
     # The decoding's σ is in the patterns' projector pixels, the calibration's in the model's.
     sigma_pattern = np.concatenate(parts_sp) if parts_sp else np.zeros(0)
     sigma_projector = np.hypot(sigma_pattern * factor, proj_cal)

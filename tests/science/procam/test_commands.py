@@ -74,6 +74,34 @@ def test_scan_and_export_on_the_command_line(scanned, tmp_path: Path, capsys) ->
     assert (tmp_path / "scan.csv").read_text().startswith("x_mm,y_mm,z_mm,sigma_mm")
 
 
+def test_a_calibration_that_counts_projector_pixels_from_elsewhere_takes_an_offset(
+    scanned, tmp_path: Path, capsys
+) -> None:
+    """The same frames against a calibration whose projector pixel 0 is the patterns' pixel −3 (its principal point
+    3 px further): with --projector-offset 3,0 the sphere is the truth's again; without, it is not."""
+    recording, calibration = scanned
+    rig = read_procam_calibration(calibration)
+    matrix = rig.projector_matrix.copy()
+    matrix[0, 2] += 3.0
+    shifted = write_opencv_procam(tmp_path / "shifted.yml", type(rig)(
+        camera_matrix=rig.camera_matrix, camera_dist=rig.camera_dist, camera_size_wh_px=rig.camera_size_wh_px,
+        projector_matrix=matrix, projector_dist=rig.projector_dist, projector_size_wh_px=rig.projector_size_wh_px,
+        r_proj_from_cam=rig.r_proj_from_cam, t_proj_from_cam_mm=rig.t_proj_from_cam_mm), naming="opencv")  # fmt: skip
+    radii = []
+    for offset in ("3,0", "0,0"):
+        out = tmp_path / f"scan-{offset}.h5"
+        assert run_cli("scan", str(recording), "--calibration", str(shifted), "--projector-offset", offset,
+                       "--no-code-points", "-o", str(out)) == 0  # fmt: skip
+        stored = read_scan(out)
+        radial = np.linalg.norm(stored.points_cam_mm - np.asarray(SPHERE.centre_cam_mm), axis=1) - SPHERE.radius_mm
+        radii.append(np.median(np.abs(radial[np.abs(radial) < 5.0])))
+    assert radii[0] < 0.05 and radii[1] > 0.2, radii
+    with pytest.raises(SystemExit):
+        run_cli("scan", str(recording), "--calibration", str(shifted), "--projector-offset", "nan,0", "-o",
+                str(tmp_path / "x.h5"))  # fmt: skip
+    assert "expected finite DX,DY, got 'nan,0'" in capsys.readouterr().err
+
+
 def test_bad_input_is_refused_in_a_sentence_and_nothing_is_written(scanned, tmp_path: Path, capsys) -> None:
     recording, calibration = scanned
     out = tmp_path / "scan.h5"
