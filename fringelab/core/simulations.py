@@ -23,6 +23,7 @@ import uuid
 import zipfile
 from collections import OrderedDict
 from collections.abc import Callable
+from datetime import timedelta
 from pathlib import Path, PurePosixPath
 from typing import Any
 
@@ -34,8 +35,8 @@ from fringelab.core.accounts import Principal, audit, require_access
 from fringelab.core.app_state import AppState
 from fringelab.core.errors import Conflict, Invalid, NotFound, TooLarge
 from fringelab.core.job_kinds import TOPOGRAPHY_FILE, named_by
-from fringelab.core.jobs import ACTIVE_STATES, FINAL_STATES, QueueUnavailable, add_log, submit_job
-from fringelab.core.models import Experiment, Job, Simulation
+from fringelab.core.jobs import ACTIVE_STATES, FINAL_STATES, QueueUnavailable, add_log, as_utc, submit_job
+from fringelab.core.models import Experiment, Job, Simulation, utcnow
 from fringelab.core.preparation import check_simulation_ready
 from fringelab.core.quota import check_quota
 from fringelab.core.recordings import check_upload_size, zip_limits
@@ -197,19 +198,27 @@ def submit_check(session: Session, state: AppState, simulation: Simulation) -> N
     session.commit()
 
 
+UNQUEUED_GRACE_S = 300  # an upload's row is stored a moment before its check job: only older ones are orphans
+
+
 def settle_checks(session: Session) -> list[str]:
     """Fail every simulation still `checking` whose check job has ended (failed or cancelled without saying: its
-    worker was lost too often, or it was cancelled), with the job's error; run by the reconciliation. Returns one
-    line per simulation failed."""
+    worker was lost too often, or it was cancelled), with the job's error, or is gone (deleted) for longer than
+    UNQUEUED_GRACE_S; run by the reconciliation. Returns one line per simulation failed."""
     settled = []
-    checking = select(Simulation).where(Simulation.state == "checking", Simulation.check_job_id.is_not(None))
-    for simulation in session.scalars(checking).all():
-        job = session.get(Job, simulation.check_job_id)
-        if job is None or job.state not in FINAL_STATES:
+    orphaned_before = utcnow() - timedelta(seconds=UNQUEUED_GRACE_S)
+    for simulation in session.scalars(select(Simulation).where(Simulation.state == "checking")).all():
+        job = session.get(Job, simulation.check_job_id) if simulation.check_job_id else None
+        if job is None:
+            if as_utc(simulation.created_at) > orphaned_before:
+                continue
+            reason = "its check job is gone; upload it again"
+        elif job.state in FINAL_STATES:
+            reason = job.error or f"its check job {job.id} ended {job.state} without a result"
+            add_log(session, job.id, f"simulation {simulation.id} marked failed: its check job ended {job.state}")
+        else:
             continue
-        reason = job.error or f"its check job {job.id} ended {job.state} without a result"
         simulation.state, simulation.error = "failed", f"the check did not finish: {reason}"
-        add_log(session, job.id, f"simulation {simulation.id} marked failed: its check job ended {job.state}")
         settled.append(f"simulation {simulation.id}: failed ({reason})")
     session.commit()
     return settled

@@ -165,7 +165,7 @@ def test_a_check_whose_worker_process_is_killed_runs_again_and_ends_ready(settin
 
 def test_a_check_job_lost_too_often_leaves_its_simulation_failed_not_checking(settings):
     """A check whose job the queue lost more than MAX_REQUEUES times (a worker dying on it each time) is failed by
-    the reconciliation, and its simulation with it, saying why."""
+    the reconciliation, and its simulation with it, saying why; so is one whose check job was deleted."""
     engine = make_engine(settings.resolved_database_url)
     with make_sessionmaker(engine)() as session:
         experiment = Experiment(name="plate")
@@ -181,10 +181,19 @@ def test_a_check_job_lost_too_often_leaves_its_simulation_failed_not_checking(se
                   started_at=long_ago, created_at=long_ago)  # fmt: skip
         session.add(job)
         simulation.check_job_id = job.id
+        # and one whose check job was deleted (its id set to null) long ago, one just stored (its job comes next)
+        orphan = Simulation(experiment_id=experiment.id, filename="b.exo", state="checking", created_at=long_ago)
+        fresh = Simulation(experiment_id=experiment.id, filename="c.exo", state="checking")
+        session.add_all([orphan, fresh])
         session.commit()
-        simulation_id = simulation.id
+        ids = (simulation.id, orphan.id, fresh.id)
     engine.dispose()
     with TestClient(create_app(settings)) as client:  # its start-up reconciles the jobs with the queue
-        found = client.get(f"/api/v1/simulations/{simulation_id}").json()
+        found, gone, waiting = (client.get(f"/api/v1/simulations/{i}").json() for i in ids)
     assert found["state"] == "failed", found
     assert found["error"].startswith(f"the check did not finish: the job queue lost this job {MAX_REQUEUES + 1} times")
+    assert (gone["state"], gone["error"]) == (
+        "failed",
+        "the check did not finish: its check job is gone; upload it again",
+    )
+    assert waiting["state"] == "checking", waiting
