@@ -140,8 +140,11 @@ const RECORDING_KIND_OF_JOB = {
   camera_calibration: "camera_calibration",
   projector_calibration: "projector_calibration",
   topography: "test",
+  procam_calibration: "coded",
   scan: "coded",
 };
+/** A camera–projector calibration takes at least this many chessboard poses (the spec's recording_ids). */
+const MIN_POSES = 3;
 
 /**
  * The form that starts a calibration or topography job, its inputs made from the API's schema of each kind's
@@ -166,6 +169,26 @@ export function jobForm({ recordings, calibrations, onStarted }) {
   const consentWhy = h("small", { class: "hint" });
   const consent = h("div", { class: "field check-field consent wide-row", hidden: true }, consentText, consentWhy);
   pickers.accept_bad_calibration = { control: { element: consent, value: () => (consent.hidden ? null : consentBox.checked) } };
+  // A camera–projector calibration's chessboard poses: one box per ready coded recording (a pose each, uploaded on
+  // the experiment's recordings with its patterns-columns.json and patterns-rows.json), at least MIN_POSES ticked.
+  const poseList = h("div", { class: "pose-list" });
+  const poseCount = h("small", { class: "hint", "aria-live": "polite" });
+  const poses = h(
+    "fieldset",
+    { class: "sub-spec wide-row", "aria-label": "Chessboard poses" },
+    h("legend", {}, "Chessboard poses (coded recordings, one per pose)"),
+    poseList,
+    poseCount,
+  );
+  const tickedPoses = () => [...poseList.querySelectorAll("input[type=checkbox]:checked")].map((box) => Number(box.value));
+  const checkPoses = () => {
+    const n = tickedPoses().length;
+    const first = poseList.querySelector("input[type=checkbox]");
+    if (first) first.setCustomValidity(n < MIN_POSES ? `Tick at least ${MIN_POSES} chessboard poses (${n} ticked).` : "");
+    poseCount.textContent = `${n} pose${n === 1 ? "" : "s"} ticked; at least ${MIN_POSES}, each a coded recording of the board under Gray code in both directions with an all-white and an all-black frame.`;
+  };
+  poseList.addEventListener("change", checkPoses);
+  pickers.recording_ids = { control: { element: poses, value: () => (tickedPoses().length ? tickedPoses() : null) } };
   const inputs = h("div", { class: "spec-inputs grid-form" });
   const about = h("p", { class: "hint wide-row" });
   const specView = h("pre", { class: "spec", "aria-label": "Job spec (JSON)" });
@@ -231,11 +254,20 @@ export function jobForm({ recordings, calibrations, onStarted }) {
   const refreshRecordings = () => {
     const wanted = RECORDING_KIND_OF_JOB[kind.input.value];
     const ready = recordings().filter((r) => r.kind === wanted && r.state === "ready");
-    options(
-      pickers.recording_id.select,
-      ready.map((r) => ({ id: r.id, label: `#${r.id} ${r.filename} (${r.camera_name}, ${r.frame_count} frames)` })),
-      "no ready recording of this kind",
+    const choices = ready.map((r) => ({ id: r.id, label: `#${r.id} ${r.filename} (${r.camera_name}, ${r.frame_count} frames)` }));
+    options(pickers.recording_id.select, choices, "no ready recording of this kind");
+    const ticked = new Set(tickedPoses());
+    fill(
+      poseList,
+      choices.length
+        ? choices.map((choice) => {
+            const id = newId("pose");
+            const box = h("input", { type: "checkbox", id, value: choice.id, checked: ticked.has(choice.id) });
+            return h("div", { class: "check-field" }, h("label", { for: id }, box, " ", choice.label));
+          })
+        : h("p", { class: "empty" }, "No ready coded recording yet: upload each chessboard pose as a recording of kind coded."),
     );
+    checkPoses();
     return refreshCalibrations();
   };
   // The button waits while the choices are being fetched, so that nothing stale is sent.
