@@ -17,8 +17,9 @@ from __future__ import annotations
 import csv
 import json
 from dataclasses import dataclass
+from operator import attrgetter
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import h5py
 import numpy as np
@@ -33,12 +34,55 @@ if TYPE_CHECKING:
 SCHEMA = "fringelab.scan"
 
 
+@dataclass(frozen=True)
+class ScanDataset:
+    """One dataset of a scan file, declared: where it is, its dtype (None: as computed), unit and description, the
+    `ScanResult` attribute it stores (dotted for the decoding's) and how it is stored: "point", one row a point
+    (compressed when there are more than 1000), or "pixel", one camera image (always compressed). It is read
+    back into the `StoredScan` field of the attribute's last name."""
+
+    path: str
+    dtype: Any
+    unit: str
+    description: str
+    attribute: str
+    per: Literal["point", "pixel"]
+
+    @property
+    def field(self) -> str:
+        return self.attribute.rsplit(".", 1)[-1]
+
+
+def scan_layout() -> tuple[ScanDataset, ...]:
+    """Every dataset of a scan file in the order they are made (the module docstring describes them)."""
+    f32, u8 = np.float32, np.uint8
+    return (
+        ScanDataset("points/xyz_mm", f32, "mm",
+                    "points in the camera frame (x right, y down, z along the optical axis)", "points_cam_mm", "point"),
+        ScanDataset("points/sigma_mm", f32, "mm",
+                    "σ of each point along its camera ray (edge or code, and the calibration)", "sigma_mm", "point"),
+        ScanDataset("points/source", u8, "1", "0 stripe edge, 1 phase, 2 per-pixel code", "source", "point"),
+        ScanDataset("points/q_px", f32, "px", "camera pixel (u, v) of each point", "q_px", "point"),
+        ScanDataset("points/projector_px", f32, "px", "projector coordinate along the code's axis", "projector_px",
+                    "point"),
+        ScanDataset("depth/z_mm", None, "mm", "camera-frame z per camera pixel (NaN: none)", "depth_z_mm", "pixel"),
+        ScanDataset("depth/sigma_mm", None, "mm", "σ of depth/z_mm", "depth_sigma_mm", "pixel"),
+        ScanDataset("decoding/code", None, "1", "decoded code value (−1: none)", "decoding.code", "pixel"),
+        ScanDataset("decoding/reason", None, "1",
+                    "0 decoded, 1 a bit not clear, 2 shading too low, 3 beyond the projector", "decoding.reason",
+                    "pixel"),
+        ScanDataset("decoding/shading_grey", None, "grey", "white − black (8-bit scale)", "decoding.shading_grey",
+                    "pixel"),
+    )  # fmt: skip
+
+
 def write_scan(path: str | Path, result: ScanResult, *, qa: dict[str, Any], patterns: dict[str, Any] | None = None,
                provenance: dict[str, Any] | None = None) -> Path:  # fmt: skip
     """Write a scan result file atomically (nothing under `path` until it is whole); qa: `science.scan.scan_qa`."""
     path = Path(path)
     decoding = result.decoding
     gzip = {"compression": "gzip", "compression_opts": 4, "shuffle": True}
+    storage = {"point": gzip if len(result) > 1000 else {}, "pixel": gzip}
     with atomic_path(path) as partial, h5py.File(partial, "w") as file:
         file.attrs["schema"] = SCHEMA
         file.attrs["schema_version"] = 1
@@ -48,76 +92,20 @@ def write_scan(path: str | Path, result: ScanResult, *, qa: dict[str, Any], patt
         file.attrs["qa"] = json_text(qa)
         file.attrs["provenance"] = json_text(provenance or {})
         file.attrs["patterns"] = json_text(patterns or {})
-        points = file.create_group("points")
-        chunked = gzip if len(result) > 1000 else {}
-        unit_dataset(
-            points,
-            "xyz_mm",
-            result.points_cam_mm.astype(np.float32),
-            unit="mm",
-            description="points in the camera frame (x right, y down, z along the optical axis)",
-            **chunked,
-        )
-        unit_dataset(
-            points,
-            "sigma_mm",
-            result.sigma_mm.astype(np.float32),
-            unit="mm",
-            description="σ of each point along its camera ray (edge or code, and the calibration)",
-            **chunked,
-        )
-        unit_dataset(
-            points,
-            "source",
-            result.source.astype(np.uint8),
-            unit="1",
-            description="0 stripe edge, 1 phase, 2 per-pixel code",
-            **chunked,
-        )
-        unit_dataset(
-            points,
-            "q_px",
-            result.q_px.astype(np.float32),
-            unit="px",
-            description="camera pixel (u, v) of each point",
-            **chunked,
-        )
-        unit_dataset(
-            points,
-            "projector_px",
-            result.projector_px.astype(np.float32),
-            unit="px",
-            description="projector coordinate along the code's axis",
-            **chunked,
-        )
-        depth = file.create_group("depth")
-        unit_dataset(
-            depth,
-            "z_mm",
-            result.depth_z_mm,
-            unit="mm",
-            description="camera-frame z per camera pixel (NaN: none)",
-            **gzip,
-        )
-        unit_dataset(depth, "sigma_mm", result.depth_sigma_mm, unit="mm", description="σ of depth/z_mm", **gzip)
-        group = file.create_group("decoding")
-        unit_dataset(group, "code", decoding.code, unit="1", description="decoded code value (−1: none)", **gzip)
-        unit_dataset(
-            group,
-            "reason",
-            decoding.reason,
-            unit="1",
-            description="0 decoded, 1 a bit not clear, 2 shading too low, 3 beyond the projector",
-            **gzip,
-        )
-        unit_dataset(group, "shading_grey", decoding.shading_grey, unit="grey",
-                     description="white − black (8-bit scale)", **gzip)  # fmt: skip
+        for dataset in scan_layout():
+            group_name, name = dataset.path.split("/")
+            value = attrgetter(dataset.attribute)(result)
+            if dataset.dtype is not None:
+                value = value.astype(dataset.dtype)
+            unit_dataset(file.require_group(group_name), name, value, unit=dataset.unit,
+                         description=dataset.description, **storage[dataset.per])  # fmt: skip
     return path
 
 
 @dataclass(frozen=True, eq=False)
 class StoredScan:
-    """A scan file's contents (`read_scan`), arrays as stored."""
+    """A scan file's contents (`read_scan`), arrays as stored, each under the name of the `ScanResult` attribute
+    it stores (`scan_layout`), and the file's axis, QA and provenance."""
 
     points_cam_mm: np.ndarray
     sigma_mm: np.ndarray
@@ -152,15 +140,9 @@ def read_scan(path: str | Path) -> StoredScan:
         raise ValueError(f"{path.name}: not an HDF5 file") from None
     with file:
         require_schema(file, SCHEMA, Path(path.name))
-        return StoredScan(
-            points_cam_mm=file["points/xyz_mm"][()], sigma_mm=file["points/sigma_mm"][()],
-            source=file["points/source"][()], q_px=file["points/q_px"][()],
-            projector_px=file["points/projector_px"][()], depth_z_mm=file["depth/z_mm"][()],
-            depth_sigma_mm=file["depth/sigma_mm"][()], code=file["decoding/code"][()],
-            reason=file["decoding/reason"][()], shading_grey=file["decoding/shading_grey"][()],
-            axis=str(file.attrs["axis"]), qa=json.loads(file.attrs["qa"]),
-            provenance=json.loads(file.attrs["provenance"]),
-        )  # fmt: skip
+        arrays = {dataset.field: file[dataset.path][()] for dataset in scan_layout()}
+        return StoredScan(**arrays, axis=str(file.attrs["axis"]), qa=json.loads(file.attrs["qa"]),
+                          provenance=json.loads(file.attrs["provenance"]))  # fmt: skip
 
 
 PLY_COMMENT = "fringelab scan: camera frame (x right, y down, z along the optical axis), mm; sigma_mm along the ray"

@@ -15,7 +15,7 @@ from fringelab.commands import topography as topography_commands
 from fringelab.formats.patterns import patterns_json_text
 from fringelab.formats.procam import read_procam_calibration, write_opencv_procam
 from fringelab.formats.recordings import write_recording
-from fringelab.formats.scan import read_ply_vertices, read_scan
+from fringelab.formats.scan import StoredScan, read_ply_vertices, read_scan, scan_layout
 from fringelab.science.graycode import PatternSequence, WhiteBlack
 from fringelab.science.virtual_procam import (
     ChessboardPose,
@@ -63,6 +63,8 @@ def test_scan_and_export_on_the_command_line(scanned, tmp_path: Path, capsys) ->
     summary = json.loads(capsys.readouterr().out)
     assert summary["qa"]["points_by_source"]["stripe edge"] > 1000
     stored = read_scan(out)
+    # Every stored array is declared once (scan_layout) and read back under its ScanResult attribute's name.
+    assert {d.field for d in scan_layout()} | {"axis", "qa", "provenance"} == set(StoredScan.__dataclass_fields__)
     edge = stored.source == 0
     radial = np.linalg.norm(stored.points_cam_mm[edge] - np.asarray(SPHERE.centre_cam_mm), axis=1) - SPHERE.radius_mm
     on_sphere = np.abs(radial) < 1.0
