@@ -10,7 +10,9 @@ the frame loop (`topography.py`).
 Sources of the order, in the order they are trusted:
 1. Relative order: `fringes.order_edges` links the frame's edge curves by counting edges across scan lines
    (consecutive edges of opposite polarity less than 0.8 period apart are neighbours), which fixes every curve's
-   place within a connected group; the order is constant along each curve.
+   place within a connected group; the order is constant along each curve. Only sure links join groups (both
+   edges with a small σ for the edge spacing, gaps like their neighbours'), and curves are cut at long unsure
+   stretches, so a dim region reached only through unsure edges is a group of its own.
 2. Anchor: the clamped rim does not move (w = 0), so there an edge point lies within a fraction of a period of
    where the reference frame had the same edge; each rim point votes for the offset between its group's relative
    count and that edge's order. A group takes the offset a clear majority of its rim votes agree on.
@@ -18,8 +20,8 @@ Sources of the order, in the order they are trusted:
    a curve whose points lie outside those bounds for the order it was given disagrees with the table.
 4. Consistency: neighbouring edges on a scan line are a fraction of a stripe's Z step apart on a smooth surface;
    a wrong order shows as a jump of a whole step. A curve whose neighbours mostly disagree with it is masked.
-A group that reaches no rim is not guessed: its points are masked as "order unresolved". Frame-to-frame
-continuity is no source here; `topography.py` may use it as a cross-check.
+A group that reaches no rim (a dim region among them) is not guessed: its points are masked as "order unresolved".
+Frame-to-frame continuity is no source here; `topography.py` may use it as a cross-check.
 """
 
 from __future__ import annotations
@@ -301,9 +303,9 @@ def order_frame(
         return FrameOrder(k=k, reason=reason, n_conflicts=0)
     order = order_edges(edges)
     relative = order.crossing_index(edges)
-    component = order.component[edges.chain]
+    component = order.crossing_component(edges)
     reason[relative < 0] = ORDER_CONFLICT
-    n_conflicts = int(np.count_nonzero(order.index < 0))
+    n_conflicts = int(np.count_nonzero(order.part_index < 0))
     # Rim votes: the nearest reference edge of the same polarity on the stationary band, if close. (Edges of one
     # polarity are a period apart, so a point within a third of a period of a rim edge has no nearer one.)
     k_near, distance = match_to_reference(
@@ -311,7 +313,7 @@ def order_frame(
     )
     near = (k_near >= 0) & (np.abs(distance) <= settings.anchor_tolerance_fraction * projector.period_px)
     on_rim = near & (relative >= 0)
-    n_groups = int(order.component.max()) + 1 if np.any(order.component >= 0) else 0
+    n_groups = int(order.part_component.max()) + 1 if np.any(order.part_component >= 0) else 0
     if n_groups:
         offset_votes = k_near[on_rim] - relative[on_rim]
         lowest = int(offset_votes.min()) if len(offset_votes) else 0
@@ -452,7 +454,7 @@ def check_order_against_table(
         return
     order = order_edges(edges)
     relative = order.crossing_index(edges)
-    component = order.component[edges.chain]
+    component = order.crossing_component(edges)
     k_near, distance = match_to_reference(
         edges.line, edges.t_px, edges.polarity, reference.rim_lines, projector.polarity
     )
@@ -465,7 +467,7 @@ def check_order_against_table(
     lowest = int(votes.min())
     span = int(votes.max()) - lowest + 1
     codes, counts = np.unique(component[on_rim] * span + (votes - lowest), return_counts=True)
-    n_groups = int(order.component.max()) + 1
+    n_groups = int(order.part_component.max()) + 1
     best_count = np.zeros(n_groups, np.int64)
     best_offset = np.zeros(n_groups, np.int64)
     ascending = np.argsort(counts, kind="stable")

@@ -371,7 +371,7 @@ def _assign_by_votes(
     """
     order = order_edges(edges)
     relative = order.crossing_index(edges)
-    component = order.component[edges.chain] if len(edges) else np.zeros(0, np.int64)
+    component = order.crossing_component(edges)
     k_near, distance = match_to_reference(
         edges.line, edges.t_px, edges.polarity, EdgeLines.from_positions(predicted_t_px), polarity
     )
@@ -495,7 +495,7 @@ def build_projector_calibration(
         if j == j_ref:
             order = order_edges(edges)
             k = order.crossing_index(edges)
-            keep = (k >= 0) & (order.component[edges.chain] == 0)
+            keep = (k >= 0) & (order.crossing_component(edges) == 0)
             if np.count_nonzero(keep) < 0.5 * len(edges) or len(edges) == 0:
                 raise ProjectorCalibrationError(
                     f"the stripes of the reference frame (Z = {z_sorted[j]:g} mm) could not be put in order: only "

@@ -224,7 +224,9 @@ class SoftShadow:
     """A soft, partial shadow on the plate (of the punch or its holder, lit around by a large light source): an
     ellipse centred at centre_xy_mm from the plate centre, semi-axes semi_axes_mm (along X, Y before turning by
     angle_deg), inside which transmission of the projector's light is left (0.2–0.5: stripes at 20–50 % of their
-    brightness), with a soft rim rim_mm wide (10–90 %). It lies on the plate and moves with it.
+    brightness), with a soft rim rim_mm wide (10–90 %). It lies on the plate and moves with it. With
+    inner_semi_axes_mm it is a ring (the shadow of an annular holder): lit again inside that smaller ellipse of the
+    same centre and angle, behind a rim as soft.
     """
 
     centre_xy_mm: tuple[float, float]
@@ -232,28 +234,39 @@ class SoftShadow:
     transmission: float
     rim_mm: float
     angle_deg: float = 0.0
+    inner_semi_axes_mm: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.transmission <= 1.0:
             raise ValueError(f"transmission: expected 0..1, got {self.transmission}")
         if not (self.rim_mm > 0 and min(self.semi_axes_mm) > 0):
             raise ValueError(f"rim_mm and semi_axes_mm: expected > 0, got {self.rim_mm}, {self.semi_axes_mm}")
+        inner = self.inner_semi_axes_mm
+        within = inner is None or all(0 < a < b for a, b in zip(inner, self.semi_axes_mm, strict=True))
+        if not within:
+            raise ValueError(f"inner_semi_axes_mm: expected > 0 and < semi_axes_mm {self.semi_axes_mm}, got {inner}")
 
     def light(self, dx_mm: np.ndarray, dy_mm: np.ndarray) -> np.ndarray:
         """The share of the projector's light left at points (dx, dy) from the plate centre, in [transmission, 1]."""
+        # A 10–90 % rim of width W is an erf of σ = W / 2.563.
+        lit = special.ndtr(self._outside_mm(dx_mm, dy_mm, self.semi_axes_mm) * 2.563 / self.rim_mm)
+        if self.inner_semi_axes_mm is not None:
+            inside_inner = special.ndtr(-self._outside_mm(dx_mm, dy_mm, self.inner_semi_axes_mm) * 2.563 / self.rim_mm)
+            lit = 1.0 - (1.0 - lit) * (1.0 - inside_inner)
+        return self.transmission + (1.0 - self.transmission) * lit
+
+    def _outside_mm(self, dx_mm: np.ndarray, dy_mm: np.ndarray, semi_axes_mm: tuple[float, float]) -> np.ndarray:
+        """Distance (mm) of points outside the ellipse of these semi-axes (negative inside), near enough: (ρ − 1)
+        times the semi-axis in that direction."""
         theta = np.deg2rad(self.angle_deg)
         px, py = dx_mm - self.centre_xy_mm[0], dy_mm - self.centre_xy_mm[1]
-        along = (np.cos(theta) * px + np.sin(theta) * py) / self.semi_axes_mm[0]
-        across = (-np.sin(theta) * px + np.cos(theta) * py) / self.semi_axes_mm[1]
-        # Distance outside the ellipse, near enough: (ρ − 1) times the semi-axis in that direction.
+        along = (np.cos(theta) * px + np.sin(theta) * py) / semi_axes_mm[0]
+        across = (-np.sin(theta) * px + np.cos(theta) * py) / semi_axes_mm[1]
         rho = np.hypot(along, across)
         with np.errstate(invalid="ignore", divide="ignore"):
-            reach = np.hypot(along * self.semi_axes_mm[0], across * self.semi_axes_mm[1]) / rho
-        reach = np.where(rho > 1e-9, reach, min(self.semi_axes_mm))
-        outside_mm = (rho - 1.0) * reach
-        # A 10–90 % rim of width W is an erf of σ = W / 2.563.
-        lit = special.ndtr(outside_mm * 2.563 / self.rim_mm)
-        return self.transmission + (1.0 - self.transmission) * lit
+            reach = np.hypot(along * semi_axes_mm[0], across * semi_axes_mm[1]) / rho
+        reach = np.where(rho > 1e-9, reach, min(semi_axes_mm))
+        return np.asarray((rho - 1.0) * reach)
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,7 @@ import pytest
 
 from fringelab.science.fields import grid_covering
 from fringelab.science.fringes import FrameEdges
-from fringelab.science.order import OrderSettings, RimNotVisibleError
+from fringelab.science.order import ORDER_UNRESOLVED, ORDERED, OrderSettings, RimNotVisibleError, order_frame
 from fringelab.science.projector import (
     ExactCamera,
     ProjectorCalibration,
@@ -39,8 +39,11 @@ from fringelab.science.topography import (
 from fringelab.science.virtual_test import (
     FringeRenderer,
     Imaging,
+    PlateState,
     Preset,
     PunchTimeline,
+    SoftShadow,
+    harder_imaging,
     preset,
     scenario,
     true_deflection_mm,
@@ -298,3 +301,173 @@ def test_temporal_continuity_cross_checks_the_order(fast: Case) -> None:
     measured[before.k, before.line] = True
     with_both_neighbours = measured[edge - 1, before.line[wrong]] & measured[edge + 1, before.line[wrong]]
     assert check.n_jumps == np.count_nonzero(with_both_neighbours) > 50
+
+
+# Order through dim regions (issue 29): a region joined to the rest only through unsure links is a group of its
+# own, never ordered through them. Edge curves written by hand: vertical stripes, an edge every 5 px (period 10 px),
+# one curve per edge.
+ISLAND_LINES = range(40, 80)
+
+
+def hand_edges(spurious: bool, *, sigma_px: float | None = None, band_sigma_px: float | None = None) -> FrameEdges:
+    """Edges m = 0..9 on all 120 lines (the main region), m = 10..13 on lines 40..79 only (a band) and m = 14..29
+    on those lines beyond it (an island that reaches the rest only across the band); with `spurious`, a stripe of
+    the band (between edges 11 and 12) is split in three by an invented pair of edges, as noise in a dim band can.
+    True edge number per point: the returned edges' `chain` is not it; `hand_edge_number` is."""
+    rows = []  # (line, t, polarity, m); m = −1 for the invented edges
+    for line in range(120):
+        for m in range(30):
+            if m >= 10 and line not in ISLAND_LINES:
+                continue
+            rows.append((line, 20.0 + 5.0 * m, 1 if m % 2 == 0 else -1, m))
+            if spurious and m == 11 and line in ISLAND_LINES:
+                rows.append((line, 20.0 + 5.0 * m + 5.0 / 3.0, 1, -1))
+                rows.append((line, 20.0 + 5.0 * m + 10.0 / 3.0, -1, -2))
+    rows.sort()
+    line = np.array([r[0] for r in rows], np.int32)
+    t = np.array([r[1] for r in rows], np.float32)
+    polarity = np.array([r[2] for r in rows], np.int8)
+    m = np.array([r[3] for r in rows])
+    chain = np.unique(m, return_inverse=True)[1].astype(np.int32)  # one curve per edge
+    extra = {}
+    if sigma_px is not None:
+        sigma = np.full(len(line), sigma_px, np.float32)
+        band = (m >= 10) & (m <= 13) | (m < 0)
+        sigma[band] = sigma_px if band_sigma_px is None else band_sigma_px
+        extra["sigma_px"] = sigma
+    edges = FrameEdges(axis="rows", period_px=10.0, image_shape_hw_px=(120, 200), line=line, t_px=t,
+                       polarity=polarity, chain=chain, noise_px=0.02, saturated_fraction=0.0, dark_fraction=0.0,
+                       **extra)  # fmt: skip
+    object.__setattr__(edges, "true_m", m)  # the truth, beside the edges
+    return edges
+
+
+def test_an_island_reached_only_across_an_invented_stripe_is_not_ordered_through_it() -> None:
+    from fringelab.science.fringes import order_edges
+
+    edges = hand_edges(spurious=True)
+    m = edges.true_m  # type: ignore[attr-defined]
+    order = order_edges(edges)
+    index, component = order.crossing_index(edges), order.crossing_component(edges)
+    main = component == 0
+    # Every point ordered with the main region is at its true place; the invented pair splits a stripe into gaps a
+    # third of their neighbours', so the links into and out of it are unsure and the island (m ≥ 12, beyond it)
+    # is a group of its own. (Counted through the invented pair, the island would be two places off: one stripe.)
+    assert len(np.unique(index[main] - m[main])) == 1
+    assert np.all(m[main] <= 11) and np.count_nonzero(main) >= 10 * 120
+    island = m >= 12
+    assert np.all(component[island] != 0)
+    assert len(np.unique(component[m >= 13])) == 1  # edge 12 has an unsure gap beside it too: alone
+    assert order.n_unsure_links >= 2
+
+
+def test_an_island_reached_across_a_clean_band_keeps_its_order() -> None:
+    from fringelab.science.fringes import order_edges
+
+    edges = hand_edges(spurious=False)
+    m = edges.true_m  # type: ignore[attr-defined]
+    order = order_edges(edges)
+    index, component = order.crossing_index(edges), order.crossing_component(edges)
+    assert np.all(component == 0)
+    np.testing.assert_array_equal(index, m)
+    assert order.n_unsure_links == 0
+
+
+def crossed_edges(unsure_m: range, unsure_lines: range = range(40, 50)) -> FrameEdges:
+    """Edges m = 0..29 on all 120 lines, one curve each, sure (σ 0.03 px) but for edges `unsure_m` on
+    `unsure_lines`, a dim band across the stripes (σ 0.3 px: more than a thirtieth of the 5 px edge spacing)."""
+    line, m = (a.ravel() for a in np.meshgrid(np.arange(120), np.arange(30), indexing="ij"))
+    sigma = np.where(np.isin(m, unsure_m) & np.isin(line, unsure_lines), 0.3, 0.03).astype(np.float32)
+    return FrameEdges(axis="rows", period_px=10.0, image_shape_hw_px=(120, 200), line=line.astype(np.int32),
+                      t_px=(20.0 + 5.0 * m).astype(np.float32), polarity=np.where(m % 2 == 0, 1, -1).astype(np.int8),
+                      chain=m.astype(np.int32), noise_px=0.02, saturated_fraction=0.0, dark_fraction=0.0,
+                      sigma_px=sigma)  # fmt: skip
+
+
+def test_the_order_does_not_run_along_curves_through_a_band_of_unsure_edges() -> None:
+    from fringelab.science.fringes import order_edges
+
+    # The band crosses every stripe: the plate beyond it (lines 50..119) reaches the rest only through unsure edges,
+    # along the curves as well as across them, so it is a group of its own, and the band's own stretches too.
+    edges = crossed_edges(range(30))
+    order = order_edges(edges)
+    component = order.crossing_component(edges)
+    line = edges.line
+    assert len(np.unique(component[line < 40])) == 1 and len(np.unique(component[line >= 50])) == 1
+    assert component[line < 40][0] != component[line >= 50][0]
+    band = (line >= 40) & (line < 50)
+    assert not np.any(np.isin(component[band], component[~band]))
+
+
+def test_an_unsure_stretch_takes_its_curve_order_where_sure_links_go_round_it() -> None:
+    from fringelab.science.fringes import order_edges
+
+    # The band covers edges 5..9 only: edges 0..4 and 10..29 carry the order past it, so the curves' pieces
+    # beyond the band are at their places, and the stretches within it, between two pieces of their curve at one
+    # place, take that place.
+    edges = crossed_edges(range(5, 10))
+    order = order_edges(edges)
+    index, component = order.crossing_index(edges), order.crossing_component(edges)
+    assert np.all(component == 0)
+    np.testing.assert_array_equal(index, (edges.t_px - 20.0) / 5.0)
+    # Unsure ends of the curves (σ grows there, the smoothing being one-sided): up to 10 lines keep their curves'
+    # places, nothing lying beyond them; 20 lines are a region of their own.
+    edges = crossed_edges(range(30), range(112, 120))
+    order = order_edges(edges)
+    assert np.all(order.crossing_component(edges) == 0)
+    np.testing.assert_array_equal(order.crossing_index(edges), (edges.t_px - 20.0) / 5.0)
+    edges = crossed_edges(range(30), range(100, 120))
+    component = order_edges(edges).crossing_component(edges)
+    assert np.all(component[edges.line < 100] == 0) and not np.any(component[edges.line >= 100] == 0)
+
+
+def ringed_frame(
+    calibration: tuple[ExactCamera, ProjectorCalibration], band_transmission: float, *, seed: int
+) -> tuple[np.ndarray, np.ndarray, Preset]:
+    """A dim test frame (`harder_imaging`: a third of the 8-bit range, photon noise) of the plate 40 mm deep whose
+    dome top (a disc of 45 mm radius, stripes at 50 % of their light) reaches the rest of the plate only through a
+    ring 25 mm wide at `band_transmission` of it, both with soft rims (6 mm); and where each pixel sees the dome
+    top, away from the ring's soft rim."""
+    setup = preset("kodak", imaging=Imaging(supersample=1))
+    island = SoftShadow(centre_xy_mm=(0.0, 0.0), semi_axes_mm=(75.0, 75.0), transmission=0.5, rim_mm=6.0)
+    ring = SoftShadow(centre_xy_mm=(0.0, 0.0), semi_axes_mm=(75.0, 75.0), transmission=band_transmission / 0.5,
+                      rim_mm=6.0, inner_semi_axes_mm=(50.0, 50.0))  # fmt: skip
+    scene = replace(setup.scene, soft_shadows=(island, ring))
+    setup = replace(setup, scene=scene, imaging=harder_imaging(supersample=1))
+    renderer = FringeRenderer(setup)
+    frame = renderer.render_test(RINGED_STATE, rng=np.random.default_rng(seed))
+    x, y = renderer.surface_block(slice(0, frame.shape[0]), flat_z_mm=None, state=RINGED_STATE)[:2]
+    dx, dy = x - setup.scene.centre_xy_mm[0], y - setup.scene.centre_xy_mm[1]
+    return frame, np.hypot(dx, dy) < 45.0, setup
+
+
+RINGED_STATE = PlateState(40.0)
+
+
+@pytest.mark.parametrize("band_transmission", [0.25, 0.45])
+def test_a_dim_region_keeps_its_order_only_through_sure_edges(calibration, band_transmission: float) -> None:
+    """The dome top at 50 % of the light reaches the rest only through a ring at 25 % (stripes of ~15 grey levels
+    against σ ≈ 1.5, edges located only in part, σ of the located ones ~0.2 px) or at 45 % (~23 grey levels: sure).
+    Through the dim ring the dome top is masked "order unresolved"; through the brighter one it keeps its order.
+    Either way no point is kept with a wrong order (a whole stripe's Z step off, ~14 mm here)."""
+    camera, projector = calibration
+    frame, dome_top, setup = ringed_frame(calibration, band_transmission, seed=41)
+    flat = FringeRenderer(replace(setup, scene=replace(setup.scene, soft_shadows=()))).render_test(
+        PlateState(0.0), rng=np.random.default_rng(42)
+    )
+    reference = reference_for(next(iter(locate_test_edges([flat], projector))), projector, camera, TopographySettings())
+    edges = next(iter(locate_test_edges([frame], projector)))
+    frame_order = order_frame(edges, reference, projector)
+    q = np.round(edges.q_px()).astype(np.int64)
+    on_island = dome_top[q[:, 1], q[:, 0]]
+    assert np.count_nonzero(on_island) > 500  # its edges are located: it is dim, not dark
+    measurement = measure_frame(edges, reference, projector, camera, frame=1)
+    error = measurement.points_obj_mm[:, 2] - true_deflection_mm(
+        setup.scene, RINGED_STATE, measurement.points_obj_mm[:, 0], measurement.points_obj_mm[:, 1]
+    )
+    assert np.all(np.abs(error) < 0.25 * stripe_z_step_mm(projector))
+    if band_transmission < 0.3:
+        assert np.all(frame_order.reason[on_island] == ORDER_UNRESOLVED)
+    else:
+        assert np.all(frame_order.reason[on_island] == ORDERED)
+    assert np.count_nonzero(frame_order.reason == ORDERED) > 0.9 * len(edges)  # the rest of the plate

@@ -36,6 +36,16 @@ def test_soft_shadow_dims_to_its_transmission_with_a_rim_of_its_width() -> None:
         SoftShadow(centre_xy_mm=(0.0, 0.0), semi_axes_mm=(1.0, 1.0), transmission=1.5, rim_mm=1.0)
 
 
+def test_a_ring_shadow_is_lit_again_inside_its_inner_ellipse() -> None:
+    ring = SoftShadow(centre_xy_mm=(0.0, 0.0), semi_axes_mm=(75.0, 75.0), transmission=0.4, rim_mm=6.0,
+                      inner_semi_axes_mm=(50.0, 50.0))  # fmt: skip
+    x = np.array([0.0, 62.5, 120.0])  # centre, middle of the ring (12.5 mm from both rims: 5 rim σ), outside
+    np.testing.assert_allclose(ring.light(x, np.zeros(3)), [1.0, 0.4, 1.0], atol=1e-6)
+    with pytest.raises(ValueError, match="inner_semi_axes_mm"):
+        SoftShadow(centre_xy_mm=(0.0, 0.0), semi_axes_mm=(5.0, 5.0), transmission=0.4, rim_mm=1.0,
+                   inner_semi_axes_mm=(5.0, 2.0))  # fmt: skip
+
+
 def test_dome_shadows_dim_stripes_to_20_to_50_percent() -> None:
     assert sorted(s.transmission for s in DOME_SHADOWS) == [0.2, 0.3, 0.5]
     assert len({s.rim_mm for s in DOME_SHADOWS}) == 3

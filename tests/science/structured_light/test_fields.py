@@ -101,7 +101,7 @@ def test_order_edges_counts_stripes_consistently_across_a_hole() -> None:
     order = order_edges(edges)
     index = order.crossing_index(edges)
     assert order.conflicts == 0
-    assert np.all(order.component[edges.chain] == 0)
+    assert np.all(order.crossing_component(edges) == 0)
     # The index counts edges along +t: it is a function of the true edge number m (x = m·P/2 along the normal).
     x = edges.q_px() @ np.array([np.cos(np.deg2rad(8.0)), np.sin(np.deg2rad(8.0))]) - 2.0
     m = np.round(x / 5.0).astype(int)
