@@ -311,4 +311,10 @@ class ScanSpec(_Spec):
     projector_scale_y: float = Field(
         1.0, gt=0, le=16, description="Patterns' projector rows → calibration's (0.5: a diamond-pixel DLP)."
     )
+    projector_offset_x_px: float = Field(
+        0.0, ge=-100_000, le=100_000, description="Then added to the columns, in the calibration's pixels."
+    )
+    projector_offset_y_px: float = Field(
+        0.0, ge=-100_000, le=100_000, description="Then added to the rows, in the calibration's pixels."
+    )
     code_points: bool = Field(True, description="Add a point per decoded pixel without an edge (a band wide).")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -38,13 +39,14 @@ def frames() -> list[np.ndarray]:
                            in_frame_order(gray_code_patterns(SEQUENCE)), rng=np.random.default_rng(3))  # fmt: skip
 
 
-def add_scan_rows(settings, frames, *, calibration_size=(360, 270), patterns: str | None = None) -> dict[str, int]:
-    """A ready coded recording of a camera and a procam calibration of it (the rig's truth)."""
+def add_scan_rows(settings, frames, *, calibration_size=(360, 270), patterns: str | None = None,
+                  model=RIG) -> dict[str, int]:  # fmt: skip
+    """A ready coded recording of a camera and a procam calibration of it (the rig's truth unless `model`)."""
     relative = Path("recordings") / "sphere"
     text = patterns_json_text(SEQUENCE) if patterns is None else patterns
     write_recording(settings.data_path / relative, frames, sidecars={"patterns.json": text})
     calibration_path = Path("calibrations") / "procam.json"
-    write_procam_json(settings.data_path / calibration_path, RIG)
+    write_procam_json(settings.data_path / calibration_path, model)
     engine = make_engine(settings.resolved_database_url)
     with make_sessionmaker(engine)() as session:
         experiment = Experiment(name="ball")
@@ -86,6 +88,24 @@ def test_a_scan_job_measures_the_sphere(client, celery_worker, settings, frames)
         270 % view["code"]["step_px"] > 0)  # fmt: skip
     other = client.get(f"/api/v1/jobs/{job['id']}/topography")
     assert other.status_code == 404 and "not a topography" in other.json()["detail"]
+
+
+def test_a_scan_job_maps_the_patterns_pixels_to_the_calibrations(client, celery_worker, settings, frames) -> None:
+    """A calibration whose projector pixel 0 is the patterns' pixel −3 (principal point 3 px further): the spec's
+    projector_offset_x_px 3 gives the sphere back, and the file records the mapping."""
+    matrix = RIG.projector_matrix.copy()
+    matrix[0, 2] += 3.0
+    shifted = replace(RIG, projector_matrix=matrix)
+    ids = add_scan_rows(settings, frames, model=shifted)
+    spec = {"kind": "scan", "recording_id": ids["recording"], "procam_calibration_id": ids["calibration"],
+            "projector_offset_x_px": 3.0, "code_points": False}  # fmt: skip
+    job = wait_job(client, client.post("/api/v1/jobs", json=spec).json()["id"], timeout_s=120)
+    assert job["state"] == "succeeded", job["error"]
+    [path] = [p for p in settings.data_path.rglob("scan.h5") if job["id"] in str(p)]
+    stored = read_scan(path)
+    radial = np.linalg.norm(stored.points_cam_mm - np.array([0.0, 0.0, 300.0]), axis=1) - 20.0
+    assert np.sqrt(np.mean(radial[np.abs(radial) < 1.0] ** 2)) < 0.05
+    assert stored.provenance["projector_offset_xy_px"] == [3.0, 0.0]
 
 
 def test_a_calibration_of_another_image_size_is_refused_before_queueing(client, celery_worker, settings,

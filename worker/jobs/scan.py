@@ -17,8 +17,11 @@ def scan_body(context: JobContext[ScanSpec]) -> dict[str, Any]:
     spec = context.spec
     recording, camera, path = recording_input(context)
     calibration = calibration_file(context, spec.procam_calibration_id)
-    settings = ScanSettings(code_points=spec.code_points,
-                            projector_scale_xy=(spec.projector_scale_x, spec.projector_scale_y))  # fmt: skip
+    settings = ScanSettings(
+        code_points=spec.code_points,
+        projector_scale_xy=(spec.projector_scale_x, spec.projector_scale_y),
+        projector_offset_xy_px=(spec.projector_offset_x_px, spec.projector_offset_y_px),
+    )
     context.log(f"scanning recording {recording.id} of camera {camera.name!r}")
     with context.output("scan.h5", media_type="application/x-hdf5") as temporary:
         result = scan_recording(path, calibration, temporary, settings=settings, progress=context.progress)
