@@ -41,7 +41,8 @@ def check_declared(
                             n_values=n_values, file_bytes=file_bytes)  # fmt: skip
     if needed <= max_bytes:
         return
-    counts = [f"{n} {name}" for n, name in ((n_nodes, "nodes"), (n_elements, "elements"), (n_states, "states")) if n]
+    counts = [f"{n} {name}{'s' if n != 1 else ''}" for n, name in ((n_nodes, "node"), (n_elements, "element"),
+                                                                   (n_states, "state")) if n]  # fmt: skip
     declared = f"declares {', '.join(counts)}" + (f" ({what})" if what else "") if counts else f"holds {what}"
     raise ValueError(
         f"{where}: {declared}: reading it would take about {_size(needed)}, more than the {_size(max_bytes)} a "

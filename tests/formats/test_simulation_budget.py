@@ -52,7 +52,7 @@ def test_an_exodus_header_declaring_60_m_nodes_is_refused_before_its_coordinates
             nc.createVariable(f"coord{axis}", "f8", ("num_nodes",), fill_value=0.0, chunksizes=(1_000_000,))
         nc.createVariable("connect1", "i4", ("num_el_in_blk1", "num_nod_per_el1"))[:] = [[1, 2, 3, 4]]
     assert path.stat().st_size < 64_000
-    message = r"huge.exo: declares 60000000 nodes, 1 elements \(its header's dimensions\): reading it would take about"
+    message = r"huge.exo: declares 60000000 nodes, 1 element \(its header's dimensions\): reading it would take about"
     # 60 M nodes × 7 values × 8 bytes = 3204 MiB; reading the coordinates alone would allocate 1373 MiB
     refused_within(lambda: simulation_exodus.read_exodus(path), match=message + r" 3204 MiB, more than the 1024 MiB",
                    peak_below_bytes=16 * MIB)  # fmt: skip
