@@ -83,7 +83,7 @@ class EdgeSettings:
     axis, period_px: fixed stripe geometry; "auto" / None detect it in each frame (a recording's pipeline fixes
         them once, from the projector calibration, so every frame is processed alike).
     window_periods: the window (in stripe periods along the scan line) over which the local minimum and maximum
-        set the mid-level (I_max + I_min)/2; > 1 so a stripe stretched by a slope still shows both levels.
+        set the contrast I_max − I_min; > 1 so a stripe stretched by a slope still shows both levels.
     min_contrast_grey: grey levels (8-bit scale) of I_max − I_min below which a transition is rejected.
     saturation_grey: grey level (8-bit scale) at or above which a transition's bright side counts as clipped.
     dark_fraction: pixels whose neighbourhood (one period) never rises above this fraction of the frame's bright
@@ -292,8 +292,9 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     image: shape (H, W), uint8, uint16 or float grey levels (float on the 8-bit scale).
 
     A pure function of the frame and the settings, so frames can be processed in any order and on any worker.
-    Steps (docs/method.md §5): Gaussian smoothing along the stripes; local mid-level (I_max + I_min)/2 over a window
-    of `window_periods` periods along each scan line; every sign change of I − mid is an edge candidate, placed
+    Steps (docs/method.md §5): Gaussian smoothing along the stripes; local mid-level, the mean grey level over one
+    and over two stripe periods along each scan line, averaged (`_mid_and_contrast`), and contrast I_max − I_min
+    from the envelopes over `window_periods` periods; every sign change of I − mid is an edge candidate, placed
     by a probit fit to the four straddling pixels; candidates with low contrast, a clipped bright
     side or near a dark area are rejected, as are pairs closer than a quarter of the edge spacing (noise
     glitches) and both ends of a stripe less than half as wide as both its neighbours (a stripe cut by a crack
@@ -346,14 +347,15 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     dark_u8 = dark.astype(np.uint8)
     dark_area = cv2.dilate(dark_u8, np.ones((1, dark_window), np.uint8))
 
-    # Envelopes I_max, I_min over the window along each line, then averaged over the window to steady them.
+    # The contrast from the envelopes I_max, I_min over the window along each line, averaged over the window to
+    # steady them; the mid-level from the mean grey level over one and over two periods (`_mid_and_contrast`).
     # Dark-area pixels take no part: next to the clamp or a hole the minimum would otherwise be the dark area,
     # not the dark stripe, and pull the mid-level (and the last edges) off by a tenth of a pixel.
     window = _odd(settings.window_periods * period_px)
     line_kernel = np.ones((1, window), np.uint8)
     local_max = cv2.dilate(scan, line_kernel)
     local_min = cv2.erode(np.where(dark_area, np.float32(4.0 * FULL_SCALE), scan), line_kernel)
-    mid, contrast = _mid_and_contrast(local_max, local_min, dark_area, window)
+    mid, contrast = _mid_and_contrast(scan, local_max, local_min, dark_area, window, float(period_px))
 
     # Transitions within half a period of a dark area (along the lines; across them, within the reach of the
     # smoothing along the stripes, which mixes dark lines into their neighbours) are rejected: their stripe is cut.
@@ -536,16 +538,31 @@ def _edge_sigma_kernel(
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _mid_and_contrast(
-    local_max: np.ndarray, local_min: np.ndarray, dark_area: np.ndarray, window: int
+    scan: np.ndarray, local_max: np.ndarray, local_min: np.ndarray, dark_area: np.ndarray, window: int, period: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The envelopes averaged over `window` samples along each line, dark-area samples left out, as the
-    mid-level (I_max + I_min)/2 and the contrast I_max − I_min, each (S, T) float32 (NaN where the whole
-    window is dark). The window is mirrored at the line ends without repeating the end sample (OpenCV's
-    BORDER_REFLECT_101)."""
+    """The mid-level and the contrast along each scan line, each (S, T) float32 (NaN where the whole window is dark).
+
+    Contrast: the envelopes averaged over `window` samples along the line, dark-area samples left out,
+    I_max − I_min (mirrored at the line ends without repeating the end sample, OpenCV's BORDER_REFLECT_101).
+
+    Mid-level: the mean grey level over one period and over two periods centred on the sample, averaged:
+    (⟨I⟩_P + ⟨I⟩_2P)/2. A window of a whole number of periods holds as much bright stripe as dark whatever its
+    phase, and centred on an edge it does so whatever the local period (the stripe on either side is cut alike),
+    so under even light the mean is the mid-level exactly. Under light L(u) that changes along the line, the
+    one-period mean is off by −L′(1 − d)P/8 at an edge (d: the dark stripes' share of the bright ones; the
+    bright stripe is on one side of the edge) and the two-period mean by +L′(1 − d)P/8: their average follows
+    the light to first order, where the envelopes' mid-level (I_max + I_min)/2 follows the brightest stripe in
+    the window and misplaced edges by a pixel and more at a soft shadow's rim. What is left is the light's
+    curvature over a period. Noise is averaged over 1.5 periods of samples instead of picked
+    by a maximum. Where the two periods reach a dark area or the line's end, the envelopes' (I_max + I_min)/2
+    is taken instead. The window is fractional: sample k covers [k − ½, k + ½].
+    """
     n_lines, n_samples = local_max.shape
     half = window // 2
     mid = np.empty((n_lines, n_samples), np.float32)
     contrast = np.empty((n_lines, n_samples), np.float32)
+    grey_sum = np.empty(n_samples + 1)
+    dark_sum = np.empty(n_samples + 1)
     for i in range(n_lines):
         count = 0.0
         sum_max = 0.0
@@ -574,7 +591,28 @@ def _mid_and_contrast(
                 count -= 1.0
                 sum_max -= local_max[i, leaving]
                 sum_min -= local_min[i, leaving]
+        grey_sum[0] = dark_sum[0] = 0.0
+        for k in range(n_samples):
+            grey_sum[k + 1] = grey_sum[k] + scan[i, k]
+            dark_sum[k + 1] = dark_sum[k] + dark_area[i, k]
+        first = int(np.ceil(period - 0.5))
+        for j in range(first, n_samples - first):
+            # Samples the two periods touch, inclusive.
+            if dark_sum[min(j + first + 1, n_samples)] - dark_sum[max(j - first, 0)] > 0:
+                continue
+            one = _line_integral(grey_sum, j + 0.5 * period) - _line_integral(grey_sum, j - 0.5 * period)
+            two = _line_integral(grey_sum, j + period) - _line_integral(grey_sum, j - period)
+            mid[i, j] = 0.5 * (one + 0.5 * two) / period
     return mid, contrast
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _line_integral(cumulative: np.ndarray, position: float) -> float:
+    """∫ of a line's grey levels from −½ to `position` (sample k covering [k − ½, k + ½]), from their cumulative
+    sums (cumulative[k] = sum of samples 0..k−1), for −½ ≤ position ≤ n − ½."""
+    u = position + 0.5
+    k = min(int(u), len(cumulative) - 2)
+    return cumulative[k] + (u - k) * (cumulative[k + 1] - cumulative[k])
 
 
 @numba.njit(cache=True, nogil=True)
