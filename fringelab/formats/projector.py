@@ -14,7 +14,7 @@ import numpy as np
 from fringelab.formats.atomic import atomic_path
 from fringelab.formats.hdf5 import SCHEMA_VERSION, json_text, require_schema, unit_dataset
 from fringelab.science.fringes import EdgeSettings
-from fringelab.science.projector import ProjectorCalibration, ProjectorQA
+from fringelab.science.projector import PatternEdges, ProjectorCalibration, ProjectorQA
 
 if TYPE_CHECKING:
     pass
@@ -84,6 +84,13 @@ def write_projector_calibration(calibration: ProjectorCalibration, path: str | P
         )
         for name, (unit, description) in _PROJECTOR_ARRAYS.items():
             unit_dataset(file, name, getattr(calibration, name), unit=unit, description=description, compression="gzip")
+        if calibration.pattern_edges is not None:
+            dataset = unit_dataset(
+                file, "pattern_edge_projector_px", calibration.pattern_edges.projector_px, unit="px",
+                description="projector coordinate of each edge k along pattern_axis (a table from a camera–projector "
+                "model; what a Gray code at rest names the edges by)",
+            )  # fmt: skip
+            dataset.attrs["pattern_axis"] = calibration.pattern_edges.axis
     return path
 
 
@@ -104,6 +111,15 @@ def read_projector_calibration(path: str | Path) -> ProjectorCalibration:
                 for key, value in json.loads(file.attrs["qa_json"]).items()
             }
             arrays = {name: file[name][()] for name in _PROJECTOR_ARRAYS}
+            pattern_edges = None
+            if "pattern_edge_projector_px" in file:  # only tables from a camera–projector model have it
+                dataset = file["pattern_edge_projector_px"]
+                axis = str(dataset.attrs["pattern_axis"])
+                if axis not in ("columns", "rows"):
+                    raise ValueError(
+                        f"{path}: pattern_edge_projector_px's pattern_axis must be columns or rows, got {axis!r}"
+                    )
+                pattern_edges = PatternEdges(axis="columns" if axis == "columns" else "rows", projector_px=dataset[()])
             return ProjectorCalibration(
                 image_shape_hw_px=(int(file.attrs["image_height_px"]), int(file.attrs["image_width_px"])),
                 edges=EdgeSettings.from_dict(json.loads(file.attrs["edge_settings_json"])),
@@ -115,6 +131,7 @@ def read_projector_calibration(path: str | Path) -> ProjectorCalibration:
                 qa=ProjectorQA(**qa),
                 camera_fingerprint=str(file.attrs["camera_fingerprint"]),
                 provenance=json.loads(file.attrs["provenance_json"]),
+                pattern_edges=pattern_edges,
                 **arrays,
             )
         except (KeyError, TypeError) as error:

@@ -26,6 +26,7 @@ from .procam import ProcamModel, project_to_projector, rigid_transform
 from .projector import (
     CalibrationMismatchError,
     CameraModel,
+    PatternEdges,
     ProjectorCalibration,
     ProjectorSettings,
     calibration_from_positions,
@@ -64,11 +65,12 @@ def procam_table_positions(
     z_mm: Sequence[float],
     *,
     scan_axis: Literal["rows", "cols"],
-) -> tuple[np.ndarray, np.ndarray]:
-    """Edge positions (K, S, J) (NaN where an edge is not on a line at a height) in stripe order along +t, and
-    each edge's polarity along +t (K,). Every pixel centre of a scan line is intersected with each plane Z; its
-    projector coordinate follows (distortion included), and each edge's t is interpolated linearly between the two
-    pixels it falls between (the coordinate's curvature over one pixel is far below 0.001 px)."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Edge positions (K, S, J) (NaN where an edge is not on a line at a height) in stripe order along +t, each
+    edge's polarity along +t (K,) and its projector coordinate along the pattern's axis (K,). Every pixel centre of
+    a scan line is intersected with each plane Z; its projector coordinate follows (distortion included), and each
+    edge's t is interpolated linearly between the two pixels it falls between (the coordinate's curvature over one
+    pixel is far below 0.001 px)."""
     camera = camera_model.camera
     width, height = camera.image_width_px, camera.image_height_px
     if (width, height) != tuple(model.camera_size_wh_px):
@@ -123,7 +125,7 @@ def procam_table_positions(
     order = np.arange(len(edge_x)) if direction_sign > 0 else np.arange(len(edge_x))[::-1]
     seen = np.any(np.isfinite(lut), axis=(1, 2))
     order = order[seen[order]]
-    return lut[order], (edge_polarity[order] * int(direction_sign)).astype(np.int8)
+    return lut[order], (edge_polarity[order] * int(direction_sign)).astype(np.int8), edge_x[order]
 
 
 def stripe_scan_axis(
@@ -160,7 +162,7 @@ def projector_table_from_model(
     settings = ProjectorSettings() if settings is None else settings
     if scan_axis is None:
         scan_axis = stripe_scan_axis(model, camera_model, pattern, reference_z_mm=settings.reference_z_mm)
-    lut, polarity = procam_table_positions(model, camera_model, pattern, z_mm, scan_axis=scan_axis)
+    lut, polarity, edge_projector_px = procam_table_positions(model, camera_model, pattern, z_mm, scan_axis=scan_axis)
     z = np.asarray(z_mm, np.float64)
     j_ref = int(np.argmin(np.abs(z - settings.reference_z_mm)))
     if edges is None:
@@ -172,4 +174,5 @@ def projector_table_from_model(
         lut, z, polarity, camera_model, settings=replace(settings, edges=edges), edge_settings=edges,
         image_shape_hw_px=(camera.image_height_px, camera.image_width_px),
         provenance={"source": "camera–projector model", **(provenance or {})},
+        pattern_edges=PatternEdges(axis=pattern.axis, projector_px=edge_projector_px),
     )  # fmt: skip

@@ -20,7 +20,7 @@ import functools
 import hashlib
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass, field, replace
-from typing import Any, Protocol
+from typing import Any, Literal, Protocol
 
 import numba
 import numpy as np
@@ -116,6 +116,17 @@ class ProjectorSettings:
             raise ValueError(f"max_step_fraction: expected 0 < f ≤ 0.5, got {self.max_step_fraction}")
 
 
+@dataclass(frozen=True, eq=False)
+class PatternEdges:
+    """Which projector stripe edge each table edge is, for a table generated from a camera–projector model
+    (`procam_table.py`): axis "columns" (projector x) or "rows" (y), and projector_px (K,) the projector coordinate of
+    table edge k along it. What a Gray code recorded at rest names its stripe edges by (`order.
+    identify_reference_from_code`); a Z-stack's table has none (its edges are counted from the first one seen)."""
+
+    axis: Literal["columns", "rows"]
+    projector_px: np.ndarray
+
+
 @dataclass(frozen=True)
 class ProjectorQA:
     """Quality numbers of a projector calibration.
@@ -177,6 +188,7 @@ class ProjectorCalibration:
     qa: ProjectorQA
     camera_fingerprint: str
     provenance: dict[str, Any] = field(default_factory=dict)
+    pattern_edges: PatternEdges | None = None
 
     @property
     def axis(self) -> Axis:
@@ -578,19 +590,27 @@ def calibration_from_positions(
     edge_settings: EdgeSettings,
     image_shape_hw_px: tuple[int, int],
     provenance: dict[str, Any] | None = None,
+    pattern_edges: PatternEdges | None = None,
 ) -> ProjectorCalibration:
     """The table's fits and QA from edge positions known already, (K, S, J) over heights z_mm (J,) in increasing
     order, in stripe order along +t: what a camera–projector model gives (`procam_table.py`) instead of a Z-stack.
-    The reference is the height nearest settings.reference_z_mm; there is no edge noise (NaN) and no step shift."""
+    The reference is the height nearest settings.reference_z_mm; there is no edge noise (NaN) and no step shift.
+    pattern_edges: the projector coordinate of each of the K edges, when known."""
     z = np.asarray(z_mm, dtype=np.float64)
     if z.ndim != 1 or not np.all(np.diff(z) > 0):
         raise ValueError("z_mm: expected strictly increasing heights")
     j_ref = int(np.argmin(np.abs(z - settings.reference_z_mm)))
-    return _fit_table(
+    if pattern_edges is not None and np.shape(pattern_edges.projector_px) != (np.shape(lut_t_px)[0],):
+        raise ValueError(
+            f"pattern_edges.projector_px: expected shape ({np.shape(lut_t_px)[0]},), got "
+            f"{np.shape(pattern_edges.projector_px)}"
+        )
+    table = _fit_table(
         np.asarray(lut_t_px, np.float32), z, np.asarray(polarity, np.int8), j_ref=j_ref, settings=settings,
         edge_settings=edge_settings, image_shape_hw_px=image_shape_hw_px, camera_model=camera_model,
         noise_px=float("nan"), max_step_shift=0.0, provenance=dict(provenance or {}),
     )  # fmt: skip
+    return table if pattern_edges is None else replace(table, pattern_edges=pattern_edges)
 
 
 def _refuse_aliased_steps(

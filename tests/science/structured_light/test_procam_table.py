@@ -120,3 +120,11 @@ def test_projector_table_on_the_command_line(tmp_path, capsys) -> None:  # type:
     assert table.n_edges == direct.n_edges and table.period_px == pytest.approx(direct.period_px)
     assert np.allclose(table.lut_t_px, direct.lut_t_px, equal_nan=True, atol=1e-4)
     assert table.provenance["source"] == "camera–projector model"
+    # The table says which projector stripe edge each of its edges is (what a Gray code at rest names them by):
+    # the pattern's edges offset + m·period/2, read back exactly.
+    assert table.pattern_edges is not None and direct.pattern_edges is not None
+    assert table.pattern_edges.axis == "columns"
+    np.testing.assert_array_equal(table.pattern_edges.projector_px, direct.pattern_edges.projector_px)
+    m = (table.pattern_edges.projector_px - pattern.offset_px) / (0.5 * pattern.period_px)
+    np.testing.assert_allclose(m, np.round(m), atol=1e-9)
+    assert np.all(np.abs(np.diff(np.round(m))) == 1)  # consecutive edges of the pattern, in stripe order
