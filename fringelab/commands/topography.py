@@ -23,6 +23,16 @@ def _frames(text: str) -> slice:
         ) from None
 
 
+def _circle(text: str) -> tuple[float, float, float]:
+    try:
+        x, y, r = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected X,Y,R in mm (three numbers), got {text!r}") from None
+    if not r > 0:
+        raise argparse.ArgumentTypeError(f"expected a radius R > 0, got {r:g}")
+    return x, y, r
+
+
 def register(subparsers: Any) -> None:
     """Add `calibrate-projector`, `topography` and `export` to the CLI's subparsers."""
     from fringelab.commands.output import add_output_options
@@ -73,6 +83,23 @@ def register(subparsers: Any) -> None:
         default=0,
         metavar="H",
         help="smooth edge positions over 2H+1 frames (default 0: off)",
+    )
+    topography.add_argument(
+        "--reference-code",
+        metavar="FOLDER_OR_ZIP",
+        help="a Gray code recorded with the plate at rest before the test (its patterns.json beside the frames): it "
+        "gives the reference frame's stripe order, checked against the projector table's match (docs/procam.md §5; "
+        "needs a table made by `fringelab projector-table`)",
+    )
+    topography.add_argument(
+        "--reference-code-patterns", metavar="JSON", help="the code's patterns.json, when not beside its frames"
+    )
+    topography.add_argument(
+        "--rim-circle",
+        type=_circle,
+        metavar="X,Y,R",
+        help="centre and radius (mm, plate frame) of the clamp circle, when the clamp ring is not in view: the band "
+        "inside it that the camera sees anchors the fringe order of every frame (default: found from the ring)",
     )
     add_output_options(topography)
     topography.set_defaults(handler=topography_command)
@@ -148,16 +175,27 @@ def calibrate_projector_command(args: argparse.Namespace) -> int:
 
 
 def topography_command(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from fringelab.formats.camera import read_camera_json
     from fringelab.formats.projector import read_projector_calibration
     from fringelab.formats.recordings import open_recording
-    from fringelab.pipelines.topography import topography_recording
+    from fringelab.pipelines.topography import decode_reference_code, topography_recording
     from fringelab.science import MeasurementError
+    from fringelab.science.order import OrderSettings
     from fringelab.science.topography import TopographySettings
 
     try:
+        if args.reference_code_patterns and not args.reference_code:
+            raise ValueError("--reference-code-patterns: give the code's frames with --reference-code")
         source = open_recording(args.recording)
         frames = None if args.frames is None else range(len(source))[args.frames]
+        code = None
+        if args.reference_code:
+            shape = np.shape(source[0])[:2]
+            code = decode_reference_code(
+                args.reference_code, patterns=args.reference_code_patterns, image_shape_hw_px=(shape[0], shape[1])
+            )
         with progress_bar(args, "topography") as progress:
             summary = topography_recording(
                 source,
@@ -166,9 +204,12 @@ def topography_command(args: argparse.Namespace) -> int:
                 out_path=args.output,
                 frames=frames,
                 settings=TopographySettings(
-                    grid_step_mm=args.grid_step, temporal_smoothing_frames=args.temporal_smoothing
-                ),
+                    grid_step_mm=args.grid_step,
+                    temporal_smoothing_frames=args.temporal_smoothing,
+                    order=OrderSettings(rim_circle_mm=args.rim_circle),
+                ),  # fmt: skip
                 progress=progress,
+                code=code,
             )
     except (ValueError, MeasurementError, OSError) as error:
         return fail(args, error)

@@ -43,7 +43,10 @@ Files written before σ existed have no sigma_w_mm datasets; the reader then ret
   grid/* (but x_mm, y_mm) and points/* (but offsets) are compressed: byte shuffle, then a zlib stream (level 1)
   /summary          attrs: flat_rms_mm (RMS of w over the first frame), n_tracks_first_frame, clamp_centre_x_mm,
                     clamp_centre_y_mm, clamp_radius_mm (circle through the outermost first-frame points),
-                    punch_axis_x_mm, punch_axis_y_mm (median of the per-frame centres), n_out_of_range_total
+                    punch_axis_x_mm, punch_axis_y_mm (median of the per-frame centres), n_out_of_range_total;
+                    reference_order_from ("projector table" or "gray code at rest"), reference_code_points,
+                    reference_code_compared, reference_code_agreement (the code's check against the table's match,
+                    docs/procam.md §5; 0, 0, NaN without a code; absent in older files)
 """
 
 from __future__ import annotations

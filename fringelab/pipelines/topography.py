@@ -30,11 +30,12 @@ from fringelab.formats.topography import (
     write_xdmf,
 )
 from fringelab.pipelines.provenance import code_versions
-from fringelab.science import Cancelled
+from fringelab.science import Cancelled, MeasurementError
 from fringelab.science.calibration import CameraCalibration, ProgressCallback
 from fringelab.science.coverage import MISSING_REASONS, FrameCoverage
 from fringelab.science.fields import Grid, Peak, field_peak
 from fringelab.science.fringes import FrameEdges
+from fringelab.science.graycode import Decoding, decode
 from fringelab.science.order import OrderReference
 from fringelab.science.projector import CameraModel, ProjectorCalibration, camera_fingerprint
 from fringelab.science.topography import (
@@ -83,6 +84,7 @@ def topography_recording(
     progress: ProgressCallback | None = None,
     should_cancel: Callable[[], bool] | None = None,
     writer_threads: int = WRITER_THREADS,
+    code: Decoding | None = None,
 ) -> TopographySummary:
     """Topography of a test recording into an HDF5 result file (layout in `topography_files`): what the CLI and
     the tasks call.
@@ -95,7 +97,8 @@ def topography_recording(
     of frames 0, 1, ... (e.g. from chunks run in parallel, see `topography_files.read_edges`); None locates
     them here. progress(done, total, stage) after every frame ("frames"), should_cancel() polled between frames
     (Cancelled; the partial file is removed). writer_threads: threads that compress the file's chunks beside the
-    measurement (0: all in the calling thread).
+    measurement (0: all in the calling thread). code: a Gray code recorded with the plate at rest
+    (`decode_reference_code`), which gives frame 0's order (`reference_stage`).
 
     Memory does not grow with the number of frames: frames are read, located, tracked, gridded and written one
     at a time.
@@ -140,7 +143,7 @@ def topography_recording(
     stream = located()
     try:
         reference_edges = next(stream)
-        reference = reference_stage(reference_edges, projector, camera_model, settings)
+        reference = reference_stage(reference_edges, projector, camera_model, settings, code=code)
         writer = result_writer(
             out_path, reference=reference, camera_model=camera_model, projector=projector, settings=settings,
             where=where, n_frames=n_frames, wanted=wanted, time_source=log.time_source, threads=writer_threads,
@@ -261,9 +264,16 @@ class TopographyReference:
     plate_nodes: np.ndarray
 
     def summary_attrs(self, tally: SummaryTally) -> dict[str, Any]:
-        """The result file's /summary attributes, of the frames `tally` counted."""
-        return tally.attrs(flat_rms_mm=self.flat_rms_mm, n_tracks_first_frame=self.n_tracks_first_frame,
-                           clamp=self.clamp)  # fmt: skip
+        """The result file's /summary attributes, of the frames `tally` counted, and where frame 0's order came
+        from (a Gray code at rest, checked against the table's match, or the table's match alone)."""
+        order = self.order
+        return {
+            **tally.attrs(flat_rms_mm=self.flat_rms_mm, n_tracks_first_frame=self.n_tracks_first_frame,
+                          clamp=self.clamp),
+            "reference_order_from": "gray code at rest" if order.code_points else "projector table",
+            "reference_code_points": order.code_points, "reference_code_compared": order.code_compared,
+            "reference_code_agreement": order.code_agreement,
+        }  # fmt: skip
 
     def as_record(self) -> dict[str, np.ndarray]:
         """Arrays by name (a hand-over record; `from_record` reads it back exactly)."""
@@ -274,14 +284,18 @@ class TopographyReference:
             "max_edge_mm": np.array(self.max_edge_mm), "z_flat_mm": np.array(self.z_flat_mm),
             "flat_rms_mm": np.array(self.flat_rms_mm), "clamp": np.array(self.clamp),
             "n_tracks_first_frame": np.array(self.n_tracks_first_frame), "plate_nodes": self.plate_nodes,
+            "code_check": np.array([order.code_points, order.code_compared, order.code_agreement]),
         }  # fmt: skip
 
     @classmethod
     def from_record(cls, record: dict[str, np.ndarray]) -> TopographyReference:
         rim_x, rim_y, rim_r = (float(v) for v in record["rim_circle_mm"])
         clamp_x, clamp_y, clamp_r = (float(v) for v in record["clamp"])
+        code_points, code_compared, code_agreement = record["code_check"]
         order = OrderReference(reference_t_px=record["reference_t_px"], rim=record["rim"],
-                               rim_circle_mm=(rim_x, rim_y, rim_r), cell_area_mm2=record["cell_area_mm2"])  # fmt: skip
+                               rim_circle_mm=(rim_x, rim_y, rim_r), cell_area_mm2=record["cell_area_mm2"],
+                               code_points=int(code_points), code_compared=int(code_compared),
+                               code_agreement=float(code_agreement))  # fmt: skip
         return cls(
             order=order, grid=Grid(x_mm=record["x_mm"], y_mm=record["y_mm"]),
             max_edge_mm=float(record["max_edge_mm"]), z_flat_mm=float(record["z_flat_mm"]),
@@ -291,11 +305,16 @@ class TopographyReference:
 
 
 def reference_stage(
-    edges: FrameEdges, projector: ProjectorCalibration, camera_model: CameraModel, settings: TopographySettings
+    edges: FrameEdges,
+    projector: ProjectorCalibration,
+    camera_model: CameraModel,
+    settings: TopographySettings,
+    *,
+    code: Decoding | None = None,
 ) -> TopographyReference:
-    """The reference stage: frame 0's located edges matched to the table, the rim that anchors the order, frame 0
-    measured, and the grid from it."""
-    order = reference_for(edges, projector, camera_model, settings)
+    """The reference stage: frame 0's located edges matched to the table (or named by a Gray code recorded at
+    rest, `code`), the rim that anchors the order, frame 0 measured, and the grid from it."""
+    order = reference_for(edges, projector, camera_model, settings, code=code)
     # Frame 0 is never smoothed (no frame before it), so measured alone it is what a pass over the frames gives.
     first = measure_frame(edges, order, projector, camera_model, frame=0, settings=settings)
     grid, max_edge_mm = grid_for_first_frame(first, projector, settings)
@@ -313,6 +332,34 @@ def frames_read(wanted: range, n_frames: int, settings: TopographySettings) -> r
     against the reference; only temporal smoothing looks h frames either way."""
     h = settings.temporal_smoothing_frames
     return range(max(0, wanted.start - h), min(wanted.stop + h, n_frames))
+
+
+def decode_reference_code(
+    recording: str | Path, *, patterns: str | Path | None = None, image_shape_hw_px: tuple[int, int] | None = None
+) -> Decoding:
+    """The Gray code recorded with the plate at rest (a folder or ZIP of frames with its patterns.json, or the
+    `patterns` file given), decoded (docs/procam.md §5). image_shape_hw_px: the test frames' size, which the
+    code's must equal. ValueError or graycode.DecodingError naming the recording (and the file and key)."""
+    from fringelab.formats.recordings import open_recording
+    from fringelab.pipelines.scan import sequence_of
+
+    name = Path(recording).name
+    try:
+        with open_recording(recording) as source:
+            sequence, _text = sequence_of(source, name, patterns)
+            first = np.asarray(source[0])
+            if image_shape_hw_px is not None and tuple(first.shape[:2]) != tuple(image_shape_hw_px):
+                raise ValueError(
+                    f"the Gray code at rest is {first.shape[1]} × {first.shape[0]} px but the test frames are "
+                    f"{image_shape_hw_px[1]} × {image_shape_hw_px[0]} px: record it with the test's camera"
+                )
+            frames: list[np.ndarray] = [first] * len(source)
+            for index in sorted(set(sequence.frames_used())):
+                frames[index] = np.asarray(source[index])
+        return decode(frames, sequence)
+    except (ValueError, MeasurementError) as error:
+        text = str(error)
+        raise type(error)(text if text.startswith(f"{name}: ") else f"{name}: {text}") from None
 
 
 @dataclass(frozen=True)

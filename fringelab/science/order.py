@@ -35,6 +35,7 @@ import numpy as np
 from . import MeasurementError
 from .camera import backproject_to_z
 from .fringes import FrameEdges, order_edges
+from .graycode import Decoding
 from .projector import TABLE_SENSITIVITY, CameraModel, EdgeLines, ProjectorCalibration, match_to_reference, table_z_at
 
 # Reasons an edge point of a frame has no order (per point, int8).
@@ -105,12 +106,18 @@ class OrderReference:
     rim: (K, S) bool, the (edge, line) points of the reference frame on the stationary rim band.
     rim_circle_mm: (X, Y, radius) of the clamp circle used; cell_area_mm2: (K, S) area of the plate each
         reference point stands for (edge spacing × line spacing at the reference Z), NaN where not seen.
+    code_points, code_compared, code_agreement: where the reference frame's order came from a Gray code at rest
+        (`CodedReference`): the points it identified, those the table's match identified too and the share of
+        them that agree; 0, 0, NaN when the order came from the table's match alone.
     """
 
     reference_t_px: np.ndarray
     rim: np.ndarray
     rim_circle_mm: tuple[float, float, float]
     cell_area_mm2: np.ndarray
+    code_points: int = 0
+    code_compared: int = 0
+    code_agreement: float = float("nan")
 
     @functools.cached_property
     def rim_t_px(self) -> np.ndarray:
@@ -150,24 +157,7 @@ def identify_reference(edges: FrameEdges, projector: ProjectorCalibration, *, fl
     ReferenceNotFlatError when the identified points do not lie at the reference Z, ReferenceFrameError when too
     few are identified.
     """
-    k_near, distance = match_to_reference(
-        edges.line, edges.t_px, edges.polarity, projector.reference_lines, projector.polarity
-    )
-    near = (k_near >= 0) & (np.abs(distance) <= 0.5 * projector.period_px)
-    n_chains = int(edges.chain.max()) + 1 if len(edges) else 0
-    k = np.full(len(edges), -1, np.int64)
-    if n_chains:
-        codes, counts = np.unique(edges.chain[near].astype(np.int64) * (projector.n_edges + 1) + k_near[near],
-                                  return_counts=True)  # fmt: skip
-        chain_of, k_of = codes // (projector.n_edges + 1), codes % (projector.n_edges + 1)
-        best = np.zeros(n_chains, np.int64)
-        best_k = np.full(n_chains, -1, np.int64)
-        order = np.argsort(counts, kind="stable")  # ascending, so the largest count per chain is written last
-        best[chain_of[order]] = counts[order]
-        best_k[chain_of[order]] = k_of[order]
-        length = np.bincount(edges.chain, minlength=n_chains)
-        chain_ok = best >= 0.8 * length
-        k = np.where(chain_ok[edges.chain], best_k[edges.chain], -1)
+    k = _table_match(edges, projector)
     identified = k >= 0
     if np.count_nonzero(identified) < max(50, 0.3 * len(edges)):
         raise ReferenceFrameError(
@@ -184,6 +174,41 @@ def identify_reference(edges: FrameEdges, projector: ProjectorCalibration, *, fl
             f"its edge points are more than {p90:.1f} mm from it (tolerance {flat_tolerance_mm:g} mm); the fringe "
             "order is anchored on an undeformed reference frame, so start the recording before the punch touches"
         )
+    return _positions_of(edges, k, projector)
+
+
+def _table_match(edges: FrameEdges, projector: ProjectorCalibration) -> np.ndarray:
+    """(N,) each edge point's order from the nearest table edge of its polarity at the reference Z, taken by its
+    whole curve (`_chain_majority`); −1 where none."""
+    k_near, distance = match_to_reference(
+        edges.line, edges.t_px, edges.polarity, projector.reference_lines, projector.polarity
+    )
+    near = (k_near >= 0) & (np.abs(distance) <= 0.5 * projector.period_px)
+    return _chain_majority(edges.chain, np.where(near, k_near, -1), projector.n_edges)
+
+
+def _chain_majority(chain: np.ndarray, k_point: np.ndarray, n_edges: int, *, share: float = 0.8) -> np.ndarray:
+    """(N,) the order k each edge curve takes: the one at least `share` of its points (k_point ≥ 0, −1: no vote)
+    agree on; −1 for every point of a curve without such a majority."""
+    n_chains = int(chain.max()) + 1 if len(chain) else 0
+    if n_chains == 0:
+        return np.full(len(chain), -1, np.int64)
+    voted = k_point >= 0
+    codes, counts = np.unique(chain[voted].astype(np.int64) * (n_edges + 1) + k_point[voted], return_counts=True)
+    chain_of, k_of = codes // (n_edges + 1), codes % (n_edges + 1)
+    best = np.zeros(n_chains, np.int64)
+    best_k = np.full(n_chains, -1, np.int64)
+    order = np.argsort(counts, kind="stable")  # ascending, so the largest count per chain is written last
+    best[chain_of[order]] = counts[order]
+    best_k[chain_of[order]] = k_of[order]
+    length = np.bincount(chain, minlength=n_chains)
+    chain_ok = best >= share * length
+    return np.where(chain_ok[chain], best_k[chain], -1)
+
+
+def _positions_of(edges: FrameEdges, k: np.ndarray, projector: ProjectorCalibration) -> np.ndarray:
+    """(K, S) positions of the identified points (k ≥ 0), NaN where none or where two points claim one cell."""
+    identified = k >= 0
     positions = np.full((projector.n_edges, projector.n_lines), np.nan)
     kk, ll = k[identified], edges.line[identified].astype(np.int64)
     flat = kk * projector.n_lines + ll
@@ -195,14 +220,177 @@ def identify_reference(edges: FrameEdges, projector: ProjectorCalibration, *, fl
     return positions
 
 
+class ReferenceCodeError(ReferenceFrameError):
+    """The Gray code recorded at rest cannot give the reference frame's order (no decoded pixels at its stripe
+    edges, a code along the other projector axis, a table that does not know its projector edges), or it
+    disagrees with the order the projector table's match gives."""
+
+
+@dataclass(frozen=True, eq=False)
+class CodedReference:
+    """The reference frame's order from a Gray code recorded with the plate at rest (`identify_reference_from_code`).
+
+    positions: (K, S) as `identify_reference` gives them. rest_z_mm: median Z of the plate at rest (from the table
+    at the coded order). n_points: edge points the code identified (whole curves). n_compared / agreement: edge
+    points the projector table's match at the reference Z (`identify_reference`'s route) identified too, and the
+    share of them given the same order; 0 and NaN when the table's match finds no flat plate at its reference Z
+    (the plate rests elsewhere).
+    """
+
+    positions: np.ndarray
+    rest_z_mm: float
+    n_points: int
+    n_compared: int
+    agreement: float
+
+
+# A code whose two sides of an edge are further than this from it names no edge (px along the scan line, at most
+# the decoder's undecided band beside a code edge plus the stripe edge's own blur).
+CODE_SIDE_REACH_PX = 4
+# Fewest points of the reference the code must identify (as `identify_reference` asks of the table's match), and
+# the share of the points both routes identify that must agree.
+MIN_CODE_AGREEMENT = 0.99
+
+
+def identify_reference_from_code(
+    edges: FrameEdges, decoding: Decoding, projector: ProjectorCalibration, *, flat_tolerance_mm: float
+) -> CodedReference:
+    """The reference frame's order from a Gray code recorded with the plate at rest (docs/procam.md §5).
+
+    The stripe pattern's edges are code boundaries of the projector (`projector.pattern_edges`: the projector
+    coordinate of each table edge). At each reference edge point, the first decoded pixels within
+    CODE_SIDE_REACH_PX on either side along its scan line name the projector coordinate there: the boundary between
+    their codes when they are neighbours, else the middle of their bands; the point votes for the table edge of
+    its polarity nearest to it, within 0.4 of the edges' spacing. An edge curve takes the edge at least 80 %
+    of its points vote for (`_chain_majority`). No table match at the reference Z is needed, so the plate may rest
+    anywhere in the table's Z range; it must be flat (90 % of its points within flat_tolerance_mm of their median Z).
+    Where the table's match (`identify_reference`'s route) finds the plate flat at the table's reference Z, it must
+    give the same edges to ≥ 99 % of the points both name, else ReferenceCodeError naming both; where it does not
+    (the plate rests elsewhere in the table's range), the code alone says.
+    """
+    pattern_edges = projector.pattern_edges
+    if pattern_edges is None:
+        raise ReferenceCodeError(
+            "the projector table does not say which projector stripe each of its edges is (a Z-stack's table, or one "
+            "written before tables recorded it): a Gray code at rest needs the table generated from the "
+            "camera–projector calibration (`fringelab projector-table`)"
+        )
+    sequence = decoding.sequence
+    if sequence.axis != pattern_edges.axis:
+        raise ReferenceCodeError(
+            f'the Gray code at rest runs along projector {sequence.axis} (patterns.json "axis") but the test\'s '
+            f"stripes along projector {pattern_edges.axis}: record the code along {pattern_edges.axis}"
+        )
+    if tuple(decoding.code.shape) != tuple(projector.image_shape_hw_px):
+        h, w = decoding.code.shape
+        raise ReferenceCodeError(
+            f"the Gray code at rest is {w} × {h} px but the test frames are {projector.image_shape_hw_px[1]} × "
+            f"{projector.image_shape_hw_px[0]} px: record it with the test's camera"
+        )
+    x_px = _projector_coordinate_at_edges(edges, decoding, projector.axis)
+    edge_x = np.asarray(pattern_edges.projector_px, np.float64)
+    spacing = float(np.median(np.abs(np.diff(edge_x)))) if len(edge_x) > 1 else float("inf")
+    finite = np.isfinite(x_px)
+    k_vote = np.full(len(edges), -1, np.int64)
+    if len(edge_x) and np.any(finite):
+        ascending = np.argsort(edge_x)
+        where = np.clip(np.searchsorted(edge_x[ascending], x_px[finite]), 1, max(len(edge_x) - 1, 1))
+        lower, upper = ascending[where - 1], ascending[np.minimum(where, len(edge_x) - 1)]
+        nearest = np.where(np.abs(edge_x[lower] - x_px[finite]) <= np.abs(edge_x[upper] - x_px[finite]), lower, upper)
+        close = np.abs(edge_x[nearest] - x_px[finite]) <= 0.4 * spacing
+        same_polarity = projector.polarity[nearest] == edges.polarity[finite]
+        k_vote[finite] = np.where(close & same_polarity, nearest, -1)
+    k = _chain_majority(edges.chain, k_vote, projector.n_edges)
+    identified = k >= 0
+    if np.count_nonzero(identified) < max(50, 0.3 * len(edges)):
+        raise ReferenceCodeError(
+            f"the Gray code at rest names only {np.count_nonzero(identified)} of the reference frame's "
+            f"{len(edges)} stripe-edge points ({np.count_nonzero(finite)} had decoded pixels on both sides): check "
+            "that it was recorded with the plate at rest, by the test's camera, and that its patterns.json "
+            '("band_px", "projector_size_px", the frames) describes what the projector showed'
+        )
+    z, status = projector.z_from_t(k[identified], edges.line[identified], edges.t_px[identified])
+    z_ok = z[status == 0]
+    if len(z_ok) == 0:
+        raise ReferenceCodeError(
+            "the stripe edges the Gray code names lie outside the projector table's Z range everywhere: the plate "
+            "rests outside the range the table was made for, or the code, the table and the test are not of one "
+            "set-up (the projector's pattern or the camera moved)"
+        )
+    rest_z = float(np.median(z_ok))
+    p90 = float(np.percentile(np.abs(z_ok - rest_z), 90))
+    if p90 > flat_tolerance_mm:
+        raise ReferenceNotFlatError(
+            f"the plate at rest is not flat: 10 % of the reference frame's edge points are more than {p90:.1f} mm "
+            f"from their median Z = {rest_z:.1f} mm (tolerance {flat_tolerance_mm:g} mm); the fringe order is "
+            "anchored on an undeformed reference frame, so start the recording before the punch touches"
+        )
+    # The table's match takes the edge nearest where the table has it at its reference Z; where it finds a flat plate
+    # there (its own check), it is an answer of its own, and the two must agree.
+    n_compared, agreement = 0, float("nan")
+    k_table = _table_match(edges, projector)
+    both = identified & (k_table >= 0)
+    if np.count_nonzero(both) >= max(50, 0.3 * len(edges)):
+        z_table, status_table = projector.z_from_t(k_table[both], edges.line[both], edges.t_px[both])
+        off = np.abs(z_table[status_table == 0] - projector.reference_z_mm)
+        if len(off) and np.percentile(off, 90) <= flat_tolerance_mm:
+            n_compared = int(np.count_nonzero(both))
+            agreement = float(np.mean(k_table[both] == k[both]))
+    if agreement < MIN_CODE_AGREEMENT:
+        shift = int(np.median(k_table[both] - k[both]))
+        raise ReferenceCodeError(
+            "the Gray code at rest and the projector table disagree on the reference frame's stripe order: "
+            f"{1 - agreement:.1%} of the {n_compared} edge points both name are given different edges (typically "
+            f"{shift:+d}, {abs(shift) / 2:g} stripe periods); the code puts the plate at rest at Z = {rest_z:.1f} mm, "
+            f"the table's match at its reference Z = {projector.reference_z_mm:g} mm. Either the plate rests a whole "
+            "stripe step from the table's reference Z (make the table with reference_z_mm where the plate rests), or "
+            "the code, the table and the test are not of one set-up (the projector's pattern or the camera moved)"
+        )
+    return CodedReference(
+        positions=_positions_of(edges, k, projector), rest_z_mm=rest_z, n_points=int(np.count_nonzero(identified)),
+        n_compared=n_compared, agreement=agreement,
+    )  # fmt: skip
+
+
+def _projector_coordinate_at_edges(edges: FrameEdges, decoding: Decoding, axis: str) -> np.ndarray:
+    """(N,) projector coordinate along the code's axis at each edge point from the decoded pixels either side
+    (`identify_reference_from_code`), NaN where either side has none within CODE_SIDE_REACH_PX."""
+    code = decoding.code if axis == "rows" else decoding.code.T  # (S, T): scan lines × positions along them
+    n_samples = code.shape[1]
+    line = edges.line.astype(np.int64)
+    t = edges.t_px.astype(np.float64)
+    sides = []
+    for start, step in ((np.floor(t).astype(np.int64), -1), (np.floor(t).astype(np.int64) + 1, 1)):
+        found = np.full(len(t), -1, np.int64)
+        for d in range(CODE_SIDE_REACH_PX):
+            at = start + step * d
+            inside = (at >= 0) & (at < n_samples) & (found < 0)
+            value = np.full(len(t), -1, np.int64)
+            value[inside] = code[line[inside], at[inside]]
+            found = np.where(inside & (value >= 0), value, found)
+        sides.append(found)
+    left, right = sides
+    sequence = decoding.sequence
+    both = (left >= 0) & (right >= 0)
+    neighbours = both & (np.abs(right - left) == 1)
+    x = np.full(len(t), np.nan)
+    x[neighbours] = sequence.boundary_px(np.maximum(left, right)[neighbours])
+    apart = both & ~neighbours
+    x[apart] = 0.5 * (sequence.band_centre_px(left[apart]) + sequence.band_centre_px(right[apart]))
+    return x
+
+
 def order_reference(
     positions: np.ndarray,
     projector: ProjectorCalibration,
     camera_model: CameraModel,
     *,
     settings: OrderSettings | None = None,
+    rest_z_mm: float | None = None,
 ) -> OrderReference:
-    """The anchor of a test from its identified reference frame (`identify_reference`), shape (K, S).
+    """The anchor of a test from its identified reference frame (`identify_reference` or
+    `identify_reference_from_code`), shape (K, S). rest_z_mm: the plate's Z at rest (the points are back-projected
+    there to find the rim); None: the table's reference Z.
 
     Raises RimNotVisibleError when no clamp circle is given and the reference frame's points do not end at a
     clamp ring inside the image (they run into the image border instead).
@@ -211,7 +399,8 @@ def order_reference(
     kk, ss = np.nonzero(np.isfinite(positions))
     t = positions[kk, ss]
     q_px = np.column_stack([t, ss] if projector.axis == "rows" else [ss, t]).astype(np.float64)
-    xy = backproject_to_z(camera_model.camera, q_px, projector.reference_z_mm, inverse=camera_model.inverse)[:, :2]
+    z_rest = projector.reference_z_mm if rest_z_mm is None else float(rest_z_mm)
+    xy = backproject_to_z(camera_model.camera, q_px, z_rest, inverse=camera_model.inverse)[:, :2]
     if settings.rim_circle_mm is not None:
         cx, cy, radius = (float(v) for v in settings.rim_circle_mm)
     else:
@@ -232,7 +421,7 @@ def order_reference(
             "anchored; set rim_circle_mm (X, Y, radius of the clamp in mm) or widen rim_width_mm"
         )
     area = np.full(positions.shape, np.nan)
-    area[kk, ss] = _cell_area_mm2(positions, kk, ss, xy, projector, camera_model)
+    area[kk, ss] = _cell_area_mm2(positions, kk, ss, xy, projector, camera_model, z_rest)
     return OrderReference(reference_t_px=positions, rim=rim, rim_circle_mm=(cx, cy, radius), cell_area_mm2=area)
 
 
@@ -264,9 +453,11 @@ def _cell_area_mm2(
     xy: np.ndarray,
     projector: ProjectorCalibration,
     camera_model: CameraModel,
+    z_mm: float,
 ) -> np.ndarray:
     """Plate area (mm²) each reference point stands for: half the distance to its neighbours along the line on
-    each side, times the line spacing, both at the reference Z (one period's worth at the ends of a run)."""
+    each side, times the line spacing, both at the plate's rest height z_mm (one period's worth at the ends of a
+    run)."""
     t = positions[kk, ss]
     n_k = positions.shape[0]
     before = positions[np.maximum(kk - 1, 0), ss]
@@ -278,10 +469,8 @@ def _cell_area_mm2(
     # mm per px along the line and across it, from back-projecting the neighbouring pixel.
     step = np.array([1.0, 0.0]) if projector.axis == "rows" else np.array([0.0, 1.0])
     q_px = np.column_stack([t, ss] if projector.axis == "rows" else [ss, t]).astype(np.float64)
-    along = backproject_to_z(camera_model.camera, q_px + step, projector.reference_z_mm, inverse=camera_model.inverse)
-    across = backproject_to_z(
-        camera_model.camera, q_px + step[::-1], projector.reference_z_mm, inverse=camera_model.inverse
-    )
+    along = backproject_to_z(camera_model.camera, q_px + step, z_mm, inverse=camera_model.inverse)
+    across = backproject_to_z(camera_model.camera, q_px + step[::-1], z_mm, inverse=camera_model.inverse)
     mm_along = np.hypot(along[:, 0] - xy[:, 0], along[:, 1] - xy[:, 1])
     mm_across = np.hypot(across[:, 0] - xy[:, 0], across[:, 1] - xy[:, 1])
     return along_px * mm_along * mm_across

@@ -34,6 +34,7 @@ from .camera import Camera, InverseModel, camera_centre_obj_mm, ideal_from_pixel
 from .coverage import MISSING_REASONS, FrameCoverage
 from .fields import Grid, Peak, grid_covering, typical_edge_gap_mm
 from .fringes import UNUSABLE_BLACK, UNUSABLE_BLOCK_PX, UNUSABLE_DARK, FrameEdges, detect_stripes, locate_edges
+from .graycode import Decoding
 from .gridding import grid_edge_fields, grid_edge_points
 from .order import (
     ORDER_CONFLICT,
@@ -44,6 +45,7 @@ from .order import (
     check_order_against_table,
     clamp_circle,
     identify_reference,
+    identify_reference_from_code,
     order_frame,
     order_reference,
 )
@@ -297,11 +299,26 @@ def locate_test_edges(frames: Iterable[np.ndarray], projector: ProjectorCalibrat
 
 
 def reference_for(
-    first: FrameEdges, projector: ProjectorCalibration, camera_model: CameraModel, settings: TopographySettings
+    first: FrameEdges,
+    projector: ProjectorCalibration,
+    camera_model: CameraModel,
+    settings: TopographySettings,
+    *,
+    code: Decoding | None = None,
 ) -> OrderReference:
-    """The anchor of a test's fringe order from its reference (first, flat) frame's edges."""
-    positions = identify_reference(first, projector, flat_tolerance_mm=settings.flat_tolerance_mm)
-    return order_reference(positions, projector, camera_model, settings=settings.order)
+    """The anchor of a test's fringe order from its reference (first, flat) frame's edges. code: a Gray code
+    recorded with the plate at rest (decoded), which then gives the reference frame's order
+    (`order.identify_reference_from_code`, checked against the table's match where that can be made)."""
+    if code is None:
+        positions = identify_reference(first, projector, flat_tolerance_mm=settings.flat_tolerance_mm)
+        return order_reference(positions, projector, camera_model, settings=settings.order)
+    coded = identify_reference_from_code(first, code, projector, flat_tolerance_mm=settings.flat_tolerance_mm)
+    reference = order_reference(
+        coded.positions, projector, camera_model, settings=settings.order, rest_z_mm=coded.rest_z_mm
+    )
+    return replace(
+        reference, code_points=coded.n_points, code_compared=coded.n_compared, code_agreement=coded.agreement
+    )
 
 
 def identify_first_frame(edges: FrameEdges, projector: ProjectorCalibration, *, flat_tolerance_mm: float) -> np.ndarray:

@@ -18,7 +18,7 @@ the grey levels rounded to 8 bits.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import cv2
@@ -29,8 +29,8 @@ from .camera import Camera, backproject_to_z, camera_as_opencv
 from .graycode import PatternSequence, WhiteBlack, gray_pattern_values
 from .procam import ProcamModel, normalised_from_pixels, project_to_projector, rigid_transform
 from .procam_table import StripePattern
+from .virtual_test import FringeRenderer, PlateState, Preset, square_wave_blurred
 from .virtual_test import Projector as SlideProjector
-from .virtual_test import square_wave_blurred
 
 # Each projector pixel is sampled this many times along the profile, so a sub-pixel reads the blurred square
 # pixels to 1/16 px before the linear interpolation (error ~1e-4 of the contrast at an edge).
@@ -378,3 +378,36 @@ def digital_projector_of(
     )  # fmt: skip
     pattern = StripePattern("columns", period_px=stripe_period_px, offset_px=cx + projector.phase_mm / pixel_mm)
     return model, pattern
+
+
+def gray_code_on_plate(
+    setup: Preset, model: ProcamModel, sequence: PatternSequence, *, state: PlateState, rng: np.random.Generator
+) -> list[np.ndarray]:
+    """What the virtual test's camera records of its plate in `state` while the slide projector, taken as the
+    digital one `model` of `digital_projector_of` (same pixels), shows a Gray-code sequence along projector
+    columns with all-white and all-black threshold frames: the frames in the sequence's numbering.
+
+    Each Gray bit is itself a square wave along projector x (bit j from the least significant: bright where
+    (x + ½)/band_px − 2^j mod 2^(j+2) < 2^(j+1)), so it is the slide projector with another period and phase,
+    rendered exactly as the test's stripes are (same blur, shading, noise)."""
+    if sequence.axis != "columns" or not isinstance(sequence.threshold, WhiteBlack):
+        raise ValueError("gray_code_on_plate: expected a code along projector columns with white and black frames")
+    projector = setup.projector
+    pixel_mm = projector.f_mm / float(model.projector_matrix[0, 0])
+    cx = float(model.projector_matrix[0, 2])
+    band_mm = sequence.band_px * pixel_mm
+    slides: dict[int, tuple[float, float]] = {}  # frame → (period_mm, phase_mm)
+    for i, frame in enumerate(sequence.gray_frames):
+        j = sequence.n_bits - 1 - i
+        slides[frame] = (2.0 ** (j + 2) * band_mm, (2.0**j * sequence.band_px - cx - 0.5) * pixel_mm)
+    wide = 1e9  # one stripe wider than anything the camera sees: bright (white) or dark (black) everywhere
+    slides[sequence.threshold.white] = (wide, -0.25 * wide)
+    slides[sequence.threshold.black] = (wide, 0.25 * wide)
+    frames: list[np.ndarray] = []
+    for frame in range(max(slides) + 1):
+        if frame not in slides:
+            raise ValueError(f"gray_code_on_plate: the sequence leaves frame {frame} unnamed")
+        period_mm, phase_mm = slides[frame]
+        shown = replace(setup, projector=replace(projector, period_mm=period_mm, phase_mm=phase_mm))
+        frames.append(FringeRenderer(shown).render_test(state, rng=rng))
+    return frames
