@@ -24,6 +24,7 @@ from fringelab.core.preparation import (
     Input,
     JobInput,
     RecordingInput,
+    ReferenceCodeInput,
     SimulationInput,
     check_export_source,
 )
@@ -175,6 +176,10 @@ JOB_KINDS: dict[str, JobKind] = {
                     field="projector_calibration_id",
                     calibration_kind="projector",
                     role="the projector's look-up table (same camera, same image size)",
+                ),
+                ReferenceCodeInput(
+                    field="reference_code_recording_id",
+                    role="a Gray code recorded with the plate at rest by the test's camera (optional)",
                 ),
             ),
             body="topography_entry",

@@ -100,6 +100,33 @@ class RecordingInput(Input):
 
 
 @dataclass(frozen=True, kw_only=True)
+class ReferenceCodeInput(Input):
+    """A ready recording of kind coded by the camera of the recording named before it, at its image size: the
+    Gray code recorded with the plate at rest before a test (docs/procam.md §5). Its frames are not the test's, so
+    the spec's frame range is not checked against it."""
+
+    names = "recording"
+
+    def prepare(self, session: Session, spec: Any, prepared: Prepared, found: _Found, authorize: Authorize) -> None:
+        test = found.recording
+        if test is None:
+            raise TypeError(f"{self.field}: a reference code follows the recording it is recorded for")
+        for recording_id in self.ids(spec):
+            code = _recording(session, recording_id, kind="coded", field_name=self.field, authorize=authorize)
+            if code.camera_id != test.camera_id or (code.width_px, code.height_px) != (test.width_px, test.height_px):
+                raise job_error(
+                    Invalid,
+                    "reference_code_of_another_camera",
+                    f"recording {recording_id} ({code.width_px} × {code.height_px} px, camera {code.camera_id}) is not "
+                    f"of the test recording's camera {test.camera_id} at {test.width_px} × {test.height_px} px: the "
+                    "code at rest must be recorded by the test's camera, unmoved",
+                    field=self.field,
+                )
+            prepared.inputs.append({"recording_id": code.id, "sha256": code.sha256, "frames": code.frame_count,
+                                    "role": "reference code"})  # fmt: skip
+
+
+@dataclass(frozen=True, kw_only=True)
 class CalibrationInput(Input):
     """A `calibration_kind` calibration of the camera and image size of the recording named before it."""
 

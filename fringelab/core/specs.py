@@ -164,6 +164,29 @@ class TopographySpec(_Spec):
         description='Use a calibration whose verdict is "bad" (or a projector calibration built on one) anyway: '
         "the user's explicit consent; the results carry the warning. Without it such a job is refused (422).",
     )
+    reference_code_recording_id: int | None = Field(
+        None,
+        ge=1,
+        le=MAX_ID,
+        description="A ready recording of kind coded by the same camera: a Gray code recorded with the plate at rest "
+        "before the test (its patterns.json beside the frames). It gives the reference frame's stripe order, "
+        "checked against the projector table's (docs/procam.md §5); the projector table must come from a "
+        "camera–projector calibration. Empty: the table's match alone.",
+    )
+    rim_circle_mm: tuple[float, float, float] | None = Field(
+        None,
+        description="X, Y, radius (mm, plate frame) of the clamp circle, when the clamp ring is not in view: the band "
+        "inside it that the camera sees anchors every frame's stripe order. Empty: found from the ring.",
+    )
+
+    @model_validator(mode="after")
+    def _circle(self) -> TopographySpec:
+        if self.rim_circle_mm is not None:
+            x, y, radius = self.rim_circle_mm
+            if not (abs(x) <= 10_000 and abs(y) <= 10_000 and 0 < radius <= 10_000):
+                raise ValueError(f"rim_circle_mm: expected X, Y within ±10 000 mm and 0 < radius ≤ 10 000, got "
+                                 f"{list(self.rim_circle_mm)}")  # fmt: skip
+        return self
 
 
 class ExportSpec(_Spec):

@@ -162,6 +162,8 @@ export function jobForm({ recordings, calibrations, onStarted }) {
     recording_id: { label: "Recording", select: h("select", { required: true }) },
     camera_calibration_id: { label: "Camera calibration", select: h("select", { required: true }) },
     projector_calibration_id: { label: "Projector calibration", select: h("select", { required: true }) },
+    // A topography's Gray code recorded at rest (docs/procam.md §5): a coded recording of the test's camera, or none.
+    reference_code_recording_id: { label: "Gray code at rest", select: h("select") },
   };
   // Consent to use a calibration whose verdict is bad: shown (and required) only when a chosen one is bad.
   const consentBox = h("input", { type: "checkbox", id: newId("consent") });
@@ -242,9 +244,18 @@ export function jobForm({ recordings, calibrations, onStarted }) {
     consentWhy.textContent = chosenBad.map((c) => c.label).join("; ");
     showSpec();
   };
+  const refreshCodes = (chosen) => {
+    const select = pickers.reference_code_recording_id.select;
+    const previous = select.value;
+    const codes = chosen ? recordings().filter((r) => r.kind === "coded" && r.state === "ready" && r.camera_id === chosen.camera_id) : [];
+    fill(select, [h("option", { value: "" }, "none (the projector table's match)"),
+      ...codes.map((r) => h("option", { value: r.id }, `#${r.id} ${r.filename} (${r.frame_count} frames)`))]);
+    if (codes.some((r) => String(r.id) === previous)) select.value = previous;
+  };
   const refreshCalibrations = async () => {
     const chosen = recordings().find((r) => String(r.id) === pickers.recording_id.select.value);
     prefillBoard(chosen);
+    refreshCodes(chosen);
     if (chosen) {
       [cameraCals, pairs] = await Promise.all([calibrations(chosen.camera_id, "camera"), calibrations(chosen.camera_id, "pairs")]);
       options(pickers.camera_calibration_id.select, cameraCals, "no camera calibration yet");
@@ -297,6 +308,7 @@ export function jobForm({ recordings, calibrations, onStarted }) {
   pickers.recording_id.select.addEventListener("change", () => busy(refreshCalibrations));
   pickers.camera_calibration_id.select.addEventListener("change", refreshPairs);
   pickers.projector_calibration_id.select.addEventListener("change", refreshPairs);
+  pickers.reference_code_recording_id.select.addEventListener("change", showSpec);
   const form = h(
     "form",
     {

@@ -26,6 +26,16 @@ def recording_input(context: JobContext[Any]) -> tuple[Recording, Camera, Path]:
     return recording, camera, context.settings.data_path / recording.path
 
 
+def recording_file(context: JobContext[Any], recording_id: int) -> Path:
+    """The file of a recording a spec names besides its `recording_id` (a topography's Gray code at rest)."""
+    with context.sessions() as session:
+        recording = session.get(Recording, recording_id)
+        if recording is None:
+            raise ValueError(f"recording {recording_id} was deleted; upload it again")
+        path = recording.path
+    return context.settings.data_path / path
+
+
 def record_calibration(
     context: JobContext,
     *,

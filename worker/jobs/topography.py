@@ -41,7 +41,7 @@ from fringelab.science.topography import SummaryTally, TemporalCrossCheck
 from worker.chunks import InOrder, planned_frame_ranges
 from worker.context import Chunked, JobContext, finite_or_none
 from worker.handover import array_records, has_hand_over, load_arrays, read_array_records, save_arrays
-from worker.jobs.inputs import calibration_file, recording_input
+from worker.jobs.inputs import calibration_file, recording_file, recording_input
 from worker.reserve import require_reserve
 
 
@@ -76,6 +76,7 @@ def _cached_calibration(kind: str, path: Path) -> Any:
 def _topography_inputs(context: JobContext[TopographySpec]) -> _TopographyInputs:
     """The recording (open: close it), calibrations, frames to write and settings of a topography job."""
     from fringelab.formats.recordings import open_recording
+    from fringelab.science.order import OrderSettings
     from fringelab.science.topography import TopographySettings, frame_range
 
     spec = context.spec
@@ -86,13 +87,16 @@ def _topography_inputs(context: JobContext[TopographySpec]) -> _TopographyInputs
     last = spec.frames.last
     wanted = frame_range(range(spec.frames.first, len(source) if last is None else last + 1), len(source))
     settings = TopographySettings(
-        grid_step_mm=spec.grid_step_mm, temporal_smoothing_frames=spec.temporal_smoothing_frames
-    )
+        grid_step_mm=spec.grid_step_mm, temporal_smoothing_frames=spec.temporal_smoothing_frames,
+        order=OrderSettings(rim_circle_mm=spec.rim_circle_mm),
+    )  # fmt: skip
     return _TopographyInputs(source, camera_model, projector, wanted, settings)
 
 
 def topography_entry(context: JobContext[TopographySpec]) -> Chunked:
-    """The reference (frame 0), then the frames to write in chunks on any worker."""
+    """The reference (frame 0, its order from the Gray code at rest when the spec names one), then the frames to
+    write in chunks on any worker."""
+    from fringelab.pipelines.topography import decode_reference_code
     from fringelab.science.topography import check_recording_against, check_stripes_against, locate_test_edges
 
     inputs = _topography_inputs(context)
@@ -103,7 +107,18 @@ def topography_entry(context: JobContext[TopographySpec]) -> Chunked:
         edges = next(iter(locate_test_edges([first_frame], inputs.projector)))
     finally:
         inputs.close()
-    reference = reference_stage(edges, inputs.projector, inputs.camera_model, inputs.settings)
+    code = None
+    if context.spec.reference_code_recording_id is not None:
+        path = recording_file(context, context.spec.reference_code_recording_id)
+        code = decode_reference_code(path, image_shape_hw_px=(first_frame.shape[0], first_frame.shape[1]))
+        context.log(f"reference order from the Gray code at rest ({code.valid_share:.0%} of its pixels decoded)")
+    reference = reference_stage(edges, inputs.projector, inputs.camera_model, inputs.settings, code=code)
+    if code is not None:
+        order = reference.order
+        checked = (f"the table's match agrees on {order.code_agreement:.1%} of {order.code_compared}"
+                   if order.code_compared else "no table match to check it against (the plate rests off its "
+                   "reference Z)")  # fmt: skip
+        context.log(f"the code names {order.code_points} edge points of frame 0; {checked}")
     save_arrays(context, _REFERENCE, **reference.as_record())
     wanted = inputs.wanted
     context.log(f"topography of frames {wanted.start}..{wanted.stop - 1}, each ordered on its own")
