@@ -17,22 +17,20 @@ from fringelab.core.models import Recording
 from fringelab.core.settings import Settings
 from fringelab.formats.patterns import patterns_json_text
 from fringelab.formats.recordings import write_recording
-from fringelab.science.graycode import PatternSequence, WhiteBlack
 from tests.browser.conftest import screenshot
+from tests.procam_rig import POSE_COLUMNS, POSE_ROWS
 
 pytestmark = [pytest.mark.browser, pytest.mark.integration]
-
-COLUMNS = PatternSequence(axis="columns", projector_size_wh_px=(320, 200), gray_frames=tuple(range(2, 11)),
-                          band_px=1.0, threshold=WhiteBlack(0, 1))  # fmt: skip
-ROWS = PatternSequence(axis="rows", projector_size_wh_px=(320, 200), gray_frames=tuple(range(11, 19)),
-                       band_px=1.0, threshold=WhiteBlack(0, 1))  # fmt: skip
 
 
 def add_pose_recordings(data_dir: Path, camera_id: int, names: list[str]) -> dict[str, int]:
     """Ready coded recordings of the camera, one per name, each a folder of frames with its two patterns files
     (the frames are blank: the form is tested here, not the calibration)."""
     frames = [np.zeros((270, 360), np.uint8)] * 19
-    sidecars = {"patterns-columns.json": patterns_json_text(COLUMNS), "patterns-rows.json": patterns_json_text(ROWS)}
+    sidecars = {
+        "patterns-columns.json": patterns_json_text(POSE_COLUMNS),
+        "patterns-rows.json": patterns_json_text(POSE_ROWS),
+    }
     settings = Settings(_env_file=None, data_dir=data_dir)  # type: ignore[call-arg]
     engine = make_engine(settings.resolved_database_url)
     ids = {}

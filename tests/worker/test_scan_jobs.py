@@ -15,28 +15,16 @@ from fringelab.formats.procam import write_procam_json
 from fringelab.formats.recordings import write_recording
 from fringelab.formats.scan import read_scan
 from fringelab.science.graycode import PatternSequence, WhiteBlack
-from fringelab.science.virtual_procam import (
-    Plane,
-    ProcamImaging,
-    ProcamRenderer,
-    Sphere,
-    gray_code_patterns,
-    in_frame_order,
-    virtual_procam_rig,
-)
+from tests.procam_rig import POSE_COLUMNS, POSE_ROWS, RIG, SCAN_COLUMNS, ball_frames, pose_recordings
 from tests.worker.conftest import log_messages, wait_job
 
 pytestmark = pytest.mark.integration
-RIG = virtual_procam_rig()
-SEQUENCE = PatternSequence(axis="columns", projector_size_wh_px=(320, 200), gray_frames=tuple(range(2, 10)),
-                           band_px=2.0, threshold=WhiteBlack(0, 1))  # fmt: skip
+SEQUENCE = SCAN_COLUMNS
 
 
 @pytest.fixture(scope="module")
 def frames() -> list[np.ndarray]:
-    renderer = ProcamRenderer(RIG, imaging=ProcamImaging(supersample=1))
-    return renderer.render([Sphere((0.0, 0.0, 300.0), 20.0), Plane((0.0, 0.0, -1.0), -340.0)],
-                           in_frame_order(gray_code_patterns(SEQUENCE)), rng=np.random.default_rng(3))  # fmt: skip
+    return ball_frames(supersample=1, seed=3)
 
 
 def add_scan_rows(settings, frames, *, calibration_size=(360, 270), patterns: str | None = None,
@@ -131,18 +119,8 @@ def test_a_patterns_json_naming_missing_frames_fails_the_job_in_a_sentence(clien
 
 
 def test_a_procam_calibration_job_records_a_versioned_calibration(client, celery_worker, settings) -> None:
-    import cv2
-
-    from fringelab.science.virtual_procam import ChessboardPose
-
-    columns = PatternSequence(axis="columns", projector_size_wh_px=(320, 200), gray_frames=tuple(range(2, 11)),
-                              band_px=1.0, threshold=WhiteBlack(0, 1))  # fmt: skip
-    rows = PatternSequence(axis="rows", projector_size_wh_px=(320, 200), gray_frames=tuple(range(11, 19)),
-                           band_px=1.0, threshold=WhiteBlack(0, 1))  # fmt: skip
-    patterns = in_frame_order(gray_code_patterns(columns), gray_code_patterns(rows))
-    renderer = ProcamRenderer(RIG, imaging=ProcamImaging(supersample=2))
-    rng = np.random.default_rng(12)
-    sidecars = {"patterns-columns.json": patterns_json_text(columns), "patterns-rows.json": patterns_json_text(rows)}
+    sidecars = {"patterns-columns.json": patterns_json_text(POSE_COLUMNS),
+                "patterns-rows.json": patterns_json_text(POSE_ROWS)}  # fmt: skip
     engine = make_engine(settings.resolved_database_url)
     with make_sessionmaker(engine)() as session:
         experiment = Experiment(name="rig")
@@ -150,13 +128,9 @@ def test_a_procam_calibration_job_records_a_versioned_calibration(client, celery
                         pixel_pitch_um=5.0)  # fmt: skip
         session.add_all([experiment, camera])
         recordings = []
-        for i, (ax, ay) in enumerate([(0, 0), (22, 0), (0, 22), (-18, -18)]):
-            rotation = cv2.Rodrigues(np.deg2rad(np.array([ax, ay, 2.0 * i])))[0]
-            tvec = np.array([0.0, 0.0, 295.0 + 5 * i]) - rotation @ np.array([32.0, 24.0, 0.0])
-            pose = ChessboardPose(9, 7, 8.0, tuple(cv2.Rodrigues(rotation)[0].ravel()), tuple(tvec))
+        for i, pose_frames in enumerate(pose_recordings(seed=12)):
             relative = Path("recordings") / f"pose{i}"
-            write_recording(settings.data_path / relative, renderer.render([pose], patterns, rng=rng),
-                            sidecars=sidecars)  # fmt: skip
+            write_recording(settings.data_path / relative, pose_frames, sidecars=sidecars)
             recordings.append(Recording(camera=camera, kind="coded", state="ready", path=str(relative), frame_count=19,
                                         width_px=360, height_px=270, sha256=f"{i:02d}" * 32))  # fmt: skip
         session.add_all(recordings)

@@ -6,7 +6,6 @@ import argparse
 import json
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 
@@ -17,21 +16,10 @@ from fringelab.formats.procam import read_procam_calibration, write_opencv_proca
 from fringelab.formats.recordings import write_recording
 from fringelab.formats.scan import StoredScan, read_ply_vertices, read_scan, scan_layout
 from fringelab.science.graycode import PatternSequence, WhiteBlack
-from fringelab.science.virtual_procam import (
-    ChessboardPose,
-    Plane,
-    ProcamImaging,
-    ProcamRenderer,
-    Sphere,
-    gray_code_patterns,
-    in_frame_order,
-    virtual_procam_rig,
-)
+from tests.procam_rig import BALL, POSE_COLUMNS, POSE_ROWS, RIG, SCAN_COLUMNS, ball_frames, pose_recordings
 
-RIG = virtual_procam_rig()
-SEQUENCE = PatternSequence(axis="columns", projector_size_wh_px=(320, 200), gray_frames=tuple(range(2, 10)),
-                           band_px=2.0, threshold=WhiteBlack(0, 1))  # fmt: skip
-SPHERE = Sphere((0.0, 0.0, 300.0), 20.0)
+SEQUENCE = SCAN_COLUMNS
+SPHERE = BALL
 
 
 def run_cli(*argv: str) -> int:
@@ -47,10 +35,7 @@ def run_cli(*argv: str) -> int:
 def scanned(tmp_path_factory) -> tuple[Path, Path]:
     """A folder of the sphere in front of a screen with its patterns.json, and the rig's calibration (SLStudio)."""
     root = tmp_path_factory.mktemp("scan")
-    frames = ProcamRenderer(RIG, imaging=ProcamImaging(supersample=2)).render(
-        [SPHERE, Plane((0.0, 0.0, -1.0), -340.0)], in_frame_order(gray_code_patterns(SEQUENCE)),
-        rng=np.random.default_rng(7),
-    )  # fmt: skip
+    frames = ball_frames(supersample=2, seed=7)
     recording = write_recording(root / "sphere", frames, sidecars={"patterns.json": patterns_json_text(SEQUENCE)})
     calibration = write_opencv_procam(root / "calibration.yml", RIG, naming="slstudio")
     return recording, calibration
@@ -128,21 +113,10 @@ def test_bad_input_is_refused_in_a_sentence_and_nothing_is_written(scanned, tmp_
 
 
 def test_calibrate_procam_on_the_command_line(tmp_path: Path, capsys) -> None:
-    columns = PatternSequence(axis="columns", projector_size_wh_px=(320, 200), gray_frames=tuple(range(2, 11)),
-                              band_px=1.0, threshold=WhiteBlack(0, 1))  # fmt: skip
-    rows = PatternSequence(axis="rows", projector_size_wh_px=(320, 200), gray_frames=tuple(range(11, 19)),
-                           band_px=1.0, threshold=WhiteBlack(0, 1))  # fmt: skip
-    patterns = in_frame_order(gray_code_patterns(columns), gray_code_patterns(rows))
-    renderer = ProcamRenderer(RIG, imaging=ProcamImaging(supersample=2))
-    rng = np.random.default_rng(11)
-    sidecars = {"patterns-columns.json": patterns_json_text(columns), "patterns-rows.json": patterns_json_text(rows)}
-    poses = []
-    for i, (ax, ay) in enumerate([(0, 0), (22, 0), (0, 22), (-18, -18)]):
-        rotation = cv2.Rodrigues(np.deg2rad(np.array([ax, ay, 2.0 * i])))[0]
-        tvec = np.array([0.0, 0.0, 295.0 + 5 * i]) - rotation @ np.array([32.0, 24.0, 0.0])
-        pose = ChessboardPose(9, 7, 8.0, tuple(cv2.Rodrigues(rotation)[0].ravel()), tuple(tvec))
-        poses.append(str(write_recording(tmp_path / f"pose{i}", renderer.render([pose], patterns, rng=rng),
-                                         sidecars=sidecars)))  # fmt: skip
+    sidecars = {"patterns-columns.json": patterns_json_text(POSE_COLUMNS),
+                "patterns-rows.json": patterns_json_text(POSE_ROWS)}  # fmt: skip
+    poses = [str(write_recording(tmp_path / f"pose{i}", frames, sidecars=sidecars))
+             for i, frames in enumerate(pose_recordings(seed=11))]  # fmt: skip
     out = tmp_path / "procam.json"
     code = run_cli("calibrate-procam", *poses, "--board-cols", "9", "--board-rows", "7", "--square-mm", "8", "-o",
                    str(out), "--opencv-yaml", str(tmp_path / "procam.yml"), "--json")  # fmt: skip

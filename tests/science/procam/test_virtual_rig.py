@@ -37,10 +37,9 @@ from fringelab.science.virtual_procam import (
     Sphere,
     gray_code_patterns,
     in_frame_order,
-    virtual_procam_rig,
 )
+from tests.procam_rig import POSE_COLUMNS, POSE_ROWS, RIG
 
-RIG = virtual_procam_rig()
 SPHERE = Sphere((5.0, 3.0, 290.0), 25.0)
 SCREEN = Plane((0.0, 0.0, -1.0), -330.0)
 # Columns code: 8 bits of 2 projector px (the finest bit left out), white and black first, 4-step phase last.
@@ -183,10 +182,7 @@ def test_triangulation_meets_the_distorted_projector_column() -> None:
 
 # ---- calibration ---------------------------------------------------------------------------------------------
 
-CAL_COLUMNS = PatternSequence(axis="columns", projector_size_wh_px=(320, 200), gray_frames=tuple(range(2, 11)),
-                              band_px=1.0, threshold=WhiteBlack(0, 1))  # fmt: skip
-CAL_ROWS = PatternSequence(axis="rows", projector_size_wh_px=(320, 200), gray_frames=tuple(range(11, 19)),
-                           band_px=1.0, threshold=WhiteBlack(0, 1))  # fmt: skip
+CAL_COLUMNS, CAL_ROWS = POSE_COLUMNS, POSE_ROWS
 BOARD = Board(cols=9, rows=7, square_mm=8.0)
 TILTS_DEG = [(0, 0), (25, 0), (-25, 0), (0, 25), (0, -25), (18, 18), (-18, 15), (15, -18), (-16, -16), (8, -8)]
 
