@@ -1068,7 +1068,11 @@ def order_edges(
         )
     chain = np.ascontiguousarray(edges.chain, np.int64)
     sure = _sure_points(edges, sure_sigma_spacings)
-    part, part_chain, cut_run = _curve_parts(chain, sure, _n_chains(edges), MIN_UNSURE_RUN_LINES)
+    n_chains = _n_chains(edges)
+    if np.all(sure):  # nothing to cut (most frames in even light): the parts are the curves
+        part, part_chain, cut_run = chain, np.arange(n_chains), np.zeros(n_chains, np.bool_)
+    else:
+        part, part_chain, cut_run = _curve_parts(chain, sure, n_chains, MIN_UNSURE_RUN_LINES)
     n_parts = len(part_chain)
     before, after, support, sure_support = _order_statements(
         np.ascontiguousarray(edges.line, np.int64), np.ascontiguousarray(edges.t_px, np.float64),
@@ -1102,7 +1106,8 @@ def order_edges(
     has_after = (stretch < n_parts - 1) & (part_chain[after_it] == curve)
     sure_before, sure_after = has_before & ~left_out[before_it], has_after & ~left_out[after_it]
     between = sure_before & sure_after & (root[before_it] == root[after_it]) & (index[before_it] == index[after_it])
-    short = np.bincount(part, minlength=n_parts)[stretch] <= MAX_END_STRETCH_LINES
+    part_size = np.bincount(part, minlength=n_parts)
+    short = part_size[stretch] <= MAX_END_STRETCH_LINES
     at_end = short & ((sure_before & ~has_after) | (sure_after & ~has_before))
     take = (between | at_end) & (root[stretch] == stretch)  # alone: no sure statement of its own
     source = np.where(sure_before, before_it, after_it)[take]
@@ -1110,7 +1115,7 @@ def order_edges(
     index[stretch[take]] = index[source]
     # Groups numbered by their size in edge points, largest first (ties: the group of the lowest part first).
     roots, group = np.unique(root, return_inverse=True)
-    sizes = np.bincount(group, weights=np.bincount(part, minlength=n_parts))
+    sizes = np.bincount(group, weights=part_size)
     lowest_part = np.full(len(roots), n_parts)
     np.minimum.at(lowest_part, group, np.arange(n_parts))
     rank = np.empty(len(roots), np.int64)
