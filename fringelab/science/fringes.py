@@ -455,7 +455,7 @@ def _edge_sigma(
 
 
 # Weight, in edge points, of the frame's own noise level against an edge's local one (`_edge_sigma`).
-FRAME_NOISE_WEIGHT_POINTS = 8.0
+FRAME_NOISE_WEIGHT_POINTS = 20.0
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -519,7 +519,7 @@ def _edge_sigma_kernel(
             cum_pred[q + 1] = cum_pred[q] + (model[p] * residual[b, a]) ** 2
             cum_model[q + 1] = cum_model[q] + model[p] * model[p]
     frame_noise2 = cum_res[n] / cum_pred[n] if cum_pred[n] > 0 else np.nan
-    reach = 2 * half
+    reach = 3 * half
     for c in range(n_chains):
         lo, hi = first[c], first[c + 1]
         for q in range(lo, hi):
