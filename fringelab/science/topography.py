@@ -60,7 +60,7 @@ from .projector import (
     camera_fingerprint,
     table_z_at,
 )
-from .uncertainty import cross_edge_scale, edge_sigmas_px, point_sigma_z_mm, sigma_edge_halves, sigma_from_halves
+from .uncertainty import edge_sigmas_px, point_sigma_z_mm, scale_from_ratios, sigma_edge_halves, sigma_from_halves
 
 # The first test frame is the reference the order is anchored on (kept under its old name).
 FirstFrameNotFlatError = ReferenceNotFlatError
@@ -685,10 +685,7 @@ def _measure(
         sensitivity_px_per_mm=entries[:, 0], table_sigma_z_mm=entries[:, 1], edge_sigma_px=sigma_px[kk, ll],
     )  # fmt: skip
     # The frame's own check of σ across neighbouring edges (`uncertainty.cross_edge_scale`).
-    shape = (projector.n_edges, projector.n_lines)
-    dense_z, dense_sigma = np.full(shape, np.nan), np.full(shape, np.nan)
-    dense_z[kk, ll], dense_sigma[kk, ll] = z, sigma_z
-    sigma_scale = cross_edge_scale(dense_z, dense_sigma)
+    sigma_scale = scale_from_ratios(_fourth_difference_ratios(kk, ll, z, sigma_z))
     sigma_z = sigma_z * sigma_scale
     return FrameMeasurement(
         frame=int(frame),
@@ -707,6 +704,25 @@ def _measure(
         sigma_z_mm=sigma_z,
         sigma_scale=sigma_scale,
     )
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _fourth_difference_ratios(kk: np.ndarray, ll: np.ndarray, z: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """d²/Σc²σ² of every fourth difference of five neighbouring edges (k … k + 4) on a scan line
+    (`uncertainty.cross_edge_scale`), from the points (N,) sorted by (line, k) as `_looked_up_points` gives them."""
+    n = len(kk)
+    out = np.empty(max(n - 4, 0))
+    m = 0
+    for i in range(n - 4):
+        if ll[i + 4] != ll[i] or kk[i + 4] - kk[i] != 4:
+            continue  # not five consecutive edges of one line
+        d = z[i] - 4.0 * z[i + 1] + 6.0 * z[i + 2] - 4.0 * z[i + 3] + z[i + 4]
+        predicted = (sigma[i] ** 2 + 16.0 * sigma[i + 1] ** 2 + 36.0 * sigma[i + 2] ** 2 + 16.0 * sigma[i + 3] ** 2
+                     + sigma[i + 4] ** 2)  # fmt: skip
+        if np.isfinite(d) and predicted > 0:
+            out[m] = d * d / predicted
+            m += 1
+    return out[:m]
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")

@@ -96,9 +96,15 @@ def cross_edge_scale(z_mm: np.ndarray, sigma_z_mm: np.ndarray) -> float:
     d4 = sum(c * z[i : i + n] for i, c in enumerate(_FOURTH_DIFFERENCE))
     predicted = sum(c * c * variance[i : i + n] for i, c in enumerate(_FOURTH_DIFFERENCE))
     ok = np.isfinite(d4) & (predicted > 0)
-    if np.count_nonzero(ok) < MIN_CROSS_EDGE_CHECKS:
+    return scale_from_ratios(d4[ok] ** 2 / predicted[ok])
+
+
+def scale_from_ratios(ratios: np.ndarray) -> float:
+    """`cross_edge_scale` from its ratios d²/Σc²σ² (one per fourth difference, any order): √(median / 0.455),
+    at least 1, and 1 for fewer than MIN_CROSS_EDGE_CHECKS of them."""
+    if len(ratios) < MIN_CROSS_EDGE_CHECKS:
         return 1.0
-    return max(1.0, float(np.sqrt(np.median(d4[ok] ** 2 / predicted[ok]) / _CHI2_1_MEDIAN)))
+    return max(1.0, float(np.sqrt(np.median(ratios) / _CHI2_1_MEDIAN)))
 
 
 def budget_shares(sigma_z_mm: np.ndarray, table_sigma_z_mm: np.ndarray, sigma_scale: float) -> dict[str, float]:

@@ -12,8 +12,8 @@ camera (the camera calibration's term is zero here; it is a field over the plate
 The σ model assumes none of these: each edge's σ comes from its slope, the jitter of its neighbours along the edge
 and the light's evenness (`fringes._edge_sigma`), checked across edges frame by frame
 (`uncertainty.cross_edge_scale`). Measured: harder 97.1–97.8 %, pillbox 95.0–97.4 %, other camera 97.0–98.2 %
-(RMS error / RMS σ 0.72–1.04); with one σ per frame and no check across edges they were 94.0–95.5 %, 89.2–97.5 %
-(RMS error up to 1.24 × RMS σ), and 91–96 %.
+(RMS error / RMS σ 0.82–0.96); with one σ per frame and no check across edges they were 94.0–95.5 %, 92.7–97.5 %
+(RMS error up to 1.24 × RMS σ) and 95.3–97.3 %.
 """
 
 from __future__ import annotations
