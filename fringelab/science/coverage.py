@@ -8,7 +8,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-MISSING_REASONS = ("hole", "shadow", "low_contrast", "order_unresolved", "order_conflict", "out_of_range")
+# The order is that of the codes `topography.frame_coverage` gives (their index here); a new reason goes last.
+MISSING_REASONS = (
+    "hole", "shadow", "low_contrast", "order_unresolved", "order_conflict", "out_of_range", "uneven_light",
+)  # fmt: skip
 MISSING_DESCRIPTIONS = {
     "hole": "as black as the background (a hole, a crack, the punch in front, the clamp ring beside the rim)",
     "shadow": "dark but lit by the room (no projected light)",
@@ -16,6 +19,7 @@ MISSING_DESCRIPTIONS = {
     "order_unresolved": "edges whose fringe order no anchor reaches through sure links (a dim region, a stray group)",
     "order_conflict": "edges masked for a conflict between the sources of their order",
     "out_of_range": "outside the calibrated Z range (never extrapolated)",
+    "uneven_light": "stripes where the light changes too fast for their edges to be placed (a soft shadow's rim)",
 }
 # How plots and tables name each reason in a few words: "hole" is every region as black as the background, which
 # before a perforation is the punch in front or the clamp ring, not a hole in the plate.
@@ -26,6 +30,7 @@ MISSING_LABELS = {
     "order_unresolved": "order unresolved",
     "order_conflict": "order conflict",
     "out_of_range": "outside the Z range",
+    "uneven_light": "uneven light",
 }
 
 
@@ -38,8 +43,9 @@ class FrameCoverage:
     missing for one reason: hole (as black as the background: a hole, a crack, the punch in front), shadow (dark
     but lit by the room: no projected light), low_contrast (faint or clipped stripes, or no edge located there),
     order_unresolved (edges whose order no anchor reaches through sure links), order_conflict (edges masked for a
-    conflict of sources), out_of_range (ordered, but outside the calibrated Z range). n_order_conflicts: conflicts
-    found.
+    conflict of sources), out_of_range (ordered, but outside the calibrated Z range), uneven_light (stripes
+    there, but the light changes too fast for their edges to be placed: a soft shadow's rim). n_order_conflicts:
+    conflicts found.
     """
 
     visible_area_mm2: float

@@ -80,7 +80,7 @@ def test_overview_lists_frames_with_the_test_log_and_peaks(client, job_id):
     # A result written without coverage (an older file): unknown, never "all measured".
     assert body["measured_fraction"] == [None] * 4 and body["peak_measured"] == [None] * 4
     assert set(body["missing_mm2"]) == {"hole", "shadow", "low_contrast", "order_unresolved", "order_conflict",
-                                        "out_of_range"}  # fmt: skip
+                                        "out_of_range", "uneven_light"}  # fmt: skip
     # each reason named for a legend, with what it covers ("hole" is anything as black as the background)
     assert set(body["missing_reasons"]) == set(body["missing_mm2"])
     assert "punch" in body["missing_reasons"]["hole"]["label"] and body["missing_reasons"]["hole"]["description"]

@@ -12,7 +12,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from fringelab.science.camera import project_points
 from fringelab.science.fields import field_peak
+from fringelab.science.fringes import UNUSABLE_BLOCK_PX, UNUSABLE_UNEVEN_LIGHT
 from fringelab.science.topography import (
     FrameMeasurement,
     grid_for_first_frame,
@@ -106,7 +108,7 @@ def test_no_edge_identity_lost_before_perforation(measured) -> None:
         inside = _in_region(experiment, previous, margin_mm=SLIDE_PER_FRAME_MM)
         was = set(zip(previous.k[inside].tolist(), previous.line[inside].tolist(), strict=True))
         now = set(zip(current.k.tolist(), current.line.tolist(), strict=True))
-        lost = was - now
+        lost = was - now - _refused_for_uneven_light(experiment, previous, frame, was - now)
         assert not lost, f"{experiment.preset.name}: frame {frame}: {len(lost)} tracks ended in the evaluation region"
     assert len(first.k) > 10_000
 
@@ -150,6 +152,29 @@ def test_peak_deflection_follows_the_punch(measured) -> None:
     centre = np.array([(p.centre_x_mm, p.centre_y_mm) for p in peaks if p.w_mm > 5.0])
     # The centroid of the dome finds the punch axis to a fraction of a mm.
     np.testing.assert_allclose(np.median(centre, axis=0), experiment.preset.scene.centre_xy_mm, atol=0.3)
+
+
+def _refused_for_uneven_light(
+    experiment: RenderedExperiment, previous: FrameMeasurement, frame: int, ended: set[tuple[int, int]]
+) -> set[tuple[int, int]]:
+    """The ended tracks whose edge the frame refused, saying why: uneven light (`UNUSABLE_UNEVEN_LIGHT` within a
+    block of where the track was). At high deflection the punch's own shadow has a blurred rim beside the region
+    (edges there were up to 1 mm off before the refusal, issue 29); a refused edge is a point not measured, with its
+    reason, not an identity lost."""
+    edges = experiment.test_edges[frame]
+    if not ended or edges.unusable is None:
+        return set()
+    keys = list(zip(previous.k.tolist(), previous.line.tolist(), strict=True))
+    where = {key: i for i, key in enumerate(keys) if key in ended}
+    q_px = project_points(experiment.preset.camera, previous.points_obj_mm[list(where.values())])
+    refused = set()
+    for key, (u, v) in zip(where, q_px, strict=True):
+        line, t = (v, u) if edges.axis == "rows" else (u, v)
+        rows = slice(max(int(line) // UNUSABLE_BLOCK_PX - 1, 0), int(line) // UNUSABLE_BLOCK_PX + 2)
+        cols = slice(max(int(t) // UNUSABLE_BLOCK_PX - 1, 0), int(t) // UNUSABLE_BLOCK_PX + 2)
+        if np.any(edges.unusable[rows, cols] == UNUSABLE_UNEVEN_LIGHT):
+            refused.add(key)
+    return refused
 
 
 def _in_region(experiment: RenderedExperiment, measurement: FrameMeasurement, *, margin_mm: float = 0.0) -> np.ndarray:

@@ -1,0 +1,155 @@
+"""Edges under light that changes: soft partial shadows and uneven illumination (issue 29, docs/method.md §5).
+
+The mid-level follows light that changes linearly along a scan line; where the light bends within a period (a soft
+shadow's rim) a transition is refused as "uneven light" rather than misplaced. Lean renders: straight stripes of
+96 × 256 px, and the virtual Kodak test (512 × 480, one sample per pixel, the harder imaging of the "dim" scenario)
+with soft shadows of several sizes, places, strengths (stripes at 20–50 %) and rims.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy import special
+
+from fringelab.science.fringes import UNUSABLE_UNEVEN_LIGHT, EdgeSettings, FrameEdges, locate_edges
+from fringelab.science.projector import build_projector_calibration, exact_camera_model
+from fringelab.science.topography import TopographySettings, reference_for, track_and_measure
+from fringelab.science.virtual_test import (
+    DOME_SHADOWS,
+    FringeRenderer,
+    PlateState,
+    SoftShadow,
+    harder_imaging,
+    preset,
+    render_straight_stripes,
+    true_deflection_mm,
+)
+
+PERIOD_PX = 10.0
+# The refusal of uneven light as measured (docs/method.md §5); not yet the edge settings' default.
+UNEVEN = 0.05
+PHASE_PX = 0.3
+RIM_AT_PX = 128.3
+
+
+def stripes_under(light: np.ndarray, *, seed: int) -> np.ndarray:
+    """Vertical stripes (period 10 px, dark at 15 % of bright) under `light` (W,) along the rows, σ = 1 noise."""
+    rng = np.random.default_rng(seed)
+    stripes = render_straight_stripes(
+        (96, 256), period_px=PERIOD_PX, angle_deg=0.0, phase_px=PHASE_PX, rng=rng, noise_grey=0.0, dark_grey=30.0,
+        bright_grey=200.0, uneven_illumination=False,
+    )  # fmt: skip
+    return (stripes * light[None, :] + rng.normal(0.0, 1.0, stripes.shape)).astype(np.float32)
+
+
+def edge_errors_px(edges: FrameEdges) -> np.ndarray:
+    """Each edge's distance from the nearest true edge (edges every half period from the phase)."""
+    x = edges.t_px.astype(np.float64) - PHASE_PX
+    half = 0.5 * PERIOD_PX
+    return (x / half - np.round(x / half)) * half
+
+
+def soft_rim(width_px: float, *, shadow: float = 0.4) -> np.ndarray:
+    """Light along a row: `shadow` left of the rim, full right of it, a 10–90 % rim `width_px` wide."""
+    u = np.arange(256.0)
+    return shadow + (1.0 - shadow) * special.ndtr((u - RIM_AT_PX) * 2.563 / width_px)
+
+
+def test_light_that_changes_along_the_lines_moves_no_edge_and_refuses_none() -> None:
+    # From 40 % to full light across the frame: the mid-level follows it, so every edge stays where it is (the
+    # 0.06 px are the noise's: σ = 1 grey level on a ~50 grey/px slope, smoothed along the edge).
+    edges = locate_edges(stripes_under(0.4 + 0.6 * np.arange(256.0) / 255.0, seed=1),
+                         EdgeSettings(axis="rows", period_px=PERIOD_PX, max_uneven_light_fraction=UNEVEN))  # fmt: skip
+    assert np.max(np.abs(edge_errors_px(edges))) < 0.08
+    assert not np.any(edges.unusable == UNUSABLE_UNEVEN_LIGHT)
+    assert len(edges) == 50 * 90  # every edge of every line (3 lines at either end are the smoothing's margin)
+
+
+@pytest.mark.parametrize("rim_px", [6.0, 12.0])
+def test_a_soft_rim_along_the_stripes_is_refused_as_uneven_light_not_misplaced(rim_px: float) -> None:
+    # The hardest case: a shadow's rim running along the stripes dims one side of them, so an edge beside it
+    # cannot tell the rim from the stripe. Without the refusal edges there are 0.16-0.36 px off.
+    image = stripes_under(soft_rim(rim_px), seed=2)
+    settings = EdgeSettings(axis="rows", period_px=PERIOD_PX, max_uneven_light_fraction=UNEVEN)
+    unrefused = locate_edges(image, replace(settings, max_uneven_light_fraction=0.0))
+    assert np.max(np.abs(edge_errors_px(unrefused))) > 0.12
+    edges = locate_edges(image, settings)
+    assert np.max(np.abs(edge_errors_px(edges))) < 0.08
+    # What is refused is said, where the rim is (its blocks within 2.5 periods of it) and nowhere else.
+    assert len(edges) < len(unrefused)
+    blocks = np.nonzero(edges.unusable == UNUSABLE_UNEVEN_LIGHT)[1]
+    assert len(blocks) > 0
+    assert np.all(np.abs((blocks + 0.5) * 4 - RIM_AT_PX) < 2.5 * PERIOD_PX + 4)
+
+
+# Soft shadows of the punch and its holder over the dome (from the plate centre): the issue's three
+# (`DOME_SHADOWS`: 30, 50, 20 %, rims 8, 20, 5 mm), a long thin one nearly along the stripes (the hardest: 30 %,
+# rim 5 mm), a wide deep one with a sharp rim (20 %, 4 mm) and one turned across the stripes (35 %, 6 mm).
+SHADOW_SETS = {
+    "dome": DOME_SHADOWS,
+    "along the stripes": (SoftShadow((0.0, -10.0), (60.0, 8.0), 0.3, 5.0, 80.0),),
+    "wide and deep": (SoftShadow((-40.0, -30.0), (45.0, 30.0), 0.2, 4.0, -15.0),),
+    "across": (SoftShadow((-20.0, 10.0), (25.0, 18.0), 0.35, 6.0, 60.0),),
+}
+DEFLECTIONS_MM = (25.0, 55.0)
+# The requirement of issue 29: no point kept as measured more than 1 mm from the truth (4.9 mm before the
+# mid-level followed the light; 0.75 mm is the worst seen over 18 such frames since).
+LIMIT_MM = 1.0
+
+
+@pytest.fixture(scope="module")
+def shadowed() -> dict[str, object]:
+    setup = preset("kodak", imaging=harder_imaging(supersample=1))
+    setup = replace(setup, scene=replace(setup.scene, room_light=0.03))
+    renderer = FringeRenderer(setup)
+    rng = np.random.default_rng(29)
+    z_mm = np.arange(0.0, 80.0 + 1e-9, 4.0)
+    camera = exact_camera_model(setup.camera)
+    projector = build_projector_calibration([renderer.render_flat(z, rng=rng) for z in z_mm], z_mm, camera)
+    settings = replace(projector.edges, max_uneven_light_fraction=UNEVEN)
+    reference = reference_for(locate_edges(renderer.render_test(PlateState(0.0), rng=rng), settings),
+                              projector, camera, TopographySettings())  # fmt: skip
+    frames = []
+    for name, shadows in SHADOW_SETS.items():
+        scene = replace(setup.scene, soft_shadows=shadows)
+        shaded = FringeRenderer(replace(setup, scene=scene))
+        for w0 in DEFLECTIONS_MM:
+            frames.append((name, scene, PlateState(w0), shaded.render_test(PlateState(w0), rng=rng)))
+    return {"projector": projector, "camera": camera, "reference": reference, "frames": frames}
+
+
+def measured_errors(shadowed: dict[str, object], settings: EdgeSettings):  # type: ignore[no-untyped-def]
+    """Per frame: its name, the true error of every point kept as measured, the light at each, its coverage."""
+    projector, camera, reference = shadowed["projector"], shadowed["camera"], shadowed["reference"]
+    for name, scene, state, frame in shadowed["frames"]:  # type: ignore[attr-defined]
+        edges = locate_edges(frame, settings)
+        measurement = next(track_and_measure([edges], projector, camera, reference=reference))  # type: ignore[arg-type]
+        points = measurement.points_obj_mm[np.isfinite(measurement.points_obj_mm[:, 2])]
+        error = points[:, 2] - true_deflection_mm(scene, state, points[:, 0], points[:, 1])
+        light = np.ones(len(points))
+        for shadow in scene.soft_shadows:
+            light *= shadow.light(points[:, 0] - scene.centre_xy_mm[0], points[:, 1] - scene.centre_xy_mm[1])
+        yield f"{name}, w0 {state.w0_mm:g} mm", error, light, measurement.coverage
+
+
+def test_soft_shadows_leave_no_point_more_than_1_mm_off_and_say_what_they_mask(shadowed) -> None:  # type: ignore[no-untyped-def]
+    uneven_mm2 = 0.0
+    in_shadow = 0
+    settings = replace(shadowed["projector"].edges, max_uneven_light_fraction=UNEVEN)
+    for name, error, light, coverage in measured_errors(shadowed, settings):
+        assert np.max(np.abs(error)) < LIMIT_MM, f"{name}: a point {np.max(np.abs(error)):.2f} mm off"
+        uneven_mm2 += coverage.missing_mm2["uneven_light"]
+        in_shadow += int(np.count_nonzero(light < 0.6))
+    # The rims are masked with their reason, and the stripes inside the shadows are still measured.
+    assert uneven_mm2 > 500.0
+    assert in_shadow > 500  # 893 seen
+
+
+def test_without_the_refusal_the_same_shadows_make_wrong_points(shadowed) -> None:  # type: ignore[no-untyped-def]
+    # The frames above are hard enough: with the mid-level's check off, points at the rims are over 1 mm off.
+    settings = replace(shadowed["projector"].edges, max_uneven_light_fraction=0.0)
+    worst = max(float(np.max(np.abs(error))) for _, error, _, _ in measured_errors(shadowed, settings))
+    assert worst > LIMIT_MM
