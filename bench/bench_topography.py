@@ -8,6 +8,8 @@ Reports, for the virtual test at 512 × 480 (kodak) and 1024 × 1024 (phantom):
   what is missing, table lookup, back-projection) per frame;
 - edges+order+Z+XY: both, the figure the targets are about (≥ 100 frames/s/core at 512 × 480, ≥ 25 at
   1024 × 1024);
+- the shares of σ_w² (mean over the frames): the edges' own σ, the projector table's fit, and what the frames'
+  checks across edges added (`uncertainty.budget_shares`; the camera is exact here, so it has no term);
 - gridding: `topography.grid_measurement` per frame (2 mm grid);
 - peak memory (tracemalloc, all numpy buffers included) of `topography_recording` over PNG recordings of
   increasing length, read lazily: it must not grow with the frame count;
@@ -34,7 +36,7 @@ import numpy as np  # noqa: E402
 from fringelab.formats.recordings import open_recording, write_recording  # noqa: E402
 from fringelab.pipelines.topography import topography_recording  # noqa: E402
 from fringelab.science.fringes import EdgeSettings, locate_edges  # noqa: E402
-from fringelab.science.projector import build_projector_calibration, exact_camera_model  # noqa: E402
+from fringelab.science.projector import TABLE_SIGMA_Z, build_projector_calibration, exact_camera_model  # noqa: E402
 from fringelab.science.topography import (  # noqa: E402
     TopographySettings,
     grid_for_first_frame,
@@ -42,6 +44,7 @@ from fringelab.science.topography import (  # noqa: E402
     reference_for,
     track_and_measure,
 )
+from fringelab.science.uncertainty import budget_shares  # noqa: E402
 from fringelab.science.virtual_test import (  # noqa: E402
     FringeRenderer,
     Imaging,
@@ -82,6 +85,11 @@ def speed(name: str, n_frames: int) -> dict[str, float]:
         3, lambda: [grid_measurement(m, projector, grid, max_edge_mm=max_edge_mm) for m in measurements]
     )
     n_points = np.mean([len(m.k) for m in measurements])
+    shares = [
+        budget_shares(m.sigma_z_mm, projector.lookup_table[m.line, m.k, TABLE_SIGMA_Z], m.sigma_scale)
+        for m in measurements
+        if m.sigma_z_mm is not None
+    ]
     return {
         "edges": n_frames / edge_time,
         "order+Z+XY": n_frames / track_time,
@@ -89,6 +97,7 @@ def speed(name: str, n_frames: int) -> dict[str, float]:
         "gridding": n_frames / grid_time,
         "points per frame": float(n_points),
         "grid nodes": float(grid.shape[0] * grid.shape[1]),
+        **{f"σ_w² share {term} %": 100.0 * float(np.mean([f[term] for f in shares])) for term in shares[0]},
     }
 
 

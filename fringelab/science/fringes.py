@@ -34,6 +34,11 @@ AXIS_CHOICES = ("auto", "rows", "cols")
 # sub-pixel accuracy, coarser ones would not fit several periods into the window that sets the mid-level.
 MIN_PERIOD_PX = 3.0
 MAX_PERIOD_PX = 80.0
+# A detected period is confirmed by the transitions themselves: the spacing of neighbouring same-polarity mid-level
+# crossings must agree with it to this fraction (a harmonic or the lit area's envelope is off by 50 % or more),
+# from at least this many spacings.
+PERIOD_AGREEMENT = 0.2
+MIN_PERIOD_SPACINGS = 16
 # Below this coherence of the structure tensor (1 = one gradient direction, 0 = isotropic) there is no stripe
 # pattern to speak of: noise, a chessboard or an empty frame.
 MIN_COHERENCE = 0.3
@@ -278,27 +283,88 @@ def detect_stripes(image: np.ndarray, *, axis: str = "auto") -> StripeGeometry:
 
 
 def _period_along_lines(scan: np.ndarray) -> float | None:
-    """Stripe period (px) from the mean power spectrum of every 4th scan line, or None without a clear peak."""
-    lines = scan[:: max(1, scan.shape[0] // 128)].astype(np.float64)
-    lines = lines - lines.mean(axis=1, keepdims=True)
+    """Stripe period (px) along the scan lines, or None when no period is both a clear peak of the spectrum and the
+    spacing of the stripes' own transitions.
+
+    Candidates are the peaks of the mean power spectrum of up to 128 scan lines that stand well above the spectrum
+    around them (noise alone does not), strongest first. A dim pattern of fine stripes inside a small lit area has
+    its strongest peak at the lit area's envelope, and a square wave has peaks at its odd harmonics: so each
+    candidate is checked against the spacing of the mid-level crossings it gives (`_crossing_period`), and where
+    the crossings say another period (a multiple or a fraction of the candidate), the spectral peak there is
+    checked next. The first candidate its crossings agree with (within PERIOD_AGREEMENT) is the period.
+    """
+    lines = np.ascontiguousarray(scan[:: max(1, scan.shape[0] // 128)], np.float32)
+    centred = lines.astype(np.float64) - lines.mean(axis=1, keepdims=True)
     n = lines.shape[1]
-    power = np.mean(np.abs(np.fft.rfft(lines * np.hanning(n), axis=1)) ** 2, axis=0)
+    power = np.mean(np.abs(np.fft.rfft(centred * np.hanning(n), axis=1)) ** 2, axis=0)
     freqs = np.fft.rfftfreq(n)
-    band = (freqs >= 1.0 / MAX_PERIOD_PX) & (freqs <= 1.0 / MIN_PERIOD_PX)
-    if not np.any(band) or not np.any(power[band] > 0):
+    in_band = (freqs >= 1.0 / MAX_PERIOD_PX) & (freqs <= 1.0 / MIN_PERIOD_PX)
+    band = np.flatnonzero(in_band)
+    if len(band) == 0 or not np.any(power[band] > 0):
         return None
-    idx = int(np.flatnonzero(band)[np.argmax(power[band])])
-    # A stripe peak stands well above the spectrum around it; noise alone does not.
-    if power[idx] < 8.0 * np.median(power[band]):
-        return None
+    floor = 8.0 * float(np.median(power[band]))
+    padded = np.r_[0.0, power, 0.0]
+    is_peak = (power >= padded[:-2]) & (power >= padded[2:]) & (power >= floor) & in_band
+    candidates = [int(i) for i in np.flatnonzero(is_peak)[np.argsort(-power[is_peak], kind="stable")][:4]]
+    checked: set[int] = set()
+    while candidates and len(checked) < 6:
+        idx = candidates.pop(0)
+        if idx in checked:
+            continue
+        checked.add(idx)
+        period_px = _refined_period(power, idx, n)
+        crossing_period_px = _crossing_period(lines, period_px)
+        if crossing_period_px is None:
+            continue
+        if abs(crossing_period_px / period_px - 1.0) <= PERIOD_AGREEMENT:
+            return period_px
+        # The transitions are spaced otherwise: a harmonic or the envelope. Look at the spectrum where they say.
+        near = np.flatnonzero(in_band & (np.abs(freqs * crossing_period_px - 1.0) <= PERIOD_AGREEMENT))
+        if len(near) and power[near].max() >= floor:
+            candidates.insert(0, int(near[np.argmax(power[near])]))
+    return None
+
+
+def _refined_period(power: np.ndarray, idx: int, n: int) -> float:
+    """The period (px) of a peak of a power spectrum of n-sample lines at bin idx, refined to a fraction of a bin
+    by a parabola through the log power of the bin and its neighbours."""
     if 0 < idx < len(power) - 1:
         a, b, c = np.log(power[idx - 1 : idx + 2] + 1e-30)
         denom = a - 2 * b + c
         offset = 0.5 * (a - c) / denom if denom < 0 else 0.0
     else:
         offset = 0.0
-    frequency = (idx + float(np.clip(offset, -0.5, 0.5))) / n
-    return float(1.0 / frequency)
+    return float(n / (idx + float(np.clip(offset, -0.5, 0.5))))
+
+
+def _crossing_period(lines: np.ndarray, period_px: float) -> float | None:
+    """The median spacing (px) of neighbouring same-polarity mid-level crossings of `lines` (S, T) float32 when the
+    mid-level is set over 1.5 × period_px, or None when fewer than MIN_PERIOD_SPACINGS are seen.
+
+    Only strong transitions count: where the window's contrast is at least half the largest within 1.5 periods
+    either way (a window narrower than a stripe, a harmonic's, sees noise in the middle of the stripe) and above
+    the noise of a dark background (0.15 of the frame's 99th percentile of contrast), and pairs
+    of crossings closer than an eighth of the period (noise on one slow transition) are dropped. The window of a
+    sub-harmonic still spans both levels, so its crossings are the stripes' own: a candidate is only confirmed
+    by crossings at its own spacing.
+    """
+    window = _odd(1.5 * period_px)
+    kernel = np.ones((1, window), np.uint8)
+    high, low = cv2.dilate(lines, kernel), cv2.erode(lines, kernel)
+    contrast = high - low
+    floor = max(2.0, 0.15 * float(np.percentile(contrast, 99)))
+    strong = (contrast >= 0.5 * cv2.dilate(contrast, np.ones((1, _odd(3.0 * period_px)), np.uint8))) & (
+        contrast >= floor
+    )
+    above = lines > 0.5 * (high + low)
+    line, j = np.nonzero((above[:, 1:] != above[:, :-1]) & strong[:, 1:] & strong[:, :-1])
+    keep = _without_glitches(line, j.astype(np.float64), min_gap_px=0.125 * period_px)
+    line, j = line[keep], j[keep]
+    triple = line[2:] == line[:-2]
+    spacing = (j[2:] - j[:-2])[triple]
+    if len(spacing) < MIN_PERIOD_SPACINGS:
+        return None
+    return float(np.median(spacing))
 
 
 def _odd(value: float) -> int:
@@ -482,7 +548,7 @@ def _edge_sigma(
 
 
 # Weight, in edge points, of the frame's own noise level against an edge's local one (`_edge_sigma`).
-FRAME_NOISE_WEIGHT_POINTS = 8.0
+FRAME_NOISE_WEIGHT_POINTS = 20.0
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -546,7 +612,7 @@ def _edge_sigma_kernel(
             cum_pred[q + 1] = cum_pred[q] + (model[p] * residual[b, a]) ** 2
             cum_model[q + 1] = cum_model[q] + model[p] * model[p]
     frame_noise2 = cum_res[n] / cum_pred[n] if cum_pred[n] > 0 else np.nan
-    reach = 2 * half
+    reach = 3 * half
     for c in range(n_chains):
         lo, hi = first[c], first[c + 1]
         for q in range(lo, hi):

@@ -68,7 +68,7 @@ from .projector import (
     camera_fingerprint,
     table_z_at,
 )
-from .uncertainty import edge_sigmas_px, point_sigma_z_mm, sigma_edge_halves, sigma_from_halves
+from .uncertainty import edge_sigmas_px, point_sigma_z_mm, scale_from_ratios, sigma_edge_halves, sigma_from_halves
 
 # The first test frame is the reference the order is anchored on (kept under its old name).
 FirstFrameNotFlatError = ReferenceNotFlatError
@@ -95,6 +95,9 @@ class TopographySettings:
     grid_margin_mm: margin of the grid around the first frame's points.
     punch_radius_mm: radius of the punch; a frame's peak counts as measured only where the surface is measured on
         all sides of the maximum over at least this (`peaks.peak_measurement`).
+    max_edge_sigma_px: edge points whose σ (`FrameEdges.sigma_px`, px along the scan line) exceeds this are not
+        measured, missing as "low contrast" (faint, blurred or noisy stripes, or uneven light in the window):
+        0.25 px is 0.4 mm of Z at the Kodak set-up's 0.6 px/mm. None keeps every point.
     """
 
     max_jump_fraction: float = 0.3
@@ -105,6 +108,7 @@ class TopographySettings:
     grid_margin_mm: float = 4.0
     punch_radius_mm: float = PUNCH_RADIUS_MM
     order: OrderSettings = field(default_factory=OrderSettings)
+    max_edge_sigma_px: float | None = 0.25
 
     def __post_init__(self) -> None:
         if not 0 < self.max_jump_fraction < 0.5:
@@ -115,6 +119,8 @@ class TopographySettings:
             raise ValueError(f"grid_step_mm: expected > 0, got {self.grid_step_mm}")
         if not self.punch_radius_mm > 0:
             raise ValueError(f"punch_radius_mm: expected > 0, got {self.punch_radius_mm}")
+        if self.max_edge_sigma_px is not None and not self.max_edge_sigma_px > 0:
+            raise ValueError(f"max_edge_sigma_px: expected > 0 or None, got {self.max_edge_sigma_px}")
         if self.grid_max_edge_mm is not None and not self.grid_max_edge_mm > 0:
             raise ValueError(f"grid_max_edge_mm: expected > 0 or None, got {self.grid_max_edge_mm}")
 
@@ -134,6 +140,8 @@ class FrameMeasurement:
     is missing by reason (None for measurements stored without it). sigma_z_mm: (N,) σ of each
     point's Z from the edge noise and the projector table (`uncertainty.point_sigma_z_mm`), None where not
     computed. temporal: the cross-check against the frame before (`TemporalCrossCheck`), None where not made.
+    sigma_scale: the factor (≥ 1) the frame's check across edges multiplied sigma_z_mm by
+    (`uncertainty.cross_edge_scale`); 1 where not checked.
     """
 
     frame: int
@@ -151,6 +159,7 @@ class FrameMeasurement:
     coverage: FrameCoverage | None = None
     sigma_z_mm: np.ndarray | None = None
     temporal: TemporalCheck | None = None
+    sigma_scale: float = 1.0
 
     def dense(self, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """X, Y, Z as (K, S) arrays over (edge, line), NaN where not measured."""
@@ -370,6 +379,10 @@ def order_positions(
         frame_order.k[ordered], edges.line[ordered].astype(np.int64),
         edge_sigmas_px(edges, projector.edges)[ordered], (projector.n_edges, projector.n_lines),
     )  # fmt: skip
+    if settings.max_edge_sigma_px is not None:
+        # Too unsure to measure: missing, and `frame_coverage` counts it as low contrast (no reason of its own).
+        with np.errstate(invalid="ignore"):
+            positions[sigma_px > settings.max_edge_sigma_px] = np.nan
     n_ordered = int(np.count_nonzero(np.isfinite(positions)))
     counts = {
         "n_tracks": n_ordered,
@@ -684,6 +697,9 @@ def _measure(
     sigma_z = point_sigma_z_mm(
         sensitivity_px_per_mm=entries[:, 0], table_sigma_z_mm=entries[:, 1], edge_sigma_px=sigma_px[kk, ll],
     )  # fmt: skip
+    # The frame's own check of σ across neighbouring edges (`uncertainty.cross_edge_scale`).
+    sigma_scale = scale_from_ratios(_fourth_difference_ratios(kk, ll, z, sigma_z))
+    sigma_z = sigma_z * sigma_scale
     return FrameMeasurement(
         frame=int(frame),
         k=kk.astype(np.int32),
@@ -699,7 +715,27 @@ def _measure(
         n_order_conflicts=int(counts["n_order_conflicts"]),
         coverage=coverage,
         sigma_z_mm=sigma_z,
+        sigma_scale=sigma_scale,
     )
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _fourth_difference_ratios(kk: np.ndarray, ll: np.ndarray, z: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """d²/Σc²σ² of every fourth difference of five neighbouring edges (k … k + 4) on a scan line
+    (`uncertainty.cross_edge_scale`), from the points (N,) sorted by (line, k) as `_looked_up_points` gives them."""
+    n = len(kk)
+    out = np.empty(max(n - 4, 0))
+    m = 0
+    for i in range(n - 4):
+        if ll[i + 4] != ll[i] or kk[i + 4] - kk[i] != 4:
+            continue  # not five consecutive edges of one line
+        d = z[i] - 4.0 * z[i + 1] + 6.0 * z[i + 2] - 4.0 * z[i + 3] + z[i + 4]
+        predicted = (sigma[i] ** 2 + 16.0 * sigma[i + 1] ** 2 + 36.0 * sigma[i + 2] ** 2 + 16.0 * sigma[i + 3] ** 2
+                     + sigma[i + 4] ** 2)  # fmt: skip
+        if np.isfinite(d) and predicted > 0:
+            out[m] = d * d / predicted
+            m += 1
+    return out[:m]
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")

@@ -67,6 +67,60 @@ def point_sigma_z_mm(
     return np.hypot(edge, table_sigma_z_mm)
 
 
+# The fourth difference across edges, (1, −4, 6, −4, 1): Σc² = 70 times an edge's variance for independent edges.
+_FOURTH_DIFFERENCE = np.array([1.0, -4.0, 6.0, -4.0, 1.0])
+# Median of χ² with one degree of freedom: the median of (d/σ_d)² for a normal d.
+_CHI2_1_MEDIAN = 0.45494
+# Fewer fourth differences than this in a frame do not check its σ (the scale is then 1).
+MIN_CROSS_EDGE_CHECKS = 200
+
+
+def cross_edge_scale(z_mm: np.ndarray, sigma_z_mm: np.ndarray) -> float:
+    """How much larger than their σ the frame's errors that differ from edge to edge are, ≥ 1: the factor its
+    points' σ_Z are multiplied by (docs/method.md §7, "Error budget").
+
+    z_mm, sigma_z_mm: (K, S) heights and σ of the points by (edge, line), NaN where none. On a scan line, the
+    fourth difference of five neighbouring edges' heights, Z_k−2 − 4Z_k−1 + 6Z_k − 4Z_k+1 + Z_k+2, cancels any
+    surface of up to third order over the ~4 stripes it spans (a membrane's dome leaves well under its noise) and
+    keeps what each edge gets wrong on its own, with the variance Σ c²σ² if the σ are right. The errors along an
+    edge that no residual along it shows (a bias that stays along the edge: pixel locking, a mid-level off in
+    the test but not in the calibration, a blur another lens makes) appear here, since they differ from edge to
+    edge. The factor is √(median of d²/Σc²σ² / 0.455) (the median of χ²₁: robust to the few steps at the punch
+    and the hole), never below 1 (σ that errs large is left as it is).
+    """
+    z = np.asarray(z_mm, np.float64)
+    variance = np.asarray(sigma_z_mm, np.float64) ** 2
+    if z.shape[0] < 5:
+        return 1.0
+    n = z.shape[0] - 4
+    d4 = sum(c * z[i : i + n] for i, c in enumerate(_FOURTH_DIFFERENCE))
+    predicted = sum(c * c * variance[i : i + n] for i, c in enumerate(_FOURTH_DIFFERENCE))
+    ok = np.isfinite(d4) & (predicted > 0)
+    return scale_from_ratios(d4[ok] ** 2 / predicted[ok])
+
+
+def scale_from_ratios(ratios: np.ndarray) -> float:
+    """`cross_edge_scale` from its ratios d²/Σc²σ² (one per fourth difference, any order): √(median / 0.455),
+    at least 1, and 1 for fewer than MIN_CROSS_EDGE_CHECKS of them."""
+    if len(ratios) < MIN_CROSS_EDGE_CHECKS:
+        return 1.0
+    return max(1.0, float(np.sqrt(np.median(ratios) / _CHI2_1_MEDIAN)))
+
+
+def budget_shares(sigma_z_mm: np.ndarray, table_sigma_z_mm: np.ndarray, sigma_scale: float) -> dict[str, float]:
+    """Each term's share of a frame's mean σ_Z² (points (N,), the final σ and the table's): "edge" (the edges' own
+    σ through the sensitivity), "table" (the table's fit) and "across edges" (what the frame's check across edges
+    added, 1 − 1/scale²); they sum to 1."""
+    total = np.asarray(sigma_z_mm, np.float64) ** 2
+    table = (np.asarray(table_sigma_z_mm, np.float64) * sigma_scale) ** 2
+    ok = np.isfinite(total) & np.isfinite(table)
+    if not np.any(ok) or not np.sum(total[ok]) > 0:
+        return {"edge": float("nan"), "table": float("nan"), "across edges": float("nan")}
+    table_share = float(np.sum(table[ok]) / np.sum(total[ok]))
+    across = 1.0 - 1.0 / sigma_scale**2
+    return {"edge": 1.0 - across - table_share, "table": table_share, "across edges": across}
+
+
 def grid_sigma_mm(
     x_mm: np.ndarray, y_mm: np.ndarray, sigma_mm: np.ndarray, grid: Grid, *, max_edge_mm: float
 ) -> np.ndarray:

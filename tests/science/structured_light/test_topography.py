@@ -95,15 +95,37 @@ def test_edges_stored_before_the_per_edge_sigma_read_with_the_frames_sigma(
     new_measured = measure_frame(edges[0], reference, kodak.projector, kodak.camera, frame=3)
     old_measured = measure_frame(old, reference, kodak.projector, kodak.camera, frame=3)
     np.testing.assert_array_equal(old_measured.points_obj_mm, new_measured.points_obj_mm)
-    # Old edges: every point's edge term is the frame's σ (`uncertainty.edge_sigma_px`).
+    # Old edges: every point's edge term is the frame's σ (`uncertainty.edge_sigma_px`), then the frame's check
+    # across edges scales every σ alike.
     frame_sigma = edge_sigma_px(old.noise_px, kodak.projector.edges)
     expected = point_sigma_z_mm(
         sensitivity_px_per_mm=_sensitivities(old_measured, kodak),
         table_sigma_z_mm=_table_sigmas(old_measured, kodak),
         edge_sigma_px=frame_sigma,
     )
-    np.testing.assert_allclose(old_measured.sigma_z_mm, expected, rtol=1e-12)
+    assert old_measured.sigma_scale >= 1.0
+    np.testing.assert_allclose(old_measured.sigma_z_mm, expected * old_measured.sigma_scale, rtol=1e-12)
     assert not np.allclose(new_measured.sigma_z_mm, old_measured.sigma_z_mm)
+
+
+def test_points_whose_edge_sigma_exceeds_the_setting_are_missing_as_low_contrast(kodak: RenderedExperiment) -> None:
+    (edges,) = locate_test_edges(kodak.test_frames[5:6], kodak.projector)
+    assert edges.sigma_px is not None
+    reference = reference_for(kodak.test_edges[0], kodak.projector, kodak.camera, TopographySettings())
+    limit = float(np.quantile(edges.sigma_px, 0.7))  # about the least sure 30 % of the edge points
+    kept = measure_frame(edges, reference, kodak.projector, kodak.camera, frame=5)
+    settings = TopographySettings(max_edge_sigma_px=limit)
+    masked = measure_frame(edges, reference, kodak.projector, kodak.camera, frame=5, settings=settings)
+    assert 0.55 * len(kept.k) < len(masked.k) < 0.85 * len(kept.k)
+    assert kept.coverage is not None and masked.coverage is not None
+    lost_mm2 = kept.coverage.measured_area_mm2 - masked.coverage.measured_area_mm2
+    gained_mm2 = masked.coverage.missing_mm2["low_contrast"] - kept.coverage.missing_mm2["low_contrast"]
+    assert lost_mm2 > 0 and gained_mm2 == pytest.approx(lost_mm2, rel=0.1)
+    unlimited = measure_frame(edges, reference, kodak.projector, kodak.camera, frame=5,
+                              settings=TopographySettings(max_edge_sigma_px=None))  # fmt: skip
+    assert len(unlimited.k) == len(kept.k)  # the default (0.25 px) masks nothing on these clean frames
+    with pytest.raises(ValueError, match="max_edge_sigma_px"):
+        TopographySettings(max_edge_sigma_px=0.0)
 
 
 def _sensitivities(measured, kodak: RenderedExperiment) -> np.ndarray:  # type: ignore[no-untyped-def]

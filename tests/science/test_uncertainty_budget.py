@@ -1,0 +1,49 @@
+"""The frame's check of σ across edges and the budget's shares (`science.uncertainty`), on synthetic heights."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fringelab.science.uncertainty import MIN_CROSS_EDGE_CHECKS, budget_shares, cross_edge_scale
+
+
+def dome(n_edges: int = 40, n_lines: int = 300) -> np.ndarray:
+    """Heights (K, S) of a smooth dome sampled every 5 mm across edges: up to 60 mm, curving like the test's."""
+    x = np.linspace(-100.0, 100.0, n_edges)[:, None]
+    y = np.linspace(-150.0, 150.0, n_lines)[None, :]
+    return 60.0 * np.exp(-(x**2 + y**2) / (2 * 90.0**2))
+
+
+@pytest.mark.parametrize(("true_factor", "expected"), [(1.0, 1.0), (0.5, 1.0), (2.0, 2.0), (3.0, 3.0)])
+def test_the_scale_is_how_much_larger_the_errors_are_than_their_sigma(true_factor: float, expected: float) -> None:
+    rng = np.random.default_rng(1)
+    sigma = rng.uniform(0.02, 0.08, dome().shape)  # σ that varies from point to point, as each edge's does
+    z = dome() + true_factor * sigma * rng.standard_normal(sigma.shape)
+    # 36 · 296 fourth differences: the median's relative error is ~1 %; the dome leaves < 0.01 σ in them.
+    assert cross_edge_scale(z, sigma) == pytest.approx(expected, rel=0.04)
+
+
+def test_an_error_that_stays_along_an_edge_is_found_and_a_step_at_a_hole_is_not_counted() -> None:
+    rng = np.random.default_rng(2)
+    sigma = np.full(dome().shape, 0.03)
+    bias = 0.06 * rng.standard_normal((sigma.shape[0], 1))  # each edge off by its own constant (pixel locking)
+    z = dome() + sigma * rng.standard_normal(sigma.shape) + bias
+    z[18:22, 100:200] += 5.0  # a few big steps (the hole's rim): the median does not follow them
+    expected = np.sqrt(1.0 + (0.06 / 0.03) ** 2)
+    assert cross_edge_scale(z, sigma) == pytest.approx(expected, rel=0.25)
+
+
+def test_too_few_checks_or_missing_points_leave_sigma_as_it_is() -> None:
+    sigma = np.full((6, 10), 0.03)
+    z = np.random.default_rng(3).normal(0.0, 1.0, sigma.shape)  # 20 checks, each far off: not enough to judge
+    assert MIN_CROSS_EDGE_CHECKS > 2 * 10 and cross_edge_scale(z, sigma) == 1.0
+    assert cross_edge_scale(np.full((40, 300), np.nan), np.full((40, 300), 0.03)) == 1.0
+    assert cross_edge_scale(np.zeros((4, 300)), np.full((4, 300), 0.03)) == 1.0
+
+
+def test_the_shares_sum_to_one() -> None:
+    shares = budget_shares(np.full(10, 0.05), np.full(10, 0.02), 1.25)
+    assert sum(shares.values()) == pytest.approx(1.0)
+    assert shares["across edges"] == pytest.approx(1 - 1 / 1.25**2)
+    assert shares["table"] == pytest.approx((0.02 * 1.25) ** 2 / 0.05**2)
