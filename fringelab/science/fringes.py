@@ -29,6 +29,7 @@ from .smoothing import edge_smoothing_weights, smoothing_noise_tables
 
 Axis = Literal["rows", "cols"]
 AXIS_CHOICES = ("auto", "rows", "cols")
+MID_LEVEL_CHOICES = ("means", "envelopes")
 
 # Stripe periods outside this range (px along the scan line) are not "stripes": finer ones cannot be located to
 # sub-pixel accuracy, coarser ones would not fit several periods into the window that sets the mid-level.
@@ -112,6 +113,10 @@ class EdgeSettings:
     min_edge_length_lines: linked edges shorter than this (lines) are dropped as noise.
     max_link_step_px_per_line: largest change of t between neighbouring lines for two transitions to belong to one edge
         (1 px per line is a 45° edge).
+    mid_level: "means", the mean grey level over one and over two periods, averaged (follows light that changes
+        along the line; needs stripes of about `period_px`), or "envelopes", (I_max + I_min)/2 of the window's
+        envelopes (for Gray-code bit frames, whose stripes are wider than any period the locator takes and whose
+        neighbouring stripes differ in width, so a window of whole periods does not hold as much bright as dark).
     """
 
     axis: str = "auto"
@@ -125,6 +130,7 @@ class EdgeSettings:
     edge_smoothing_lines: float = 3.0
     min_edge_length_lines: int = 8
     max_link_step_px_per_line: float = 1.5
+    mid_level: str = "means"
 
     # Names these settings had in files written before they carried their units (still read).
     _FORMER_NAMES = {
@@ -160,6 +166,8 @@ class EdgeSettings:
             raise ValueError(f"max_link_step_px_per_line: expected > 0, got {self.max_link_step_px_per_line}")
         if self.min_edge_length_lines < 1:
             raise ValueError(f"min_edge_length_lines: expected ≥ 1, got {self.min_edge_length_lines}")
+        if self.mid_level not in MID_LEVEL_CHOICES:
+            raise ValueError(f"mid_level: expected one of {MID_LEVEL_CHOICES}, got {self.mid_level!r}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -440,7 +448,9 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     line_kernel = np.ones((1, window), np.uint8)
     local_max = cv2.dilate(scan, line_kernel)
     local_min = cv2.erode(np.where(dark_area, np.float32(4.0 * FULL_SCALE), scan), line_kernel)
-    mid, contrast = _mid_and_contrast(scan, local_max, local_min, dark_area, window, float(period_px))
+    mid, contrast = _mid_and_contrast(
+        scan, local_max, local_min, dark_area, window, float(period_px), settings.mid_level == "means"
+    )
 
     # Transitions within half a period of a dark area (along the lines; across them, within the reach of the
     # smoothing along the stripes, which mixes dark lines into their neighbours) are rejected: their stripe is cut.
@@ -631,7 +641,13 @@ def _edge_sigma_kernel(
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _mid_and_contrast(
-    scan: np.ndarray, local_max: np.ndarray, local_min: np.ndarray, dark_area: np.ndarray, window: int, period: float
+    scan: np.ndarray,
+    local_max: np.ndarray,
+    local_min: np.ndarray,
+    dark_area: np.ndarray,
+    window: int,
+    period: float,
+    from_means: bool,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The mid-level and the contrast along each scan line, each (S, T) float32 (NaN where the whole window is dark).
 
@@ -684,6 +700,8 @@ def _mid_and_contrast(
                 count -= 1.0
                 sum_max -= local_max[i, leaving]
                 sum_min -= local_min[i, leaving]
+        if not from_means:
+            continue
         grey_sum[0] = dark_sum[0] = 0.0
         for k in range(n_samples):
             grey_sum[k + 1] = grey_sum[k] + scan[i, k]
