@@ -191,9 +191,19 @@ def test_cli_virtual_test_then_measure(tmp_path: Path, capsys) -> None:
                 "-o", str(out / "projector.h5")) == 0  # fmt: skip
     assert _run("topography", str(out / "test"), "--camera", str(camera), "--projector", str(out / "projector.h5"),
                 "-o", str(out / "result.h5")) == 0  # fmt: skip
+    truth_w0_mm = np.array(
+        [frame["w0_mm"] for frame in json.loads((out / "truth" / "experiment.json").read_text())["frames"]]
+    )
     with TopographyResult(out / "result.h5") as result:
         peak = result.column("peak/w_mm")
-        assert result.n_frames == 40 and 57.0 < np.nanmax(peak) < 61.0
+        measured = result.column("peak/measured").astype(bool)
+    assert len(peak) == 40 and measured[:20].all()
+    # A measured peak is the gridded field's highest node against the dome's centre deflection: within 1.2 mm
+    # (0.92 mm measured); the measured frames reach 80 % of the deepest deflection (frame 25 of 40: 49.4 of 49.8 mm).
+    assert np.all(np.abs(peak[measured] - truth_w0_mm[measured]) < 1.2)
+    assert np.max(peak[measured]) > 0.8 * np.max(truth_w0_mm)
+    # Where the peak was not measured (the punch's shadow, the hole) the value is a lower bound, never above the truth.
+    assert np.all(peak[~measured] <= truth_w0_mm[~measured] + 0.2)
 
 
 def test_simulate_is_a_hidden_alias_of_virtual_test(capsys) -> None:
