@@ -561,6 +561,24 @@ def _edge_sigma(
 FRAME_NOISE_WEIGHT_POINTS = 20.0
 
 
+@numba.njit(cache=True, nogil=True)
+def _by_chain(chain: np.ndarray, n_chains: int) -> tuple[np.ndarray, np.ndarray]:
+    """Points grouped by chain (a counting sort): order (N,) lists chain c's points at order[first[c]:first[c + 1]],
+    first (n_chains + 1,); a chain's points keep their input order (line order, the input being sorted by line)."""
+    n = len(chain)
+    first = np.zeros(n_chains + 1, np.int64)
+    for i in range(n):
+        first[chain[i] + 1] += 1
+    for c in range(n_chains):
+        first[c + 1] += first[c]
+    order = np.empty(n, np.int64)
+    fill = first[:-1].copy()
+    for i in range(n):
+        order[fill[chain[i]]] = i
+        fill[chain[i]] += 1
+    return first, order
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _edge_sigma_kernel(
     scan: np.ndarray,
@@ -596,18 +614,8 @@ def _edge_sigma_kernel(
         uneven[p] = 0.5 * abs(departure) / slope if np.isfinite(departure) else 0.0
     if not smoothed:
         return
-    # Counting sort by chain: a chain's points stay in line order (the input is sorted by line).
     n_chains = chain.max() + 1
-    first = np.zeros(n_chains + 1, np.int64)
-    for p in range(n):
-        first[chain[p] + 1] += 1
-    for c in range(n_chains):
-        first[c + 1] += first[c]
-    order = np.empty(n, np.int64)
-    fill = first[:-1].copy()
-    for p in range(n):
-        order[fill[chain[p]]] = p
-        fill[chain[p]] += 1
+    first, order = _by_chain(chain, n_chains)
     # Prefix sums along the sorted order of: residual², the model's residual² for unit noise, the model².
     cum_res = np.zeros(n + 1)
     cum_pred = np.zeros(n + 1)
@@ -1112,17 +1120,7 @@ def _smooth_along_chains_kernel(
     n = len(t)
     half = len(gauss) // 2
     n_chains = chain.max() + 1
-    # Counting sort by chain: a chain's points stay in line order (the input is sorted by line).
-    first = np.zeros(n_chains + 1, np.int64)
-    for i in range(n):
-        first[chain[i] + 1] += 1
-    for c in range(n_chains):
-        first[c + 1] += first[c]
-    order = np.empty(n, np.int64)
-    fill = first[:-1].copy()
-    for i in range(n):
-        order[fill[chain[i]]] = i
-        fill[chain[i]] += 1
+    first, order = _by_chain(chain, n_chains)
     t_sorted = t[order]
     smoothed_sorted = np.empty(n)
     for c in range(n_chains):
@@ -1337,17 +1335,7 @@ def _curve_parts(
     least min_run consecutive unsure points; with, per part, its curve and whether it is such an unsure run.
     Parts of one curve are numbered consecutively along it."""
     n = len(chain)
-    # Counting sort by curve: a curve's points stay in line order (the input is sorted by line).
-    first = np.zeros(n_chains + 1, np.int64)
-    for i in range(n):
-        first[chain[i] + 1] += 1
-    for c in range(n_chains):
-        first[c + 1] += first[c]
-    order = np.empty(n, np.int64)
-    fill = first[:-1].copy()
-    for i in range(n):
-        order[fill[chain[i]]] = i
-        fill[chain[i]] += 1
+    first, order = _by_chain(chain, n_chains)
     part = np.empty(n, np.int64)
     part_chain = np.empty(n, np.int64)
     cut_run = np.zeros(n, np.bool_)
