@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from fringelab.commands.output import emit, fail, progress_bar
+from fringelab.commands.tables import write_projector_table
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -201,25 +202,15 @@ def register_table(subparsers: Any) -> None:
 def projector_table_command(args: argparse.Namespace) -> int:
     from fringelab.formats.camera import read_camera_json
     from fringelab.formats.procam import read_procam_calibration
-    from fringelab.formats.projector import write_projector_calibration
-    from fringelab.science import MeasurementError
     from fringelab.science.procam_table import StripePattern, projector_table_from_model
+    from fringelab.science.projector import ProjectorCalibration
 
-    try:
+    def build() -> ProjectorCalibration:
         pattern = StripePattern(args.stripe_axis, period_px=args.stripe_period_px, offset_px=args.stripe_offset_px)
-        table = projector_table_from_model(
+        return projector_table_from_model(
             read_procam_calibration(args.procam), read_camera_json(args.camera), pattern, args.z_mm,
             scan_axis=None if args.scan_axis == "auto" else args.scan_axis,
             provenance={"procam": Path(args.procam).name, "camera": Path(args.camera).name},
         )  # fmt: skip
-        write_projector_calibration(table, args.output)
-    except (ValueError, MeasurementError, OSError) as error:
-        return fail(args, error)
-    qa = table.qa
-    lines = [
-        f"{args.output}: {qa.n_edges} edges, {qa.n_entries} table entries over Z {qa.z_range_mm[0]:g}–"
-        f"{qa.z_range_mm[1]:g} mm; sensitivity {qa.sensitivity_px_per_mm[1]:.3f} px/mm (median), fit RMS "
-        f"{qa.fit_rms_mm:.2g} mm; scan along image {table.axis}, stripe period {table.period_px:.2f} px"
-    ]
-    return emit(args, {"path": args.output, "n_edges": qa.n_edges, "n_entries": qa.n_entries,
-                       "axis": table.axis, "period_px": table.period_px}, lines)  # fmt: skip
+
+    return write_projector_table(args, build)

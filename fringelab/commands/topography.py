@@ -10,6 +10,7 @@ import argparse
 from typing import Any
 
 from fringelab.commands.output import emit, fail, line_mm, progress_bar
+from fringelab.commands.tables import write_projector_table
 from fringelab.formats import EXPORT_FORMATS, SCAN_EXPORT_FORMATS
 
 
@@ -141,14 +142,12 @@ def register(subparsers: Any) -> None:
 
 def calibrate_projector_command(args: argparse.Namespace) -> int:
     from fringelab.formats.camera import read_camera_json
-    from fringelab.formats.projector import write_projector_calibration
     from fringelab.formats.recordings import open_recording
     from fringelab.pipelines.projector_calibration import calibrate_projector_recording
-    from fringelab.science import MeasurementError
     from fringelab.science.fringes import EdgeSettings
-    from fringelab.science.projector import ProjectorSettings
+    from fringelab.science.projector import ProjectorCalibration, ProjectorSettings
 
-    try:
+    def build() -> ProjectorCalibration:
         settings = ProjectorSettings(
             edges=EdgeSettings(axis=args.axis),
             reference_z_mm=args.reference_z,
@@ -156,22 +155,11 @@ def calibrate_projector_command(args: argparse.Namespace) -> int:
             min_z_samples=max(6, args.poly_degree + 2),
         )
         with progress_bar(args, "calibrate-projector") as progress:
-            calibration = calibrate_projector_recording(
+            return calibrate_projector_recording(
                 open_recording(args.recording), read_camera_json(args.camera), settings=settings, progress=progress
             )
-        write_projector_calibration(calibration, args.output)
-    except (ValueError, MeasurementError, OSError) as error:
-        return fail(args, error)
-    qa = calibration.qa
-    low, median, high = qa.sensitivity_px_per_mm
-    text = (
-        f"{args.output}: {qa.n_edges} edges over {calibration.n_lines} lines ({calibration.axis}), Z "
-        f"{qa.z_range_mm[0]:g} … {qa.z_range_mm[1]:g} mm in {len(calibration.z_mm)} steps; coverage "
-        f"{qa.coverage:.1%}; sensitivity {median:.3f} px/mm (5–95 %: {low:.3f}–{high:.3f}); fit RMS "
-        f"{qa.fit_rms_mm:.4f} mm; {qa.n_non_monotonic} non-monotonic, {qa.n_insensitive} insensitive entries left out"
-    )
-    result = {"path": args.output, "axis": calibration.axis, "n_lines": calibration.n_lines, "qa": qa}
-    return emit(args, result, [text])
+
+    return write_projector_table(args, build)
 
 
 def topography_command(args: argparse.Namespace) -> int:

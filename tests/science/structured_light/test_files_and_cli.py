@@ -160,7 +160,9 @@ def test_cli_calibrate_topography_export(kodak: RenderedExperiment, tmp_path: Pa
     assert (
         _run("calibrate-projector", str(calibration), "--camera", str(camera_json), "-o", str(tmp_path / "p.h5")) == 0
     )
-    assert "coverage" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert printed.startswith(f"{tmp_path / 'p.h5'}: ") and "Z 0 … 22 mm in 12 steps" in printed
+    assert "edges over" in printed and "stripe period" in printed  # the summary `projector-table` gives too
     argv = ["topography", str(test), "--camera", str(camera_json), "--projector", str(tmp_path / "p.h5")]
     assert _run(*argv, "-o", str(tmp_path / "r.h5"), "--frames", "2:5") == 0
     assert "frames 2–4" in capsys.readouterr().out

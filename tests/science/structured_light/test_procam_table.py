@@ -108,13 +108,21 @@ def test_projector_table_on_the_command_line(tmp_path, capsys) -> None:  # type:
     write_camera_json(true_camera_calibration(setup.camera), tmp_path / "camera.json")
     parser = argparse.ArgumentParser(prog="fringelab")
     procam_commands.register(parser.add_subparsers())
-    args = parser.parse_args(["projector-table", "--procam", str(tmp_path / "procam.json"), "--camera",
-                              str(tmp_path / "camera.json"), "--stripe-period-px", str(pattern.period_px),
-                              "--stripe-offset-px", str(pattern.offset_px), "--z-mm", "0:20:2", "-o",
-                              str(tmp_path / "projector.h5"), "--json"])  # fmt: skip
+    args_text = ["projector-table", "--procam", str(tmp_path / "procam.json"), "--camera",
+                 str(tmp_path / "camera.json"), "--stripe-period-px", str(pattern.period_px),
+                 "--stripe-offset-px", str(pattern.offset_px), "--z-mm", "0:20:2", "-o",
+                 str(tmp_path / "projector.h5"), "--json"]  # fmt: skip
+    args = parser.parse_args(args_text)
     assert args.handler(args) == 0, capsys.readouterr().err
     summary = json.loads(capsys.readouterr().out)
     assert summary["axis"] == "rows"  # the kodak preset's stripes run roughly vertically in the image
+    # The same summary as `calibrate-projector` gives a Z-stack's table (one writer and reporter, commands/tables.py).
+    assert set(summary) == {"path", "axis", "n_lines", "period_px", "n_edges", "n_entries", "z_steps", "qa"}
+    assert summary["z_steps"] == 11 and summary["qa"]["z_range_mm"] == [0.0, 20.0]
+    assert args.handler(parser.parse_args([a for a in args_text if a != "--json"])) == 0
+    text = capsys.readouterr().out
+    assert text.startswith(f"{tmp_path / 'projector.h5'}: {summary['n_edges']} edges over {summary['n_lines']} lines")
+    assert "Z 0 … 20 mm in 11 steps" in text and "stripe period" in text and "coverage" in text
     table = read_projector_calibration(tmp_path / "projector.h5")
     direct = projector_table_from_model(model, exact_camera_model(setup.camera), pattern, list(np.arange(0, 21, 2.0)))
     assert table.n_edges == direct.n_edges and table.period_px == pytest.approx(direct.period_px)
