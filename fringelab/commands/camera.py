@@ -125,9 +125,9 @@ def calibrate_camera_command(args: argparse.Namespace) -> int:
             raise ValueError("give all of --board-cols, --board-rows and --square-mm, or none (board.json)")
         else:
             board = Board(cols=args.board_cols, rows=args.board_rows, square_mm=args.square_mm)
-        with progress_bar(args, "calibrate-camera") as progress:
+        with open_recording(args.recording) as source, progress_bar(args, "calibrate-camera") as progress:
             calibration = calibrate_camera_recording(
-                open_recording(args.recording),
+                source,
                 progress=progress,
                 board=board,
                 mode=args.mode,

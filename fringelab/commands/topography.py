@@ -154,10 +154,9 @@ def calibrate_projector_command(args: argparse.Namespace) -> int:
             poly_degree=args.poly_degree,
             min_z_samples=max(6, args.poly_degree + 2),
         )
-        with progress_bar(args, "calibrate-projector") as progress:
-            return calibrate_projector_recording(
-                open_recording(args.recording), read_camera_json(args.camera), settings=settings, progress=progress
-            )
+        with open_recording(args.recording) as source, progress_bar(args, "calibrate-projector") as progress:
+            return calibrate_projector_recording(source, read_camera_json(args.camera), settings=settings,
+                                                 progress=progress)  # fmt: skip
 
     return write_projector_table(args, build)
 
@@ -176,15 +175,14 @@ def topography_command(args: argparse.Namespace) -> int:
     try:
         if args.reference_code_patterns and not args.reference_code:
             raise ValueError("--reference-code-patterns: give the code's frames with --reference-code")
-        source = open_recording(args.recording)
-        frames = None if args.frames is None else range(len(source))[args.frames]
-        code = None
-        if args.reference_code:
-            shape = np.shape(source[0])[:2]
-            code = decode_reference_code(
-                args.reference_code, patterns=args.reference_code_patterns, image_shape_hw_px=(shape[0], shape[1])
-            )
-        with progress_bar(args, "topography") as progress:
+        with open_recording(args.recording) as source, progress_bar(args, "topography") as progress:
+            frames = None if args.frames is None else range(len(source))[args.frames]
+            code = None
+            if args.reference_code:
+                shape = np.shape(source[0])[:2]
+                code = decode_reference_code(
+                    args.reference_code, patterns=args.reference_code_patterns, image_shape_hw_px=(shape[0], shape[1])
+                )
             summary = topography_recording(
                 source,
                 read_camera_json(args.camera),

@@ -25,20 +25,21 @@ def camera_calibration_body(context: JobContext[CameraCalibrationSpec]) -> dict[
     if not (pitch_u_um > 0 and pitch_v_um > 0):
         raise ValueError(f"camera {camera.name!r} has no pixel pitch; set it on the camera, then retry")
     context.log(f"calibrating camera {camera.name!r} from recording {recording.id} ({spec.mode})")
-    calibration = calibrate_camera_recording(
-        open_recording(path),
-        board=board,
-        mode=spec.mode,
-        du_px_per_mm=1000.0 / pitch_u_um,
-        dv_px_per_mm=1000.0 / pitch_v_um,
-        scale_on=spec.scale_on,
-        reject_outliers=spec.reject_outliers,
-        pixel_pitch_um=(pitch_u_um, pitch_v_um),
-        detector=spec.detector,
-        subpix_half_window_px=spec.subpix_window_px,
-        progress=context.progress,
-        should_cancel=context.should_cancel,
-    )
+    with open_recording(path) as source:
+        calibration = calibrate_camera_recording(
+            source,
+            board=board,
+            mode=spec.mode,
+            du_px_per_mm=1000.0 / pitch_u_um,
+            dv_px_per_mm=1000.0 / pitch_v_um,
+            scale_on=spec.scale_on,
+            reject_outliers=spec.reject_outliers,
+            pixel_pitch_um=(pitch_u_um, pitch_v_um),
+            detector=spec.detector,
+            subpix_half_window_px=spec.subpix_window_px,
+            progress=context.progress,
+            should_cancel=context.should_cancel,
+        )
     with context.output("camera.json", media_type="application/json") as temporary:
         write_camera_json(calibration, temporary)
     for frame in calibration.frames:

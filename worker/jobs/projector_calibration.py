@@ -29,13 +29,10 @@ def projector_calibration_body(context: JobContext[ProjectorCalibrationSpec]) ->
         min_z_samples=max(6, spec.poly_degree + 2),
     )
     context.log(f"projector calibration of camera {camera.name!r} from recording {recording.id}")
-    calibration = calibrate_projector_recording(
-        open_recording(path),
-        camera_model,
-        settings=settings,
-        progress=context.progress,
-        should_cancel=context.should_cancel,
-    )
+    with open_recording(path) as source:
+        calibration = calibrate_projector_recording(
+            source, camera_model, settings=settings, progress=context.progress, should_cancel=context.should_cancel
+        )
     with context.output("projector.h5", media_type="application/x-hdf5") as temporary:
         write_projector_calibration(calibration, temporary)
     qa = calibration.qa

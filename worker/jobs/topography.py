@@ -53,7 +53,10 @@ class _TopographyInputs:
     wanted: range
     settings: Any
 
-    def close(self) -> None:
+    def __enter__(self) -> _TopographyInputs:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
         self.source.close()
 
 
@@ -74,7 +77,8 @@ def _cached_calibration(kind: str, path: Path) -> Any:
 
 
 def _topography_inputs(context: JobContext[TopographySpec]) -> _TopographyInputs:
-    """The recording (open: close it), calibrations, frames to write and settings of a topography job."""
+    """The recording, calibrations, frames to write and settings of a topography job; the recording is open: use
+    the inputs in a `with` block, which closes it."""
     from fringelab.formats.recordings import open_recording
     from fringelab.science.order import OrderSettings
     from fringelab.science.topography import TopographySettings, frame_range
@@ -83,13 +87,17 @@ def _topography_inputs(context: JobContext[TopographySpec]) -> _TopographyInputs
     _recording, _camera, path = recording_input(context)
     camera_model = _cached_calibration("camera", calibration_file(context, spec.camera_calibration_id))
     projector = _cached_calibration("projector", calibration_file(context, spec.projector_calibration_id))
-    source = open_recording(path)
-    last = spec.frames.last
-    wanted = frame_range(range(spec.frames.first, len(source) if last is None else last + 1), len(source))
     settings = TopographySettings(
         grid_step_mm=spec.grid_step_mm, temporal_smoothing_frames=spec.temporal_smoothing_frames,
         order=OrderSettings(rim_circle_mm=spec.rim_circle_mm),
     )  # fmt: skip
+    source = open_recording(path)
+    try:
+        last = spec.frames.last
+        wanted = frame_range(range(spec.frames.first, len(source) if last is None else last + 1), len(source))
+    except BaseException:
+        source.close()
+        raise
     return _TopographyInputs(source, camera_model, projector, wanted, settings)
 
 
@@ -99,14 +107,11 @@ def topography_entry(context: JobContext[TopographySpec]) -> Chunked:
     from fringelab.pipelines.topography import decode_reference_code
     from fringelab.science.topography import check_recording_against, check_stripes_against, locate_test_edges
 
-    inputs = _topography_inputs(context)
-    try:
+    with _topography_inputs(context) as inputs:
         first_frame = inputs.source[0]
         check_recording_against(first_frame.shape[:2], inputs.projector, inputs.camera_model)
         check_stripes_against(first_frame, inputs.projector)
         edges = next(iter(locate_test_edges([first_frame], inputs.projector)))
-    finally:
-        inputs.close()
     code = None
     if context.spec.reference_code_recording_id is not None:
         path = recording_file(context, context.spec.reference_code_recording_id)
@@ -153,17 +158,14 @@ def _measured(
     only writes. report: the progress is the context's chunk's."""
     from fringelab.science.topography import locate_test_edges
 
-    inputs = _topography_inputs(context)
-    read = frames_read(range(first, stop), len(inputs.source), inputs.settings)
-    try:
+    with _topography_inputs(context) as inputs:
+        read = frames_read(range(first, stop), len(inputs.source), inputs.settings)
         located = locate_test_edges((inputs.source[i] for i in read), inputs.projector)
         for frame in frame_stage(located, _reference(context), inputs.projector, inputs.camera_model,
                                  inputs.settings, first_frame=read.start, wanted=range(first, stop)):  # fmt: skip
             yield PackedFrame.of(frame)
             if report:  # (the chunk's end is recorded when it is marked done: the last frame need not be)
                 context.progress(frame.measurement.frame - first, stop - first, "measuring")
-    finally:
-        inputs.close()
 
 
 def _frames_of(
@@ -190,11 +192,10 @@ def topography_write(context: JobContext[TopographySpec], turns: Iterator[InOrde
     from fringelab.formats.recordings import recording_log
     from fringelab.formats.topography import write_xdmf
 
-    inputs = _topography_inputs(context)
-    source, wanted, projector = inputs.source, inputs.wanted, inputs.projector
-    log = recording_log(source)  # frames.csv, else the container's own times (a .cine's stamps)
-    n_frames, where = len(source), str(source.path)
-    inputs.close()
+    with _topography_inputs(context) as inputs:
+        source, wanted, projector = inputs.source, inputs.wanted, inputs.projector
+        log = recording_log(source)  # frames.csv, else the container's own times (a .cine's stamps)
+        n_frames, where = len(source), str(source.path)
     reference = _reference(context)
     tally = SummaryTally()
     cross_check = TemporalCrossCheck(projector)  # over the chunks' frames in order, so whatever the chunking

@@ -149,7 +149,32 @@ def _run(*argv: str) -> int:
     return int(args.handler(args))
 
 
-def test_cli_calibrate_topography_export(kodak: RenderedExperiment, tmp_path: Path, capsys) -> None:
+def _count_closes(monkeypatch: pytest.MonkeyPatch) -> list[dict[str, int]]:
+    """Every recording `open_recording` opens from now on, as {"closed": how many times it was closed}."""
+    from fringelab.formats import recordings
+
+    opened: list[dict[str, int]] = []
+    real = recordings.open_recording
+
+    def spy(*args, **kwargs):  # type: ignore[no-untyped-def]
+        source = real(*args, **kwargs)
+        record = {"closed": 0}
+        opened.append(record)
+        close = source.close
+
+        def counted() -> None:
+            record["closed"] += 1
+            close()
+
+        source.close = counted  # type: ignore[method-assign]
+        return source
+
+    monkeypatch.setattr(recordings, "open_recording", spy)
+    return opened
+
+
+def test_cli_calibrate_topography_export(kodak: RenderedExperiment, tmp_path: Path, capsys, monkeypatch) -> None:
+    opened = _count_closes(monkeypatch)
     camera_json = write_camera_json(true_camera_calibration(kodak.preset.camera), tmp_path / "camera.json")
     calibration = write_recording(
         tmp_path / "projector_calibration", kodak.calibration_frames[:12],
@@ -180,6 +205,8 @@ def test_cli_calibrate_topography_export(kodak: RenderedExperiment, tmp_path: Pa
     assert _run(*argv[:3], str(other), *argv[4:], "-o", str(tmp_path / "x.h5")) == 2
     assert "made with another camera calibration" in capsys.readouterr().err
     assert not (tmp_path / "x.h5").exists()
+    # Each command closed the recordings it opened (the ZIP's archive), the failed topography too.
+    assert len(opened) == 3 and all(record["closed"] >= 1 for record in opened)
 
 
 @pytest.mark.slow
