@@ -1,7 +1,7 @@
 """Reconciling the database with the broker: the database says which tasks each active job needs; what the
 broker no longer holds (Redis restarted without its data, a worker died with the message) is sent again, or the
-job fails with the reason after MAX_REQUEUES; a simulation whose check job so ended is failed with it
-(`fringelab.core.simulations.settle_checks`). The API runs it at start-up and then every
+job fails with the reason after MAX_REQUEUES; a recording or simulation whose check job so ended is failed with
+it (`fringelab.core.upload_checks.settle_checks`). The API runs it at start-up and then every
 FRINGELAB_RECONCILE_INTERVAL_S (`reconcile_periodically`).
 """
 
@@ -37,7 +37,7 @@ from fringelab.core.job_kinds import job_kind
 from fringelab.core.jobs import ACTIVE_STATES, add_log, as_utc
 from fringelab.core.models import Job, JobChunk, utcnow
 from fringelab.core.settings import Settings
-from fringelab.core.simulations import settle_checks
+from fringelab.core.upload_checks import settle_checks
 
 MAX_REQUEUES = 3  # a job lost more often than this is failed instead of re-queued again
 log = logging.getLogger(__name__)
@@ -180,7 +180,7 @@ def reconcile(
             add_log(session, job.id, "closed the cancelled job: its worker is gone")
             actions.append(f"{job.id}: closed after cancel")
     session.commit()
-    actions += settle_checks(session)  # a check job that ended without a word leaves no simulation `checking`
+    actions += settle_checks(session)  # a check job that ended without a word leaves no upload busy
     return actions
 
 

@@ -16,6 +16,7 @@ from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
+from fringelab.core import upload_checks
 from fringelab.core.accounts import Principal, access_level, audit, readable_experiments, require_access
 from fringelab.core.app_state import AppState
 from fringelab.core.errors import (
@@ -29,11 +30,10 @@ from fringelab.core.errors import (
     UnsupportedFormat,
 )
 from fringelab.core.job_kinds import named_by
-from fringelab.core.jobs import ACTIVE_STATES, QueueUnavailable, submit_job
+from fringelab.core.jobs import ACTIVE_STATES
 from fringelab.core.models import Camera, Experiment, Group, Job, Recording
 from fringelab.core.quota import check_quota
 from fringelab.core.settings import Settings
-from fringelab.core.specs import IngestSpec
 from fringelab.core.storage import (
     InsufficientStorage,
     check_room,
@@ -46,6 +46,7 @@ from fringelab.core.storage import (
     sync_file,
 )
 from fringelab.core.text import check_file_name
+from fringelab.core.upload_checks import RECORDING_INGEST
 from fringelab.formats.container_common import CorruptRecording, OverBudget, UnsafeArchive, UnsupportedRecording
 from fringelab.formats.container_zip import ZipLimits
 from fringelab.formats.containers import (
@@ -173,23 +174,8 @@ def delete_recording(session: Session, settings: Settings, principal: Principal,
 
 def submit_ingest(session: Session, state: AppState, recording: Recording) -> Recording:
     """Queue the ingest job of a recording (state `ingesting`); without a queue the recording turns `invalid`."""
-    recording.state = "ingesting"
-    recording.error = ""
-    session.commit()
-    try:
-        job = submit_job(
-            session,
-            state.celery,
-            spec=IngestSpec(recording_id=recording.id),
-            experiment_id=recording.camera.experiment_id,
-        )
-    except QueueUnavailable as error:
-        recording.state = "invalid"
-        recording.error = f"the ingest could not be queued: {error}"
-        session.commit()
-        return recording
-    recording.ingest_job_id = job.id
-    session.commit()
+    upload_checks.submit_check(session, state.celery, RECORDING_INGEST, recording,
+                               experiment_id=recording.camera.experiment_id)  # fmt: skip
     return recording
 
 

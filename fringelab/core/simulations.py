@@ -8,8 +8,8 @@ comparison job still uses it), and the comparison's preview. Routes call these a
 No model is read in the web server's process: an upload is stored `checking`, and its check job
 (`worker.jobs.simulation_check`) reads it in a worker, in a process of its own with a memory and a time limit
 (`fringelab.core.simulation_check`), then makes it `ready` (with what it holds) or `failed` (with the reason).
-A check whose job ended without saying (a worker lost too often, a cancel) is failed by `settle_checks`, which the
-reconciliation runs, so none stays `checking` for ever.
+A check whose job ended without saying (a worker lost too often, a cancel) is failed by
+`fringelab.core.upload_checks.settle_checks`, which the reconciliation runs, so none stays `checking` for ever.
 
 Storage: `DATA_DIR/simulations/<id>/model/` holds the file or the unpacked folder; a refused upload (its name, size,
 archive or the disk) leaves neither a row nor files.
@@ -23,7 +23,6 @@ import uuid
 import zipfile
 from collections import OrderedDict
 from collections.abc import Callable
-from datetime import timedelta
 from pathlib import Path, PurePosixPath
 from typing import Any
 
@@ -31,17 +30,18 @@ import numpy as np
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from fringelab.core import upload_checks
 from fringelab.core.accounts import Principal, audit, require_access
 from fringelab.core.app_state import AppState
 from fringelab.core.errors import Conflict, Invalid, NotFound, TooLarge
 from fringelab.core.job_kinds import TOPOGRAPHY_FILE, named_by
-from fringelab.core.jobs import ACTIVE_STATES, FINAL_STATES, QueueUnavailable, add_log, as_utc, submit_job
-from fringelab.core.models import Experiment, Job, Simulation, utcnow
+from fringelab.core.jobs import ACTIVE_STATES
+from fringelab.core.models import Experiment, Job, Simulation
 from fringelab.core.preparation import check_simulation_ready
 from fringelab.core.quota import check_quota
 from fringelab.core.recordings import check_upload_size, zip_limits
 from fringelab.core.settings import Settings
-from fringelab.core.specs import ComparisonSpec, SimulationCheckSpec
+from fringelab.core.specs import ComparisonSpec
 from fringelab.core.storage import (
     InsufficientStorage,
     check_room,
@@ -51,6 +51,7 @@ from fringelab.core.storage import (
     simulation_dir,
 )
 from fringelab.core.text import check_file_name
+from fringelab.core.upload_checks import SIMULATION_CHECK
 from fringelab.formats.container_zip import check_archive, is_junk_entry
 from fringelab.formats.simulation_store import CHECKED_FILE
 
@@ -185,43 +186,8 @@ def register_simulation(
 
 def submit_check(session: Session, state: AppState, simulation: Simulation) -> None:
     """Queue the check job of a stored simulation (state `checking`); without a queue it turns `failed`."""
-    simulation.state, simulation.error = "checking", ""
-    session.commit()
-    try:
-        job = submit_job(session, state.celery, spec=SimulationCheckSpec(simulation_id=simulation.id),
-                         experiment_id=simulation.experiment_id)  # fmt: skip
-    except QueueUnavailable as error:
-        simulation.state, simulation.error = "failed", f"the check could not be queued: {error}"
-        session.commit()
-        return
-    simulation.check_job_id = job.id
-    session.commit()
-
-
-UNQUEUED_GRACE_S = 300  # an upload's row is stored a moment before its check job: only older ones are orphans
-
-
-def settle_checks(session: Session) -> list[str]:
-    """Fail every simulation still `checking` whose check job has ended (failed or cancelled without saying: its
-    worker was lost too often, or it was cancelled), with the job's error, or is gone (deleted) for longer than
-    UNQUEUED_GRACE_S; run by the reconciliation. Returns one line per simulation failed."""
-    settled = []
-    orphaned_before = utcnow() - timedelta(seconds=UNQUEUED_GRACE_S)
-    for simulation in session.scalars(select(Simulation).where(Simulation.state == "checking")).all():
-        job = session.get(Job, simulation.check_job_id) if simulation.check_job_id else None
-        if job is None:
-            if as_utc(simulation.created_at) > orphaned_before:
-                continue
-            reason = "its check job is gone; upload it again"
-        elif job.state in FINAL_STATES:
-            reason = job.error or f"its check job {job.id} ended {job.state} without a result"
-            add_log(session, job.id, f"simulation {simulation.id} marked failed: its check job ended {job.state}")
-        else:
-            continue
-        simulation.state, simulation.error = "failed", f"the check did not finish: {reason}"
-        settled.append(f"simulation {simulation.id}: failed ({reason})")
-    session.commit()
-    return settled
+    upload_checks.submit_check(session, state.celery, SIMULATION_CHECK, simulation,
+                               experiment_id=simulation.experiment_id)  # fmt: skip
 
 
 def jobs_using_simulation(session: Session, simulation_id: int) -> list[Job]:

@@ -17,7 +17,7 @@ from fastapi.testclient import TestClient
 
 from backend.app import create_app
 from fringelab.core.db import make_engine, make_sessionmaker
-from fringelab.core.models import Experiment, Job, Simulation, utcnow
+from fringelab.core.models import Camera, Experiment, Job, Recording, Simulation, utcnow
 from fringelab.core.reconcile import MAX_REQUEUES
 from tests.support import wait_for
 from tests.worker.conftest import log_messages, wait_job
@@ -163,9 +163,11 @@ def test_a_check_whose_worker_process_is_killed_runs_again_and_ends_ready(settin
     assert sum(m.startswith("succeeded") for m in messages) == 1, messages
 
 
-def test_a_check_job_lost_too_often_leaves_its_simulation_failed_not_checking(settings):
+def test_a_check_job_lost_too_often_leaves_its_upload_failed_not_busy(settings):
     """A check whose job the queue lost more than MAX_REQUEUES times (a worker dying on it each time) is failed by
-    the reconciliation, and its simulation with it, saying why; so is one whose check job was deleted."""
+    the reconciliation, and its simulation with it, saying why; so is one whose check job was deleted. Recordings
+    follow the same rule (`fringelab.core.upload_checks`): one whose ingest job ended failed without saying, or
+    whose job is gone, is `invalid`, never `ingesting` for ever."""
     engine = make_engine(settings.resolved_database_url)
     with make_sessionmaker(engine)() as session:
         experiment = Experiment(name="plate")
@@ -185,11 +187,29 @@ def test_a_check_job_lost_too_often_leaves_its_simulation_failed_not_checking(se
         orphan = Simulation(experiment_id=experiment.id, filename="b.exo", state="checking", created_at=long_ago)
         fresh = Simulation(experiment_id=experiment.id, filename="c.exo", state="checking")
         session.add_all([orphan, fresh])
+        camera = Camera(experiment_id=experiment.id, name="kodak", image_width_px=64, image_height_px=48,
+                        pixel_pitch_um=10.0)  # fmt: skip
+        session.add(camera)
+        session.flush()
+        recordings = [Recording(camera_id=camera.id, kind="test", state="ingesting", filename=f"{name}.tif",
+                                created_at=long_ago) for name in ("failed", "gone")]  # fmt: skip
+        recordings.append(Recording(camera_id=camera.id, kind="test", state="ingesting", filename="fresh.tif"))
+        session.add_all(recordings)
+        session.flush()
+        failed_ingest = Job(id=str(uuid.uuid4()), kind="ingest", spec={"recording_id": recordings[0].id},
+                            state="failed", error="the worker was lost", experiment_id=experiment.id,
+                            created_at=long_ago, finished_at=long_ago)  # fmt: skip
+        session.add(failed_ingest)
+        recordings[0].ingest_job_id = failed_ingest.id
         session.commit()
         ids = (simulation.id, orphan.id, fresh.id)
+        recording_ids = [recording.id for recording in recordings]
     engine.dispose()
     with TestClient(create_app(settings)) as client:  # its start-up reconciles the jobs with the queue
         found, gone, waiting = (client.get(f"/api/v1/simulations/{i}").json() for i in ids)
+        failed_recording, gone_recording, fresh_recording = (
+            client.get(f"/api/v1/recordings/{i}").json() for i in recording_ids
+        )
     assert found["state"] == "failed", found
     assert found["error"].startswith(f"the check did not finish: the job queue lost this job {MAX_REQUEUES + 1} times")
     assert (gone["state"], gone["error"]) == (
@@ -197,3 +217,12 @@ def test_a_check_job_lost_too_often_leaves_its_simulation_failed_not_checking(se
         "the check did not finish: its check job is gone; upload it again",
     )
     assert waiting["state"] == "checking", waiting
+    assert (failed_recording["state"], failed_recording["error"]) == (
+        "invalid",
+        "the ingest did not finish: the worker was lost",
+    )
+    assert (gone_recording["state"], gone_recording["error"]) == (
+        "invalid",
+        "the ingest did not finish: its ingest job is gone; upload it again",
+    )
+    assert fresh_recording["state"] == "ingesting", fresh_recording

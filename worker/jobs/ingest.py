@@ -18,12 +18,11 @@ from typing import Any
 
 import numpy as np
 
-from fringelab.core.models import Recording
 from fringelab.core.recordings import check_budget, zip_limits
 from fringelab.core.settings import Settings
 from fringelab.core.specs import IngestSpec
 from fringelab.core.storage import recording_dir
-from fringelab.core.text import public_text
+from fringelab.core.upload_checks import RECORDING_INGEST, claim, store
 from fringelab.formats.containers import STATES_BIT_DEPTH, RecordingLayout, recording_layout
 from fringelab.formats.previews import PREVIEW_FILE, THUMBNAIL_PX, PreviewWriter
 from fringelab.formats.recordings import FrameSource, frame_rate_from_times, open_recording
@@ -76,10 +75,7 @@ class Inspection:
 def ingest_recording(context: JobContext[IngestSpec]) -> dict[str, Any]:
     recording_id = context.spec.recording_id
     with context.sessions() as session:
-        recording = session.get(Recording, recording_id)
-        if recording is None:
-            raise ValueError(f"recording {recording_id} no longer exists")
-        recording.state, recording.error, recording.ingest_job_id = "ingesting", "", context.job_id
+        recording = claim(session, RECORDING_INGEST, recording_id, job_id=context.job_id)
         path = context.settings.data_path / recording.path
         kind, duplicate_of = recording.kind, recording.duplicate_of
         camera = (recording.camera.name, recording.camera.image_width_px, recording.camera.image_height_px)
@@ -141,12 +137,7 @@ def ingest_recording(context: JobContext[IngestSpec]) -> dict[str, Any]:
 
 def _update(context: JobContext, recording_id: int, **fields: Any) -> None:
     with context.sessions() as session:
-        recording = session.get(Recording, recording_id)
-        if recording is None:
-            raise Cancelled(f"recording {recording_id} was deleted")
-        for name, value in fields.items():
-            setattr(recording, name, public_text(value) if name == "error" else value)  # no server path shown
-        session.commit()
+        store(session, RECORDING_INGEST, recording_id, **fields)
 
 
 def inspect_recording(

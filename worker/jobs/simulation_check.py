@@ -17,13 +17,11 @@ from __future__ import annotations
 from typing import Any
 
 from fringelab.core.errors import Invalid
-from fringelab.core.models import Simulation
 from fringelab.core.simulation_check import Refused, checked_summary
 from fringelab.core.specs import SimulationCheckSpec
 from fringelab.core.storage import simulation_dir
-from fringelab.core.text import public_text
+from fringelab.core.upload_checks import SIMULATION_CHECK, claim, store
 from fringelab.formats.simulation_store import CHECKED_FILE
-from fringelab.science import Cancelled
 from worker.context import JobContext
 
 MIB = 2**20
@@ -32,10 +30,7 @@ MIB = 2**20
 def check_simulation(context: JobContext[SimulationCheckSpec]) -> dict[str, Any]:
     simulation_id = context.spec.simulation_id
     with context.sessions() as session:
-        simulation = session.get(Simulation, simulation_id)
-        if simulation is None:
-            raise Cancelled(f"simulation {simulation_id} was deleted")
-        simulation.state, simulation.error, simulation.check_job_id = "checking", "", context.job_id
+        simulation = claim(session, SIMULATION_CHECK, simulation_id, job_id=context.job_id)
         folder, filename = context.settings.data_path / simulation.path, simulation.filename
         session.commit()
     context.progress(0, 1, "reading the model")
@@ -44,7 +39,7 @@ def check_simulation(context: JobContext[SimulationCheckSpec]) -> dict[str, Any]
         checked = checked_summary(folder, filename=filename, settings=context.settings, store=store)
     except Invalid as error:
         peak = error.peak_rss_bytes if isinstance(error, Refused) else 0
-        _store(context, simulation_id, state="failed", error=public_text(error.detail))
+        _store(context, simulation_id, state="failed", error=error.detail)
         context.log(f"refused; the checking process's peak memory: {peak / MIB:.0f} MiB")
         raise ValueError(error.detail) from None
     except BaseException as error:
@@ -61,9 +56,4 @@ def check_simulation(context: JobContext[SimulationCheckSpec]) -> dict[str, Any]
 
 def _store(context: JobContext, simulation_id: int, **fields: Any) -> None:
     with context.sessions() as session:
-        simulation = session.get(Simulation, simulation_id)
-        if simulation is None:
-            raise Cancelled(f"simulation {simulation_id} was deleted")
-        for name, value in fields.items():
-            setattr(simulation, name, value)
-        session.commit()
+        store(session, SIMULATION_CHECK, simulation_id, **fields)
