@@ -680,6 +680,7 @@ def _mid_and_contrast(
     contrast = np.empty((n_lines, n_samples), np.float32)
     grey_sum = np.empty(n_samples + 1)
     dark_sum = np.empty(n_samples + 1)
+    first, sample, fraction, regular_end = _period_ends(n_samples, period)
     for i in range(n_lines):
         count = 0.0
         sum_max = 0.0
@@ -690,7 +691,12 @@ def _mid_and_contrast(
                 count += 1.0
                 sum_max += local_max[i, k]
                 sum_min += local_min[i, k]
+        grey_sum[0] = dark_sum[0] = grey = dark = 0.0
         for j in range(n_samples):
+            # The cumulative sums for the means, in the same pass (an independent chain of additions).
+            grey += scan[i, j]
+            dark += dark_area[i, j]
+            grey_sum[j + 1], dark_sum[j + 1] = grey, dark
             entering = _reflect_101(j + half, n_samples)
             if dark_area[i, entering] == 0:
                 count += 1.0
@@ -708,30 +714,83 @@ def _mid_and_contrast(
                 count -= 1.0
                 sum_max -= local_max[i, leaving]
                 sum_min -= local_min[i, leaving]
-        if not from_means:
-            continue
-        grey_sum[0] = dark_sum[0] = 0.0
-        for k in range(n_samples):
-            grey_sum[k + 1] = grey_sum[k] + scan[i, k]
-            dark_sum[k + 1] = dark_sum[k] + dark_area[i, k]
-        first = int(np.ceil(period - 0.5))
-        for j in range(first, n_samples - first):
-            # Samples the two periods touch, inclusive.
-            if dark_sum[min(j + first + 1, n_samples)] - dark_sum[max(j - first, 0)] > 0:
-                continue
-            one = _line_integral(grey_sum, j + 0.5 * period) - _line_integral(grey_sum, j - 0.5 * period)
-            two = _line_integral(grey_sum, j + period) - _line_integral(grey_sum, j - period)
-            mid[i, j] = 0.5 * (one + 0.5 * two) / period
+        if from_means:
+            _means_of_line(grey_sum, dark_sum, mid[i], first, period, sample, fraction, regular_end)
     return mid, contrast
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _line_integral(cumulative: np.ndarray, position: float) -> float:
-    """∫ of a line's grey levels from −½ to `position` (sample k covering [k − ½, k + ½]), from their cumulative
-    sums (cumulative[k] = sum of samples 0..k−1), for −½ ≤ position ≤ n − ½."""
-    u = position + 0.5
-    k = min(int(u), len(cumulative) - 2)
-    return cumulative[k] + (u - k) * (cumulative[k + 1] - cumulative[k])
+def _period_ends(n_samples: int, period: float) -> tuple[int, np.ndarray, np.ndarray, int]:
+    """Where the means over one and over two periods centred on samples j = first … n_samples − first − 1 start and
+    end, as the same for every line: first; sample (4, J) int64 and fraction (4, J) float64, for the ends
+    j + P/2, j − P/2, j + P, j − P, such that the integral of a line's grey levels from −½ to the end is
+    cumulative[sample] + fraction·(cumulative[sample + 1] − cumulative[sample]) (sample k covers [k − ½, k + ½];
+    cumulative[k] is the sum of samples 0..k−1); and regular_end, the j up to which (exclusive) each end's sample
+    is j plus a constant (the case `_means_of_line` computes with contiguous loads)."""
+    first = int(np.ceil(period - 0.5))
+    count = max(n_samples - 2 * first, 0)
+    sample = np.empty((4, count), np.int64)
+    fraction = np.empty((4, count))
+    regular_end = first + count
+    for q in range(count):
+        j = first + q
+        for e in range(4):
+            position = (
+                j + 0.5 * period if e == 0 else j - 0.5 * period if e == 1 else j + period if e == 2 else j - period
+            )
+            u = position + 0.5
+            k = min(int(u), n_samples - 1)
+            sample[e, q], fraction[e, q] = k, u - k
+            if k - j != sample[e, 0] - first and regular_end == first + count:
+                regular_end = j
+    return first, sample, fraction, regular_end
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _means_of_line(
+    grey_sum: np.ndarray,
+    dark_sum: np.ndarray,
+    mid_row: np.ndarray,
+    first: int,
+    period: float,
+    sample: np.ndarray,
+    fraction: np.ndarray,
+    regular_end: int,
+) -> None:
+    """The mid-level of one line from its means over one and two periods (`_mid_and_contrast`), written into
+    mid_row where the two periods touch no dark-area sample; grey_sum, dark_sum (T + 1,) the line's cumulative sums.
+    Up to regular_end each end's sample is j plus a constant, so the loads are contiguous and the loop vectorises."""
+    n_samples = len(mid_row)
+    count = regular_end - first
+    if count > 0:
+        a = sample[:, 0] - first
+        g0, g1, g2, g3 = (
+            grey_sum[first + a[0] :],
+            grey_sum[first + a[1] :],
+            grey_sum[first + a[2] :],
+            grey_sum[first + a[3] :],
+        )
+        f0, f1, f2, f3 = fraction[0], fraction[1], fraction[2], fraction[3]
+        # Samples the two periods touch, inclusive: j − first … j + first.
+        dark_after, dark_before = dark_sum[2 * first + 1 :], dark_sum[:]
+        out = mid_row[first:]
+        for q in range(count):
+            one = (g0[q] + f0[q] * (g0[q + 1] - g0[q])) - (g1[q] + f1[q] * (g1[q + 1] - g1[q]))
+            two = (g2[q] + f2[q] * (g2[q + 1] - g2[q])) - (g3[q] + f3[q] * (g3[q + 1] - g3[q]))
+            value = np.float32(0.5 * (one + 0.5 * two) / period)
+            out[q] = value if dark_after[q] == dark_before[q] else out[q]
+    for j in range(max(regular_end, first), n_samples - first):
+        q = j - first
+        if dark_sum[j + first + 1] - dark_sum[j - first] > 0:
+            continue
+        k0, k1, k2, k3 = sample[0, q], sample[1, q], sample[2, q], sample[3, q]
+        one = (grey_sum[k0] + fraction[0, q] * (grey_sum[k0 + 1] - grey_sum[k0])) - (
+            grey_sum[k1] + fraction[1, q] * (grey_sum[k1 + 1] - grey_sum[k1])
+        )
+        two = (grey_sum[k2] + fraction[2, q] * (grey_sum[k2 + 1] - grey_sum[k2])) - (
+            grey_sum[k3] + fraction[3, q] * (grey_sum[k3 + 1] - grey_sum[k3])
+        )
+        mid_row[j] = 0.5 * (one + 0.5 * two) / period
 
 
 @numba.njit(cache=True, nogil=True)
@@ -885,8 +944,9 @@ def _crossings_kernel(
     margin_lines: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     n_lines, n_samples = scan.shape
-    # np.empty only maps memory: the pages the crossings are written to are the only ones touched.
-    capacity = n_lines * n_samples
+    # Room for 64 crossings a line (32 stripe periods), grown before a line that might not fit: allocating for the
+    # most a frame can have (one a sample) cost more than the growing (0.25 ms a 512 × 480 frame).
+    capacity = n_lines * 64 + n_samples
     line_out = np.empty(capacity, np.int32)
     t_out = np.empty(capacity, np.float64)
     polarity_out = np.empty(capacity, np.int8)
@@ -897,6 +957,14 @@ def _crossings_kernel(
         # usable(j + 1) and diff(j + 1) carried over to the next sample.
         next_usable = False
         next_diff = 0.0
+        if m + n_samples > capacity:
+            capacity *= 2
+            line_out, t_out, polarity_out = (
+                _grown(line_out, capacity),
+                _grown(t_out, capacity),
+                _grown(polarity_out, capacity),
+            )
+            mid_out, contrast_out = _grown(mid_out, capacity), _grown(contrast_out, capacity)
         for j in range(n_samples - 1):
             here_usable, here_diff = next_usable, next_diff
             c = contrast[i, j + 1]
@@ -921,6 +989,14 @@ def _crossings_kernel(
             m += 1
     return (line_out[:m].copy(), t_out[:m].copy(), polarity_out[:m].copy(), mid_out[:m].copy(),
             contrast_out[:m].copy())  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True)
+def _grown(values: np.ndarray, capacity: int) -> np.ndarray:
+    """A copy of a 1-D array with room for `capacity` items, the first len(values) of them values."""
+    grown = np.empty(capacity, values.dtype)
+    grown[: len(values)] = values
+    return grown
 
 
 def uneven_light(
