@@ -142,6 +142,8 @@ class Simulation(Base):
     state: Mapped[str] = mapped_column(String(16), default="checking")  # checking | ready | failed
     error: Mapped[str] = mapped_column(Text, default="")  # why it failed, for people
     check_job_id: Mapped[str | None] = mapped_column(ForeignKey("jobs.id", ondelete="SET NULL"), nullable=True)
+    # What the check stored beside the upload (`checked.h5`), counted in its owner's quota with `size_bytes`.
+    checked_bytes: Mapped[int] = mapped_column(BigInteger, default=0)
 
     experiment: Mapped[Experiment] = relationship(back_populates="simulations")
 

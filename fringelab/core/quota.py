@@ -1,7 +1,8 @@
 """How much of the data volume one user may hold: FRINGELAB_USER_QUOTA_BYTES over their experiments' recordings,
-simulations and job results, plus what their unfinished uploads have reserved (counted against them only), plus
-what their experiments' queued and running jobs are expected to write (each kind's `ResultSize` in
-`fringelab.core.job_kinds`: reserved when the job is queued, replaced by its files' real sizes once it ends).
+simulations (with the store their check writes, `checked.h5`) and job results, plus what their unfinished uploads
+have reserved (counted against them only), plus what their experiments' queued and running jobs are expected to
+write (each kind's `ResultSize` in `fringelab.core.job_kinds`: reserved when the job is queued, replaced by its
+files' real sizes once it ends).
 
 One member's tus upload announcing the whole free disk and sending nothing made every other user's upload fail
 with 413 for five days (issue 26): a reservation is now its owner's, within their quota, and it lapses hours
@@ -13,7 +14,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from sqlalchemy import func, select
+from sqlalchemy import case, func, select
 from sqlalchemy.orm import Session
 
 from fringelab.core.accounts import Principal
@@ -32,8 +33,11 @@ def used_bytes(session: Session, user_id: int | None) -> int:
         .join(Camera, Camera.id == Recording.camera_id)
         .where(Camera.experiment_id.in_(owned))
     )
+    # A simulation is its upload plus the store its check writes beside it (`checked.h5`): its real size once
+    # written, and while it is being checked, as much again as the upload (what the store takes, about).
+    store = case((Simulation.state == "checking", Simulation.size_bytes), else_=Simulation.checked_bytes)
     simulations = session.scalar(
-        select(func.coalesce(func.sum(Simulation.size_bytes), 0)).where(Simulation.experiment_id.in_(owned))
+        select(func.coalesce(func.sum(Simulation.size_bytes + store), 0)).where(Simulation.experiment_id.in_(owned))
     )
     results = sum(
         int(entry.get("size_bytes") or 0)

@@ -18,7 +18,10 @@ from fastapi.testclient import TestClient
 from backend.app import create_app
 from fringelab.core.db import make_engine, make_sessionmaker
 from fringelab.core.models import Camera, Experiment, Job, Recording, Simulation, utcnow
+from fringelab.core.quota import used_bytes
 from fringelab.core.reconcile import MAX_REQUEUES
+from fringelab.core.storage import simulation_dir
+from fringelab.formats.simulation_store import CHECKED_FILE
 from tests.support import wait_for
 from tests.worker.conftest import log_messages, wait_job
 
@@ -37,6 +40,15 @@ def ended(client: TestClient, simulation_id: int, *, timeout_s: float = 120) -> 
         return body if body["state"] != "checking" else None
 
     return wait_for(done, timeout_s=timeout_s, what=f"the check of simulation {simulation_id}", interval_s=0.05)  # type: ignore[return-value]
+
+
+def owned_bytes(settings) -> int:  # type: ignore[no-untyped-def]
+    """What the quota counts for the experiments of the local admin (accounts off)."""
+    engine = make_engine(settings.resolved_database_url)
+    with make_sessionmaker(engine)() as session:
+        used = used_bytes(session, None)
+    engine.dispose()
+    return used
 
 
 def a_topography_job(settings, experiment_id: int) -> str:  # type: ignore[no-untyped-def]
@@ -76,6 +88,9 @@ def test_an_upload_is_checking_until_a_worker_reads_it_and_cannot_be_compared_be
     ):
         assert refused.status_code == 409 and refused.json()["code"] == "simulation_not_ready", refused.text
         assert "still being checked" in refused.json()["detail"], refused.text
+    # the quota counts the store the check will write beside the upload as much again as the upload
+    upload_bytes = len(NODES_CSV.encode())
+    assert owned_bytes(settings) == 8 + 2 * upload_bytes  # 8: the topography job's file
 
     start_prefork_worker(settings, concurrency=1, flush=False)
     simulation = ended(client, stored["id"])
@@ -83,6 +98,8 @@ def test_an_upload_is_checking_until_a_worker_reads_it_and_cannot_be_compared_be
         "ready", "csv", 2, 4,
     ), simulation  # fmt: skip
     assert simulation["error"] == "" and simulation["info"]["time"] == [0.0, 0.001]
+    store = simulation_dir(settings.data_path, stored["id"]) / CHECKED_FILE
+    assert owned_bytes(settings) == 8 + upload_bytes + store.stat().st_size  # then what the store takes
     check = wait_job(client, stored["check_job_id"])  # it ends just after it made the simulation ready
     assert check["state"] == "succeeded" and check["result"]["n_nodes"] == 4, check
     peak = check["result"]["peak_rss_bytes"]

@@ -14,6 +14,7 @@ the same result.
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 from fringelab.core.errors import Invalid
@@ -47,11 +48,18 @@ def check_simulation(context: JobContext[SimulationCheckSpec]) -> dict[str, Any]
         raise
     summary = checked.summary
     _store(context, simulation_id, state="ready", error="", kind=summary["kind"], n_states=summary["n_states"],
-           n_nodes=summary["n_nodes"], info=summary["info"])  # fmt: skip
+           n_nodes=summary["n_nodes"], info=summary["info"], checked_bytes=_size(store))  # fmt: skip
     context.log(f"read; the checking process's peak memory: {checked.peak_rss_bytes / MIB:.0f} MiB")
     return {"simulation_id": simulation_id, "state": "ready", "kind": summary["kind"],
             "n_states": summary["n_states"], "n_nodes": summary["n_nodes"],
             "peak_rss_bytes": checked.peak_rss_bytes}  # fmt: skip
+
+
+def _size(path: Path) -> int:
+    try:
+        return path.stat().st_size
+    except OSError:  # no store written (nothing to keep): nothing counted
+        return 0
 
 
 def _store(context: JobContext, simulation_id: int, **fields: Any) -> None:
