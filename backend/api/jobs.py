@@ -46,6 +46,7 @@ from backend.schemas.jobs import (
     JobList,
     JobOut,
     JobSpec,
+    JobSpecSchemasOut,
     JobState,
     LogLineOut,
     Progress,
@@ -56,7 +57,7 @@ from fringelab.core.app_state import AppState
 from fringelab.core.calibration_pairs import warnings_of
 from fringelab.core.deletion import execute, plan_job
 from fringelab.core.errors import Gone, NotFound, Unauthorized, Unavailable
-from fringelab.core.job_kinds import named_by
+from fringelab.core.job_kinds import named_by, spec_schemas
 from fringelab.core.jobs import (
     QueueUnavailable,
     as_utc,
@@ -230,6 +231,12 @@ def list_jobs(
     total = session.scalar(select(func.count()).select_from(query.subquery())) or 0
     jobs = session.scalars(query.order_by(Job.created_at.desc(), Job.id).limit(limit).offset(offset)).all()
     return JobList(items=job_outs(session, jobs), total=total)
+
+
+@router.get("/jobs/specs", response_model=JobSpecSchemasOut)
+def job_specs(_principal: CurrentUser) -> dict[str, Any]:
+    """The JSON Schema of every job spec this server takes (made once per process)."""
+    return spec_schemas()
 
 
 def _visible_jobs(session: Session, principal: Principal, experiment_id: int | None) -> Any:

@@ -92,6 +92,16 @@ class JobList(BaseModel):
     total: int
 
 
+class JobSpecSchemasOut(BaseModel):
+    """The JSON Schema of the job specs POST /api/v1/jobs takes, for building forms (the dashboard's)."""
+
+    schemas: dict[str, dict[str, Any]] = Field(
+        description="every startable kind's spec model and the models they use, by name (a spec model's `kind` "
+        "says its kind; references read `#/schemas/NAME`): the same models as the OpenAPI document's, without the "
+        "rest of it"
+    )
+
+
 class LogLineOut(BaseModel):
     id: int
     at: datetime

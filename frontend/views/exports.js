@@ -4,7 +4,7 @@
 // with a simulation (comparisonExportPanel). The jobs it starts are followed live and each gets its download link
 // when done. The jobs lists show the same links (`downloadLinks` of job-helpers.js).
 import { postJSON } from "../api.js";
-import { apiSchema, specSchema } from "../specform.js";
+import { apiSchema, resolve, specSchema } from "../specform.js";
 import { field, fill, formatBytes, h, say, showError } from "../ui.js";
 import { downloadLinks, followJob, jobName } from "./job-helpers.js";
 
@@ -16,14 +16,14 @@ const FORMAT_NAMES = {
   "profile-csv": "profile CSV (the section lines)",
 };
 
-/** The export formats of a `source` result ("topography" or "comparison") in the server's OpenAPI document:
+/** The export formats of a `source` result ("topography" or "comparison") in the server's job spec schemas:
  * ExportSpec's format holds one list per source, each titled ("Topography export", "Comparison export"). */
 export async function exportFormats(source = "topography") {
   const root = await apiSchema();
   const schema = specSchema(root, "export");
   let format = schema.properties.format;
-  if (format.$ref) format = root.components.schemas[format.$ref.split("/").pop()];
-  const lists = format.anyOf ? format.anyOf.map((s) => (s.$ref ? root.components.schemas[s.$ref.split("/").pop()] : s)) : [format];
+  format = resolve(format, root);
+  const lists = format.anyOf ? format.anyOf.map((s) => resolve(s, root)) : [format];
   const title = source === "comparison" ? "Comparison export" : "Topography export";
   const chosen = lists.find((s) => s.title === title) || lists[0];
   return chosen.enum || [chosen.const].filter(Boolean);

@@ -159,3 +159,35 @@ def test_the_openapi_schema_documents_every_route(client):
         "/api/v1/uploads/cameras/{camera_id}/{filename}",
     ):
         assert path in paths, path
+
+
+def test_the_job_spec_schemas_are_the_openapi_documents_own(client):
+    """GET /jobs/specs (what the dashboard's forms are built from) holds each startable kind's spec model as the
+    OpenAPI document does, its references pointing within itself, at a tenth of the size."""
+    from fringelab.core.job_kinds import JOB_KINDS
+
+    answer = client.get("/api/v1/jobs/specs")
+    assert answer.status_code == 200
+    schemas = answer.json()["schemas"]
+    document = client.get("/api/openapi.json").json()["components"]["schemas"]
+    for entry in JOB_KINDS.values():
+        name = entry.spec.__name__
+        assert (name in schemas) == entry.startable, name
+        if entry.startable:
+            assert schemas[name]["properties"].keys() == document[name]["properties"].keys(), name
+            assert schemas[name]["properties"]["kind"]["const"] == entry.kind
+    refs = {value.split("/")[-1] for value in _values_of(schemas, "$ref")}
+    assert refs and refs <= schemas.keys()
+    assert len(answer.content) * 5 < len(client.get("/api/openapi.json").content)
+
+
+def _values_of(tree, key):
+    if isinstance(tree, dict):
+        for k, v in tree.items():
+            if k == key:
+                yield v
+            else:
+                yield from _values_of(v, key)
+    elif isinstance(tree, list):
+        for v in tree:
+            yield from _values_of(v, key)
