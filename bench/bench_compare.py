@@ -27,8 +27,6 @@ import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-import numpy as np  # noqa: E402
-
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from fringelab.formats.camera import read_camera_json  # noqa: E402
@@ -38,6 +36,7 @@ from fringelab.pipelines.comparison import compare_result  # noqa: E402
 from fringelab.pipelines.projector_calibration import calibrate_projector_recording  # noqa: E402
 from fringelab.pipelines.topography import topography_recording  # noqa: E402
 from fringelab.pipelines.virtual_test import SIMULATION_WRITERS, write_true_simulation, write_virtual_test  # noqa: E402
+from fringelab.science.virtual_test import calibration_heights_mm  # noqa: E402
 
 
 def main() -> None:
@@ -48,7 +47,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="bench_compare_") as folder:
         root = Path(folder) / "kodak"
         experiment = write_virtual_test(root, "kodak", n_test_frames=args.frames,
-                                         calibration_z_mm=np.arange(0.0, 80.0 + 1e-9, 4.0),
+                                         calibration_z_mm=calibration_heights_mm(4.0),
                                          camera_z_mm=(-20.0, 40.0, 100.0), seed=3)  # fmt: skip
         camera = read_camera_json(experiment.camera_json)
         projector = calibrate_projector_recording(open_recording(experiment.projector_calibration), camera)

@@ -228,12 +228,11 @@ def upload_virtual_experiment(bench: Bench, frames: int) -> dict[str, Any]:
     the three uploads through the API, until each recording is ready (ingested)."""
     import json
 
-    import numpy as np
-
     from fringelab.pipelines.virtual_test import write_virtual_test
+    from fringelab.science.virtual_test import calibration_heights_mm
 
     virtual = write_virtual_test(
-        bench.root / "virtual", "kodak", n_test_frames=frames, calibration_z_mm=np.arange(0.0, 80.0 + 1e-9, 4.0),
+        bench.root / "virtual", "kodak", n_test_frames=frames, calibration_z_mm=calibration_heights_mm(4.0),
         as_zip=True,
     )  # fmt: skip
     truth = json.loads(virtual.truth_json.read_text())

@@ -43,7 +43,11 @@ def _add_arguments(command: argparse.ArgumentParser) -> None:
     )
     command.add_argument("--frames", type=int, default=40, help="test frames (default 40)")
     command.add_argument(
-        "--z-step", type=float, default=2.0, metavar="MM", help="projector calibration step over 0 … 80 mm (default 2)"
+        "--z-step",
+        type=float,
+        default=2.0,
+        metavar="MM",
+        help="projector calibration step, from 2 steps below the plate's rest to 80 mm (default 2)",
     )
     command.add_argument(
         "--scenario",
@@ -60,10 +64,8 @@ def _add_arguments(command: argparse.ArgumentParser) -> None:
 
 
 def virtual_test_command(args: argparse.Namespace) -> int:
-    import numpy as np
-
     from fringelab.pipelines.virtual_test import write_virtual_test
-    from fringelab.science.virtual_test import preset
+    from fringelab.science.virtual_test import calibration_heights_mm, preset
 
     if args.frames < 4:
         return fail(args, ValueError(f"--frames: expected at least 4, got {args.frames}"))
@@ -75,7 +77,7 @@ def virtual_test_command(args: argparse.Namespace) -> int:
                 args.out,
                 args.preset,
                 n_test_frames=args.frames,
-                calibration_z_mm=np.arange(0.0, 80.0 + 1e-9, args.z_step),
+                calibration_z_mm=calibration_heights_mm(args.z_step),
                 as_zip=args.zip,
                 seed=args.seed,
                 scenario=args.scenario,

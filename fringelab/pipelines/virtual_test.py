@@ -51,7 +51,8 @@ def write_virtual_test(
     """Write a whole virtual test for one camera in the recording formats, with ground truth beside it.
 
     out_dir/camera_calibration  chessboard Z-stack (frames, z.csv, board.json)
-    out_dir/projector_calibration  flat plate at calibration_z_mm (default 0 … 80 mm in 2 mm steps; z.csv)
+    out_dir/projector_calibration  flat plate at calibration_z_mm (default −4 … 80 mm in 2 mm steps,
+        `virtual_test.calibration_heights_mm`; z.csv)
     out_dir/test  the punch test in n_test_frames (frames.csv: frame,time_s,punch_displacement_mm,force_kN)
     out_dir/truth/camera.json  the exact camera as a camera-calibration file
     out_dir/truth/experiment.json  camera, projector, scene, imaging, calibration heights and per-frame states

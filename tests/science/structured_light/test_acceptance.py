@@ -222,10 +222,10 @@ def test_the_dim_scenario_end_to_end_keeps_no_point_with_a_wrong_order(tmp_path)
     from fringelab.pipelines.projector_calibration import calibrate_projector_recording
     from fringelab.pipelines.topography import topography_recording
     from fringelab.pipelines.virtual_test import write_virtual_test
-    from fringelab.science.virtual_test import Imaging, preset, scenario
+    from fringelab.science.virtual_test import Imaging, calibration_heights_mm, preset, scenario
 
     experiment = write_virtual_test(
-        tmp_path / "dim", "kodak", n_test_frames=DIM_FRAMES, calibration_z_mm=np.arange(0.0, 80.0 + 1e-9, 4.0),
+        tmp_path / "dim", "kodak", n_test_frames=DIM_FRAMES, calibration_z_mm=calibration_heights_mm(4.0),
         camera_z_mm=(-20.0, 40.0, 100.0), imaging=Imaging(supersample=1), scenario="dim", seed=29,
     )  # fmt: skip
     camera = read_camera_json(experiment.camera_json)
@@ -240,5 +240,8 @@ def test_the_dim_scenario_end_to_end_keeps_no_point_with_a_wrong_order(tmp_path)
             error = points[:, 2] - result.z_flat_mm - true_deflection_mm(setup.scene, state, points[:, 0], points[:, 1])
             assert np.all(np.abs(error[np.isfinite(error)]) < 0.25 * step_mm), f"frame {i}: a wrong order kept"
     assert np.all(coverage["measured_fraction"] > 0.8)
+    # The plate at rest lies inside the calibrated range (its Z-stack starts 2 steps below it): none of frame 0's
+    # points is outside it (4.0–4.3 % were, from a stack starting at the rest height).
+    assert coverage["missing_out_of_range_mm2"][0] == 0.0
     total = coverage["measured_area_mm2"] + sum(coverage[k] for k in coverage if k.startswith("missing_"))
     np.testing.assert_allclose(total, coverage["visible_area_mm2"], rtol=1e-9)
