@@ -8,8 +8,9 @@ Reports, for the virtual test at 512 × 480 (kodak) and 1024 × 1024 (phantom):
   what is missing, table lookup, back-projection) per frame;
 - edges+order+Z+XY: both, the figure the targets are about (≥ 100 frames/s/core at 512 × 480, ≥ 25 at
   1024 × 1024);
-- the shares of σ_w² (mean over the frames): the edges' own σ, the projector table's fit, and what the frames'
-  checks across edges added (`uncertainty.budget_shares`; the camera is exact here, so it has no term);
+- the shares of σ_w² (mean over the frames): the edges' own σ, the projector table's fit, the local check's τ²
+  and what the frames' checks across edges added (`uncertainty.budget_shares`; the camera is exact here, so it
+  has no term);
 - gridding: `topography.grid_measurement` per frame (2 mm grid);
 - peak memory (tracemalloc, all numpy buffers included) of `topography_recording` over PNG recordings of
   increasing length, read lazily: it must not grow with the frame count;
@@ -86,7 +87,9 @@ def speed(name: str, n_frames: int) -> dict[str, float]:
     )
     n_points = np.mean([len(m.k) for m in measurements])
     shares = [
-        budget_shares(m.sigma_z_mm, projector.lookup_table[m.line, m.k, TABLE_SIGMA_Z], m.sigma_scale)
+        budget_shares(
+            m.sigma_z_mm, projector.lookup_table[m.line, m.k, TABLE_SIGMA_Z], m.sigma_scale, m.local_variance_mm2
+        )
         for m in measurements
         if m.sigma_z_mm is not None
     ]

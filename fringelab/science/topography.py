@@ -68,7 +68,14 @@ from .projector import (
     camera_fingerprint,
     table_z_at,
 )
-from .uncertainty import edge_sigmas_px, point_sigma_z_mm, scale_from_ratios, sigma_edge_halves, sigma_from_halves
+from .uncertainty import (
+    edge_sigmas_px,
+    local_excess_variance,
+    point_sigma_z_mm,
+    scale_from_ratios,
+    sigma_edge_halves,
+    sigma_from_halves,
+)
 
 # The first test frame is the reference the order is anchored on (kept under its old name).
 FirstFrameNotFlatError = ReferenceNotFlatError
@@ -141,7 +148,8 @@ class FrameMeasurement:
     point's Z from the edge noise and the projector table (`uncertainty.point_sigma_z_mm`), None where not
     computed. temporal: the cross-check against the frame before (`TemporalCrossCheck`), None where not made.
     sigma_scale: the factor (≥ 1) the frame's check across edges multiplied sigma_z_mm by
-    (`uncertainty.cross_edge_scale`); 1 where not checked.
+    (`uncertainty.cross_edge_scale`); 1 where not checked. local_variance_mm2: (N,) the local check's τ² added to
+    each point's σ_Z² before that factor (`uncertainty.local_excess_variance`), None where not computed.
     """
 
     frame: int
@@ -160,6 +168,7 @@ class FrameMeasurement:
     sigma_z_mm: np.ndarray | None = None
     temporal: TemporalCheck | None = None
     sigma_scale: float = 1.0
+    local_variance_mm2: np.ndarray | None = None
 
     def dense(self, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """X, Y, Z as (K, S) arrays over (edge, line), NaN where not measured."""
@@ -697,8 +706,14 @@ def _measure(
     sigma_z = point_sigma_z_mm(
         sensitivity_px_per_mm=entries[:, 0], table_sigma_z_mm=entries[:, 1], edge_sigma_px=sigma_px[kk, ll],
     )  # fmt: skip
-    # The frame's own check of σ across neighbouring edges (`uncertainty.cross_edge_scale`).
-    sigma_scale = scale_from_ratios(_fourth_difference_ratios(kk, ll, z, sigma_z))
+    # The local check across neighbouring edges adds what the errors have beyond σ near each point
+    # (`uncertainty.local_excess_variance`); the frame's own check (`uncertainty.cross_edge_scale`) then scales.
+    k_centre, line_centre, d2, predicted = _fourth_difference_checks(kk, ll, z, sigma_z)
+    shape = (int(positions.shape[0]), int(positions.shape[1]))
+    local_variance = local_excess_variance(k_centre, line_centre, d2, predicted, shape, k=kk, line=ll)
+    sigma_z = np.sqrt(sigma_z**2 + local_variance)
+    _, _, d2, predicted = _fourth_difference_checks(kk, ll, z, sigma_z)
+    sigma_scale = scale_from_ratios(d2 / predicted)
     sigma_z = sigma_z * sigma_scale
     return FrameMeasurement(
         frame=int(frame),
@@ -716,26 +731,32 @@ def _measure(
         coverage=coverage,
         sigma_z_mm=sigma_z,
         sigma_scale=sigma_scale,
+        local_variance_mm2=local_variance,
     )
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _fourth_difference_ratios(kk: np.ndarray, ll: np.ndarray, z: np.ndarray, sigma: np.ndarray) -> np.ndarray:
-    """d²/Σc²σ² of every fourth difference of five neighbouring edges (k … k + 4) on a scan line
-    (`uncertainty.cross_edge_scale`), from the points (N,) sorted by (line, k) as `_looked_up_points` gives them."""
+def _fourth_difference_checks(
+    kk: np.ndarray, ll: np.ndarray, z: np.ndarray, sigma: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Every fourth difference of five neighbouring edges (k … k + 4) on a scan line (`uncertainty.cross_edge_scale`),
+    from the points (N,) sorted by (line, k) as `_looked_up_points` gives them: its middle edge and line, d² and
+    its predicted variance Σc²σ² (M,) each."""
     n = len(kk)
-    out = np.empty(max(n - 4, 0))
+    size = max(n - 4, 0)
+    k_centre, line_centre = np.empty(size, np.int64), np.empty(size, np.int64)
+    d2, predicted = np.empty(size), np.empty(size)
     m = 0
     for i in range(n - 4):
         if ll[i + 4] != ll[i] or kk[i + 4] - kk[i] != 4:
             continue  # not five consecutive edges of one line
         d = z[i] - 4.0 * z[i + 1] + 6.0 * z[i + 2] - 4.0 * z[i + 3] + z[i + 4]
-        predicted = (sigma[i] ** 2 + 16.0 * sigma[i + 1] ** 2 + 36.0 * sigma[i + 2] ** 2 + 16.0 * sigma[i + 3] ** 2
-                     + sigma[i + 4] ** 2)  # fmt: skip
-        if np.isfinite(d) and predicted > 0:
-            out[m] = d * d / predicted
+        p = (sigma[i] ** 2 + 16.0 * sigma[i + 1] ** 2 + 36.0 * sigma[i + 2] ** 2 + 16.0 * sigma[i + 3] ** 2
+             + sigma[i + 4] ** 2)  # fmt: skip
+        if np.isfinite(d) and p > 0:
+            k_centre[m], line_centre[m], d2[m], predicted[m] = kk[i + 2], ll[i], d * d, p
             m += 1
-    return out[:m]
+    return k_centre[:m], line_centre[:m], d2[:m], predicted[:m]
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")

@@ -23,7 +23,9 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
+import numba
 import numpy as np
+from scipy import special
 
 from .camera import Camera, project_points
 from .fields import Grid
@@ -107,18 +109,104 @@ def scale_from_ratios(ratios: np.ndarray) -> float:
     return max(1.0, float(np.sqrt(np.median(ratios) / _CHI2_1_MEDIAN)))
 
 
-def budget_shares(sigma_z_mm: np.ndarray, table_sigma_z_mm: np.ndarray, sigma_scale: float) -> dict[str, float]:
+# The local check's window of check centres: ±2 edges (the five a check spans) and ±12 scan lines; fewer checks
+# than LOCAL_MIN_CHECKS in it leave the point without the local term. A check's d² is clipped at
+# LOCAL_CLIP_RATIO times its predicted variance, so the rim of a hole adds a bounded amount.
+LOCAL_HALF_EDGES = 2
+LOCAL_HALF_LINES = 12
+LOCAL_MIN_CHECKS = 20
+LOCAL_CLIP_RATIO = 16.0
+# E[min(χ²₁, c)] = (2Φ(a) − 1) − 2aφ(a) + c·2(1 − Φ(a)), a = √c: the clipped d²/predicted when σ is right.
+_A = float(np.sqrt(LOCAL_CLIP_RATIO))
+_CLIPPED_CHI2_MEAN = (
+    float(special.erf(_A / np.sqrt(2.0)))
+    - 2.0 * _A * float(np.exp(-0.5 * _A * _A) / np.sqrt(2.0 * np.pi))
+    + LOCAL_CLIP_RATIO * float(special.erfc(_A / np.sqrt(2.0)))
+)
+# Σc² of the fourth difference: an error τ that each edge has on its own adds 70·τ² to E[d²].
+_FOURTH_DIFFERENCE_NORM = float(np.sum(_FOURTH_DIFFERENCE**2))
+
+
+def local_excess_variance(
+    k_centre: np.ndarray,
+    line_centre: np.ndarray,
+    d2: np.ndarray,
+    predicted: np.ndarray,
+    shape: tuple[int, int],
+    *,
+    k: np.ndarray,
+    line: np.ndarray,
+) -> np.ndarray:
+    """The variance τ² (mm², (N,)) that the errors of points (k, line) (N,) each have beyond their σ, from the
+    fourth differences across edges (`cross_edge_scale`) around them; shape (K, S): edges and lines.
+
+    k_centre, line_centre: (M,) the middle edge and the line of each check (each pair once); d2, predicted: (M,)
+    its d² and Σc²σ². Each check's excess min(d², 16·Σc²σ²) − E[min(χ²₁, 16)]·Σc²σ² is zero on average where σ is
+    right and 70·τ² where every edge has an extra error of variance τ² of its own (a bias along an edge near the
+    punch, a floor the edges' σ do not reach); averaged over LOCAL_HALF_EDGES × LOCAL_HALF_LINES around each
+    point, never below 0, and 0 where fewer than LOCAL_MIN_CHECKS checks lie in the window. Added, not a factor:
+    the points with a small σ gain most from it, the ranking by σ improves (docs/method.md §7, "Error budget").
+    """
+    clipped = np.minimum(d2, LOCAL_CLIP_RATIO * predicted) - _CLIPPED_CHI2_MEAN * predicted
+    return _local_excess_at(
+        np.ascontiguousarray(k_centre, np.int64), np.ascontiguousarray(line_centre, np.int64),
+        np.ascontiguousarray(clipped, np.float64), int(shape[0]), int(shape[1]),
+        np.ascontiguousarray(k, np.int64), np.ascontiguousarray(line, np.int64),
+    )  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True)
+def _local_excess_at(
+    k_centre: np.ndarray,
+    line_centre: np.ndarray,
+    clipped: np.ndarray,
+    n_edges: int,
+    n_lines: int,
+    k: np.ndarray,
+    line: np.ndarray,
+) -> np.ndarray:
+    """`local_excess_variance` by summed-area tables of the excess and of the count of checks."""
+    total = np.zeros((n_edges + 1, n_lines + 1))
+    count = np.zeros((n_edges + 1, n_lines + 1))
+    for i in range(len(clipped)):
+        total[k_centre[i] + 1, line_centre[i] + 1] = clipped[i]
+        count[k_centre[i] + 1, line_centre[i] + 1] = 1.0
+    for a in range(1, n_edges + 1):
+        for b in range(1, n_lines + 1):
+            total[a, b] += total[a - 1, b] + total[a, b - 1] - total[a - 1, b - 1]
+            count[a, b] += count[a - 1, b] + count[a, b - 1] - count[a - 1, b - 1]
+    out = np.zeros(len(k))
+    for i in range(len(k)):
+        k0, k1 = max(k[i] - LOCAL_HALF_EDGES, 0), min(k[i] + LOCAL_HALF_EDGES + 1, n_edges)
+        l0, l1 = max(line[i] - LOCAL_HALF_LINES, 0), min(line[i] + LOCAL_HALF_LINES + 1, n_lines)
+        n = count[k1, l1] - count[k0, l1] - count[k1, l0] + count[k0, l0]
+        if n >= LOCAL_MIN_CHECKS:
+            excess = total[k1, l1] - total[k0, l1] - total[k1, l0] + total[k0, l0]
+            out[i] = max(excess / n / _FOURTH_DIFFERENCE_NORM, 0.0)
+    return out
+
+
+def budget_shares(
+    sigma_z_mm: np.ndarray,
+    table_sigma_z_mm: np.ndarray,
+    sigma_scale: float,
+    local_variance_mm2: np.ndarray | None = None,
+) -> dict[str, float]:
     """Each term's share of a frame's mean σ_Z² (points (N,), the final σ and the table's): "edge" (the edges' own
-    σ through the sensitivity), "table" (the table's fit) and "across edges" (what the frame's check across edges
-    added, 1 − 1/scale²); they sum to 1."""
+    σ through the sensitivity), "table" (the table's fit), "local" (the local check's τ², `local_excess_variance`,
+    (N,) or None for none) and "across edges" (what the frame's check across edges added, 1 − 1/scale²); they sum
+    to 1."""
     total = np.asarray(sigma_z_mm, np.float64) ** 2
     table = (np.asarray(table_sigma_z_mm, np.float64) * sigma_scale) ** 2
-    ok = np.isfinite(total) & np.isfinite(table)
+    local = np.zeros_like(total) if local_variance_mm2 is None else np.asarray(local_variance_mm2) * sigma_scale**2
+    ok = np.isfinite(total) & np.isfinite(table) & np.isfinite(local)
     if not np.any(ok) or not np.sum(total[ok]) > 0:
-        return {"edge": float("nan"), "table": float("nan"), "across edges": float("nan")}
+        return {"edge": float("nan"), "table": float("nan"), "local": float("nan"), "across edges": float("nan")}
     table_share = float(np.sum(table[ok]) / np.sum(total[ok]))
+    local_share = float(np.sum(local[ok]) / np.sum(total[ok]))
     across = 1.0 - 1.0 / sigma_scale**2
-    return {"edge": 1.0 - across - table_share, "table": table_share, "across edges": across}
+    edge = 1.0 - across - table_share - local_share
+    return {"edge": edge, "table": table_share, "local": local_share, "across edges": across}
 
 
 def grid_sigma_mm(

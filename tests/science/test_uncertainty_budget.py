@@ -5,7 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fringelab.science.uncertainty import MIN_CROSS_EDGE_CHECKS, budget_shares, cross_edge_scale
+from fringelab.science.uncertainty import (
+    MIN_CROSS_EDGE_CHECKS,
+    budget_shares,
+    cross_edge_scale,
+    local_excess_variance,
+)
 
 
 def dome(n_edges: int = 40, n_lines: int = 300) -> np.ndarray:
@@ -42,8 +47,36 @@ def test_too_few_checks_or_missing_points_leave_sigma_as_it_is() -> None:
     assert cross_edge_scale(np.zeros((4, 300)), np.full((4, 300), 0.03)) == 1.0
 
 
+def fourth_difference_checks(z: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The checks of (K, S) heights as `topography` makes them: middle edge, line, d² and Σc²σ² (M,)."""
+    c = np.array([1.0, -4.0, 6.0, -4.0, 1.0])
+    n = z.shape[0] - 4
+    d = sum(ci * z[i : i + n] for i, ci in enumerate(c))
+    predicted = sum(ci * ci * sigma[i : i + n] ** 2 for i, ci in enumerate(c))
+    k, line = np.meshgrid(np.arange(2, n + 2), np.arange(z.shape[1]), indexing="ij")
+    return k.ravel(), line.ravel(), (d * d).ravel(), predicted.ravel()
+
+
+def test_the_local_check_finds_edge_biases_where_they_are_and_adds_nothing_where_sigma_is_right() -> None:
+    rng = np.random.default_rng(4)
+    sigma = rng.uniform(0.02, 0.06, dome().shape)
+    z = dome() + sigma * rng.standard_normal(sigma.shape)
+    # Near the "punch" (edges 15–24, lines 100–199) each edge is off by its own constant of σ 0.08 mm.
+    z[15:25, 100:200] += 0.08 * rng.standard_normal((10, 1))
+    k, line = np.meshgrid(np.arange(z.shape[0]), np.arange(z.shape[1]), indexing="ij")
+    tau2 = local_excess_variance(*fourth_difference_checks(z, sigma), z.shape, k=k.ravel(), line=line.ravel())
+    tau2 = tau2.reshape(z.shape)
+    inside, outside = tau2[17:23, 115:185], np.concatenate([tau2[:10].ravel(), tau2[30:].ravel()])
+    # 10 edge constants: their sample variance spreads by ±45 %; the window's ~125 checks by ±15 % more.
+    assert 0.4 * 0.08**2 < float(np.median(inside)) < 2.0 * 0.08**2
+    # Where σ is right the excess averages 0: clipped at 0 it stays a few % of σ² (0.04² mm²).
+    assert float(np.mean(outside)) < 0.1 * 0.04**2
+
+
 def test_the_shares_sum_to_one() -> None:
-    shares = budget_shares(np.full(10, 0.05), np.full(10, 0.02), 1.25)
+    shares = budget_shares(np.full(10, 0.05), np.full(10, 0.02), 1.25, np.full(10, 0.01**2))
     assert sum(shares.values()) == pytest.approx(1.0)
     assert shares["across edges"] == pytest.approx(1 - 1 / 1.25**2)
     assert shares["table"] == pytest.approx((0.02 * 1.25) ** 2 / 0.05**2)
+    assert shares["local"] == pytest.approx((0.01 * 1.25) ** 2 / 0.05**2)
+    assert budget_shares(np.full(10, 0.05), np.full(10, 0.02), 1.0)["local"] == 0.0

@@ -95,8 +95,8 @@ def test_edges_stored_before_the_per_edge_sigma_read_with_the_frames_sigma(
     new_measured = measure_frame(edges[0], reference, kodak.projector, kodak.camera, frame=3)
     old_measured = measure_frame(old, reference, kodak.projector, kodak.camera, frame=3)
     np.testing.assert_array_equal(old_measured.points_obj_mm, new_measured.points_obj_mm)
-    # Old edges: every point's edge term is the frame's σ (`uncertainty.edge_sigma_px`), then the frame's check
-    # across edges scales every σ alike.
+    # Old edges: every point's edge term is the frame's σ (`uncertainty.edge_sigma_px`), the local check across
+    # edges adds its τ², then the frame's check across edges scales every σ alike.
     frame_sigma = edge_sigma_px(old.noise_px, kodak.projector.edges)
     expected = point_sigma_z_mm(
         sensitivity_px_per_mm=_sensitivities(old_measured, kodak),
@@ -104,7 +104,9 @@ def test_edges_stored_before_the_per_edge_sigma_read_with_the_frames_sigma(
         edge_sigma_px=frame_sigma,
     )
     assert old_measured.sigma_scale >= 1.0
-    np.testing.assert_allclose(old_measured.sigma_z_mm, expected * old_measured.sigma_scale, rtol=1e-12)
+    assert old_measured.local_variance_mm2 is not None
+    with_local = np.sqrt(expected**2 + old_measured.local_variance_mm2)
+    np.testing.assert_allclose(old_measured.sigma_z_mm, with_local * old_measured.sigma_scale, rtol=1e-12)
     assert not np.allclose(new_measured.sigma_z_mm, old_measured.sigma_z_mm)
 
 
