@@ -11,14 +11,11 @@ import argparse
 import sys
 from typing import Any
 
-from fringelab.commands.output import emit, fail, progress_bar
+from fringelab.commands.output import emit, fail, integers, progress_bar
 
 
 def _pair_of_ints(text: str) -> tuple[int, int]:
-    try:
-        i, j = (int(part) for part in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected two integers I,J, got {text!r}") from None
+    i, j = integers(text, 2, "two integers I,J")
     return i, j
 
 

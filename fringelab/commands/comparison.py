@@ -11,15 +11,12 @@ import json
 import sys
 from typing import Any
 
-from fringelab.commands.output import line_mm
+from fringelab.commands.output import floats, line_mm
 from fringelab.formats import COMPARISON_EXPORTS
 
 
 def _pair(text: str) -> tuple[float, float]:
-    try:
-        x, y = (float(part) for part in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected X,Y in mm, got {text!r}") from None
+    x, y = floats(text, 2, "X,Y in mm")
     return x, y
 
 

@@ -19,12 +19,32 @@ from typing import Any
 ProgressCallback = Callable[[int, int, str], None]
 
 
+def floats(text: str, count: int, what: str) -> tuple[float, ...]:
+    """The core of the argparse types that take numbers separated by commas: `count` finite numbers, else
+    ArgumentTypeError "expected {what}, got '...'" (what: e.g. "X,Y in mm")."""
+    try:
+        values = tuple(float(part) for part in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != count or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
+    return values
+
+
+def integers(text: str, count: int, what: str) -> tuple[int, ...]:
+    """As `floats`, for whole numbers."""
+    try:
+        values = tuple(int(part) for part in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != count:
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
+    return values
+
+
 def line_mm(text: str) -> tuple[float, float, float, float]:
     """An argparse type: a line X0,Y0,X1,Y1 (mm), e.g. a profile's."""
-    try:
-        x0, y0, x1, y1 = (float(part) for part in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected X0,Y0,X1,Y1 in mm, got {text!r}") from None
+    x0, y0, x1, y1 = floats(text, 4, "X0,Y0,X1,Y1 in mm")
     return x0, y0, x1, y1
 
 

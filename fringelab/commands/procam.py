@@ -9,41 +9,29 @@ are imported inside the handlers so registering the commands stays instant. Scan
 from __future__ import annotations
 
 import argparse
-import math
 from pathlib import Path
 from typing import Any
 
-from fringelab.commands.output import emit, fail, progress_bar
+from fringelab.commands.output import emit, fail, floats, integers, progress_bar
 from fringelab.commands.tables import write_projector_table
 
 
 def _size(text: str) -> tuple[int, int]:
-    try:
-        width, height = (int(part) for part in text.lower().replace("x", ",").split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WIDTH,HEIGHT in pixels, got {text!r}") from None
+    width, height = integers(text.lower().replace("x", ","), 2, "WIDTH,HEIGHT in pixels")
     if width < 1 or height < 1:
         raise argparse.ArgumentTypeError(f"expected positive WIDTH,HEIGHT, got {text!r}")
     return width, height
 
 
 def _scale(text: str) -> tuple[float, float]:
-    try:
-        sx, sy = (float(part) for part in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected SX,SY (e.g. 1,0.5), got {text!r}") from None
+    sx, sy = floats(text, 2, "SX,SY (e.g. 1,0.5)")
     if not (sx > 0 and sy > 0):
         raise argparse.ArgumentTypeError(f"expected positive SX,SY, got {text!r}")
     return sx, sy
 
 
 def _offset(text: str) -> tuple[float, float]:
-    try:
-        dx, dy = (float(part) for part in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected DX,DY (e.g. -57,0), got {text!r}") from None
-    if not (math.isfinite(dx) and math.isfinite(dy)):
-        raise argparse.ArgumentTypeError(f"expected finite DX,DY, got {text!r}")
+    dx, dy = floats(text, 2, "finite DX,DY (e.g. -57,0)")
     return dx, dy
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from fringelab.commands.output import emit, fail, line_mm, progress_bar
+from fringelab.commands.output import emit, fail, floats, line_mm, progress_bar
 from fringelab.commands.tables import write_projector_table
 from fringelab.formats import EXPORT_FORMATS, SCAN_EXPORT_FORMATS
 
@@ -25,10 +25,7 @@ def _frames(text: str) -> slice:
 
 
 def _circle(text: str) -> tuple[float, float, float]:
-    try:
-        x, y, r = (float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected X,Y,R in mm (three numbers), got {text!r}") from None
+    x, y, r = floats(text, 3, "X,Y,R in mm (three numbers)")
     if not r > 0:
         raise argparse.ArgumentTypeError(f"expected a radius R > 0, got {r:g}")
     return x, y, r

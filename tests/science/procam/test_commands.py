@@ -86,7 +86,7 @@ def test_a_calibration_that_counts_projector_pixels_from_elsewhere_takes_an_offs
     with pytest.raises(SystemExit):
         run_cli("scan", str(recording), "--calibration", str(shifted), "--projector-offset", "nan,0", "-o",
                 str(tmp_path / "x.h5"))  # fmt: skip
-    assert "expected finite DX,DY, got 'nan,0'" in capsys.readouterr().err
+    assert "expected finite DX,DY (e.g. -57,0), got 'nan,0'" in capsys.readouterr().err
 
 
 def test_bad_input_is_refused_in_a_sentence_and_nothing_is_written(scanned, tmp_path: Path, capsys) -> None:
