@@ -721,6 +721,24 @@ class PunchTimeline:
     perforation_frame: int
 
 
+def _timeline(
+    states: list[PlateState], peak: int, max_deflection_mm: float, frame_interval_s: float, *,
+    push_mm_per_frame: float, force_decay: float,
+) -> PunchTimeline:  # fmt: skip
+    """The log of a punch test whose plate goes through `states`, deepest at frame `peak`: the punch indents the
+    plate a little (2 % of the deflection), and after perforation pushes on through by push_mm_per_frame; the force
+    grows as (w0/w_max)^1.5 to 120 kN, then falls by force_decay per frame."""
+    w0 = np.array([s.w0_mm for s in states])
+    index = np.arange(len(states))
+    after = index - peak
+    punch = np.where(after <= 0, 1.02 * w0, 1.02 * max_deflection_mm + push_mm_per_frame * after)
+    force = np.where(after <= 0, 120.0 * (w0 / max_deflection_mm) ** 1.5, 120.0 * force_decay**after)
+    return PunchTimeline(
+        states=tuple(states), time_s=index * frame_interval_s, punch_displacement_mm=punch, force_kN=force,
+        perforation_frame=peak + 1,
+    )  # fmt: skip
+
+
 def punch_timeline(
     n_frames: int = 40,
     *,
@@ -748,18 +766,7 @@ def punch_timeline(
             progress = (i - peak) / max(n_frames - 1 - peak, 1)
             radius = punch_radius_mm * (0.5 + 0.7 * progress)
             states.append(PlateState(max_deflection_mm * (1.0 + 0.02 * progress), hole_radius_mm=radius))
-    w0 = np.array([s.w0_mm for s in states])
-    index = np.arange(n_frames)
-    # The punch indents the plate a little (2 % of the deflection), and after perforation pushes on through.
-    punch = np.where(index <= peak, 1.02 * w0, 1.02 * max_deflection_mm + 3.0 * (index - peak))
-    force = np.where(index <= peak, 120.0 * (w0 / max_deflection_mm) ** 1.5, 120.0 * 0.25 ** (index - peak))
-    return PunchTimeline(
-        states=tuple(states),
-        time_s=index * frame_interval_s,
-        punch_displacement_mm=punch,
-        force_kN=force,
-        perforation_frame=peak + 1,
-    )
+    return _timeline(states, peak, max_deflection_mm, frame_interval_s, push_mm_per_frame=3.0, force_decay=0.25)
 
 
 def fast_timeline(
@@ -795,17 +802,7 @@ def fast_timeline(
             max_deflection_mm + punch_protrusion_mm_per_frame * (j + 1) if punch_protrusion_mm_per_frame > 0 else np.nan
         )
         states.append(PlateState(after, hole_radius_mm=hole_radius_mm, crack_length_mm=crack, punch_tip_z_mm=tip))
-    w0 = np.array([s.w0_mm for s in states])
-    index = np.arange(n_frames)
-    punch = np.where(index <= peak, 1.02 * w0, 1.02 * max_deflection_mm + 8.0 * (index - peak))
-    force = np.where(index <= peak, 120.0 * (w0 / max_deflection_mm) ** 1.5, 120.0 * 0.1 ** (index - peak))
-    return PunchTimeline(
-        states=tuple(states),
-        time_s=index * frame_interval_s,
-        punch_displacement_mm=punch,
-        force_kN=force,
-        perforation_frame=peak + 1,
-    )
+    return _timeline(states, peak, max_deflection_mm, frame_interval_s, push_mm_per_frame=8.0, force_decay=0.1)
 
 
 def scenario(name: str, setup: Preset, n_frames: int) -> tuple[Preset, PunchTimeline]:
