@@ -136,7 +136,7 @@ def create_app(settings: Settings) -> FastAPI:
         check_every_origin=not settings.auth_enabled,
     )
     # Outermost: a request beyond the bound is refused before anything else is done for it.
-    app.add_middleware(LoadShedding, max_in_flight=settings.resolved_api_threads + settings.api_queue,
+    app.add_middleware(LoadShedding, max_in_flight=settings.resolved_api_in_flight,
                        exempt=is_unshed_path)  # fmt: skip
     app.include_router(health.router, prefix="/api/v1")
     app.include_router(auth.router, prefix="/api/v1")

@@ -14,6 +14,9 @@ from pydantic import Field, ValidationError, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 ENV_PREFIX = "FRINGELAB_"
+# Database connections of a web server process kept beyond its requests: event streams' shared polls, the
+# reconciliation, the flush of token uses.
+BACKGROUND_CONNECTIONS = 10
 
 
 class SettingsError(Exception):
@@ -263,18 +266,30 @@ class Settings(BaseSettings):
 
     @property
     def resolved_db_pool_size(self) -> int:
-        """Database connections of one web server process: its threads' (+ 10 for event streams and background
-        work), but no more than its share of FRINGELAB_DB_MAX_CONNECTIONS, so that N processes never open more than
-        the server allows (several processes × a pool sized for one once exceeded PostgreSQL's 100)."""
+        """Database connections of one web server process: one for each request it serves at once (its threads and
+        FRINGELAB_API_QUEUE) and BACKGROUND_CONNECTIONS for event streams and background work, but no more than its
+        share of FRINGELAB_DB_MAX_CONNECTIONS, so that N processes never open more than the server allows (several
+        processes × a pool sized for one once exceeded PostgreSQL's 100)."""
         if self.db_pool_size:
             return self.db_pool_size
-        return max(2, min(self.api_threads + 10, self.db_max_connections // self.resolved_api_processes))
+        wanted = self.api_threads + self.api_queue + BACKGROUND_CONNECTIONS
+        return max(2, min(wanted, self.db_max_connections // self.resolved_api_processes))
 
     @property
     def resolved_api_threads(self) -> int:
         """Threads of one web server process: no more than it has database connections, as a thread beyond
         would only wait for one (the pool's 30 s timeout, then a 500)."""
         return max(2, min(self.api_threads, self.resolved_db_pool_size))
+
+    @property
+    def resolved_api_in_flight(self) -> int:
+        """Requests one web server process takes at once before it answers 503 (`backend.shedding`): its threads
+        and FRINGELAB_API_QUEUE, but no more than its database connections less BACKGROUND_CONNECTIONS. A request
+        keeps its connection until its answer is serialised, which takes a thread again: with more requests than
+        connections, threads waiting for a connection held by requests waiting for a thread stalled a process
+        until the pool's timeout (measured: answers after 10 s at 4 threads, 16 queued, 14 connections)."""
+        connections = max(1, self.resolved_db_pool_size - BACKGROUND_CONNECTIONS)
+        return max(1, min(self.resolved_api_threads + self.api_queue, connections))
 
     @property
     def resolved_worker_concurrency(self) -> int:

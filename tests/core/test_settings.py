@@ -2,7 +2,7 @@ from pathlib import Path
 
 import pytest
 
-from fringelab.core.settings import Settings, SettingsError, load_settings, settings_table
+from fringelab.core.settings import BACKGROUND_CONNECTIONS, Settings, SettingsError, load_settings, settings_table
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -55,7 +55,7 @@ def test_settings_are_read_when_built_not_at_import(monkeypatch, tmp_path):
 
 @pytest.mark.parametrize(
     ("processes", "connections", "threads"),
-    [(1, 50, 40), (2, 45, 40), (4, 22, 22), (8, 11, 11)],  # 40 threads + 10, within 90 / processes
+    [(1, 60, 40), (2, 45, 40), (4, 22, 22), (8, 11, 11)],  # 40 threads + 10 queued + 10, within 90 / processes
 )
 def test_the_web_servers_database_connections_stay_within_the_total(processes, connections, threads):
     """N API processes × a pool sized for one once exceeded PostgreSQL's 100 connections: each process gets its
@@ -64,6 +64,8 @@ def test_the_web_servers_database_connections_stay_within_the_total(processes, c
     assert (settings.resolved_db_pool_size, settings.resolved_api_threads) == (connections, threads)
     assert processes * settings.resolved_db_pool_size <= settings.db_max_connections
     assert Settings(_env_file=None, api_processes=8, db_pool_size=30).resolved_db_pool_size == 30  # type: ignore[call-arg]
+    # never more requests at once than connections for them (beside streams and background work): see below
+    assert settings.resolved_api_in_flight <= max(1, settings.resolved_db_pool_size - BACKGROUND_CONNECTIONS)
 
 
 def test_the_default_web_server_processes_follow_the_cores():
