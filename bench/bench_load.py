@@ -318,6 +318,38 @@ def load(base_url: str, tokens: list[str], probe_token: str, job_id: str, runnin
         return results, probe.result(), elapsed
 
 
+def _start_profilers(args: argparse.Namespace, processes: list[psutil.Process], *,
+                     duration_s: float) -> list[subprocess.Popen[bytes]]:  # fmt: skip
+    """With --profile DIR: py-spy sampling each web server process (idle threads too: where requests wait) for the
+    load, as collapsed stacks in DIR/<rate>-<pid>.txt (`py-spy` must be installed: `pip install py-spy`)."""
+    if not args.profile:
+        return []
+    Path(args.profile).mkdir(parents=True, exist_ok=True)
+    return [
+        subprocess.Popen(
+            [
+                "py-spy",
+                "record",
+                "--idle",
+                "--format",
+                "raw",
+                "--rate",
+                "50",
+                "--nonblocking",
+                "--duration",
+                str(int(duration_s)),
+                "--pid",
+                str(process.pid),
+                "--output",
+                str(Path(args.profile) / f"{args.rate:g}-{process.pid}.txt"),
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )  # fmt: skip
+        for process in processes
+    ]
+
+
 def share_with_members(client: httpx.Client, experiment_ids: list[int]) -> None:
     """The members read the demos through a group share, as a lab does (not the 404 of someone else's data)."""
     members = [name for name in USERS if name not in ADMINS]
@@ -503,6 +535,7 @@ def run_load(
     # One topography of 200 frames takes a few seconds: the keeper starts more, so that one always runs.
     keeper = TopographyKeeper(system.base_url, tokens[0], second, spec, frames=args.running_frames)
     keeper.start()
+    profilers = _start_profilers(args, serving(api), duration_s=duration_s + 3.0)
     try:
         results, probed, elapsed = load(
             system.base_url, tokens, probe_token, job["id"], running, rate=args.rate,
@@ -512,6 +545,8 @@ def run_load(
         recovered_s = recovery_s(system.base_url, tokens[0], job["id"])
     finally:
         keeper.stop()
+        for profiler in profilers:
+            profiler.wait()
     load_after = os.getloadavg()
     api = system.api_processes()  # the same ones unless one was restarted (then the figure says so)
     serving_count = len(serving(api))
@@ -523,7 +558,9 @@ def run_load(
         cpu_s(workers) - worker_cpu_before,
     )
     try:
-        second_jobs = admin.get("/api/v1/jobs", params={"experiment_id": second, "limit": 100}).json()
+        second_jobs = (
+            admin.get("/api/v1/jobs", params={"experiment_id": second, "limit": 100}).raise_for_status().json()
+        )
         states = Counter(f"{j['kind']}:{j['state']}" for j in second_jobs["items"])
         spans = {f"{j['kind']} {j['id'][:6]}": (j["started_at"], j["finished_at"])
                  for j in second_jobs["items"]}  # fmt: skip
@@ -633,6 +670,14 @@ def main() -> int:
     parser.add_argument("--api-processes", type=int, default=2, help="web server processes")
     parser.add_argument("--api-threads", type=int, default=0, help="FRINGELAB_API_THREADS (0: the default)")
     parser.add_argument("--api-queue", type=int, default=-1, help="FRINGELAB_API_QUEUE (-1: the default)")
+    parser.add_argument("--profile", metavar="DIR", help="sample the web server with py-spy during each load into DIR")
+    parser.add_argument(
+        "--env",
+        action="append",
+        default=[],
+        metavar="FRINGELAB_NAME=VALUE",
+        help="another setting of the system under test (repeatable), e.g. FRINGELAB_WORKER_NICE=19",
+    )
     args = parser.parse_args()
 
     with tempfile.TemporaryDirectory(prefix="fringelab-bench-load-") as temp:
@@ -643,6 +688,9 @@ def main() -> int:
             system.env["FRINGELAB_API_THREADS"] = str(args.api_threads)
         if args.api_queue >= 0:
             system.env["FRINGELAB_API_QUEUE"] = str(args.api_queue)
+        for setting in args.env:
+            name, _, value = setting.partition("=")
+            system.env[name] = value
         for name in (*USERS, PROBE_USER):
             flags = ["--admin"] if name in ADMINS or name == PROBE_USER else []
             cli(system.env, "user", "add", name, *flags, "--password-stdin", stdin=f"{name}-password-16\n")
@@ -656,7 +704,9 @@ def main() -> int:
             first = demo(admin, test_frames=args.test_frames)
             job = wait(lambda: topography_job(admin, first, finished=True), timeout_s=SETUP_TIMEOUT_S,
                        what="finished topography job of the first demo", interval_s=2)  # fmt: skip
-            print(f"setup: first demo measured in {time.monotonic() - setup_started:.0f} s", flush=True)
+            print(f"setup: first demo measured in {time.monotonic() - setup_started:.0f} s; web server settings: "
+                  f"{' '.join(f'{k}={v}' for k, v in sorted(system.env.items()) if k.startswith('FRINGELAB_'))}",
+                  flush=True)  # fmt: skip
             second = demo(admin, test_frames=args.running_frames)
             # The load starts once the second demo's topography job runs (its ingest and calibrations first).
             wait(lambda: _topography_running(admin, second), timeout_s=SETUP_TIMEOUT_S,
@@ -664,36 +714,18 @@ def main() -> int:
             spec = topography_job(admin, second, finished=False)["spec"]  # type: ignore[index]
             running = running_jobs(admin, second)
             share_with_members(admin, [first, second])
-            missed = run_load(
-                system,
-                args,
-                admin,
-                tokens,
-                probe_token,
-                job,
-                second,
-                spec,
-                running,
-                rate=args.rate,
-                duration_s=args.duration,
-            )
-            for then in args.then:
-                rate_s, _, seconds = then.partition(":")
-                time.sleep(args.pause)
-                print(f"\n--- then {rate_s}/s for {seconds} s", flush=True)
-                missed |= run_load(
-                    system,
-                    args,
-                    admin,
-                    tokens,
-                    probe_token,
-                    job,
-                    second,
-                    spec,
-                    running,
-                    rate=float(rate_s),
-                    duration_s=float(seconds),
-                )
+            # The first load, then each --then on the same server after a pause: one report block each.
+            loads = [
+                (args.rate, args.duration),
+                *((float(r), float(d)) for r, _, d in (t.partition(":") for t in args.then)),
+            ]
+            missed = 0
+            for number, (rate, duration_s) in enumerate(loads):
+                if number:
+                    time.sleep(args.pause)
+                    print(f"\n--- then {rate:g}/s for {duration_s:g} s", flush=True)
+                missed |= run_load(system, args, admin, tokens, probe_token, job, second, spec, running, rate=rate,
+                                   duration_s=duration_s)  # fmt: skip
             if args.health_flood:
                 missed |= health_flood(system.base_url, tokens[0], job["id"], connections=args.health_flood)
             admin.close()
