@@ -37,7 +37,7 @@ import numpy as np  # noqa: E402
 from fringelab.formats.recordings import open_recording, write_recording  # noqa: E402
 from fringelab.pipelines.topography import topography_recording  # noqa: E402
 from fringelab.science.fringes import EdgeSettings, locate_edges  # noqa: E402
-from fringelab.science.projector import TABLE_SIGMA_Z, build_projector_calibration, exact_camera_model  # noqa: E402
+from fringelab.science.projector import build_projector_calibration, exact_camera_model  # noqa: E402
 from fringelab.science.topography import (  # noqa: E402
     TopographySettings,
     grid_for_first_frame,
@@ -87,9 +87,7 @@ def speed(name: str, n_frames: int) -> dict[str, float]:
     )
     n_points = np.mean([len(m.k) for m in measurements])
     shares = [
-        budget_shares(
-            m.sigma_z_mm, projector.lookup_table[m.line, m.k, TABLE_SIGMA_Z], m.sigma_scale, m.local_variance_mm2
-        )
+        budget_shares(m.sigma_z_mm, m.table_sigma_z_mm, m.sigma_scale, m.local_variance_mm2)
         for m in measurements
         if m.sigma_z_mm is not None
     ]

@@ -216,6 +216,11 @@ class ProjectorCalibration:
         )  # fmt: skip
 
     @functools.cached_property
+    def n_heights_by_line(self) -> np.ndarray:
+        """(S, K) int64: how many calibration heights each table entry was fitted to, laid out as `lookup_table`."""
+        return np.ascontiguousarray(np.count_nonzero(np.isfinite(self.lut_t_px), axis=-1).T.astype(np.int64))
+
+    @functools.cached_property
     def reference_lines(self) -> EdgeLines:
         """The reference positions line by line (`match_to_reference`)."""
         return EdgeLines.from_positions(self.reference_t_px)

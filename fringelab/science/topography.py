@@ -70,6 +70,8 @@ from .projector import (
 )
 from .uncertainty import (
     edge_sigmas_px,
+    fit_leverage_ratio,
+    leverage_polynomials,
     local_excess_variance,
     point_sigma_z_mm,
     scale_from_ratios,
@@ -150,6 +152,8 @@ class FrameMeasurement:
     sigma_scale: the factor (≥ 1) the frame's check across edges multiplied sigma_z_mm by
     (`uncertainty.cross_edge_scale`); 1 where not checked. local_variance_mm2: (N,) the local check's τ² added to
     each point's σ_Z² before that factor (`uncertainty.local_excess_variance`), None where not computed.
+    table_sigma_z_mm: (N,) the projector table's term of each point's σ_Z at its place in the fitted range
+    (before the frame's factor), None where not computed.
     """
 
     frame: int
@@ -169,6 +173,7 @@ class FrameMeasurement:
     temporal: TemporalCheck | None = None
     sigma_scale: float = 1.0
     local_variance_mm2: np.ndarray | None = None
+    table_sigma_z_mm: np.ndarray | None = None
 
     def dense(self, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """X, Y, Z as (K, S) arrays over (edge, line), NaN where not measured."""
@@ -700,7 +705,9 @@ def _measure(
     emitted: tuple[Any, np.ndarray], projector: ProjectorCalibration, camera_model: CameraModel
 ) -> FrameMeasurement:
     (frame, counts, noise_px, coverage, sigma_px), positions = emitted
-    kk, ll, t, z, entries, n_placed, n_out_of_range = _looked_up_points(positions, projector.lookup_table)
+    kk, ll, t, z, entries, n_placed, n_out_of_range = _looked_up_points(
+        positions, projector.lookup_table, projector.n_heights_by_line, _leverage(projector)
+    )
     points = scan_rays(camera_model, projector.axis).backproject_to_z(ll, t, z)
     # Each point's edge σ as located (temporal smoothing, if on, would reduce it: left out, so σ errs large).
     sigma_z = point_sigma_z_mm(
@@ -732,6 +739,7 @@ def _measure(
         sigma_z_mm=sigma_z,
         sigma_scale=sigma_scale,
         local_variance_mm2=local_variance,
+        table_sigma_z_mm=entries[:, 1],
     )
 
 
@@ -759,13 +767,19 @@ def _fourth_difference_checks(
     return k_centre[:m], line_centre[:m], d2[:m], predicted[:m]
 
 
+def _leverage(projector: ProjectorCalibration) -> np.ndarray:
+    """The table's `uncertainty.leverage_polynomials` (its degree, up to its number of heights)."""
+    return leverage_polynomials(projector.coefficients.shape[-1] - 1, projector.lut_t_px.shape[-1])
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _looked_up_points(
-    positions: np.ndarray, table: np.ndarray
+    positions: np.ndarray, table: np.ndarray, n_heights: np.ndarray, leverage: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, int]:
     """The points of positions (K, S) with Z from the table, line by line (the order the table and the rays are
-    laid out in): k, line, t, z (N,), each point's table sensitivity and σ_Z (N, 2), and how many positions there
-    were and how many lay outside the calibrated range."""
+    laid out in): k, line, t, z (N,), each point's table sensitivity and σ_Z at its place in the fitted range (the
+    entry's σ_Z times its leverage there, `uncertainty.fit_leverage_ratio` of the row of `leverage` for the entry's
+    n_heights (S, K)) (N, 2), and how many positions there were and how many lay outside the calibrated range."""
     n_edges, n_lines = positions.shape
     capacity = n_edges * n_lines
     kk, ll = np.empty(capacity, np.int64), np.empty(capacity, np.int64)
@@ -783,7 +797,9 @@ def _looked_up_points(
             if status != 0:
                 continue
             kk[m], ll[m], t[m], z[m] = k, s, positions[k, s], value
-            entries[m, 0], entries[m, 1] = table[s, k, TABLE_SENSITIVITY], table[s, k, TABLE_SIGMA_Z]
+            tau = (positions[k, s] - table[s, k, 2]) / table[s, k, 3]
+            spread = fit_leverage_ratio(tau, leverage[min(n_heights[s, k], len(leverage) - 1)])
+            entries[m, 0], entries[m, 1] = table[s, k, TABLE_SENSITIVITY], table[s, k, TABLE_SIGMA_Z] * spread
             m += 1
     return kk[:m].copy(), ll[:m].copy(), t[:m].copy(), z[:m].copy(), entries[:m].copy(), n_placed, n_out_of_range
 

@@ -7,7 +7,8 @@ Belongs here (pure): the standard deviation of a measured height from what the m
    smoothed position is then noise_px · √(wᵀCw / (e₀−w)ᵀC(e₀−w)) (`smoothing.smoothed_noise_ratio`). Through
    the projector table's sensitivity (px per mm of Z) it is σ_Z,edge = σ_t / |dt/dZ|.
 2. The table itself: each (edge, line) polynomial of D + 1 coefficients fitted to J calibration heights with
-   residual RMS r has a prediction error of about r·√((D + 1)/J) (the average over the fitted range).
+   residual RMS r has a prediction error of about r·√((D + 1)/J) on average over the fitted range, and
+   r·√(h(τ)) at τ in it (the fit's leverage, `leverage_polynomials`: larger toward the range's ends).
 3. The camera calibration: its parameter covariance (standard errors and correlations) moves where a pixel's
    ray meets the plane by δX, δY (the forward model's Jacobians); that changes w by ∇w·(δX, δY).
 The first two are independent and add in quadrature per point (`point_sigma_z_mm`). A grid node is interpolated
@@ -20,6 +21,7 @@ the surface's slope (`with_camera_term`). Not here: where the numbers are stored
 
 from __future__ import annotations
 
+import functools
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
@@ -55,6 +57,35 @@ def table_sigma_z_mm(*, fit_rms_mm: np.ndarray, n_heights: np.ndarray, n_coeffic
     coefficients give r·√((D + 1)/J) (NaN where the table has no entry)."""
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.asarray(fit_rms_mm, np.float64) * np.sqrt(n_coefficients / np.asarray(n_heights, np.float64))
+
+
+@functools.lru_cache(maxsize=4)
+def leverage_polynomials(degree: int, max_heights: int) -> np.ndarray:
+    """(max_heights + 1, 2D + 1) coefficients, ascending powers of τ, of h_J(τ)/h̄_J for J = 0 … max_heights: the
+    leverage of a degree-D least-squares fit to J heights spread evenly over τ ∈ [−1, 1], against its mean
+    (D + 1)/J, the factor by which a prediction's variance at τ exceeds the average `table_sigma_z_mm` assumes
+    (for D = 3 and 17 heights: 0.57 in the middle, 2.65 at the ends). Rows for J ≤ D + 1 are the constant 1."""
+    out = np.zeros((max_heights + 1, 2 * degree + 1))
+    out[:, 0] = 1.0
+    for n in range(degree + 2, max_heights + 1):
+        powers = np.linspace(-1.0, 1.0, n)[:, None] ** np.arange(degree + 1)
+        inverse = np.linalg.inv(powers.T @ powers)
+        row = np.zeros(2 * degree + 1)
+        for a in range(degree + 1):
+            row[a : a + degree + 1] += inverse[a]
+        out[n] = row * n / (degree + 1)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def fit_leverage_ratio(tau: float, polynomial: np.ndarray) -> float:
+    """How much larger than its average over the fitted range (`table_sigma_z_mm`) a polynomial fit's prediction
+    σ is at τ (clipped to [−1, 1]): √ of a row of `leverage_polynomials` at τ."""
+    x = min(max(tau, -1.0), 1.0)
+    value = 0.0
+    for j in range(len(polynomial) - 1, -1, -1):
+        value = value * x + polynomial[j]
+    return float(np.sqrt(max(value, 0.0)))
 
 
 def point_sigma_z_mm(

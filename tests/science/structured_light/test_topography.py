@@ -135,7 +135,12 @@ def _sensitivities(measured, kodak: RenderedExperiment) -> np.ndarray:  # type: 
 
 
 def _table_sigmas(measured, kodak: RenderedExperiment) -> np.ndarray:  # type: ignore[no-untyped-def]
-    return kodak.projector.lookup_table[measured.line, measured.k, TABLE_SIGMA_Z]
+    """Each point's table σ_Z at its place in the fitted range: the entry's average σ_Z times the fit's leverage
+    there (`uncertainty.fit_leverage_ratio`), between 0.75 and 1.9 of it for a cubic fit to ≤ 41 heights."""
+    average = kodak.projector.lookup_table[measured.line, measured.k, TABLE_SIGMA_Z]
+    ratio = measured.table_sigma_z_mm / average
+    assert np.all((ratio > 0.74) & (ratio < 1.9))
+    return np.asarray(measured.table_sigma_z_mm)
 
 
 def test_temporal_smoothing_is_chunk_safe_and_reduces_noise(kodak: RenderedExperiment, tmp_path: Path) -> None:
