@@ -2,8 +2,8 @@
 
 What belongs here: who may see or change a simulation (it follows its experiment, `fringelab.core.accounts`), how a
 received file is stored as one (a single model file, or a ZIP of a folder format such as a d3plot family or a
-.pvd/.vtu series, unpacked under the rule of every ZIP) and its check job queued, when a delete is refused (a
-comparison job still uses it), and the comparison's preview. Routes call these and stay thin.
+.pvd/.vtu series, its directory checked under the rule of every ZIP) and its check job queued, when a delete is
+refused (a comparison job still uses it), and the comparison's preview. Routes call these and stay thin.
 
 No model is read in the web server's process: an upload is stored `checking`, and its check job
 (`worker.jobs.simulation_check`) reads it in a worker, in a process of its own with a memory and a time limit
@@ -11,12 +11,14 @@ No model is read in the web server's process: an upload is stored `checking`, an
 A check whose job ended without saying (a worker lost too often, a cancel) is failed by
 `fringelab.core.upload_checks.settle_checks`, which the reconciliation runs, so none stays `checking` for ever.
 
-Storage: `DATA_DIR/simulations/<id>/model/` holds the file or the unpacked folder; a refused upload (its name, size,
-archive or the disk) leaves neither a row nor files.
+Storage: `DATA_DIR/simulations/<id>/model/` holds the file as received; a ZIP is unpacked in its place by the check
+job (`unpack_model`), so no request spends its time unpacking. A refused upload (its name, size, archive or the
+disk) leaves neither a row nor files.
 """
 
 from __future__ import annotations
 
+import os
 import shutil
 import threading
 import uuid
@@ -84,28 +86,68 @@ def check_simulation_request(
         check_upload_size(state.settings, length, reserved_bytes=length)
 
 
-def _unpack(archive_path: Path, target: Path, *, filename: str, settings: Settings) -> None:
-    """Unpack a ZIP of a simulation folder into `target` under the rule of every ZIP (`container_zip.check_archive`:
-    unsafe entries, entry count, per-entry and whole-archive size and ratio), with the room it expands to checked
-    against the free disk and its reserve before and while it is written (Invalid or TooLarge naming it)."""
+def _check_zip(archive_path: Path, *, filename: str, settings: Settings) -> list[zipfile.ZipInfo]:
+    """The rule of every ZIP on a simulation's archive, from its directory alone (not a byte unpacked: cheap enough
+    for the request): unsafe entries, entry count, per-entry and whole-archive size and ratio
+    (`container_zip.check_archive`), at least one file, and room on the disk for what it expands to (Invalid or
+    TooLarge naming it). Returns its entries."""
     try:
         with zipfile.ZipFile(archive_path) as archive:
             infos = archive.infolist()
-            try:
-                total = check_archive(filename, infos, limits=zip_limits(settings), size=archive_path.stat().st_size)
-            except ValueError as error:
-                raise Invalid(f"{error}", code="unsafe_archive") from None
-            _room(settings, total, filename=filename)
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, NotImplementedError) as error:
+        raise Invalid(f"{filename}: not a readable ZIP archive ({error})", code="corrupt_archive") from None
+    try:
+        total = check_archive(filename, infos, limits=zip_limits(settings), size=archive_path.stat().st_size)
+    except ValueError as error:
+        raise Invalid(f"{error}", code="unsafe_archive") from None
+    if not any(not info.is_dir() and not is_junk_entry(info.filename) for info in infos):
+        raise Invalid(f"{filename}: the ZIP holds no file", code="invalid_simulation")
+    _room(settings, total, filename=filename)
+    return infos
+
+
+def _unpack(archive_path: Path, target: Path, *, filename: str, settings: Settings) -> None:
+    """Unpack a ZIP of a simulation folder into `target` under `_check_zip`'s rule, with the room checked again
+    before each entry is written (others write too)."""
+    infos = _check_zip(archive_path, filename=filename, settings=settings)
+    try:
+        with zipfile.ZipFile(archive_path) as archive:
             for info in infos:
                 if info.is_dir() or is_junk_entry(info.filename):
                     continue
-                _room(settings, info.file_size, filename=filename)  # others write too: again before each entry
+                _room(settings, info.file_size, filename=filename)
                 out = target.joinpath(*PurePosixPath(info.filename.replace("\\", "/")).parts)
                 out.parent.mkdir(parents=True, exist_ok=True)
                 with archive.open(info) as source, out.open("wb") as sink:
                     shutil.copyfileobj(source, sink, 2**20)
     except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, NotImplementedError) as error:
         raise Invalid(f"{filename}: not a readable ZIP archive ({error})", code="corrupt_archive") from None
+
+
+def unpack_model(settings: Settings, folder: Path, *, filename: str) -> None:
+    """Run by the simulation's check job (a worker, never the web server): a ZIP stored as received (the only
+    file of its model folder `folder`) is unpacked under `_check_zip`'s rule and takes the folder's place (the one
+    folder it wraps everything in, if so). Anything else is left as it is. Running it again after it finished does
+    nothing; after a crash between its steps it starts over from the archive."""
+    parent = folder.parent
+    packed = parent / "packed"
+    if not folder.exists() and packed.exists():
+        os.replace(packed, folder)  # stopped between the two renames below: the archive is whole in `packed`
+    remove_tree(settings.data_path, packed)  # stopped after them: the model is in place
+    archive = folder / filename
+    if not (archive.is_file() and [archive] == list(folder.iterdir()) and zipfile.is_zipfile(archive)):
+        return
+    work = parent / "unpacking"
+    remove_tree(settings.data_path, work)
+    work.mkdir()
+    try:
+        _unpack(archive, work, filename=filename, settings=settings)
+        model = _model_folder(work)
+        os.replace(folder, packed)
+        os.replace(model, folder)
+    finally:
+        remove_tree(settings.data_path, work)
+    remove_tree(settings.data_path, packed)
 
 
 def _room(settings: Settings, size_bytes: int, *, filename: str) -> None:
@@ -137,21 +179,18 @@ def register_simulation(
     """Store a fully received file as a simulation of the experiment, `checking`, and queue its check job; returns
     its id. Nothing of the model is read here (the web server's process): the check job reads it in a worker.
 
-    A ZIP is unpacked (a single file is kept as it is) into a staging folder under the rule of every ZIP, then
-    moved into `simulations/<id>/model/`. On a refusal the staging folder is removed; the staged upload stays for
-    the caller to remove.
+    The file is kept as received in `simulations/<id>/model/`. A ZIP's directory is checked here under the rule of
+    every ZIP (`_check_zip`: an unsafe archive gets its 4xx at once, before a byte is unpacked); its check job
+    unpacks it (`unpack_model`). On a refusal the staging folder is removed; the staged upload stays for the
+    caller to remove.
     """
     settings = state.settings
     work = put_dir(settings.data_path) / f"{uuid.uuid4().hex}.simulation"
     try:
         if zipfile.is_zipfile(staged):
-            work.mkdir(parents=True)
-            _unpack(staged, work, filename=filename, settings=settings)
-            if not any(work.iterdir()):
-                raise Invalid(f"{filename}: the ZIP holds no file", code="invalid_simulation")
-        else:
-            (work / "upload").mkdir(parents=True)
-            shutil.copyfile(staged, work / "upload" / filename)
+            _check_zip(staged, filename=filename, settings=settings)
+        (work / "upload").mkdir(parents=True)
+        shutil.copyfile(staged, work / "upload" / filename)
         folder = _model_folder(work)
         with state.sessions() as session:
             experiment = session.get(Experiment, experiment_id)

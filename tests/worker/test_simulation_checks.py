@@ -6,9 +6,11 @@ prefork workers (`fringelab worker`), the API in this process (so this process's
 
 from __future__ import annotations
 
+import io
 import re
 import signal
 import uuid
+import zipfile
 from datetime import timedelta
 
 import psutil
@@ -88,18 +90,31 @@ def test_an_upload_is_checking_until_a_worker_reads_it_and_cannot_be_compared_be
     ):
         assert refused.status_code == 409 and refused.json()["code"] == "simulation_not_ready", refused.text
         assert "still being checked" in refused.json()["detail"], refused.text
+    # a ZIP of a folder is stored as received: its directory checked in the request, not a byte unpacked there
+    packed = io.BytesIO()
+    with zipfile.ZipFile(packed, "w", compression=zipfile.ZIP_DEFLATED) as archive:
+        archive.writestr("run/nodes.csv", NODES_CSV)
+    zipped = client.put(f"/api/v1/experiments/{experiment['id']}/simulations/run.zip", content=packed.getvalue())
+    assert zipped.status_code == 201 and zipped.json()["state"] == "checking", zipped.text
+    model = simulation_dir(settings.data_path, zipped.json()["id"]) / "model"
+    assert [p.name for p in model.iterdir()] == ["run.zip"]
     # the quota counts the store the check will write beside the upload as much again as the upload
-    upload_bytes = len(NODES_CSV.encode())
+    upload_bytes = len(NODES_CSV.encode()) + len(packed.getvalue())
     assert owned_bytes(settings) == 8 + 2 * upload_bytes  # 8: the topography job's file
 
     start_prefork_worker(settings, concurrency=1, flush=False)
+    unpacked = ended(client, zipped.json()["id"])  # the check job unpacked it, then read it
+    assert (unpacked["state"], unpacked["kind"], unpacked["n_nodes"]) == ("ready", "csv", 4), unpacked
+    assert sorted(p.name for p in model.parent.iterdir()) == [CHECKED_FILE, "model"]  # nothing left of the unpacking
+    assert [p.name for p in model.iterdir()] == ["nodes.csv"]
     simulation = ended(client, stored["id"])
     assert (simulation["state"], simulation["kind"], simulation["n_states"], simulation["n_nodes"]) == (
         "ready", "csv", 2, 4,
     ), simulation  # fmt: skip
     assert simulation["error"] == "" and simulation["info"]["time"] == [0.0, 0.001]
-    store = simulation_dir(settings.data_path, stored["id"]) / CHECKED_FILE
-    assert owned_bytes(settings) == 8 + upload_bytes + store.stat().st_size  # then what the store takes
+    stores = sum((simulation_dir(settings.data_path, i) / CHECKED_FILE).stat().st_size
+                 for i in (stored["id"], unpacked["id"]))  # fmt: skip
+    assert owned_bytes(settings) == 8 + upload_bytes + stores  # then what the stores take
     check = wait_job(client, stored["check_job_id"])  # it ends just after it made the simulation ready
     assert check["state"] == "succeeded" and check["result"]["n_nodes"] == 4, check
     peak = check["result"]["peak_rss_bytes"]

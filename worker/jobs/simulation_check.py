@@ -1,7 +1,8 @@
 """The check job of an uploaded simulation: read it in a process of its own, within a memory and a time limit, and
 store what it holds.
 
-Task "fringelab.simulation_check" takes a job id whose spec is {"simulation_id": N}. The model is read by a child
+Task "fringelab.simulation_check" takes a job id whose spec is {"simulation_id": N}. A ZIP stored as received is
+unpacked first, here (`fringelab.core.simulations.unpack_model`, the rule of every ZIP). The model is read by a child
 of this worker process (`fringelab.core.simulation_check.checked_summary`: its address space and CPU time limited,
 the readers refusing declared sizes beyond FRINGELAB_SIMULATION_MAX_BYTES before allocating them), so a hostile file
 costs that child its limit and nothing else. What it read is stored beside the upload (`checked.h5`,
@@ -17,8 +18,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from fringelab.core.errors import Invalid
+from fringelab.core.errors import DomainError
 from fringelab.core.simulation_check import Refused, checked_summary
+from fringelab.core.simulations import unpack_model
 from fringelab.core.specs import SimulationCheckSpec
 from fringelab.core.storage import simulation_dir
 from fringelab.core.upload_checks import SIMULATION_CHECK, claim, store
@@ -36,9 +38,10 @@ def check_simulation(context: JobContext[SimulationCheckSpec]) -> dict[str, Any]
         session.commit()
     context.progress(0, 1, "reading the model")
     try:
+        unpack_model(context.settings, folder, filename=filename)  # a ZIP as received: here, never in a request
         store = simulation_dir(context.settings.data_path, simulation_id) / CHECKED_FILE
         checked = checked_summary(folder, filename=filename, settings=context.settings, store=store)
-    except Invalid as error:
+    except DomainError as error:
         peak = error.peak_rss_bytes if isinstance(error, Refused) else 0
         _store(context, simulation_id, state="failed", error=error.detail)
         context.log(f"refused; the checking process's peak memory: {peak / MIB:.0f} MiB")
