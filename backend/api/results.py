@@ -323,7 +323,7 @@ def topography_overview(job: JobDep, state: StateDep, request: Request) -> Topog
         return _overview(job, state).model_dump_json().encode()
 
     path = topography_file(job, state.settings.data_path)
-    return cached_json(ANSWERS, request.headers.get("accept-encoding", ""), path, ("overview",), render)  # type: ignore[return-value]
+    return cached_json(ANSWERS, request.headers, path, ("overview",), render)  # type: ignore[return-value]
 
 
 def _overview(job: Job, state: AppState) -> TopographyOverview:
@@ -427,7 +427,7 @@ def topography_grid(
 
         key = ("grid", frame, budget, window)
         path = topography_file(job, state.settings.data_path)
-        return cached_json(ANSWERS, request.headers.get("accept-encoding", ""), path, key, render)
+        return cached_json(ANSWERS, request.headers, path, key, render)
     with topography(job, state.settings.data_path, frames=state.frames) as reader:
         cut = reader.grid_cut(frame, budget=budget, window_mm=window)  # type: ignore[arg-type]
     if format == "f32":
@@ -506,7 +506,7 @@ def topography_profile(
 
     key = ("profile", tuple(frames), *line, n_points)
     path = topography_file(job, state.settings.data_path)
-    return cached_json(ANSWERS, request.headers.get("accept-encoding", ""), path, key, render)  # type: ignore[return-value]
+    return cached_json(ANSWERS, request.headers, path, key, render)  # type: ignore[return-value]
 
 
 class HistoryOut(BaseModel):

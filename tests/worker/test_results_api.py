@@ -245,6 +245,31 @@ def test_a_result_written_again_is_read_again_not_from_the_frames_kept(client, j
     assert gone.status_code == 410 and gone.json()["code"] == "result_missing", gone.text
 
 
+def test_a_grid_or_profile_asked_again_with_its_etag_is_304_and_a_result_written_again_is_not(client, job_id, settings):
+    """A result never changes once its job succeeded: a grid or profile carries an ETag of the file's identity and
+    the question, and asked again with it is answered 304 without a body (nothing read or rendered); another
+    question, another encoding or a result written again gets its own tag and the full answer."""
+    base = f"/api/v1/jobs/{job_id}/topography"
+    grid = {"frame": 12, "budget": 25}
+    first = client.get(f"{base}/grid", params=grid)
+    tag = first.headers["etag"]
+    assert first.status_code == 200 and first.headers["cache-control"] == "private, no-cache", first.headers
+    again = client.get(f"{base}/grid", params=grid, headers={"If-None-Match": tag})
+    assert (again.status_code, again.content, again.headers["etag"]) == (304, b"", tag)
+    assert client.get(f"{base}/grid", params=grid | {"frame": 13}, headers={"If-None-Match": tag}).status_code == 200
+    plain = client.get(f"{base}/grid", params=grid, headers={"If-None-Match": tag, "Accept-Encoding": "identity"})
+    assert plain.status_code == 200 and plain.headers["etag"] != tag  # the other representation
+    line = {"x0_mm": -90.0, "y0_mm": -50.0, "x1_mm": 90.0, "y1_mm": 40.0, "frames": [12]}
+    profile = client.get(f"{base}/profile", params=line).headers["etag"]
+    assert client.get(f"{base}/profile", params=line, headers={"If-None-Match": profile}).status_code == 304
+    path = settings.data_path / "results" / "jobs" / "topo-1" / "topography.h5"
+    written = path.with_name("again.h5")
+    write_result(written)
+    os.replace(written, path)
+    anew = client.get(f"{base}/grid", params=grid, headers={"If-None-Match": tag})
+    assert anew.status_code == 200 and anew.headers["etag"] != tag and anew.json()["frame"] == 12
+
+
 def test_the_frames_kept_stay_within_their_bytes(tmp_path):
     """The frame cache holds at most its bytes (least recently used out first) and never one frame over an eighth
     of them, so one huge frame cannot flush the rest."""
