@@ -505,8 +505,8 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
         polarity=polarity,
         chain=chain,
         noise_px=noise_px,
-        saturated_fraction=float(np.mean(saturated)),
-        dark_fraction=float(np.mean(dark)),
+        saturated_fraction=np.count_nonzero(saturated) / saturated.size,
+        dark_fraction=np.count_nonzero(dark) / dark.size,
         unusable=unusable,
         sigma_px=sigma_px,
         contrast_grey=contrast_grey,
@@ -861,17 +861,23 @@ def _worst_reason_per_block(
     """The largest UNUSABLE_* code of the pixels of each UNUSABLE_BLOCK_PX² block, shape (⌈H/b⌉, ⌈W/b⌉)."""
     block = UNUSABLE_BLOCK_PX  # a constant to the compiler: the divisions below become shifts
     height, width = scan.shape
-    worst = np.zeros(((height + block - 1) // block, (width + block - 1) // block), np.uint8)
+    n_blocks = (width + block - 1) // block
+    worst = np.zeros(((height + block - 1) // block, n_blocks), np.uint8)
+    # Each row's codes first (selects, no branches: the loop vectorises), then their maximum per block.
+    codes = np.zeros(n_blocks * block, np.uint8)
     for y in range(height):
+        scan_row, dark_row, contrast_row, max_row = scan[y], dark[y], contrast[y], local_max[y]
         for x in range(width):
-            if dark[y, x]:
-                code = UNUSABLE_BLACK if scan[y, x] < black_below else UNUSABLE_DARK
-            elif not (contrast[y, x] >= min_contrast and local_max[y, x] < saturation):
-                code = UNUSABLE_LOW_CONTRAST
-            else:
-                continue
-            if code > worst[y // block, x // block]:
-                worst[y // block, x // block] = code
+            dark_code = np.uint8(UNUSABLE_BLACK) if scan_row[x] < black_below else np.uint8(UNUSABLE_DARK)
+            usable = contrast_row[x] >= min_contrast and max_row[x] < saturation
+            lit_code = np.uint8(UNUSABLE_NONE) if usable else np.uint8(UNUSABLE_LOW_CONTRAST)
+            codes[x] = dark_code if dark_row[x] else lit_code
+        worst_row = worst[y // block]
+        for b in range(n_blocks):
+            code = worst_row[b]
+            for q in range(block):
+                code = max(code, codes[b * block + q])
+            worst_row[b] = code
     return worst
 
 
@@ -1085,19 +1091,28 @@ def _without_slivers(line: np.ndarray, t_px: np.ndarray, *, ratio: float = 0.5) 
     wider ones is a stripe cut by something narrower than a stripe (a crack, a scratch, the edge of a shadow),
     and one of its ends is that cut, not a stripe edge.
     """
-    keep = np.ones(len(line), bool)
     if len(line) < 4:
-        return keep
-    gap = np.diff(t_px).astype(np.float64)
-    gap[line[1:] != line[:-1]] = np.inf  # no stripe across lines
-    previous = np.r_[np.inf, gap[:-1]]
-    following = np.r_[gap[1:], np.inf]
-    # A neighbour missing (line end, or another line) does not count against the stripe.
-    previous[~np.isfinite(previous)] = following[~np.isfinite(previous)]
-    following[~np.isfinite(following)] = previous[~np.isfinite(following)]
-    sliver = np.isfinite(gap) & (gap < ratio * previous) & (gap < ratio * following)
-    keep[:-1] &= ~sliver
-    keep[1:] &= ~sliver
+        return np.ones(len(line), bool)
+    return _without_slivers_kernel(np.ascontiguousarray(line), np.ascontiguousarray(t_px), float(ratio))
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _without_slivers_kernel(line: np.ndarray, t: np.ndarray, ratio: float) -> np.ndarray:
+    n = len(line)
+    keep = np.ones(n, np.bool_)
+    for i in range(n - 1):
+        gap = float(t[i + 1] - t[i]) if line[i + 1] == line[i] else np.inf  # no stripe across lines
+        if not np.isfinite(gap):
+            continue
+        previous = float(t[i] - t[i - 1]) if i > 0 and line[i - 1] == line[i] else np.inf
+        following = float(t[i + 2] - t[i + 1]) if i + 2 < n and line[i + 2] == line[i + 1] else np.inf
+        # A neighbour missing (line end, or another line) does not count against the stripe.
+        if not np.isfinite(previous):
+            previous = following
+        if not np.isfinite(following):
+            following = previous
+        if gap < ratio * previous and gap < ratio * following:
+            keep[i] = keep[i + 1] = False
     return keep
 
 
