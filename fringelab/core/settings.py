@@ -268,11 +268,13 @@ class Settings(BaseSettings):
     def resolved_db_pool_size(self) -> int:
         """Database connections of one web server process: one for each request it serves at once (its threads and
         FRINGELAB_API_QUEUE) and BACKGROUND_CONNECTIONS for event streams and background work, but no more than its
-        share of FRINGELAB_DB_MAX_CONNECTIONS, so that N processes never open more than the server allows (several
-        processes × a pool sized for one once exceeded PostgreSQL's 100)."""
+        share of FRINGELAB_DB_MAX_CONNECTIONS of a database server, so that N processes never open more than it allows
+        (several processes × a pool sized for one once exceeded PostgreSQL's 100)."""
         if self.db_pool_size:
             return self.db_pool_size
         wanted = self.api_threads + self.api_queue + BACKGROUND_CONNECTIONS
+        if self.resolved_database_url.startswith("sqlite"):
+            return wanted  # a file, no server: no limit of connections to share
         return max(2, min(wanted, self.db_max_connections // self.resolved_api_processes))
 
     @property

@@ -53,6 +53,9 @@ def test_settings_are_read_when_built_not_at_import(monkeypatch, tmp_path):
     assert Settings(_env_file=None).port == 9002  # type: ignore[call-arg]
 
 
+POSTGRES = "postgresql://fringelab@db/fringelab"
+
+
 @pytest.mark.parametrize(
     ("processes", "connections", "threads"),
     [(1, 60, 40), (2, 45, 40), (4, 22, 22), (8, 11, 11)],  # 40 threads + 10 queued + 10, within 90 / processes
@@ -60,10 +63,13 @@ def test_settings_are_read_when_built_not_at_import(monkeypatch, tmp_path):
 def test_the_web_servers_database_connections_stay_within_the_total(processes, connections, threads):
     """N API processes × a pool sized for one once exceeded PostgreSQL's 100 connections: each process gets its
     share of FRINGELAB_DB_MAX_CONNECTIONS (90), and no more threads than connections (a thread without one waits)."""
-    settings = Settings(_env_file=None, api_processes=processes)  # type: ignore[call-arg]
+    settings = Settings(_env_file=None, api_processes=processes, database_url=POSTGRES)  # type: ignore[call-arg]
     assert (settings.resolved_db_pool_size, settings.resolved_api_threads) == (connections, threads)
     assert processes * settings.resolved_db_pool_size <= settings.db_max_connections
     assert Settings(_env_file=None, api_processes=8, db_pool_size=30).resolved_db_pool_size == 30  # type: ignore[call-arg]
+    # SQLite (the default) is a file: each process gets a connection for each request it takes, and 10
+    sqlite = Settings(_env_file=None, api_processes=processes)  # type: ignore[call-arg]
+    assert (sqlite.resolved_db_pool_size, sqlite.resolved_api_in_flight) == (60, 50)
     # never more requests at once than connections for them (beside streams and background work): see below
     assert settings.resolved_api_in_flight <= max(1, settings.resolved_db_pool_size - BACKGROUND_CONNECTIONS)
 
