@@ -715,12 +715,12 @@ def _measure(
     )  # fmt: skip
     # The local check across neighbouring edges adds what the errors have beyond σ near each point
     # (`uncertainty.local_excess_variance`); the frame's own check (`uncertainty.cross_edge_scale`) then scales.
-    k_centre, line_centre, d2, predicted = _fourth_difference_checks(kk, ll, z, sigma_z)
+    centre, d2, predicted = _fourth_difference_checks(kk, ll, z, sigma_z)
     shape = (int(positions.shape[0]), int(positions.shape[1]))
-    local_variance = local_excess_variance(k_centre, line_centre, d2, predicted, shape, k=kk, line=ll)
+    local_variance = local_excess_variance(kk[centre], ll[centre], d2, predicted, shape, k=kk, line=ll)
     sigma_z = np.sqrt(sigma_z**2 + local_variance)
-    _, _, d2, predicted = _fourth_difference_checks(kk, ll, z, sigma_z)
-    sigma_scale = scale_from_ratios(d2 / predicted)
+    # τ² varies little over the five edges of a check: its middle's stands for them (Σc² = 70).
+    sigma_scale = scale_from_ratios(d2 / (predicted + 70.0 * local_variance[centre]))
     sigma_z = sigma_z * sigma_scale
     return FrameMeasurement(
         frame=int(frame),
@@ -746,13 +746,13 @@ def _measure(
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _fourth_difference_checks(
     kk: np.ndarray, ll: np.ndarray, z: np.ndarray, sigma: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every fourth difference of five neighbouring edges (k … k + 4) on a scan line (`uncertainty.cross_edge_scale`),
-    from the points (N,) sorted by (line, k) as `_looked_up_points` gives them: its middle edge and line, d² and
-    its predicted variance Σc²σ² (M,) each."""
+    from the points (N,) sorted by (line, k) as `_looked_up_points` gives them: the index of its middle point,
+    d² and its predicted variance Σc²σ² (M,) each."""
     n = len(kk)
     size = max(n - 4, 0)
-    k_centre, line_centre = np.empty(size, np.int64), np.empty(size, np.int64)
+    centre = np.empty(size, np.int64)
     d2, predicted = np.empty(size), np.empty(size)
     m = 0
     for i in range(n - 4):
@@ -762,9 +762,9 @@ def _fourth_difference_checks(
         p = (sigma[i] ** 2 + 16.0 * sigma[i + 1] ** 2 + 36.0 * sigma[i + 2] ** 2 + 16.0 * sigma[i + 3] ** 2
              + sigma[i + 4] ** 2)  # fmt: skip
         if np.isfinite(d) and p > 0:
-            k_centre[m], line_centre[m], d2[m], predicted[m] = kk[i + 2], ll[i], d * d, p
+            centre[m], d2[m], predicted[m] = i + 2, d * d, p
             m += 1
-    return k_centre[:m], line_centre[:m], d2[:m], predicted[:m]
+    return centre[:m], d2[:m], predicted[:m]
 
 
 def _leverage(projector: ProjectorCalibration) -> np.ndarray:

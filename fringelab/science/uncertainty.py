@@ -140,11 +140,12 @@ def scale_from_ratios(ratios: np.ndarray) -> float:
     return max(1.0, float(np.sqrt(np.median(ratios) / _CHI2_1_MEDIAN)))
 
 
-# The local check's window of check centres: ±2 edges (the five a check spans) and ±12 scan lines; fewer checks
-# than LOCAL_MIN_CHECKS in it leave the point without the local term. A check's d² is clipped at
-# LOCAL_CLIP_RATIO times its predicted variance, so the rim of a hole adds a bounded amount.
-LOCAL_HALF_EDGES = 2
-LOCAL_HALF_LINES = 12
+# The local check's tiles of check centres: 5 edges (the five a check spans) by 24 scan lines, interpolated
+# between their centres; fewer than LOCAL_MIN_CHECKS checks (interpolated) leave the point without the local term.
+# A check's d² is clipped at LOCAL_CLIP_RATIO times its predicted variance, so the rim of a hole adds a bounded
+# amount.
+LOCAL_TILE_EDGES = 5
+LOCAL_TILE_LINES = 24
 LOCAL_MIN_CHECKS = 20
 LOCAL_CLIP_RATIO = 16.0
 # E[min(χ²₁, c)] = (2Φ(a) − 1) − 2aφ(a) + c·2(1 − Φ(a)), a = √c: the clipped d²/predicted when σ is right.
@@ -174,15 +175,15 @@ def local_excess_variance(
     k_centre, line_centre: (M,) the middle edge and the line of each check (each pair once); d2, predicted: (M,)
     its d² and Σc²σ². Each check's excess min(d², 16·Σc²σ²) − E[min(χ²₁, 16)]·Σc²σ² is zero on average where σ is
     right and 70·τ² where every edge has an extra error of variance τ² of its own (a bias along an edge near the
-    punch, a floor the edges' σ do not reach); averaged over LOCAL_HALF_EDGES × LOCAL_HALF_LINES around each
-    point, never below 0, and 0 where fewer than LOCAL_MIN_CHECKS checks lie in the window. Added, not a factor:
-    the points with a small σ gain most from it, the ranking by σ improves (docs/method.md §7, "Error budget").
+    punch, a floor the edges' σ do not reach); averaged in tiles of LOCAL_TILE_EDGES × LOCAL_TILE_LINES,
+    interpolated between the tiles' centres, never below 0, and 0 where fewer than LOCAL_MIN_CHECKS checks count.
+    Added, not a factor: the points with a small σ gain most from it, the ranking by σ improves (docs/method.md
+    §7, "Error budget").
     """
-    clipped = np.minimum(d2, LOCAL_CLIP_RATIO * predicted) - _CLIPPED_CHI2_MEAN * predicted
     return _local_excess_at(
         np.ascontiguousarray(k_centre, np.int64), np.ascontiguousarray(line_centre, np.int64),
-        np.ascontiguousarray(clipped, np.float64), int(shape[0]), int(shape[1]),
-        np.ascontiguousarray(k, np.int64), np.ascontiguousarray(line, np.int64),
+        np.ascontiguousarray(d2, np.float64), np.ascontiguousarray(predicted, np.float64), int(shape[0]),
+        int(shape[1]), np.ascontiguousarray(k, np.int64), np.ascontiguousarray(line, np.int64),
     )  # fmt: skip
 
 
@@ -190,29 +191,42 @@ def local_excess_variance(
 def _local_excess_at(
     k_centre: np.ndarray,
     line_centre: np.ndarray,
-    clipped: np.ndarray,
+    d2: np.ndarray,
+    predicted: np.ndarray,
     n_edges: int,
     n_lines: int,
     k: np.ndarray,
     line: np.ndarray,
 ) -> np.ndarray:
-    """`local_excess_variance` by summed-area tables of the excess and of the count of checks."""
-    total = np.zeros((n_edges + 1, n_lines + 1))
-    count = np.zeros((n_edges + 1, n_lines + 1))
-    for i in range(len(clipped)):
-        total[k_centre[i] + 1, line_centre[i] + 1] = clipped[i]
-        count[k_centre[i] + 1, line_centre[i] + 1] = 1.0
-    for a in range(1, n_edges + 1):
-        for b in range(1, n_lines + 1):
-            total[a, b] += total[a - 1, b] + total[a, b - 1] - total[a - 1, b - 1]
-            count[a, b] += count[a - 1, b] + count[a, b - 1] - count[a - 1, b - 1]
+    """`local_excess_variance`: the checks' excess and count summed in tiles of LOCAL_TILE_EDGES ×
+    LOCAL_TILE_LINES, both interpolated bilinearly between the tiles' centres at each point (a window of about
+    twice a tile, tapering), so a frame costs one pass over its checks and one over its points."""
+    n_tl, n_tk = n_lines // LOCAL_TILE_LINES + 2, n_edges // LOCAL_TILE_EDGES + 2
+    total = np.zeros((n_tl, n_tk))
+    count = np.zeros((n_tl, n_tk))
+    for i in range(len(d2)):
+        p = predicted[i]
+        a, b = line_centre[i] // LOCAL_TILE_LINES, k_centre[i] // LOCAL_TILE_EDGES
+        total[a, b] += min(d2[i], LOCAL_CLIP_RATIO * p) - _CLIPPED_CHI2_MEAN * p
+        count[a, b] += 1.0
+    return _tiles_at(total, count, k, line)
+
+
+@numba.njit(cache=True, nogil=True)
+def _tiles_at(total: np.ndarray, count: np.ndarray, k: np.ndarray, line: np.ndarray) -> np.ndarray:
+    """τ² at (k, line) from the tiles of `_local_excess_at`."""
+    n_tl, n_tk = total.shape
     out = np.zeros(len(k))
     for i in range(len(k)):
-        k0, k1 = max(k[i] - LOCAL_HALF_EDGES, 0), min(k[i] + LOCAL_HALF_EDGES + 1, n_edges)
-        l0, l1 = max(line[i] - LOCAL_HALF_LINES, 0), min(line[i] + LOCAL_HALF_LINES + 1, n_lines)
-        n = count[k1, l1] - count[k0, l1] - count[k1, l0] + count[k0, l0]
+        u = (line[i] + 0.5) / LOCAL_TILE_LINES - 0.5
+        v = (k[i] + 0.5) / LOCAL_TILE_EDGES - 0.5
+        a0, b0 = min(max(int(np.floor(u)), 0), n_tl - 2), min(max(int(np.floor(v)), 0), n_tk - 2)
+        fu, fv = min(max(u - a0, 0.0), 1.0), min(max(v - b0, 0.0), 1.0)
+        w00, w01, w10, w11 = (1 - fu) * (1 - fv), (1 - fu) * fv, fu * (1 - fv), fu * fv
+        n = w00 * count[a0, b0] + w01 * count[a0, b0 + 1] + w10 * count[a0 + 1, b0] + w11 * count[a0 + 1, b0 + 1]
         if n >= LOCAL_MIN_CHECKS:
-            excess = total[k1, l1] - total[k0, l1] - total[k1, l0] + total[k0, l0]
+            excess = (w00 * total[a0, b0] + w01 * total[a0, b0 + 1] + w10 * total[a0 + 1, b0]
+                      + w11 * total[a0 + 1, b0 + 1])  # fmt: skip
             out[i] = max(excess / n / _FOURTH_DIFFERENCE_NORM, 0.0)
     return out
 

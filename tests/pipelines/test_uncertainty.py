@@ -4,7 +4,7 @@ If σ_w is right, |error| ≤ 2σ holds for about 95 % of the points (a normal e
 below, σ is too small (the differences to a simulation would be called significant too often), above, too large
 (real differences would hide in it). Grid nodes combine their triangle's corners with errors correlated along
 an edge and independent across edges (`science.uncertainty.grid_sigma_mm`); on this experiment 2σ covers
-95.5–96.7 % of the points' errors and 94.9–95.7 % of the nodes' per frame (each edge's own σ, the table's at the
+95.2–96.5 % of the points' errors and 94.6–95.7 % of the nodes' per frame (each edge's own σ, the table's at the
 point's place in its range, the local check across edges' τ², scaled by the frame's check; 97.2–98.0 % and
 97.8–98.7 % with the frame's check alone; with one σ per frame and no check it was 92–97 % and 94–97 %).
 """

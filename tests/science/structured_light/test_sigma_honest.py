@@ -12,7 +12,7 @@ camera (the camera calibration's term is zero here; it is a field over the plate
 The σ model assumes none of these: each edge's σ comes from its slope, the jitter of its neighbours along the edge
 and the light's evenness (`fringes._edge_sigma`), with the local check across edges' τ² added
 (`uncertainty.local_excess_variance`) and the frame's check across edges (`uncertainty.cross_edge_scale`).
-Measured: harder 95.7–97.2 %, pillbox 94.4–98.1 %, other camera 95.9–98.2 % (the table's term at each point's
+Measured: harder 95.5–97.1 %, pillbox 94.3–98.0 %, other camera 95.6–98.1 % (the table's term at each point's
 place in its range, `uncertainty.fit_leverage_ratio`); with the frame's check alone they were
 97.1–97.8 %, 95.0–97.4 % and 97.0–98.2 % (σ too large for most points, too small near the punch), and with one σ
 per frame and no check 94.0–95.5 %, 92.7–97.5 % (RMS error up to 1.24 × RMS σ) and 95.3–97.3 %. Renders made
