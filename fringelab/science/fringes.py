@@ -35,6 +35,12 @@ MID_LEVEL_CHOICES = ("means", "envelopes")
 # sub-pixel accuracy, coarser ones would not fit several periods into the window that sets the mid-level.
 MIN_PERIOD_PX = 3.0
 MAX_PERIOD_PX = 80.0
+# A period the caller fixes (`EdgeSettings.period_px`) may be far wider: a Gray code's bit frames have stripes of
+# hundreds to thousands of pixels (the shared real scan's: 580–4600 px). Beyond MAX_PERIOD_PX the mid-level and
+# the contrast are set over the window of a MAX_PERIOD_PX period (1.5 × 80 px): what sets an edge is its own two
+# sides, within a blur width of it, and a window of a whole wide stripe would span other surfaces, lit otherwise
+# (a ball's highlight sets the mid-level of the screen behind it).
+MAX_FIXED_PERIOD_PX = 8192.0
 # A detected period is confirmed by the transitions themselves: the spacing of neighbouring same-polarity mid-level
 # crossings must agree with it to this fraction (a harmonic or the lit area's envelope is off by 50 % or more),
 # from at least this many spacings.
@@ -47,6 +53,11 @@ MIN_COHERENCE = 0.3
 # stripes have beside it and at least this many grey levels below it.
 BLACK_FRACTION = 0.6
 BLACK_MARGIN_GREY = 8.0
+# Beside a dark area, a transition is a stripe edge only where the stripe it closes on its lit side is whole: at
+# least this share of the width of the previous stripe of the same kind on its line (`_whole_beside_dark`). A
+# stripe cut by the rim of a dark area that is not black (a shadow under room light) is narrower; stripes narrow
+# by far less than this from one to the next with slope and perspective.
+WHOLE_STRIPE_SHARE = 0.75
 # Why no edge can be located in a block of pixels (`FrameEdges.unusable`), in increasing precedence.
 UNUSABLE_NONE = 0
 UNUSABLE_LOW_CONTRAST = 1
@@ -90,7 +101,8 @@ class EdgeSettings:
     """Settings of `locate_edges`; defaults suit ~6–20 px stripe periods in 8-bit frames with σ ≈ 2 noise.
 
     axis, period_px: fixed stripe geometry; "auto" / None detect it in each frame (a recording's pipeline fixes
-        them once, from the projector calibration, so every frame is processed alike).
+        them once, from the projector calibration, so every frame is processed alike). Detection finds periods
+        of MIN_PERIOD_PX..MAX_PERIOD_PX; a fixed period may be up to MAX_FIXED_PERIOD_PX (Gray-code bit frames).
     window_periods: the window (in stripe periods along the scan line) over which the local minimum and maximum
         set the contrast I_max − I_min; > 1 so a stripe stretched by a slope still shows both levels.
     min_contrast_grey: grey levels (8-bit scale) of I_max − I_min below which a transition is rejected.
@@ -104,8 +116,10 @@ class EdgeSettings:
         test_acceptance.py::test_peak_deflection_follows_the_punch).
     saturation_grey: grey level (8-bit scale) at or above which a transition's bright side counts as clipped.
     dark_fraction: pixels whose neighbourhood (one period) never rises above this fraction of the frame's bright
-        level are "dark" (clamp ring, hole, background); transitions within half a period of them are rejected,
-        because there the mid-level is set by the dark area, not by the stripes.
+        level are "dark" (clamp ring, hole, background, a wide dark stripe); transitions within half a period of
+        them are rejected, because there the mid-level is set by the dark area, not by the stripes. With stripes
+        wider than MAX_PERIOD_PX (Gray-code bit frames) the lit edge beside a dark area that is not black is
+        kept where its stripe is whole (`_whole_beside_dark`; see `locate_edges`).
     presmooth_px: Gaussian σ (px) of smoothing along the stripes before locating; it averages noise without
         moving an edge that runs along the smoothing direction.
     edge_smoothing_lines: Gaussian σ (lines) of the local quadratic fit of t against the line along each edge
@@ -149,8 +163,10 @@ class EdgeSettings:
     def __post_init__(self) -> None:
         if self.axis not in AXIS_CHOICES:
             raise ValueError(f"axis: expected one of {AXIS_CHOICES}, got {self.axis!r}")
-        if self.period_px is not None and not MIN_PERIOD_PX <= self.period_px <= MAX_PERIOD_PX:
-            raise ValueError(f"period_px: expected {MIN_PERIOD_PX}..{MAX_PERIOD_PX} px or None, got {self.period_px}")
+        if self.period_px is not None and not MIN_PERIOD_PX <= self.period_px <= MAX_FIXED_PERIOD_PX:
+            raise ValueError(
+                f"period_px: expected {MIN_PERIOD_PX}..{MAX_FIXED_PERIOD_PX} px or None, got {self.period_px}"
+            )
         if not self.window_periods >= 1.0:
             raise ValueError(f"window_periods: expected ≥ 1, got {self.window_periods}")
         for name in (
@@ -379,6 +395,47 @@ def _odd(value: float) -> int:
     return int(2 * (int(round(value)) // 2) + 1)
 
 
+# Up to this width (samples) OpenCV's dilation along the lines, whose cost grows with the width, is the faster;
+# beyond it the running maximum of `_running_max_kernel`, whose cost does not (wide fixed periods).
+_OPENCV_MAX_WIDTH = 161
+
+
+def _dilate_along_lines(a: np.ndarray, width: int, *, lines: int = 1) -> np.ndarray:
+    """The maximum of `a` (S, T) over `width` samples along each line (odd, centred; clipped at the line's ends)
+    and then over `lines` lines (odd, centred), as `cv2.dilate` with a (lines, width) box, any width at a cost
+    that does not grow with it."""
+    if width <= _OPENCV_MAX_WIDTH:
+        return cv2.dilate(a, np.ones((lines, width), np.uint8))
+    along = _running_max_kernel(np.ascontiguousarray(a), width // 2)
+    return along if lines == 1 else cv2.dilate(along, np.ones((lines, 1), np.uint8))
+
+
+@numba.njit(cache=True, nogil=True)
+def _running_max_kernel(a: np.ndarray, half: int) -> np.ndarray:
+    """max(a[i, j − half … j + half]) within the line, by van Herk and Gil–Werman's blocks of 2·half + 1
+    samples: the maximum from each block's start and from its end, three comparisons a sample."""
+    n_lines, n = a.shape
+    size = 2 * half + 1
+    out = np.empty_like(a)
+    forward = np.empty(n, a.dtype)
+    backward = np.empty(n, a.dtype)
+    for i in range(n_lines):
+        row = a[i]
+        for j in range(n):
+            forward[j] = row[j] if j % size == 0 else max(forward[j - 1], row[j])
+        for j in range(n - 1, -1, -1):
+            backward[j] = row[j] if (j % size == size - 1 or j == n - 1) else max(backward[j + 1], row[j])
+        for j in range(n):
+            lo, hi = max(j - half, 0), min(j + half, n - 1)
+            if lo // size != hi // size:
+                out[i, j] = max(backward[lo], forward[hi])  # the end of lo's block, the start of hi's
+            elif lo % size == 0:
+                out[i, j] = forward[hi]  # one block from its start (a full window, or clipped at the line's start)
+            else:
+                out[i, j] = backward[lo]  # clipped at the line's end, where the backward maxima restart
+    return out
+
+
 def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> FrameEdges:
     """Every stripe edge of one frame at sub-pixel accuracy, linked into curves and smoothed along them.
 
@@ -420,8 +477,7 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     # along the lines it covers the area itself.
     bright_level = float(np.percentile(scan[::4, ::4], 95))
     dark_window = _odd(period_px)
-    line_kernel_period = np.ones((1, dark_window), np.uint8)
-    stripe_max = cv2.dilate(scan, line_kernel_period)
+    stripe_max = _dilate_along_lines(scan, dark_window)
     dark = cv2.dilate(stripe_max, np.ones((3, 1), np.uint8)) < settings.dark_fraction * bright_level
     # Black: well below the dark stripes around it. A crack or a cut narrower than a stripe is not "dark" by the
     # test above (bright stripes lie within half a period of it), but it is darker than any dark stripe, and
@@ -429,22 +485,40 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     # (σ ≈ 2, less after the smoothing along the stripes) out of it where the dark stripes are dim themselves.
     # The dark stripes' level is a fixed share of the bright stripes' beside them (the projector's slide), whatever
     # the shading, so it is expected from the brightest sample within a period along the line.
-    sampled_max, sampled_min = stripe_max[::4, ::4], cv2.erode(scan[::4], line_kernel_period)[:, ::4]
+    sampled_max = stripe_max[::4, ::4]
+    if dark_window <= _OPENCV_MAX_WIDTH:
+        sampled_min = cv2.erode(scan[::4], np.ones((1, dark_window), np.uint8))[:, ::4]
+    else:
+        sampled_min = -_dilate_along_lines(-scan[::4], dark_window)[:, ::4]
     lit = ~dark[::4, ::4] & (sampled_max > 0)
     dark_share = float(np.median(sampled_min[lit] / sampled_max[lit])) if np.any(lit) else 0.0
     black = _black(scan, stripe_max, dark_share)
-    # Beside a wide dark area (the clamp ring, a hole) the test above already rejects what must be: the rim of the
-    # area is black too, but counting it would reject a stripe more along the plate's edge.
-    beside_dark = cv2.dilate(dark.astype(np.uint8), np.ones((3, 2 * dark_window + 1), np.uint8)).astype(bool)
-    dark |= black & ~beside_dark
-    dark_u8 = dark.astype(np.uint8)
-    dark_area = cv2.dilate(dark_u8, np.ones((1, dark_window), np.uint8))
+    # Beside a wide dark area (the clamp ring, a hole) the rim of the area is black too, but it is no part of the
+    # dark mask (the area is): counting it would mark a stripe more along the plate's edge as dark.
+    area_u8 = dark.astype(np.uint8)
+    beside_dark = _dilate_along_lines(area_u8, 2 * dark_window + 1, lines=3).astype(bool)
+    crack = black & ~beside_dark
+    if crack.any():
+        dark |= crack
+        dark_u8 = dark.astype(np.uint8)
+    else:
+        dark_u8 = area_u8
+    # The dark area as the mid-level leaves it out (see below). A window of wide stripes (beyond MAX_PERIOD_PX) holds
+    # no dark stripe but the edge's own: there the first half period of a dark area (the dark side of the lit edge
+    # beside it) takes part unless it is black (darker than the dark stripes: the rim of a hole, the clamp).
+    if period_px <= MAX_PERIOD_PX:
+        dark_area = _dilate_along_lines(dark_u8, dark_window)
+    else:
+        dark_area = dark_u8 | black.astype(np.uint8)
 
     # The contrast from the envelopes I_max, I_min over the window along each line, averaged over the window to
     # steady them; the mid-level from the mean grey level over one and over two periods (`_mid_and_contrast`).
     # Dark-area pixels take no part: next to the clamp or a hole the minimum would otherwise be the dark area,
     # not the dark stripe, and pull the mid-level (and the last edges) off by a tenth of a pixel.
-    window = _odd(settings.window_periods * period_px)
+    # What sets an edge lies within a blur width of it: beyond MAX_PERIOD_PX (Gray-code bit frames) the windows
+    # and reaches below are those of a MAX_PERIOD_PX period (see MAX_FIXED_PERIOD_PX).
+    local_period_px = min(float(period_px), MAX_PERIOD_PX)
+    window = _odd(settings.window_periods * local_period_px)
     line_kernel = np.ones((1, window), np.uint8)
     local_max = cv2.dilate(scan, line_kernel)
     local_min = cv2.erode(np.where(dark_area, np.float32(4.0 * FULL_SCALE), scan), line_kernel)
@@ -452,21 +526,50 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
         scan, local_max, local_min, dark_area, window, float(period_px), settings.mid_level == "means"
     )
 
-    # Transitions within half a period of a dark area (along the lines; across them, within the reach of the
-    # smoothing along the stripes, which mixes dark lines into their neighbours) are rejected: their stripe is cut.
-    grow = np.ones((2 * half + 3, 2 * dark_window - 1), np.uint8)
-    near_dark = cv2.dilate(dark_u8, grow)
+    # Near dark areas (along the lines; across them, within the reach of the smoothing along the stripes, which
+    # mixes dark lines into their neighbours). The dark mask starts half a period inside a dark area; transitions
+    # within a period of it (half a period beside the area) or of a crack have their stripe cut by it, and are
+    # rejected. Stripes wider than MAX_PERIOD_PX (Gray-code bit frames, of few stripes, whose dark stripes merge
+    # with a dark background) keep the lit edge beside a dark area that is not black: where the area is black (a
+    # hole, the clamp, a black shadow: darker than the dark stripes beside it; a black sample within a period) its
+    # rim may cut a stripe anywhere, and they are rejected; where it is not (the background of a dim scene, whose
+    # dark stripes are as dark), only those inside it (within a quarter period of the mask) are, and the rest
+    # (`beside`) are kept where their stripe is whole (`_whole_beside_dark`). Fringe periods keep the rule above:
+    # there the lit edge beside the virtual Kodak test's clamp ring, where it is not black, was 0.14 mm off on the
+    # flat plate (its mid-level set from one side), and those beside a hole let the grid reach into it
+    # (docs/method.md §5).
+    reach_lines = 2 * half + 3
+    grow = np.ones((reach_lines, 2 * dark_window - 1), np.uint8)
+    quarter = 2 * max(1, int(round(0.25 * local_period_px))) + 1
+    cut = _dilate_along_lines(dark_u8, grow.shape[1], lines=reach_lines)
     saturated = scan >= settings.saturation_grey
     # Near the first and last lines the smoothing along the stripes mirrors the image, which bends an inclined
     # edge: no crossings there.
     margin_lines = half if settings.presmooth_px > 0 else 0
+    keep_beside = period_px > MAX_PERIOD_PX and bool(area_u8.any())
     line, t_raw, polarity, mid_at, contrast_at = _crossings(
-        scan, mid, contrast, local_max, near_dark, min_contrast_grey=float(settings.min_contrast_grey),
-        saturation_grey=float(settings.saturation_grey), margin_lines=margin_lines,
+        scan, mid, contrast, local_max, np.zeros_like(cut) if keep_beside else cut,
+        min_contrast_grey=float(settings.min_contrast_grey), saturation_grey=float(settings.saturation_grey),
+        margin_lines=margin_lines,
     )  # fmt: skip
+    # Decided per crossing (few lie within the cut's reach) rather than per pixel: no dilation more.
+    if keep_beside:
+        near = _near_dark_kernel(cut, area_u8, black, line, t_raw, reach_lines // 2, quarter // 2, grow.shape[1] // 2)
+        kept = near != NEAR_DARK_REJECTED
+        if not kept.all():
+            line, t_raw, polarity, mid_at, contrast_at, near = (
+                a[kept] for a in (line, t_raw, polarity, mid_at, contrast_at, near)
+            )
+        beside = near == NEAR_DARK_BESIDE
 
-    keep = _without_glitches(line, t_raw, min_gap_px=0.25 * 0.5 * period_px)
-    keep[keep] = _without_slivers(line[keep], t_raw[keep])
+    keep = _without_glitches(line, t_raw, min_gap_px=0.25 * 0.5 * local_period_px)
+    if keep_beside:
+        at = beside[keep]
+        whole = _without_slivers(line[keep], t_raw[keep], beside=at, lone_is_sliver=period_px <= MAX_PERIOD_PX)
+        keep[keep] = whole
+        keep[keep] = _whole_beside_dark(line[keep], t_raw[keep], at[whole], period_px=float(period_px))
+    else:
+        keep[keep] = _without_slivers(line[keep], t_raw[keep], lone_is_sliver=period_px <= MAX_PERIOD_PX)
     line, t_raw, polarity, mid_at, contrast_at = (a[keep] for a in (line, t_raw, polarity, mid_at, contrast_at))
     # Where the light bends within a period (a soft shadow's rim) the mid-level cannot follow it: rejected.
     even = np.ones(len(line), bool)
@@ -844,8 +947,8 @@ def _unusable_blocks(
         scan, dark, contrast, local_max, float(settings.min_contrast_grey), float(settings.saturation_grey),
         black_level + margin,
     )  # fmt: skip
-    reach = np.ones((-(-grow.shape[0] // block) | 1, -(-grow.shape[1] // block) | 1), np.uint8)
-    return np.ascontiguousarray(cv2.dilate(worst, reach))
+    reach = _dilate_along_lines(worst, -(-grow.shape[1] // block) | 1, lines=-(-grow.shape[0] // block) | 1)
+    return np.ascontiguousarray(reach)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -1083,9 +1186,19 @@ def _without_glitches(line: np.ndarray, t_px: np.ndarray, *, min_gap_px: float) 
     return keep
 
 
-def _without_slivers(line: np.ndarray, t_px: np.ndarray, *, ratio: float = 0.5) -> np.ndarray:
+def _without_slivers(
+    line: np.ndarray,
+    t_px: np.ndarray,
+    *,
+    ratio: float = 0.5,
+    beside: np.ndarray | None = None,
+    lone_is_sliver: bool = True,
+) -> np.ndarray:
     """Mask, shape (N,), dropping both ends of any stripe less than `ratio` times as wide as both its neighbours
-    on the line.
+    on the line; where the stripe has a neighbour on one side only and its end on the other is beside a dark area
+    (`beside`, shape (N,) bool), only that end (the area's rim cut the stripe; its other end is a stripe edge).
+    A stripe alone on its line is a sliver (`lone_is_sliver`) where a line holds many stripes: a fragment cut at
+    both ends; not where a line may hold one (stripes wider than MAX_PERIOD_PX).
 
     Stripes narrow gradually with slope and perspective, so neighbouring stripes are alike; a sliver next to
     wider ones is a stripe cut by something narrower than a stripe (a crack, a scratch, the edge of a shadow),
@@ -1093,11 +1206,16 @@ def _without_slivers(line: np.ndarray, t_px: np.ndarray, *, ratio: float = 0.5) 
     """
     if len(line) < 4:
         return np.ones(len(line), bool)
-    return _without_slivers_kernel(np.ascontiguousarray(line), np.ascontiguousarray(t_px), float(ratio))
+    if beside is None:
+        beside = np.zeros(len(line), bool)
+    return _without_slivers_kernel(np.ascontiguousarray(line), np.ascontiguousarray(t_px), float(ratio),
+                                   np.ascontiguousarray(beside, np.bool_), lone_is_sliver)  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _without_slivers_kernel(line: np.ndarray, t: np.ndarray, ratio: float) -> np.ndarray:
+def _without_slivers_kernel(
+    line: np.ndarray, t: np.ndarray, ratio: float, beside: np.ndarray, lone_is_sliver: bool
+) -> np.ndarray:
     n = len(line)
     keep = np.ones(n, np.bool_)
     for i in range(n - 1):
@@ -1106,13 +1224,90 @@ def _without_slivers_kernel(line: np.ndarray, t: np.ndarray, ratio: float) -> np
             continue
         previous = float(t[i] - t[i - 1]) if i > 0 and line[i - 1] == line[i] else np.inf
         following = float(t[i + 2] - t[i + 1]) if i + 2 < n and line[i + 2] == line[i + 1] else np.inf
+        open_start, open_end = not np.isfinite(previous), not np.isfinite(following)
         # A neighbour missing (line end, or another line) does not count against the stripe.
-        if not np.isfinite(previous):
+        if open_start:
             previous = following
-        if not np.isfinite(following):
+        if open_end:
             following = previous
-        if gap < ratio * previous and gap < ratio * following:
+        if not (gap < ratio * previous and gap < ratio * following):
+            continue
+        if open_start and open_end and not lone_is_sliver:
+            continue  # no neighbour on either side: none to be narrower than
+        if open_end and not open_start and beside[i + 1]:
+            keep[i + 1] = False  # cut by the dark area its end is beside
+        elif open_start and not open_end and beside[i]:
+            keep[i] = False
+        else:
             keep[i] = keep[i + 1] = False
+    return keep
+
+
+NEAR_DARK_AWAY, NEAR_DARK_BESIDE, NEAR_DARK_REJECTED = 0, 1, 2
+
+
+@numba.njit(cache=True, nogil=True)
+def _near_dark_kernel(
+    cut: np.ndarray,
+    area: np.ndarray,
+    black: np.ndarray,
+    line: np.ndarray,
+    t: np.ndarray,
+    half_lines: int,
+    half_inside: int,
+    half_black: int,
+) -> np.ndarray:
+    """Per crossing, shape (N,) uint8: NEAR_DARK_REJECTED where either straddling sample lies within the reach of a
+    dark area (`cut`, non-zero) and within half_inside samples of the dark mask (`area`) or half_black of a black
+    sample (each ± half_lines lines); NEAR_DARK_BESIDE where its sample lies within the reach but neither holds;
+    NEAR_DARK_AWAY elsewhere (see `locate_edges`)."""
+    n_lines, n_samples = cut.shape
+    code = np.zeros(len(line), np.uint8)
+    for k in range(len(line)):
+        i = line[k]
+        first = min(int(t[k]), n_samples - 1)
+        for s in (first, first + 1):
+            if s >= n_samples or cut[i, s] == 0:
+                continue
+            rejected = False
+            for ii in range(max(i - half_lines, 0), min(i + half_lines + 1, n_lines)):
+                for ss in range(max(s - half_inside, 0), min(s + half_inside + 1, n_samples)):
+                    rejected |= area[ii, ss] != 0
+                if rejected:
+                    break
+                for ss in range(max(s - half_black, 0), min(s + half_black + 1, n_samples)):
+                    if black[ii, ss]:
+                        rejected = True
+                        break
+                if rejected:
+                    break
+            if rejected:
+                code[k] = NEAR_DARK_REJECTED
+                break
+            if s == first:
+                code[k] = NEAR_DARK_BESIDE
+    return code
+
+
+def _whole_beside_dark(line: np.ndarray, t_px: np.ndarray, beside: np.ndarray, *, period_px: float) -> np.ndarray:
+    """Mask, shape (N,), dropping each crossing beside a dark area (`beside`, shape (N,) bool) where the stripe it
+    closes on either side is less than WHOLE_STRIPE_SHARE as wide as the stripe of the same kind before that one
+    (input sorted by (line, t); the three stripes on its line within two periods of it).
+
+    Beside a dark area a transition is either the lit edge of a stripe whose neighbour runs into the area (a
+    stripe edge, its stripe whole) or the area's rim cutting a stripe short (not an edge of the pattern). A side
+    with fewer stripes than that (the dark area itself, a line's end, a frame of few wide stripes) says nothing.
+    """
+    keep = np.ones(len(line), bool)
+    at = np.flatnonzero(beside)
+    n = len(line)
+    for side in (-1, 1):
+        near, second, third = (np.clip(at + k * side, 0, n - 1) for k in (1, 2, 3))
+        known = (at + 3 * side >= 0) & (at + 3 * side < n)
+        known &= (line[third] == line[at]) & (np.abs(t_px[third] - t_px[at]) <= 2.0 * period_px)
+        width = np.abs(t_px[near] - t_px[at])
+        before = np.abs(t_px[third] - t_px[second])
+        keep[at[known & (width < WHOLE_STRIPE_SHARE * before)]] = False
     return keep
 
 
