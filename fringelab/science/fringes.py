@@ -106,14 +106,15 @@ class EdgeSettings:
     window_periods: the window (in stripe periods along the scan line) over which the local minimum and maximum
         set the contrast I_max − I_min; > 1 so a stripe stretched by a slope still shows both levels.
     min_contrast_grey: grey levels (8-bit scale) of I_max − I_min below which a transition is rejected.
-    max_uneven_light_fraction: a transition is rejected where the light bends so fast that the mid-level does
-        not follow it: where its mid-level departs by more than this fraction of its contrast from the straight
-        line through the mid-levels of its neighbours of the same polarity, one period either side (`uneven_light`);
-        0 (the default for now) rejects none. 0.05 was chosen by measurement on soft shadows (docs/method.md §5):
-        0.1 and 0.07 still let edges through that were 1.5 mm off at a rim. It is not yet the default because it
-        also rejects dome-top edges at the blurred rim of the punch's own shadow, which took the highest measured
-        point of the virtual Kodak test below 90 % of the deflection in one frame (tests/science/structured_light/
-        test_acceptance.py::test_peak_deflection_follows_the_punch).
+    max_uneven_light_shift_px: a transition is rejected ("uneven light") where the light bends within a period so
+        that the mid-level cannot follow it and the edge would move by more than this (px along the line): the
+        shift `uneven_light_shift_px` predicts from the light's bend there (`uneven_light`) and the crossing's
+        slope. Every kept edge carries that shift in its σ (`_edge_sigma`). None rejects none. The default,
+        0.25 px, is `TopographySettings.max_edge_sigma_px`'s: an edge whose shift alone exceeds it would not be
+        measured anyway, and is refused with its reason instead of "low contrast". 0.08 px keeps no point of the
+        soft-shadow renders more than 1 mm off (0.73 mm; 3.9 mm at 0.25 px), but it also refuses good edges in the
+        punch's own shadow beside the dome top, which moves the dome's centroid 1.7 mm off the punch axis in the
+        virtual Kodak test; measured in docs/method.md §5.
     saturation_grey: grey level (8-bit scale) at or above which a transition's bright side counts as clipped.
     dark_fraction: pixels whose neighbourhood (one period) never rises above this fraction of the frame's bright
         level are "dark" (clamp ring, hole, background, a wide dark stripe); transitions within half a period of
@@ -137,7 +138,7 @@ class EdgeSettings:
     period_px: float | None = None
     window_periods: float = 1.5
     min_contrast_grey: float = 20.0
-    max_uneven_light_fraction: float = 0.0
+    max_uneven_light_shift_px: float | None = 0.25
     saturation_grey: float = 250.0
     dark_fraction: float = 0.3
     presmooth_px: float = 1.0
@@ -154,11 +155,15 @@ class EdgeSettings:
         "min_edge_length_px": "min_edge_length_lines",
         "max_link_step_px": "max_link_step_px_per_line",
     }
+    # Settings of former files that no longer exist and are read as the defaults: max_uneven_light_fraction (a
+    # threshold on the bend over the contrast, off by default) became max_uneven_light_shift_px, on by default.
+    _DROPPED_NAMES = ("max_uneven_light_fraction",)
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> EdgeSettings:
         """Settings from a stored document (JSON in a result file), also one written under the former names."""
-        return cls(**{cls._FORMER_NAMES.get(name, name): value for name, value in values.items()})
+        return cls(**{cls._FORMER_NAMES.get(name, name): value for name, value in values.items()
+                      if name not in cls._DROPPED_NAMES})  # fmt: skip
 
     def __post_init__(self) -> None:
         if self.axis not in AXIS_CHOICES:
@@ -174,10 +179,11 @@ class EdgeSettings:
             "presmooth_px",
             "edge_smoothing_lines",
             "dark_fraction",
-            "max_uneven_light_fraction",
         ):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name}: expected ≥ 0, got {getattr(self, name)}")
+        if self.max_uneven_light_shift_px is not None and not self.max_uneven_light_shift_px > 0:
+            raise ValueError(f"max_uneven_light_shift_px: expected > 0 or None, got {self.max_uneven_light_shift_px}")
         if not self.max_link_step_px_per_line > 0:
             raise ValueError(f"max_link_step_px_per_line: expected > 0, got {self.max_link_step_px_per_line}")
         if self.min_edge_length_lines < 1:
@@ -571,18 +577,31 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     else:
         keep[keep] = _without_slivers(line[keep], t_raw[keep], lone_is_sliver=period_px <= MAX_PERIOD_PX)
     line, t_raw, polarity, mid_at, contrast_at = (a[keep] for a in (line, t_raw, polarity, mid_at, contrast_at))
-    # Where the light bends within a period (a soft shadow's rim) the mid-level cannot follow it: rejected.
+    # Where the light bends within a period (a soft shadow's rim) the mid-level cannot follow it: the edge moves by
+    # the shift this predicts, which enters its σ; where that alone is beyond the setting, the edge is rejected.
+    # The mid-level is the means' where the two periods reach no dark area nor the line's end, else the envelopes'
+    # (`_mid_and_contrast`): the two differ by a few grey levels, so a crossing's bend is measured against
+    # neighbours whose mid-level is of its own kind only.
+    from_envelopes = np.ones(len(line), bool)
+    if settings.mid_level == "means":
+        first = int(np.ceil(period_px - 0.5))
+        reach = cv2.dilate(dark_area, np.ones((1, 2 * first + 1), np.uint8))
+        j = np.clip(t_raw.astype(np.int64), 0, n_samples - 2)
+        from_envelopes = (reach[line, j] > 0) | (reach[line, j + 1] > 0) | (j < first) | (j + 1 >= n_samples - first)
+    shift_px = uneven_light_shift_px(
+        scan, line, t_raw, uneven_light(line, t_raw, polarity, mid_at, from_envelopes, period_px=period_px)
+    )
     even = np.ones(len(line), bool)
-    if settings.max_uneven_light_fraction > 0:
-        uneven = np.abs(uneven_light(line, t_raw, polarity, mid_at, period_px=period_px))
-        even = ~(uneven > settings.max_uneven_light_fraction * contrast_at)
+    if settings.max_uneven_light_shift_px is not None:
+        even = shift_px <= settings.max_uneven_light_shift_px
     uneven_blocks = (line[~even] // UNUSABLE_BLOCK_PX, t_raw[~even].astype(np.int64) // UNUSABLE_BLOCK_PX)
-    line, t_raw, polarity = line[even], t_raw[even], polarity[even]
+    line, t_raw, polarity, shift_px = line[even], t_raw[even], polarity[even], shift_px[even]
 
     chain = _link_chains(line, t_raw, polarity, n_samples=n_samples, max_step_px=settings.max_link_step_px_per_line)
     lengths = np.bincount(chain, minlength=len(chain))
     long_enough = lengths[chain] >= settings.min_edge_length_lines
     line, t_raw, polarity, chain = line[long_enough], t_raw[long_enough], polarity[long_enough], chain[long_enough]
+    shift_px = shift_px[long_enough]
     # Renumber the surviving curves 0..n−1 (labels are crossing indices, so at most N of them).
     renumber = np.cumsum(np.bincount(chain, minlength=len(long_enough)) > 0) - 1
     chain = renumber[chain].astype(np.int32)
@@ -593,9 +612,7 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     else:
         t_px = t_raw
         noise_px = float("nan")
-    sigma_px, contrast_grey = _edge_sigma(
-        scan, mid, contrast, line, t_raw, t_px, chain, period_px=float(period_px), settings=settings
-    )
+    sigma_px, contrast_grey = _edge_sigma(scan, contrast, line, t_raw, t_px, chain, shift_px, settings=settings)
     unusable = _unusable_blocks(scan, dark, contrast, local_max, grow, settings=settings)
     unusable[uneven_blocks] = np.where(unusable[uneven_blocks] == UNUSABLE_NONE, UNUSABLE_UNEVEN_LIGHT,
                                        unusable[uneven_blocks])  # fmt: skip
@@ -618,14 +635,13 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
 
 def _edge_sigma(
     scan: np.ndarray,
-    mid: np.ndarray,
     contrast: np.ndarray,
     line: np.ndarray,
     t_raw: np.ndarray,
     t_px: np.ndarray,
     chain: np.ndarray,
+    shift_px: np.ndarray,
     *,
-    period_px: float,
     settings: EdgeSettings,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Each edge point's σ (px) of its smoothed position, and the stripes' contrast there (grey levels), both
@@ -639,9 +655,9 @@ def _edge_sigma(
     drawn toward the frame's own value where the stretch is short (8 points' weight), since few residuals
     estimate it poorly. The smoothing then reduces it by its noise gain at that point (`smoothing_noise_tables`:
     more at an edge's end, where the fit is one-sided). An error the smoothing cannot reduce comes from the
-    mid-level: where the light changes unevenly within the window (a shadow's rim, a highlight) the mid-level at
-    the crossing departs from the mean of the mid-levels half a period either side; half that departure over the
-    slope is added in quadrature. NaN σ (but the contrast) without smoothing along the edges.
+    mid-level where the light bends within a period (a shadow's rim, a highlight): the shift that bend predicts,
+    shift_px (N,) (`uneven_light_shift_px`), is added in quadrature. NaN σ (but the contrast) without smoothing
+    along the edges.
     """
     contrast_grey = np.empty(len(line), np.float32)
     sigma = np.full(len(line), np.nan, np.float32)
@@ -653,9 +669,9 @@ def _edge_sigma(
     else:
         gain = residual = np.full((1, 1), np.nan)
     _edge_sigma_kernel(
-        scan, mid, contrast, np.ascontiguousarray(line, np.int64), np.ascontiguousarray(t_raw, np.float64),
+        scan, contrast, np.ascontiguousarray(line, np.int64), np.ascontiguousarray(t_raw, np.float64),
         np.ascontiguousarray(t_px, np.float64), np.ascontiguousarray(chain, np.int64), gain, residual,
-        max(1, int(round(0.5 * period_px))), sigma, contrast_grey,
+        np.ascontiguousarray(shift_px, np.float64), sigma, contrast_grey,
     )  # fmt: skip
     return sigma, contrast_grey
 
@@ -685,7 +701,6 @@ def _by_chain(chain: np.ndarray, n_chains: int) -> tuple[np.ndarray, np.ndarray]
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _edge_sigma_kernel(
     scan: np.ndarray,
-    mid: np.ndarray,
     contrast: np.ndarray,
     line: np.ndarray,
     t_raw: np.ndarray,
@@ -693,7 +708,7 @@ def _edge_sigma_kernel(
     chain: np.ndarray,
     gain: np.ndarray,
     residual: np.ndarray,
-    half_period: int,
+    shift: np.ndarray,
     sigma_out: np.ndarray,
     contrast_out: np.ndarray,
 ) -> None:
@@ -701,9 +716,8 @@ def _edge_sigma_kernel(
     n_samples = scan.shape[1]
     half = gain.shape[0] - 1
     smoothed = np.isfinite(gain[0, 0])
-    # Per point: the σ of its raw position for unit grey noise (model), the mid-level's unevenness, in px.
+    # Per point: the σ of its raw position for unit grey noise (model), in px.
     model = np.empty(n)
-    uneven = np.empty(n)
     for p in range(n):
         i = line[p]
         j = min(max(int(t_raw[p]), 0), n_samples - 2)
@@ -712,9 +726,6 @@ def _edge_sigma_kernel(
         model[p] = np.sqrt((1.0 - x) ** 2 + x * x) / slope
         c = 0.5 * (contrast[i, j] + contrast[i, j + 1])
         contrast_out[p] = c
-        lo, hi = max(j - half_period, 0), min(j + 1 + half_period, n_samples - 1)
-        departure = 0.5 * (mid[i, j] + mid[i, j + 1]) - 0.5 * (mid[i, lo] + mid[i, hi])
-        uneven[p] = 0.5 * abs(departure) / slope if np.isfinite(departure) else 0.0
     if not smoothed:
         return
     n_chains = chain.max() + 1
@@ -747,7 +758,7 @@ def _edge_sigma_kernel(
                 noise2 = (cum_res[w_hi] - cum_res[w_lo] + prior * frame_noise2) / (pred + prior)
             s_lo, s_hi = max(q - half, lo), min(q + half + 1, hi)
             model2 = (cum_model[s_hi] - cum_model[s_lo]) / (s_hi - s_lo)
-            sigma_out[p] = np.sqrt(gain[b, a] ** 2 * noise2 * model2 + uneven[p] ** 2)
+            sigma_out[p] = np.sqrt(gain[b, a] ** 2 * noise2 * model2 + shift[p] ** 2)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -1109,66 +1120,131 @@ def _grown(values: np.ndarray, capacity: int) -> np.ndarray:
 
 
 def uneven_light(
-    line: np.ndarray, t_px: np.ndarray, polarity: np.ndarray, mid_grey: np.ndarray, *, period_px: float
+    line: np.ndarray,
+    t_px: np.ndarray,
+    polarity: np.ndarray,
+    mid_grey: np.ndarray,
+    from_envelopes: np.ndarray,
+    *,
+    period_px: float,
 ) -> np.ndarray:
     """How far the light bends at each crossing, shape (N,) float64 grey levels (8-bit scale): its mid-level minus
     the straight line through the mid-levels of its nearest crossings of the same polarity on its line, one
-    period either side (extrapolated from the next two on one side where the other has none within 1.5 periods;
-    NaN where neither side has two).
+    period either side; with a neighbour on one side only, the line through the next two on that side, where the
+    other side has no stripes within 1.5 periods (too faint or dark: a shadow beyond the rim); NaN otherwise.
 
     line, t_px, polarity, mid_grey: shape (N,), the crossings sorted by (line, t) and the mid-level at each
-    (`_mid_and_contrast`). The mid-level follows light that changes linearly along the line (and at every edge
+    (`_mid_and_contrast`); from_envelopes: (N,) bool, whether that mid-level is the envelopes' (near a dark area or
+    a line's end) rather than the means': only neighbours of the same kind are compared, the two differing by a
+    few grey levels. The mid-level follows light that changes linearly along the line (and at every edge
     whatever the local period), so under such light this is zero up to the noise of the mid-levels (a few tenths
-    of a grey level); what is left is the light's bend within a period, which moves the mid-level by about a
-    fifth of this and the edge by about half of it over the contrast, in pixels (docs/method.md §5). A measure of
-    the mid-level's trust at each crossing: `locate_edges` rejects crossings where it exceeds
-    `EdgeSettings.max_uneven_light_fraction` of the contrast.
+    of a grey level); what is left is the light's bend within a period, which moves the mid-level by about half of
+    it (`UNEVEN_LIGHT_SHIFT_PER_BEND`) and the edge by that over the crossing's slope (`uneven_light_shift_px`:
+    the one measure of uneven light, which feeds each edge's σ and its refusal; docs/method.md §5). Where the
+    other side's stripes are only wider (a steep slope stretches them, as beside the punch), the line through
+    one side does not say how the light runs on the other, and the crossing is not judged by it.
     """
     if len(line) == 0:
         return np.zeros(0)
     return _uneven_light_kernel(
         np.ascontiguousarray(line, np.int64), np.ascontiguousarray(t_px, np.float64),
-        np.ascontiguousarray(polarity, np.int8), np.ascontiguousarray(mid_grey, np.float64), 1.5 * float(period_px),
+        np.ascontiguousarray(polarity, np.int8), np.ascontiguousarray(mid_grey, np.float64),
+        np.ascontiguousarray(from_envelopes, np.bool_), float(period_px),
     )  # fmt: skip
+
+
+# The mid-level's error at a crossing per grey level of the light's bend there (`uneven_light`): the edge moves by
+# this times the bend over the crossing's slope. Measured on soft rims along the stripes, straight stripes of
+# 10 px under rims 6–20 px wide dimming them to 20–40 %: the edges' errors were 0.2–0.9 × |bend| / slope (median
+# about 0.5; docs/method.md §5).
+UNEVEN_LIGHT_SHIFT_PER_BEND = 0.5
+
+
+def uneven_light_shift_px(scan: np.ndarray, line: np.ndarray, t_px: np.ndarray, uneven_grey: np.ndarray) -> np.ndarray:
+    """How far uneven light moves each crossing, shape (N,) float64 px ≥ 0: `UNEVEN_LIGHT_SHIFT_PER_BEND` times the
+    bend (`uneven_light`) over the slope of the scan line between the two samples that straddle it (grey levels per
+    px); 0 where the bend is unknown (NaN: too few neighbours to tell).
+
+    scan: (S, T) float32, the presmoothed scan lines; line, t_px: (N,) the crossings' (raw) positions; uneven_grey:
+    (N,) `uneven_light` at each. A mid-level off by a given amount moves a blurred or faint edge (small slope)
+    further than a sharp one, which a fraction of the contrast does not say.
+    """
+    if len(line) == 0:
+        return np.zeros(0)
+    return _uneven_light_shift_kernel(
+        scan, np.ascontiguousarray(line, np.int64), np.ascontiguousarray(t_px, np.float64),
+        np.ascontiguousarray(uneven_grey, np.float64), UNEVEN_LIGHT_SHIFT_PER_BEND,
+    )  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _uneven_light_shift_kernel(
+    scan: np.ndarray, line: np.ndarray, t: np.ndarray, bend: np.ndarray, per_bend: float
+) -> np.ndarray:
+    n = len(line)
+    n_samples = scan.shape[1]
+    shift = np.zeros(n)
+    for p in range(n):
+        if not np.isfinite(bend[p]):
+            continue
+        j = min(max(int(t[p]), 0), n_samples - 2)
+        slope = max(abs(scan[line[p], j + 1] - scan[line[p], j]), 1e-3)
+        shift[p] = per_bend * abs(bend[p]) / slope
+    return shift
 
 
 @numba.njit(cache=True, nogil=True)
 def _same_polarity_neighbour(
-    line: np.ndarray, t: np.ndarray, polarity: np.ndarray, i: int, step: int, reach: float
+    line: np.ndarray, t: np.ndarray, polarity: np.ndarray, kind: np.ndarray, i: int, step: int, reach: float
 ) -> int:
     """The index of the nearest crossing of i's polarity on its line in direction `step` (±1) within `reach` px,
-    or −1."""
+    or −1 (also where that crossing's mid-level is of another kind than i's)."""
     k = i + step
     while 0 <= k < len(line) and line[k] == line[i] and abs(t[k] - t[i]) <= reach:
         if polarity[k] == polarity[i]:
-            return k
+            return k if kind[k] == kind[i] else -1
         k += step
     return -1
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _uneven_light_kernel(
-    line: np.ndarray, t: np.ndarray, polarity: np.ndarray, mid: np.ndarray, reach: float
+    line: np.ndarray, t: np.ndarray, polarity: np.ndarray, mid: np.ndarray, kind: np.ndarray, period: float
 ) -> np.ndarray:
     n = len(line)
     bend = np.full(n, np.nan)
+    reach = 1.5 * period
     for i in range(n):
-        before = _same_polarity_neighbour(line, t, polarity, i, -1, reach)
-        after = _same_polarity_neighbour(line, t, polarity, i, 1, reach)
-        if before >= 0 and after >= 0:
-            a, b = before, after
-        elif after >= 0:
-            a, b = after, _same_polarity_neighbour(line, t, polarity, after, 1, reach)
-        elif before >= 0:
-            a, b = _same_polarity_neighbour(line, t, polarity, before, -1, reach), before
-        else:
-            continue
+        a = _same_polarity_neighbour(line, t, polarity, kind, i, -1, reach)
+        b = _same_polarity_neighbour(line, t, polarity, kind, i, 1, reach)
+        # With a neighbour on one side only, the line through the next two on that side, where the other side has
+        # no stripes (too faint or dark: a shadow); where it has them, only wider (a slope stretches them), the
+        # light there is not known to bend.
+        if a < 0 and b >= 0:
+            if _stripes_beyond(line, t, polarity, kind, i, -1, period):
+                continue
+            a = _same_polarity_neighbour(line, t, polarity, kind, b, 1, reach)
+        elif b < 0 and a >= 0:
+            if _stripes_beyond(line, t, polarity, kind, i, 1, period):
+                continue
+            b = _same_polarity_neighbour(line, t, polarity, kind, a, -1, reach)
         if a < 0 or b < 0:
             continue
         # The straight line through (t_a, mid_a) and (t_b, mid_b), at t_i.
-        slope = (mid[b] - mid[a]) / (t[b] - t[a])
-        bend[i] = mid[i] - (mid[a] + slope * (t[i] - t[a]))
+        bend[i] = mid[i] - (mid[a] + (mid[b] - mid[a]) / (t[b] - t[a]) * (t[i] - t[a]))
     return bend
+
+
+@numba.njit(cache=True, nogil=True)
+def _stripes_beyond(
+    line: np.ndarray, t: np.ndarray, polarity: np.ndarray, kind: np.ndarray, i: int, step: int, period: float
+) -> bool:
+    """Whether the stripes go on past crossing i in direction `step` (±1): a crossing of either polarity within 1.5
+    periods, or one of i's polarity within 2.5."""
+    k = i + step
+    if 0 <= k < len(line) and line[k] == line[i] and abs(t[k] - t[i]) <= 1.5 * period:
+        return True
+    return _same_polarity_neighbour(line, t, polarity, kind, i, step, 2.5 * period) >= 0
 
 
 def _without_glitches(line: np.ndarray, t_px: np.ndarray, *, min_gap_px: float) -> np.ndarray:
