@@ -26,8 +26,10 @@ def test_up_runs_everything_and_sigterm_leaves_no_child(tmp_path):
         names = " ".join(" ".join(c.cmdline()) for c in children)
         assert "redis-server" in names and " worker" in names and " api" in names
         assert sum("worker" in " ".join(c.cmdline()) for c in children) >= 2  # the worker and its pool processes
-        # The worker computes at FRINGELAB_WORKER_NICE (10), the web server at the priority `up` has (0).
-        assert {c.nice() for c in children if "worker" in " ".join(c.cmdline())} == {10}
+        # The worker computes at FRINGELAB_WORKER_NICE (10), the web server at the priority `up` has (0). Niceness
+        # only goes up: under a runner already nicer than 10 (`nice -n 15 pytest`) the worker keeps the runner's.
+        worker_nice = max(10, psutil.Process().nice())
+        assert {c.nice() for c in children if "worker" in " ".join(c.cmdline())} == {worker_nice}
         assert {c.nice() for c in children if " api" in " ".join(c.cmdline())} == {psutil.Process().nice()}
 
         logged_url = re.search(r"Redis (redis://\S+)\)", up.log()).group(1)  # type: ignore[union-attr]
