@@ -798,7 +798,7 @@ def _looked_up_points(
                 continue
             kk[m], ll[m], t[m], z[m] = k, s, positions[k, s], value
             tau = (positions[k, s] - table[s, k, 2]) / table[s, k, 3]
-            spread = fit_leverage_ratio(tau, leverage[min(n_heights[s, k], len(leverage) - 1)])
+            spread = fit_leverage_ratio(tau, leverage, n_heights[s, k])
             entries[m, 0], entries[m, 1] = table[s, k, TABLE_SENSITIVITY], table[s, k, TABLE_SIGMA_Z] * spread
             m += 1
     return kk[:m].copy(), ll[:m].copy(), t[:m].copy(), z[:m].copy(), entries[:m].copy(), n_placed, n_out_of_range

@@ -78,13 +78,15 @@ def leverage_polynomials(degree: int, max_heights: int) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True)
-def fit_leverage_ratio(tau: float, polynomial: np.ndarray) -> float:
+def fit_leverage_ratio(tau: float, polynomials: np.ndarray, n_heights: int) -> float:
     """How much larger than its average over the fitted range (`table_sigma_z_mm`) a polynomial fit's prediction
-    σ is at τ (clipped to [−1, 1]): √ of a row of `leverage_polynomials` at τ."""
+    σ is at τ (clipped to [−1, 1]) for n_heights heights: √ of that row of `leverage_polynomials` (the last row
+    for more heights than it has) at τ."""
+    row = min(max(n_heights, 0), polynomials.shape[0] - 1)
     x = min(max(tau, -1.0), 1.0)
     value = 0.0
-    for j in range(len(polynomial) - 1, -1, -1):
-        value = value * x + polynomial[j]
+    for j in range(polynomials.shape[1] - 1, -1, -1):
+        value = value * x + polynomials[row, j]
     return float(np.sqrt(max(value, 0.0)))
 
 

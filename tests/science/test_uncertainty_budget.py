@@ -88,10 +88,10 @@ def test_the_shares_sum_to_one() -> None:
 def test_the_table_fit_leverage_averages_to_one_over_its_heights_and_grows_toward_the_ends(n_heights: int) -> None:
     polynomials = leverage_polynomials(3, 41)
     heights = np.linspace(-1.0, 1.0, n_heights)
-    ratios = np.array([fit_leverage_ratio(float(tau), polynomials[n_heights]) for tau in heights])
+    ratios = np.array([fit_leverage_ratio(float(tau), polynomials, n_heights) for tau in heights])
     # Σ_j h(τ_j) = trace of the hat matrix = D + 1 exactly, so the mean of h/h̄ over the heights is 1.
     assert np.mean(ratios**2) == pytest.approx(1.0, rel=1e-9)
     # A cubic's prediction is surest near the middle, least sure at the ends (1.2× for 6 heights, 1.63× for 17).
     assert ratios[0] == pytest.approx(ratios[-1]) == pytest.approx(ratios.max()) and ratios[0] > 1.15
-    assert fit_leverage_ratio(0.0, polynomials[n_heights]) < 0.8
-    assert fit_leverage_ratio(0.3, polynomials[4]) == 1.0  # too few heights for the cubic: the average, as before
+    assert fit_leverage_ratio(0.0, polynomials, n_heights) < 0.8
+    assert fit_leverage_ratio(0.3, polynomials, 4) == 1.0  # too few heights for the cubic: the average, as before
