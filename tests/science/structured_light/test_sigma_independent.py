@@ -9,9 +9,9 @@ flat frame and the 8-frame test's frames 2–5):
 
 | | before the local check | local check | and the table's leverage |
 |---|---|---|---|
-| per frame | 91.3–95.1 % | 94.7–96.0 % | 94.9–97.4 % |
-| within 30 mm of the punch, w0 ≥ 19 mm | 77.3–90.4 % | 94.1–97.2 % | 94.8–96.9 % |
-| |∇w| > 0.3 | 87.9–90.2 % | 94.6–96.4 % | 94.4–96.6 % |
+| per frame | 91.3–95.1 % | 94.7–96.0 % | 94.9–97.6 % |
+| within 30 mm of the punch, w0 ≥ 19 mm | 77.3–90.4 % | 94.1–97.2 % | 92.5–95.4 % |
+| |∇w| > 0.3 | 87.9–90.2 % | 94.6–96.4 % | 93.1–94.7 % |
 | lowest σ decile | 81–91 % | 90–93 % | 91–95 % |
 """
 
@@ -79,7 +79,7 @@ def test_two_sigma_covers_90_to_99_percent_in_every_frame(checked: list[Checked]
         within = float(np.mean(frame.within))
         ratio = float(np.sqrt(np.mean(frame.error_mm**2) / np.mean(frame.sigma_mm**2)))
         assert 0.90 <= within <= 0.99, (frame.w0_mm, within)
-        # The RMS error against the RMS σ: measured 0.88–1.02 (1.00–1.17 before the local check).
+        # The RMS error against the RMS σ: measured 0.87–1.03 (1.00–1.17 before the local check).
         assert 0.8 <= ratio <= 1.1, (frame.w0_mm, ratio)
 
 
