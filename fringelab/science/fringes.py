@@ -582,15 +582,10 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     # The mid-level is the means' where the two periods reach no dark area nor the line's end, else the envelopes'
     # (`_mid_and_contrast`): the two differ by a few grey levels, so a crossing's bend is measured against
     # neighbours whose mid-level is of its own kind only.
-    from_envelopes = np.ones(len(line), bool)
-    if settings.mid_level == "means":
-        first = int(np.ceil(period_px - 0.5))
-        reach = cv2.dilate(dark_area, np.ones((1, 2 * first + 1), np.uint8))
-        j = np.clip(t_raw.astype(np.int64), 0, n_samples - 2)
-        from_envelopes = (reach[line, j] > 0) | (reach[line, j + 1] > 0) | (j < first) | (j + 1 >= n_samples - first)
-    shift_px = uneven_light_shift_px(
-        scan, line, t_raw, uneven_light(line, t_raw, polarity, mid_at, from_envelopes, period_px=period_px)
-    )
+    shift_px = _uneven_light_shift_kernel_fused(
+        scan, dark_area, line, t_raw, polarity, mid_at, float(period_px), settings.mid_level == "means",
+        UNEVEN_LIGHT_SHIFT_PER_BEND,
+    )  # fmt: skip
     even = np.ones(len(line), bool)
     if settings.max_uneven_light_shift_px is not None:
         even = shift_px <= settings.max_uneven_light_shift_px
@@ -1193,7 +1188,7 @@ def _uneven_light_shift_kernel(
     return shift
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, inline="always")
 def _same_polarity_neighbour(
     line: np.ndarray, t: np.ndarray, polarity: np.ndarray, kind: np.ndarray, i: int, step: int, reach: float
 ) -> int:
@@ -1212,30 +1207,86 @@ def _uneven_light_kernel(
     line: np.ndarray, t: np.ndarray, polarity: np.ndarray, mid: np.ndarray, kind: np.ndarray, period: float
 ) -> np.ndarray:
     n = len(line)
-    bend = np.full(n, np.nan)
-    reach = 1.5 * period
+    bend = np.empty(n)
     for i in range(n):
-        a = _same_polarity_neighbour(line, t, polarity, kind, i, -1, reach)
-        b = _same_polarity_neighbour(line, t, polarity, kind, i, 1, reach)
-        # With a neighbour on one side only, the line through the next two on that side, where the other side has
-        # no stripes (too faint or dark: a shadow); where it has them, only wider (a slope stretches them), the
-        # light there is not known to bend.
-        if a < 0 and b >= 0:
-            if _stripes_beyond(line, t, polarity, kind, i, -1, period):
-                continue
-            a = _same_polarity_neighbour(line, t, polarity, kind, b, 1, reach)
-        elif b < 0 and a >= 0:
-            if _stripes_beyond(line, t, polarity, kind, i, 1, period):
-                continue
-            b = _same_polarity_neighbour(line, t, polarity, kind, a, -1, reach)
-        if a < 0 or b < 0:
-            continue
-        # The straight line through (t_a, mid_a) and (t_b, mid_b), at t_i.
-        bend[i] = mid[i] - (mid[a] + (mid[b] - mid[a]) / (t[b] - t[a]) * (t[i] - t[a]))
+        bend[i] = _uneven_light_at(line, t, polarity, mid, kind, i, period)
     return bend
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _uneven_light_at(
+    line: np.ndarray, t: np.ndarray, polarity: np.ndarray, mid: np.ndarray, kind: np.ndarray, i: int, period: float
+) -> float:
+    """`uneven_light` at crossing i (NaN where not judged)."""
+    reach = 1.5 * period
+    a = _same_polarity_neighbour(line, t, polarity, kind, i, -1, reach)
+    b = _same_polarity_neighbour(line, t, polarity, kind, i, 1, reach)
+    # With a neighbour on one side only, the line through the next two on that side, where the other side has
+    # no stripes (too faint or dark: a shadow); where it has them, only wider (a slope stretches them), the
+    # light there is not known to bend.
+    if a < 0 and b >= 0:
+        if _stripes_beyond(line, t, polarity, kind, i, -1, period):
+            return np.nan
+        a = _same_polarity_neighbour(line, t, polarity, kind, b, 1, reach)
+    elif b < 0 and a >= 0:
+        if _stripes_beyond(line, t, polarity, kind, i, 1, period):
+            return np.nan
+        b = _same_polarity_neighbour(line, t, polarity, kind, a, -1, reach)
+    if a < 0 or b < 0:
+        return np.nan
+    # The straight line through (t_a, mid_a) and (t_b, mid_b), at t_i.
+    return mid[i] - (mid[a] + (mid[b] - mid[a]) / (t[b] - t[a]) * (t[i] - t[a]))
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _uneven_light_shift_kernel_fused(
+    scan: np.ndarray,
+    dark_area: np.ndarray,
+    line: np.ndarray,
+    t: np.ndarray,
+    polarity: np.ndarray,
+    mid: np.ndarray,
+    period: float,
+    from_means: bool,
+    per_bend: float,
+) -> np.ndarray:
+    """`uneven_light_shift_px` of `uneven_light` at the crossings of `locate_edges` in one pass, shape (N,): the
+    kind of each crossing's mid-level (the envelopes' where the two periods of the means reach a dark area,
+    `dark_area` (S, T) uint8 non-zero, or the line's end; the means' otherwise, when `from_means`) read at the
+    crossings themselves (no image-wide dilation), then the bend and the shift it predicts (same values)."""
+    n = len(line)
+    n_samples = scan.shape[1]
+    from_envelopes = np.ones(n, np.bool_)
+    if from_means:
+        first = int(np.ceil(period - 0.5))
+        # One sweep along each line (the crossings are sorted by (line, t), so the windows [j − first,
+        # j + first + 1] only move on): samples before `at` from the window's start are not dark, and a dark
+        # sample found stays the answer while windows reach it.
+        row = -1
+        at = 0
+        for p in range(n):
+            if line[p] != row:
+                row = line[p]
+                at = 0
+            j = min(max(int(t[p]), 0), n_samples - 2)
+            if j < first or j + 1 >= n_samples - first:
+                continue
+            at = max(at, j - first)
+            while at <= j + first + 1 and dark_area[row, at] == 0:
+                at += 1
+            from_envelopes[p] = at <= j + first + 1
+    shift = np.zeros(n)
+    for p in range(n):
+        bend = _uneven_light_at(line, t, polarity, mid, from_envelopes, p, period)
+        if not np.isfinite(bend):
+            continue
+        j = min(max(int(t[p]), 0), n_samples - 2)
+        slope = max(abs(scan[line[p], j + 1] - scan[line[p], j]), 1e-3)
+        shift[p] = per_bend * abs(bend) / slope
+    return shift
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
 def _stripes_beyond(
     line: np.ndarray, t: np.ndarray, polarity: np.ndarray, kind: np.ndarray, i: int, step: int, period: float
 ) -> bool:
