@@ -64,7 +64,6 @@ from .projector import (
     CalibrationMismatchError,
     CameraModel,
     ProjectorCalibration,
-    _scatter,
     camera_fingerprint,
     table_z_at,
 )
@@ -373,6 +372,26 @@ class OrderedFrame:
     sigma_px: np.ndarray
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _scatter_with_sigma(
+    k: np.ndarray, line: np.ndarray, t_px: np.ndarray, sigma_px: np.ndarray, n_edges: int, n_lines: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Dense (K, S) float64 arrays of the positions and of their σ of the points with 0 ≤ k < K; (k, line) pairs
+    that occur twice in a frame are dropped (NaN in both), as `projector._scatter` does."""
+    out = np.full((n_edges, n_lines), np.nan)
+    out_sigma = np.full((n_edges, n_lines), np.nan)
+    seen = np.zeros((n_edges, n_lines), np.uint8)
+    for i in range(len(k)):
+        if 0 <= k[i] < n_edges and 0 <= line[i] < n_lines:
+            seen[k[i], line[i]] = min(seen[k[i], line[i]] + 1, 2)
+            if seen[k[i], line[i]] == 1:
+                out[k[i], line[i]] = float(t_px[i])
+                out_sigma[k[i], line[i]] = float(sigma_px[i])
+            else:
+                out[k[i], line[i]] = out_sigma[k[i], line[i]] = np.nan
+    return out, out_sigma
+
+
 def order_positions(
     edges: FrameEdges, reference: OrderReference, projector: ProjectorCalibration, settings: TopographySettings
 ) -> OrderedFrame:
@@ -382,17 +401,14 @@ def order_positions(
     if np.count_nonzero(frame_order.reason == ORDER_CONFLICT) > 0.5 * len(edges):
         # Mostly conflicts: say so when it is the table that disagrees with the whole frame.
         check_order_against_table(edges, reference, projector, settings=settings.order)
-    ordered = frame_order.k >= 0
-    positions = _scatter(
-        frame_order.k[ordered], edges.line[ordered].astype(np.int64), edges.t_px[ordered].astype(np.float64),
-        (projector.n_edges, projector.n_lines),
+    # The ordered points (k ≥ 0) and their σ, in one pass (`projector._scatter`'s rule for duplicates).
+    positions, sigma_px = _scatter_with_sigma(
+        np.ascontiguousarray(frame_order.k, np.int64), np.ascontiguousarray(edges.line),
+        np.ascontiguousarray(edges.t_px), np.ascontiguousarray(edge_sigmas_px(edges, projector.edges)),
+        projector.n_edges, projector.n_lines,
     )  # fmt: skip
     # Without a table entry a point can never give Z.
     positions[~projector.valid] = np.nan
-    sigma_px = _scatter(
-        frame_order.k[ordered], edges.line[ordered].astype(np.int64),
-        edge_sigmas_px(edges, projector.edges)[ordered], (projector.n_edges, projector.n_lines),
-    )  # fmt: skip
     if settings.max_edge_sigma_px is not None:
         # Too unsure to measure: missing, and `frame_coverage` counts it as low contrast (no reason of its own).
         with np.errstate(invalid="ignore"):
