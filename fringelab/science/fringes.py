@@ -1275,15 +1275,68 @@ def _uneven_light_shift_kernel_fused(
             while at <= j + first + 1 and dark_area[row, at] == 0:
                 at += 1
             from_envelopes[p] = at <= j + first + 1
+    # Each crossing's nearest crossing of its polarity on its line before and after it (−1: none), by one sweep
+    # each way: the neighbours `_same_polarity_neighbour` walks to (the positions being sorted, the one it returns
+    # is within a reach where every crossing between is), without a walk per crossing (branch mispredictions).
+    before = _same_polarity_sweep(line, polarity, 0, n, 1)
+    after = _same_polarity_sweep(line, polarity, n - 1, -1, -1)
+    reach = 1.5 * period
+    kind = from_envelopes
     shift = np.zeros(n)
-    for p in range(n):
-        bend = _uneven_light_at(line, t, polarity, mid, from_envelopes, p, period)
-        if not np.isfinite(bend):
+    for i in range(n):
+        # As `_uneven_light_at`, the same cases in the same order.
+        a = _kept_neighbour(t, kind, i, before[i], reach)
+        b = _kept_neighbour(t, kind, i, after[i], reach)
+        if a < 0 and b >= 0:
+            k = i - 1
+            if (k >= 0 and line[k] == line[i] and abs(t[k] - t[i]) <= 1.5 * period) or _kept_neighbour(
+                t, kind, i, before[i], 2.5 * period
+            ) >= 0:
+                continue
+            a = _kept_neighbour(t, kind, b, after[b], reach)
+        elif b < 0 and a >= 0:
+            k = i + 1
+            if (k < n and line[k] == line[i] and abs(t[k] - t[i]) <= 1.5 * period) or _kept_neighbour(
+                t, kind, i, after[i], 2.5 * period
+            ) >= 0:
+                continue
+            b = _kept_neighbour(t, kind, a, before[a], reach)
+        if a < 0 or b < 0:
             continue
-        j = min(max(int(t[p]), 0), n_samples - 2)
-        slope = max(abs(scan[line[p], j + 1] - scan[line[p], j]), 1e-3)
-        shift[p] = per_bend * abs(bend) / slope
+        bend = mid[i] - (mid[a] + (mid[b] - mid[a]) / (t[b] - t[a]) * (t[i] - t[a]))
+        if np.isfinite(bend):
+            j = min(max(int(t[i]), 0), n_samples - 2)
+            slope = max(abs(scan[line[i], j + 1] - scan[line[i], j]), 1e-3)
+            shift[i] = per_bend * abs(bend) / slope
     return shift
+
+
+@numba.njit(cache=True, nogil=True)
+def _same_polarity_sweep(line: np.ndarray, polarity: np.ndarray, start: int, stop: int, step: int) -> np.ndarray:
+    """For each crossing, the index of the last crossing of its polarity on its line met sweeping from `start` to
+    `stop` by `step` (its nearest before it for step 1, after it for −1), or −1."""
+    out = np.empty(len(line), np.int64)
+    row = -1
+    rising = falling = -1
+    for i in range(start, stop, step):
+        if line[i] != row:
+            row = line[i]
+            rising = falling = -1
+        if polarity[i] > 0:
+            out[i] = rising
+            rising = i
+        else:
+            out[i] = falling
+            falling = i
+    return out
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _kept_neighbour(t: np.ndarray, kind: np.ndarray, i: int, k: int, reach: float) -> int:
+    """k where it is a crossing (k ≥ 0) within `reach` px of crossing i with a mid-level of i's kind, else −1."""
+    if k >= 0 and abs(t[k] - t[i]) <= reach and kind[k] == kind[i]:
+        return k
+    return -1
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
