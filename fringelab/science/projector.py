@@ -257,7 +257,7 @@ TABLE_SENSITIVITY = 4  # dt/dZ (px/mm)
 TABLE_SIGMA_Z = 5  # the table's σ_Z (mm)
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def table_z_at(table: np.ndarray, k: int, line: int, t_px: float) -> tuple[float, int]:
     """Z (mm) and status of one edge point from `ProjectorCalibration.lookup_table`, as `z_from_t` gives them: for
     compiled loops over many points."""

@@ -77,7 +77,7 @@ def leverage_polynomials(degree: int, max_heights: int) -> np.ndarray:
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, inline="always")
 def fit_leverage_ratio(tau: float, polynomials: np.ndarray, n_heights: int) -> float:
     """How much larger than its average over the fitted range (`table_sigma_z_mm`) a polynomial fit's prediction
     σ is at τ (clipped to [−1, 1]) for n_heights heights: √ of that row of `leverage_polynomials` (the last row
