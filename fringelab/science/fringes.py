@@ -582,10 +582,16 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     # The mid-level is the means' where the two periods reach no dark area nor the line's end, else the envelopes'
     # (`_mid_and_contrast`): the two differ by a few grey levels, so a crossing's bend is measured against
     # neighbours whose mid-level is of its own kind only.
-    shift_px = _uneven_light_shift_kernel_fused(
-        scan, dark_area, line, t_raw, polarity, mid_at, float(period_px), settings.mid_level == "means",
-        UNEVEN_LIGHT_SHIFT_PER_BEND,
-    )  # fmt: skip
+    # Stripes wider than MAX_PERIOD_PX (Gray-code bits) are placed from their own two sides only (the windows stay
+    # at that size): their neighbours lie a whole stripe away, so the line through their mid-levels says nothing
+    # about the light at this edge, and no shift is predicted.
+    if period_px > MAX_PERIOD_PX:
+        shift_px = np.zeros(len(line))
+    else:
+        shift_px = _uneven_light_shift_kernel_fused(
+            scan, dark_area, line, t_raw, polarity, mid_at, float(period_px), settings.mid_level == "means",
+            UNEVEN_LIGHT_SHIFT_PER_BEND,
+        )  # fmt: skip
     even = np.ones(len(line), bool)
     if settings.max_uneven_light_shift_px is not None:
         even = shift_px <= settings.max_uneven_light_shift_px
