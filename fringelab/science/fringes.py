@@ -109,9 +109,9 @@ class EdgeSettings:
     max_uneven_light_shift_px: a transition is rejected ("uneven light") where the light bends within a period so
         that the mid-level cannot follow it and the edge would move by more than this (px along the line): the
         shift `uneven_light_shift_px` predicts from the light's bend there (`uneven_light`) and the crossing's
-        slope. Every kept edge carries that shift in its σ (`_edge_sigma`). None rejects none. The default,
-        0.25 px, is `TopographySettings.max_edge_sigma_px`'s: an edge whose shift alone exceeds it would not be
-        measured anyway, and is refused with its reason instead of "low contrast". 0.08 px keeps no point of the
+        slope. Every kept edge carries half that shift in its σ (`_edge_sigma`). None (the default) rejects none:
+        at 0.25 px the worst soft-shadow point stays 3.9 mm off while good edges beside the punch's own shadow
+        are refused, and a frame's peak before perforation goes unmeasured. 0.08 px keeps no point of the
         soft-shadow renders more than 1 mm off (0.73 mm; 3.9 mm at 0.25 px), but it also refuses good edges in the
         punch's own shadow beside the dome top, which moves the dome's centroid 1.7 mm off the punch axis in the
         virtual Kodak test; measured in docs/method.md §5.
@@ -138,7 +138,7 @@ class EdgeSettings:
     period_px: float | None = None
     window_periods: float = 1.5
     min_contrast_grey: float = 20.0
-    max_uneven_light_shift_px: float | None = 0.25
+    max_uneven_light_shift_px: float | None = None
     saturation_grey: float = 250.0
     dark_fraction: float = 0.3
     presmooth_px: float = 1.0
@@ -156,7 +156,7 @@ class EdgeSettings:
         "max_link_step_px": "max_link_step_px_per_line",
     }
     # Settings of former files that no longer exist and are read as the defaults: max_uneven_light_fraction (a
-    # threshold on the bend over the contrast, off by default) became max_uneven_light_shift_px, on by default.
+    # threshold on the bend over the contrast, off by default) became max_uneven_light_shift_px, off by default.
     _DROPPED_NAMES = ("max_uneven_light_fraction",)
 
     @classmethod
@@ -578,7 +578,8 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
         keep[keep] = _without_slivers(line[keep], t_raw[keep], lone_is_sliver=period_px <= MAX_PERIOD_PX)
     line, t_raw, polarity, mid_at, contrast_at = (a[keep] for a in (line, t_raw, polarity, mid_at, contrast_at))
     # Where the light bends within a period (a soft shadow's rim) the mid-level cannot follow it: the edge moves by
-    # the shift this predicts, which enters its σ; where that alone is beyond the setting, the edge is rejected.
+    # the shift this predicts, half of which enters its σ (SIGMA_PER_SHIFT); where the shift is beyond the setting,
+    # the edge is rejected.
     # The mid-level is the means' where the two periods reach no dark area nor the line's end, else the envelopes'
     # (`_mid_and_contrast`): the two differ by a few grey levels, so a crossing's bend is measured against
     # neighbours whose mid-level is of its own kind only.
@@ -613,7 +614,9 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     else:
         t_px = t_raw
         noise_px = float("nan")
-    sigma_px, contrast_grey = _edge_sigma(scan, contrast, line, t_raw, t_px, chain, shift_px, settings=settings)
+    sigma_px, contrast_grey = _edge_sigma(
+        scan, contrast, line, t_raw, t_px, chain, SIGMA_PER_SHIFT * shift_px, settings=settings
+    )
     unusable = _unusable_blocks(scan, dark, contrast, local_max, grow, settings=settings)
     unusable[uneven_blocks] = np.where(unusable[uneven_blocks] == UNUSABLE_NONE, UNUSABLE_UNEVEN_LIGHT,
                                        unusable[uneven_blocks])  # fmt: skip
@@ -1159,6 +1162,11 @@ def uneven_light(
 # 10 px under rims 6–20 px wide dimming them to 20–40 %: the edges' errors were 0.2–0.9 × |bend| / slope (median
 # about 0.5; docs/method.md §5).
 UNEVEN_LIGHT_SHIFT_PER_BEND = 0.5
+# The share of the expected shift an edge's σ takes: the mid-level's error is about 0.2 of the bend where light
+# curves smoothly and 0.5 at a shadow's rim (the expected shift's factor), and three mid-levels cannot tell the two
+# apart. With the whole shift in σ, edges of the dome top beside the punch's own shadow (within 0.25 mm of the
+# truth) passed max_edge_sigma_px and a frame's peak before perforation went unmeasured in the virtual tests.
+SIGMA_PER_SHIFT = 0.5
 
 
 def uneven_light_shift_px(scan: np.ndarray, line: np.ndarray, t_px: np.ndarray, uneven_grey: np.ndarray) -> np.ndarray:

@@ -227,9 +227,11 @@ def test_cli_virtual_test_then_measure(tmp_path: Path, capsys) -> None:
         peak = result.column("peak/w_mm")
         measured = result.column("peak/measured").astype(bool)
     assert len(peak) == 40 and measured[:20].all()
-    # A measured peak is the gridded field's highest node against the dome's centre deflection: within 1.2 mm
-    # (0.92 mm measured); the measured frames reach 80 % of the deepest deflection (frame 25 of 40: 49.4 of 49.8 mm).
-    assert np.all(np.abs(peak[measured] - truth_w0_mm[measured]) < 1.2)
+    # A measured peak is the gridded field's highest node against the dome's centre deflection: within 1.3 mm
+    # (1.22 mm at 60 mm, the deepest frame, measured since its dome top beside the punch's shadow is kept; 0.92 mm
+    # before; the method's accuracy targets leave out 15 mm around the punch, where the 2 mm grid cuts the nose);
+    # the measured frames reach 80 % of the deepest deflection.
+    assert np.all(np.abs(peak[measured] - truth_w0_mm[measured]) < 1.3)
     assert np.max(peak[measured]) > 0.8 * np.max(truth_w0_mm)
     # Where the peak was not measured (the punch's shadow, the hole) the value is a lower bound, never above the truth.
     assert np.all(peak[~measured] <= truth_w0_mm[~measured] + 0.2)
