@@ -108,7 +108,7 @@ class EdgeSettings:
     min_contrast_grey: grey levels (8-bit scale) of I_max − I_min below which a transition is rejected.
     max_uneven_light_shift_px: a transition is rejected ("uneven light") where the light bends within a period so
         that the mid-level cannot follow it and the edge would move by more than this (px along the line): the
-        shift `uneven_light_shift_px` predicts from the light's bend there (`uneven_light`) and the crossing's
+        shift `uneven_light_shift_px` predicts from the light's bend there and the crossing's
         slope. Every kept edge carries half that shift in its σ (`_edge_sigma`). None (the default) rejects none:
         at 0.25 px the worst soft-shadow point stays 3.9 mm off while good edges beside the punch's own shadow
         are refused, and a frame's peak before perforation goes unmeasured. 0.08 px keeps no point of the
@@ -210,7 +210,7 @@ class FrameEdges:
         hole, a crack, something black in front), UNUSABLE_DARK (no projected light but not black: a shadow),
         UNUSABLE_LOW_CONTRAST (stripes too faint, or clipped by a highlight); the worst in the block; where none
         of those applies, UNUSABLE_UNEVEN_LIGHT where a transition was rejected because the light changes too
-        fast (a soft shadow's rim, `uneven_light`). None for edges stored before it existed.
+        fast (a soft shadow's rim, `uneven_light_shift_px`). None for edges stored before it existed.
     sigma_px: shape (N,) float32, σ (px) of each smoothed position t_px, from the edge's own slope, the noise
         its neighbours along the edge show and the evenness of the light around it (`_edge_sigma`): how sure the
         edge is. None for edges stored before it existed: `uncertainty.edge_sigmas_px` then gives every edge the
@@ -589,9 +589,9 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     if period_px > MAX_PERIOD_PX:
         shift_px = np.zeros(len(line))
     else:
-        shift_px = _uneven_light_shift_kernel_fused(
-            scan, dark_area, line, t_raw, polarity, mid_at, float(period_px), settings.mid_level == "means",
-            UNEVEN_LIGHT_SHIFT_PER_BEND,
+        shift_px = uneven_light_shift_px(
+            scan, dark_area, line, t_raw, polarity, mid_at, period_px=float(period_px),
+            from_means=settings.mid_level == "means",
         )  # fmt: skip
     even = np.ones(len(line), bool)
     if settings.max_uneven_light_shift_px is not None:
@@ -1123,42 +1123,8 @@ def _grown(values: np.ndarray, capacity: int) -> np.ndarray:
     return grown
 
 
-def uneven_light(
-    line: np.ndarray,
-    t_px: np.ndarray,
-    polarity: np.ndarray,
-    mid_grey: np.ndarray,
-    from_envelopes: np.ndarray,
-    *,
-    period_px: float,
-) -> np.ndarray:
-    """How far the light bends at each crossing, shape (N,) float64 grey levels (8-bit scale): its mid-level minus
-    the straight line through the mid-levels of its nearest crossings of the same polarity on its line, one
-    period either side; with a neighbour on one side only, the line through the next two on that side, where the
-    other side has no stripes within 1.5 periods (too faint or dark: a shadow beyond the rim); NaN otherwise.
-
-    line, t_px, polarity, mid_grey: shape (N,), the crossings sorted by (line, t) and the mid-level at each
-    (`_mid_and_contrast`); from_envelopes: (N,) bool, whether that mid-level is the envelopes' (near a dark area or
-    a line's end) rather than the means': only neighbours of the same kind are compared, the two differing by a
-    few grey levels. The mid-level follows light that changes linearly along the line (and at every edge
-    whatever the local period), so under such light this is zero up to the noise of the mid-levels (a few tenths
-    of a grey level); what is left is the light's bend within a period, which moves the mid-level by about half of
-    it (`UNEVEN_LIGHT_SHIFT_PER_BEND`) and the edge by that over the crossing's slope (`uneven_light_shift_px`:
-    the one measure of uneven light, which feeds each edge's σ and its refusal; docs/method.md §5). Where the
-    other side's stripes are only wider (a steep slope stretches them, as beside the punch), the line through
-    one side does not say how the light runs on the other, and the crossing is not judged by it.
-    """
-    if len(line) == 0:
-        return np.zeros(0)
-    return _uneven_light_kernel(
-        np.ascontiguousarray(line, np.int64), np.ascontiguousarray(t_px, np.float64),
-        np.ascontiguousarray(polarity, np.int8), np.ascontiguousarray(mid_grey, np.float64),
-        np.ascontiguousarray(from_envelopes, np.bool_), float(period_px),
-    )  # fmt: skip
-
-
-# The mid-level's error at a crossing per grey level of the light's bend there (`uneven_light`): the edge moves by
-# this times the bend over the crossing's slope. Measured on soft rims along the stripes, straight stripes of
+# The mid-level's error at a crossing per grey level of the light's bend there (`uneven_light_shift_px`): the edge
+# moves by this times the bend over the crossing's slope. Measured on soft rims along the stripes, straight stripes of
 # 10 px under rims 6–20 px wide dimming them to 20–40 %: the edges' errors were 0.2–0.9 × |bend| / slope (median
 # about 0.5; docs/method.md §5).
 UNEVEN_LIGHT_SHIFT_PER_BEND = 0.5
@@ -1169,91 +1135,47 @@ UNEVEN_LIGHT_SHIFT_PER_BEND = 0.5
 SIGMA_PER_SHIFT = 0.5
 
 
-def uneven_light_shift_px(scan: np.ndarray, line: np.ndarray, t_px: np.ndarray, uneven_grey: np.ndarray) -> np.ndarray:
-    """How far uneven light moves each crossing, shape (N,) float64 px ≥ 0: `UNEVEN_LIGHT_SHIFT_PER_BEND` times the
-    bend (`uneven_light`) over the slope of the scan line between the two samples that straddle it (grey levels per
-    px); 0 where the bend is unknown (NaN: too few neighbours to tell).
+def uneven_light_shift_px(
+    scan: np.ndarray,
+    dark_area: np.ndarray,
+    line: np.ndarray,
+    t_px: np.ndarray,
+    polarity: np.ndarray,
+    mid_grey: np.ndarray,
+    *,
+    period_px: float,
+    from_means: bool,
+) -> np.ndarray:
+    """How far uneven light moves each crossing, shape (N,) float64 px ≥ 0 (0 where not judged): the one measure of
+    uneven light, which feeds each edge's σ and its refusal (docs/method.md §5).
 
-    scan: (S, T) float32, the presmoothed scan lines; line, t_px: (N,) the crossings' (raw) positions; uneven_grey:
-    (N,) `uneven_light` at each. A mid-level off by a given amount moves a blurred or faint edge (small slope)
-    further than a sharp one, which a fraction of the contrast does not say.
+    The light's **bend** at a crossing is its mid-level minus the straight line through the mid-levels of its
+    nearest crossings of the same polarity on its line, one period either side (within 1.5 periods); with a
+    neighbour on one side only, the line through the next two on that side, where the other side has no stripes
+    (no crossing within 1.5 periods nor one of its polarity within 2.5: too faint or dark, a shadow beyond the rim).
+    Where the other side's stripes are only wider (a steep slope stretches them, as beside the punch), the line
+    through one side does not say how the light runs on the other, and the crossing is not judged. Only neighbours
+    whose mid-level is of the crossing's own kind are compared: the envelopes' where the two periods of the means
+    reach a dark area (`dark_area` (S, T) uint8 non-zero) or the line's end, the means' otherwise (when
+    `from_means`); the two differ by a few grey levels. The mid-level follows light that changes linearly along
+    the line, so under such light the bend is zero up to the noise of the mid-levels (a few tenths of a grey
+    level); what is left is the light's bend within a period, which moves the mid-level by about half of it
+    (`UNEVEN_LIGHT_SHIFT_PER_BEND`) and the edge by that over the slope of the scan line between the two samples
+    that straddle it (a mid-level off by a given amount moves a blurred or faint edge further than a sharp one,
+    which a fraction of the contrast does not say).
+
+    scan: (S, T) float32, the presmoothed scan lines; line, t_px, polarity, mid_grey: (N,) the crossings sorted by
+    (line, t), their raw positions and the mid-level at each (`_mid_and_contrast`).
     """
     if len(line) == 0:
         return np.zeros(0)
     return _uneven_light_shift_kernel(
-        scan, np.ascontiguousarray(line, np.int64), np.ascontiguousarray(t_px, np.float64),
-        np.ascontiguousarray(uneven_grey, np.float64), UNEVEN_LIGHT_SHIFT_PER_BEND,
+        scan, dark_area, line, t_px, polarity, mid_grey, float(period_px), bool(from_means), UNEVEN_LIGHT_SHIFT_PER_BEND
     )  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _uneven_light_shift_kernel(
-    scan: np.ndarray, line: np.ndarray, t: np.ndarray, bend: np.ndarray, per_bend: float
-) -> np.ndarray:
-    n = len(line)
-    n_samples = scan.shape[1]
-    shift = np.zeros(n)
-    for p in range(n):
-        if not np.isfinite(bend[p]):
-            continue
-        j = min(max(int(t[p]), 0), n_samples - 2)
-        slope = max(abs(scan[line[p], j + 1] - scan[line[p], j]), 1e-3)
-        shift[p] = per_bend * abs(bend[p]) / slope
-    return shift
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _same_polarity_neighbour(
-    line: np.ndarray, t: np.ndarray, polarity: np.ndarray, kind: np.ndarray, i: int, step: int, reach: float
-) -> int:
-    """The index of the nearest crossing of i's polarity on its line in direction `step` (±1) within `reach` px,
-    or −1 (also where that crossing's mid-level is of another kind than i's)."""
-    k = i + step
-    while 0 <= k < len(line) and line[k] == line[i] and abs(t[k] - t[i]) <= reach:
-        if polarity[k] == polarity[i]:
-            return k if kind[k] == kind[i] else -1
-        k += step
-    return -1
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _uneven_light_kernel(
-    line: np.ndarray, t: np.ndarray, polarity: np.ndarray, mid: np.ndarray, kind: np.ndarray, period: float
-) -> np.ndarray:
-    n = len(line)
-    bend = np.empty(n)
-    for i in range(n):
-        bend[i] = _uneven_light_at(line, t, polarity, mid, kind, i, period)
-    return bend
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _uneven_light_at(
-    line: np.ndarray, t: np.ndarray, polarity: np.ndarray, mid: np.ndarray, kind: np.ndarray, i: int, period: float
-) -> float:
-    """`uneven_light` at crossing i (NaN where not judged)."""
-    reach = 1.5 * period
-    a = _same_polarity_neighbour(line, t, polarity, kind, i, -1, reach)
-    b = _same_polarity_neighbour(line, t, polarity, kind, i, 1, reach)
-    # With a neighbour on one side only, the line through the next two on that side, where the other side has
-    # no stripes (too faint or dark: a shadow); where it has them, only wider (a slope stretches them), the
-    # light there is not known to bend.
-    if a < 0 and b >= 0:
-        if _stripes_beyond(line, t, polarity, kind, i, -1, period):
-            return np.nan
-        a = _same_polarity_neighbour(line, t, polarity, kind, b, 1, reach)
-    elif b < 0 and a >= 0:
-        if _stripes_beyond(line, t, polarity, kind, i, 1, period):
-            return np.nan
-        b = _same_polarity_neighbour(line, t, polarity, kind, a, -1, reach)
-    if a < 0 or b < 0:
-        return np.nan
-    # The straight line through (t_a, mid_a) and (t_b, mid_b), at t_i.
-    return mid[i] - (mid[a] + (mid[b] - mid[a]) / (t[b] - t[a]) * (t[i] - t[a]))
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _uneven_light_shift_kernel_fused(
     scan: np.ndarray,
     dark_area: np.ndarray,
     line: np.ndarray,
@@ -1264,10 +1186,8 @@ def _uneven_light_shift_kernel_fused(
     from_means: bool,
     per_bend: float,
 ) -> np.ndarray:
-    """`uneven_light_shift_px` of `uneven_light` at the crossings of `locate_edges` in one pass, shape (N,): the
-    kind of each crossing's mid-level (the envelopes' where the two periods of the means reach a dark area,
-    `dark_area` (S, T) uint8 non-zero, or the line's end; the means' otherwise, when `from_means`) read at the
-    crossings themselves (no image-wide dilation), then the bend and the shift it predicts (same values)."""
+    """`uneven_light_shift_px` in one pass: the kind of each crossing's mid-level read at the crossings themselves
+    (no image-wide dilation), then the bend and the shift it predicts."""
     n = len(line)
     n_samples = scan.shape[1]
     from_envelopes = np.ones(n, np.bool_)
@@ -1290,15 +1210,15 @@ def _uneven_light_shift_kernel_fused(
                 at += 1
             from_envelopes[p] = at <= j + first + 1
     # Each crossing's nearest crossing of its polarity on its line before and after it (−1: none), by one sweep
-    # each way: the neighbours `_same_polarity_neighbour` walks to (the positions being sorted, the one it returns
-    # is within a reach where every crossing between is), without a walk per crossing (branch mispredictions).
+    # each way, without a walk per crossing (branch mispredictions).
     before = _same_polarity_sweep(line, polarity, 0, n, 1)
     after = _same_polarity_sweep(line, polarity, n - 1, -1, -1)
     reach = 1.5 * period
     kind = from_envelopes
     shift = np.zeros(n)
     for i in range(n):
-        # As `_uneven_light_at`, the same cases in the same order.
+        # One side only: judged by the next two on that side where the other side has no stripes (no crossing
+        # within 1.5 periods, none of i's polarity within 2.5).
         a = _kept_neighbour(t, kind, i, before[i], reach)
         b = _kept_neighbour(t, kind, i, after[i], reach)
         if a < 0 and b >= 0:
@@ -1351,18 +1271,6 @@ def _kept_neighbour(t: np.ndarray, kind: np.ndarray, i: int, k: int, reach: floa
     if k >= 0 and abs(t[k] - t[i]) <= reach and kind[k] == kind[i]:
         return k
     return -1
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _stripes_beyond(
-    line: np.ndarray, t: np.ndarray, polarity: np.ndarray, kind: np.ndarray, i: int, step: int, period: float
-) -> bool:
-    """Whether the stripes go on past crossing i in direction `step` (±1): a crossing of either polarity within 1.5
-    periods, or one of i's polarity within 2.5."""
-    k = i + step
-    if 0 <= k < len(line) and line[k] == line[i] and abs(t[k] - t[i]) <= 1.5 * period:
-        return True
-    return _same_polarity_neighbour(line, t, polarity, kind, i, step, 2.5 * period) >= 0
 
 
 def _without_glitches(line: np.ndarray, t_px: np.ndarray, *, min_gap_px: float) -> np.ndarray:
