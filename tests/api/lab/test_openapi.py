@@ -140,3 +140,22 @@ def test_operation_ids_read_as_names(document):
     assert by_route[("post", "/api/v1/jobs")] == "create_job"
     assert by_route[("get", "/api/v1/jobs/{job_id}/topography/grid")] == "get_topography_grid"
     assert by_route[("get", "/api/v1/jobs/{job_id}")] == "get_job"
+
+
+def test_a_served_process_builds_the_document_before_its_first_request(settings, monkeypatch):
+    """Issue 26: the first `openapi()` of a process took 0.7-9.6 s under load, paid by whichever request asked;
+    `app_from_env` (what uvicorn serves) builds it in the lifespan, so it exists before any request."""
+    from fastapi.testclient import TestClient
+
+    from backend.app import app_from_env
+
+    for name, value in {
+        "FRINGELAB_DATA_DIR": str(settings.data_path),
+        "FRINGELAB_REDIS_URL": settings.redis_url,
+    }.items():
+        monkeypatch.setenv(name, value)
+    app = app_from_env()
+    assert app.openapi_schema is None  # not built by the factory: the lifespan does it
+    with TestClient(app):
+        assert app.openapi_schema is not None
+        assert "401" in app.openapi_schema["paths"]["/api/v1/jobs"]["get"]["responses"]  # the completed one
