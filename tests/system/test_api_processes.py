@@ -25,6 +25,7 @@ import httpx
 import psutil
 import pytest
 
+from backend.limits import lease_for
 from backend.supervisor import STATUS_FILE, Supervisor, running_redis_url
 from fringelab.core.settings import Settings
 from fringelab.core.startup_checks import free_port
@@ -34,7 +35,7 @@ pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
 PROCESSES = 2
 RATE_PER_S = 5.0
-BURST = 30
+BURST = 320  # over 64: each process leases tokens from Redis (backend.limits.lease_for: 10 per call)
 TOKEN_CACHE_S = 300  # far longer than any test: a process that kept trusting a revoked token would show it
 PEOPLE = ("admin", "ada", "bob", "cy", "dan", "eve")
 
@@ -203,9 +204,12 @@ def test_a_users_request_rate_counts_over_all_processes(api_server: ApiServer) -
     elapsed_s = time.monotonic() - started
     sent = len(clients) + len(statuses)
     allowed = BURST + RATE_PER_S * elapsed_s + 1  # what one bucket refills in the time taken, +1 for rounding
+    # What leases may add or hold back: lease - 1 tokens per process (`SharedRateLimiter`'s stated tolerance).
+    slack = PROCESSES * (lease_for(BURST) - 1)
     ok = len(clients) + statuses.count(200)
     assert set(statuses) <= {200, 429}
-    assert ok <= allowed, f"{ok} of {sent} requests allowed in {elapsed_s:.1f} s; one bucket allows {allowed:.0f}"
+    assert ok <= allowed + slack, f"{ok} of {sent} allowed in {elapsed_s:.1f} s; one bucket allows {allowed:.0f}"
+    assert ok >= BURST - slack, f"{ok} of {sent} allowed; the burst is {BURST}"
     if sent > allowed + 1:  # sent faster than the rate (always, unless the machine is very slow)
         assert retry_after and all(value.isdigit() for value in retry_after)
     for client in clients:
