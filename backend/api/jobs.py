@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 import threading
 from collections import defaultdict
-from collections.abc import AsyncIterator, Sequence
+from collections.abc import AsyncIterator, Mapping, Sequence
 from datetime import datetime
 from functools import partial
 from typing import Annotated, Any
@@ -21,7 +21,8 @@ from fastapi import APIRouter, Body, Depends, Query, Request, Response
 from fastapi.responses import FileResponse
 from fastapi.security import HTTPAuthorizationCredentials
 from fastapi.sse import EventSourceResponse, ServerSentEvent
-from sqlalchemy import func, select
+from pydantic import BaseModel
+from sqlalchemy import Row, func, select
 from sqlalchemy.orm import Session
 
 from backend.api.deps import (
@@ -82,51 +83,81 @@ def _seconds(start: datetime | None, end: datetime | None) -> float | None:
     return (end - start).total_seconds() if start and end else None
 
 
+# What a job's answer reads of it: the list selects these columns (plain rows, no ORM objects: loading 50 jobs as
+# objects was most of a list's cost), and a job loaded as an object has the same attributes, so `_job_out` makes
+# both answers.
+JOB_COLUMNS = (Job.id, Job.kind, Job.state, Job.spec, Job.experiment_id, Job.stage, Job.progress_done,
+               Job.progress_total, Job.error, Job.worker, Job.files, Job.result, Job.provenance, Job.attempt,
+               Job.retry_of, Job.created_at, Job.started_at, Job.finished_at, Job.stage_started_at)  # fmt: skip
+# A row's `index` is the tuple method: the chunk's index is selected as `number`.
+CHUNK_COLUMNS = (JobChunk.job_id, JobChunk.phase, JobChunk.index.label("number"), JobChunk.first_frame,
+                 JobChunk.stop_frame, JobChunk.state, JobChunk.done, JobChunk.worker, JobChunk.started_at,
+                 JobChunk.finished_at)  # fmt: skip
+JobRow = Job | Row[Any]
+
+
 def job_out(session: Session, job: Job, *, now: datetime | None = None) -> JobOut:
     return job_outs(session, [job], now=now)[0]
 
 
-def job_outs(session: Session, jobs: Sequence[Job], *, now: datetime | None = None) -> list[JobOut]:
-    """The jobs as the API shows them, with two queries for all of them (their chunks, their retries), not two
-    per job: a list of 50 jobs asked 100 queries before."""
+def job_outs(
+    session: Session,
+    jobs: Sequence[JobRow],
+    *,
+    now: datetime | None = None,
+    experiment_names: Mapping[str, str | None] | None = None,
+) -> list[JobOut]:
+    """The jobs (objects, or rows of JOB_COLUMNS) as the API shows them, with a few queries for all of them (their
+    chunks, their retries, their names), not per job: a list of 50 jobs asked 100 queries before.
+    `experiment_names`: each job's experiment name when the caller has it already (the list joins it)."""
     now = now or utcnow()
     ids = [job.id for job in jobs]
-    chunks_of: dict[str, list[JobChunk]] = defaultdict(list)
+    chunks_of: dict[str, list[Row[Any]]] = defaultdict(list)
     retried_by: dict[str | None, str] = {}
     if ids:
-        query = select(JobChunk).where(JobChunk.job_id.in_(ids)).order_by(JobChunk.phase, JobChunk.index)
-        for chunk in session.scalars(query):
-            chunks_of[chunk.job_id].append(chunk)
+        query = select(*CHUNK_COLUMNS).where(JobChunk.job_id.in_(ids)).order_by(JobChunk.phase, JobChunk.index)
+        for chunk in session.execute(query):
+            chunks_of[chunk.job_id].append(chunk)  # type: ignore[arg-type]  # a Row of CHUNK_COLUMNS
         retries = select(Job.retry_of, Job.id).where(Job.retry_of.in_(ids)).order_by(Job.created_at, Job.id)
         for retry_of, retry_id in session.execute(retries):
             retried_by[retry_of] = retry_id  # the newest retry last
-    names = _names_of(session, jobs)
+    names = _names_of(session, jobs, experiment_names)
     return [_job_out(job, chunks_of[job.id], retried_by.get(job.id), now, names[job.id]) for job in jobs]
 
 
-def _names_of(session: Session, jobs: Sequence[Job]) -> dict[str, tuple[str | None, str | None]]:
-    """Each job's experiment name and camera name: the camera of the recording it reads, or of the recording of the
-    job it reads (an export, a comparison), as its kind's inputs name them; three queries for all the jobs. A list
-    names what each job is about."""
+def _names_of(
+    session: Session, jobs: Sequence[JobRow], experiment_names: Mapping[str, str | None] | None
+) -> dict[str, tuple[str | None, str | None]]:
+    """Each job's experiment name (from `experiment_names` when given) and camera name: the camera of the recording
+    it reads, or of the recording of the job it reads (an export, a comparison), as its kind's inputs name them;
+    at most three queries for all the jobs (none for what no job names). A list names what each job is about."""
 
     def first(ids: set[Any]) -> Any:
         return min(ids) if ids else None
 
     sources = {job.id: first(named_by(job.kind, job.spec, "job")) for job in jobs}
-    found = session.execute(select(Job.id, Job.kind, Job.spec).where(Job.id.in_(set(sources.values()) - {None})))
-    recording_of_source = {job_id: first(named_by(kind, spec, "recording")) for job_id, kind, spec in found}
+    source_ids = set(sources.values()) - {None}
+    recording_of_source: dict[str, Any] = {}
+    if source_ids:
+        found = session.execute(select(Job.id, Job.kind, Job.spec).where(Job.id.in_(source_ids)))
+        recording_of_source = {job_id: first(named_by(kind, spec, "recording")) for job_id, kind, spec in found}
     recording_of = {job.id: first(named_by(job.kind, job.spec, "recording")) for job in jobs}
     for job in jobs:
         recording_of[job.id] = recording_of[job.id] or recording_of_source.get(sources[job.id])
-    cameras = select(Recording.id, Camera.name).join(Camera, Camera.id == Recording.camera_id)
-    cameras = cameras.where(Recording.id.in_(set(recording_of.values()) - {None}))
-    camera_of_recording = {recording_id: name for recording_id, name in session.execute(cameras)}
-    experiment_ids = {job.experiment_id for job in jobs if job.experiment_id is not None}
-    experiments = select(Experiment.id, Experiment.name).where(Experiment.id.in_(experiment_ids))
-    experiment_names = {experiment_id: name for experiment_id, name in session.execute(experiments)}
+    recording_ids = set(recording_of.values()) - {None}
+    camera_of_recording: dict[Any, str] = {}
+    if recording_ids:
+        cameras = select(Recording.id, Camera.name).join(Camera, Camera.id == Recording.camera_id)
+        found_cameras = session.execute(cameras.where(Recording.id.in_(recording_ids)))
+        camera_of_recording = {recording_id: name for recording_id, name in found_cameras}
+    if experiment_names is None:
+        experiment_ids = {job.experiment_id for job in jobs if job.experiment_id is not None}
+        experiments = select(Experiment.id, Experiment.name).where(Experiment.id.in_(experiment_ids))
+        by_id = {id_: name for id_, name in session.execute(experiments)} if experiment_ids else {}
+        experiment_names = {job.id: by_id.get(job.experiment_id) for job in jobs if job.experiment_id is not None}
     return {
         job.id: (
-            experiment_names.get(job.experiment_id) if job.experiment_id is not None else None,
+            experiment_names.get(job.id) if job.experiment_id is not None else None,
             camera_of_recording.get(recording_of[job.id]),
         )
         for job in jobs
@@ -134,7 +165,7 @@ def _names_of(session: Session, jobs: Sequence[Job]) -> dict[str, tuple[str | No
 
 
 def _job_out(
-    job: Job, chunks: list[JobChunk], retried_by: str | None, now: datetime, names: tuple[str | None, str | None]
+    job: JobRow, chunks: list[Row[Any]], retried_by: str | None, now: datetime, names: tuple[str | None, str | None]
 ) -> JobOut:
     total = job.progress_total
     return JobOut(
@@ -175,10 +206,10 @@ def _job_out(
         chunks=[
             ChunkOut(
                 phase=c.phase,
-                index=c.index,
+                index=c.number,
                 first_frame=c.first_frame,
                 stop_frame=c.stop_frame,
-                state=c.state,  # type: ignore[arg-type]
+                state=c.state,
                 done=c.done,
                 worker=c.worker,
                 started_at=as_utc(c.started_at),
@@ -215,9 +246,32 @@ def list_jobs(
     experiment_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
     limit: Annotated[int, Query(ge=1, le=500)] = 50,
     offset: Annotated[int, Query(ge=0, le=MAX_ID)] = 0,
-) -> JobList:
+) -> Response:
     """Jobs, newest first."""
-    query = select(Job)
+    return json_response(_job_list(session, principal, kind, state, experiment_id, limit=limit, offset=offset))
+
+
+def json_response(answer: BaseModel) -> Response:
+    """`answer` as the JSON FastAPI would make of it under its route's response_model, made here: FastAPI would
+    validate the model again and serialise it in a second trip to a worker thread (a hot read's largest cost after
+    its queries). The OpenAPI document still takes the route's response_model."""
+    return Response(answer.model_dump_json().encode(), media_type="application/json")
+
+
+def _job_list(
+    session: Session,
+    principal: Principal,
+    kind: str | None,
+    state: JobState | None,
+    experiment_id: int | None,
+    *,
+    limit: int,
+    offset: int,
+) -> JobList:
+    """The page of jobs, newest first, with their experiments' names and the total of what the filters select,
+    in one query (plus those of `job_outs`)."""
+    query = select(*JOB_COLUMNS, Experiment.name.label("experiment_name"), func.count().over().label("total"))
+    query = query.outerjoin(Experiment, Experiment.id == Job.experiment_id)
     if not principal.is_admin:
         query = query.where(
             Job.experiment_id.in_(select(Experiment.id).where(readable_experiments(session, principal)))
@@ -228,9 +282,13 @@ def list_jobs(
         query = query.where(Job.state == state)
     if experiment_id is not None:
         query = query.where(Job.experiment_id == experiment_id)
-    total = session.scalar(select(func.count()).select_from(query.subquery())) or 0
-    jobs = session.scalars(query.order_by(Job.created_at.desc(), Job.id).limit(limit).offset(offset)).all()
-    return JobList(items=job_outs(session, jobs), total=total)
+    rows = session.execute(query.order_by(Job.created_at.desc(), Job.id).limit(limit).offset(offset)).all()
+    if rows:
+        total = rows[0].total
+    else:  # a page past the end has no row to carry the total
+        total = (session.scalar(select(func.count()).select_from(query.subquery())) or 0) if offset else 0
+    names = {row.id: row.experiment_name for row in rows}
+    return JobList(items=job_outs(session, rows, experiment_names=names), total=total)
 
 
 @router.get("/jobs/specs", response_model=JobSpecSchemasOut)

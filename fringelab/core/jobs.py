@@ -36,7 +36,7 @@ from typing import Any, overload
 from celery import Celery
 from kombu.exceptions import OperationalError
 from pydantic import BaseModel
-from sqlalchemy import select, update
+from sqlalchemy import Row, select, update
 from sqlalchemy.orm import Session
 
 from fringelab import __version__
@@ -301,7 +301,7 @@ def retry_job(session: Session, celery: Celery, job_id: str) -> Job:
 # ------------------------------------------------------------------------------------------------ progress
 
 
-def eta_seconds(job: Job, *, now: datetime | None = None) -> float | None:
+def eta_seconds(job: Job | Row[Any], *, now: datetime | None = None) -> float | None:
     """Seconds left in the current stage at the rate it has run so far; None when there is no rate yet."""
     started = as_utc(job.stage_started_at)
     if job.state != "running" or started is None or not 0 < job.progress_done < job.progress_total:
