@@ -664,10 +664,9 @@ class TopographyResult(ResultReader):
         self._frame_cache = frame_cache
         self._file_key = file_key(self.file) if frame_cache is not None else None
         try:
-            require_schema(self.file, TOPOGRAPHY_SCHEMA, self.path, version_optional=True)
-            self.grid = Grid(x_mm=self.file["grid/x_mm"][()], y_mm=self.file["grid/y_mm"][()])
-            self.frames = self.file["frames/index"][()]
-            self.z_flat_mm = float(self.file.attrs["z_flat_mm"])
+            self.grid = Grid(x_mm=self._header("grid/x_mm"), y_mm=self._header("grid/y_mm"))
+            self.frames = self._header("frames/index")
+            self.z_flat_mm = float(self._header("z_flat_mm"))
         except ValueError as error:
             self.file.close()
             raise ResultUnavailable(str(error)) from None
@@ -722,6 +721,17 @@ class TopographyResult(ResultReader):
         """Edge index and scan line (N,) of the points of frame position i."""
         lo, hi = int(self.offsets[i]), int(self.offsets[i + 1])
         return self.file["points/edge"][lo:hi], self.file["points/line"][lo:hi]
+
+    def _header(self, name: str) -> np.ndarray:
+        """The dataset (or root attribute) `name` that every reader of the file reads first, its schema checked:
+        through `frame_cache` when one is given, so that a file the process has read before is checked and read
+        once (reading them was most of a profile's cost once its frames were cached)."""
+
+        def read() -> np.ndarray:
+            require_schema(self.file, TOPOGRAPHY_SCHEMA, self.path, version_optional=True)
+            return np.asarray(self.file[name][()] if "/" in name else self.file.attrs[name])
+
+        return read() if self._frame_cache is None else self._frame_cache.get_or_read((self._file_key, name), read)
 
     def _stored_frame(self, name: str, i: int) -> np.ndarray:
         """Frame position i of the gridded dataset `name` as stored (float32, read-only when cached)."""

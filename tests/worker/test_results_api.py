@@ -292,3 +292,26 @@ def test_the_frames_kept_stay_within_their_bytes(tmp_path):
     assert kept.nbytes == 8000 and cache.held_bytes == 8 * 4000 and not kept.flags.writeable
     cache.get_or_read(("file", "big"), lambda: read(-2, size=2000))
     assert reads[-1] == -2  # over an eighth of the bound: never kept
+
+
+def test_a_result_opened_again_is_checked_and_its_grid_read_once_per_file(job_id, settings):
+    """What every reader reads first (schema, grid axes, frame indices, z_flat) comes from the frame cache for a
+    file the process has read before, by the file's identity: a result written again is read anew."""
+    from fringelab.formats.hdf5 import FrameCache
+    from fringelab.formats.topography import TopographyResult
+
+    path = settings.data_path / "results" / "jobs" / "topo-1" / "topography.h5"
+    cache = FrameCache(max_bytes=1 << 20)
+    with TopographyResult(path, frame_cache=cache) as first:
+        misses = cache.misses
+        assert misses == 4 and first.z_flat_mm == Z_FLAT_MM and not first.grid.x_mm.flags.writeable
+    with TopographyResult(path, frame_cache=cache) as again:
+        assert (cache.misses, cache.hits) == (misses, 4)
+        np.testing.assert_array_equal(again.frames, FRAMES)
+    written = path.with_name("again.h5")
+    write_result(written)
+    with h5py.File(written, "r+") as result:
+        result.attrs["z_flat_mm"] = Z_FLAT_MM + 1.0
+    os.replace(written, path)
+    with TopographyResult(path, frame_cache=cache) as anew:
+        assert anew.z_flat_mm == Z_FLAT_MM + 1.0 and cache.misses == misses + 4
