@@ -30,7 +30,9 @@ bearer_scheme = _bearer = HTTPBearer(
 )
 
 
-def get_state(request: Request) -> AppState:
+async def get_state(request: Request) -> AppState:
+    """Async, as it only reads the app: FastAPI runs a plain function dependency in a worker thread, a trip that
+    cost more than this does, on every request."""
     return request.app.state.fringelab
 
 
