@@ -38,7 +38,7 @@ from backend.limits import BodySizeLimit, PlainJsonNumbers, SharedRateLimiter
 from backend.openapi import install_openapi, operation_id
 from backend.polls import SharedPolls
 from backend.security import SecurityHeaders
-from backend.shedding import LoadShedding
+from backend.shedding import QUIET_REFUSALS, LoadShedding
 from backend.streams import StreamSlots
 from fringelab.core.accounts import TokenCache, dummy_hash
 from fringelab.core.app_state import AppState
@@ -143,7 +143,9 @@ def create_app(settings: Settings, *, openapi_at_start: bool = False) -> FastAPI
     )
     # Outermost: a request beyond the bound is refused before anything else is done for it.
     app.add_middleware(LoadShedding, max_in_flight=settings.resolved_api_in_flight,
+                       max_running=settings.resolved_api_running, max_wait_s=settings.api_queue_wait_ms / 1000,
                        exempt=is_unshed_path)  # fmt: skip
+    logging.getLogger("uvicorn.access").addFilter(QUIET_REFUSALS)  # once per process: the filter is one object
     app.include_router(health.router, prefix="/api/v1")
     app.include_router(auth.router, prefix="/api/v1")
     app.include_router(experiments.router, prefix="/api/v1")

@@ -1,17 +1,27 @@
-"""Load shedding: a web server process answers 503 with Retry-After at once beyond a bound of requests in flight.
+"""Load shedding: a web server process runs a bounded number of requests at once, lets a bounded number wait for
+their turn, and answers 503 with Retry-After at once beyond (or to one that has waited too long).
 
-Beyond what its threads can serve (FRINGELAB_API_THREADS busy plus FRINGELAB_API_QUEUE waiting), a request would
-only queue behind the others until its client gives up: at 500 requests/s, 60 % of requests waited over 10 s and
-none was refused (issue 26). Refused at once, a client (the dashboard, a script) retries after a second, and what
-is served is served quickly. The health check (cheap, from a cache), event streams (long-lived, capped per user by
-their own rule) and uploads (streamed to disk) are not counted.
+Beyond what its threads can serve, a request would only queue behind the others until its client gives up: at 500
+requests/s, 60 % of requests waited over 10 s and none was refused (issue 26). Refused at once, a client (the
+dashboard, a script) retries after a second, and what is served is served quickly. The decision is made here, the
+outermost middleware, on the event loop: before routing, authentication, the database, Redis or any thread, so
+that a refusal costs no more than writing it. The health check (cheap, from a cache), event streams (long-lived,
+capped per user by their own rule) and uploads (streamed to disk) are not counted.
+
+Only the requests that run (at most `max_running`, the process's threads) hold a thread and a database connection;
+those waiting for their turn here hold neither, first come first served. So the number a process takes at once
+(`max_in_flight`, a burst of connections) is not bound by its database connections, and one that waited
+`max_wait_s` without a turn is refused rather than served late.
 """
 
 from __future__ import annotations
 
+import asyncio
+import contextvars
 import json
 import logging
 import time
+from collections import deque
 from collections.abc import Callable
 
 from starlette.types import ASGIApp, Receive, Scope, Send
@@ -20,14 +30,44 @@ log = logging.getLogger(__name__)
 RETRY_AFTER_S = 1
 LOG_EVERY_S = 10.0
 
+# Set in the task of a request being refused: `QuietRefusals` drops uvicorn's access line for it (a flood of
+# refusals is one line per LOG_EVERY_S, not a formatted and written line each before its answer goes out).
+_refusing: contextvars.ContextVar[bool] = contextvars.ContextVar("fringelab_refusing", default=False)
+
+
+class QuietRefusals(logging.Filter):
+    """For the "uvicorn.access" logger: no line per refused request (`LoadShedding` logs them per period)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not _refusing.get()
+
+
+QUIET_REFUSALS = QuietRefusals()
+
 
 class LoadShedding:
-    def __init__(self, app: ASGIApp, *, max_in_flight: int, exempt: Callable[[str], bool]) -> None:
+    def __init__(
+        self,
+        app: ASGIApp,
+        *,
+        max_in_flight: int,
+        exempt: Callable[[str], bool],
+        max_running: int | None = None,
+        max_wait_s: float = 0.0,
+    ) -> None:
+        """`max_in_flight`: requests taken at once, running and waiting; `max_running`: of them, running at once
+        (default: all); `max_wait_s`: the longest a request waits for its turn before a 503 (0: as long as it
+        takes)."""
         self.app = app
         self.max_in_flight = max_in_flight
+        self.max_running = max_in_flight if max_running is None else min(max_running, max_in_flight)
+        self.max_wait_s = max_wait_s
         self.exempt = exempt
         self.in_flight = 0  # one event loop per process: no lock needed
+        self.running = 0
+        self._turns: deque[asyncio.Future[bool]] = deque()  # of the waiting requests, first come first served
         self.refused = 0
+        self.refused_after_wait = 0
         self._logged_at = 0.0
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
@@ -39,15 +79,51 @@ class LoadShedding:
             return
         self.in_flight += 1
         try:
-            await self.app(scope, receive, send)
+            if self.running < self.max_running and not self._turns:
+                self.running += 1
+            elif not await self._wait_for_turn():
+                self.refused_after_wait += 1
+                await self._refuse(send)
+                return
+            try:
+                await self.app(scope, receive, send)
+            finally:
+                self._pass_turn()
         finally:
             self.in_flight -= 1
 
+    async def _wait_for_turn(self) -> bool:
+        """Wait until a running request hands over its turn (True), or `max_wait_s` (False)."""
+        loop = asyncio.get_running_loop()
+        turn: asyncio.Future[bool] = loop.create_future()
+        self._turns.append(turn)
+        timer = loop.call_later(self.max_wait_s, _expire, turn) if self.max_wait_s > 0 else None
+        try:
+            return await turn
+        except asyncio.CancelledError:  # the client went away or the server stops: never keep a turn handed over
+            if turn.done() and not turn.cancelled() and turn.result():
+                self._pass_turn()
+            raise
+        finally:
+            if timer is not None:
+                timer.cancel()
+
+    def _pass_turn(self) -> None:
+        """A running request is done: the first still waiting runs in its place, or one fewer runs."""
+        while self._turns:
+            turn = self._turns.popleft()
+            if not turn.done():  # not expired, not cancelled
+                turn.set_result(True)
+                return
+        self.running -= 1
+
     async def _refuse(self, send: Send) -> None:
         self.refused += 1
+        _refusing.set(True)  # this request's own task: its access line only
         now = time.monotonic()
         if now - self._logged_at >= LOG_EVERY_S:  # one line per period, not one per refusal: a flood stays a line
-            log.warning("busy: %d requests refused with 503 so far (%d in flight)", self.refused, self.in_flight)
+            log.warning("busy: %d requests refused with 503 so far, %d of them after waiting %g s (%d in flight)",
+                        self.refused, self.refused_after_wait, self.max_wait_s, self.in_flight)  # fmt: skip
             self._logged_at = now
         body = json.dumps({
             "detail": f"the server is busy ({self.in_flight} requests in progress); retry in {RETRY_AFTER_S} s",
@@ -57,3 +133,8 @@ class LoadShedding:
                    (b"retry-after", str(RETRY_AFTER_S).encode())]  # fmt: skip
         await send({"type": "http.response.start", "status": 503, "headers": headers})
         await send({"type": "http.response.body", "body": body})
+
+
+def _expire(turn: asyncio.Future[bool]) -> None:
+    if not turn.done():
+        turn.set_result(False)

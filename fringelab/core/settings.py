@@ -117,10 +117,17 @@ class Settings(BaseSettings):
         40, ge=4, le=1000, description="Threads that run the web server's blocking routes (database, files)."
     )
     api_queue: int = Field(
-        10,
+        25,
         ge=0,
         le=1000,
-        description="Requests a web server process holds beyond its busy threads; more get 503 with Retry-After.",
+        description="Requests a web server process holds, waiting for their turn, beyond the threads it runs; more "
+        "get 503 with Retry-After.",
+    )
+    api_queue_wait_ms: int = Field(
+        0,
+        ge=0,
+        le=60_000,
+        description="A request that waited this long for a thread gets 503 with Retry-After (0: it waits its turn).",
     )
     frame_cache_bytes: int = Field(
         64 * 2**20,
@@ -266,13 +273,14 @@ class Settings(BaseSettings):
 
     @property
     def resolved_db_pool_size(self) -> int:
-        """Database connections of one web server process: one for each request it serves at once (its threads and
-        FRINGELAB_API_QUEUE) and BACKGROUND_CONNECTIONS for event streams and background work, but no more than its
-        share of FRINGELAB_DB_MAX_CONNECTIONS of a database server, so that N processes never open more than it allows
-        (several processes × a pool sized for one once exceeded PostgreSQL's 100)."""
+        """Database connections of one web server process: one for each request it runs at once (its threads;
+        those waiting for their turn hold none, `backend.shedding`) and BACKGROUND_CONNECTIONS for event streams and
+        background work, but no more than its share of FRINGELAB_DB_MAX_CONNECTIONS of a database server, so that N
+        processes never open more than it allows (several processes × a pool sized for one once exceeded
+        PostgreSQL's 100)."""
         if self.db_pool_size:
             return self.db_pool_size
-        wanted = self.api_threads + self.api_queue + BACKGROUND_CONNECTIONS
+        wanted = self.api_threads + BACKGROUND_CONNECTIONS
         if self.resolved_database_url.startswith("sqlite"):
             return wanted  # a file, no server: no limit of connections to share
         return max(2, min(wanted, self.db_max_connections // self.resolved_api_processes))
@@ -284,14 +292,21 @@ class Settings(BaseSettings):
         return max(2, min(self.api_threads, self.resolved_db_pool_size))
 
     @property
-    def resolved_api_in_flight(self) -> int:
-        """Requests one web server process takes at once before it answers 503 (`backend.shedding`): its threads
-        and FRINGELAB_API_QUEUE, but no more than its database connections less BACKGROUND_CONNECTIONS. A request
-        keeps its connection until its answer is serialised, which takes a thread again: with more requests than
-        connections, threads waiting for a connection held by requests waiting for a thread stalled a process
-        until the pool's timeout (measured: answers after 10 s at 4 threads, 16 queued, 14 connections)."""
+    def resolved_api_running(self) -> int:
+        """Requests one web server process runs at once (`backend.shedding`): its threads, but no more than its
+        database connections less BACKGROUND_CONNECTIONS. A running request keeps its connection until its answer
+        is serialised, which takes a thread again: with more requests in the application than connections, threads
+        waiting for a connection held by requests waiting for a thread stalled a process until the pool's timeout
+        (measured: answers after 10 s at 4 threads, 16 queued, 14 connections). Requests waiting for their turn
+        (FRINGELAB_API_QUEUE) wait before the application and hold no connection."""
         connections = max(1, self.resolved_db_pool_size - BACKGROUND_CONNECTIONS)
-        return max(1, min(self.resolved_api_threads + self.api_queue, connections))
+        return max(1, min(self.resolved_api_threads, connections))
+
+    @property
+    def resolved_api_in_flight(self) -> int:
+        """Requests one web server process takes at once before it answers 503: those it runs and
+        FRINGELAB_API_QUEUE waiting for their turn."""
+        return self.resolved_api_running + self.api_queue
 
     @property
     def resolved_worker_concurrency(self) -> int:

@@ -5,8 +5,15 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
+import signal
+import time
+
+import httpx
+import pytest
 
 from backend.shedding import LoadShedding
+from tests.support import RedisServer
 
 
 class Held:
@@ -54,3 +61,158 @@ def test_beyond_the_bound_a_request_is_answered_503_busy_and_the_health_check_ne
         assert (await ask(app, "/api/v1/jobs"))[0] == 200 and app.in_flight == 0
 
     asyncio.run(scenario())
+
+
+def test_beyond_the_running_bound_requests_wait_their_turn_first_come_first_served():
+    """Only `max_running` requests run (hold a thread and a database connection); the others of `max_in_flight`
+    wait here, in order, and run as the running ones end."""
+
+    async def scenario() -> None:
+        held = Held()
+        app = LoadShedding(held, max_in_flight=4, max_running=1, exempt=lambda path: False)
+        first = asyncio.create_task(ask(app, "/held"))
+        await asyncio.sleep(0)
+        finished: list[str] = []
+
+        async def then(name: str) -> int:
+            status = (await ask(app, "/quick"))[0]
+            finished.append(name)
+            return status
+
+        waiting = [asyncio.create_task(then(name)) for name in ("second", "third")]
+        await asyncio.sleep(0.01)
+        assert (app.in_flight, app.running, finished) == (3, 1, [])  # waiting, not running
+        held.release.set()
+        assert (await first)[0] == 200 and await asyncio.gather(*waiting) == [200, 200]
+        assert finished == ["second", "third"] and (app.in_flight, app.running) == (0, 0)
+
+    asyncio.run(scenario())
+
+
+def test_a_request_that_waited_max_wait_s_for_its_turn_is_refused_and_one_gone_keeps_no_turn():
+    async def scenario() -> None:
+        held = Held()
+        app = LoadShedding(held, max_in_flight=4, max_running=1, max_wait_s=0.05, exempt=lambda path: False)
+        first = asyncio.create_task(ask(app, "/held"))
+        await asyncio.sleep(0)
+        status, headers, body = await ask(app, "/quick")  # waits 0.05 s, no turn comes
+        assert status == 503 and headers["retry-after"] == "1" and json.loads(body)["code"] == "busy"
+        assert (app.refused_after_wait, app.in_flight, app.running) == (1, 1, 1)
+        gone = asyncio.create_task(ask(app, "/quick"))  # a client that goes away while it waits
+        await asyncio.sleep(0.01)
+        gone.cancel()
+        await asyncio.gather(gone, return_exceptions=True)
+        held.release.set()
+        assert (await first)[0] == 200 and (app.in_flight, app.running) == (0, 0)  # no turn kept by the gone one
+        assert (await ask(app, "/quick"))[0] == 200
+
+    asyncio.run(scenario())
+
+
+@pytest.mark.integration
+def test_a_refusal_asks_neither_redis_nor_the_database(settings, tmp_path):
+    """The whole application, accounts on, its bound (4) taken by requests whose bodies have not arrived: with
+    its Redis stopped (SIGSTOP: a call would hang until its timeout, 0.5 s) a fifth request with a token is
+    answered 503 busy at once, and no database connection is checked out for it."""
+    from sqlalchemy import event
+
+    from backend.app import create_app
+    from fringelab.core.accounts import create_user, issue_token
+    from fringelab.core.db import make_engine, make_sessionmaker
+
+    own_redis = RedisServer(tmp_path)
+    own_redis.start()
+    limited = settings.model_copy(update={"redis_url": own_redis.url, "auth_enabled": True, "api_threads": 4,
+                                          "api_queue": 0})  # fmt: skip
+    assert limited.resolved_api_in_flight == 4
+    with make_sessionmaker(make_engine(limited.resolved_database_url))() as session:
+        _row, secret = issue_token(session, create_user(session, "ada", "ada-password"))
+        session.commit()
+    app = create_app(limited)
+    checkouts: list[object] = []
+    event.listen(app.state.fringelab.engine, "checkout", lambda *_args: checkouts.append(1))
+    token = {"Authorization": f"Bearer {secret}"}
+
+    async def scenario() -> tuple[int, str, float, int]:
+        arrive = asyncio.Event()
+
+        async def late_body():  # type: ignore[no-untyped-def]
+            await arrive.wait()
+            yield b'{"name": "late"}'
+
+        transport = httpx.ASGITransport(app=app)
+        async with httpx.AsyncClient(transport=transport, base_url="http://testserver", timeout=30) as client:
+            held = [
+                asyncio.create_task(
+                    client.post(
+                        "/api/v1/experiments",
+                        content=late_body(),
+                        headers={**token, "content-type": "application/json"},
+                    )
+                )  # fmt: skip
+                for _ in range(4)
+            ]
+            await asyncio.sleep(0.2)  # all four admitted, each waiting for its body
+            before = len(checkouts)
+            os.kill(own_redis.process.pid, signal.SIGSTOP)  # type: ignore[union-attr]
+            try:
+                started = time.perf_counter()
+                answer = await client.get("/api/v1/jobs", headers=token)
+                took_s = time.perf_counter() - started
+                checked_out = len(checkouts) - before
+            finally:
+                os.kill(own_redis.process.pid, signal.SIGCONT)  # type: ignore[union-attr]
+            arrive.set()
+            await asyncio.gather(*held)
+            return answer.status_code, answer.headers.get("retry-after", ""), took_s, checked_out
+
+    try:
+        status, retry_after, took_s, checked_out = asyncio.run(scenario())
+    finally:
+        own_redis.stop()
+    assert (status, retry_after, checked_out) == (503, "1", 0)
+    assert took_s < 0.25  # microseconds of work; any Redis call would have hung for its 0.5 s timeout
+
+
+def test_a_refused_request_writes_no_access_line_of_its_own(caplog):
+    """uvicorn formats and writes its access line before the answer's first byte: for a refusal that is one line
+    per request of a flood. `QuietRefusals` drops those (the middleware logs refusals once per period); the
+    lines of the requests that ran are kept. Each request runs in a task of its own, as under uvicorn."""
+    import logging
+
+    from backend.shedding import QUIET_REFUSALS
+
+    access = logging.getLogger("uvicorn.access")
+    access.addFilter(QUIET_REFUSALS)
+
+    async def scenario() -> list[int]:
+        held = Held()
+        app = LoadShedding(held, max_in_flight=1, exempt=lambda path: False)
+
+        async def logged(path: str) -> int:
+            statuses: list[int] = []
+
+            async def send(message: dict) -> None:  # as uvicorn's: the access line, then the status line
+                if message["type"] == "http.response.start":
+                    access.info('"GET %s" %d', path, message["status"])
+                    statuses.append(message["status"])
+
+            async def receive() -> dict:
+                return {"type": "http.request", "body": b"", "more_body": False}
+
+            await app({"type": "http", "path": path, "method": "GET", "headers": []}, receive, send)
+            return statuses[0]
+
+        first = asyncio.create_task(logged("/held"))
+        await asyncio.sleep(0)
+        refused = await asyncio.create_task(logged("/refused"))
+        held.release.set()
+        return [await first, refused, await asyncio.create_task(logged("/after"))]
+
+    try:
+        with caplog.at_level(logging.INFO, logger="uvicorn.access"):
+            assert asyncio.run(scenario()) == [200, 503, 200]
+    finally:
+        access.removeFilter(QUIET_REFUSALS)
+    lines = [r.getMessage() for r in caplog.records if r.name == "uvicorn.access"]
+    assert lines == ['"GET /held" 200', '"GET /after" 200']
