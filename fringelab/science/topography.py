@@ -72,7 +72,7 @@ from .uncertainty import (
     fit_leverage_ratio,
     leverage_polynomials,
     local_excess_variance,
-    point_sigma_z_mm,
+    point_sigma_z_at,
     scale_from_ratios,
     sigma_edge_halves,
     sigma_from_halves,
@@ -721,14 +721,12 @@ def _measure(
     emitted: tuple[Any, np.ndarray], projector: ProjectorCalibration, camera_model: CameraModel
 ) -> FrameMeasurement:
     (frame, counts, noise_px, coverage, sigma_px), positions = emitted
-    kk, ll, t, z, entries, n_placed, n_out_of_range = _looked_up_points(
-        positions, projector.lookup_table, projector.n_heights_by_line, _leverage(projector)
+    # Each point's σ_Z from its edge σ as located (temporal smoothing, if on, would reduce it: left out, so σ errs
+    # large) and the table's (`uncertainty.point_sigma_z_mm`).
+    kk, ll, t, z, entries, sigma_z, n_placed, n_out_of_range = _looked_up_points(
+        positions, sigma_px, projector.lookup_table, projector.n_heights_by_line, _leverage(projector)
     )
     points = scan_rays(camera_model, projector.axis).backproject_to_z(ll, t, z)
-    # Each point's edge σ as located (temporal smoothing, if on, would reduce it: left out, so σ errs large).
-    sigma_z = point_sigma_z_mm(
-        sensitivity_px_per_mm=entries[:, 0], table_sigma_z_mm=entries[:, 1], edge_sigma_px=sigma_px[kk, ll],
-    )  # fmt: skip
     # The local check across neighbouring edges adds what the errors have beyond σ near each point
     # (`uncertainty.local_excess_variance`); the frame's own check (`uncertainty.cross_edge_scale`) then scales.
     centre, d2, predicted = _fourth_difference_checks(kk, ll, z, sigma_z)
@@ -790,16 +788,18 @@ def _leverage(projector: ProjectorCalibration) -> np.ndarray:
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _looked_up_points(
-    positions: np.ndarray, table: np.ndarray, n_heights: np.ndarray, leverage: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, int]:
+    positions: np.ndarray, edge_sigma_px: np.ndarray, table: np.ndarray, n_heights: np.ndarray, leverage: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, int]:
     """The points of positions (K, S) with Z from the table, line by line (the order the table and the rays are
     laid out in): k, line, t, z (N,), each point's table sensitivity and σ_Z at its place in the fitted range (the
     entry's σ_Z times its leverage there, `uncertainty.fit_leverage_ratio` of the row of `leverage` for the entry's
-    n_heights (S, K)) (N, 2), and how many positions there were and how many lay outside the calibrated range."""
+    n_heights (S, K)) (N, 2), its σ_Z from that and its edge's σ (`edge_sigma_px` (K, S);
+    `uncertainty.point_sigma_z_mm`) (N,), and how many positions there were and how many lay outside the
+    calibrated range."""
     n_edges, n_lines = positions.shape
     capacity = n_edges * n_lines
     kk, ll = np.empty(capacity, np.int64), np.empty(capacity, np.int64)
-    t, z = np.empty(capacity), np.empty(capacity)
+    t, z, sigma_z = np.empty(capacity), np.empty(capacity), np.empty(capacity)
     entries = np.empty((capacity, 2))
     m = n_placed = n_out_of_range = 0
     for s in range(n_lines):
@@ -816,8 +816,10 @@ def _looked_up_points(
             tau = (positions[k, s] - table[s, k, 2]) / table[s, k, 3]
             spread = fit_leverage_ratio(tau, leverage, n_heights[s, k])
             entries[m, 0], entries[m, 1] = table[s, k, TABLE_SENSITIVITY], table[s, k, TABLE_SIGMA_Z] * spread
+            sigma_z[m] = point_sigma_z_at(entries[m, 0], entries[m, 1], edge_sigma_px[k, s])
             m += 1
-    return kk[:m].copy(), ll[:m].copy(), t[:m].copy(), z[:m].copy(), entries[:m].copy(), n_placed, n_out_of_range
+    return (kk[:m].copy(), ll[:m].copy(), t[:m].copy(), z[:m].copy(), entries[:m].copy(), sigma_z[:m].copy(),
+            n_placed, n_out_of_range)  # fmt: skip
 
 
 # --------------------------------------------------------------------------------------------------------------
