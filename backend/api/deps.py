@@ -9,9 +9,10 @@ refused with a 422 before any dependency runs; that says nothing about the objec
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import AsyncIterator
 from typing import Annotated
 
+import anyio
 from fastapi import Depends, Path, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
@@ -36,9 +37,16 @@ async def get_state(request: Request) -> AppState:
     return request.app.state.fringelab
 
 
-def get_session(state: Annotated[AppState, Depends(get_state)]) -> Iterator[Session]:
-    with state.sessions() as session:
+async def get_session(state: Annotated[AppState, Depends(get_state)]) -> AsyncIterator[Session]:
+    """The request's session: made in the event loop (a session does no I/O before its first query; a plain
+    generator would cost a trip to a worker thread to make it) and closed in a worker thread (giving its
+    connection back may talk to the database), shielded, so that a cancelled request still gives it back."""
+    session = state.sessions()
+    try:
         yield session
+    finally:
+        with anyio.CancelScope(shield=True):
+            await anyio.to_thread.run_sync(session.close)
 
 
 StateDep = Annotated[AppState, Depends(get_state)]
