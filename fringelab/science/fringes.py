@@ -115,6 +115,14 @@ class EdgeSettings:
         soft-shadow renders more than 1 mm off (0.73 mm; 3.9 mm at 0.25 px), but it also refuses good edges in the
         punch's own shadow beside the dome top, which moves the dome's centroid 1.7 mm off the punch axis in the
         virtual Kodak test; measured in docs/method.md §5.
+    max_departure_px: an edge is rejected ("uneven light") where it departs from the cubic through its neighbours
+        on its scan line (two either side) by more than this (px), and where it stands alone on its line; at a run's
+        end the departure from its neighbours on one side counts against 1.5 and (the very end) 8/3 times this
+        (`edge_departures_px`). A soft shadow's rim dims one flank of a stripe and moves its edges by up to 3 px,
+        which the light's bend does not see: at 0.3 px no point of the soft-shadow renders is more than 1 mm off
+        (0.86 mm; 3.9 mm with none rejected), masking less than half what the bend's 0.08 px does. None (the
+        default) rejects none: beside the punch, where the dome's stripes fold, good edges depart by up to 2.7 px
+        and a frame's peak goes unmeasured; measured in docs/method.md §5.
     saturation_grey: grey level (8-bit scale) at or above which a transition's bright side counts as clipped.
     dark_fraction: pixels whose neighbourhood (one period) never rises above this fraction of the frame's bright
         level are "dark" (clamp ring, hole, background, a wide dark stripe); transitions within half a period of
@@ -139,6 +147,7 @@ class EdgeSettings:
     window_periods: float = 1.5
     min_contrast_grey: float = 20.0
     max_uneven_light_shift_px: float | None = None
+    max_departure_px: float | None = None
     saturation_grey: float = 250.0
     dark_fraction: float = 0.3
     presmooth_px: float = 1.0
@@ -184,6 +193,8 @@ class EdgeSettings:
                 raise ValueError(f"{name}: expected ≥ 0, got {getattr(self, name)}")
         if self.max_uneven_light_shift_px is not None and not self.max_uneven_light_shift_px > 0:
             raise ValueError(f"max_uneven_light_shift_px: expected > 0 or None, got {self.max_uneven_light_shift_px}")
+        if self.max_departure_px is not None and not self.max_departure_px > 0:
+            raise ValueError(f"max_departure_px: expected > 0 or None, got {self.max_departure_px}")
         if not self.max_link_step_px_per_line > 0:
             raise ValueError(f"max_link_step_px_per_line: expected > 0, got {self.max_link_step_px_per_line}")
         if self.min_edge_length_lines < 1:
@@ -210,7 +221,8 @@ class FrameEdges:
         hole, a crack, something black in front), UNUSABLE_DARK (no projected light but not black: a shadow),
         UNUSABLE_LOW_CONTRAST (stripes too faint, or clipped by a highlight); the worst in the block; where none
         of those applies, UNUSABLE_UNEVEN_LIGHT where a transition was rejected because the light changes too
-        fast (a soft shadow's rim, `uneven_light_shift_px`). None for edges stored before it existed.
+        fast (a soft shadow's rim, `uneven_light_shift_px`) or it departs from its neighbours
+        (`edge_departures_px`). None for edges stored before it existed.
     sigma_px: shape (N,) float32, σ (px) of each smoothed position t_px, from the edge's own slope, the noise
         its neighbours along the edge show and the evenness of the light around it (`_edge_sigma`): how sure the
         edge is. None for edges stored before it existed: `uncertainty.edge_sigmas_px` then gives every edge the
@@ -614,6 +626,20 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     else:
         t_px = t_raw
         noise_px = float("nan")
+    # An edge that departs from its neighbours on its line (a stripe's flank dimmed by a shadow's rim the bend does
+    # not see) is rejected, said as uneven light. Judged on the smoothed positions of every kept edge at once:
+    # rejecting some first would leave their neighbours unjudged.
+    if settings.max_departure_px is not None and period_px <= MAX_PERIOD_PX and len(line):
+        even = ~_departing(line, t_px, polarity, period_px=float(period_px), max_departure_px=settings.max_departure_px)
+        if not even.all():
+            uneven_blocks = (
+                np.concatenate([uneven_blocks[0], line[~even] // UNUSABLE_BLOCK_PX]),
+                np.concatenate([uneven_blocks[1], t_raw[~even].astype(np.int64) // UNUSABLE_BLOCK_PX]),
+            )
+            line, t_raw, t_px, polarity, chain, shift_px = (
+                a[even] for a in (line, t_raw, t_px, polarity, chain, shift_px)
+            )
+            chain = np.unique(chain, return_inverse=True)[1].astype(np.int32)
     sigma_px, contrast_grey = _edge_sigma(
         scan, contrast, line, t_raw, t_px, chain, SIGMA_PER_SHIFT * shift_px, settings=settings
     )
@@ -1245,6 +1271,94 @@ def _uneven_light_shift_kernel(
             slope = max(abs(scan[line[i], j + 1] - scan[line[i], j]), 1e-3)
             shift[i] = per_bend * abs(bend) / slope
     return shift
+
+
+# What a departure is measured against, by where the edge lies in its run of neighbouring edges on its line (column 1
+# of `edge_departures_px`): 0 centred (two neighbours either side), 1 next to the run's end, 2 at its end, 3 alone.
+# The levels are multiples of `EdgeSettings.max_departure_px`; the noise of the departure grows off-centre (σ_t times
+# 1.4, 2.1 and 8.4), a smooth surface's own fourth difference at a run's end more (measured on the soft-shadow
+# renders of tests/science/structured_light/test_soft_shadows.py: 0.3, 0.45 and 0.8 px; docs/method.md §5). An edge
+# alone on its line (no stripe of the expected width either side) is always rejected.
+DEPARTURE_LEVELS = np.array([1.0, 1.5, 8.0 / 3.0, 0.0])
+# Neighbouring edges of a run: opposite polarity, 0.2–1.5 periods apart (a steep slope stretches a stripe; the order
+# takes neighbours within 0.8 of a period).
+DEPARTURE_GAP_PERIODS = (0.2, 1.5)
+
+
+def edge_departures_px(line: np.ndarray, t_px: np.ndarray, polarity: np.ndarray, *, period_px: float) -> np.ndarray:
+    """How far each edge departs from its neighbours on its scan line, shape (N, 2) float64: column 0 the departure
+    (px along the line; NaN where not judged), column 1 where the edge lies in its run (0 centred, 1 next to the
+    run's end, 2 at its end, 3 alone; `DEPARTURE_LEVELS`).
+
+    A run is a sequence of edges of alternating polarity on one line, each within `DEPARTURE_GAP_PERIODS` of the
+    next. The departure is the fourth difference over the five edges of the run nearest the edge (two either side
+    where the run allows) divided by the edge's own coefficient in it (6 centred, −4 one from the end, 1 at the
+    end): the edge's distance from the cubic through the other four. A smooth surface makes positions that a
+    cubic follows (but where its stripes fold, beside the punch), so what is left is the edge's own misplacement (a
+    stripe's flank dimmed by a shadow's rim moves its edge; 4/6 of that shows at each centred neighbour), and 4/3
+    of any offset between the rising and the falling edges. Edges of runs shorter than five are not judged (NaN,
+    place 0) unless alone.
+
+    line, t_px, polarity: (N,) the edges sorted by (line, t).
+    """
+    return _edge_departures_kernel(
+        np.ascontiguousarray(line, np.int64), np.ascontiguousarray(t_px, np.float64),
+        np.ascontiguousarray(polarity, np.int64), DEPARTURE_GAP_PERIODS[0] * period_px,
+        DEPARTURE_GAP_PERIODS[1] * period_px,
+    )  # fmt: skip
+
+
+def _departing(
+    line: np.ndarray, t_px: np.ndarray, polarity: np.ndarray, *, period_px: float, max_departure_px: float
+) -> np.ndarray:
+    """(N,) bool: the edges `locate_edges` rejects for departing from their neighbours (`edge_departures_px`) beyond
+    their level (`DEPARTURE_LEVELS` times max_departure_px), all judged at once: a misplaced edge bends its
+    neighbours' cubics by 4/6 of its own departure, and rejecting it first would leave them unjudged."""
+    departure = edge_departures_px(line, t_px, polarity, period_px=period_px)
+    place = departure[:, 1].astype(np.int64)
+    with np.errstate(invalid="ignore"):
+        return (np.abs(departure[:, 0]) > max_departure_px * DEPARTURE_LEVELS[place]) | (place == 3)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _edge_departures_kernel(
+    line: np.ndarray, t: np.ndarray, polarity: np.ndarray, min_gap: float, max_gap: float
+) -> np.ndarray:
+    n = len(line)
+    out = np.full((n, 2), np.nan)
+    # linked[i]: edge i and edge i + 1 are neighbours in a run.
+    linked = np.zeros(n + 1, np.bool_)
+    for i in range(n - 1):
+        gap = t[i + 1] - t[i]
+        linked[i] = line[i + 1] == line[i] and polarity[i + 1] != polarity[i] and min_gap < gap < max_gap
+    for i in range(n):
+        # Run length either side of i (up to 4).
+        before = 0
+        while before < 4 and i - before - 1 >= 0 and linked[i - before - 1]:
+            before += 1
+        after = 0
+        while after < 4 and linked[i + after]:
+            after += 1
+        if before == 0 and after == 0:
+            out[i, 0], out[i, 1] = np.inf, 3.0
+            continue
+        if before >= 2 and after >= 2:
+            lo, place = i - 2, 0.0
+        elif before == 1 and after >= 3:
+            lo, place = i - 1, 1.0
+        elif after == 1 and before >= 3:
+            lo, place = i - 3, 1.0
+        elif before == 0 and after >= 4:
+            lo, place = i, 2.0
+        elif after == 0 and before >= 4:
+            lo, place = i - 4, 2.0
+        else:
+            out[i, 1] = 0.0
+            continue
+        d4 = t[lo] - 4.0 * t[lo + 1] + 6.0 * t[lo + 2] - 4.0 * t[lo + 3] + t[lo + 4]
+        coefficient = 6.0 if i - lo == 2 else (-4.0 if i - lo in (1, 3) else 1.0)
+        out[i, 0], out[i, 1] = d4 / coefficient, place
+    return out
 
 
 @numba.njit(cache=True, nogil=True)

@@ -1,9 +1,13 @@
 """Edges under light that changes: soft partial shadows and uneven illumination (issue 29, docs/method.md §5).
 
-The mid-level follows light that changes linearly along a scan line; where the light bends within a period (a soft
-shadow's rim) so that a transition would move by more than `EdgeSettings.max_uneven_light_shift_px` it is refused as
-"uneven light" rather than misplaced. It is off by default (at 0.25 px the worst point stays as far off); 0.08 px
-(`STRICT_PX`) is what keeps the soft shadows below within 1 mm, and is not the default (docs/method.md §5).
+The mid-level follows light that changes linearly along a scan line. Where a soft shadow's rim bends the light
+within a period, or dims one flank of a stripe, an edge moves (up to 2.9 px here) and by default it is kept: two
+refusals, both off by default, keep every point of the soft shadows below within 1 mm. One by the light's bend
+(`max_uneven_light_shift_px`, 0.08 px: `STRICT_PX`), one by how far an edge departs from the cubic through its
+neighbours on its line (`max_departure_px`, 0.3 px: `DEPARTURE_PX`; `edge_departures_px`), which masks less than
+half the area. Neither is the default: beside the punch, where the dome's stripes fold (compressed on one side,
+stretched into the punch's own shadow on the other), good edges bend the light and depart from a cubic as much as
+misplaced ones, and a frame's peak would go unmeasured (docs/method.md §5).
 Lean renders: straight stripes of 96 × 256 px, and the virtual Kodak test (512 × 480, one sample per pixel, the
 harder imaging of the "dim" scenario) with soft shadows of several sizes, places, strengths (stripes at 20–50 %)
 and rims.
@@ -17,7 +21,13 @@ import numpy as np
 import pytest
 from scipy import special
 
-from fringelab.science.fringes import UNUSABLE_UNEVEN_LIGHT, EdgeSettings, FrameEdges, locate_edges
+from fringelab.science.fringes import (
+    UNUSABLE_UNEVEN_LIGHT,
+    EdgeSettings,
+    FrameEdges,
+    edge_departures_px,
+    locate_edges,
+)
 from fringelab.science.projector import build_projector_calibration, exact_camera_model
 from fringelab.science.topography import TopographySettings, reference_for, track_and_measure
 from fringelab.science.virtual_test import (
@@ -32,8 +42,10 @@ from fringelab.science.virtual_test import (
 )
 
 PERIOD_PX = 10.0
-# The refusal of uneven light that keeps every soft shadow's points within 1 mm (docs/method.md §5).
+# The refusal by the light's bend that keeps every soft shadow's points within 1 mm, not the default (method.md §5).
 STRICT_PX = 0.08
+# The refusal by an edge's departure from its neighbours that does so too, also not the default.
+DEPARTURE_PX = 0.3
 PHASE_PX = 0.3
 RIM_AT_PX = 128.3
 
@@ -79,7 +91,7 @@ def test_a_soft_rim_along_the_stripes_is_refused_as_uneven_light_not_misplaced(r
     # about a factor 2 (errors 0.2-0.9 × |bend| / slope), so they are within 0.15 px (0.13 px seen).
     image = stripes_under(soft_rim(rim_px), seed=2)
     settings = EdgeSettings(axis="rows", period_px=PERIOD_PX, max_uneven_light_shift_px=STRICT_PX)
-    unrefused = locate_edges(image, replace(settings, max_uneven_light_shift_px=None))
+    unrefused = locate_edges(image, replace(settings, max_uneven_light_shift_px=None, max_departure_px=None))
     assert np.max(np.abs(edge_errors_px(unrefused))) > 0.16
     edges = locate_edges(image, settings)
     assert np.max(np.abs(edge_errors_px(edges))) < 0.15
@@ -101,7 +113,8 @@ SHADOW_SETS = {
 }
 DEFLECTIONS_MM = (25.0, 55.0)
 # The requirement of issue 29: no point kept as measured more than 1 mm from the truth (4.9 mm before the mid-level
-# followed the light; 3.9 mm with no edge refused or at 0.25 px; 0.73 mm at 0.08 px).
+# followed the light; 3.9 mm with no edge refused, as by default, or the bend's refusal at 0.25 px; 0.73 mm with it
+# at 0.08 px, 0.86 mm with the departure's at 0.3 px).
 LIMIT_MM = 1.0
 
 
@@ -114,8 +127,7 @@ def shadowed() -> dict[str, object]:
     z_mm = np.arange(0.0, 80.0 + 1e-9, 4.0)
     camera = exact_camera_model(setup.camera)
     projector = build_projector_calibration([renderer.render_flat(z, rng=rng) for z in z_mm], z_mm, camera)
-    settings = replace(projector.edges, max_uneven_light_shift_px=STRICT_PX)
-    reference = reference_for(locate_edges(renderer.render_test(PlateState(0.0), rng=rng), settings),
+    reference = reference_for(locate_edges(renderer.render_test(PlateState(0.0), rng=rng), projector.edges),
                               projector, camera, TopographySettings())  # fmt: skip
     frames = []
     for name, shadows in SHADOW_SETS.items():
@@ -123,6 +135,7 @@ def shadowed() -> dict[str, object]:
         shaded = FringeRenderer(replace(setup, scene=scene))
         for w0 in DEFLECTIONS_MM:
             frames.append((name, scene, PlateState(w0), shaded.render_test(PlateState(w0), rng=rng)))
+    frames.append(("none", setup.scene, PlateState(55.0), renderer.render_test(PlateState(55.0), rng=rng)))
     return {"projector": projector, "camera": camera, "reference": reference, "frames": frames}
 
 
@@ -140,27 +153,77 @@ def measured_errors(shadowed: dict[str, object], settings: EdgeSettings):  # typ
         yield f"{name}, w0 {state.w0_mm:g} mm", error, light, measurement.coverage
 
 
+STRICT_SETTINGS = {"the light's bend": {"max_uneven_light_shift_px": STRICT_PX},
+                   "the departure": {"max_departure_px": DEPARTURE_PX}}  # fmt: skip
+
+
 def test_soft_shadows_leave_no_point_more_than_1_mm_off_and_say_what_they_mask(shadowed) -> None:  # type: ignore[no-untyped-def]
-    uneven_mm2 = 0.0
-    in_shadow = 0
-    settings = replace(shadowed["projector"].edges, max_uneven_light_shift_px=STRICT_PX)
-    for name, error, light, coverage in measured_errors(shadowed, settings):
-        assert np.max(np.abs(error)) < LIMIT_MM, f"{name}: a point {np.max(np.abs(error)):.2f} mm off"
-        uneven_mm2 += coverage.missing_mm2["uneven_light"]
-        in_shadow += int(np.count_nonzero(light < 0.6))
-    # The rims are masked with their reason, and the stripes inside the shadows are still measured.
-    assert uneven_mm2 > 500.0
-    assert in_shadow > 500  # 893 seen
+    uneven_mm2 = {}
+    for refusal, values in STRICT_SETTINGS.items():
+        uneven_mm2[refusal] = 0.0
+        in_shadow = 0
+        settings = replace(shadowed["projector"].edges, **values)
+        for name, error, light, coverage in measured_errors(shadowed, settings):
+            assert np.max(np.abs(error)) < LIMIT_MM, f"{refusal}, {name}: a point {np.max(np.abs(error)):.2f} mm off"
+            uneven_mm2[refusal] += coverage.missing_mm2["uneven_light"]
+            in_shadow += int(np.count_nonzero(light < 0.6))
+        # The rims are masked with their reason, and the stripes inside the shadows are still measured.
+        assert uneven_mm2[refusal] > 500.0, refusal
+        assert in_shadow > 500, refusal  # 893 seen
+    # The departure masks less than half what the bend does (4 532 against 10 087 mm² seen, the shadow-free frame's
+    # 0 and 112 mm² beside the punch included).
+    assert uneven_mm2["the departure"] < 0.6 * uneven_mm2["the light's bend"]
 
 
-def test_without_the_refusal_the_same_shadows_make_wrong_points(shadowed) -> None:  # type: ignore[no-untyped-def]
-    # The frames above are hard enough: with the refusal off, or at its default, points at the rims are over 1 mm
-    # off (the shift still enters their σ, but beside a rim the light's bend says too little of it for the σ to
-    # mask them).
+def test_without_a_refusal_the_same_shadows_make_wrong_points(shadowed) -> None:  # type: ignore[no-untyped-def]
+    # The frames above are hard enough: with neither refusal (the defaults), or the bend's at 0.25 px, points at
+    # the rims are over 1 mm off (3.9 mm seen: the last lit edge before a deep shadow, whose bend is not judged,
+    # 2.1 px off; and edges whose stripe's flank a rim along the stripes dims, 2.4-2.9 px off where the bend
+    # predicts 0.2-0.5 px). The shift still enters their σ, but it says too little of it for the σ to mask them.
+    assert EdgeSettings().max_uneven_light_shift_px is EdgeSettings().max_departure_px is None
     for limit_px in (None, 0.25):
-        settings = replace(shadowed["projector"].edges, max_uneven_light_shift_px=limit_px)
+        settings = replace(shadowed["projector"].edges, max_uneven_light_shift_px=limit_px, max_departure_px=None)
         worst = max(float(np.max(np.abs(error))) for _, error, _, _ in measured_errors(shadowed, settings))
         assert worst > LIMIT_MM, limit_px
+
+
+def test_the_departure_refuses_good_edges_where_the_domes_stripes_fold(shadowed) -> None:  # type: ignore[no-untyped-def]
+    # Why the departure is not the default: without any shadow, beside the punch at 55 mm the stripes fold
+    # (compressed on the dome's near flank, stretched into the punch's own shadow) and good edges depart from the
+    # cubic through their neighbours by up to 1.5-2.7 px (w0 50-60 mm); the refusal masks them next to the peak
+    # (in tests/science/structured_light/test_peak_measured.py a shadow-free frame's peak then goes unmeasured).
+    name, scene, state, frame = shadowed["frames"][-1]
+    assert name == "none"
+    settings = replace(shadowed["projector"].edges, max_departure_px=DEPARTURE_PX)
+    edges = locate_edges(frame, settings)
+    refused = np.argwhere(edges.unusable == UNUSABLE_UNEVEN_LIGHT)
+    assert len(refused) > 0
+    # ... and the points there are good without it: this frame's worst is well within the bound.
+    kept = replace(settings, max_departure_px=None)
+    worst = next(float(np.max(np.abs(e))) for n, e, _, _ in measured_errors(shadowed, kept) if n.startswith("none"))
+    assert worst < 0.5 * LIMIT_MM
+
+
+def test_an_edge_is_judged_by_the_cubic_through_its_neighbours_on_its_line() -> None:
+    # Edges of one line every half period (5 px) on a stripe pattern stretched smoothly (a cubic in the edge's
+    # index: a slope stretches stripes): no departure, to rounding. One edge moved by 0.5 px departs by exactly
+    # 0.5 px; its neighbours, whose cubics it bends, by 4/6 of it (centred) and less.
+    k = np.arange(12.0)
+    t = 20.0 + 5.0 * k + 0.05 * k**2 - 0.002 * k**3
+    line = np.zeros(12, np.int64)
+    polarity = np.where(k % 2 == 0, 1, -1)
+    smooth = edge_departures_px(line, t, polarity, period_px=10.0)
+    assert np.max(np.abs(smooth[:, 0])) < 1e-9
+    # Where each edge lies in its run: at its ends (2), next to them (1), centred (0).
+    assert smooth[:, 1].tolist() == [2, 1] + [0] * 8 + [1, 2]
+    moved = t.copy()
+    moved[5] += 0.5
+    departure = edge_departures_px(line, moved, polarity, period_px=10.0)[:, 0]
+    assert departure[5] == pytest.approx(0.5)
+    assert departure[[4, 6]] == pytest.approx([-4.0 / 6.0 * 0.5] * 2)
+    # An edge alone on its line (no neighbour within 0.2–1.5 periods of opposite polarity) is judged as such.
+    alone = edge_departures_px(np.array([0, 1]), np.array([10.0, 10.0]), np.array([1, 1]), period_px=10.0)
+    assert alone[:, 1].tolist() == [3, 3]
 
 
 def test_files_with_the_former_uneven_light_setting_are_read_with_the_new_default() -> None:
