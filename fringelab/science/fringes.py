@@ -25,6 +25,7 @@ import numba
 import numpy as np
 
 from . import MeasurementError
+from .order_statistics import median, percentile
 from .smoothing import edge_smoothing_weights, smoothing_noise_tables
 
 Axis = Literal["rows", "cols"]
@@ -493,7 +494,7 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     # Dark: no bright sample within half a period either way (a dark stripe is only half a period wide). The
     # mask starts half a period inside a dark area (clamp ring, hole, background); grown by half a period
     # along the lines it covers the area itself.
-    bright_level = float(np.percentile(scan[::4, ::4], 95))
+    bright_level = percentile(scan[::4, ::4], 95)
     dark_window = _odd(period_px)
     stripe_max = _dilate_along_lines(scan, dark_window)
     dark = cv2.dilate(stripe_max, np.ones((3, 1), np.uint8)) < settings.dark_fraction * bright_level
@@ -509,7 +510,7 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     else:
         sampled_min = -_dilate_along_lines(-scan[::4], dark_window)[:, ::4]
     lit = ~dark[::4, ::4] & (sampled_max > 0)
-    dark_share = float(np.median(sampled_min[lit] / sampled_max[lit])) if np.any(lit) else 0.0
+    dark_share = median(sampled_min[lit] / sampled_max[lit]) if np.any(lit) else 0.0
     black = _black(scan, stripe_max, dark_share)
     # Beside a wide dark area (the clamp ring, a hole) the rim of the area is black too, but it is no part of the
     # dark mask (the area is): counting it would mark a stripe more along the plate's edge as dark.
@@ -979,9 +980,9 @@ def _unusable_blocks(
     min_contrast_grey or their bright side clipped.
     """
     sampled = scan[::4, ::4]
-    black_level = float(np.percentile(sampled, 1))
+    black_level = percentile(sampled, 1)
     lit = sampled[~dark[::4, ::4]]
-    stripes_dark = float(np.percentile(lit, 10)) if lit.size else black_level
+    stripes_dark = percentile(lit, 10) if lit.size else black_level
     margin = max(BLACK_MARGIN_GREY, 0.25 * (stripes_dark - black_level))
     block = UNUSABLE_BLOCK_PX
     # The worst reason in each block, then as far as edges are rejected near dark areas (see `locate_edges`; the

@@ -1,0 +1,51 @@
+"""order_statistics.median and .percentile give numpy's values exactly (they replace np.median/np.percentile in the
+per-frame levels of the edge locator and the σ checks, whose outputs must not change)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fringelab.science.order_statistics import median, percentile
+
+
+def _same(a: float, b: float) -> bool:
+    return (np.isnan(a) and np.isnan(b)) or a == b
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_equal_to_numpy(dtype: type) -> None:
+    rng = np.random.default_rng(29)
+    for trial in range(300):
+        n = int(rng.integers(1, 2000))
+        kind = trial % 5
+        if kind == 0:
+            x = rng.chisquare(1, n) * 100.0
+        elif kind == 1:
+            x = rng.standard_normal(n)
+        elif kind == 2:
+            x = rng.integers(-3, 3, n).astype(float)  # ties
+        elif kind == 3:
+            x = (rng.random(n) * 255.0).round(3)
+        else:
+            x = rng.standard_normal(n) * 10.0 ** rng.integers(-30, 30, n)  # many binades
+        if trial % 37 == 0:
+            x[rng.integers(0, n)] = np.nan
+        x = x.astype(dtype)
+        assert _same(median(x), float(np.median(x)))
+        for q in (0, 1, 10, 37.5, 50, 95, 100):
+            assert _same(percentile(x, q), float(np.percentile(x, q)))
+
+
+def test_strided_and_2d() -> None:
+    image = np.random.default_rng(3).random((97, 131)).astype(np.float32) * 255.0
+    view = image[::4, ::4]
+    assert percentile(view, 95) == float(np.percentile(view, 95))
+    assert median(view) == float(np.median(view))
+
+
+def test_refuses_integers_and_empty() -> None:
+    with pytest.raises(ValueError, match="float32 or float64"):
+        median(np.arange(5))
+    with pytest.raises(ValueError, match="at least one"):
+        percentile(np.zeros(0), 50)
