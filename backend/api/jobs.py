@@ -22,7 +22,7 @@ from fastapi.responses import FileResponse
 from fastapi.security import HTTPAuthorizationCredentials
 from fastapi.sse import EventSourceResponse, ServerSentEvent
 from pydantic import BaseModel
-from sqlalchemy import Row, func, select
+from sqlalchemy import BindParameter, Row, bindparam, func, select
 from sqlalchemy.orm import Session
 
 from backend.api.deps import (
@@ -94,6 +94,15 @@ CHUNK_COLUMNS = (JobChunk.job_id, JobChunk.phase, JobChunk.index.label("number")
                  JobChunk.stop_frame, JobChunk.state, JobChunk.done, JobChunk.worker, JobChunk.started_at,
                  JobChunk.finished_at)  # fmt: skip
 JobRow = Job | Row[Any]
+# The queries of `job_outs`, built once with the ids bound at execution: building them (each id coerced into the
+# statement) cost more than running them.
+_IDS: BindParameter[list[Any]] = bindparam("ids", expanding=True)
+CHUNKS_OF = select(*CHUNK_COLUMNS).where(JobChunk.job_id.in_(_IDS)).order_by(JobChunk.phase, JobChunk.index)
+RETRIES_OF = select(Job.retry_of, Job.id).where(Job.retry_of.in_(_IDS)).order_by(Job.created_at, Job.id)
+SOURCES = select(Job.id, Job.kind, Job.spec).where(Job.id.in_(_IDS))
+CAMERA_NAMES = select(Recording.id, Camera.name).join(Camera, Camera.id == Recording.camera_id)
+CAMERA_NAMES = CAMERA_NAMES.where(Recording.id.in_(_IDS))
+EXPERIMENT_NAMES = select(Experiment.id, Experiment.name).where(Experiment.id.in_(_IDS))
 
 
 def job_out(session: Session, job: Job, *, now: datetime | None = None) -> JobOut:
@@ -115,11 +124,9 @@ def job_outs(
     chunks_of: dict[str, list[Row[Any]]] = defaultdict(list)
     retried_by: dict[str | None, str] = {}
     if ids:
-        query = select(*CHUNK_COLUMNS).where(JobChunk.job_id.in_(ids)).order_by(JobChunk.phase, JobChunk.index)
-        for chunk in session.execute(query):
+        for chunk in session.execute(CHUNKS_OF, {"ids": ids}):
             chunks_of[chunk.job_id].append(chunk)  # type: ignore[arg-type]  # a Row of CHUNK_COLUMNS
-        retries = select(Job.retry_of, Job.id).where(Job.retry_of.in_(ids)).order_by(Job.created_at, Job.id)
-        for retry_of, retry_id in session.execute(retries):
+        for retry_of, retry_id in session.execute(RETRIES_OF, {"ids": ids}):
             retried_by[retry_of] = retry_id  # the newest retry last
     names = _names_of(session, jobs, experiment_names)
     return [_job_out(job, chunks_of[job.id], retried_by.get(job.id), now, names[job.id]) for job in jobs]
@@ -139,7 +146,7 @@ def _names_of(
     source_ids = set(sources.values()) - {None}
     recording_of_source: dict[str, Any] = {}
     if source_ids:
-        found = session.execute(select(Job.id, Job.kind, Job.spec).where(Job.id.in_(source_ids)))
+        found = session.execute(SOURCES, {"ids": list(source_ids)})
         recording_of_source = {job_id: first(named_by(kind, spec, "recording")) for job_id, kind, spec in found}
     recording_of = {job.id: first(named_by(job.kind, job.spec, "recording")) for job in jobs}
     for job in jobs:
@@ -147,13 +154,13 @@ def _names_of(
     recording_ids = set(recording_of.values()) - {None}
     camera_of_recording: dict[Any, str] = {}
     if recording_ids:
-        cameras = select(Recording.id, Camera.name).join(Camera, Camera.id == Recording.camera_id)
-        found_cameras = session.execute(cameras.where(Recording.id.in_(recording_ids)))
+        found_cameras = session.execute(CAMERA_NAMES, {"ids": list(recording_ids)})
         camera_of_recording = {recording_id: name for recording_id, name in found_cameras}
     if experiment_names is None:
         experiment_ids = {job.experiment_id for job in jobs if job.experiment_id is not None}
-        experiments = select(Experiment.id, Experiment.name).where(Experiment.id.in_(experiment_ids))
-        by_id = {id_: name for id_, name in session.execute(experiments)} if experiment_ids else {}
+        by_id: dict[int, str] = {}
+        if experiment_ids:
+            by_id = {id_: name for id_, name in session.execute(EXPERIMENT_NAMES, {"ids": list(experiment_ids)})}
         experiment_names = {job.id: by_id.get(job.experiment_id) for job in jobs if job.experiment_id is not None}
     return {
         job.id: (
