@@ -122,8 +122,8 @@ class LoadShedding:
         _refusing.set(True)  # this request's own task: its access line only
         now = time.monotonic()
         if now - self._logged_at >= LOG_EVERY_S:  # one line per period, not one per refusal: a flood stays a line
-            log.warning("busy: %d requests refused with 503 so far, %d of them after waiting %g s (%d in flight)",
-                        self.refused, self.refused_after_wait, self.max_wait_s, self.in_flight)  # fmt: skip
+            log.warning("busy: %d requests refused with 503 so far, %d of them after waiting for their turn "
+                        "(%d in flight)", self.refused, self.refused_after_wait, self.in_flight)  # fmt: skip
             self._logged_at = now
         body = json.dumps({
             "detail": f"the server is busy ({self.in_flight} requests in progress); retry in {RETRY_AFTER_S} s",
