@@ -142,7 +142,8 @@ class SharedRateLimiter:
     process or eight serve them. While Redis does not answer, each process counts on its own (the limit is a
     courtesy to other users, not a security boundary: it must not fail requests).
 
-    A Redis round trip per request was 16 % of the web server's CPU on issue 26's heavy mix. A process therefore
+    A Redis round trip per request was 12 % of the web server's busy samples on issue 26's heavy mix (py-spy), most
+    of it a thread waiting for the reply while holding its database connection. A process therefore
     takes a lease of up to `lease` tokens at once (one atomic script call) and spends it locally; a lease unspent
     after LEASE_S is dropped (its tokens stay counted). A refusal is remembered until its wait is over: no request
     can be allowed before then anyway, by any process (they only take tokens), so it is answered without Redis.
