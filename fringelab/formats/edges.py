@@ -1,9 +1,9 @@
 """Stored edges of a chunk of frames (HDF5, schema "fringelab.frame-edges"), handed between the workers of a
 topography job.
 
-Per edge point: line, t_px, polarity, chain, and (since issue 29) sigma_px and contrast_grey. Files written before
-those two lack them; they read with both None, and σ falls back to the frame's estimate from noise_px
-(`uncertainty.edge_sigmas_px`)."""
+Per edge point: line, t_px, polarity, chain, and (since issue 29) sigma_px, contrast_grey and beside_dark. Files
+written before them lack them; they read with None: σ falls back to the frame's estimate from noise_px
+(`uncertainty.edge_sigmas_px`), and no edge counts as beside a dark area (none was kept there at fringe periods)."""
 
 from __future__ import annotations
 
@@ -55,6 +55,9 @@ def write_edges(path: str | Path, frames: Sequence[int], edges: Sequence[FrameEd
             if edges and all(getattr(e, name) is not None for e in edges):
                 data = np.concatenate([np.asarray(getattr(e, name), np.float32) for e in edges])
                 file.create_dataset(name, data=data, compression="gzip", compression_opts=1, shuffle=True)
+        if edges and all(e.beside_dark is not None for e in edges):
+            data = np.concatenate([np.asarray(e.beside_dark, np.bool_) for e in edges])
+            file.create_dataset("beside_dark", data=data, compression="gzip", compression_opts=1)
         file.attrs["frames_json"] = json_text(meta)
         if edges and all(e.unusable is not None for e in edges):
             file.create_dataset(
@@ -73,6 +76,7 @@ def read_edges(path: str | Path) -> tuple[np.ndarray, list[FrameEdges]]:
         arrays = {name: file[name][()] for name in ("line", "t_px", "polarity", "chain")}
         # Absent in files written before the per-edge σ (see the module docstring).
         per_edge = {name: file[name][()] if name in file else None for name in ("sigma_px", "contrast_grey")}
+        beside_dark = file["beside_dark"][()].astype(np.bool_) if "beside_dark" in file else None
         meta = json.loads(file.attrs["frames_json"])
         frames = file["frames"][()]
         unusable = file["unusable"][()] if "unusable" in file else None
@@ -94,6 +98,7 @@ def read_edges(path: str | Path) -> tuple[np.ndarray, list[FrameEdges]]:
                 unusable=None if unusable is None else unusable[i],
                 sigma_px=None if per_edge["sigma_px"] is None else per_edge["sigma_px"][lo:hi],
                 contrast_grey=None if per_edge["contrast_grey"] is None else per_edge["contrast_grey"][lo:hi],
+                beside_dark=None if beside_dark is None else beside_dark[lo:hi],
             )
         )
     return frames, edges

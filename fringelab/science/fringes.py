@@ -126,10 +126,11 @@ class EdgeSettings:
         and a frame's peak goes unmeasured; measured in docs/method.md §5.
     saturation_grey: grey level (8-bit scale) at or above which a transition's bright side counts as clipped.
     dark_fraction: pixels whose neighbourhood (one period) never rises above this fraction of the frame's bright
-        level are "dark" (clamp ring, hole, background, a wide dark stripe); transitions within half a period of
-        them are rejected, because there the mid-level is set by the dark area, not by the stripes. With stripes
-        wider than MAX_PERIOD_PX (Gray-code bit frames) the lit edge beside a dark area that is not black is
-        kept where its stripe is whole (`_whole_beside_dark`; see `locate_edges`).
+        level are "dark" (clamp ring, hole, background, a wide dark stripe); transitions inside them, or within
+        a period of a black sample (darker than the dark stripes: a hole's or the clamp's rim, a crack), are
+        rejected. The lit edge beside a dark area that is not black is kept where its stripe is whole
+        (`_whole_beside_dark`; see `locate_edges`), flagged `FrameEdges.beside_dark`: it carries no fringe order
+        to its neighbours (`order_edges`).
     presmooth_px: Gaussian σ (px) of smoothing along the stripes before locating; it averages noise without
         moving an edge that runs along the smoothing direction.
     edge_smoothing_lines: Gaussian σ (lines) of the local quadratic fit of t against the line along each edge
@@ -230,6 +231,10 @@ class FrameEdges:
         frame's σ from noise_px.
     contrast_grey: shape (N,) float32, the stripes' contrast I_max − I_min at each edge (grey levels, 8-bit
         scale). None for edges stored before it existed.
+    beside_dark: shape (N,) bool, the lit edges kept beside a dark area that is not black (within a period of it;
+        `locate_edges`): their stripe is whole, but one side of their window is the area, and a link resting on
+        them never carries the fringe order (`order_edges`). None for edges stored before it existed (then none
+        was kept at fringe periods).
     """
 
     axis: Axis
@@ -245,6 +250,7 @@ class FrameEdges:
     unusable: np.ndarray | None = None
     sigma_px: np.ndarray | None = None
     contrast_grey: np.ndarray | None = None
+    beside_dark: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.line)
@@ -465,7 +471,8 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     and over two stripe periods along each scan line, averaged (`_mid_and_contrast`), and contrast I_max − I_min
     from the envelopes over `window_periods` periods; every sign change of I − mid is an edge candidate, placed
     by a probit fit to the four straddling pixels; candidates with low contrast, a clipped bright
-    side or near a dark area are rejected, as are pairs closer than a quarter of the edge spacing (noise
+    side, inside a dark area or within a period of a black one are rejected (those kept beside a dark area are
+    flagged, `FrameEdges.beside_dark`), as are pairs closer than a quarter of the edge spacing (noise
     glitches) and both ends of a stripe less than half as wide as both its neighbours (a stripe cut by a crack
     narrower than a stripe); the rest are linked line to line into curves (mutual nearest of the same polarity),
     short curves are dropped and each curve is smoothed by a local quadratic fit of t against the line.
@@ -548,15 +555,13 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     # Near dark areas (along the lines; across them, within the reach of the smoothing along the stripes, which
     # mixes dark lines into their neighbours). The dark mask starts half a period inside a dark area; transitions
     # within a period of it (half a period beside the area) or of a crack have their stripe cut by it, and are
-    # rejected. Stripes wider than MAX_PERIOD_PX (Gray-code bit frames, of few stripes, whose dark stripes merge
-    # with a dark background) keep the lit edge beside a dark area that is not black: where the area is black (a
-    # hole, the clamp, a black shadow: darker than the dark stripes beside it; a black sample within a period) its
-    # rim may cut a stripe anywhere, and they are rejected; where it is not (the background of a dim scene, whose
-    # dark stripes are as dark), only those inside it (within a quarter period of the mask) are, and the rest
-    # (`beside`) are kept where their stripe is whole (`_whole_beside_dark`). Fringe periods keep the rule above:
-    # there the lit edge beside the virtual Kodak test's clamp ring, where it is not black, was 0.14 mm off on the
-    # flat plate (its mid-level set from one side), and those beside a hole let the grid reach into it
-    # (docs/method.md §5).
+    # rejected, but the lit edge beside a dark area that is not black is kept: where the area is black (a hole,
+    # the clamp, a black shadow: darker than the dark stripes beside it; a black sample within a period) its rim
+    # may cut a stripe anywhere, and they are rejected; where it is not (the background of a dim scene, whose dark
+    # stripes are as dark), only those inside it (within a quarter period of the mask) are, and the rest
+    # (`beside`) are kept where their stripe is whole (`_whole_beside_dark`). From one side a rim that cut a
+    # stripe looks like a stripe edge, so the kept ones are flagged (`FrameEdges.beside_dark`) and no link
+    # resting on them carries the fringe order (`order_edges`; docs/method.md §5).
     reach_lines = 2 * half + 3
     grow = np.ones((reach_lines, 2 * dark_window - 1), np.uint8)
     quarter = 2 * max(1, int(round(0.25 * local_period_px))) + 1
@@ -565,13 +570,14 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     # Near the first and last lines the smoothing along the stripes mirrors the image, which bends an inclined
     # edge: no crossings there.
     margin_lines = half if settings.presmooth_px > 0 else 0
-    keep_beside = period_px > MAX_PERIOD_PX and bool(area_u8.any())
+    keep_beside = bool(area_u8.any())
     line, t_raw, polarity, mid_at, contrast_at = _crossings(
         scan, mid, contrast, local_max, np.zeros_like(cut) if keep_beside else cut,
         min_contrast_grey=float(settings.min_contrast_grey), saturation_grey=float(settings.saturation_grey),
         margin_lines=margin_lines,
     )  # fmt: skip
     # Decided per crossing (few lie within the cut's reach) rather than per pixel: no dilation more.
+    beside = np.zeros(len(line), bool)
     if keep_beside:
         near = _near_dark_kernel(cut, area_u8, black, line, t_raw, reach_lines // 2, quarter // 2, grow.shape[1] // 2)
         kept = near != NEAR_DARK_REJECTED
@@ -589,7 +595,9 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
         keep[keep] = _whole_beside_dark(line[keep], t_raw[keep], at[whole], period_px=float(period_px))
     else:
         keep[keep] = _without_slivers(line[keep], t_raw[keep], lone_is_sliver=period_px <= MAX_PERIOD_PX)
-    line, t_raw, polarity, mid_at, contrast_at = (a[keep] for a in (line, t_raw, polarity, mid_at, contrast_at))
+    line, t_raw, polarity, mid_at, contrast_at, beside = (
+        a[keep] for a in (line, t_raw, polarity, mid_at, contrast_at, beside)
+    )
     # Where the light bends within a period (a soft shadow's rim) the mid-level cannot follow it: the edge moves by
     # the shift this predicts, half of which enters its σ (SIGMA_PER_SHIFT); where the shift is beyond the setting,
     # the edge is rejected.
@@ -610,13 +618,13 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     if settings.max_uneven_light_shift_px is not None:
         even = shift_px <= settings.max_uneven_light_shift_px
     uneven_blocks = (line[~even] // UNUSABLE_BLOCK_PX, t_raw[~even].astype(np.int64) // UNUSABLE_BLOCK_PX)
-    line, t_raw, polarity, shift_px = line[even], t_raw[even], polarity[even], shift_px[even]
+    line, t_raw, polarity, shift_px, beside = line[even], t_raw[even], polarity[even], shift_px[even], beside[even]
 
     chain = _link_chains(line, t_raw, polarity, n_samples=n_samples, max_step_px=settings.max_link_step_px_per_line)
     lengths = np.bincount(chain, minlength=len(chain))
     long_enough = lengths[chain] >= settings.min_edge_length_lines
     line, t_raw, polarity, chain = line[long_enough], t_raw[long_enough], polarity[long_enough], chain[long_enough]
-    shift_px = shift_px[long_enough]
+    shift_px, beside = shift_px[long_enough], beside[long_enough]
     # Renumber the surviving curves 0..n−1 (labels are crossing indices, so at most N of them).
     renumber = np.cumsum(np.bincount(chain, minlength=len(long_enough)) > 0) - 1
     chain = renumber[chain].astype(np.int32)
@@ -661,6 +669,7 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
         unusable=unusable,
         sigma_px=sigma_px,
         contrast_grey=contrast_grey,
+        beside_dark=beside,
     )
 
 
@@ -1738,7 +1747,9 @@ def order_edges(
     maximum-support spanning tree of each group gives every part its place, and parts whose statements within
     the group mostly disagree with that are left out. An unsure stretch of a curve takes its curve's place where
     the sure pieces either side of it are in one group at one place, or where it ends the curve within
-    MAX_END_STRETCH_LINES. A region reached only through unsure links
+    MAX_END_STRETCH_LINES. Edges beside a dark area (`FrameEdges.beside_dark`) are never sure, cut their curve
+    however few they are, and take no place from it (nor, in `order.order_frame`, from the rim's votes). A region
+    reached only through unsure links
     is a group of its own: never guessed, `order.order_frame` masks it as "order unresolved" unless it has an
     anchor of its own.
     """
@@ -1751,12 +1762,15 @@ def order_edges(
             f"sure_sigma_spacings, min_sure_pairs: expected > 0 and ≥ 1, got {sure_sigma_spacings}, {min_sure_pairs}"
         )
     chain = np.ascontiguousarray(edges.chain, np.int64)
-    sure = _sure_points(edges, sure_sigma_spacings)
+    beside = beside_dark_points(edges)
+    sure = _sure_points(edges, sure_sigma_spacings) & ~beside
     n_chains = _n_chains(edges)
     if np.all(sure):  # nothing to cut (most frames in even light): the parts are the curves
-        part, part_chain, cut_run = chain, np.arange(n_chains), np.zeros(n_chains, np.bool_)
+        part, part_chain = chain, np.arange(n_chains)
+        cut_run = part_beside = np.zeros(n_chains, np.bool_)
     else:
-        part, part_chain, cut_run = _curve_parts(chain, sure, n_chains, MIN_UNSURE_RUN_LINES)
+        kind = np.where(sure, POINT_SURE, np.where(beside, POINT_BESIDE_DARK, POINT_UNSURE)).astype(np.int8)
+        part, part_chain, cut_run, part_beside = _curve_parts(chain, kind, n_chains, MIN_UNSURE_RUN_LINES)
     n_parts = len(part_chain)
     before, after, support, sure_support = _order_statements(
         np.ascontiguousarray(edges.line, np.int64), np.ascontiguousarray(edges.t_px, np.float64),
@@ -1793,7 +1807,11 @@ def order_edges(
     part_size = np.bincount(part, minlength=n_parts)
     short = part_size[stretch] <= MAX_END_STRETCH_LINES
     at_end = short & ((sure_before & ~has_after) | (sure_after & ~has_before))
-    take = (between | at_end) & (root[stretch] == stretch)  # alone: no sure statement of its own
+    # A stretch beside a dark area takes no order from its curve: where a hole's rim that is not black runs along a
+    # stripe, the curve follows the rim for a few lines and back (on the virtual Kodak test, 10–28 lines beside the
+    # perforation, points up to 4 mm off with their curve's order), and `order.order_frame` takes no rim vote from
+    # it either: it stays unresolved.
+    take = (between | at_end) & (root[stretch] == stretch) & ~part_beside[stretch]  # alone: no sure statement
     source = np.where(sure_before, before_it, after_it)[take]
     root[stretch[take]] = root[source]
     index[stretch[take]] = index[source]
@@ -1827,47 +1845,65 @@ def _sure_points(edges: FrameEdges, sure_sigma_spacings: float) -> np.ndarray:
     return np.asarray(~(edges.sigma_px > sure_sigma_spacings * 0.5 * edges.period_px))
 
 
+def beside_dark_points(edges: FrameEdges) -> np.ndarray:
+    """(N,) bool: the edge points kept beside a dark area (`FrameEdges.beside_dark`); none for edges stored
+    before the flag existed."""
+    if edges.beside_dark is None:
+        return np.zeros(len(edges), np.bool_)
+    return np.asarray(edges.beside_dark, np.bool_)
+
+
 def _n_chains(edges: FrameEdges) -> int:
     """Number of edge curves of a frame (labels 0..n − 1)."""
     return int(edges.chain.max()) + 1 if len(edges) else 0
 
 
+# Kinds of edge point for cutting curves into parts (`_curve_parts`).
+POINT_SURE, POINT_UNSURE, POINT_BESIDE_DARK = 0, 1, 2
+
+
 @numba.njit(cache=True, nogil=True)
 def _curve_parts(
-    chain: np.ndarray, sure: np.ndarray, n_chains: int, min_run: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    chain: np.ndarray, kind: np.ndarray, n_chains: int, min_run: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The part (N,) of every point, input sorted by (line, t): each curve cut before and after every run of at
-    least min_run consecutive unsure points; with, per part, its curve and whether it is such an unsure run.
-    Parts of one curve are numbered consecutively along it."""
+    least min_run consecutive unsure points (`kind` (N,) POINT_UNSURE) and every run of points beside a dark area
+    (POINT_BESIDE_DARK, however short); with, per part, its curve, whether it is such a cut run, and whether that
+    run lies beside a dark area. Parts of one curve are numbered consecutively along it."""
     n = len(chain)
     first, order = _by_chain(chain, n_chains)
     part = np.empty(n, np.int64)
     part_chain = np.empty(n, np.int64)
     cut_run = np.zeros(n, np.bool_)
+    part_beside = np.zeros(n, np.bool_)
     n_parts = 0
     for c in range(n_chains):
         lo, hi = first[c], first[c + 1]
         if lo == hi:
             continue
         in_run = False
+        was_beside = False
         start_new = True
         q = lo
         while q < hi:
-            # The run of equal sureness starting at q.
+            # The run of one kind starting at q.
             r = q
-            while r < hi and sure[order[r]] == sure[order[q]]:
+            while r < hi and kind[order[r]] == kind[order[q]]:
                 r += 1
-            is_cut = not sure[order[q]] and r - q >= min_run
-            if start_new or is_cut != in_run:
+            is_beside = kind[order[q]] == POINT_BESIDE_DARK
+            is_cut = is_beside or (kind[order[q]] == POINT_UNSURE and r - q >= min_run)
+            if start_new or is_cut != in_run or is_beside != was_beside:
                 part_chain[n_parts] = c
                 cut_run[n_parts] = is_cut
+                part_beside[n_parts] = is_beside
                 n_parts += 1
             in_run = is_cut
+            was_beside = is_beside
             start_new = False
             for m in range(q, r):
                 part[order[m]] = n_parts - 1
             q = r
-    return part, part_chain[:n_parts].copy(), cut_run[:n_parts].copy()
+    return part, part_chain[:n_parts].copy(), cut_run[:n_parts].copy(), part_beside[:n_parts].copy()
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")

@@ -11,8 +11,10 @@ Sources of the order, in the order they are trusted:
 1. Relative order: `fringes.order_edges` links the frame's edge curves by counting edges across scan lines
    (consecutive edges of opposite polarity less than 0.8 period apart are neighbours), which fixes every curve's
    place within a connected group; the order is constant along each curve. Only sure links join groups (both
-   edges with a small σ for the edge spacing, gaps like their neighbours'), and curves are cut at long unsure
-   stretches, so a dim region reached only through unsure edges is a group of its own.
+   edges with a small σ for the edge spacing, neither beside a dark area, gaps like their neighbours'), and
+   curves are cut at long unsure stretches and wherever they run beside a dark area, so a dim region reached only
+   through unsure edges, and an edge kept beside a hole or the clamp, is a group of its own. Edges beside a dark
+   area do not vote for an anchor (below) either: they are located but never ordered.
 2. Anchor: the clamped rim does not move (w = 0), so there an edge point lies within a fraction of a period of
    where the reference frame had the same edge; each rim point votes for the offset between its group's relative
    count and that edge's order. A group takes the offset a clear majority of its rim votes agree on.
@@ -34,7 +36,7 @@ import numpy as np
 
 from . import MeasurementError
 from .camera import backproject_to_z
-from .fringes import FrameEdges, order_edges
+from .fringes import FrameEdges, beside_dark_points, order_edges
 from .graycode import Decoding
 from .projector import TABLE_SENSITIVITY, CameraModel, EdgeLines, ProjectorCalibration, match_to_reference, table_z_at
 
@@ -501,7 +503,11 @@ def order_frame(
         edges.line, edges.t_px, edges.polarity, reference.rim_lines, projector.polarity
     )
     near = (k_near >= 0) & (np.abs(distance) <= settings.anchor_tolerance_fraction * projector.period_px)
-    on_rim = near & (relative >= 0)
+    # Edges beside a dark area are no anchor either: they are cut off from their curves and neighbours
+    # (`order_edges`), so a stretch of them would be anchored by its own rim votes alone, and their places are
+    # not sure enough for that (their mid-level is set from one side: beside the clamp ring 1.8 mm off in w under
+    # a soft shadow, docs/method.md §5). They stay "order unresolved".
+    on_rim = near & (relative >= 0) & ~beside_dark_points(edges)
     n_groups = int(order.part_component.max()) + 1 if np.any(order.part_component >= 0) else 0
     if n_groups:
         offset_votes = k_near[on_rim] - relative[on_rim]
@@ -648,7 +654,7 @@ def check_order_against_table(
         edges.line, edges.t_px, edges.polarity, reference.rim_lines, projector.polarity
     )
     on_rim = (k_near >= 0) & (np.abs(distance) <= settings.anchor_tolerance_fraction * projector.period_px)
-    on_rim &= relative >= 0
+    on_rim &= (relative >= 0) & ~beside_dark_points(edges)
     if np.count_nonzero(on_rim) < settings.min_anchor_points:
         return
     # The offset most rim votes of each group agree on (as `order_frame` anchors it, without the checks).

@@ -138,7 +138,12 @@ def test_fast_motion_and_springback_keep_the_surface(fast: Case) -> None:
         )
         rms = float(np.sqrt(np.mean(error[inside] ** 2)))
         assert rms <= RMS_LIMIT_MM, f"frame {measurement.frame}: RMS {rms:.4f} mm"
-        assert measurement.n_order_unresolved == 0 and measurement.n_order_conflicts == 0
+        assert measurement.n_order_conflicts == 0
+        # Unresolved only where edges are kept beside a dark area (the clamp ring, the hole), which are never
+        # ordered (docs/method.md §5), and the odd piece of a curve of fewer than 3 lines between two stretches of
+        # them (too short for a sure link): at most a tenth more.
+        beside = fast.edges[measurement.frame].beside_dark
+        assert beside is not None and measurement.n_order_unresolved <= 1.1 * np.count_nonzero(beside)
 
 
 def test_a_frame_measured_alone_equals_the_same_frame_in_the_sequence(fast: Case) -> None:
@@ -255,7 +260,10 @@ def test_the_result_file_says_what_is_missing_and_refuses_a_recording_ordered_no
     # Before the hole nothing is dark; after it the hole (and the rejected band around it) is, by its reason.
     hole = coverage["missing_hole_mm2"]
     assert hole[3] > 300.0 > hole[2]  # the 18 mm hole is 254 mm², its rim loses half a stripe more
-    assert np.all(coverage["missing_order_unresolved_mm2"] == 0) and np.all(coverage["n_order_conflicts"] == 0)
+    assert np.all(coverage["n_order_conflicts"] == 0)
+    # Unresolved only the edges kept beside the clamp ring (and the hole), which are never ordered: 1050–1150 mm²
+    # here, 0.6 % of the plate.
+    assert np.all(coverage["missing_order_unresolved_mm2"] < 0.01 * coverage["visible_area_mm2"])
     jumps = coverage["n_temporal_jumps"]  # the cross-check against the frame before: none before the first
     assert np.isnan(jumps[0]) and np.all(jumps[1:] == 0)
     total = coverage["measured_area_mm2"] + sum(coverage[k] for k in coverage if k.startswith("missing_"))
@@ -373,15 +381,17 @@ def test_an_island_reached_across_a_clean_band_keeps_its_order() -> None:
     assert order.n_unsure_links == 0
 
 
-def crossed_edges(unsure_m: range, unsure_lines: range = range(40, 50)) -> FrameEdges:
+def crossed_edges(unsure_m: range, unsure_lines: range = range(40, 50), *, beside_dark: bool = False) -> FrameEdges:
     """Edges m = 0..29 on all 120 lines, one curve each, sure (σ 0.03 px) but for edges `unsure_m` on
-    `unsure_lines`, a dim band across the stripes (σ 0.3 px: more than a thirtieth of the 5 px edge spacing)."""
+    `unsure_lines`, a dim band across the stripes (σ 0.3 px: more than a thirtieth of the 5 px edge spacing), or,
+    with `beside_dark`, edges kept beside a dark area there (σ 0.03 px, `FrameEdges.beside_dark`)."""
     line, m = (a.ravel() for a in np.meshgrid(np.arange(120), np.arange(30), indexing="ij"))
-    sigma = np.where(np.isin(m, unsure_m) & np.isin(line, unsure_lines), 0.3, 0.03).astype(np.float32)
+    there = np.isin(m, unsure_m) & np.isin(line, unsure_lines)
+    sigma = np.where(there & (not beside_dark), 0.3, 0.03).astype(np.float32)
     return FrameEdges(axis="rows", period_px=10.0, image_shape_hw_px=(120, 200), line=line.astype(np.int32),
                       t_px=(20.0 + 5.0 * m).astype(np.float32), polarity=np.where(m % 2 == 0, 1, -1).astype(np.int8),
                       chain=m.astype(np.int32), noise_px=0.02, saturated_fraction=0.0, dark_fraction=0.0,
-                      sigma_px=sigma)  # fmt: skip
+                      sigma_px=sigma, beside_dark=there & beside_dark)  # fmt: skip
 
 
 def test_the_order_does_not_run_along_curves_through_a_band_of_unsure_edges() -> None:
@@ -419,6 +429,25 @@ def test_an_unsure_stretch_takes_its_curve_order_where_sure_links_go_round_it() 
     edges = crossed_edges(range(30), range(100, 120))
     component = order_edges(edges).crossing_component(edges)
     assert np.all(component[edges.line < 100] == 0) and not np.any(component[edges.line >= 100] == 0)
+
+
+def test_edges_beside_a_dark_area_carry_no_order_and_take_none_from_their_curve() -> None:
+    from fringelab.science.fringes import order_edges
+
+    # Edges 5..9 run beside a dark area on lines 40..49 (sure by their σ): a rim that cut a stripe looks the same
+    # from one side, and a curve may follow a hole's rim for a few lines and back. So, unlike a dim band's
+    # stretches (test above), they are not linked to the rest nor given their curves' places; the rest keeps its.
+    edges = crossed_edges(range(5, 10), beside_dark=True)
+    order = order_edges(edges)
+    index, component = order.crossing_index(edges), order.crossing_component(edges)
+    beside = edges.beside_dark
+    assert np.all(component[~beside] == 0)
+    np.testing.assert_array_equal(index[~beside], (edges.t_px[~beside] - 20.0) / 5.0)
+    assert not np.any(component[beside] == 0)
+    # However short: one line beside the dark area at a curve's end is cut off too.
+    edges = crossed_edges(range(30), range(119, 120), beside_dark=True)
+    component = order_edges(edges).crossing_component(edges)
+    assert np.all(component[edges.line < 119] == 0) and not np.any(component[edges.line == 119] == 0)
 
 
 def ringed_frame(

@@ -120,7 +120,11 @@ def errors_mm(rig: Rig, measurement: FrameMeasurement) -> np.ndarray:
     return points[keep, 2] - truth[keep]
 
 
-def assert_within_targets(rig: Rig, measurements: list[FrameMeasurement]) -> list[float]:
+def assert_within_targets(
+    rig: Rig, measurements: list[FrameMeasurement], *, edges: list[FrameEdges] | None = None
+) -> list[float]:
+    """edges: those the measurements were made from (the rig's by default)."""
+    edges = rig.edges if edges is None else edges
     assert [m.frame for m in measurements] == list(range(len(rig.frames)))
     rms = []
     for measurement in measurements:
@@ -131,7 +135,12 @@ def assert_within_targets(rig: Rig, measurements: list[FrameMeasurement]) -> lis
         assert rms[-1] < limit, f"frame {measurement.frame}: {rms[-1]:.3f} mm RMS"
         # An order error is a whole stripe's Z step (~17 mm here): none anywhere, not even near the punch.
         assert np.max(np.abs(error)) < 2.0, f"frame {measurement.frame}"
-        assert measurement.n_order_unresolved == 0 and measurement.n_order_conflicts == 0
+        assert measurement.n_order_conflicts == 0
+        # Unresolved only where edges are kept beside a dark area (the clamp ring), which are never ordered
+        # (docs/method.md §5), and the odd piece of a curve of fewer than 3 lines between two stretches of them
+        # (too short for a sure link): at most a tenth more.
+        beside = edges[measurement.frame].beside_dark
+        assert beside is not None and measurement.n_order_unresolved <= 1.1 * np.count_nonzero(beside)
     return rms
 
 
@@ -191,7 +200,7 @@ def test_a_plate_resting_off_the_tables_reference_z_is_ordered_by_the_code(rim_i
     assert reference.code_compared == 0 and np.isnan(reference.code_agreement)  # no second answer to check against
     measured = list(track_and_measure(edges, table, rig.camera, settings=settings, reference=reference))
     assert abs(float(np.median(measured[0].points_obj_mm[:, 2]))) < 0.01  # the plate rests at Z = 0
-    assert_within_targets(rig, measured)
+    assert_within_targets(rig, measured, edges=edges)
 
 
 def test_a_code_that_disagrees_with_the_table_is_refused_naming_both(rim_in_view: Rig) -> None:

@@ -4,7 +4,8 @@ A dark area is dark; the lit edge beside it is a stripe edge when its own two si
 than MAX_PERIOD_PX (a Gray code's bit frames on a dim scene, whose dark stripes merge with the background): where
 the area is black (darker than the dark stripes: a hole, the clamp, a crack) its rim may cut a stripe anywhere and
 the transitions within half a period of it are rejected, as before; where it is as dark as the dark stripes, the edge
-beside it is kept unless the area cut its stripe short. Fringe periods keep the old rule (see `locate_edges`).
+beside it is kept unless the area cut its stripe short. The same at fringe periods (up to MAX_PERIOD_PX), where
+the kept ones are flagged (`FrameEdges.beside_dark`) and carry no fringe order (tests/science/test_fringe_order.py).
 """
 
 from __future__ import annotations
@@ -28,14 +29,14 @@ N_LINES, N_SAMPLES = 60, 2000
 SETTINGS = EdgeSettings(axis="rows", period_px=PERIOD_PX, mid_level="envelopes")
 
 
-def stripes_beside(area_from_px: float, area_grey: float, *, seed: int) -> np.ndarray:
-    """Vertical stripes (bright from t = 0 to 120, dark from 120 to 240, …), blurred, with an area of `area_grey`
-    from t = area_from_px on, its rim blurred alike, and σ = 1 grey of noise."""
+def stripes_beside(area_from_px: float, area_grey: float, *, seed: int, period_px: float = PERIOD_PX) -> np.ndarray:
+    """Vertical stripes (bright from t = 0 to P/2, dark from P/2 to P, …; P = period_px), blurred, with an area of
+    `area_grey` from t = area_from_px on, its rim blurred alike, and σ = 1 grey of noise."""
     t = np.arange(N_SAMPLES, dtype=np.float64)
     # A blurred square wave: the sum of the blurred steps at every edge (k · P / 2).
     pattern = np.zeros(N_SAMPLES)
-    for k in range(-2, int(2 * N_SAMPLES / PERIOD_PX) + 3):
-        pattern += (-1) ** k * special.ndtr((t - 0.5 * k * PERIOD_PX) / BLUR_PX)
+    for k in range(-2, int(2 * N_SAMPLES / period_px) + 3):
+        pattern += (-1) ** k * special.ndtr((t - 0.5 * k * period_px) / BLUR_PX)
     grey = DARK_GREY + (BRIGHT_GREY - DARK_GREY) * np.clip(pattern, 0.0, 1.0)
     lit = special.ndtr((area_from_px - t) / BLUR_PX)
     line = lit * grey + (1.0 - lit) * area_grey
@@ -72,6 +73,26 @@ def test_a_stripe_cut_short_by_a_dark_area_that_is_not_black_gives_no_edge_at_th
     edges = locate_edges(stripes_beside(980.0, DARK_GREY, seed=3), SETTINGS)
     assert found_near(edges, 980.0, within_px=5.0) == 0.0
     assert found_near(edges, 960.0, within_px=0.1) > 0.95
+
+
+@pytest.mark.parametrize("period_px", [12.0, 40.0])
+def test_at_fringe_periods_the_lit_edge_beside_a_background_as_dark_as_the_dark_stripes_is_kept_and_flagged(
+    period_px: float,
+) -> None:
+    # The dark stripe from m P to (m + ½) P runs into the background (from (m + ¼) P on, halfway along the lines):
+    # the edge at m P is kept, flagged as beside the dark area; the edges a few periods before it are not flagged.
+    settings = EdgeSettings(axis="rows", period_px=period_px)
+    last = (N_SAMPLES // 2 // period_px) * period_px
+    edges = locate_edges(stripes_beside(last + 0.25 * period_px, DARK_GREY, seed=5, period_px=period_px), settings)
+    assert edges.beside_dark is not None
+    assert found_near(edges, last, within_px=0.1) > 0.95  # 0.1 px: 10 × the edge noise here
+    assert not np.any(edges.t_px > last + 0.1 * period_px)  # nothing inside the background
+    assert np.all(edges.beside_dark[np.abs(edges.t_px - last) < 0.1 * period_px])
+    assert not np.any(edges.beside_dark[edges.t_px < last - 2.5 * period_px])
+    # Beside a black area (a hole) the transitions within a period of it are rejected, as before.
+    edges = locate_edges(stripes_beside(last + 0.25 * period_px, 0.0, seed=6, period_px=period_px), settings)
+    assert not np.any(edges.t_px > last - 0.25 * period_px)
+    assert found_near(edges, last - period_px, within_px=0.1) > 0.95
 
 
 def test_fixed_periods_far_beyond_the_detectable_ones_are_accepted_up_to_the_limit() -> None:

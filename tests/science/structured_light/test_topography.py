@@ -87,6 +87,8 @@ def test_edges_stored_before_the_per_edge_sigma_read_with_the_frames_sigma(
     assert stored.sigma_px is not None and stored.contrast_grey is not None
     np.testing.assert_array_equal(stored.sigma_px, edges[0].sigma_px)
     np.testing.assert_array_equal(stored.contrast_grey, edges[0].contrast_grey)
+    assert stored.beside_dark is not None and np.any(stored.beside_dark)  # the clamp ring, where it is not black
+    np.testing.assert_array_equal(stored.beside_dark, edges[0].beside_dark)
     with h5py.File(path, "a") as file:
         del file["sigma_px"], file["contrast_grey"]
     _, (old,) = read_edges(path)
