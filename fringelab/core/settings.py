@@ -127,7 +127,8 @@ class Settings(BaseSettings):
         0,
         ge=0,
         le=60_000,
-        description="A request that waited this long for a thread gets 503 with Retry-After (0: it waits its turn).",
+        description="A request that would have to wait while the longest waiting one has waited this long gets 503 "
+        "with Retry-After at once (0: never refused for the queue's age, only for its length).",
     )
     frame_cache_bytes: int = Field(
         64 * 2**20,
