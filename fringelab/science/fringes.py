@@ -630,10 +630,10 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     chain = renumber[chain].astype(np.int32)
 
     if settings.edge_smoothing_lines > 0 and len(line):
-        t_px = _smooth_along_chains(line, t_raw, chain, sigma_lines=settings.edge_smoothing_lines)
+        t_px, by_chain = _smooth_along_chains(line, t_raw, chain, sigma_lines=settings.edge_smoothing_lines)
         noise_px = float(np.sqrt(np.mean((t_raw - t_px) ** 2)))
     else:
-        t_px = t_raw
+        t_px, by_chain = t_raw, None
         noise_px = float("nan")
     # An edge that departs from its neighbours on its line (a stripe's flank dimmed by a shadow's rim the bend does
     # not see) is rejected, said as uneven light. Judged on the smoothed positions of every kept edge at once:
@@ -649,8 +649,9 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
                 a[even] for a in (line, t_raw, t_px, polarity, chain, shift_px)
             )
             chain = np.unique(chain, return_inverse=True)[1].astype(np.int32)
+            by_chain = None
     sigma_px, contrast_grey = _edge_sigma(
-        scan, contrast, line, t_raw, t_px, chain, SIGMA_PER_SHIFT * shift_px, settings=settings
+        scan, contrast, line, t_raw, t_px, chain, SIGMA_PER_SHIFT * shift_px, settings=settings, by_chain=by_chain
     )
     unusable = _unusable_blocks(scan, dark, contrast, local_max, grow, settings=settings)
     unusable[uneven_blocks] = np.where(unusable[uneven_blocks] == UNUSABLE_NONE, UNUSABLE_UNEVEN_LIGHT,
@@ -683,6 +684,7 @@ def _edge_sigma(
     shift_px: np.ndarray,
     *,
     settings: EdgeSettings,
+    by_chain: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Each edge point's σ (px) of its smoothed position, and the stripes' contrast there (grey levels), both
     (N,) float32, from the frame itself (docs/method.md §5, "How sure an edge is").
@@ -697,7 +699,8 @@ def _edge_sigma(
     more at an edge's end, where the fit is one-sided). An error the smoothing cannot reduce comes from the
     mid-level where the light bends within a period (a shadow's rim, a highlight): the shift that bend predicts,
     shift_px (N,) (`uneven_light_shift_px`), is added in quadrature. NaN σ (but the contrast) without smoothing
-    along the edges.
+    along the edges. by_chain: the points grouped by chain as `_smooth_along_chains` gave them (`_by_chain`'s first
+    and order), None to group them here.
     """
     contrast_grey = np.empty(len(line), np.float32)
     sigma = np.full(len(line), np.nan, np.float32)
@@ -708,10 +711,11 @@ def _edge_sigma(
         gain, residual = smoothing_noise_tables(float(smoothing), presmooth_px=float(settings.presmooth_px))
     else:
         gain = residual = np.full((1, 1), np.nan)
+    first, order = by_chain if by_chain is not None else (np.zeros(0, np.int64), np.zeros(0, np.int64))
     _edge_sigma_kernel(
         scan, contrast, np.ascontiguousarray(line, np.int64), np.ascontiguousarray(t_raw, np.float64),
         np.ascontiguousarray(t_px, np.float64), np.ascontiguousarray(chain, np.int64), gain, residual,
-        np.ascontiguousarray(shift_px, np.float64), sigma, contrast_grey,
+        np.ascontiguousarray(shift_px, np.float64), sigma, contrast_grey, first, order,
     )  # fmt: skip
     return sigma, contrast_grey
 
@@ -751,7 +755,10 @@ def _edge_sigma_kernel(
     shift: np.ndarray,
     sigma_out: np.ndarray,
     contrast_out: np.ndarray,
+    first: np.ndarray,
+    order: np.ndarray,
 ) -> None:
+    """`_edge_sigma`; first and order: `_by_chain` of chain, or empty to compute them here."""
     n = len(line)
     n_samples = scan.shape[1]
     half = gain.shape[0] - 1
@@ -773,7 +780,8 @@ def _edge_sigma_kernel(
     if not smoothed:
         return
     n_chains = chain.max() + 1
-    first, order = _by_chain(chain, n_chains)
+    if len(first) != n_chains + 1:
+        first, order = _by_chain(chain, n_chains)
     # Prefix sums along the sorted order of: residual², the model's residual² for unit noise, the model².
     cum = np.zeros((n + 1, 3))
     for c in range(n_chains):
@@ -1608,8 +1616,11 @@ def _link_chains_kernel(
     return label
 
 
-def _smooth_along_chains(line: np.ndarray, t_px: np.ndarray, chain: np.ndarray, *, sigma_lines: float) -> np.ndarray:
-    """t smoothed along each chain by a Gaussian-weighted local quadratic fit in the line index, shape (N,).
+def _smooth_along_chains(
+    line: np.ndarray, t_px: np.ndarray, chain: np.ndarray, *, sigma_lines: float
+) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    """t smoothed along each chain by a Gaussian-weighted local quadratic fit in the line index, shape (N,), and the
+    points grouped by chain (`_by_chain`'s first and order, for `_edge_sigma` to reuse).
 
     line, t_px, chain: shape (N,), sorted by (line, t); chain labels 0..n_chains − 1, each chain covering
     consecutive lines (links join adjacent lines only) with one point per line. Away from a chain's ends the local
@@ -1630,7 +1641,7 @@ def _smooth_along_chains(line: np.ndarray, t_px: np.ndarray, chain: np.ndarray, 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _smooth_along_chains_kernel(
     t: np.ndarray, chain: np.ndarray, interior: np.ndarray, gauss: np.ndarray, sigma_lines: float
-) -> np.ndarray:
+) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
     n = len(t)
     half = len(gauss) // 2
     n_chains = chain.max() + 1
@@ -1666,7 +1677,7 @@ def _smooth_along_chains_kernel(
             smoothed_sorted[p] = quadratic if np.isfinite(quadratic) else r0 / s0
     smoothed = np.empty(n)
     smoothed[order] = smoothed_sorted
-    return smoothed
+    return smoothed, (first, order)
 
 
 @dataclass(frozen=True, eq=False)
