@@ -125,6 +125,16 @@ def file_key(file: h5py.File) -> tuple[int, int, int, int]:
     return (info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns)
 
 
+def path_key(path: Path, error: type[ValueError] = ValueError) -> tuple[int, int, int, int]:
+    """The identity `file_key` gives, of the file at `path` before it is opened; `error` (a ValueError) naming the
+    file when there is none."""
+    try:
+        info = os.stat(path)
+    except OSError as reason:
+        raise error(f"{path.name}: not a readable HDF5 file ({reason})") from None
+    return (info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns)
+
+
 class ResultReader:
     """What the readers of result files on a grid share (`TopographyResult`, `ComparisonResult`): the open file,
     its grid and frames, use as a context manager, `close()` and `n_frames`. Each reader opens its file

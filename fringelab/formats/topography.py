@@ -76,6 +76,7 @@ from fringelab.formats.hdf5 import (
     ResultReader,
     file_key,
     open_read_only,
+    path_key,
     require_schema,
     unit_dataset,
 )
@@ -659,20 +660,50 @@ class TopographyResult(ResultReader):
 
     def __init__(self, path: str | Path, *, frame_cache: FrameCache | None = None) -> None:
         self.path = Path(path)
-        self.file = open_read_only(self.path, ResultUnavailable)
-        # Whole frames of the grids (one stored chunk each) come from `frame_cache` when one is given (the API's).
+        # Whole frames of the grids (one stored chunk each) and the header come from `frame_cache` when one is
+        # given (the API's), by the identity of the file at `path`; the file is then opened only to read what is
+        # not kept (a profile of frames read before opens nothing).
         self._frame_cache = frame_cache
-        self._file_key = file_key(self.file) if frame_cache is not None else None
+        self._open: h5py.File | None = None
+        if frame_cache is None:
+            self._open = open_read_only(self.path, ResultUnavailable)
+        self._file_key = path_key(self.path, ResultUnavailable) if frame_cache is not None else None
         try:
             self.grid = Grid(x_mm=self._header("grid/x_mm"), y_mm=self._header("grid/y_mm"))
             self.frames = self._header("frames/index")
             self.z_flat_mm = float(self._header("z_flat_mm"))
         except ValueError as error:
-            self.file.close()
+            self.close()
             raise ResultUnavailable(str(error)) from None
         except KeyError as error:
-            self.file.close()
+            self.close()
             raise ResultUnavailable(f"{self.path.name} is not a complete topography result ({error})") from None
+
+    @property
+    def file(self) -> h5py.File:
+        """The open file (opened on first use when a frame cache is given: it must be the file the cache's keys
+        name, or ResultUnavailable)."""
+        if self._open is None:
+            opened = open_read_only(self.path, ResultUnavailable)
+            if file_key(opened) != self._file_key:
+                opened.close()
+                raise ResultUnavailable(f"{self.path.name} was written again while it was read; ask again")
+            self._open = opened
+        return self._open
+
+    @file.setter
+    def file(self, opened: h5py.File) -> None:
+        self._open = opened
+
+    def close(self) -> None:
+        if self._open is not None:
+            self._open.close()
+
+    def _has(self, name: str) -> bool:
+        """Whether the file holds the dataset `name` (kept with the header when a frame cache is given)."""
+        if self._frame_cache is None:
+            return name in self.file
+        return bool(self._frame_cache.get_or_read((self._file_key, "has", name), lambda: np.asarray(name in self.file)))
 
     @property
     def x_mm(self) -> np.ndarray:
@@ -839,7 +870,7 @@ class TopographyResult(ResultReader):
         t = np.linspace(0.0, 1.0, n_points)
         x, y = x0 + t * (x1 - x0), y0 + t * (y1 - y0)
         weights = self._bilinear(x, y)
-        has_sigma = "grid/sigma_w_mm" in self.file
+        has_sigma = self._has("grid/sigma_w_mm")
         profiles = []
         for frame in frames:
             i = self.position(frame)

@@ -296,9 +296,10 @@ def test_the_frames_kept_stay_within_their_bytes(tmp_path):
 
 def test_a_result_opened_again_is_checked_and_its_grid_read_once_per_file(job_id, settings):
     """What every reader reads first (schema, grid axes, frame indices, z_flat) comes from the frame cache for a
-    file the process has read before, by the file's identity: a result written again is read anew."""
+    file the process has read before, by the file's identity, and a profile of frames kept opens no file: a result
+    written again is read anew, and one written again while a reader reads it is refused, never mixed."""
     from fringelab.formats.hdf5 import FrameCache
-    from fringelab.formats.topography import TopographyResult
+    from fringelab.formats.topography import ResultUnavailable, TopographyResult
 
     path = settings.data_path / "results" / "jobs" / "topo-1" / "topography.h5"
     cache = FrameCache(max_bytes=1 << 20)
@@ -308,10 +309,19 @@ def test_a_result_opened_again_is_checked_and_its_grid_read_once_per_file(job_id
     with TopographyResult(path, frame_cache=cache) as again:
         assert (cache.misses, cache.hits) == (misses, 4)
         np.testing.assert_array_equal(again.frames, FRAMES)
+        first_profile = again.profile([12], (-90.0, -50.0, 90.0, 40.0), n_points=5)  # reads frame 12 and its σ
+    with TopographyResult(path, frame_cache=cache) as cached:
+        profile = cached.profile([12], (-90.0, -50.0, 90.0, 40.0), n_points=5)
+        assert cached._open is None  # everything it read was kept: the file was never opened
+        np.testing.assert_array_equal(profile["profiles"][0]["w_mm"], first_profile["profiles"][0]["w_mm"])
     written = path.with_name("again.h5")
     write_result(written)
     with h5py.File(written, "r+") as result:
         result.attrs["z_flat_mm"] = Z_FLAT_MM + 1.0
-    os.replace(written, path)
+    with TopographyResult(path, frame_cache=cache) as racing:
+        os.replace(written, path)  # written again between the reader's start and its first read of the file
+        with pytest.raises(ResultUnavailable, match="written again"):
+            racing.profile([13], (-90.0, -50.0, 90.0, 40.0), n_points=5)
+    misses = cache.misses
     with TopographyResult(path, frame_cache=cache) as anew:
-        assert anew.z_flat_mm == Z_FLAT_MM + 1.0 and cache.misses == misses + 4
+        assert anew.z_flat_mm == Z_FLAT_MM + 1.0 and cache.misses == misses + 4  # its header read anew
