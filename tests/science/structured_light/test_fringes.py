@@ -9,6 +9,8 @@ from fringelab.science.fringes import (
     EdgeSettings,
     FrameEdges,
     NoStripesError,
+    _link_chains,
+    _smooth_along_chains,
     detect_stripes,
     locate_edges,
 )
@@ -188,3 +190,30 @@ def test_sixteen_bit_frames_give_the_edges_of_eight_bit_ones() -> None:
     eight = locate_edges(image, settings)
     sixteen = locate_edges(image.astype(np.uint16) * 257, settings)
     np.testing.assert_allclose(sixteen.t_px, eight.t_px, atol=1e-4)
+
+
+def test_a_curve_broken_by_one_lost_crossing_is_linked_across_it_and_smoothed_by_its_lines() -> None:
+    # Two edges (rising at t = 10 + 0.3 s, falling at 40 + 0.3 s) on lines 0..40; the rising one lost on line 20.
+    lines = np.arange(41)
+    rows = [(s, 10.0 + 0.3 * s, 1) for s in lines if s != 20] + [(s, 40.0 + 0.3 * s, -1) for s in lines]
+    rows.sort()
+    line = np.array([r[0] for r in rows])
+    t = np.array([r[1] for r in rows])
+    polarity = np.array([r[2] for r in rows], np.int8)
+    chain = _link_chains(line, t, polarity, n_samples=100, max_step_px=1.5, across_gaps=True)
+    rising = polarity == 1
+    assert len(np.unique(chain[rising])) == 1 and len(np.unique(chain[~rising])) == 1
+    assert len(np.unique(_link_chains(line, t, polarity, n_samples=100, max_step_px=1.5)[rising])) == 2  # the default
+    # A straight edge stays straight through the skipped line: each point is fitted at its own line offset (taken
+    # as consecutive, the points would show a step of 0.3 px at the gap).
+    smoothed, _ = _smooth_along_chains(line, t, np.unique(chain, return_inverse=True)[1], sigma_lines=3.0)
+    np.testing.assert_allclose(smoothed, t, atol=1e-9)
+    # Ends that disagree are not joined: beyond two steps apart, or of the other polarity.
+    far = t + np.where(rising & (line > 20), 3.5, 0.0)
+    chain = _link_chains(line, far, polarity, n_samples=100, max_step_px=1.5, across_gaps=True)
+    assert len(np.unique(chain[rising])) == 2
+    flipped = polarity.copy()
+    flipped[rising & (line > 20)] = -1
+    chain = _link_chains(line, t, flipped, n_samples=100, max_step_px=1.5, across_gaps=True)
+    assert len(np.unique(chain[rising & (line < 20)])) == 1
+    assert not np.any(np.isin(chain[rising & (line > 20)], chain[rising & (line < 20)]))
