@@ -16,7 +16,10 @@ MISSING_DESCRIPTIONS = {
     "hole": "as black as the background (a hole, a crack, the punch in front, the clamp ring beside the rim)",
     "shadow": "dark but lit by the room (no projected light)",
     "low_contrast": "faint or clipped stripes, or no edge located",
-    "order_unresolved": "edges whose fringe order no anchor reaches through sure links (a dim region, a stray group)",
+    "order_unresolved": (
+        "edges whose fringe order no anchor reaches through sure links (a dim region, a stray group, the lit edge "
+        "beside a hole or the clamp ring)"
+    ),
     "order_conflict": "edges masked for a conflict between the sources of their order",
     "out_of_range": "outside the calibrated Z range (never extrapolated)",
     "uneven_light": "stripes where the light changes too fast for their edges to be placed (a soft shadow's rim)",
@@ -42,10 +45,10 @@ class FrameCoverage:
     of the plate, `OrderReference.cell_area_mm2`); a point of the reference that this frame does not measure is
     missing for one reason: hole (as black as the background: a hole, a crack, the punch in front), shadow (dark
     but lit by the room: no projected light), low_contrast (faint or clipped stripes, or no edge located there),
-    order_unresolved (edges whose order no anchor reaches through sure links), order_conflict (edges masked for a
-    conflict of sources), out_of_range (ordered, but outside the calibrated Z range), uneven_light (stripes
-    there, but the light changes too fast for their edges to be placed: a soft shadow's rim). n_order_conflicts:
-    conflicts found.
+    order_unresolved (edges whose order no anchor reaches through sure links, and the edges kept beside a dark
+    area, which are never ordered), order_conflict (edges masked for a conflict of sources), out_of_range
+    (ordered, but outside the calibrated Z range), uneven_light (stripes there, but the light changes too fast for
+    their edges to be placed: a soft shadow's rim). n_order_conflicts: conflicts found.
     """
 
     visible_area_mm2: float
