@@ -117,13 +117,18 @@ class EdgeSettings:
         punch's own shadow beside the dome top, which moves the dome's centroid 1.7 mm off the punch axis in the
         virtual Kodak test; measured in docs/method.md §5.
     max_departure_px: an edge is rejected ("uneven light") where it departs from the cubic through its neighbours
-        on its scan line (two either side) by more than this (px), and where it stands alone on its line; at a run's
-        end the departure from its neighbours on one side counts against 1.5 and (the very end) 8/3 times this
-        (`edge_departures_px`). A soft shadow's rim dims one flank of a stripe and moves its edges by up to 3 px,
-        which the light's bend does not see: at 0.3 px no point of the soft-shadow renders is more than 1 mm off
-        (0.86 mm; 3.9 mm with none rejected), masking less than half what the bend's 0.08 px does. None (the
+        on its scan line (two either side) by more than this (px), or by 1.5 times this next to the end of its run
+        of neighbouring edges (`edge_departures_px`). A soft shadow's rim dims one flank of a stripe and moves its
+        edges by up to 3 px, which the light's bend does not see: at 0.3 px (with `max_end_departure_px` at 0.8)
+        no point of the soft-shadow renders is more than 1 mm off (0.86 mm; 3.9 mm with none rejected), masking
+        less than half what the bend's 0.08 px does. None (the
         default) rejects none: beside the punch, where the dome's stripes fold, good edges depart by up to 2.7 px
         and a frame's peak goes unmeasured; measured in docs/method.md §5.
+    max_end_departure_px: the same at the end of a run (its four neighbours on one side only: the last lit edge
+        before a shadow's dark interior, whose bend is not judged), against the cubic through those four, whose
+        own noise is 6 times a centred one's; and an edge alone on its line is rejected. On by default: no edge
+        where the dome's stripes fold departs so, and the worst soft-shadow point of the deep shadow falls from
+        3.9 to 1.7 mm. None rejects none of them.
     saturation_grey: grey level (8-bit scale) at or above which a transition's bright side counts as clipped.
     dark_fraction: pixels whose neighbourhood (one period) never rises above this fraction of the frame's bright
         level are "dark" (clamp ring, hole, background, a wide dark stripe); transitions inside them, or within
@@ -155,6 +160,7 @@ class EdgeSettings:
     min_contrast_grey: float = 20.0
     max_uneven_light_shift_px: float | None = None
     max_departure_px: float | None = None
+    max_end_departure_px: float | None = 0.8
     saturation_grey: float = 250.0
     dark_fraction: float = 0.3
     presmooth_px: float = 1.0
@@ -201,8 +207,9 @@ class EdgeSettings:
                 raise ValueError(f"{name}: expected ≥ 0, got {getattr(self, name)}")
         if self.max_uneven_light_shift_px is not None and not self.max_uneven_light_shift_px > 0:
             raise ValueError(f"max_uneven_light_shift_px: expected > 0 or None, got {self.max_uneven_light_shift_px}")
-        if self.max_departure_px is not None and not self.max_departure_px > 0:
-            raise ValueError(f"max_departure_px: expected > 0 or None, got {self.max_departure_px}")
+        for name in ("max_departure_px", "max_end_departure_px"):
+            if getattr(self, name) is not None and not getattr(self, name) > 0:
+                raise ValueError(f"{name}: expected > 0 or None, got {getattr(self, name)}")
         if not self.max_link_step_px_per_line > 0:
             raise ValueError(f"max_link_step_px_per_line: expected > 0, got {self.max_link_step_px_per_line}")
         if self.min_edge_length_lines < 1:
@@ -645,15 +652,17 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     # An edge that departs from its neighbours on its line (a stripe's flank dimmed by a shadow's rim the bend does
     # not see) is rejected, said as uneven light. Judged on the smoothed positions of every kept edge at once:
     # rejecting some first would leave their neighbours unjudged.
-    if settings.max_departure_px is not None and period_px <= MAX_PERIOD_PX and len(line):
-        even = ~_departing(line, t_px, polarity, period_px=float(period_px), max_departure_px=settings.max_departure_px)
+    judged = settings.max_departure_px is not None or settings.max_end_departure_px is not None
+    if judged and period_px <= MAX_PERIOD_PX and len(line):
+        even = ~_departing(line, t_px, polarity, period_px=float(period_px), max_departure_px=settings.max_departure_px,
+                           max_end_departure_px=settings.max_end_departure_px)  # fmt: skip
         if not even.all():
             uneven_blocks = (
                 np.concatenate([uneven_blocks[0], line[~even] // UNUSABLE_BLOCK_PX]),
                 np.concatenate([uneven_blocks[1], t_raw[~even].astype(np.int64) // UNUSABLE_BLOCK_PX]),
             )
-            line, t_raw, t_px, polarity, chain, shift_px = (
-                a[even] for a in (line, t_raw, t_px, polarity, chain, shift_px)
+            line, t_raw, t_px, polarity, chain, shift_px, beside = (
+                a[even] for a in (line, t_raw, t_px, polarity, chain, shift_px, beside)
             )
             chain = np.unique(chain, return_inverse=True)[1].astype(np.int32)
             by_chain = None
@@ -1302,11 +1311,11 @@ def _uneven_light_shift_kernel(
 
 # What a departure is measured against, by where the edge lies in its run of neighbouring edges on its line (column 1
 # of `edge_departures_px`): 0 centred (two neighbours either side), 1 next to the run's end, 2 at its end, 3 alone.
-# The levels are multiples of `EdgeSettings.max_departure_px`; the noise of the departure grows off-centre (σ_t times
-# 1.4, 2.1 and 8.4), a smooth surface's own fourth difference at a run's end more (measured on the soft-shadow
-# renders of tests/science/structured_light/test_soft_shadows.py: 0.3, 0.45 and 0.8 px; docs/method.md §5). An edge
-# alone on its line (no stripe of the expected width either side) is always rejected.
-DEPARTURE_LEVELS = np.array([1.0, 1.5, 8.0 / 3.0, 0.0])
+# Centred and next to the end the levels are multiples of `EdgeSettings.max_departure_px` (the departure's noise
+# grows off-centre: σ_t times 1.4 and 2.1), at the end `max_end_departure_px` (σ_t times 8.4; measured on the
+# soft-shadow renders of tests/science/structured_light/test_soft_shadows.py: 0.3, 0.45 and 0.8 px; docs/method.md
+# §5). An edge alone on its line (no stripe of the expected width either side) is rejected where either is set.
+DEPARTURE_LEVELS = np.array([1.0, 1.5])
 # Neighbouring edges of a run: opposite polarity, 0.2–1.5 periods apart (a steep slope stretches a stripe; the order
 # takes neighbours within 0.8 of a period).
 DEPARTURE_GAP_PERIODS = (0.2, 1.5)
@@ -1336,15 +1345,24 @@ def edge_departures_px(line: np.ndarray, t_px: np.ndarray, polarity: np.ndarray,
 
 
 def _departing(
-    line: np.ndarray, t_px: np.ndarray, polarity: np.ndarray, *, period_px: float, max_departure_px: float
+    line: np.ndarray,
+    t_px: np.ndarray,
+    polarity: np.ndarray,
+    *,
+    period_px: float,
+    max_departure_px: float | None,
+    max_end_departure_px: float | None,
 ) -> np.ndarray:
     """(N,) bool: the edges `locate_edges` rejects for departing from their neighbours (`edge_departures_px`) beyond
-    their level (`DEPARTURE_LEVELS` times max_departure_px), all judged at once: a misplaced edge bends its
+    their level (`DEPARTURE_LEVELS`; None: not judged there), all judged at once: a misplaced edge bends its
     neighbours' cubics by 4/6 of its own departure, and rejecting it first would leave them unjudged."""
     departure = edge_departures_px(line, t_px, polarity, period_px=period_px)
     place = departure[:, 1].astype(np.int64)
+    inner = np.inf if max_departure_px is None else max_departure_px
+    end = np.inf if max_end_departure_px is None else max_end_departure_px
+    level = np.array([inner * DEPARTURE_LEVELS[0], inner * DEPARTURE_LEVELS[1], end, 0.0])[place]
     with np.errstate(invalid="ignore"):
-        return (np.abs(departure[:, 0]) > max_departure_px * DEPARTURE_LEVELS[place]) | (place == 3)
+        return (np.abs(departure[:, 0]) > level) | (place == 3)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
