@@ -584,7 +584,7 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     # edge: no crossings there.
     margin_lines = half if settings.presmooth_px > 0 else 0
     keep_beside = bool(area_u8.any())
-    line, t_raw, polarity, mid_at, contrast_at = _crossings(
+    line, t_raw, polarity, mid_at, slope_at, contrast_at = _crossings(
         scan, mid, contrast, local_max, np.zeros_like(cut) if keep_beside else cut,
         min_contrast_grey=float(settings.min_contrast_grey), saturation_grey=float(settings.saturation_grey),
         margin_lines=margin_lines,
@@ -595,8 +595,8 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
         near = _near_dark_kernel(cut, area_u8, black, line, t_raw, reach_lines // 2, quarter // 2, grow.shape[1] // 2)
         kept = near != NEAR_DARK_REJECTED
         if not kept.all():
-            line, t_raw, polarity, mid_at, contrast_at, near = (
-                a[kept] for a in (line, t_raw, polarity, mid_at, contrast_at, near)
+            line, t_raw, polarity, mid_at, slope_at, contrast_at, near = (
+                a[kept] for a in (line, t_raw, polarity, mid_at, slope_at, contrast_at, near)
             )
         beside = near == NEAR_DARK_BESIDE
 
@@ -608,8 +608,8 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
         keep[keep] = _whole_beside_dark(line[keep], t_raw[keep], at[whole], period_px=float(period_px))
     else:
         keep[keep] = _without_slivers(line[keep], t_raw[keep], lone_is_sliver=period_px <= MAX_PERIOD_PX)
-    line, t_raw, polarity, mid_at, contrast_at, beside = (
-        a[keep] for a in (line, t_raw, polarity, mid_at, contrast_at, beside)
+    line, t_raw, polarity, mid_at, slope_at, contrast_at, beside = (
+        a[keep] for a in (line, t_raw, polarity, mid_at, slope_at, contrast_at, beside)
     )
     # Where the light bends within a period (a soft shadow's rim) the mid-level cannot follow it: the edge moves by
     # the shift this predicts, half of which enters its σ (SIGMA_PER_SHIFT); where the shift is beyond the setting,
@@ -624,7 +624,7 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
         shift_px = np.zeros(len(line))
     else:
         shift_px = uneven_light_shift_px(
-            scan, dark_area, line, t_raw, polarity, mid_at, period_px=float(period_px),
+            dark_area, line, t_raw, polarity, mid_at, slope_at, period_px=float(period_px),
             from_means=settings.mid_level == "means",
         )  # fmt: skip
     even = np.ones(len(line), bool)
@@ -632,6 +632,7 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
         even = shift_px <= settings.max_uneven_light_shift_px
     uneven_blocks = (line[~even] // UNUSABLE_BLOCK_PX, t_raw[~even].astype(np.int64) // UNUSABLE_BLOCK_PX)
     line, t_raw, polarity, shift_px, beside = line[even], t_raw[even], polarity[even], shift_px[even], beside[even]
+    slope_at, contrast_at = slope_at[even], contrast_at[even]
 
     chain = _link_chains(line, t_raw, polarity, n_samples=n_samples, max_step_px=settings.max_link_step_px_per_line,
                          across_gaps=settings.link_across_lost_crossing)  # fmt: skip
@@ -639,6 +640,7 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     long_enough = lengths[chain] >= settings.min_edge_length_lines
     line, t_raw, polarity, chain = line[long_enough], t_raw[long_enough], polarity[long_enough], chain[long_enough]
     shift_px, beside = shift_px[long_enough], beside[long_enough]
+    slope_at, contrast_at = slope_at[long_enough], contrast_at[long_enough]
     # Renumber the surviving curves 0..n−1 (labels are crossing indices, so at most N of them).
     renumber = np.cumsum(np.bincount(chain, minlength=len(long_enough)) > 0) - 1
     chain = renumber[chain].astype(np.int32)
@@ -661,14 +663,13 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
                 np.concatenate([uneven_blocks[0], line[~even] // UNUSABLE_BLOCK_PX]),
                 np.concatenate([uneven_blocks[1], t_raw[~even].astype(np.int64) // UNUSABLE_BLOCK_PX]),
             )
-            line, t_raw, t_px, polarity, chain, shift_px, beside = (
-                a[even] for a in (line, t_raw, t_px, polarity, chain, shift_px, beside)
+            line, t_raw, t_px, polarity, chain, shift_px, beside, slope_at, contrast_at = (
+                a[even] for a in (line, t_raw, t_px, polarity, chain, shift_px, beside, slope_at, contrast_at)
             )
             chain = np.unique(chain, return_inverse=True)[1].astype(np.int32)
             by_chain = None
-    sigma_px, contrast_grey = _edge_sigma(
-        scan, contrast, line, t_raw, t_px, chain, SIGMA_PER_SHIFT * shift_px, settings=settings, by_chain=by_chain
-    )
+    sigma_px = _edge_sigma(slope_at, line, t_raw, t_px, chain, SIGMA_PER_SHIFT * shift_px, n_samples=n_samples,
+                           settings=settings, by_chain=by_chain)  # fmt: skip
     unusable = _unusable_blocks(scan, dark, contrast, local_max, grow, settings=settings)
     unusable[uneven_blocks] = np.where(unusable[uneven_blocks] == UNUSABLE_NONE, UNUSABLE_UNEVEN_LIGHT,
                                        unusable[uneven_blocks])  # fmt: skip
@@ -685,25 +686,26 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
         dark_fraction=np.count_nonzero(dark) / dark.size,
         unusable=unusable,
         sigma_px=sigma_px,
-        contrast_grey=contrast_grey,
+        contrast_grey=contrast_at,
         beside_dark=beside,
     )
 
 
 def _edge_sigma(
-    scan: np.ndarray,
-    contrast: np.ndarray,
+    slope_grey: np.ndarray,
     line: np.ndarray,
     t_raw: np.ndarray,
     t_px: np.ndarray,
     chain: np.ndarray,
     shift_px: np.ndarray,
     *,
+    n_samples: int,
     settings: EdgeSettings,
     by_chain: tuple[np.ndarray, np.ndarray] | None = None,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Each edge point's σ (px) of its smoothed position, and the stripes' contrast there (grey levels), both
-    (N,) float32, from the frame itself (docs/method.md §5, "How sure an edge is").
+) -> np.ndarray:
+    """Each edge point's σ (px) of its smoothed position, (N,) float32, from the frame itself (docs/method.md §5,
+    "How sure an edge is"). slope_grey (N,) float32: |I₁ − I₀| of the samples straddling each raw position
+    (`_crossings`, gathered there in the scan lines' order); n_samples: samples a scan line.
 
     A crossing placed between the straddling samples I₀, I₁ (a fraction x of the way) by the chord moves by
     δt = (δI₀·(1 − x) + δI₁·x) / (I₁ − I₀) for noise δI on the presmoothed samples: with the local grey noise σ_I
@@ -718,10 +720,9 @@ def _edge_sigma(
     along the edges. by_chain: the points grouped by chain as `_smooth_along_chains` gave them (`_by_chain`'s first
     and order), None to group them here.
     """
-    contrast_grey = np.empty(len(line), np.float32)
     sigma = np.full(len(line), np.nan, np.float32)
     if len(line) == 0:
-        return sigma, contrast_grey
+        return sigma
     smoothing = settings.edge_smoothing_lines
     if smoothing > 0:
         gain, residual = smoothing_noise_tables(float(smoothing), presmooth_px=float(settings.presmooth_px))
@@ -729,11 +730,12 @@ def _edge_sigma(
         gain = residual = np.full((1, 1), np.nan)
     first, order = by_chain if by_chain is not None else (np.zeros(0, np.int64), np.zeros(0, np.int64))
     _edge_sigma_kernel(
-        scan, contrast, np.ascontiguousarray(line, np.int64), np.ascontiguousarray(t_raw, np.float64),
-        np.ascontiguousarray(t_px, np.float64), np.ascontiguousarray(chain, np.int64), gain, residual,
-        np.ascontiguousarray(shift_px, np.float64), sigma, contrast_grey, first, order,
+        np.ascontiguousarray(slope_grey, np.float32), int(n_samples), np.ascontiguousarray(line, np.int64),
+        np.ascontiguousarray(t_raw, np.float64), np.ascontiguousarray(t_px, np.float64),
+        np.ascontiguousarray(chain, np.int64), gain, residual, np.ascontiguousarray(shift_px, np.float64), sigma,
+        first, order,
     )  # fmt: skip
-    return sigma, contrast_grey
+    return sigma
 
 
 # Weight, in edge points, of the frame's own noise level against an edge's local one (`_edge_sigma`).
@@ -760,8 +762,8 @@ def _by_chain(chain: np.ndarray, n_chains: int) -> tuple[np.ndarray, np.ndarray]
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _edge_sigma_kernel(
-    scan: np.ndarray,
-    contrast: np.ndarray,
+    slope_grey: np.ndarray,
+    n_samples: int,
     line: np.ndarray,
     t_raw: np.ndarray,
     t_px: np.ndarray,
@@ -770,13 +772,11 @@ def _edge_sigma_kernel(
     residual: np.ndarray,
     shift: np.ndarray,
     sigma_out: np.ndarray,
-    contrast_out: np.ndarray,
     first: np.ndarray,
     order: np.ndarray,
 ) -> None:
     """`_edge_sigma`; first and order: `_by_chain` of chain, or empty to compute them here."""
     n = len(line)
-    n_samples = scan.shape[1]
     half = gain.shape[0] - 1
     smoothed = np.isfinite(gain[0, 0])
     # Per point, in line order: the σ of its raw position for unit grey noise (model, px), its raw − smoothed
@@ -784,15 +784,12 @@ def _edge_sigma_kernel(
     # points apart in memory: one cache line a point instead of one for each array (3.5 → 2.3 ms a 1024² frame).
     point = np.empty((n, 3))
     for p in range(n):
-        i = line[p]
         j = min(max(int(t_raw[p]), 0), n_samples - 2)
         x = t_raw[p] - j
-        slope = max(abs(scan[i, j + 1] - scan[i, j]), 1e-3)
+        slope = max(slope_grey[p], 1e-3)
         point[p, 0] = np.sqrt((1.0 - x) ** 2 + x * x) / slope
         point[p, 1] = t_raw[p] - t_px[p]
         point[p, 2] = shift[p]
-        c = 0.5 * (contrast[i, j] + contrast[i, j + 1])
-        contrast_out[p] = c
     if not smoothed:
         return
     n_chains = chain.max() + 1
@@ -1073,10 +1070,12 @@ def _crossings(
     min_contrast_grey: float,
     saturation_grey: float,
     margin_lines: int,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Every mid-level crossing of the scan lines between two usable samples, sorted by (line, t): line (N,)
-    int32, t (N,) float64 px, polarity (N,) int8 (+1 where the grey level rises along +t), and the mid-level and
-    the contrast there (N,) float64 grey levels (interpolated between the straddling samples).
+    int32, t (N,) float64 px, polarity (N,) int8 (+1 where the grey level rises along +t), the mid-level there
+    (N,) float64 grey levels (interpolated between the straddling samples), and, for the edges' σ and the light's
+    bend, the slope |I₁ − I₀| between the samples j = int(t), j + 1 and their mean contrast, each (N,) float32 grey
+    levels (gathered here, where the lines are read in order, rather than later from the whole frame).
 
     scan, mid, contrast, local_max: (S, T) float32; near_dark: (S, T) uint8, non-zero where edges are rejected.
     A sample is usable where the contrast reaches min_contrast_grey, the window's brightest sample stays below
@@ -1130,7 +1129,7 @@ def _crossings_kernel(
     min_contrast: float,
     saturation: float,
     margin_lines: int,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     n_lines, n_samples = scan.shape
     # Room for 64 crossings a line (32 stripe periods), grown before a line that might not fit: allocating for the
     # most a frame can have (one a sample) cost more than the growing (0.25 ms a 512 × 480 frame).
@@ -1139,7 +1138,8 @@ def _crossings_kernel(
     t_out = np.empty(capacity, np.float64)
     polarity_out = np.empty(capacity, np.int8)
     mid_out = np.empty(capacity, np.float64)
-    contrast_out = np.empty(capacity, np.float64)
+    slope_out = np.empty(capacity, np.float32)
+    contrast_out = np.empty(capacity, np.float32)
     m = 0
     for i in range(margin_lines, n_lines - margin_lines):
         # usable(j + 1) and diff(j + 1) carried over to the next sample.
@@ -1152,7 +1152,8 @@ def _crossings_kernel(
                 _grown(t_out, capacity),
                 _grown(polarity_out, capacity),
             )
-            mid_out, contrast_out = _grown(mid_out, capacity), _grown(contrast_out, capacity)
+            mid_out, slope_out = _grown(mid_out, capacity), _grown(slope_out, capacity)
+            contrast_out = _grown(contrast_out, capacity)
         for j in range(n_samples - 1):
             here_usable, here_diff = next_usable, next_diff
             c = contrast[i, j + 1]
@@ -1169,14 +1170,18 @@ def _crossings_kernel(
             if not np.isfinite(x):
                 x = 0.5
             x = min(max(x, 0.0), 1.0)
+            t = j + x
             line_out[m] = i
-            t_out[m] = j + x
+            t_out[m] = t
             polarity_out[m] = 1 if next_diff > here_diff else -1
             mid_out[m] = mid[i, j] + x * (mid[i, j + 1] - mid[i, j])
-            contrast_out[m] = contrast[i, j] + x * (c - contrast[i, j])
+            # The pair int(t), int(t) + 1: j + 1 where x rounds t up to it (j + 2 < n_samples).
+            k = min(max(int(t), 0), n_samples - 2)
+            slope_out[m] = abs(scan[i, k + 1] - scan[i, k])
+            contrast_out[m] = 0.5 * (contrast[i, k] + contrast[i, k + 1])
             m += 1
     return (line_out[:m].copy(), t_out[:m].copy(), polarity_out[:m].copy(), mid_out[:m].copy(),
-            contrast_out[:m].copy())  # fmt: skip
+            slope_out[:m].copy(), contrast_out[:m].copy())  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True)
@@ -1200,12 +1205,12 @@ SIGMA_PER_SHIFT = 0.5
 
 
 def uneven_light_shift_px(
-    scan: np.ndarray,
     dark_area: np.ndarray,
     line: np.ndarray,
     t_px: np.ndarray,
     polarity: np.ndarray,
     mid_grey: np.ndarray,
+    slope_grey: np.ndarray,
     *,
     period_px: float,
     from_means: bool,
@@ -1228,24 +1233,26 @@ def uneven_light_shift_px(
     that straddle it (a mid-level off by a given amount moves a blurred or faint edge further than a sharp one,
     which a fraction of the contrast does not say).
 
-    scan: (S, T) float32, the presmoothed scan lines; line, t_px, polarity, mid_grey: (N,) the crossings sorted by
-    (line, t), their raw positions and the mid-level at each (`_mid_and_contrast`).
+    line, t_px, polarity, mid_grey: (N,) the crossings sorted by (line, t), their raw positions and the mid-level at
+    each (`_mid_and_contrast`); slope_grey: (N,) float32, |I₁ − I₀| of the presmoothed samples straddling each
+    (`_crossings`).
     """
     if len(line) == 0:
         return np.zeros(0)
     return _uneven_light_shift_kernel(
-        scan, dark_area, line, t_px, polarity, mid_grey, float(period_px), bool(from_means), UNEVEN_LIGHT_SHIFT_PER_BEND
+        dark_area, line, t_px, polarity, mid_grey, np.ascontiguousarray(slope_grey, np.float32), float(period_px),
+        bool(from_means), UNEVEN_LIGHT_SHIFT_PER_BEND,
     )  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _uneven_light_shift_kernel(
-    scan: np.ndarray,
     dark_area: np.ndarray,
     line: np.ndarray,
     t: np.ndarray,
     polarity: np.ndarray,
     mid: np.ndarray,
+    slope_grey: np.ndarray,
     period: float,
     from_means: bool,
     per_bend: float,
@@ -1253,7 +1260,7 @@ def _uneven_light_shift_kernel(
     """`uneven_light_shift_px` in one pass: the kind of each crossing's mid-level read at the crossings themselves
     (no image-wide dilation), then the bend and the shift it predicts."""
     n = len(line)
-    n_samples = scan.shape[1]
+    n_samples = dark_area.shape[1]
     from_envelopes = np.ones(n, np.bool_)
     if from_means:
         first = int(np.ceil(period - 0.5))
@@ -1303,8 +1310,7 @@ def _uneven_light_shift_kernel(
             continue
         bend = mid[i] - (mid[a] + (mid[b] - mid[a]) / (t[b] - t[a]) * (t[i] - t[a]))
         if np.isfinite(bend):
-            j = min(max(int(t[i]), 0), n_samples - 2)
-            slope = max(abs(scan[line[i], j + 1] - scan[line[i], j]), 1e-3)
+            slope = max(slope_grey[i], 1e-3)
             shift[i] = per_bend * abs(bend) / slope
     return shift
 
