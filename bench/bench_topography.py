@@ -1,6 +1,13 @@
 """Benchmark of the structured-light topography, single-threaded: frames per second per core, and peak memory.
 
     python bench/bench_topography.py [--frames 40] [--memory-frames 20,40,80]
+    python bench/bench_topography.py --frames 20 --against 0e4c11a --rounds 3
+
+Times are CPU seconds of this process (`time.process_time`, best of 3 passes): wall time on a shared or virtual
+machine swings by a third from run to run. `--against COMMIT` compares this tree with another's: it checks COMMIT out
+in a temporary git worktree and runs the speed figures of both trees in separate processes, alternately, `--rounds`
+times each (the same renders, this file, each tree's own `fringelab`), then prints each figure's median per tree and
+this tree's ratio to COMMIT's.
 
 Reports, for the virtual test at 512 × 480 (kodak) and 1024 × 1024 (phantom):
 - edges: `fringes.locate_edges` per frame (the part that runs in parallel chunks);
@@ -26,6 +33,10 @@ for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUM
     os.environ[_name] = "1"
 
 import argparse  # noqa: E402
+import json  # noqa: E402
+import statistics  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 import tracemalloc  # noqa: E402
@@ -45,7 +56,11 @@ from fringelab.science.topography import (  # noqa: E402
     reference_for,
     track_and_measure,
 )
-from fringelab.science.uncertainty import budget_shares  # noqa: E402
+
+try:  # absent from trees older than the σ budget (--against)
+    from fringelab.science.uncertainty import budget_shares  # noqa: E402
+except ImportError:
+    budget_shares = None
 from fringelab.science.virtual_test import (  # noqa: E402
     FringeRenderer,
     Imaging,
@@ -58,12 +73,12 @@ cv2.setNumThreads(1)
 
 
 def best_of(repeats: int, function):  # type: ignore[no-untyped-def]
-    """The shortest of `repeats` runs (seconds) and the last result: the least disturbed by other load."""
+    """The shortest of `repeats` runs (CPU seconds) and the last result: the least disturbed by other load."""
     best, result = float("inf"), None
     for _ in range(repeats):
-        start = time.perf_counter()
+        start = time.process_time()
         result = function()
-        best = min(best, time.perf_counter() - start)
+        best = min(best, time.process_time() - start)
     return best, result
 
 
@@ -89,7 +104,7 @@ def speed(name: str, n_frames: int) -> dict[str, float]:
     shares = [
         budget_shares(m.sigma_z_mm, m.table_sigma_z_mm, m.sigma_scale, m.local_variance_mm2)
         for m in measurements
-        if m.sigma_z_mm is not None
+        if budget_shares is not None and m.sigma_z_mm is not None
     ]
     return {
         "edges": n_frames / edge_time,
@@ -98,8 +113,44 @@ def speed(name: str, n_frames: int) -> dict[str, float]:
         "gridding": n_frames / grid_time,
         "points per frame": float(n_points),
         "grid nodes": float(grid.shape[0] * grid.shape[1]),
-        **{f"σ_w² share {term} %": 100.0 * float(np.mean([f[term] for f in shares])) for term in shares[0]},
+        **({f"σ_w² share {t} %": 100.0 * float(np.mean([f[t] for f in shares])) for t in shares[0]} if shares else {}),
     }
+
+
+SIZES = (("kodak", "512 x 480"), ("phantom", "1024 x 1024"))
+SPEED_FIGURES = ("edges", "order+Z+XY", "edges+order+Z+XY", "gridding")
+
+
+def compare_with(commit: str, *, n_frames: int, rounds: int) -> None:
+    """Print the median speed figures of this tree and of `commit`'s, run alternately in separate processes, and
+    this tree's ratio to `commit`'s (> 1: faster)."""
+    here = Path(__file__).resolve().parents[1]
+    runs: dict[str, list[dict[str, dict[str, float]]]] = {"this tree": [], commit: []}
+    with tempfile.TemporaryDirectory() as folder:
+        other = Path(folder) / "tree"
+        subprocess.run(["git", "-C", str(here), "worktree", "add", "--detach", "-q", str(other), commit], check=True)
+        try:
+            trees = {"this tree": here, commit: other}
+            for _ in range(rounds):
+                for label, tree in trees.items():
+                    env = {**os.environ, "PYTHONPATH": str(tree), "NUMBA_CACHE_DIR": str(Path(folder) / label)}
+                    out = subprocess.run([sys.executable, __file__, "--frames", str(n_frames), "--speed-json"],
+                                         env=env, check=True, capture_output=True, text=True).stdout  # fmt: skip
+                    run = json.loads(out.splitlines()[-1])
+                    if Path(run.pop("tree")) != tree.resolve():
+                        raise SystemExit(f"the run for {label} imported fringelab from elsewhere than {tree}")
+                    runs[label].append(run)
+        finally:
+            subprocess.run(["git", "-C", str(here), "worktree", "remove", "--force", str(other)], check=False)
+    for _, size in SIZES:
+        medians = {
+            label: {k: statistics.median(r[size][k] for r in rs) for k in SPEED_FIGURES} for label, rs in runs.items()
+        }
+        print(f"{size}, median of {rounds} alternated runs, frames per CPU second: " + "; ".join(
+            f"{k} {medians['this tree'][k]:.1f} vs {medians[commit][k]:.1f} ({commit}), ratio "
+            f"{medians['this tree'][k] / medians[commit][k]:.2f}" for k in SPEED_FIGURES))  # fmt: skip
+        each = {label: ", ".join(f"{r[size]['edges+order+Z+XY']:.1f}" for r in rs) for label, rs in runs.items()}
+        print(f"{size}, each run's edges+order+Z+XY: " + "; ".join(f"{k} {v}" for k, v in each.items()))
 
 
 def peak_memory(name: str, frame_counts: list[int]) -> dict[int, float]:
@@ -149,13 +200,25 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=40)
     parser.add_argument("--memory-frames", default="20,40,80")
+    parser.add_argument("--against", metavar="COMMIT", help="compare the speed with COMMIT's tree (see above)")
+    parser.add_argument("--rounds", type=int, default=3, help="alternated runs of each tree with --against")
+    parser.add_argument("--speed-json", action="store_true", help=argparse.SUPPRESS)  # one run of --against
     args = parser.parse_args()
-    print("single-threaded (OMP/OPENBLAS/MKL = 1, cv2.setNumThreads(1)); frames per second per core")
-    for name, size in (("kodak", "512 x 480"), ("phantom", "1024 x 1024")):
+    if args.speed_json:
+        import fringelab
+
+        figures = {size: speed(name, args.frames) for name, size in SIZES}
+        print(json.dumps({"tree": str(Path(fringelab.__file__).resolve().parents[1]), **figures}))
+        return
+    print("single-threaded (OMP/OPENBLAS/MKL = 1, cv2.setNumThreads(1)); frames per CPU second")
+    if args.against:
+        compare_with(args.against, n_frames=args.frames, rounds=args.rounds)
+        return
+    for name, size in SIZES:
         figures = speed(name, args.frames)
         print(f"{size}: " + "; ".join(f"{k} {v:.1f}" for k, v in figures.items()))
     counts = [int(n) for n in args.memory_frames.split(",")]
-    for name, size in (("kodak", "512 x 480"), ("phantom", "1024 x 1024")):
+    for name, size in SIZES:
         peaks = peak_memory(name, counts)
         print(f"{size}: peak traced memory of topography_recording: " + ", ".join(
             f"{n} frames {mb:.0f} MiB" for n, mb in peaks.items()))  # fmt: skip
