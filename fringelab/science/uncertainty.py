@@ -91,22 +91,27 @@ def fit_leverage_ratio(tau: float, polynomials: np.ndarray, n_heights: int) -> f
     return float(np.sqrt(max(value, 0.0)))
 
 
+def _point_sigma_z(sensitivity_px_per_mm: float, table_sigma_z_mm: float, edge_sigma_px: float) -> float:
+    """The rule of `point_sigma_z_mm` for one point, compiled twice below (per point and per array)."""
+    return float(np.hypot(edge_sigma_px / abs(sensitivity_px_per_mm), table_sigma_z_mm))
+
+
+# For compiled loops over many points (`topography._looked_up_points`).
+point_sigma_z_at = numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")(_point_sigma_z)
+_point_sigma_z_ufunc = numba.vectorize(["float64(float64, float64, float64)"], cache=True)(_point_sigma_z)
+
+
 def point_sigma_z_mm(
     *, sensitivity_px_per_mm: np.ndarray, table_sigma_z_mm: np.ndarray, edge_sigma_px: float | np.ndarray
 ) -> np.ndarray:
     """σ_Z (N,) of points from the edge noise and the table, given per point the table's sensitivity, its own
     σ (`table_sigma_z_mm`) and the edge's σ (one for all, or (N,)): the two are independent and add in
-    quadrature."""
-    sensitivity = np.abs(np.asarray(sensitivity_px_per_mm, np.float64))
+    quadrature (σ_edge / |sensitivity|, hypot, σ_table; infinite at zero sensitivity)."""
     with np.errstate(divide="ignore", invalid="ignore"):
-        edge = edge_sigma_px / sensitivity
-    return np.hypot(edge, table_sigma_z_mm)
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def point_sigma_z_at(sensitivity_px_per_mm: float, table_sigma_z_mm: float, edge_sigma_px: float) -> float:
-    """`point_sigma_z_mm` of one point, the same arithmetic: for compiled loops over many points."""
-    return float(np.hypot(edge_sigma_px / abs(sensitivity_px_per_mm), table_sigma_z_mm))
+        return _point_sigma_z_ufunc(
+            np.asarray(sensitivity_px_per_mm, np.float64), np.asarray(table_sigma_z_mm, np.float64),
+            np.asarray(edge_sigma_px, np.float64),
+        )  # fmt: skip
 
 
 # The fourth difference across edges, (1, −4, 6, −4, 1): Σc² = 70 times an edge's variance for independent edges.
