@@ -1,5 +1,5 @@
 """Load shedding: a web server process runs a bounded number of requests at once, lets a bounded number wait for
-their turn, and answers 503 with Retry-After at once beyond (or to one that has waited too long).
+their turn, and answers 503 with Retry-After at once beyond.
 
 Beyond what its threads can serve, a request would only queue behind the others until its client gives up: at 500
 requests/s, 60 % of requests waited over 10 s and none was refused (issue 26). Refused at once, a client (the
@@ -10,10 +10,9 @@ capped per user by their own rule) and uploads (streamed to disk) are not counte
 
 Only the requests that run (at most `max_running`, the process's threads) hold a thread and a database connection;
 those waiting for their turn here hold neither, first come first served. So the number a process takes at once
-(`max_in_flight`, a burst of connections) is not bound by its database connections. With `max_wait_s`, a request
-that would have to wait while the one waiting longest has already waited that long (a standing queue, not a
-burst) is refused at once too: it would wait at least as long. Waiters are never refused after waiting: a 503
-after a wait is a slow one (expiring waiters at 500 ms made the 503s' p99 387 -> 1349 ms, issue 26).
+(`max_in_flight`, a burst of connections) is not bound by its database connections. Waiters are never refused
+after waiting: a 503 after a wait is a slow one (expiring waiters at 500 ms made the 503s' p99 387 -> 1349 ms,
+issue 26); refusing newcomers behind a queue older than a bound did not make what was served quicker either.
 """
 
 from __future__ import annotations
@@ -23,7 +22,6 @@ import contextvars
 import json
 import logging
 import time
-from collections import deque
 from collections.abc import Callable
 
 from starlette.types import ASGIApp, Receive, Scope, Send
@@ -49,87 +47,53 @@ QUIET_REFUSALS = QuietRefusals()
 
 class LoadShedding:
     def __init__(
-        self,
-        app: ASGIApp,
-        *,
-        max_in_flight: int,
-        exempt: Callable[[str], bool],
-        max_running: int | None = None,
-        max_wait_s: float = 0.0,
+        self, app: ASGIApp, *, max_in_flight: int, exempt: Callable[[str], bool], max_running: int | None = None
     ) -> None:
         """`max_in_flight`: requests taken at once, running and waiting; `max_running`: of them, running at once
-        (default: all); `max_wait_s`: how long the longest waiter may have waited for a newcomer still to be let
-        wait (0: no such limit)."""
+        (default: all)."""
         self.app = app
         self.max_in_flight = max_in_flight
         self.max_running = max_in_flight if max_running is None else min(max_running, max_in_flight)
-        self.max_wait_s = max_wait_s
         self.exempt = exempt
         self.in_flight = 0  # one event loop per process: no lock needed
         self.running = 0
-        # The waiting requests' turns and since when (monotonic s), first come first served.
-        self._turns: deque[tuple[asyncio.Future[None], float]] = deque()
+        self._turns: asyncio.Semaphore | None = None  # of the event loop in `_turns_loop`
+        self._turns_loop: asyncio.AbstractEventLoop | None = None
         self.refused = 0
-        self.refused_standing = 0
         self._logged_at = 0.0
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http" or self.exempt(scope["path"]):
             await self.app(scope, receive, send)
             return
-        must_wait = self.running >= self.max_running or bool(self._turns)
         if self.in_flight >= self.max_in_flight:
-            await self._refuse(send)
-            return
-        if must_wait and self.max_wait_s > 0 and self._longest_wait_s() >= self.max_wait_s:
-            self.refused_standing += 1
             await self._refuse(send)
             return
         self.in_flight += 1
         try:
-            if must_wait:
-                await self._wait_for_turn()
-            else:
+            # First come first served (a newcomer never passes a waiter); a waiter that goes away keeps no turn.
+            async with self._turns_of_this_loop():
                 self.running += 1
-            try:
-                await self.app(scope, receive, send)
-            finally:
-                self._pass_turn()
+                try:
+                    await self.app(scope, receive, send)
+                finally:
+                    self.running -= 1
         finally:
             self.in_flight -= 1
 
-    def _longest_wait_s(self) -> float:
-        while self._turns and self._turns[0][0].done():  # a waiter that went away
-            self._turns.popleft()
-        return time.monotonic() - self._turns[0][1] if self._turns else 0.0
-
-    async def _wait_for_turn(self) -> None:
-        """Wait until a running request hands over its turn."""
-        turn: asyncio.Future[None] = asyncio.get_running_loop().create_future()
-        self._turns.append((turn, time.monotonic()))
-        try:
-            await turn
-        except asyncio.CancelledError:  # the client went away or the server stops: never keep a turn handed over
-            if turn.done() and not turn.cancelled():
-                self._pass_turn()
-            raise
-
-    def _pass_turn(self) -> None:
-        """A running request is done: the first still waiting runs in its place, or one fewer runs."""
-        while self._turns:
-            turn, _since = self._turns.popleft()
-            if not turn.done():  # not gone
-                turn.set_result(None)
-                return
-        self.running -= 1
+    def _turns_of_this_loop(self) -> asyncio.Semaphore:
+        """A semaphore belongs to the event loop it first waited in: a server has one, tests may run several."""
+        loop = asyncio.get_running_loop()
+        if self._turns is None or self._turns_loop is not loop:
+            self._turns, self._turns_loop = asyncio.Semaphore(self.max_running), loop
+        return self._turns
 
     async def _refuse(self, send: Send) -> None:
         self.refused += 1
         _refusing.set(True)  # this request's own task: its access line only
         now = time.monotonic()
         if now - self._logged_at >= LOG_EVERY_S:  # one line per period, not one per refusal: a flood stays a line
-            log.warning("busy: %d requests refused with 503 so far, %d of them behind a standing queue (%d in flight)",
-                        self.refused, self.refused_standing, self.in_flight)  # fmt: skip
+            log.warning("busy: %d requests refused with 503 so far (%d in flight)", self.refused, self.in_flight)
             self._logged_at = now
         body = json.dumps({
             "detail": f"the server is busy ({self.in_flight} requests in progress); retry in {RETRY_AFTER_S} s",

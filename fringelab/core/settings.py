@@ -123,13 +123,6 @@ class Settings(BaseSettings):
         description="Requests a web server process holds, waiting for their turn, beyond the threads it runs; more "
         "get 503 with Retry-After.",
     )
-    api_queue_wait_ms: int = Field(
-        0,
-        ge=0,
-        le=60_000,
-        description="A request that would have to wait while the longest waiting one has waited this long gets 503 "
-        "with Retry-After at once (0: never refused for the queue's age, only for its length).",
-    )
     frame_cache_bytes: int = Field(
         64 * 2**20,
         ge=0,
