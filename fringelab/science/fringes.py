@@ -17,6 +17,7 @@ then at most √2 times wider than across the stripe. An edge point is ``(line, 
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -641,9 +642,7 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     line, t_raw, polarity, chain = line[long_enough], t_raw[long_enough], polarity[long_enough], chain[long_enough]
     shift_px, beside = shift_px[long_enough], beside[long_enough]
     slope_at, contrast_at = slope_at[long_enough], contrast_at[long_enough]
-    # Renumber the surviving curves 0..n−1 (labels are crossing indices, so at most N of them).
-    renumber = np.cumsum(np.bincount(chain, minlength=len(long_enough)) > 0) - 1
-    chain = renumber[chain].astype(np.int32)
+    chain = _dense_labels(chain, len(long_enough))  # labels are crossing indices, so fewer than N of them
 
     if settings.edge_smoothing_lines > 0 and len(line):
         t_px, by_chain = _smooth_along_chains(line, t_raw, chain, sigma_lines=settings.edge_smoothing_lines)
@@ -666,8 +665,10 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
             line, t_raw, t_px, polarity, chain, shift_px, beside, slope_at, contrast_at = (
                 a[even] for a in (line, t_raw, t_px, polarity, chain, shift_px, beside, slope_at, contrast_at)
             )
-            chain = np.unique(chain, return_inverse=True)[1].astype(np.int32)
-            by_chain = None
+            if by_chain is None:
+                chain = _dense_labels(chain, int(chain.max()) + 1)
+            else:  # the kept points' chain order is the old one's, less the rest
+                chain, by_chain = _kept_by_chain(by_chain[0], by_chain[1], even)
     sigma_px = _edge_sigma(slope_at, line, t_raw, t_px, chain, SIGMA_PER_SHIFT * shift_px, n_samples=n_samples,
                            settings=settings, by_chain=by_chain)  # fmt: skip
     unusable = _unusable_blocks(scan, dark, contrast, local_max, grow, settings=settings)
@@ -730,9 +731,9 @@ def _edge_sigma(
         gain = residual = np.full((1, 1), np.nan)
     first, order = by_chain if by_chain is not None else (np.zeros(0, np.int64), np.zeros(0, np.int64))
     _edge_sigma_kernel(
-        np.ascontiguousarray(slope_grey, np.float32), int(n_samples), np.ascontiguousarray(line, np.int64),
+        np.ascontiguousarray(slope_grey, np.float32), int(n_samples), _int_labels(line),
         np.ascontiguousarray(t_raw, np.float64), np.ascontiguousarray(t_px, np.float64),
-        np.ascontiguousarray(chain, np.int64), gain, residual, np.ascontiguousarray(shift_px, np.float64), sigma,
+        _int_labels(chain), gain, residual, np.ascontiguousarray(shift_px, np.float64), sigma,
         first, order,
     )  # fmt: skip
     return sigma
@@ -758,6 +759,44 @@ def _by_chain(chain: np.ndarray, n_chains: int) -> tuple[np.ndarray, np.ndarray]
         order[fill[chain[i]]] = i
         fill[chain[i]] += 1
     return first, order
+
+
+def _dense_labels(chain: np.ndarray, n_labels: int) -> np.ndarray:
+    """Chain labels (N,) below n_labels renumbered 0..n_chains − 1 in the order of the labels, (N,) int32."""
+    renumber = np.cumsum(np.bincount(chain, minlength=n_labels) > 0) - 1
+    return renumber[chain].astype(np.int32)
+
+
+@numba.njit(cache=True, nogil=True)
+def _kept_by_chain(
+    first: np.ndarray, order: np.ndarray, keep: np.ndarray
+) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    """The points kept (keep (N,) bool) of chains grouped by `_by_chain` (first, order): their chain labels
+    renumbered 0..n − 1 in the old labels' order (chains left empty dropped), (M,) int32, and `_by_chain`'s first
+    and order of them (M = keep.sum()), without sorting again."""
+    n = len(keep)
+    index = np.empty(n, np.int64)  # each kept point's index among the kept
+    m = 0
+    for p in range(n):
+        index[p] = m
+        m += keep[p]
+    chain = np.empty(m, np.int32)
+    new_first = np.zeros(len(first), np.int64)
+    new_order = np.empty(m, np.int64)
+    c_new = 0
+    q_new = 0
+    for c in range(len(first) - 1):
+        start = q_new
+        for q in range(first[c], first[c + 1]):
+            p = order[q]
+            if keep[p]:
+                new_order[q_new] = index[p]
+                chain[index[p]] = c_new
+                q_new += 1
+        if q_new > start:
+            c_new += 1
+            new_first[c_new] = q_new
+    return chain, (new_first[: c_new + 1].copy(), new_order)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -1697,13 +1736,30 @@ def _smooth_along_chains(
     quadratic on a few points would amplify noise (less than 2/3 of a half-width on the short side and a short
     chain on the other, i.e. an ill-conditioned fit) the local weighted mean is taken instead.
     """
+    interior, gauss = _smoothing_weights(float(sigma_lines))
+    return _smooth_along_chains_kernel(
+        _int_labels(line), np.ascontiguousarray(t_px, np.float64), _int_labels(chain), interior, gauss,
+        float(sigma_lines),
+    )  # fmt: skip
+
+
+@functools.lru_cache(maxsize=16)
+def _smoothing_weights(sigma_lines: float) -> tuple[np.ndarray, np.ndarray]:
+    """`_smooth_along_chains`'s interior weights (`edge_smoothing_weights`) and Gaussian weights (2h + 1,), h = ⌈3σ⌉,
+    computed once per σ (read-only)."""
     half = max(1, int(np.ceil(3.0 * sigma_lines)))
     offsets = np.arange(-half, half + 1, dtype=np.float64)
     gauss = np.exp(-0.5 * (offsets / sigma_lines) ** 2)
-    return _smooth_along_chains_kernel(
-        np.ascontiguousarray(line, np.int64), np.ascontiguousarray(t_px, np.float64),
-        np.ascontiguousarray(chain, np.int64), edge_smoothing_weights(sigma_lines), gauss, float(sigma_lines),
-    )  # fmt: skip
+    interior = edge_smoothing_weights(sigma_lines)
+    interior.flags.writeable = gauss.flags.writeable = False
+    return interior, gauss
+
+
+def _int_labels(values: np.ndarray) -> np.ndarray:
+    """Line indices or chain labels as the kernels take them: int32 as they come (no copy), else int64."""
+    if values.dtype == np.int32 and values.flags.c_contiguous:
+        return values
+    return np.ascontiguousarray(values, np.int64)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -1716,7 +1772,7 @@ def _smooth_along_chains_kernel(
     first, order = _by_chain(chain, n_chains)
     t_sorted = t[order]
     line_sorted = line[order]
-    smoothed_sorted = np.empty(n)
+    smoothed = np.empty(n)
     for c in range(n_chains):
         lo, hi = first[c], first[c + 1]
         for p in range(lo, hi):
@@ -1725,7 +1781,7 @@ def _smooth_along_chains_kernel(
                 value = 0.0
                 for m in range(2 * half + 1):
                     value += interior[m] * t_sorted[p - half + m]
-                smoothed_sorted[p] = value
+                smoothed[order[p]] = value
                 continue
             # Near an end, or where the curve skips a line (linked across a lost crossing): the fit over the
             # points within a half-width in lines, each at its own line offset.
@@ -1751,9 +1807,7 @@ def _smooth_along_chains_kernel(
             det = s0 * (s2 * s4 - s3 * s3) - s1 * (s1 * s4 - s3 * s2) + s2 * (s1 * s3 - s2 * s2)
             num = r0 * (s2 * s4 - s3 * s3) - s1 * (r1 * s4 - s3 * r2) + s2 * (r1 * s3 - s2 * r2)
             quadratic = num / det if abs(det) > 1e-9 * s0**3 * sigma_lines**6 else np.nan
-            smoothed_sorted[p] = quadratic if np.isfinite(quadratic) else r0 / s0
-    smoothed = np.empty(n)
-    smoothed[order] = smoothed_sorted
+            smoothed[order[p]] = quadratic if np.isfinite(quadratic) else r0 / s0
     return smoothed, (first, order)
 
 
