@@ -92,6 +92,8 @@ def create_app(settings: Settings, *, openapi_at_start: bool = False) -> FastAPI
         if openapi_at_start:
             served.openapi()
         reconcile_quietly(state.sessions, state.celery, settings)  # jobs the queue lost while the API was down
+        if state.tokens.watch is not None:  # listening before the first request, which then need not wait
+            state.tokens.watch.start()
         async with anyio.create_task_group() as background:
             if settings.reconcile_interval_s > 0:
                 background.start_soon(reconcile_periodically, state.sessions, state.celery, settings)
@@ -100,6 +102,8 @@ def create_app(settings: Settings, *, openapi_at_start: bool = False) -> FastAPI
                 background.start_soon(anyio.to_thread.run_sync, dummy_hash)
             yield
             background.cancel_scope.cancel()
+        if state.tokens.watch is not None:
+            state.tokens.watch.stop()
         state.tokens.flush_last_used(state.sessions)
         engine.dispose()
 

@@ -169,7 +169,7 @@ def cmd_user(args: argparse.Namespace) -> int:
 def _announce_access_change(settings: Settings) -> None:
     """Make running API processes drop the tokens they have checked (a disabled account stops at once)."""
     from backend.supervisor import running_redis_url
-    from fringelab.core.accounts import announce_access_change
+    from fringelab.core.access_changes import announce_access_change
 
     if not announce_access_change(running_redis_url(settings)):
         print(

@@ -19,12 +19,12 @@ from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from typing import Any, Literal
 
-import redis
 from argon2 import PasswordHasher
 from argon2.exceptions import InvalidHashError, VerificationError
 from sqlalchemy import ColumnElement, or_, select, true, update
 from sqlalchemy.orm import Session, sessionmaker
 
+from fringelab.core.access_changes import AccessWatch, announce_access_change
 from fringelab.core.errors import Conflict, Forbidden, NotFound, Unauthorized
 from fringelab.core.models import ApiToken, AuditEvent, Experiment, Group, GroupMember, User, utcnow
 from fringelab.core.settings import Settings
@@ -177,30 +177,6 @@ class _Known:
     generation: int | None  # the access generation when it was checked (None: unknown, never trusted)
 
 
-ACCESS_GENERATION_KEY = "fringelab:access-generation"
-REDIS_TIMEOUT_S = 0.5
-REDIS_RETRY_S = 1.0  # after Redis failed to answer, how long checked tokens are not trusted without asking it
-
-
-def announce_access_change(redis_url: str) -> bool:
-    """Tell every API process that a token was revoked or an account changed (the access generation in Redis
-    goes up; each process's TokenCache then asks the database again). False when Redis could not be reached:
-    the change then reaches other processes within FRINGELAB_TOKEN_CACHE_S."""
-    if not redis_url:
-        return False
-    try:
-        connection = redis.Redis.from_url(
-            redis_url, socket_timeout=REDIS_TIMEOUT_S * 4, socket_connect_timeout=REDIS_TIMEOUT_S * 4
-        )
-        try:
-            connection.incr(ACCESS_GENERATION_KEY)
-        finally:
-            connection.close()
-    except redis.RedisError:
-        return False
-    return True
-
-
 class TokenCache:
     """Tokens this API process has checked, trusted for `ttl_s` seconds without asking the database again.
 
@@ -211,9 +187,10 @@ class TokenCache:
 
     Several API processes each keep a cache. A revocation, a disabled account or a changed role calls `forget()`,
     which empties this cache and raises the access generation in Redis (`announce_access_change`, also what the
-    `fringelab user` commands call); every process reads that generation on each request (one Redis GET, no
-    database) and empties its cache when it moved, so a revoked token is refused by all of them at once. While
-    Redis does not answer, no checked token is trusted: each request asks the database.
+    `fringelab user` commands call); each process knows the generation from a listener (`AccessWatch`, no Redis
+    call per request), and the announcement returns once every process has taken it in, so a revoked token is
+    refused by all of them at once. While Redis does not answer, no checked token is trusted: each request asks
+    the database.
     """
 
     MAX_ENTRIES = 10_000
@@ -225,49 +202,52 @@ class TokenCache:
         self._last_used: dict[int, datetime] = {}
         self._lock = threading.Lock()
         self._generation: int | None = None
-        self._redis_down_until_s = 0.0
-        self._redis = (
-            redis.Redis.from_url(redis_url, socket_timeout=REDIS_TIMEOUT_S, socket_connect_timeout=REDIS_TIMEOUT_S)
-            if redis_url
-            else None
-        )
-
-    def _shared_generation(self) -> int | None:
-        """The access generation in Redis; None when it cannot be known (no Redis, or it did not answer)."""
-        if self._redis is None or time.monotonic() < self._redis_down_until_s:
-            return None
-        try:
-            return int(self._redis.get(ACCESS_GENERATION_KEY) or 0)
-        except (redis.RedisError, ValueError):
-            self._redis_down_until_s = time.monotonic() + REDIS_RETRY_S
-            return None
+        self.watch = AccessWatch(redis_url) if redis_url else None
 
     def resolve(self, sessions: sessionmaker[Session], secret: str) -> Principal:
-        digest = token_digest(secret)
+        generation = self.watch.current() if self.watch is not None else 0
+        principal = self._trusted(secret, generation)
+        if principal is not None:
+            return principal
         now_s = time.monotonic()
-        generation = self._shared_generation() if self._redis is not None else 0
+        with sessions() as session:
+            try:
+                principal, token_id, expires_at = _lookup_token(session, secret)
+                known = _Known(principal, "", token_id, expires_at, now_s, generation)
+            except AuthError as error:
+                known = _Known(None, str(error), 0, None, now_s, generation)
+        with self._lock:
+            if len(self._known) >= self.MAX_ENTRIES:
+                self._known.clear()
+            self._known[token_digest(secret)] = known
+        return self._used(known)
+
+    def cached(self, secret: str) -> Principal | None:
+        """What `resolve` answers when it need not ask anything (no database, no Redis, no waiting: fit for the
+        event loop); None when the token must be checked first."""
+        if self.watch is None:
+            return self._trusted(secret, 0)
+        generation = self.watch.generation
+        return None if generation is None else self._trusted(secret, generation)
+
+    def _trusted(self, secret: str, generation: int | None) -> Principal | None:
+        """The principal of a token checked within `ttl_s` at this access generation (AuthError for a token
+        refused likewise); None when it must be checked again."""
         if generation is not None and generation != self._generation:
             with self._lock:  # entries of older generations are never trusted again: free them
                 self._known.clear()
                 self._generation = generation
-        known = self._known.get(digest)
-        trusted = (
-            known is not None
-            and generation is not None
-            and known.generation == generation
-            and now_s - known.checked_at_s < self.ttl_s
-        )
-        if known is None or not trusted:
-            with sessions() as session:
-                try:
-                    principal, token_id, expires_at = _lookup_token(session, secret)
-                    known = _Known(principal, "", token_id, expires_at, now_s, generation)
-                except AuthError as error:
-                    known = _Known(None, str(error), 0, None, now_s, generation)
-            with self._lock:
-                if len(self._known) >= self.MAX_ENTRIES:
-                    self._known.clear()
-                self._known[digest] = known
+        known = self._known.get(token_digest(secret))
+        if (
+            known is None
+            or generation is None
+            or known.generation != generation
+            or time.monotonic() - known.checked_at_s >= self.ttl_s
+        ):
+            return None
+        return self._used(known)
+
+    def _used(self, known: _Known) -> Principal:
         if known.principal is None:
             raise AuthError(known.error)
         now = utcnow()
