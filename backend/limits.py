@@ -182,14 +182,9 @@ class SharedRateLimiter:
     def take(self, user: object) -> float:
         """Take one request from `user`'s bucket: 0 when allowed, else the seconds until one is."""
         now = time.monotonic()
-        with self._lock:
-            left, until = self._leased.get(user, (0, 0.0))
-            if left > 0 and now < until:
-                self._leased[user] = (left - 1, until)
-                return 0.0
-            refused_until = self._refused_until.get(user, 0.0)
-            if now < refused_until:
-                return refused_until - now
+        held = self.take_held(user, now)
+        if held is not None:
+            return held
         if now >= self._down_until_s:
             try:
                 granted, wait = self._take(
@@ -200,6 +195,20 @@ class SharedRateLimiter:
                 self._down_until_s = time.monotonic() + self.RETRY_S
                 logging.getLogger(__name__).warning("request rates counted per process: Redis did not answer")
         return self.local.take(user)
+
+    def take_held(self, user: object, now: float | None = None) -> float | None:
+        """`take` when this process can answer alone (from its lease, or a refusal it remembers), asking
+        nothing (fit for the event loop); None when it would ask Redis."""
+        now = time.monotonic() if now is None else now
+        with self._lock:
+            left, until = self._leased.get(user, (0, 0.0))
+            if left > 0 and now < until:
+                self._leased[user] = (left - 1, until)
+                return 0.0
+            refused_until = self._refused_until.get(user, 0.0)
+            if now < refused_until:
+                return refused_until - now
+        return None
 
     def _record(self, user: object, granted: int, wait_s: float, asked_at: float) -> float:
         with self._lock:

@@ -59,16 +59,38 @@ def request_secret(request: Request, credentials: HTTPAuthorizationCredentials |
 
 def principal_of(request: Request, state: AppState, secret: str | None, *, count: bool = True) -> Principal:
     """Who sends the request (from the token cache; no database write), counted against their request rate
-    (`count`: an open event stream's re-checks are not requests)."""
+    (`count`: an open event stream's re-checks are not requests). May ask the database and Redis: not on the
+    event loop (`held_principal` is)."""
+    principal = _held_principal(request, state, secret, count=count, ask=True)
+    assert principal is not None  # asking, it always has an answer
+    return principal
+
+
+def held_principal(request: Request, state: AppState, secret: str | None) -> Principal | None:
+    """`principal_of` when it needs to ask nothing (a token in the cache, a user with leased requests left):
+    fit for the event loop; None when it would ask the database or Redis."""
+    return _held_principal(request, state, secret, count=True, ask=False)
+
+
+def _held_principal(
+    request: Request, state: AppState, secret: str | None, *, count: bool, ask: bool
+) -> Principal | None:
     if not state.settings.auth_enabled:
         return LOCAL_ADMIN
     if not secret:
         raise Unauthorized("authentication required: send `Authorization: Bearer <token>` or log in")
     try:
-        principal = state.tokens.resolve(state.sessions, secret)
+        principal = state.tokens.resolve(state.sessions, secret) if ask else state.tokens.cached(secret)
     except AuthError as error:
         raise Unauthorized(str(error)) from None
-    wait_s = request.app.state.user_limiter.take(principal.user_id) if count else 0.0
+    if principal is None:
+        return None
+    limiter = request.app.state.user_limiter
+    wait_s: float | None = 0.0
+    if count:
+        wait_s = limiter.take(principal.user_id) if ask else limiter.take_held(principal.user_id)
+    if wait_s is None:
+        return None
     if wait_s > 0:
         raise RateLimited(
             f"too many requests from {principal.username} (over {state.settings.user_requests_per_s:g}/s); "
@@ -78,12 +100,19 @@ def principal_of(request: Request, state: AppState, secret: str | None, *, count
     return principal
 
 
-def get_principal(
+async def get_principal(
     request: Request,
     state: StateDep,
     credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
 ) -> Principal:
-    return principal_of(request, state, request_secret(request, credentials))
+    """Async: most requests come with a token checked moments ago and a user with leased requests left, answered
+    on the event loop; a plain function dependency cost every request a trip to a worker thread (issue 26).
+    Only the others go to a thread, to ask the database or Redis."""
+    secret = request_secret(request, credentials)
+    principal = held_principal(request, state, secret)
+    if principal is None:
+        principal = await anyio.to_thread.run_sync(principal_of, request, state, secret)
+    return principal
 
 
 CurrentUser = Annotated[Principal, Depends(get_principal)]

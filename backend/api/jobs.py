@@ -402,8 +402,8 @@ async def _jobs_events(
 
 
 @router.get("/jobs/{job_id}", response_model=JobOut, responses=JOB_ERRORS)
-def read_job(job: JobDep, session: SessionDep) -> JobOut:
-    return job_out(session, job)
+def read_job(job: JobDep, session: SessionDep) -> Response:
+    return json_response(job_out(session, job))  # polled by every open job page: no validation trip
 
 
 @router.get("/jobs/{job_id}/log", response_model=list[LogLineOut], responses=JOB_ERRORS)
