@@ -1,17 +1,17 @@
-"""Medians and percentiles equal to numpy's, without partitioning the whole array: for the per-frame levels of the
-edge locator and the σ checks, where np.median and np.percentile cost 0.4–1 ms on a 1024 × 1024 frame.
+"""Medians and percentiles equal to numpy's, from one partition: for the per-frame levels of the edge locator and
+the σ checks, where np.median and np.percentile cost 0.2–1 ms on a frame (they partition around two or three ranks
+at once, which numpy does several times slower than around one).
 
 Belongs here: `median` and `percentile` of 1-D float data, the same values as np.median and np.percentile (the
-default "linear" method) for float32 and float64, found by a radix select: a histogram of the values' top 16 bits
-(their bits made to order as the values do), then only the values in the bins of the wanted ranks sorted. Not here:
-weighted quantiles, other interpolation methods, integer data.
+default "linear" method) for float32 and float64: np.partition around the lower wanted rank, the next rank the
+least value above it, and numpy's own interpolation arithmetic. Not here: weighted quantiles, other interpolation
+methods, integer data.
 """
 
 from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
 
@@ -54,7 +54,7 @@ def percentile(values: np.ndarray, q: float) -> float:
 
 
 def _flat(values: np.ndarray) -> np.ndarray:
-    flat = np.ascontiguousarray(values).ravel()
+    flat = np.ravel(values)  # a view where it can be: np.partition copies
     if flat.dtype not in (np.float32, np.float64):
         raise ValueError(f"values: expected float32 or float64, got {flat.dtype}")
     if flat.size == 0:
@@ -63,47 +63,9 @@ def _flat(values: np.ndarray) -> np.ndarray:
 
 
 def _ranks(flat: np.ndarray, low: int, high: int) -> tuple[bool, float, float]:
-    """The values of ranks low ≤ high (0 = smallest) of flat (N,), and False instead where one is NaN."""
-    if flat.dtype == np.float32:
-        return _ranks_kernel(flat, flat.view(np.int32), low, high, (1 << 31) - 1, 16)
-    return _ranks_kernel(flat, flat.view(np.int64), low, high, (1 << 63) - 1, 48)
-
-
-@numba.njit(cache=True, nogil=True)
-def _bin(key: int, magnitude: int, shift: int) -> int:
-    """The histogram bin (0 … 2¹⁶ − 1) of a float's bits read as a signed integer: positive values' bits order as
-    the values do, negative values' the other way, which flipping all bits but the sign corrects."""
-    return ((key if key >= 0 else key ^ magnitude) >> shift) + (1 << 15)
-
-
-@numba.njit(cache=True, nogil=True)
-def _ranks_kernel(
-    values: np.ndarray, keys: np.ndarray, low: int, high: int, magnitude: int, shift: int
-) -> tuple[bool, float, float]:
-    n = len(values)
-    count = np.zeros(1 << 16, np.int32)
-    lowest = 1 << 16
-    for i in range(n):
-        if np.isnan(values[i]):
-            return False, np.nan, np.nan
-        key = _bin(keys[i], magnitude, shift)
-        count[key] += 1
-        lowest = min(lowest, key)
-    below = below_first = 0
-    first_bin = last_bin = -1
-    for bin_index in range(lowest, 1 << 16):
-        if first_bin < 0 and below + count[bin_index] > low:
-            first_bin, below_first = bin_index, below
-        if below + count[bin_index] > high:
-            last_bin = bin_index
-            break
-        below += count[bin_index]
-    chosen = np.empty(n, values.dtype)
-    m = 0
-    for i in range(n):
-        key = _bin(keys[i], magnitude, shift)
-        if first_bin <= key <= last_bin:
-            chosen[m] = values[i]
-            m += 1
-    middle = np.sort(chosen[:m])
-    return True, float(middle[low - below_first]), float(middle[high - below_first])
+    """The values of ranks low ≤ high ≤ low + 1 (0 = smallest) of flat (N,), and False instead where any value is
+    NaN (np.partition puts NaN last, so one lies at or after rank low, and min passes it on)."""
+    part = np.partition(flat, low)
+    if np.isnan(part[low:].min()):
+        return False, math.nan, math.nan
+    return True, float(part[low]), float(part[high] if high == low else part[high:].min())
