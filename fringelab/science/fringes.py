@@ -130,6 +130,12 @@ class EdgeSettings:
         own noise is 6 times a centred one's; and an edge alone on its line is rejected. On by default: no edge
         where the dome's stripes fold departs so, and the worst soft-shadow point of the deep shadow falls from
         3.9 to 1.7 mm. None rejects none of them.
+    max_width_alternation_px: an edge is rejected ("uneven light"), with its two neighbours on its line, where the
+        stripe widths either side of it alternate by more than this (px; `width_alternations_px`): a misplaced edge
+        (a stripe's flank dimmed by a soft shadow's rim) widens one of its stripes and narrows the other, making
+        one a local maximum and the other a local minimum of the widths along the line, where a surface's slope,
+        even where the dome's stripes fold, makes them change monotonically. On by default at 0.2 px (no edge of
+        the shadow-free renders up to 55 mm reaches 0.12 px); None rejects none.
     saturation_grey: grey level (8-bit scale) at or above which a transition's bright side counts as clipped.
     dark_fraction: pixels whose neighbourhood (one period) never rises above this fraction of the frame's bright
         level are "dark" (clamp ring, hole, background, a wide dark stripe); transitions inside them, or within
@@ -162,6 +168,7 @@ class EdgeSettings:
     max_uneven_light_shift_px: float | None = None
     max_departure_px: float | None = None
     max_end_departure_px: float | None = 0.8
+    max_width_alternation_px: float | None = 0.2
     saturation_grey: float = 250.0
     dark_fraction: float = 0.3
     presmooth_px: float = 1.0
@@ -208,7 +215,7 @@ class EdgeSettings:
                 raise ValueError(f"{name}: expected ≥ 0, got {getattr(self, name)}")
         if self.max_uneven_light_shift_px is not None and not self.max_uneven_light_shift_px > 0:
             raise ValueError(f"max_uneven_light_shift_px: expected > 0 or None, got {self.max_uneven_light_shift_px}")
-        for name in ("max_departure_px", "max_end_departure_px"):
+        for name in ("max_departure_px", "max_end_departure_px", "max_width_alternation_px"):
             if getattr(self, name) is not None and not getattr(self, name) > 0:
                 raise ValueError(f"{name}: expected > 0 or None, got {getattr(self, name)}")
         if not self.max_link_step_px_per_line > 0:
@@ -651,12 +658,20 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
         t_px, by_chain = t_raw, None
         noise_px = float("nan")
     # An edge that departs from its neighbours on its line (a stripe's flank dimmed by a shadow's rim the bend does
-    # not see) is rejected, said as uneven light. Judged on the smoothed positions of every kept edge at once:
-    # rejecting some first would leave their neighbours unjudged.
+    # not see) is rejected, said as uneven light, and so is one whose stripes either side alternate in width (one
+    # widened, the other narrowed by the same rim), with its neighbours on the line. Judged on the smoothed
+    # positions of every kept edge at once: rejecting some first would leave their neighbours unjudged.
     judged = settings.max_departure_px is not None or settings.max_end_departure_px is not None
-    if judged and period_px <= MAX_PERIOD_PX and len(line):
-        even = ~_departing(line, t_px, polarity, period_px=float(period_px), max_departure_px=settings.max_departure_px,
-                           max_end_departure_px=settings.max_end_departure_px)  # fmt: skip
+    max_alternation_px = settings.max_width_alternation_px
+    if (judged or max_alternation_px is not None) and period_px <= MAX_PERIOD_PX and len(line):
+        even = np.ones(len(line), bool)
+        if max_alternation_px is not None:
+            even = ~_alternating(line, t_px, polarity, period_px=float(period_px),
+                                 max_alternation_px=max_alternation_px)  # fmt: skip
+        if judged:
+            even &= ~_departing(line, t_px, polarity, period_px=float(period_px),
+                                max_departure_px=settings.max_departure_px,
+                                max_end_departure_px=settings.max_end_departure_px)  # fmt: skip
         if not even.all():
             uneven_blocks = (
                 np.concatenate([uneven_blocks[0], line[~even] // UNUSABLE_BLOCK_PX]),
@@ -1419,6 +1434,134 @@ def _departing(
     level = np.array([inner * DEPARTURE_LEVELS[0], inner * DEPARTURE_LEVELS[1], end, 0.0])[place]
     with np.errstate(invalid="ignore"):
         return (np.abs(departure[:, 0]) > level) | (place == 3)
+
+
+# Stripes either side of an edge whose alternating part (bright minus dark width) is set over this many stripes
+# either side: the median of their own, which a misplaced edge among them does not move.
+DUTY_REACH_STRIPES = 4
+
+
+def width_alternations_px(line: np.ndarray, t_px: np.ndarray, polarity: np.ndarray, *, period_px: float) -> np.ndarray:
+    """How much the stripe widths alternate at each edge, shape (N,) float64 px (NaN where not judged).
+
+    Along a run of neighbouring edges on a line (`DEPARTURE_GAP_PERIODS`), a misplaced edge between stripes u and v
+    (a stripe's flank dimmed by a soft shadow's rim) widens one and narrows the other by its misplacement δ: the
+    wider becomes a local maximum of the widths and the narrower a local minimum. The alternation is
+    min(u − w₋, w₊ − v, (u − v)/2) for u > v (w₋, w₊ the stripes beyond them; mirrored for u < v): about δ for a
+    misplaced edge, ≤ 0 where the widths change monotonically, as a slope makes them (also where the dome's stripes
+    fold beside the punch, compressed on one side and stretched on the other, which a cubic through the neighbours
+    does not follow: `edge_departures_px`). The bright stripes may be wider than the dark ones by a constant
+    (blur and mid-level), which alternates every width alike: it is taken out first, half from each stripe, as the
+    median of (w_i − (w_{i−1} + w_{i+1})/2) signed by kind over `DUTY_REACH_STRIPES` stripes either side. Judged
+    where the run has a stripe beyond each of u and v.
+
+    line, t_px, polarity: (N,) the edges sorted by (line, t).
+    """
+    return _width_alternations_kernel(
+        np.ascontiguousarray(line, np.int64), np.ascontiguousarray(t_px, np.float64),
+        np.ascontiguousarray(polarity, np.int64), DEPARTURE_GAP_PERIODS[0] * period_px,
+        DEPARTURE_GAP_PERIODS[1] * period_px, DUTY_REACH_STRIPES,
+    )  # fmt: skip
+
+
+def _alternating(
+    line: np.ndarray, t_px: np.ndarray, polarity: np.ndarray, *, period_px: float, max_alternation_px: float
+) -> np.ndarray:
+    """(N,) bool: the edges `locate_edges` rejects where the widths alternate beyond max_alternation_px
+    (`width_alternations_px`), with their neighbours in the run: the rim that moved the edge dims their stripes too
+    (their errors are about half the edge's own, of the other sign)."""
+    return _alternating_kernel(
+        np.ascontiguousarray(line, np.int64), np.ascontiguousarray(t_px, np.float64),
+        np.ascontiguousarray(polarity, np.int64), DEPARTURE_GAP_PERIODS[0] * period_px,
+        DEPARTURE_GAP_PERIODS[1] * period_px, DUTY_REACH_STRIPES, max_alternation_px,
+    )  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True)
+def _linked(line: np.ndarray, t: np.ndarray, polarity: np.ndarray, min_gap: float, max_gap: float) -> np.ndarray:
+    """(N + 1,) bool: edge i and edge i + 1 are neighbours in a run (the last entry False)."""
+    n = len(line)
+    linked = np.zeros(n + 1, np.bool_)
+    for i in range(n - 1):
+        gap = t[i + 1] - t[i]
+        linked[i] = line[i + 1] == line[i] and polarity[i + 1] != polarity[i] and min_gap < gap < max_gap
+    return linked
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _width_alternations_kernel(
+    line: np.ndarray, t: np.ndarray, polarity: np.ndarray, min_gap: float, max_gap: float, reach: int
+) -> np.ndarray:
+    n = len(line)
+    out = np.full(n, np.nan)
+    linked = _linked(line, t, polarity, min_gap, max_gap)
+    # Per stripe of a run: its width, its kind's sign (+1 bright), its own alternating part and its width without
+    # the duty; sized for the longest run a line can hold.
+    width = np.empty(n)
+    kind = np.empty(n)
+    own = np.empty(n)
+    even = np.empty(n)
+    window = np.empty(2 * reach + 1)
+    start = 0
+    while start < n:
+        stop = start
+        while linked[stop]:
+            stop += 1
+        # Edges start..stop form a run; stripe j (0 ≤ j < m) lies between edges start + j and start + j + 1.
+        m = stop - start
+        if m >= 4:
+            for j in range(m):
+                width[j] = t[start + j + 1] - t[start + j]
+                kind[j] = 1.0 if polarity[start + j] > 0 else -1.0
+            for j in range(1, m - 1):
+                own[j] = kind[j] * (width[j] - 0.5 * (width[j - 1] + width[j + 1]))
+            for j in range(m):
+                lo, hi = max(1, j - reach), min(m - 1, j + reach + 1)
+                # The median of own[lo:hi] (at most 2 reach + 1 values) by insertion sort.
+                count = 0
+                for q in range(lo, hi):
+                    value = own[q]
+                    r = count
+                    while r > 0 and window[r - 1] > value:
+                        window[r] = window[r - 1]
+                        r -= 1
+                    window[r] = value
+                    count += 1
+                duty = 0.5 * (window[(count - 1) // 2] + window[count // 2])
+                even[j] = width[j] - 0.5 * kind[j] * duty
+            for k in range(2, m - 1):
+                u, v = even[k - 1], even[k]
+                if u > v:
+                    value = min(u - even[k - 2], even[k + 1] - v, 0.5 * (u - v))
+                else:
+                    value = min(even[k - 2] - u, v - even[k + 1], 0.5 * (v - u))
+                out[start + k] = value
+        start = stop + 1
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _alternating_kernel(
+    line: np.ndarray,
+    t: np.ndarray,
+    polarity: np.ndarray,
+    min_gap: float,
+    max_gap: float,
+    reach: int,
+    max_alternation: float,
+) -> np.ndarray:
+    n = len(line)
+    alternation = _width_alternations_kernel(line, t, polarity, min_gap, max_gap, reach)
+    linked = _linked(line, t, polarity, min_gap, max_gap)
+    out = np.zeros(n, np.bool_)
+    for i in range(n):
+        if alternation[i] > max_alternation:
+            out[i] = True
+            if i > 0 and linked[i - 1]:
+                out[i - 1] = True
+            if linked[i]:
+                out[i + 1] = True
+    return out
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")

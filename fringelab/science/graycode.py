@@ -445,9 +445,14 @@ MIN_EDGE_GAP_PX = 1.0
 # 69.1 mm); the shift still enters each edge's σ. Nor for departing from its neighbours on its line
 # (`max_end_departure_px`, on by default for fringes): the locator is given at most MAX_PERIOD_PX, a bit's stripes
 # are wider, so its edges have no neighbour within the run's reach and were all rejected as alone (the real rows
-# scan kept 22 of 5 692 edge points).
+# scan kept 22 of 5 692 edge points); nor, for that reason, by the alternation of its stripes' widths
+# (`max_width_alternation_px`): a bit's neighbouring stripes differ in width by design.
 GRAY_EDGE_SETTINGS = EdgeSettings(
-    presmooth_px=0.0, mid_level="envelopes", max_uneven_light_shift_px=None, max_end_departure_px=None
+    presmooth_px=0.0,
+    mid_level="envelopes",
+    max_uneven_light_shift_px=None,
+    max_end_departure_px=None,
+    max_width_alternation_px=None,
 )
 
 

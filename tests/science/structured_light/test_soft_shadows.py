@@ -1,15 +1,19 @@
 """Edges under light that changes: soft partial shadows and uneven illumination (issue 29, docs/method.md §5).
 
 The mid-level follows light that changes linearly along a scan line. Where a soft shadow's rim bends the light
-within a period, or dims one flank of a stripe, an edge moves (up to 2.9 px here). By default only the last edge of
-a run before a shadow's dark interior is judged, by its departure from its neighbours (`max_end_departure_px`), and
-points up to 3.3 mm off are kept; two refusals, off by default, keep every point of the soft shadows below within
-1 mm. One by the light's bend
-(`max_uneven_light_shift_px`, 0.08 px: `STRICT_PX`), one by how far an edge departs from the cubic through its
-neighbours on its line (`max_departure_px`, 0.3 px: `DEPARTURE_PX`; `edge_departures_px`), which masks less than
-half the area. Neither is the default: beside the punch, where the dome's stripes fold (compressed on one side,
-stretched into the punch's own shadow on the other), good edges bend the light and depart from a cubic as much as
-misplaced ones, and a frame's peak would go unmeasured (docs/method.md §5).
+within a period, or dims one flank of a stripe, an edge moves (up to 2.9 px here). By default two rules judge an
+edge by its neighbours on its line: the last edge of a run before a shadow's dark interior by its departure from
+the cubic through its four neighbours (`max_end_departure_px`), and every edge by how the stripe widths either side
+of it alternate (`max_width_alternation_px`, `width_alternations_px`): a misplaced edge widens one of its stripes
+and narrows the other, where a slope, even where the dome's stripes fold beside the punch, changes them
+monotonically. By default no point of six of the eight soft-shadow frames is more than 1 mm off (3.3 mm before the
+alternation); two, at w0 55 mm, keep points 1.3 mm off (edges 0.5–0.7 px off where a rim lies on the fold, their
+widths changing monotonically still). Two refusals, off by default, keep every point of them within 1 mm: by the
+light's bend (`max_uneven_light_shift_px`, 0.08 px: `STRICT_PX`) and by an edge's departure from the cubic through
+its neighbours (`max_departure_px`, 0.3 px: `DEPARTURE_PX`; `edge_departures_px`). Neither is the default: beside
+the punch, where the dome's stripes fold (compressed on one side, stretched into the punch's own shadow on the
+other), good edges bend the light and depart from a cubic as much as misplaced ones, and a frame's peak would go
+unmeasured (docs/method.md §5).
 Lean renders: straight stripes of 96 × 256 px, and the virtual Kodak test (512 × 480, one sample per pixel, the
 harder imaging of the "dim" scenario) with soft shadows of several sizes, places, strengths (stripes at 20–50 %)
 and rims.
@@ -29,6 +33,7 @@ from fringelab.science.fringes import (
     FrameEdges,
     edge_departures_px,
     locate_edges,
+    width_alternations_px,
 )
 from fringelab.science.projector import build_projector_calibration, exact_camera_model
 from fringelab.science.topography import TopographySettings, reference_for, track_and_measure
@@ -93,7 +98,9 @@ def test_a_soft_rim_along_the_stripes_is_refused_as_uneven_light_not_misplaced(r
     # about a factor 2 (errors 0.2-0.9 × |bend| / slope), so they are within 0.15 px (0.13 px seen).
     image = stripes_under(soft_rim(rim_px), seed=2)
     settings = EdgeSettings(axis="rows", period_px=PERIOD_PX, max_uneven_light_shift_px=STRICT_PX)
-    unrefused = locate_edges(image, replace(settings, max_uneven_light_shift_px=None, max_departure_px=None))
+    unrefused = locate_edges(
+        image, replace(settings, max_uneven_light_shift_px=None, max_departure_px=None, max_width_alternation_px=None)
+    )
     assert np.max(np.abs(edge_errors_px(unrefused))) > 0.16
     edges = locate_edges(image, settings)
     assert np.max(np.abs(edge_errors_px(edges))) < 0.15
@@ -115,9 +122,14 @@ SHADOW_SETS = {
 }
 DEFLECTIONS_MM = (25.0, 55.0)
 # The requirement of issue 29: no point kept as measured more than 1 mm from the truth (4.9 mm before the mid-level
-# followed the light; 3.9 mm with no edge refused, as by default, or the bend's refusal at 0.25 px; 0.73 mm with it
-# at 0.08 px, 0.86 mm with the departure's at 0.3 px).
+# followed the light; 3.9 mm with no edge refused, or the bend's refusal at 0.25 px; 3.3 mm with the run ends' only,
+# the former default; 0.67 mm with the bend's at 0.08 px, 0.96 mm with the departure's at 0.3 px).
 LIMIT_MM = 1.0
+FRAME_NAMES = [f"{name}, w0 {w0:g} mm" for name in SHADOW_SETS for w0 in DEFLECTIONS_MM]
+# Where the default still keeps points beyond the limit (1.30 and 1.28 mm seen): a rim on the dome's fold at 55 mm,
+# edges 0.5–0.7 px off whose stripes' widths change monotonically still (the fold's own change is larger than the
+# misplacement), some at the end of a short run that no rule judges.
+MISSED_BY_DEFAULT = ("wide and deep, w0 55 mm", "across, w0 55 mm")
 
 
 @pytest.fixture(scope="module")
@@ -155,11 +167,70 @@ def measured_errors(shadowed: dict[str, object], settings: EdgeSettings):  # typ
         yield f"{name}, w0 {state.w0_mm:g} mm", error, light, measurement.coverage
 
 
+@pytest.fixture(scope="module")
+def by_default(shadowed) -> dict[str, tuple[np.ndarray, np.ndarray, object]]:  # type: ignore[no-untyped-def]
+    """Per frame name: the true errors of its points, the light at each and its coverage, with the defaults."""
+    return {name: (error, light, coverage) for name, error, light, coverage in
+            measured_errors(shadowed, shadowed["projector"].edges)}  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "name",
+    [pytest.param(name, marks=pytest.mark.xfail(strict=True, reason="1.3 mm: a rim on the fold (module docstring)"))
+     if name in MISSED_BY_DEFAULT else name for name in FRAME_NAMES],
+)  # fmt: skip
+def test_by_default_no_point_of_a_soft_shadow_is_more_than_1_mm_off(by_default, name: str) -> None:  # type: ignore[no-untyped-def]
+    error, _, _ = by_default[name]
+    assert np.max(np.abs(error)) < LIMIT_MM, f"{name}: a point {np.max(np.abs(error)):.2f} mm off"
+
+
+def test_by_default_the_rims_are_masked_as_uneven_light_and_the_shadows_measured(by_default) -> None:  # type: ignore[no-untyped-def]
+    assert EdgeSettings().max_width_alternation_px is not None
+    masked_mm2 = {name: coverage.missing_mm2["uneven_light"] for name, (_, _, coverage) in by_default.items()}
+    # 3 540 mm² over the eight frames seen (92 mm² with the run ends' rule only), none on the shadow-free frame,
+    # whose dome folds beside the punch at 55 mm; the stripes inside the shadows are still measured.
+    assert 2000.0 < sum(masked_mm2.values()) < 6000.0
+    assert masked_mm2["none, w0 55 mm"] == 0.0
+    in_shadow = sum(int(np.count_nonzero(light < 0.6)) for _, light, _ in by_default.values())
+    assert in_shadow > 500
+
+
+def test_the_width_alternation_refuses_the_rims_along_the_stripes(shadowed, by_default) -> None:  # type: ignore[no-untyped-def]
+    # The case the bend misses (a rim along a stripe's flank): 3.3 and 3.1 mm without the alternation, 0.94 and
+    # 0.69 mm with it (seen).
+    settings = replace(shadowed["projector"].edges, max_width_alternation_px=None)
+    without = {name: float(np.max(np.abs(error))) for name, error, _, _ in measured_errors(shadowed, settings)}
+    for name in FRAME_NAMES[2:4]:
+        assert name.startswith("along")
+        assert without[name] > 3.0 > LIMIT_MM > float(np.max(np.abs(by_default[name][0])))
+
+
+def test_the_width_alternation_sees_a_moved_edge_and_not_a_fold() -> None:
+    # Edges every half period, stretched smoothly (a cubic in the edge's index): the widths change monotonically and
+    # nothing alternates. One edge moved by 0.5 px: 0.5 px there (0.49 with the slope), ≤ 0 elsewhere. A step in the
+    # widths (a fold: 4 px, then 6 px) and bright stripes wider than dark ones (the duty) alternate nothing.
+    k = np.arange(16.0)
+    line = np.zeros(16, np.int64)
+    polarity = np.where(k % 2 == 0, 1, -1)
+    t = 20.0 + 5.0 * k + 0.05 * k**2 - 0.002 * k**3
+    assert np.nanmax(width_alternations_px(line, t, polarity, period_px=10.0)) < 0.0
+    moved = t.copy()
+    moved[7] += 0.5
+    alternation = width_alternations_px(line, moved, polarity, period_px=10.0)
+    assert alternation[7] == pytest.approx(0.5, abs=0.02)
+    assert np.nanmax(np.delete(alternation, 7)) < 0.05
+    # Judged where a stripe lies beyond each of the two either side.
+    assert np.isnan(alternation[[0, 1, 14, 15]]).all() and np.isfinite(alternation[2:14]).all()
+    for widths in ([4.0] * 8 + [6.0] * 7, [4.6, 3.4] * 7 + [4.6]):
+        stepped = np.r_[20.0, 20.0 + np.cumsum(widths)]
+        assert np.nanmax(width_alternations_px(line, stepped, polarity, period_px=10.0)) <= 1e-9
+
+
 STRICT_SETTINGS = {"the light's bend": {"max_uneven_light_shift_px": STRICT_PX},
                    "the departure": {"max_departure_px": DEPARTURE_PX}}  # fmt: skip
 
 
-def test_soft_shadows_leave_no_point_more_than_1_mm_off_and_say_what_they_mask(shadowed) -> None:  # type: ignore[no-untyped-def]
+def test_with_a_strict_refusal_no_point_of_a_soft_shadow_is_more_than_1_mm_off(shadowed) -> None:  # type: ignore[no-untyped-def]
     uneven_mm2 = {}
     for refusal, values in STRICT_SETTINGS.items():
         uneven_mm2[refusal] = 0.0
@@ -172,19 +243,21 @@ def test_soft_shadows_leave_no_point_more_than_1_mm_off_and_say_what_they_mask(s
         # The rims are masked with their reason, and the stripes inside the shadows are still measured.
         assert uneven_mm2[refusal] > 500.0, refusal
         assert in_shadow > 500, refusal  # 893 seen
-    # The departure masks less than half what the bend does (4 532 against 10 087 mm² seen, the shadow-free frame's
-    # 0 and 112 mm² beside the punch included).
+    # The departure masks less than half what the bend does (5 533 against 12 160 mm² seen, with the default
+    # alternation; the shadow-free frame's 238 and 367 mm² beside the punch included: the fold the defaults keep).
+    # Worst points 0.96 and 0.67 mm.
     assert uneven_mm2["the departure"] < 0.6 * uneven_mm2["the light's bend"]
 
 
 def test_without_a_refusal_the_same_shadows_make_wrong_points(shadowed) -> None:  # type: ignore[no-untyped-def]
-    # The frames above are hard enough: with neither refusal (the defaults), or the bend's at 0.25 px, points at
-    # the rims are over 1 mm off (3.3 mm seen: edges whose stripe's flank a rim along the stripes dims, 2.4-2.9 px
-    # off where the bend predicts 0.2-0.5 px). The shift still enters their σ, but it says too little of it for the
-    # σ to mask them.
+    # The frames above are hard enough: with no rule but the run ends' (the former default), or the bend's at
+    # 0.25 px, points at the rims are over 1 mm off (3.3 mm seen: edges whose stripe's flank a rim along the stripes
+    # dims, 2.4-2.9 px off where the bend predicts 0.2-0.5 px). The shift still enters their σ, but it says too
+    # little of it for the σ to mask them.
     assert EdgeSettings().max_uneven_light_shift_px is EdgeSettings().max_departure_px is None
     for limit_px in (None, 0.25):
-        settings = replace(shadowed["projector"].edges, max_uneven_light_shift_px=limit_px, max_departure_px=None)
+        settings = replace(shadowed["projector"].edges, max_uneven_light_shift_px=limit_px, max_departure_px=None,
+                           max_width_alternation_px=None)  # fmt: skip
         worst = max(float(np.max(np.abs(error))) for _, error, _, _ in measured_errors(shadowed, settings))
         assert worst > LIMIT_MM, limit_px
 
@@ -193,7 +266,8 @@ def test_the_last_edge_before_a_deep_shadow_is_refused_by_default(shadowed) -> N
     # The last lit edge before the deep shadow's dark interior: its mid-level is the envelopes' and its neighbours'
     # the means', so its bend is not judged, and it lies 2.1 px short of the truth (3.9 mm). It departs from the
     # cubic through its four neighbours on its line by more than max_end_departure_px; so does no edge where the
-    # dome's stripes fold (next test). 1.73 mm is left (an edge two from the end) against 3.92 mm without.
+    # dome's stripes fold (next test). 1.30 mm is left (1.73 mm without the alternation: an edge two from the end)
+    # against 3.92 mm without the rule.
     def worst_of_deep(settings: EdgeSettings) -> float:
         errors = [error for name, error, _, _ in measured_errors(shadowed, settings) if name.startswith("wide")]
         return max(float(np.max(np.abs(error))) for error in errors)
