@@ -244,8 +244,9 @@ class FrameEdges:
         hole, a crack, something black in front), UNUSABLE_DARK (no projected light but not black: a shadow),
         UNUSABLE_LOW_CONTRAST (stripes too faint, or clipped by a highlight); the worst in the block; where none
         of those applies, UNUSABLE_UNEVEN_LIGHT where a transition was rejected because the light changes too
-        fast (a soft shadow's rim, `uneven_light_shift_px`) or it departs from its neighbours
-        (`edge_departures_px`). None for edges stored before it existed.
+        fast (a soft shadow's rim, `uneven_light_shift_px`), it departs from its neighbours
+        (`edge_departures_px`) or its stripes alternate in width (`width_alternations_px`). None for edges stored
+        before it existed.
     sigma_px: shape (N,) float32, σ (px) of each smoothed position t_px, from the edge's own slope, the noise
         its neighbours along the edge show and the evenness of the light around it (`_edge_sigma`): how sure the
         edge is. None for edges stored before it existed: `uncertainty.edge_sigmas_px` then gives every edge the
