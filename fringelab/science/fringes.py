@@ -541,6 +541,9 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     lit = ~dark[::4, ::4] & (sampled_max > 0)
     dark_share = median(sampled_min[lit] / sampled_max[lit]) if np.any(lit) else 0.0
     black = _black(scan, stripe_max, dark_share)
+    # Each full-frame array is let go as soon as it has served (here and below): alive to the end, they made the
+    # heap grow by a dozen frames' worth of pages that the next frame faulted in again (a third of the CPU time of
+    # a 1024² frame was the kernel's, zeroing pages).
     # Beside a wide dark area (the clamp ring, a hole) the rim of the area is black too, but it is no part of the
     # dark mask (the area is): counting it would mark a stripe more along the plate's edge as dark.
     area_u8 = dark.astype(np.uint8)
@@ -588,7 +591,7 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     grow = np.ones((reach_lines, 2 * dark_window - 1), np.uint8)
     quarter = 2 * max(1, int(round(0.25 * local_period_px))) + 1
     cut = _dilate_along_lines(dark_u8, grow.shape[1], lines=reach_lines)
-    saturated = scan >= settings.saturation_grey
+    saturated_fraction = np.count_nonzero(scan >= settings.saturation_grey) / scan.size
     # Near the first and last lines the smoothing along the stripes mirrors the image, which bends an inclined
     # edge: no crossings there.
     margin_lines = half if settings.presmooth_px > 0 else 0
@@ -608,6 +611,11 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
                 a[kept] for a in (line, t_raw, polarity, mid_at, slope_at, contrast_at, near)
             )
         beside = near == NEAR_DARK_BESIDE
+    del mid, cut, area_u8, dark_u8, black
+    # What the frame's pixels say is read now, and the full-frame arrays let go before the work per crossing.
+    unusable = _unusable_blocks(scan, dark, contrast, local_max, grow, settings=settings)
+    dark_fraction = np.count_nonzero(dark) / dark.size
+    del scan, dark, contrast, local_max
 
     keep = _without_glitches(line, t_raw, min_gap_px=0.25 * 0.5 * local_period_px)
     if keep_beside:
@@ -636,6 +644,7 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
             dark_area, line, t_raw, polarity, mid_at, slope_at, period_px=float(period_px),
             from_means=settings.mid_level == "means",
         )  # fmt: skip
+    del dark_area
     even = np.ones(len(line), bool)
     if settings.max_uneven_light_shift_px is not None:
         even = shift_px <= settings.max_uneven_light_shift_px
@@ -687,7 +696,6 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
                 chain, by_chain = _kept_by_chain(by_chain[0], by_chain[1], even)
     sigma_px = _edge_sigma(slope_at, line, t_raw, t_px, chain, SIGMA_PER_SHIFT * shift_px, n_samples=n_samples,
                            settings=settings, by_chain=by_chain)  # fmt: skip
-    unusable = _unusable_blocks(scan, dark, contrast, local_max, grow, settings=settings)
     unusable[uneven_blocks] = np.where(unusable[uneven_blocks] == UNUSABLE_NONE, UNUSABLE_UNEVEN_LIGHT,
                                        unusable[uneven_blocks])  # fmt: skip
     return FrameEdges(
@@ -699,8 +707,8 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
         polarity=polarity,
         chain=chain,
         noise_px=noise_px,
-        saturated_fraction=np.count_nonzero(saturated) / saturated.size,
-        dark_fraction=np.count_nonzero(dark) / dark.size,
+        saturated_fraction=saturated_fraction,
+        dark_fraction=dark_fraction,
         unusable=unusable,
         sigma_px=sigma_px,
         contrast_grey=contrast_at,
@@ -851,7 +859,8 @@ def _edge_sigma_kernel(
     if len(first) != n_chains + 1:
         first, order = _by_chain(chain, n_chains)
     # Prefix sums along the sorted order of: residual², the model's residual² for unit noise, the model².
-    cum = np.zeros((n + 1, 3))
+    cum = np.empty((n + 1, 3))  # rows 1..n are written below, chain after chain
+    cum[0] = 0.0
     for c in range(n_chains):
         lo, hi = first[c], first[c + 1]
         for q in range(lo, hi):
@@ -1246,8 +1255,8 @@ def _crossings_kernel(
             slope_out[m] = abs(scan_row[k + 1] - scan_row[k])
             contrast_out[m] = 0.5 * (contrast_row[k] + contrast_row[k + 1])
             m += 1
-    return (line_out[:m].copy(), t_out[:m].copy(), polarity_out[:m].copy(), mid_out[:m].copy(),
-            slope_out[:m].copy(), contrast_out[:m].copy())  # fmt: skip
+    # Views, not copies: the callers' first selection copies them anyway, and the room never written costs nothing.
+    return line_out[:m], t_out[:m], polarity_out[:m], mid_out[:m], slope_out[:m], contrast_out[:m]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -1410,8 +1419,9 @@ def edge_departures_px(line: np.ndarray, t_px: np.ndarray, polarity: np.ndarray,
     line, t_px, polarity: (N,) the edges sorted by (line, t).
     """
     return _edge_departures_kernel(
-        np.ascontiguousarray(line, np.int64), np.ascontiguousarray(t_px, np.float64),
-        np.ascontiguousarray(polarity, np.int64), DEPARTURE_GAP_PERIODS[0] * period_px,
+        _int_labels(line), np.ascontiguousarray(t_px, np.float64),
+        polarity if polarity.dtype == np.int8 else np.ascontiguousarray(polarity, np.int64),
+        DEPARTURE_GAP_PERIODS[0] * period_px,
         DEPARTURE_GAP_PERIODS[1] * period_px,
     )  # fmt: skip
 
@@ -1610,7 +1620,7 @@ def _edge_departures_kernel(
 def _same_polarity_sweep(line: np.ndarray, polarity: np.ndarray, start: int, stop: int, step: int) -> np.ndarray:
     """For each crossing, the index of the last crossing of its polarity on its line met sweeping from `start` to
     `stop` by `step` (its nearest before it for step 1, after it for −1), or −1."""
-    out = np.empty(len(line), np.int64)
+    out = np.empty(len(line), np.int32)
     row = -1
     rising = falling = -1
     for i in range(start, stop, step):
