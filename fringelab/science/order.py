@@ -131,6 +131,19 @@ class OrderReference:
         """The rim positions line by line (`match_to_reference`)."""
         return EdgeLines.from_positions(self.rim_t_px)
 
+    @functools.cached_property
+    def seen(self) -> np.ndarray:
+        """(K, S) bool, read-only: the reference points with a position and an area (`topography.frame_coverage`),
+        the same for every frame of the test."""
+        seen = np.isfinite(self.reference_t_px) & np.isfinite(self.cell_area_mm2)
+        seen.flags.writeable = False
+        return seen
+
+    @functools.cached_property
+    def seen_area_mm2(self) -> float:
+        """The area (mm²) of the `seen` points, summed as `topography.frame_coverage` sums each frame's."""
+        return float(np.sum(self.cell_area_mm2[self.seen]))
+
     @property
     def visible_area_mm2(self) -> float:
         """Area of the plate the reference frame sees."""
@@ -525,18 +538,10 @@ def order_frame(
         # A group whose rim votes split (a miscount somewhere in it) is a conflict, not a guess.
         split = (total >= settings.min_anchor_points) & ~anchored
         n_conflicts += int(np.count_nonzero(split))
-        inside = relative >= 0
-        take = inside.copy()
-        take[inside] = anchored[component[inside]]
-        k[take] = relative[take] + best_offset[component[take]]
-        reason[take] = ORDERED
-        split_points = inside.copy()
-        split_points[inside] = split[component[inside]]
-        reason[split_points] = ORDER_CONFLICT
-        # An order outside the table or of the wrong polarity is a miscount.
-        in_table = take & (k >= 0) & (k < projector.n_edges)
-        bad = take & ~in_table
-        bad[in_table] = projector.polarity[k[in_table]] != edges.polarity[in_table]
+        bad = _anchored_order(
+            relative, component, anchored, split, best_offset, np.ascontiguousarray(projector.polarity, np.int8),
+            np.ascontiguousarray(edges.polarity, np.int8), k, reason,
+        )  # fmt: skip
     else:
         bad = np.zeros(n, bool)
     if np.any(bad):
@@ -552,6 +557,37 @@ def order_frame(
         k[drop] = -1
         reason[drop] = ORDER_CONFLICT
     return FrameOrder(k=k, reason=reason, n_conflicts=n_conflicts)
+
+
+@numba.njit(cache=True, nogil=True)
+def _anchored_order(
+    relative: np.ndarray,
+    component: np.ndarray,
+    anchored: np.ndarray,
+    split: np.ndarray,
+    best_offset: np.ndarray,
+    table_polarity: np.ndarray,
+    polarity: np.ndarray,
+    k: np.ndarray,
+    reason: np.ndarray,
+) -> np.ndarray:
+    """`order_frame`'s order of the points (N,) of anchored groups, written into k and reason (ORDERED; the
+    points of groups whose rim votes split ORDER_CONFLICT), in one pass: the points (N,) whose order lies outside
+    the table or has the wrong polarity (a miscount)."""
+    n_edges = len(table_polarity)
+    bad = np.zeros(len(relative), np.bool_)
+    for i in range(len(relative)):
+        if relative[i] < 0:
+            continue
+        group = component[i]
+        if anchored[group]:
+            order = relative[i] + best_offset[group]
+            k[i] = order
+            reason[i] = ORDERED
+            bad[i] = order < 0 or order >= n_edges or table_polarity[order] != polarity[i]
+        elif split[group]:
+            reason[i] = ORDER_CONFLICT
+    return bad
 
 
 def _inconsistent_chains(edges: FrameEdges, k: np.ndarray, projector: ProjectorCalibration) -> np.ndarray:

@@ -225,10 +225,12 @@ class ProjectorCalibration:
         """The reference positions line by line (`match_to_reference`)."""
         return EdgeLines.from_positions(self.reference_t_px)
 
-    @property
+    @functools.cached_property
     def valid(self) -> np.ndarray:
-        """(K, S) bool: where the table has an entry."""
-        return np.isfinite(self.t_lo_px)
+        """(K, S) bool, read-only: where the table has an entry."""
+        valid = np.isfinite(self.t_lo_px)
+        valid.flags.writeable = False
+        return valid
 
     def z_from_t(self, k: np.ndarray, line: np.ndarray, t_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Z (mm) of edge points, each shape (N,): edge index k, scan line, position t (px).

@@ -446,7 +446,7 @@ def frame_coverage(
     does (a block with nothing wrong counts as low contrast: no edge was located).
     """
     area = reference.cell_area_mm2
-    seen = np.isfinite(reference.reference_t_px) & np.isfinite(area)
+    seen = reference.seen
     # The table's bounds, as `z_from_t` applies them (positions only exist where the table has an entry).
     with np.errstate(invalid="ignore"):
         inside = (positions >= projector.t_lo_px) & (positions <= projector.t_hi_px)
@@ -493,7 +493,7 @@ def frame_coverage(
                 continue
             missing[name] = float(np.sum(area[rk[code == index], rs[code == index]]))
     return FrameCoverage(
-        visible_area_mm2=float(np.sum(area[seen])),
+        visible_area_mm2=reference.seen_area_mm2,
         measured_area_mm2=float(np.sum(area[seen & measured])),
         missing_mm2=missing,
         n_order_conflicts=0,
