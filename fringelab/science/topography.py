@@ -374,10 +374,18 @@ class OrderedFrame:
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _scatter_with_sigma(
-    k: np.ndarray, line: np.ndarray, t_px: np.ndarray, sigma_px: np.ndarray, n_edges: int, n_lines: int
-) -> tuple[np.ndarray, np.ndarray]:
+    k: np.ndarray,
+    line: np.ndarray,
+    t_px: np.ndarray,
+    sigma_px: np.ndarray,
+    valid: np.ndarray,
+    max_sigma_px: float,
+) -> tuple[np.ndarray, np.ndarray, int]:
     """Dense (K, S) float64 arrays of the positions and of their σ of the points with 0 ≤ k < K; (k, line) pairs
-    that occur twice in a frame are dropped (NaN in both), as `projector._scatter` does."""
+    that occur twice in a frame are dropped (NaN in both), as `projector._scatter` does. Positions where the
+    table has no entry (`valid` (K, S) False) or whose σ exceeds max_sigma_px are NaN too (their σ is kept); with
+    the number of positions left."""
+    n_edges, n_lines = valid.shape
     out = np.full((n_edges, n_lines), np.nan)
     out_sigma = np.full((n_edges, n_lines), np.nan)
     seen = np.zeros((n_edges, n_lines), np.uint8)
@@ -389,7 +397,14 @@ def _scatter_with_sigma(
                 out_sigma[k[i], line[i]] = float(sigma_px[i])
             else:
                 out[k[i], line[i]] = out_sigma[k[i], line[i]] = np.nan
-    return out, out_sigma
+    n_left = 0
+    for e in range(n_edges):
+        for s in range(n_lines):
+            if not valid[e, s] or out_sigma[e, s] > max_sigma_px:
+                out[e, s] = np.nan
+            elif np.isfinite(out[e, s]):
+                n_left += 1
+    return out, out_sigma, n_left
 
 
 def order_positions(
@@ -402,18 +417,14 @@ def order_positions(
         # Mostly conflicts: say so when it is the table that disagrees with the whole frame.
         check_order_against_table(edges, reference, projector, settings=settings.order)
     # The ordered points (k ≥ 0) and their σ, in one pass (`projector._scatter`'s rule for duplicates).
-    positions, sigma_px = _scatter_with_sigma(
+    # Without a table entry a point can never give Z. Too unsure to measure (σ above max_edge_sigma_px): missing,
+    # and `frame_coverage` counts it as low contrast (no reason of its own).
+    max_sigma_px = np.inf if settings.max_edge_sigma_px is None else float(settings.max_edge_sigma_px)
+    positions, sigma_px, n_ordered = _scatter_with_sigma(
         np.ascontiguousarray(frame_order.k, np.int64), np.ascontiguousarray(edges.line),
         np.ascontiguousarray(edges.t_px), np.ascontiguousarray(edge_sigmas_px(edges, projector.edges)),
-        projector.n_edges, projector.n_lines,
+        projector.valid, max_sigma_px,
     )  # fmt: skip
-    # Without a table entry a point can never give Z.
-    positions[~projector.valid] = np.nan
-    if settings.max_edge_sigma_px is not None:
-        # Too unsure to measure: missing, and `frame_coverage` counts it as low contrast (no reason of its own).
-        with np.errstate(invalid="ignore"):
-            positions[sigma_px > settings.max_edge_sigma_px] = np.nan
-    n_ordered = int(np.count_nonzero(np.isfinite(positions)))
     counts = {
         "n_tracks": n_ordered,
         "n_order_unresolved": int(np.count_nonzero(frame_order.reason == ORDER_UNRESOLVED)),
