@@ -237,7 +237,7 @@ def run_up(settings: Settings) -> int:
         env["FRINGELAB_REDIS_URL"] = redis_url
         command = [sys.executable, "-m", "backend.cli"]
         worker = supervisor.start("worker", [*command, "worker"], env)
-        # glibc gives each thread its own heap arena; 40 route threads serving large answers then fragment
+        # glibc gives each thread its own heap arena; route threads serving large answers then fragment
         # memory that is never returned. Two arenas keep the web server's size steady under load.
         web = supervisor.start("web server", [*command, "api"], {"MALLOC_ARENA_MAX": "2", **env})
         lock.seek(0)

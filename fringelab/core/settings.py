@@ -114,10 +114,14 @@ class Settings(BaseSettings):
         "loopback names (localhost, 127.0.0.1, [::1]) and FRINGELAB_HOST, with accounts on any.",
     )
     api_threads: int = Field(
-        40, ge=4, le=1000, description="Threads that run the web server's blocking routes (database, files)."
+        8,
+        ge=4,
+        le=1000,
+        description="Threads of each web server process that run its blocking routes (database, files), and so "
+        "the requests it runs at once. More only compete for the process's GIL, with its event loop among them.",
     )
     api_queue: int = Field(
-        25,
+        57,
         ge=0,
         le=1000,
         description="Requests a web server process holds, waiting for their turn, beyond the threads it runs; more "

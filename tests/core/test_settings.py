@@ -58,20 +58,20 @@ POSTGRES = "postgresql://fringelab@db/fringelab"
 
 @pytest.mark.parametrize(
     ("processes", "connections", "threads"),
-    [(1, 50, 40), (2, 45, 40), (4, 22, 22), (8, 11, 11)],  # 40 threads + 10, within 90 / processes
+    [(1, 50, 40), (2, 45, 40), (4, 22, 22), (8, 11, 11)],  # 40 threads (asked) + 10, within 90 / processes
 )
 def test_the_web_servers_database_connections_stay_within_the_total(processes, connections, threads):
     """N API processes × a pool sized for one once exceeded PostgreSQL's 100 connections: each process gets its
     share of FRINGELAB_DB_MAX_CONNECTIONS (90), and no more threads than connections (a thread without one waits)."""
-    settings = Settings(_env_file=None, api_processes=processes, database_url=POSTGRES)  # type: ignore[call-arg]
+    settings = Settings(_env_file=None, api_processes=processes, api_threads=40, database_url=POSTGRES)  # type: ignore[call-arg]
     assert (settings.resolved_db_pool_size, settings.resolved_api_threads) == (connections, threads)
     assert processes * settings.resolved_db_pool_size <= settings.db_max_connections
     assert Settings(_env_file=None, api_processes=8, db_pool_size=30).resolved_db_pool_size == 30  # type: ignore[call-arg]
-    # SQLite (the default) is a file: each process gets a connection for each request it runs, and 10; it takes
-    # 25 more waiting for their turn (FRINGELAB_API_QUEUE), so that a burst of 60 connections that the kernel
-    # gives to one process is still all served (tests/system/test_hostile.py)
+    # SQLite (the default) is a file: each process gets a connection for each request it runs (8 threads by
+    # default), and 10; it takes 57 more waiting for their turn (FRINGELAB_API_QUEUE), so that a burst of 60
+    # connections that the kernel gives to one process is still all served (tests/system/test_hostile.py)
     sqlite = Settings(_env_file=None, api_processes=processes)  # type: ignore[call-arg]
-    assert (sqlite.resolved_db_pool_size, sqlite.resolved_api_in_flight) == (50, 65)
+    assert (sqlite.resolved_db_pool_size, sqlite.resolved_api_in_flight) == (18, 65)
     # never more requests running than connections for them (beside streams and background work); those waiting
     # for their turn hold none (backend.shedding), so a process takes as many in all whatever its database
     assert settings.resolved_api_running <= max(1, settings.resolved_db_pool_size - BACKGROUND_CONNECTIONS)
