@@ -1449,7 +1449,7 @@ def _departing(
 
 # Stripes either side of an edge whose alternating part (bright minus dark width) is set over this many stripes
 # either side: the median of their own, which a misplaced edge among them does not move.
-DUTY_REACH_STRIPES = 4
+DUTY_REACH_STRIPES = 8
 
 
 def width_alternations_px(line: np.ndarray, t_px: np.ndarray, polarity: np.ndarray, *, period_px: float) -> np.ndarray:
@@ -1512,7 +1512,7 @@ def _width_alternations_kernel(
     kind = np.empty(n)
     own = np.empty(n)
     even = np.empty(n)
-    window = np.empty(2 * reach + 1)
+    window = np.empty(2 * reach + 2)
     start = 0
     while start < n:
         stop = start
@@ -1526,19 +1526,31 @@ def _width_alternations_kernel(
                 kind[j] = 1.0 if polarity[start + j] > 0 else -1.0
             for j in range(1, m - 1):
                 own[j] = kind[j] * (width[j] - 0.5 * (width[j - 1] + width[j + 1]))
+            # The median of own[lo:hi] (lo = max(1, j − reach), hi = min(m − 1, j + reach + 1)) for each stripe j, from
+            # a sorted window that gains a stripe at hi and loses one at lo as j moves on.
+            count = 0
+            lo, hi = 1, 1
             for j in range(m):
-                lo, hi = max(1, j - reach), min(m - 1, j + reach + 1)
-                # The median of own[lo:hi] (at most 2 reach + 1 values) by insertion sort.
-                count = 0
-                for q in range(lo, hi):
-                    value = own[q]
+                new_lo, new_hi = max(1, j - reach), min(m - 1, j + reach + 1)
+                while hi < new_hi:
+                    value = own[hi]
                     r = count
                     while r > 0 and window[r - 1] > value:
                         window[r] = window[r - 1]
                         r -= 1
                     window[r] = value
                     count += 1
-                duty = 0.5 * (window[(count - 1) // 2] + window[count // 2])
+                    hi += 1
+                while lo < new_lo:
+                    value = own[lo]
+                    r = 0
+                    while r < count - 1 and window[r] != value:
+                        r += 1
+                    for q in range(r, count - 1):
+                        window[q] = window[q + 1]
+                    count -= 1
+                    lo += 1
+                duty = 0.5 * (window[(count - 1) // 2] + window[count // 2]) if count > 0 else 0.0
                 even[j] = width[j] - 0.5 * kind[j] * duty
             for k in range(2, m - 1):
                 u, v = even[k - 1], even[k]
