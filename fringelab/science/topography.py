@@ -457,17 +457,12 @@ def frame_coverage(
     does (a block with nothing wrong counts as low contrast: no edge was located).
     """
     area = reference.cell_area_mm2
-    seen = reference.seen
     # The table's bounds, as `z_from_t` applies them (positions only exist where the table has an entry).
-    with np.errstate(invalid="ignore"):
-        inside = (positions >= projector.t_lo_px) & (positions <= projector.t_hi_px)
-    placed = np.isfinite(positions)
-    measured = placed & inside
-    beyond = placed & ~inside
+    measured_mm2, beyond_mm2, rk, rs = _split_seen(
+        positions, projector.t_lo_px, projector.t_hi_px, reference.seen, area
+    )
     missing = {name: 0.0 for name in MISSING_REASONS}
-    missing["out_of_range"] = float(np.sum(area[seen & beyond]))
-    rest = seen & ~measured & ~beyond
-    rk, rs = np.nonzero(rest)
+    missing["out_of_range"] = float(np.sum(beyond_mm2))
     if len(rk):
         t_now = _displaced_reference(positions, reference.reference_t_px, rk, rs)
         code = np.full(len(rk), -1, np.int64)
@@ -505,10 +500,49 @@ def frame_coverage(
             missing[name] = float(np.sum(area[rk[code == index], rs[code == index]]))
     return FrameCoverage(
         visible_area_mm2=reference.seen_area_mm2,
-        measured_area_mm2=float(np.sum(area[seen & measured])),
+        measured_area_mm2=float(np.sum(measured_mm2)),
         missing_mm2=missing,
         n_order_conflicts=0,
     )
+
+
+@numba.njit(cache=True, nogil=True)
+def _split_seen(
+    positions: np.ndarray, t_lo_px: np.ndarray, t_hi_px: np.ndarray, seen: np.ndarray, area_mm2: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The seen reference points (K, S) of a frame split: the areas of those measured (a position within the
+    table's bounds) and of those placed beyond the bounds, each in the order `area[mask]` gives them (so np.sum
+    adds them as it adds that), and the (k, line) of those with no position (`np.nonzero`'s order). Two passes,
+    counting then filling, so nothing is allocated for every (edge, line)."""
+    n_edges, n_lines = positions.shape
+    n_rest = n_measured = n_beyond = 0
+    for e in range(n_edges):
+        for s in range(n_lines):
+            t = positions[e, s]
+            if seen[e, s] and np.isfinite(t):
+                if t_lo_px[e, s] <= t <= t_hi_px[e, s]:
+                    n_measured += 1
+                else:
+                    n_beyond += 1
+            elif seen[e, s]:
+                n_rest += 1
+    rk, rs = np.empty(n_rest, np.int64), np.empty(n_rest, np.int64)
+    measured, beyond = np.empty(n_measured), np.empty(n_beyond)
+    n_rest = n_measured = n_beyond = 0
+    for e in range(n_edges):
+        for s in range(n_lines):
+            t = positions[e, s]
+            if seen[e, s] and np.isfinite(t):
+                if t_lo_px[e, s] <= t <= t_hi_px[e, s]:
+                    measured[n_measured] = area_mm2[e, s]
+                    n_measured += 1
+                else:
+                    beyond[n_beyond] = area_mm2[e, s]
+                    n_beyond += 1
+            elif seen[e, s]:
+                rk[n_rest], rs[n_rest] = e, s
+                n_rest += 1
+    return measured, beyond, rk, rs
 
 
 def _displaced_reference(
