@@ -2089,7 +2089,7 @@ def order_edges(
         part, part_chain = chain, np.arange(n_chains)
         cut_run = part_beside = np.zeros(n_chains, np.bool_)
     else:
-        kind = np.where(sure, POINT_SURE, np.where(beside, POINT_BESIDE_DARK, POINT_UNSURE)).astype(np.int8)
+        kind = _point_kinds(sure, beside)
         part, part_chain, cut_run, part_beside = _curve_parts(chain, kind, n_chains, MIN_UNSURE_RUN_LINES)
     n_parts = len(part_chain)
     before, after, support, sure_support = _order_statements(
@@ -2180,6 +2180,16 @@ def _n_chains(edges: FrameEdges) -> int:
 
 # Kinds of edge point for cutting curves into parts (`_curve_parts`).
 POINT_SURE, POINT_UNSURE, POINT_BESIDE_DARK = 0, 1, 2
+
+
+@numba.njit(cache=True, nogil=True)
+def _point_kinds(sure: np.ndarray, beside: np.ndarray) -> np.ndarray:
+    """(N,) int8 kind of every point from sure and beside (N,) bool: POINT_SURE, else POINT_BESIDE_DARK, else
+    POINT_UNSURE (one pass, no temporaries)."""
+    kind = np.empty(len(sure), np.int8)
+    for i in range(len(sure)):
+        kind[i] = POINT_SURE if sure[i] else (POINT_BESIDE_DARK if beside[i] else POINT_UNSURE)
+    return kind
 
 
 @numba.njit(cache=True, nogil=True)

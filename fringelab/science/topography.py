@@ -768,7 +768,7 @@ def _measure(
     (frame, counts, noise_px, coverage, sigma_px), positions = emitted
     # Each point's σ_Z from its edge σ as located (temporal smoothing, if on, would reduce it: left out, so σ errs
     # large) and the table's (`uncertainty.point_sigma_z_mm`).
-    kk, ll, t, z, entries, sigma_z, n_placed, n_out_of_range = _looked_up_points(
+    kk, ll, t, z, table_sigma_z, sigma_z, n_placed, n_out_of_range = _looked_up_points(
         positions, sigma_px, projector.lookup_table, projector.n_heights_by_line, _leverage(projector)
     )
     points = scan_rays(camera_model, projector.axis).backproject_to_z(ll, t, z)
@@ -797,7 +797,7 @@ def _measure(
         sigma_z_mm=sigma_z,
         sigma_scale=sigma_scale,
         local_variance_mm2=local_variance,
-        table_sigma_z_mm=entries[:, 1],
+        table_sigma_z_mm=table_sigma_z,
     )
 
 
@@ -851,9 +851,9 @@ def _looked_up_points(
     positions: np.ndarray, edge_sigma_px: np.ndarray, table: np.ndarray, n_heights: np.ndarray, leverage: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, int]:
     """The points of positions (K, S) with Z from the table, line by line (the order the table and the rays are
-    laid out in): k, line, t, z (N,), each point's table sensitivity and σ_Z at its place in the fitted range (the
-    entry's σ_Z times its leverage there, `uncertainty.fit_leverage_ratio` of the row of `leverage` for the entry's
-    n_heights (S, K)) (N, 2), its σ_Z from that and its edge's σ (`edge_sigma_px` (K, S);
+    laid out in): k, line, t, z (N,), the table's σ_Z at each point's place in the fitted range (the entry's σ_Z
+    times its leverage there, `uncertainty.fit_leverage_ratio` of the row of `leverage` for the entry's
+    n_heights (S, K)) (N,), its σ_Z from that, the entry's sensitivity and its edge's σ (`edge_sigma_px` (K, S);
     `uncertainty.point_sigma_z_mm`) (N,), and how many positions there were and how many lay outside the
     calibrated range."""
     n_edges, n_lines = positions.shape
@@ -865,8 +865,7 @@ def _looked_up_points(
             if np.isfinite(positions[k, s]):
                 capacity += 1
     kk, ll = np.empty(capacity, np.int64), np.empty(capacity, np.int64)
-    t, z, sigma_z = np.empty(capacity), np.empty(capacity), np.empty(capacity)
-    entries = np.empty((capacity, 2))
+    t, z, sigma_z, table_sigma_z = np.empty(capacity), np.empty(capacity), np.empty(capacity), np.empty(capacity)
     m = n_placed = n_out_of_range = 0
     for s in range(n_lines):
         for k in range(n_edges):
@@ -881,12 +880,12 @@ def _looked_up_points(
             kk[m], ll[m], t[m], z[m] = k, s, positions[k, s], value
             tau = (positions[k, s] - table[s, k, 2]) / table[s, k, 3]
             spread = fit_leverage_ratio(tau, leverage, n_heights[s, k])
-            entries[m, 0], entries[m, 1] = table[s, k, TABLE_SENSITIVITY], table[s, k, TABLE_SIGMA_Z] * spread
-            sigma_z[m] = point_sigma_z_at(entries[m, 0], entries[m, 1], edge_sigma_px[k, s])
+            table_sigma_z[m] = table[s, k, TABLE_SIGMA_Z] * spread
+            sigma_z[m] = point_sigma_z_at(table[s, k, TABLE_SENSITIVITY], table_sigma_z[m], edge_sigma_px[k, s])
             m += 1
     if m == capacity:  # no point outside the table
-        return kk, ll, t, z, entries, sigma_z, n_placed, n_out_of_range
-    return (kk[:m].copy(), ll[:m].copy(), t[:m].copy(), z[:m].copy(), entries[:m].copy(), sigma_z[:m].copy(),
+        return kk, ll, t, z, table_sigma_z, sigma_z, n_placed, n_out_of_range
+    return (kk[:m].copy(), ll[:m].copy(), t[:m].copy(), z[:m].copy(), table_sigma_z[:m].copy(), sigma_z[:m].copy(),
             n_placed, n_out_of_range)  # fmt: skip
 
 
