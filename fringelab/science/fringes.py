@@ -541,9 +541,6 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     lit = ~dark[::4, ::4] & (sampled_max > 0)
     dark_share = median(sampled_min[lit] / sampled_max[lit]) if np.any(lit) else 0.0
     black = _black(scan, stripe_max, dark_share)
-    # Each full-frame array is let go as soon as it has served (here and below): alive to the end, they made the
-    # heap grow by a dozen frames' worth of pages that the next frame faulted in again (a third of the CPU time of
-    # a 1024² frame was the kernel's, zeroing pages).
     # Beside a wide dark area (the clamp ring, a hole) the rim of the area is black too, but it is no part of the
     # dark mask (the area is): counting it would mark a stripe more along the plate's edge as dark.
     area_u8 = dark.astype(np.uint8)
@@ -611,11 +608,6 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
                 a[kept] for a in (line, t_raw, polarity, mid_at, slope_at, contrast_at, near)
             )
         beside = near == NEAR_DARK_BESIDE
-    del mid, cut, area_u8, dark_u8, black
-    # What the frame's pixels say is read now, and the full-frame arrays let go before the work per crossing.
-    unusable = _unusable_blocks(scan, dark, contrast, local_max, grow, settings=settings)
-    dark_fraction = np.count_nonzero(dark) / dark.size
-    del scan, dark, contrast, local_max
 
     keep = _without_glitches(line, t_raw, min_gap_px=0.25 * 0.5 * local_period_px)
     if keep_beside:
@@ -644,7 +636,6 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
             dark_area, line, t_raw, polarity, mid_at, slope_at, period_px=float(period_px),
             from_means=settings.mid_level == "means",
         )  # fmt: skip
-    del dark_area
     even = np.ones(len(line), bool)
     if settings.max_uneven_light_shift_px is not None:
         even = shift_px <= settings.max_uneven_light_shift_px
@@ -696,6 +687,7 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
                 chain, by_chain = _kept_by_chain(by_chain[0], by_chain[1], even)
     sigma_px = _edge_sigma(slope_at, line, t_raw, t_px, chain, SIGMA_PER_SHIFT * shift_px, n_samples=n_samples,
                            settings=settings, by_chain=by_chain)  # fmt: skip
+    unusable = _unusable_blocks(scan, dark, contrast, local_max, grow, settings=settings)
     unusable[uneven_blocks] = np.where(unusable[uneven_blocks] == UNUSABLE_NONE, UNUSABLE_UNEVEN_LIGHT,
                                        unusable[uneven_blocks])  # fmt: skip
     return FrameEdges(
@@ -708,7 +700,7 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
         chain=chain,
         noise_px=noise_px,
         saturated_fraction=saturated_fraction,
-        dark_fraction=dark_fraction,
+        dark_fraction=np.count_nonzero(dark) / dark.size,
         unusable=unusable,
         sigma_px=sigma_px,
         contrast_grey=contrast_at,
