@@ -15,8 +15,11 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 
 ENV_PREFIX = "FRINGELAB_"
 # Database connections of a web server process kept beyond its requests: event streams' shared polls, the
-# reconciliation, the flush of token uses.
+# reconciliation, the flush of token uses. A process asks for BACKGROUND_CONNECTIONS; where its share of a database
+# server's connections is small, it keeps a third of its pool (at least MIN_BACKGROUND_CONNECTIONS) instead, so that
+# 8 processes on PostgreSQL (11 connections each) still run 8 requests at once each, not 1.
 BACKGROUND_CONNECTIONS = 10
+MIN_BACKGROUND_CONNECTIONS = 3
 
 
 class SettingsError(Exception):
@@ -292,13 +295,21 @@ class Settings(BaseSettings):
     @property
     def resolved_api_running(self) -> int:
         """Requests one web server process runs at once (`backend.shedding`): its threads, but no more than its
-        database connections less BACKGROUND_CONNECTIONS. A running request keeps its connection until its answer
-        is serialised, which takes a thread again: with more requests in the application than connections, threads
-        waiting for a connection held by requests waiting for a thread stalled a process until the pool's timeout
-        (measured: answers after 10 s at 4 threads, 16 queued, 14 connections). Requests waiting for their turn
+        database connections less those kept for background work. A running request keeps its connection until its
+        answer is serialised, which takes a thread again: with more requests in the application than connections,
+        threads waiting for a connection held by requests waiting for a thread stalled a process until the pool's
+        timeout (measured: answers after 10 s at 4 threads, 16 queued, 14 connections). Requests waiting for their turn
         (FRINGELAB_API_QUEUE) wait before the application and hold no connection."""
-        connections = max(1, self.resolved_db_pool_size - BACKGROUND_CONNECTIONS)
+        connections = max(1, self.resolved_db_pool_size - self.resolved_background_connections)
         return max(1, min(self.resolved_api_threads, connections))
+
+    @property
+    def resolved_background_connections(self) -> int:
+        """Connections of one web server process kept for its background work (BACKGROUND_CONNECTIONS, or a third
+        of a small pool but at least MIN_BACKGROUND_CONNECTIONS): background work waits for a connection, never
+        a request for background work, so a smaller reserve slows streams' polls at worst."""
+        pool = self.resolved_db_pool_size
+        return min(BACKGROUND_CONNECTIONS, max(MIN_BACKGROUND_CONNECTIONS, pool // 3))
 
     @property
     def resolved_api_in_flight(self) -> int:
