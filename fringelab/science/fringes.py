@@ -1585,11 +1585,7 @@ def _edge_departures_kernel(
 ) -> np.ndarray:
     n = len(line)
     out = np.full((n, 2), np.nan)
-    # linked[i]: edge i and edge i + 1 are neighbours in a run.
-    linked = np.zeros(n + 1, np.bool_)
-    for i in range(n - 1):
-        gap = t[i + 1] - t[i]
-        linked[i] = line[i + 1] == line[i] and polarity[i + 1] != polarity[i] and min_gap < gap < max_gap
+    linked = _linked(line, t, polarity, min_gap, max_gap)
     for i in range(n):
         # Run length either side of i (up to 4).
         before = 0
