@@ -1504,7 +1504,10 @@ def _width_alternations_kernel(
     kind = np.empty(n)
     own = np.empty(n)
     even = np.empty(n)
-    window = np.empty(2 * reach + 2)
+    # The window's values (2·reach + 2 at most, between a stripe's gain and its loss) sorted in window[1 : size + 1],
+    # +inf in the slots beyond them, between a −inf and a +inf.
+    size = 2 * reach + 2
+    window = np.empty(size + 2)
     start = 0
     while start < n:
         stop = start
@@ -1519,30 +1522,30 @@ def _width_alternations_kernel(
             for j in range(1, m - 1):
                 own[j] = kind[j] * (width[j] - 0.5 * (width[j - 1] + width[j + 1]))
             # The median of own[lo:hi] (lo = max(1, j − reach), hi = min(m − 1, j + reach + 1)) for each stripe j, from
-            # a sorted window that gains a stripe at hi and loses one at lo as j moves on.
+            # a sorted window that gains a stripe at hi and loses one at lo as j moves on. Both updates are the same
+            # few operations on every slot, without branches (they vectorise): a search for the place and a shift
+            # mispredicted two or three branches a stripe (1.1 of 1.25 ms a 512 × 480 frame). Positions are finite.
+            window[:] = np.inf
+            window[0] = -np.inf
             count = 0
             lo, hi = 1, 1
             for j in range(m):
                 new_lo, new_hi = max(1, j - reach), min(m - 1, j + reach + 1)
                 while hi < new_hi:
                     value = own[hi]
-                    r = count
-                    while r > 0 and window[r - 1] > value:
-                        window[r] = window[r - 1]
-                        r -= 1
-                    window[r] = value
+                    for q in range(size, 0, -1):  # each slot takes max(left, min(itself, value))
+                        below, here = window[q - 1], window[q]
+                        here = here if here < value else value
+                        window[q] = below if below > here else here
                     count += 1
                     hi += 1
                 while lo < new_lo:
                     value = own[lo]
-                    r = 0
-                    while r < count - 1 and window[r] != value:
-                        r += 1
-                    for q in range(r, count - 1):
-                        window[q] = window[q + 1]
+                    for q in range(1, size + 1):  # from the first slot not below the value, each takes its right's
+                        window[q] = window[q] if window[q] < value else window[q + 1]
                     count -= 1
                     lo += 1
-                duty = 0.5 * (window[(count - 1) // 2] + window[count // 2]) if count > 0 else 0.0
+                duty = 0.5 * (window[1 + (count - 1) // 2] + window[1 + count // 2]) if count > 0 else 0.0
                 even[j] = width[j] - 0.5 * kind[j] * duty
             for k in range(2, m - 1):
                 u, v = even[k - 1], even[k]
