@@ -26,7 +26,7 @@ from typing import Literal
 import numpy as np
 
 from . import MeasurementError
-from .fringes import MAX_PERIOD_PX, MIN_PERIOD_PX, EdgeSettings, locate_edges
+from .fringes import MAX_FIXED_PERIOD_PX, MIN_PERIOD_PX, EdgeSettings, locate_edges
 from .uncertainty import edge_sigma_px
 
 CodeAxis = Literal["columns", "rows"]
@@ -439,19 +439,13 @@ MIN_EDGE_GAP_PX = 1.0
 # Gray-code stripes are wide: no smoothing along them before locating (it only correlates the lines' noise); on
 # the virtual rig this gives 0.011 mm RMS on a sphere against 0.013 mm with the default 1 px. The mid-level is the
 # envelopes' (both flat sides of a bit's stripe lie within the window): the means over whole periods took the
-# virtual rig's sphere from 0.019 to 0.050 mm RMS and the real ball's from 0.22 to 0.41 mm. No edge is refused
-# for uneven light: the bend is measured between neighbours a period apart, and a bit's stripes are wider than any
-# period the locator takes and of unequal widths (refusing at 0.25 px took the real ball's radius from 81.9 to
-# 69.1 mm); the shift still enters each edge's σ. Nor for departing from its neighbours on its line
-# (`max_end_departure_px`, on by default for fringes): the locator is given at most MAX_PERIOD_PX, a bit's stripes
-# are wider, so its edges have no neighbour within the run's reach and were all rejected as alone (the real rows
-# scan kept 22 of 5 692 edge points); nor, for that reason, by the alternation of its stripes' widths
-# (`max_width_alternation_px`): a bit's neighbouring stripes differ in width by design.
+# virtual rig's sphere from 0.019 to 0.050 mm RMS and the real ball's from 0.22 to 0.41 mm. The locator is given
+# each bit's true period (`coded_edges`), so its rules that judge an edge by its neighbours know the stripes'
+# geometry: at periods beyond MAX_PERIOD_PX it judges none (the rules' own docs say why); at finer bits those on by
+# default are right but the width alternation, which a scene's silhouettes defeat (`EdgeSettings`).
 GRAY_EDGE_SETTINGS = EdgeSettings(
     presmooth_px=0.0,
     mid_level="envelopes",
-    max_uneven_light_shift_px=None,
-    max_end_departure_px=None,
     max_width_alternation_px=None,
 )
 
@@ -464,8 +458,9 @@ def coded_edges(decoding: Decoding, *, edge_settings: EdgeSettings | None = None
     locator as grey EDGE_GREY_MID + EDGE_GREY_PER_UNIT·n (no-code pixels at the mid-grey), so the locator's own
     local mid-level ((max + min)/2 over its window) decides where the edge is, not the threshold (a mean of
     sinusoids is off by the projector's gamma). The grey levels keep the dark side above the locator's "black"
-    test (a crack darker than the dark stripes beside it), which wide bands would otherwise trip. Stripes wider
-    than the locator's period range are located with its largest period: the mid-level window then still spans
+    test (a crack darker than the dark stripes beside it), which wide bands would otherwise trip. Each bit is
+    located at its true period in the camera (up to MAX_FIXED_PERIOD_PX), so the locator's rules know its
+    stripes' geometry; beyond MAX_PERIOD_PX its windows stay those of that period, so the mid-level window spans
     both sides within half a window of each edge.
     """
     sequence = decoding.sequence
@@ -489,7 +484,7 @@ def coded_edges(decoding: Decoding, *, edge_settings: EdgeSettings | None = None
             continue  # finer than the camera resolves: its edges would not be located, only guessed
         image = np.where(lit, np.clip(EDGE_GREY_MID + EDGE_GREY_PER_UNIT * plane, 0.0, 249.0), EDGE_GREY_MID)
         settings = replace(
-            edge_settings or GRAY_EDGE_SETTINGS, axis=scan_axis, period_px=float(min(period_cam, MAX_PERIOD_PX)),
+            edge_settings or GRAY_EDGE_SETTINGS, axis=scan_axis, period_px=float(min(period_cam, MAX_FIXED_PERIOD_PX)),
             min_contrast_grey=EDGE_GREY_PER_UNIT,
             dark_fraction=0.0,
         )  # fmt: skip
