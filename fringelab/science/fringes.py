@@ -1473,11 +1473,18 @@ def width_alternations_px(line: np.ndarray, t_px: np.ndarray, polarity: np.ndarr
 
     line, t_px, polarity: (N,) the edges sorted by (line, t).
     """
-    return _width_alternations_kernel(
-        np.ascontiguousarray(line, np.int64), np.ascontiguousarray(t_px, np.float64),
-        np.ascontiguousarray(polarity, np.int64), DEPARTURE_GAP_PERIODS[0] * period_px,
-        DEPARTURE_GAP_PERIODS[1] * period_px, DUTY_REACH_STRIPES,
-    )  # fmt: skip
+    return _alternations_and_links(line, t_px, polarity, period_px=period_px)[0]
+
+
+def _alternations_and_links(
+    line: np.ndarray, t_px: np.ndarray, polarity: np.ndarray, *, period_px: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """`width_alternations_px` (N,) and the links of its runs (`_linked`, (N + 1,) bool), each built once."""
+    line = np.ascontiguousarray(line, np.int64)
+    t = np.ascontiguousarray(t_px, np.float64)
+    polarity = np.ascontiguousarray(polarity, np.int64)
+    linked = _linked(line, t, polarity, DEPARTURE_GAP_PERIODS[0] * period_px, DEPARTURE_GAP_PERIODS[1] * period_px)
+    return _width_alternations_kernel(line, t, polarity, linked, DUTY_REACH_STRIPES), linked
 
 
 def _alternating(
@@ -1486,11 +1493,8 @@ def _alternating(
     """(N,) bool: the edges `locate_edges` rejects where the widths alternate beyond max_alternation_px
     (`width_alternations_px`), with their neighbours in the run: the rim that moved the edge dims their stripes too
     (their errors are about half the edge's own, of the other sign)."""
-    return _alternating_kernel(
-        np.ascontiguousarray(line, np.int64), np.ascontiguousarray(t_px, np.float64),
-        np.ascontiguousarray(polarity, np.int64), DEPARTURE_GAP_PERIODS[0] * period_px,
-        DEPARTURE_GAP_PERIODS[1] * period_px, DUTY_REACH_STRIPES, max_alternation_px,
-    )  # fmt: skip
+    alternation, linked = _alternations_and_links(line, t_px, polarity, period_px=period_px)
+    return _alternating_kernel(alternation, linked, max_alternation_px)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -1506,11 +1510,10 @@ def _linked(line: np.ndarray, t: np.ndarray, polarity: np.ndarray, min_gap: floa
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _width_alternations_kernel(
-    line: np.ndarray, t: np.ndarray, polarity: np.ndarray, min_gap: float, max_gap: float, reach: int
+    line: np.ndarray, t: np.ndarray, polarity: np.ndarray, linked: np.ndarray, reach: int
 ) -> np.ndarray:
     n = len(line)
     out = np.full(n, np.nan)
-    linked = _linked(line, t, polarity, min_gap, max_gap)
     # Per stripe of a run: its width, its kind's sign (+1 bright), its own alternating part and its width without
     # the duty; sized for the longest run a line can hold.
     width = np.empty(n)
@@ -1572,18 +1575,8 @@ def _width_alternations_kernel(
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _alternating_kernel(
-    line: np.ndarray,
-    t: np.ndarray,
-    polarity: np.ndarray,
-    min_gap: float,
-    max_gap: float,
-    reach: int,
-    max_alternation: float,
-) -> np.ndarray:
-    n = len(line)
-    alternation = _width_alternations_kernel(line, t, polarity, min_gap, max_gap, reach)
-    linked = _linked(line, t, polarity, min_gap, max_gap)
+def _alternating_kernel(alternation: np.ndarray, linked: np.ndarray, max_alternation: float) -> np.ndarray:
+    n = len(alternation)
     out = np.zeros(n, np.bool_)
     for i in range(n):
         if alternation[i] > max_alternation:
