@@ -556,10 +556,13 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     black = _black(scan, stripe_max, dark_share)
     # Beside a wide dark area (the clamp ring, a hole) the rim of the area is black too, but it is no part of the
     # dark mask (the area is): counting it would mark a stripe more along the plate's edge as dark.
+    # A frame without a dark area (a Gray code's normalised bit frames) skips the dilations of nothing, which at
+    # their periods' widths cost more than locating the edges.
     area_u8 = dark.astype(np.uint8)
-    beside_dark = _dilate_along_lines(area_u8, 2 * dark_window + 1, lines=3).astype(bool)
-    crack = black & ~beside_dark
-    if crack.any():
+    any_area = bool(area_u8.any())
+    crack = black & ~_dilate_along_lines(area_u8, 2 * dark_window + 1, lines=3).astype(bool) if any_area else black
+    any_crack = bool(crack.any())
+    if any_crack:
         dark |= crack
         dark_u8 = dark.astype(np.uint8)
     else:
@@ -600,12 +603,15 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     reach_lines = 2 * half + 3
     grow = np.ones((reach_lines, 2 * dark_window - 1), np.uint8)
     quarter = 2 * max(1, int(round(0.25 * local_period_px))) + 1
-    cut = _dilate_along_lines(dark_u8, grow.shape[1], lines=reach_lines)
+    if any_area or any_crack:
+        cut = _dilate_along_lines(dark_u8, grow.shape[1], lines=reach_lines)
+    else:
+        cut = np.zeros_like(dark_u8)
     saturated_fraction = np.count_nonzero(scan >= settings.saturation_grey) / scan.size
     # Near the first and last lines the smoothing along the stripes mirrors the image, which bends an inclined
     # edge: no crossings there.
     margin_lines = half if settings.presmooth_px > 0 else 0
-    keep_beside = bool(area_u8.any())
+    keep_beside = any_area
     line, t_raw, polarity, mid_at, slope_at, contrast_at = _crossings(
         scan, mid, contrast, local_max, np.zeros_like(cut) if keep_beside else cut,
         min_contrast_grey=float(settings.min_contrast_grey), saturation_grey=float(settings.saturation_grey),
