@@ -18,6 +18,7 @@ then at most √2 times wider than across the stripe. An edge point is ``(line, 
 from __future__ import annotations
 
 import functools
+import threading
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -307,6 +308,28 @@ class FrameEdges:
         return np.column_stack([t, s] if self.axis == "rows" else [s, t])
 
 
+class _FrameScratch(threading.local):
+    """Full-frame working arrays of `locate_edges` kept from one frame to the next, one set per thread.
+
+    Fresh frame-sized arrays cost more than their use: the allocator hands their pages back to the system when a
+    frame's arrays are freed and the next frame faults them in again, zeroed (at 1024² about 4 000 minor faults and
+    11–18 ms of system time a frame of 60–65 ms). Only intermediate arrays come from here, never one a caller
+    gets; each name is one array alive within a frame."""
+
+    def __init__(self) -> None:
+        self.arrays: dict[str, np.ndarray] = {}
+
+    def array(self, name: str, shape: tuple[int, ...], dtype: Any) -> np.ndarray:
+        """The thread's array `name` of that shape and dtype, its values left from its last use."""
+        array = self.arrays.get(name)
+        if array is None or array.shape != shape or array.dtype != dtype:
+            array = self.arrays[name] = np.empty(shape, dtype)
+        return array
+
+
+_SCRATCH = _FrameScratch()
+
+
 def _require_grey(image: np.ndarray) -> np.ndarray:
     """The frame as an array; ValueError for anything but one 2-D grey image of a supported type."""
     array = np.asarray(image)
@@ -317,14 +340,15 @@ def _require_grey(image: np.ndarray) -> np.ndarray:
     return array
 
 
-def _grey_image(image: np.ndarray) -> np.ndarray:
-    """The frame as float32 on the 8-bit scale; ValueError for anything but one 2-D grey image."""
+def _grey_image(image: np.ndarray, *, out: np.ndarray | None = None) -> np.ndarray:
+    """The frame as float32 on the 8-bit scale (in `out`, float32 of the image's shape, where given); ValueError
+    for anything but one 2-D grey image."""
     array = _require_grey(image)
-    if array.dtype == np.uint8:
-        return array.astype(np.float32)
+    grey = np.empty(array.shape, np.float32) if out is None else out
+    np.copyto(grey, array, casting="unsafe")
     if array.dtype == np.uint16:
-        return array.astype(np.float32) * np.float32(FULL_SCALE / 65535.0)
-    return array.astype(np.float32)
+        grey *= np.float32(FULL_SCALE / 65535.0)
+    return grey
 
 
 def detect_stripes(image: np.ndarray, *, axis: str = "auto") -> StripeGeometry:
@@ -460,12 +484,12 @@ def _odd(value: float) -> int:
 _OPENCV_MAX_WIDTH = 161
 
 
-def _dilate_along_lines(a: np.ndarray, width: int, *, lines: int = 1) -> np.ndarray:
+def _dilate_along_lines(a: np.ndarray, width: int, *, lines: int = 1, out: np.ndarray | None = None) -> np.ndarray:
     """The maximum of `a` (S, T) over `width` samples along each line (odd, centred; clipped at the line's ends)
     and then over `lines` lines (odd, centred), as `cv2.dilate` with a (lines, width) box, any width at a cost
-    that does not grow with it."""
+    that does not grow with it; in `out` (like `a`) where given and the width is OpenCV's."""
     if width <= _OPENCV_MAX_WIDTH:
-        return cv2.dilate(a, np.ones((lines, width), np.uint8))
+        return cv2.dilate(a, np.ones((lines, width), np.uint8), dst=out)
     along = _running_max_kernel(np.ascontiguousarray(a), width // 2)
     return along if lines == 1 else cv2.dilate(along, np.ones((lines, 1), np.uint8))
 
@@ -524,22 +548,33 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
         axis = settings.axis  # type: ignore[assignment]
         period_px = settings.period_px
     image_shape_hw_px = image.shape
+    # The working arrays are the thread's from the frame before (`_FrameScratch`); none of them is returned.
+    shape = image.shape if axis == "rows" else image.shape[::-1]
+
+    def scratch(name: str, dtype: Any) -> np.ndarray:
+        return _SCRATCH.array(name, shape, dtype)
+
     # Transposing before the conversion to float moves a quarter of the bytes.
-    scan = _grey_image(image if axis == "rows" else np.ascontiguousarray(image.T))
+    if axis != "rows":
+        transposed = scratch("transposed", image.dtype)
+        np.copyto(transposed, image.T)
+        image = transposed
+    scan = _grey_image(image, out=scratch("grey", np.float32))
     n_lines, n_samples = scan.shape
 
     half = max(1, int(np.ceil(3.0 * settings.presmooth_px)))
     if settings.presmooth_px > 0:
         kernel = cv2.getGaussianKernel(2 * half + 1, settings.presmooth_px).astype(np.float32)
-        scan = cv2.sepFilter2D(scan, cv2.CV_32F, np.ones((1, 1), np.float32), kernel)
+        scan = cv2.sepFilter2D(scan, cv2.CV_32F, np.ones((1, 1), np.float32), kernel, dst=scratch("scan", np.float32))
 
     # Dark: no bright sample within half a period either way (a dark stripe is only half a period wide). The
     # mask starts half a period inside a dark area (clamp ring, hole, background); grown by half a period
     # along the lines it covers the area itself.
     bright_level = percentile(scan[::4, ::4], 95)
     dark_window = _odd(period_px)
-    stripe_max = _dilate_along_lines(scan, dark_window)
-    dark = cv2.dilate(stripe_max, np.ones((3, 1), np.uint8)) < settings.dark_fraction * bright_level
+    stripe_max = _dilate_along_lines(scan, dark_window, out=scratch("stripe_max", np.float32))
+    across = cv2.dilate(stripe_max, np.ones((3, 1), np.uint8), dst=scratch("float", np.float32))
+    dark = np.less(across, settings.dark_fraction * bright_level, out=scratch("dark", np.bool_))
     # Black: well below the dark stripes around it. A crack or a cut narrower than a stripe is not "dark" by the
     # test above (bright stripes lie within half a period of it), but it is darker than any dark stripe, and
     # an edge that touches it is the crack's rim, not a stripe edge. The margin of 8 grey levels keeps noise
@@ -553,25 +588,31 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
         sampled_min = -_dilate_along_lines(-scan[::4], dark_window)[:, ::4]
     lit = ~dark[::4, ::4] & (sampled_max > 0)
     dark_share = median(sampled_min[lit] / sampled_max[lit]) if np.any(lit) else 0.0
-    black = _black(scan, stripe_max, dark_share)
+    black = _black(scan, stripe_max, dark_share, scratch("black", np.bool_))
     # Beside a wide dark area (the clamp ring, a hole) the rim of the area is black too, but it is no part of the
     # dark mask (the area is): counting it would mark a stripe more along the plate's edge as dark.
     # A frame without a dark area (a Gray code's normalised bit frames) skips the dilations of nothing, which at
     # their periods' widths cost more than locating the edges.
-    area_u8 = dark.astype(np.uint8)
+    area_u8 = scratch("area", np.uint8)
+    np.copyto(area_u8, dark)
     any_area = bool(area_u8.any())
-    crack = black & ~_dilate_along_lines(area_u8, 2 * dark_window + 1, lines=3).astype(bool) if any_area else black
+    if any_area:
+        beside_dark = _dilate_along_lines(area_u8, 2 * dark_window + 1, lines=3, out=scratch("beside", np.uint8))
+        crack = np.equal(beside_dark, 0, out=scratch("crack", np.bool_))
+        crack &= black
+    else:
+        crack = black
     any_crack = bool(crack.any())
     if any_crack:
         dark |= crack
-        dark_u8 = dark.astype(np.uint8)
+        dark_u8 = dark.view(np.uint8)  # 0 and 1, as dark is not changed again
     else:
         dark_u8 = area_u8
     # The dark area as the mid-level leaves it out (see below). A window of wide stripes (beyond MAX_PERIOD_PX) holds
     # no dark stripe but the edge's own: there the first half period of a dark area (the dark side of the lit edge
     # beside it) takes part unless it is black (darker than the dark stripes: the rim of a hole, the clamp).
     if period_px <= MAX_PERIOD_PX:
-        dark_area = _dilate_along_lines(dark_u8, dark_window)
+        dark_area = _dilate_along_lines(dark_u8, dark_window, out=scratch("dark_area", np.uint8))
     else:
         dark_area = dark_u8 | black.astype(np.uint8)
 
@@ -584,10 +625,14 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     local_period_px = min(float(period_px), MAX_PERIOD_PX)
     window = _odd(settings.window_periods * local_period_px)
     line_kernel = np.ones((1, window), np.uint8)
-    local_max = cv2.dilate(scan, line_kernel)
-    local_min = cv2.erode(np.where(dark_area, np.float32(4.0 * FULL_SCALE), scan), line_kernel)
-    mid, contrast = _mid_and_contrast(
-        scan, local_max, local_min, dark_area, window, float(period_px), settings.mid_level == "means"
+    local_max = cv2.dilate(scan, line_kernel, dst=scratch("local_max", np.float32))
+    lit_or_not = scratch("float", np.float32)
+    np.copyto(lit_or_not, scan)
+    np.copyto(lit_or_not, np.float32(4.0 * FULL_SCALE), where=dark_area.view(np.bool_))  # dark_area: 0 or 1
+    local_min = cv2.erode(lit_or_not, line_kernel, dst=scratch("local_min", np.float32))
+    mid, contrast = scratch("mid", np.float32), scratch("contrast", np.float32)
+    _mid_and_contrast(
+        scan, local_max, local_min, dark_area, window, float(period_px), settings.mid_level == "means", mid, contrast
     )
 
     # Near dark areas (along the lines; across them, within the reach of the smoothing along the stripes, which
@@ -604,16 +649,20 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     grow = np.ones((reach_lines, 2 * dark_window - 1), np.uint8)
     quarter = 2 * max(1, int(round(0.25 * local_period_px))) + 1
     if any_area or any_crack:
-        cut = _dilate_along_lines(dark_u8, grow.shape[1], lines=reach_lines)
+        cut = _dilate_along_lines(dark_u8, grow.shape[1], lines=reach_lines, out=scratch("cut", np.uint8))
     else:
-        cut = np.zeros_like(dark_u8)
-    saturated_fraction = np.count_nonzero(scan >= settings.saturation_grey) / scan.size
+        cut = scratch("cut", np.uint8)
+        cut.fill(0)
+    saturated = np.greater_equal(scan, settings.saturation_grey, out=scratch("crack", np.bool_))
+    saturated_fraction = np.count_nonzero(saturated) / scan.size
     # Near the first and last lines the smoothing along the stripes mirrors the image, which bends an inclined
     # edge: no crossings there.
     margin_lines = half if settings.presmooth_px > 0 else 0
     keep_beside = any_area
+    if keep_beside:
+        scratch("zeros", np.uint8).fill(0)
     line, t_raw, polarity, mid_at, slope_at, contrast_at = _crossings(
-        scan, mid, contrast, local_max, np.zeros_like(cut) if keep_beside else cut,
+        scan, mid, contrast, local_max, scratch("zeros", np.uint8) if keep_beside else cut,
         min_contrast_grey=float(settings.min_contrast_grey), saturation_grey=float(settings.saturation_grey),
         margin_lines=margin_lines,
     )  # fmt: skip
@@ -910,8 +959,11 @@ def _mid_and_contrast(
     window: int,
     period: float,
     from_means: bool,
-) -> tuple[np.ndarray, np.ndarray]:
-    """The mid-level and the contrast along each scan line, each (S, T) float32 (NaN where the whole window is dark).
+    mid: np.ndarray,
+    contrast: np.ndarray,
+) -> None:
+    """The mid-level and the contrast along each scan line, written into mid and contrast, each (S, T) float32 (NaN
+    where the whole window is dark).
 
     Contrast: the envelopes averaged over `window` samples along the line, dark-area samples left out,
     I_max − I_min (mirrored at the line ends without repeating the end sample, OpenCV's BORDER_REFLECT_101).
@@ -930,8 +982,6 @@ def _mid_and_contrast(
     """
     n_lines, n_samples = local_max.shape
     half = window // 2
-    mid = np.empty((n_lines, n_samples), np.float32)
-    contrast = np.empty((n_lines, n_samples), np.float32)
     grey_sum = np.empty(n_samples + 1)
     dark_sum = np.empty(n_samples + 1)
     first, sample, fraction, regular_end = _period_ends(n_samples, period)
@@ -970,7 +1020,6 @@ def _mid_and_contrast(
                 sum_min -= local_min[i, leaving]
         if from_means:
             _means_of_line(grey_sum, dark_sum, mid[i], first, period, sample, fraction, regular_end)
-    return mid, contrast
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -1058,11 +1107,11 @@ def _reflect_101(index: int, n: int) -> int:
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _black(scan: np.ndarray, stripe_max: np.ndarray, dark_share: float) -> np.ndarray:
-    """(S, T) bool: below BLACK_FRACTION of the dark stripes' level expected there (dark_share of the brightest
-    sample within a period) and more than BLACK_MARGIN_GREY below it (see `locate_edges`)."""
+def _black(scan: np.ndarray, stripe_max: np.ndarray, dark_share: float, black: np.ndarray) -> np.ndarray:
+    """black (S, T) bool, filled and returned: below BLACK_FRACTION of the dark stripes' level expected there
+    (dark_share of the brightest sample within a period) and more than BLACK_MARGIN_GREY below it (see
+    `locate_edges`)."""
     n_lines, n_samples = scan.shape
-    black = np.empty((n_lines, n_samples), np.bool_)
     for i in range(n_lines):
         for j in range(n_samples):
             dark_level = dark_share * stripe_max[i, j]

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 import pytest
 
@@ -120,6 +123,34 @@ def test_fixed_geometry_gives_the_same_edges_as_detection() -> None:
     auto = locate_edges(image)
     fixed = locate_edges(image, EdgeSettings(axis=geometry.axis, period_px=geometry.period_px))
     np.testing.assert_array_equal(auto.t_px, fixed.t_px)
+
+
+def test_a_frames_edges_are_its_own_whatever_frames_come_after_it_or_beside_it() -> None:
+    # locate_edges keeps its full-frame working arrays from one frame to the next, one set per thread: what it
+    # returns must not be among them, and threads must not share them.
+    rng = np.random.default_rng(7)
+    frames = []
+    for angle_deg, phase_px in ((3.0, 1.0), (-4.0, 2.5), (86.0, 0.5)):
+        image = render_straight_stripes((160, 200), period_px=PERIOD_PX, angle_deg=angle_deg, phase_px=phase_px,
+                                        rng=rng)  # fmt: skip
+        image[60:90, 80:120] = 6  # a dark area, with edges beside it
+        frames.append(image)
+
+    def arrays(edges: FrameEdges) -> dict[str, np.ndarray]:
+        return {f.name: getattr(edges, f.name) for f in dataclasses.fields(edges)
+                if isinstance(getattr(edges, f.name), np.ndarray)}  # fmt: skip
+
+    first = [arrays(locate_edges(f)) for f in frames]
+    kept = [{name: a.copy() for name, a in edges.items()} for edges in first]
+    with ThreadPoolExecutor(max_workers=3) as pool:
+        again = [arrays(e) for e in pool.map(locate_edges, frames * 4)]
+    assert len(first[0]["line"]) > 500 and first[2]["line"].size > 500
+    for k, edges in enumerate(again):
+        for name, a in edges.items():
+            np.testing.assert_array_equal(a, kept[k % 3][name], err_msg=name)
+    for edges, copies in zip(first, kept, strict=True):
+        for name, a in edges.items():
+            np.testing.assert_array_equal(a, copies[name], err_msg=name)
 
 
 def test_dark_areas_give_no_edges_near_them() -> None:
