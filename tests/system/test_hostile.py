@@ -12,12 +12,14 @@ import signal
 import statistics
 import subprocess
 import time
+from collections.abc import Iterator
 
 import httpx
 import psutil
 import pytest
 
 from tests.support import RedisServer, bearer, wait_for
+from tests.system.conftest import LabServer
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
@@ -75,21 +77,29 @@ def test_a_burst_of_authenticated_reads_gets_no_5xx_and_writes_no_token_row_per_
         wait_for(recorded, timeout_s=30, what="the batched last_used_at", interval_s=1)
 
 
-def test_one_user_over_their_rate_gets_429_while_others_are_served(tmp_path):
+@pytest.fixture(scope="module")
+def strict_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LabServer]:
+    """A lab server with a low request rate per user and a small frame budget, shared by the two tests that need
+    them (a start costs 10-35 s): the rate test spends ada's requests only, the budget test uploads as admin."""
     from tests.system.conftest import start_lab_server
 
     # One request back every 5 s: at 5/s, one came back every 200 ms, and the request after the 40 got it whenever
-    # it fell just after a refill (seen twice at load 8-12, where each request took 20-40 ms).
-    server = start_lab_server(tmp_path / "var", FRINGELAB_USER_REQUESTS_PER_S="0.2", FRINGELAB_USER_REQUEST_BURST="20")
-    try:
-        with server.client("ada") as ada, server.client("bob") as bob:
-            codes = [ada.get("/api/v1/experiments").status_code for _ in range(40)]
-            assert codes.count(429) >= 10 and set(codes) <= {200, 429}
-            refused = ada.get("/api/v1/experiments")
-            assert refused.status_code == 429 and int(refused.headers["Retry-After"]) >= 1
-            assert bob.get("/api/v1/experiments").status_code == 200  # another user is not held back
-    finally:
-        assert server.up.stop() == 0
+    # it fell just after a refill (seen twice at load 8-12, where each request took 20-40 ms). The budget is one
+    # byte short of 20 frames of 64 × 48 (the budget test's .cine).
+    limits = {"FRINGELAB_USER_REQUESTS_PER_S": "0.2", "FRINGELAB_USER_REQUEST_BURST": "20",
+              "FRINGELAB_MAX_FRAMES_BYTES": str(20 * 64 * 48 - 1)}  # fmt: skip
+    server = start_lab_server(tmp_path_factory.mktemp("strict") / "var", **limits)
+    yield server
+    assert server.up.stop() == 0
+
+
+def test_one_user_over_their_rate_gets_429_while_others_are_served(strict_server):
+    with strict_server.client("ada") as ada, strict_server.client("bob") as bob:
+        codes = [ada.get("/api/v1/experiments").status_code for _ in range(40)]
+        assert codes.count(429) >= 10 and set(codes) <= {200, 429}
+        refused = ada.get("/api/v1/experiments")
+        assert refused.status_code == 429 and int(refused.headers["Retry-After"]) >= 1
+        assert bob.get("/api/v1/experiments").status_code == 200  # another user is not held back
 
 
 # ------------------------------------------------------------------------------------------- 2, 3, 10: secrets
@@ -180,27 +190,22 @@ def test_login_takes_as_long_for_an_unknown_user_as_for_a_known_one(lab_server):
 # ------------------------------------------------------------------------------------------- 4, 5, 7: uploads
 
 
-def test_uploads_that_would_expand_past_the_budget_are_refused_before_anything_is_written(tmp_path):
+def test_uploads_that_would_expand_past_the_budget_are_refused_before_anything_is_written(strict_server, tmp_path):
     """Finding 4: a small .cine or ZIP expanded to GBs. The budget (frames × frame size) is checked from the
     headers at upload: a 413 naming the limit, and no recording, no previews."""
     import numpy as np
 
     from tests.formats.recording_files import stripe_frames, write_cine
-    from tests.system.conftest import start_lab_server
 
-    server = start_lab_server(tmp_path / "var", FRINGELAB_MAX_FRAMES_BYTES=str(20 * 64 * 48 - 1))
-    try:
-        with server.client("ada") as ada:
-            camera_id = _camera(ada, _experiment(ada))
-            path = write_cine(tmp_path / "r.cine", stripe_frames(20, dtype=np.uint8))
-            answer = ada.put(f"/api/v1/uploads/cameras/{camera_id}/r.cine", params={"kind": "test"},
-                             content=path.read_bytes())  # fmt: skip
-            assert answer.status_code == 413 and answer.json()["code"] == "over_budget", answer.text
-            assert "FRINGELAB_MAX_FRAMES_BYTES" in answer.json()["detail"]
-            assert ada.get("/api/v1/recordings").json() == []
-        assert not list((tmp_path / "var").rglob("previews.h5"))
-    finally:
-        server.up.stop()
+    with strict_server.client("admin") as admin:  # admin: ada's requests are the rate test's
+        camera_id = _camera(admin, _experiment(admin))
+        path = write_cine(tmp_path / "r.cine", stripe_frames(20, dtype=np.uint8))
+        answer = admin.put(f"/api/v1/uploads/cameras/{camera_id}/r.cine", params={"kind": "test"},
+                           content=path.read_bytes())  # fmt: skip
+        assert answer.status_code == 413 and answer.json()["code"] == "over_budget", answer.text
+        assert "FRINGELAB_MAX_FRAMES_BYTES" in answer.json()["detail"]
+        assert admin.get("/api/v1/recordings").json() == []
+    assert not list(strict_server.up.data_dir.rglob("previews.h5"))
 
 
 def test_a_truncated_tiff_and_an_overlapping_cine_are_refused_at_upload(lab_server, tmp_path):
