@@ -668,13 +668,15 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     )  # fmt: skip
     # Decided per crossing (few lie within the cut's reach) rather than per pixel: no dilation more.
     beside = np.zeros(len(line), bool)
+    # The crossings kept, as indices into _crossings' arrays where some are dropped here: the arrays the rules below
+    # do not read are selected once, after them (each selection is a fresh array, faulted in page by page).
+    index = None
     if keep_beside:
         near = _near_dark_kernel(cut, area_u8, black, line, t_raw, reach_lines // 2, quarter // 2, grow.shape[1] // 2)
         kept = near != NEAR_DARK_REJECTED
         if not kept.all():
-            line, t_raw, polarity, mid_at, slope_at, contrast_at, near = (
-                a[kept] for a in (line, t_raw, polarity, mid_at, slope_at, contrast_at, near)
-            )
+            index = np.flatnonzero(kept)
+            line, t_raw, near = line[index], t_raw[index], near[index]
         beside = near == NEAR_DARK_BESIDE
 
     keep = _without_glitches(line, t_raw, min_gap_px=0.25 * 0.5 * local_period_px)
@@ -685,9 +687,9 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
         keep[keep] = _whole_beside_dark(line[keep], t_raw[keep], at[whole], period_px=float(period_px))
     else:
         keep[keep] = _without_slivers(line[keep], t_raw[keep], lone_is_sliver=period_px <= MAX_PERIOD_PX)
-    line, t_raw, polarity, mid_at, slope_at, contrast_at, beside = (
-        a[keep] for a in (line, t_raw, polarity, mid_at, slope_at, contrast_at, beside)
-    )
+    line, t_raw, beside = line[keep], t_raw[keep], beside[keep]
+    index = keep if index is None else index[keep]
+    polarity, mid_at, slope_at, contrast_at = (a[index] for a in (polarity, mid_at, slope_at, contrast_at))
     # Where the light bends within a period (a soft shadow's rim) the mid-level cannot follow it: the edge moves by
     # the shift this predicts, half of which enters its σ (SIGMA_PER_SHIFT); where the shift is beyond the setting,
     # the edge is rejected.
@@ -708,8 +710,9 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     if settings.max_uneven_light_shift_px is not None:
         even = shift_px <= settings.max_uneven_light_shift_px
     uneven_blocks = (line[~even] // UNUSABLE_BLOCK_PX, t_raw[~even].astype(np.int64) // UNUSABLE_BLOCK_PX)
-    line, t_raw, polarity, shift_px, beside = line[even], t_raw[even], polarity[even], shift_px[even], beside[even]
-    slope_at, contrast_at = slope_at[even], contrast_at[even]
+    if not even.all():
+        line, t_raw, polarity, shift_px, beside = line[even], t_raw[even], polarity[even], shift_px[even], beside[even]
+        slope_at, contrast_at = slope_at[even], contrast_at[even]
 
     chain = _link_chains(line, t_raw, polarity, n_samples=n_samples, max_step_px=settings.max_link_step_px_per_line,
                          across_gaps=settings.link_across_lost_crossing)  # fmt: skip
@@ -1199,7 +1202,8 @@ def _crossings(
     int32, t (N,) float64 px, polarity (N,) int8 (+1 where the grey level rises along +t), the mid-level there
     (N,) float64 grey levels (interpolated between the straddling samples), and, for the edges' σ and the light's
     bend, the slope |I₁ − I₀| between the samples j = int(t), j + 1 and their mean contrast, each (N,) float32 grey
-    levels (gathered here, where the lines are read in order, rather than later from the whole frame).
+    levels (gathered here, where the lines are read in order, rather than later from the whole frame). They are views
+    of the thread's buffers, valid until its next call.
 
     scan, mid, contrast, local_max: (S, T) float32; near_dark: (S, T) uint8, non-zero where edges are rejected.
     A sample is usable where the contrast reaches min_contrast_grey, the window's brightest sample stays below
@@ -1214,8 +1218,21 @@ def _crossings(
     σ ≥ 0.5 px at the same noise. Each sample is normalised by its own envelope, so the two are on either side of
     1/2 exactly when the crossing test found them to be.
     """
-    return _crossings_kernel(scan, mid, contrast, local_max, near_dark, min_contrast_grey, saturation_grey,
-                             margin_lines)  # fmt: skip
+    # The thread's buffers of the frame before, views of which are returned (the caller's first selection copies
+    # them: `locate_edges`): fresh, they were faulted in page by page each frame (`_FrameScratch`). They start with
+    # room for 64 crossings a line (32 stripe periods); allocating for the most a frame can have (one a sample) cost
+    # more than growing them (0.25 ms a 512 × 480 frame).
+    n_lines, n_samples = scan.shape
+    names = ("crossing_line", "crossing_t", "crossing_polarity", "crossing_mid", "crossing_slope", "crossing_contrast")
+    types = (np.int32, np.float64, np.int8, np.float64, np.float32, np.float32)
+    if names[0] in _SCRATCH.arrays and len(_SCRATCH.arrays[names[0]]) >= n_samples:
+        buffers = tuple(_SCRATCH.arrays[name] for name in names)
+    else:
+        buffers = tuple(np.empty(n_lines * 64 + n_samples, dtype) for dtype in types)
+    crossings, ended = _crossings_kernel(scan, mid, contrast, local_max, near_dark, min_contrast_grey,
+                                         saturation_grey, margin_lines, *buffers)  # fmt: skip
+    _SCRATCH.arrays.update(zip(names, ended, strict=True))
+    return crossings
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -1253,17 +1270,17 @@ def _crossings_kernel(
     min_contrast: float,
     saturation: float,
     margin_lines: int,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    line_out: np.ndarray,
+    t_out: np.ndarray,
+    polarity_out: np.ndarray,
+    mid_out: np.ndarray,
+    slope_out: np.ndarray,
+    contrast_out: np.ndarray,
+) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, ...]]:
+    """`_crossings`, into the given buffers (each of one length), grown before a line that might not fit: the
+    crossings (views of the buffers) and the buffers as they ended."""
     n_lines, n_samples = scan.shape
-    # Room for 64 crossings a line (32 stripe periods), grown before a line that might not fit: allocating for the
-    # most a frame can have (one a sample) cost more than the growing (0.25 ms a 512 × 480 frame).
-    capacity = n_lines * 64 + n_samples
-    line_out = np.empty(capacity, np.int32)
-    t_out = np.empty(capacity, np.float64)
-    polarity_out = np.empty(capacity, np.int8)
-    mid_out = np.empty(capacity, np.float64)
-    slope_out = np.empty(capacity, np.float32)
-    contrast_out = np.empty(capacity, np.float32)
+    capacity = len(line_out)
     usable = np.empty(n_samples, np.uint8)
     above = np.empty(n_samples, np.uint8)
     flag = np.empty(n_samples, np.uint8)
@@ -1315,8 +1332,8 @@ def _crossings_kernel(
             slope_out[m] = abs(scan_row[k + 1] - scan_row[k])
             contrast_out[m] = 0.5 * (contrast_row[k] + contrast_row[k + 1])
             m += 1
-    # Views, not copies: the callers' first selection copies them anyway, and the room never written costs nothing.
-    return line_out[:m], t_out[:m], polarity_out[:m], mid_out[:m], slope_out[:m], contrast_out[:m]
+    crossings = line_out[:m], t_out[:m], polarity_out[:m], mid_out[:m], slope_out[:m], contrast_out[:m]
+    return crossings, (line_out, t_out, polarity_out, mid_out, slope_out, contrast_out)
 
 
 @numba.njit(cache=True, nogil=True)
