@@ -1600,9 +1600,10 @@ def _width_alternations_kernel(
     own = np.empty(n)
     even = np.empty(n)
     # The window's values (2·reach + 2 at most, between a stripe's gain and its loss) sorted in window[1 : size + 1],
-    # +inf in the slots beyond them, between a −inf and a +inf.
+    # +inf in the slots beyond them, between a −inf and a +inf; in one of two rows (a stripe gained and one lost in
+    # one pass write the other).
     size = 2 * reach + 2
-    window = np.empty(size + 2)
+    rows = np.empty((2, size + 2))
     start = 0
     while start < n:
         stop = start
@@ -1620,12 +1621,28 @@ def _width_alternations_kernel(
             # a sorted window that gains a stripe at hi and loses one at lo as j moves on. Both updates are the same
             # few operations on every slot, without branches (they vectorise): a search for the place and a shift
             # mispredicted two or three branches a stripe (1.1 of 1.25 ms a 512 × 480 frame). Positions are finite.
-            window[:] = np.inf
-            window[0] = -np.inf
+            rows[:] = np.inf
+            rows[:, 0] = -np.inf
+            row = 0
+            window = rows[row]
             count = 0
             lo, hi = 1, 1
             for j in range(m):
                 new_lo, new_hi = max(1, j - reach), min(m - 1, j + reach + 1)
+                if hi + 1 == new_hi and lo + 1 == new_lo:
+                    # Inside a run, one stripe in and one out, in one pass: each slot of the window less the lost
+                    # value (the slot's own or its right's, as below), then with the gained one (as below).
+                    gained, lost = own[hi], own[lo]
+                    spare = rows[1 - row]
+                    for q in range(1, size + 1):
+                        below = window[q - 1] if window[q - 1] < lost else window[q]
+                        here = window[q] if window[q] < lost else window[q + 1]
+                        here = here if here < gained else gained
+                        spare[q] = below if below > here else here
+                    row = 1 - row
+                    window = spare
+                    hi += 1
+                    lo += 1
                 while hi < new_hi:
                     value = own[hi]
                     for q in range(size, 0, -1):  # each slot takes max(left, min(itself, value))
