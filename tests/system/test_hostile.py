@@ -397,7 +397,8 @@ def test_a_killed_child_of_up_comes_back_and_its_job_ends_once(tmp_path):
     """Finding 6: kill -9 of the worker, the API or Redis stopped the service until someone restarted it."""
     from tests.system.conftest import start_lab_server
 
-    server = start_lab_server(tmp_path / "var", FRINGELAB_WORKER_LOST_AFTER_S="5")
+    # The API's sweep re-queues the lost job every second (30 s by default, which this test spent waiting)
+    server = start_lab_server(tmp_path / "var", FRINGELAB_WORKER_LOST_AFTER_S="5", FRINGELAB_RECONCILE_INTERVAL_S="1")
     up_pid = server.up.process.pid  # type: ignore[union-attr]
     try:
         with server.client("admin") as admin:
