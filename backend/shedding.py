@@ -20,8 +20,9 @@ of 100 ms is 0.7 s, of 300 ms (a busy machine) 2.1 s. So a newcomer is also refu
 (waiting ahead + 1) / running slots × service time, exceeds `wait_budget_s`, the service time being a running
 estimate (exponentially weighted mean) of the time finished requests held a running slot. That rule is
 `LoadShedding.admits`, the only place a request is refused. It is off by default (FRINGELAB_API_WAIT_BUDGET_MS 0):
-at 500 ms on the shared 2-core machine (load 6-11) it served fewer and no quicker (README, Under load), as a
-request's time there goes mostly to its process's event loop waiting for the GIL and a core, not to the queue.
+at 500 ms on the shared 2-core machine (load 4-11) it served fewer and no quicker, before and after the web
+server's start was frozen out of the garbage collector's way (README, Under load): the bursts of service time it
+estimates from came from event-loop stalls, not from the queue.
 """
 
 from __future__ import annotations
