@@ -8,7 +8,8 @@
   holds whatever the address.
 - At most FRINGELAB_LOGIN_CONCURRENCY checks at once per web server process: an argon2 check takes 64 MiB, so 120
   at once took a process from 131 to 1929 MiB. Beyond the cap a login gets 429 at once, with its attempt taken
-  back (it checked nothing).
+  back (it checked nothing). Its default is the server's share: at most MAX_AUTO_CHECKS at once on the whole
+  server (256 MiB), split between its web server processes, at least one each.
 
 Without Redis the counters are this process's own (a login still works).
 """
@@ -32,7 +33,8 @@ from fringelab.core.settings import Settings
 KEY_PREFIX = "fringelab:login-attempts:"
 # The memory one argon2 check takes (argon2-cffi's default memory_cost, 64 MiB), what the cap is sized from.
 CHECK_BYTES = 64 * 1024 * 1024
-MAX_AUTO_CONCURRENCY = 4
+# Checks at once on the whole server (all its web server processes) when the cap follows memory: 4 × 64 MiB.
+MAX_AUTO_CHECKS = 4
 
 # KEYS: the counters; ARGV[1]: the window in s. Adds one to each (a new counter lives for the window) and returns them.
 _COUNT_SCRIPT = """
@@ -68,10 +70,13 @@ def address_key(client: str) -> str:
     return str(address)
 
 
-def auto_concurrency(available_bytes: int) -> int:
-    """Checks at once for a process when FRINGELAB_LOGIN_CONCURRENCY is 0: one per 16 checks' worth of available
-    memory (a web server shares the machine with workers that need far more), between 1 and 4."""
-    return max(1, min(MAX_AUTO_CONCURRENCY, available_bytes // (16 * CHECK_BYTES)))
+def auto_concurrency(available_bytes: int, processes: int) -> int:
+    """Checks at once for one of `processes` web server processes when FRINGELAB_LOGIN_CONCURRENCY is 0: the
+    server's checks, one per 16 checks' worth of available memory (a web server shares the machine with workers
+    that need far more) and at most MAX_AUTO_CHECKS, shared between its processes, at least one each. Per process,
+    4 each took two processes from 307 to 821 MiB under 120 wrong logins at once (8 checks)."""
+    server_checks = max(1, min(MAX_AUTO_CHECKS, available_bytes // (16 * CHECK_BYTES)))
+    return max(1, server_checks // max(1, processes))
 
 
 def _available_bytes() -> int:
@@ -84,7 +89,9 @@ class LoginGate:
     def __init__(self, settings: Settings) -> None:
         self.max_attempts = settings.login_max_failures
         self.window_s = settings.login_window_s
-        self.concurrency = settings.login_concurrency or auto_concurrency(_available_bytes())
+        self.concurrency = settings.login_concurrency or auto_concurrency(
+            _available_bytes(), settings.resolved_api_processes
+        )
         self._checks = threading.BoundedSemaphore(self.concurrency)
         self._redis = (
             redis.Redis.from_url(settings.redis_url, socket_timeout=2, socket_connect_timeout=2)

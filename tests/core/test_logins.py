@@ -52,6 +52,13 @@ def test_addresses_are_counted_by_network():
     assert address_key("192.0.2.7") == "192.0.2.7"
 
 
-def test_the_cap_follows_memory():
+def test_the_cap_follows_memory_and_is_shared_by_the_processes():
     gib = 1 << 30
-    assert auto_concurrency(gib // 2) == 1 and auto_concurrency(2 * gib) == 2 and auto_concurrency(64 * gib) == 4
+    assert (
+        auto_concurrency(gib // 2, 1) == 1 and auto_concurrency(2 * gib, 1) == 2 and auto_concurrency(64 * gib, 1) == 4
+    )
+    # The server's 4 checks (256 MiB) between its processes, at least one each.
+    assert (
+        auto_concurrency(64 * gib, 2) == 2 and auto_concurrency(64 * gib, 4) == 1 and auto_concurrency(64 * gib, 8) == 1
+    )
+    assert auto_concurrency(2 * gib, 2) == 1
