@@ -5,8 +5,8 @@ server as child processes, each in its own process group that `up` owns by PID. 
 runs is restarted (what was left of its process group killed first, so no orphaned pool process goes on
 running a task), after a back-off that starts at RESTART_FIRST_S and doubles up to RESTART_MAX_S, reset once
 the child has run STABLE_AFTER_S; each restart is logged and written to `DATA_DIR/supervisor.json`, which
-`/api/v1/health` reports. Ctrl-C or SIGTERM stops them all, in order (web, worker, Redis), and kills any
-straggler. A lock file under the data directory makes a second
+`/api/v1/health` reports. Ctrl-C or SIGTERM stops them all, the web server and the worker together, then
+Redis, and kills any straggler. A lock file under the data directory makes a second
 `up` on the same data fail with a clear message.
 """
 
@@ -38,6 +38,7 @@ RESTART_FIRST_S = 0.5
 RESTART_MAX_S = 30.0
 STABLE_AFTER_S = 60.0
 STATUS_FILE = "supervisor.json"
+REDIS_CHILD = "redis-server"  # the child stopped last
 _PR_SET_PDEATHSIG = 1
 
 
@@ -101,7 +102,7 @@ class Supervisor:
         now = time.monotonic()
         for child in self.children:
             if child.restart_at_s is None and child.process.poll() is not None:
-                _stop_group(child)  # pool processes of a killed worker must not go on running its tasks
+                _stop_groups([child])  # pool processes of a killed worker must not go on running its tasks
                 if now - child.started_at_s >= STABLE_AFTER_S:
                     child.backoff_s = RESTART_FIRST_S
                 child.last_exit = f"PID {child.pid} exited with code {child.process.returncode}"
@@ -130,8 +131,10 @@ class Supervisor:
             path.chmod(0o600)  # it holds the Redis password: this user's only (health reads the children alone)
 
     def stop_all(self) -> None:
-        for child in reversed(self.children):  # web first, Redis last
-            _stop_group(child)
+        """The web server and the worker together (neither needs the other to stop: one after the other took
+        their two stops' sum, 1.3 + 2.0 s on a quiet machine), then Redis, which a stopping worker still talks to."""
+        _stop_groups([child for child in self.children if child.name != REDIS_CHILD])
+        _stop_groups([child for child in self.children if child.name == REDIS_CHILD])
 
 
 def _spawn(argv: list[str], env: dict[str, str], log: IO[bytes] | None) -> subprocess.Popen[bytes]:
@@ -149,15 +152,20 @@ def _say(message: str) -> None:
     print(f"fringelab up: {message}", flush=True)
 
 
-def _stop_group(child: Child) -> None:
-    """SIGTERM the child's process group, wait, then SIGKILL whatever of the group is left."""
-    with contextlib.suppress(ProcessLookupError):
-        os.killpg(child.pid, signal.SIGTERM)
-    with contextlib.suppress(subprocess.TimeoutExpired):
-        child.process.wait(timeout=STOP_TIMEOUT_S)
-    with contextlib.suppress(ProcessLookupError):
-        os.killpg(child.pid, signal.SIGKILL)  # stragglers such as pool processes of a worker killed mid-task
-    child.process.wait()
+def _stop_groups(children: list[Child]) -> None:
+    """SIGTERM the children's process groups at once, wait up to STOP_TIMEOUT_S for them all, then SIGKILL
+    whatever of each group is left."""
+    for child in children:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(child.pid, signal.SIGTERM)
+    deadline = time.monotonic() + STOP_TIMEOUT_S
+    for child in children:
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            child.process.wait(timeout=max(0.0, deadline - time.monotonic()))
+    for child in children:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(child.pid, signal.SIGKILL)  # stragglers such as pool processes of a worker killed mid-task
+        child.process.wait()
 
 
 def running_redis_url(settings: Settings) -> str:
@@ -291,7 +299,7 @@ def _start_redis(supervisor: Supervisor, env: dict[str, str]) -> str:
         "--daemonize", "no",
         "--logfile", str(supervisor.log_dir / "redis.log"),
     ]  # fmt: skip
-    supervisor.start("redis-server", argv, env)
+    supervisor.start(REDIS_CHILD, argv, env)
     url = f"redis://:{password}@127.0.0.1:{port}/0"
     deadline = time.monotonic() + 15
     while True:
