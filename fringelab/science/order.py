@@ -602,9 +602,8 @@ def _inconsistent_chains(edges: FrameEdges, k: np.ndarray, projector: ProjectorC
     if not np.any(k >= 0):
         return np.zeros(0, np.int64)
     against = _against_table_or_neighbours(
-        np.ascontiguousarray(edges.chain, np.int64), np.ascontiguousarray(edges.line, np.int64),
-        np.ascontiguousarray(edges.t_px, np.float64), np.ascontiguousarray(k, np.int64), projector.lookup_table,
-        float(projector.period_px),
+        np.ascontiguousarray(edges.chain), np.ascontiguousarray(edges.line), np.ascontiguousarray(edges.t_px),
+        np.ascontiguousarray(k, np.int64), projector.lookup_table, float(projector.period_px),
         int(edges.chain.max()) + 1,
     )  # fmt: skip
     return np.flatnonzero(against)
@@ -620,34 +619,34 @@ def _against_table_or_neighbours(
     period_px: float,
     n_chains: int,
 ) -> np.ndarray:
-    z = np.full(len(t), np.nan)
-    status = np.full(len(t), 2, np.int8)
+    # One pass: each ordered point's Z is looked up once and voted with the ordered point before it on its line
+    # (ordered points follow each other along a line in (line, t) order); t is widened to float64 as it is read.
     length = np.zeros(n_chains)
     table_against = np.zeros(n_chains)
-    for i in range(len(t)):
-        if k[i] < 0:
-            continue
-        z[i], status[i] = table_z_at(table, k[i], line[i], t[i])
-        length[chain[i]] += 1.0
-        if status[i] == 1:
-            for step in (-2, 2):
-                if table_z_at(table, k[i] + step, line[i], t[i])[1] == 0:
-                    table_against[chain[i]] += 1.0
-                    break
     votes_for = np.zeros(n_chains)
     votes_against = np.zeros(n_chains)
     previous = -1
-    for i in range(len(t)):  # ordered points follow each other along a line in (line, t) order
+    z_p, status_p = np.nan, 2
+    for i in range(len(t)):
         if k[i] < 0:
             continue
+        t_i = np.float64(t[i])
+        z_i, status_i = table_z_at(table, k[i], line[i], t_i)
+        length[chain[i]] += 1.0
+        if status_i == 1:
+            for step in (-2, 2):
+                if table_z_at(table, k[i] + step, line[i], t_i)[1] == 0:
+                    table_against[chain[i]] += 1.0
+                    break
         p = previous
-        previous = i
-        if p < 0 or line[p] != line[i] or abs(k[i] - k[p]) != 1 or status[p] != 0 or status[i] != 0:
+        z_prev, status_prev = z_p, status_p
+        previous, z_p, status_p = i, z_i, status_i
+        if p < 0 or line[p] != line[i] or abs(k[i] - k[p]) != 1 or status_prev != 0 or status_i != 0:
             continue
         if chain[p] == chain[i]:
             continue
         step_mm = period_px / max(abs(table[line[p], k[p], TABLE_SENSITIVITY]), 1e-6)
-        if abs(z[i] - z[p]) < 0.5 * step_mm:
+        if abs(z_i - z_prev) < 0.5 * step_mm:
             votes_for[chain[p]] += 1.0
             votes_for[chain[i]] += 1.0
         else:
