@@ -506,42 +506,49 @@ def frame_coverage(
     )
 
 
+SEEN_MEASURED, SEEN_BEYOND, SEEN_UNPLACED = 0, 1, 2  # `_seen_kind`; -1: not seen
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _seen_kind(seen: bool, t: float, t_lo: float, t_hi: float) -> int:
+    """A reference point's kind in a frame: -1 not seen, else measured (a position within the table's bounds),
+    placed beyond the bounds, or with no position."""
+    if not seen:
+        return -1
+    if not np.isfinite(t):
+        return SEEN_UNPLACED
+    return SEEN_MEASURED if t_lo <= t <= t_hi else SEEN_BEYOND
+
+
 @numba.njit(cache=True, nogil=True)
 def _split_seen(
     positions: np.ndarray, t_lo_px: np.ndarray, t_hi_px: np.ndarray, seen: np.ndarray, area_mm2: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The seen reference points (K, S) of a frame split: the areas of those measured (a position within the
-    table's bounds) and of those placed beyond the bounds, each in the order `area[mask]` gives them (so np.sum
-    adds them as it adds that), and the (k, line) of those with no position (`np.nonzero`'s order). Two passes,
-    counting then filling, so nothing is allocated for every (edge, line)."""
+    """The seen reference points (K, S) of a frame split (`_seen_kind`): the areas of those measured and of those
+    placed beyond the bounds, each in the order `area[mask]` gives them (so np.sum adds them as it adds that), and
+    the (k, line) of those with no position (`np.nonzero`'s order). Two passes, counting then filling, so nothing
+    is allocated for every (edge, line)."""
     n_edges, n_lines = positions.shape
-    n_rest = n_measured = n_beyond = 0
+    counts = np.zeros(3, np.int64)
     for e in range(n_edges):
         for s in range(n_lines):
-            t = positions[e, s]
-            if seen[e, s] and np.isfinite(t):
-                if t_lo_px[e, s] <= t <= t_hi_px[e, s]:
-                    n_measured += 1
-                else:
-                    n_beyond += 1
-            elif seen[e, s]:
-                n_rest += 1
-    rk, rs = np.empty(n_rest, np.int64), np.empty(n_rest, np.int64)
-    measured, beyond = np.empty(n_measured), np.empty(n_beyond)
-    n_rest = n_measured = n_beyond = 0
+            kind = _seen_kind(seen[e, s], positions[e, s], t_lo_px[e, s], t_hi_px[e, s])
+            if kind >= 0:
+                counts[kind] += 1
+    measured, beyond = np.empty(counts[SEEN_MEASURED]), np.empty(counts[SEEN_BEYOND])
+    rk, rs = np.empty(counts[SEEN_UNPLACED], np.int64), np.empty(counts[SEEN_UNPLACED], np.int64)
+    counts[:] = 0
     for e in range(n_edges):
         for s in range(n_lines):
-            t = positions[e, s]
-            if seen[e, s] and np.isfinite(t):
-                if t_lo_px[e, s] <= t <= t_hi_px[e, s]:
-                    measured[n_measured] = area_mm2[e, s]
-                    n_measured += 1
-                else:
-                    beyond[n_beyond] = area_mm2[e, s]
-                    n_beyond += 1
-            elif seen[e, s]:
-                rk[n_rest], rs[n_rest] = e, s
-                n_rest += 1
+            kind = _seen_kind(seen[e, s], positions[e, s], t_lo_px[e, s], t_hi_px[e, s])
+            if kind == SEEN_MEASURED:
+                measured[counts[kind]] = area_mm2[e, s]
+            elif kind == SEEN_BEYOND:
+                beyond[counts[kind]] = area_mm2[e, s]
+            elif kind == SEEN_UNPLACED:
+                rk[counts[kind]], rs[counts[kind]] = e, s
+            if kind >= 0:
+                counts[kind] += 1
     return measured, beyond, rk, rs
 
 
