@@ -153,7 +153,7 @@ def create_app(settings: Settings, *, openapi_at_start: bool = False) -> FastAPI
     )
     # Outermost: a request beyond the bound is refused before anything else is done for it.
     app.add_middleware(LoadShedding, max_in_flight=settings.resolved_api_in_flight,
-                       max_running=settings.resolved_api_running, wait_budget_s=settings.api_wait_budget_ms / 1000,
+                       max_running=settings.resolved_api_running,
                        exempt=is_unshed_path)  # fmt: skip
     logging.getLogger("uvicorn.access").addFilter(QUIET_REFUSALS)  # once per process: the filter is one object
     app.include_router(health.router, prefix="/api/v1")

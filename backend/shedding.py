@@ -1,6 +1,5 @@
 """Load shedding: a web server process runs a bounded number of requests at once, lets requests wait for their
-turn while their expected wait stays within a budget (and their count within a bound), and answers 503 with
-Retry-After at once beyond.
+turn while their count stays within a bound, and answers 503 with Retry-After at once beyond.
 
 Beyond what its threads can serve, a request would only queue behind the others until its client gives up: at 500
 requests/s, 60 % of requests waited over 10 s and none was refused (issue 26). Refused at once, a client (the
@@ -15,14 +14,9 @@ those waiting for their turn here hold neither, first come first served. So the 
 after waiting: a 503 after a wait is a slow one (expiring waiters at 500 ms made the 503s' p99 387 -> 1349 ms,
 issue 26); refusing newcomers behind a queue older than a bound did not make what was served quicker either.
 
-A fixed count of waiters is a wait that depends on the machine's speed and load: 57 waiters of 8 running requests
-of 100 ms is 0.7 s, of 300 ms (a busy machine) 2.1 s. So a newcomer is also refused when its expected wait,
-(waiting ahead + 1) / running slots × service time, exceeds `wait_budget_s`, the service time being a running
-estimate (exponentially weighted mean) of the time finished requests held a running slot. That rule is
-`LoadShedding.admits`, the only place a request is refused. It is off by default (FRINGELAB_API_WAIT_BUDGET_MS 0):
-at 500 ms on the shared 2-core machine (load 4-11) it served fewer and no quicker, before and after the web
-server's start was frozen out of the garbage collector's way (README, Under load): the bursts of service time it
-estimates from came from event-loop stalls, not from the queue.
+Admission by expected wait (refusing a newcomer whose (waiting ahead + 1) / running slots × an estimated service
+time exceeded a budget) was built and measured in issue 26 and removed: it served fewer and no quicker
+(docs/server-load.md).
 """
 
 from __future__ import annotations
@@ -39,10 +33,6 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 log = logging.getLogger(__name__)
 RETRY_AFTER_S = 1
 LOG_EVERY_S = 10.0
-# Weight of each finished request in the estimate of service time: a process finishing ~100 requests/s follows a
-# change of its speed within a fraction of a second, while one slow request (a 1-10 frame profile among cheap
-# lists) moves the estimate by a twentieth of its excess.
-SERVICE_WEIGHT = 0.05
 
 # Set in the task of a request being refused: `QuietRefusals` drops uvicorn's access line for it (a flood of
 # refusals is one line per LOG_EVERY_S, not a formatted and written line each before its answer goes out).
@@ -67,20 +57,15 @@ class LoadShedding:
         max_in_flight: int,
         exempt: Callable[[str], bool],
         max_running: int | None = None,
-        wait_budget_s: float = 0.0,
     ) -> None:
         """`max_in_flight`: requests taken at once, running and waiting; `max_running`: of them, running at once
-        (default: all); `wait_budget_s`: the longest expected wait for a running slot a newcomer is admitted to
-        (0: no such limit, only the count)."""
+        (default: all)."""
         self.app = app
         self.max_in_flight = max_in_flight
         self.max_running = max_in_flight if max_running is None else min(max_running, max_in_flight)
         self.exempt = exempt
-        self.wait_budget_s = wait_budget_s
         self.in_flight = 0  # one event loop per process: no lock needed
         self.running = 0
-        self.service_s = 0.0  # estimate of the time a request holds a running slot (0 until one has finished)
-        self.finished = 0
         self._turns: asyncio.Semaphore | None = None  # of the event loop in `_turns_loop`
         self._turns_loop: asyncio.AbstractEventLoop | None = None
         self.refused = 0
@@ -90,7 +75,7 @@ class LoadShedding:
         if scope["type"] != "http" or self.exempt(scope["path"]):
             await self.app(scope, receive, send)
             return
-        if not self.admits():
+        if self.in_flight >= self.max_in_flight:
             await self._refuse(send)
             return
         self.in_flight += 1
@@ -98,34 +83,12 @@ class LoadShedding:
             # First come first served (a newcomer never passes a waiter); a waiter that goes away keeps no turn.
             async with self._turns_of_this_loop():
                 self.running += 1
-                started_s = time.monotonic()
                 try:
                     await self.app(scope, receive, send)
                 finally:
                     self.running -= 1
-                    self._served(time.monotonic() - started_s)
         finally:
             self.in_flight -= 1
-
-    def _served(self, held_s: float) -> None:
-        """The estimate of service time: the plain mean of the first 1 / SERVICE_WEIGHT requests (an average from
-        0 would be low for as long), then exponentially weighted."""
-        self.finished += 1
-        self.service_s += max(SERVICE_WEIGHT, 1 / self.finished) * (held_s - self.service_s)
-
-    def expected_wait_s(self) -> float:
-        """A newcomer's expected wait for a running slot: none while one is free; else it runs once those waiting
-        ahead and itself have had a slot, `max_running` at a time, each for `service_s`."""
-        if self.running < self.max_running:
-            return 0.0
-        waiting_ahead = self.in_flight - self.running
-        return (waiting_ahead + 1) / self.max_running * self.service_s
-
-    def admits(self) -> bool:
-        """The admission rule: within the count bound, and (with a budget) within the budget of expected wait."""
-        if self.in_flight >= self.max_in_flight:
-            return False
-        return self.wait_budget_s <= 0 or self.expected_wait_s() <= self.wait_budget_s
 
     def _turns_of_this_loop(self) -> asyncio.Semaphore:
         """A semaphore belongs to the event loop it first waited in: a server has one, tests may run several."""
@@ -139,8 +102,8 @@ class LoadShedding:
         _refusing.set(True)  # this request's own task: its access line only
         now = time.monotonic()
         if now - self._logged_at >= LOG_EVERY_S:  # one line per period, not one per refusal: a flood stays a line
-            log.warning("busy: %d requests refused with 503 so far (%d in flight, service time %.0f ms)",
-                        self.refused, self.in_flight, self.service_s * 1000)  # fmt: skip
+            log.warning("busy: %d requests refused with 503 so far (%d in flight, %d running)",
+                        self.refused, self.in_flight, self.running)  # fmt: skip
             self._logged_at = now
         body = json.dumps({
             "detail": f"the server is busy ({self.in_flight} requests in progress); retry in {RETRY_AFTER_S} s",

@@ -130,14 +130,6 @@ class Settings(BaseSettings):
         description="Requests a web server process holds, waiting for their turn, beyond the threads it runs; more "
         "get 503 with Retry-After.",
     )
-    api_wait_budget_ms: int = Field(
-        0,
-        ge=0,
-        le=60_000,
-        description="Longest expected wait for a thread a web server process admits a request to (from the requests "
-        "waiting ahead and a running estimate of their service time); beyond, 503 with Retry-After at once. "
-        "0 (the default): only FRINGELAB_API_QUEUE bounds the wait.",
-    )
     frame_cache_bytes: int = Field(
         64 * 2**20,
         ge=0,
