@@ -309,7 +309,8 @@ class FrameEdges:
 
 
 class _FrameScratch(threading.local):
-    """Full-frame working arrays of `locate_edges` kept from one frame to the next, one set per thread.
+    """Working arrays of `locate_edges` kept from one frame to the next, one set per thread: full-frame ones
+    (`array`) and growable ones for the crossings and edges (`buffer`).
 
     Fresh frame-sized arrays cost more than their use: the allocator hands their pages back to the system when a
     frame's arrays are freed and the next frame faults them in again, zeroed (at 1024² about 4 000 minor faults and
@@ -324,6 +325,19 @@ class _FrameScratch(threading.local):
         array = self.arrays.get(name)
         if array is None or array.shape != shape or array.dtype != dtype:
             array = self.arrays[name] = np.empty(shape, dtype)
+        return array
+
+    def buffer(self, name: str, length: int, dtype: Any, *, kept: int = 0) -> np.ndarray:
+        """The thread's 1-D array `name` of that dtype with room for at least `length` items, its values left from
+        its last use; one too short is replaced by one of max(length, twice its length) items, its first `kept`
+        values copied (a buffer filled in steps)."""
+        array = self.arrays.get(name)
+        if array is None or array.ndim != 1 or array.dtype != dtype:
+            array = self.arrays[name] = np.empty(length, dtype)
+        elif len(array) < length:
+            grown = self.arrays[name] = np.empty(max(length, 2 * len(array)), dtype)
+            grown[:kept] = array[:kept]
+            array = grown
         return array
 
 
@@ -740,16 +754,8 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     # widened, the other narrowed by the same rim), with its neighbours on the line. Judged on the smoothed
     # positions of every kept edge at once: rejecting some first would leave their neighbours unjudged.
     judged = settings.max_departure_px is not None or settings.max_end_departure_px is not None
-    max_alternation_px = settings.max_width_alternation_px
-    if (judged or max_alternation_px is not None) and period_px <= MAX_PERIOD_PX and len(line):
-        even = np.ones(len(line), bool)
-        if max_alternation_px is not None:
-            even = ~_alternating(line, t_px, polarity, period_px=float(period_px),
-                                 max_alternation_px=max_alternation_px)  # fmt: skip
-        if judged:
-            even &= ~_departing(line, t_px, polarity, period_px=float(period_px),
-                                max_departure_px=settings.max_departure_px,
-                                max_end_departure_px=settings.max_end_departure_px)  # fmt: skip
+    if (judged or settings.max_width_alternation_px is not None) and period_px <= MAX_PERIOD_PX and len(line):
+        even = ~_uneven_edges(line, t_px, polarity, period_px=float(period_px), settings=settings)
         if not even.all():
             uneven_blocks = (
                 np.concatenate([uneven_blocks[0], line[~even] // UNUSABLE_BLOCK_PX]),
@@ -823,11 +829,15 @@ def _edge_sigma(
     else:
         gain = residual = np.full((1, 1), np.nan)
     first, order = by_chain if by_chain is not None else (np.zeros(0, np.int64), np.zeros(0, np.int64))
+    # The kernel's working arrays are the thread's (`_FrameScratch`): fresh, their 64 bytes a point were faulted in
+    # page by page each frame (2.1 of 3.9 ms a 1024² frame).
+    n = len(line)
     _edge_sigma_kernel(
         np.ascontiguousarray(slope_grey, np.float32), int(n_samples), _int_labels(line),
         np.ascontiguousarray(t_raw, np.float64), np.ascontiguousarray(t_px, np.float64),
         _int_labels(chain), gain, residual, np.ascontiguousarray(shift_px, np.float64), sigma,
-        first, order,
+        first, order, _SCRATCH.buffer("sigma_point", 3 * n, np.float64),
+        _SCRATCH.buffer("sigma_sums", 3 * (n + 1), np.float64), _SCRATCH.buffer("sigma_terms", 2 * n, np.float64),
     )  # fmt: skip
     return sigma
 
@@ -906,15 +916,19 @@ def _edge_sigma_kernel(
     sigma_out: np.ndarray,
     first: np.ndarray,
     order: np.ndarray,
+    point_buffer: np.ndarray,
+    cum_buffer: np.ndarray,
+    terms_buffer: np.ndarray,
 ) -> None:
-    """`_edge_sigma`; first and order: `_by_chain` of chain, or empty to compute them here."""
+    """`_edge_sigma`; first and order: `_by_chain` of chain, or empty to compute them here; point_buffer,
+    cum_buffer, terms_buffer: float64 room for 3N, 3(N + 1) and 2N items, the working arrays below."""
     n = len(line)
     half = gain.shape[0] - 1
     smoothed = np.isfinite(gain[0, 0])
     # Per point, in line order: the σ of its raw position for unit grey noise (model, px), its raw − smoothed
     # residual and its shift, side by side. The loops below visit the points in chain order, a line's worth of
     # points apart in memory: one cache line a point instead of one for each array (3.5 → 2.3 ms a 1024² frame).
-    point = np.empty((n, 3))
+    point = point_buffer[: 3 * n].reshape((n, 3))
     for p in range(n):
         j = min(max(int(t_raw[p]), 0), n_samples - 2)
         x = t_raw[p] - j
@@ -928,11 +942,11 @@ def _edge_sigma_kernel(
     if len(first) != n_chains + 1:
         first, order = _by_chain(chain, n_chains)
     # Prefix sums along the sorted order of: residual², the model's residual² for unit noise, the model².
-    cum = np.empty((n + 1, 3))  # rows 1..n are written below, chain after chain
+    cum = cum_buffer[: 3 * (n + 1)].reshape((n + 1, 3))  # rows 1..n are written below, chain after chain
     cum[0] = 0.0
     # What the second pass needs of each point besides the sums, in the sorted order too: it reads nothing by point
     # (a cache miss each at 1024²) but writes σ.
-    terms = np.empty((n, 2))
+    terms = terms_buffer[: 2 * n].reshape((n, 2))
     for c in range(n_chains):
         lo, hi = first[c], first[c + 1]
         for q in range(lo, hi):
@@ -1226,20 +1240,20 @@ def _crossings(
     1/2 exactly when the crossing test found them to be.
     """
     # The thread's buffers of the frame before, views of which are returned (the caller's first selection copies
-    # them: `locate_edges`): fresh, they were faulted in page by page each frame (`_FrameScratch`). They start with
-    # room for 64 crossings a line (32 stripe periods); allocating for the most a frame can have (one a sample) cost
-    # more than growing them (0.25 ms a 512 × 480 frame).
+    # them: `locate_edges`): fresh, they were faulted in page by page each frame (`_FrameScratch`). Where the next
+    # line might not fit (a crossing a sample), the kernel stops there and they grow.
     n_lines, n_samples = scan.shape
     names = ("crossing_line", "crossing_t", "crossing_polarity", "crossing_mid", "crossing_slope", "crossing_contrast")
     types = (np.int32, np.float64, np.int8, np.float64, np.float32, np.float32)
-    if names[0] in _SCRATCH.arrays and len(_SCRATCH.arrays[names[0]]) >= n_samples:
-        buffers = tuple(_SCRATCH.arrays[name] for name in names)
-    else:
-        buffers = tuple(np.empty(n_lines * 64 + n_samples, dtype) for dtype in types)
-    crossings, ended = _crossings_kernel(scan, mid, contrast, local_max, near_dark, min_contrast_grey,
-                                         saturation_grey, margin_lines, *buffers)  # fmt: skip
-    _SCRATCH.arrays.update(zip(names, ended, strict=True))
-    return crossings
+    m, next_line, end_line = 0, margin_lines, n_lines - margin_lines
+    length = n_samples
+    while True:
+        buffers = tuple(_SCRATCH.buffer(name, length, dtype, kept=m) for name, dtype in zip(names, types, strict=True))
+        m, next_line = _crossings_kernel(scan, mid, contrast, local_max, near_dark, min_contrast_grey, saturation_grey,
+                                         next_line, end_line, m, *buffers)  # fmt: skip
+        if next_line >= end_line:
+            return tuple(buffer[:m] for buffer in buffers)  # type: ignore[return-value]
+        length = m + n_samples
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -1276,32 +1290,27 @@ def _crossings_kernel(
     near_dark: np.ndarray,
     min_contrast: float,
     saturation: float,
-    margin_lines: int,
+    first_line: int,
+    end_line: int,
+    m: int,
     line_out: np.ndarray,
     t_out: np.ndarray,
     polarity_out: np.ndarray,
     mid_out: np.ndarray,
     slope_out: np.ndarray,
     contrast_out: np.ndarray,
-) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, ...]]:
-    """`_crossings`, into the given buffers (each of one length), grown before a line that might not fit: the
-    crossings (views of the buffers) and the buffers as they ended."""
-    n_lines, n_samples = scan.shape
-    capacity = len(line_out)
+) -> tuple[int, int]:
+    """`_crossings` of lines first_line … end_line − 1, written into the buffers (each of one length) from item m
+    on: the number of items written in all and the line before which it stopped, because that line might not fit
+    (a crossing a sample), or end_line."""
+    capacity = min(len(line_out), len(t_out), len(polarity_out), len(mid_out), len(slope_out), len(contrast_out))
+    n_samples = scan.shape[1]
     usable = np.empty(n_samples, np.uint8)
     above = np.empty(n_samples, np.uint8)
     flag = np.empty(n_samples, np.uint8)
-    m = 0
-    for i in range(margin_lines, n_lines - margin_lines):
+    for i in range(first_line, end_line):
         if m + n_samples > capacity:
-            capacity *= 2
-            line_out, t_out, polarity_out = (
-                _grown(line_out, capacity),
-                _grown(t_out, capacity),
-                _grown(polarity_out, capacity),
-            )
-            mid_out, slope_out = _grown(mid_out, capacity), _grown(slope_out, capacity)
-            contrast_out = _grown(contrast_out, capacity)
+            return m, i
         scan_row, mid_row, contrast_row, max_row, near_row = scan[i], mid[i], contrast[i], local_max[i], near_dark[i]
         # Branch-free first: which samples are usable and above the mid-level (vectorised), then which pairs
         # straddle it; the crossings, a few per period, are placed in a second loop over those pairs only.
@@ -1339,16 +1348,7 @@ def _crossings_kernel(
             slope_out[m] = abs(scan_row[k + 1] - scan_row[k])
             contrast_out[m] = 0.5 * (contrast_row[k] + contrast_row[k + 1])
             m += 1
-    crossings = line_out[:m], t_out[:m], polarity_out[:m], mid_out[:m], slope_out[:m], contrast_out[:m]
-    return crossings, (line_out, t_out, polarity_out, mid_out, slope_out, contrast_out)
-
-
-@numba.njit(cache=True, nogil=True)
-def _grown(values: np.ndarray, capacity: int) -> np.ndarray:
-    """A copy of a 1-D array with room for `capacity` items, the first len(values) of them values."""
-    grown = np.empty(capacity, values.dtype)
-    grown[: len(values)] = values
-    return grown
+    return m, end_line
 
 
 # The mid-level's error at a crossing per grey level of the light's bend there (`uneven_light_shift_px`): the edge
@@ -1510,25 +1510,52 @@ def edge_departures_px(line: np.ndarray, t_px: np.ndarray, polarity: np.ndarray,
     )  # fmt: skip
 
 
-def _departing(
+def _uneven_edges(line: np.ndarray, t_px: np.ndarray, polarity: np.ndarray, *, period_px: float,
+                  settings: EdgeSettings) -> np.ndarray:  # fmt: skip
+    """(N,) bool: the edges `locate_edges` rejects as moved by uneven light, all judged at once on the smoothed
+    positions (a misplaced edge bends its neighbours' cubics by 4/6 of its own departure, and rejecting it first
+    would leave them unjudged): where the stripe widths alternate beyond `max_width_alternation_px`
+    (`width_alternations_px`), with their neighbours in the run (the rim that moved the edge dims their stripes too:
+    their errors are about half the edge's own, of the other sign), and where the edge departs from its neighbours
+    (`edge_departures_px`) beyond its level (`DEPARTURE_LEVELS`; None: not judged there). The runs are found once
+    and each measure is compared with its level as it is made (no (N,) measures)."""
+    inner = np.inf if settings.max_departure_px is None else settings.max_departure_px
+    end = np.inf if settings.max_end_departure_px is None else settings.max_end_departure_px
+    max_alternation = settings.max_width_alternation_px
+    return _uneven_edges_kernel(
+        _int_labels(line), np.ascontiguousarray(t_px, np.float64),
+        polarity if polarity.dtype == np.int8 else np.ascontiguousarray(polarity, np.int64),
+        DEPARTURE_GAP_PERIODS[0] * period_px, DEPARTURE_GAP_PERIODS[1] * period_px,
+        DUTY_REACH_STRIPES, np.inf if max_alternation is None else float(max_alternation), max_alternation is not None,
+        np.array([inner * DEPARTURE_LEVELS[0], inner * DEPARTURE_LEVELS[1], end, 0.0]),
+        settings.max_departure_px is not None or settings.max_end_departure_px is not None,
+    )  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _uneven_edges_kernel(
     line: np.ndarray,
-    t_px: np.ndarray,
+    t: np.ndarray,
     polarity: np.ndarray,
-    *,
-    period_px: float,
-    max_departure_px: float | None,
-    max_end_departure_px: float | None,
+    min_gap: float,
+    max_gap: float,
+    reach: int,
+    max_alternation: float,
+    alternations: bool,
+    levels: np.ndarray,
+    departures: bool,
 ) -> np.ndarray:
-    """(N,) bool: the edges `locate_edges` rejects for departing from their neighbours (`edge_departures_px`) beyond
-    their level (`DEPARTURE_LEVELS`; None: not judged there), all judged at once: a misplaced edge bends its
-    neighbours' cubics by 4/6 of its own departure, and rejecting it first would leave them unjudged."""
-    departure = edge_departures_px(line, t_px, polarity, period_px=period_px)
-    place = departure[:, 1].astype(np.int64)
-    inner = np.inf if max_departure_px is None else max_departure_px
-    end = np.inf if max_end_departure_px is None else max_end_departure_px
-    level = np.array([inner * DEPARTURE_LEVELS[0], inner * DEPARTURE_LEVELS[1], end, 0.0])[place]
-    with np.errstate(invalid="ignore"):
-        return (np.abs(departure[:, 0]) > level) | (place == 3)
+    """`_uneven_edges`; levels (4,): the departure's level at each place in the run."""
+    n = len(line)
+    uneven = np.zeros(n, np.bool_)
+    linked = _linked(line, t, polarity, min_gap, max_gap)
+    if alternations:
+        _width_alternations_kernel(t, polarity, linked, reach, max_alternation, np.empty(0), uneven)
+    if departures:
+        for i in range(n):
+            departure, place = _departure(t, linked, i)
+            uneven[i] |= (abs(departure) > levels[place]) | (place == 3)
+    return uneven
 
 
 # Stripes either side of an edge whose alternating part (bright minus dark width) is set over this many stripes
@@ -1552,28 +1579,13 @@ def width_alternations_px(line: np.ndarray, t_px: np.ndarray, polarity: np.ndarr
 
     line, t_px, polarity: (N,) the edges sorted by (line, t).
     """
-    return _alternations_and_links(line, t_px, polarity, period_px=period_px)[0]
-
-
-def _alternations_and_links(
-    line: np.ndarray, t_px: np.ndarray, polarity: np.ndarray, *, period_px: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """`width_alternations_px` (N,) and the links of its runs (`_linked`, (N + 1,) bool), each built once."""
     line = np.ascontiguousarray(line, np.int64)
     t = np.ascontiguousarray(t_px, np.float64)
     polarity = np.ascontiguousarray(polarity, np.int64)
     linked = _linked(line, t, polarity, DEPARTURE_GAP_PERIODS[0] * period_px, DEPARTURE_GAP_PERIODS[1] * period_px)
-    return _width_alternations_kernel(line, t, polarity, linked, DUTY_REACH_STRIPES), linked
-
-
-def _alternating(
-    line: np.ndarray, t_px: np.ndarray, polarity: np.ndarray, *, period_px: float, max_alternation_px: float
-) -> np.ndarray:
-    """(N,) bool: the edges `locate_edges` rejects where the widths alternate beyond max_alternation_px
-    (`width_alternations_px`), with their neighbours in the run: the rim that moved the edge dims their stripes too
-    (their errors are about half the edge's own, of the other sign)."""
-    alternation, linked = _alternations_and_links(line, t_px, polarity, period_px=period_px)
-    return _alternating_kernel(alternation, linked, max_alternation_px)
+    alternation = np.full(len(t), np.nan)
+    _width_alternations_kernel(t, polarity, linked, DUTY_REACH_STRIPES, np.inf, alternation, np.zeros(len(t), bool))
+    return alternation
 
 
 @numba.njit(cache=True, nogil=True)
@@ -1589,10 +1601,18 @@ def _linked(line: np.ndarray, t: np.ndarray, polarity: np.ndarray, min_gap: floa
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _width_alternations_kernel(
-    line: np.ndarray, t: np.ndarray, polarity: np.ndarray, linked: np.ndarray, reach: int
-) -> np.ndarray:
-    n = len(line)
-    out = np.full(n, np.nan)
+    t: np.ndarray,
+    polarity: np.ndarray,
+    linked: np.ndarray,
+    reach: int,
+    max_alternation: float,
+    alternation: np.ndarray,
+    uneven: np.ndarray,
+) -> None:
+    """`width_alternations_px` over every run (`_linked`): written into alternation (N,) where it is not empty (NaN
+    where not judged, as it comes), and edges whose widths alternate beyond max_alternation marked in uneven (N,)
+    bool with their neighbours in the run."""
+    n = len(t)
     # Per stripe of a run: its width, its kind's sign (+1 bright), its own alternating part and its width without
     # the duty; sized for the longest run a line can hold.
     width = np.empty(n)
@@ -1665,23 +1685,11 @@ def _width_alternations_kernel(
                     value = min(u - even[k - 2], even[k + 1] - v, 0.5 * (u - v))
                 else:
                     value = min(even[k - 2] - u, v - even[k + 1], 0.5 * (v - u))
-                out[start + k] = value
+                if len(alternation) > 0:
+                    alternation[start + k] = value
+                if value > max_alternation:  # edges start + k − 1 … start + k + 1 are all in the run
+                    uneven[start + k - 1] = uneven[start + k] = uneven[start + k + 1] = True
         start = stop + 1
-    return out
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _alternating_kernel(alternation: np.ndarray, linked: np.ndarray, max_alternation: float) -> np.ndarray:
-    n = len(alternation)
-    out = np.zeros(n, np.bool_)
-    for i in range(n):
-        if alternation[i] > max_alternation:
-            out[i] = True
-            if i > 0 and linked[i - 1]:
-                out[i - 1] = True
-            if linked[i]:
-                out[i + 1] = True
-    return out
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -1689,36 +1697,41 @@ def _edge_departures_kernel(
     line: np.ndarray, t: np.ndarray, polarity: np.ndarray, min_gap: float, max_gap: float
 ) -> np.ndarray:
     n = len(line)
-    out = np.full((n, 2), np.nan)
+    out = np.empty((n, 2))
     linked = _linked(line, t, polarity, min_gap, max_gap)
     for i in range(n):
-        # Run length either side of i (up to 4).
-        before = 0
-        while before < 4 and i - before - 1 >= 0 and linked[i - before - 1]:
-            before += 1
-        after = 0
-        while after < 4 and linked[i + after]:
-            after += 1
-        if before == 0 and after == 0:
-            out[i, 0], out[i, 1] = np.inf, 3.0
-            continue
-        if before >= 2 and after >= 2:
-            lo, place = i - 2, 0.0
-        elif before == 1 and after >= 3:
-            lo, place = i - 1, 1.0
-        elif after == 1 and before >= 3:
-            lo, place = i - 3, 1.0
-        elif before == 0 and after >= 4:
-            lo, place = i, 2.0
-        elif after == 0 and before >= 4:
-            lo, place = i - 4, 2.0
-        else:
-            out[i, 1] = 0.0
-            continue
-        d4 = t[lo] - 4.0 * t[lo + 1] + 6.0 * t[lo + 2] - 4.0 * t[lo + 3] + t[lo + 4]
-        coefficient = 6.0 if i - lo == 2 else (-4.0 if i - lo in (1, 3) else 1.0)
-        out[i, 0], out[i, 1] = d4 / coefficient, place
+        out[i, 0], place = _departure(t, linked, i)
+        out[i, 1] = place
     return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _departure(t: np.ndarray, linked: np.ndarray, i: int) -> tuple[float, int]:
+    """`edge_departures_px` of edge i: its departure (NaN where not judged, +inf alone) and its place in its run."""
+    # Run length either side of i (up to 4).
+    before = 0
+    while before < 4 and i - before - 1 >= 0 and linked[i - before - 1]:
+        before += 1
+    after = 0
+    while after < 4 and linked[i + after]:
+        after += 1
+    if before == 0 and after == 0:
+        return np.inf, 3
+    if before >= 2 and after >= 2:
+        lo, place = i - 2, 0
+    elif before == 1 and after >= 3:
+        lo, place = i - 1, 1
+    elif after == 1 and before >= 3:
+        lo, place = i - 3, 1
+    elif before == 0 and after >= 4:
+        lo, place = i, 2
+    elif after == 0 and before >= 4:
+        lo, place = i - 4, 2
+    else:
+        return np.nan, 0
+    d4 = t[lo] - 4.0 * t[lo + 1] + 6.0 * t[lo + 2] - 4.0 * t[lo + 3] + t[lo + 4]
+    coefficient = 6.0 if i - lo == 2 else (-4.0 if i - lo in (1, 3) else 1.0)
+    return d4 / coefficient, place
 
 
 @numba.njit(cache=True, nogil=True)
