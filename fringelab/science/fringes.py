@@ -740,12 +740,10 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
 
     chain = _link_chains(line, t_raw, polarity, n_samples=n_samples, max_step_px=settings.max_link_step_px_per_line,
                          across_gaps=settings.link_across_lost_crossing)  # fmt: skip
-    lengths = np.bincount(chain, minlength=len(chain))
-    long_enough = lengths[chain] >= settings.min_edge_length_lines
-    line, t_raw, polarity, chain = line[long_enough], t_raw[long_enough], polarity[long_enough], chain[long_enough]
+    long_enough, chain = _long_chains(chain, int(settings.min_edge_length_lines))
+    line, t_raw, polarity = line[long_enough], t_raw[long_enough], polarity[long_enough]
     shift_px, beside = shift_px[long_enough], beside[long_enough]
     slope_at, contrast_at = slope_at[long_enough], contrast_at[long_enough]
-    chain = _dense_labels(chain, len(long_enough))  # labels are crossing indices, so fewer than N of them
 
     if settings.edge_smoothing_lines > 0 and len(line):
         t_px, by_chain = _smooth_along_chains(line, t_raw, chain, sigma_lines=settings.edge_smoothing_lines)
@@ -867,6 +865,36 @@ def _by_chain(chain: np.ndarray, n_chains: int) -> tuple[np.ndarray, np.ndarray]
         order[fill[chain[i]]] = i
         fill[chain[i]] += 1
     return first, order
+
+
+@numba.njit(cache=True, nogil=True)
+def _long_chains(chain: np.ndarray, min_length: int) -> tuple[np.ndarray, np.ndarray]:
+    """The crossings of chains of at least min_length crossings, chain (N,) labels below N (`_link_chains`): which,
+    (N,) bool, and their chains renumbered 0..n_chains − 1 in the order of the labels, (M,) int32 (as `_dense_labels`
+    of theirs), in one counting pass (a bincount, a gather, a selection and a renumbering took 0.4 ms a 1024² frame)."""
+    n = len(chain)
+    dense = np.zeros(n, np.int64)  # each label's count, then its new label (−1: dropped)
+    for i in range(n):
+        dense[chain[i]] += 1
+    n_chains = 0
+    for label in range(n):
+        if dense[label] > 0 and dense[label] >= min_length:
+            dense[label] = n_chains
+            n_chains += 1
+        else:
+            dense[label] = -1
+    keep = np.empty(n, np.bool_)
+    m = 0
+    for i in range(n):
+        keep[i] = dense[chain[i]] >= 0
+        m += keep[i]
+    kept = np.empty(m, np.int32)
+    k = 0
+    for i in range(n):
+        if keep[i]:
+            kept[k] = dense[chain[i]]
+            k += 1
+    return keep, kept
 
 
 def _dense_labels(chain: np.ndarray, n_labels: int) -> np.ndarray:
