@@ -832,14 +832,14 @@ def _edge_sigma(
     else:
         gain = residual = np.full((1, 1), np.nan)
     first, order = by_chain if by_chain is not None else (np.zeros(0, np.int64), np.zeros(0, np.int64))
-    # The kernel's working arrays are the thread's (`_FrameScratch`): fresh, their 64 bytes a point were faulted in
+    # The kernel's working arrays are the thread's (`_FrameScratch`): fresh, their 80 bytes a point were faulted in
     # page by page each frame (2.1 of 3.9 ms a 1024² frame).
     n = len(line)
     _edge_sigma_kernel(
         np.ascontiguousarray(slope_grey, np.float32), int(n_samples), _int_labels(line),
         np.ascontiguousarray(t_raw, np.float64), np.ascontiguousarray(t_px, np.float64),
         _int_labels(chain), gain, residual, np.ascontiguousarray(shift_px, np.float64), float(shift_share), sigma,
-        first, order, _SCRATCH.buffer("sigma_point", 3 * n, np.float64),
+        first, order, _SCRATCH.buffer("sigma_point", 5 * n, np.float64),
         _SCRATCH.buffer("sigma_sums", 3 * (n + 1), np.float64), _SCRATCH.buffer("sigma_terms", 2 * n, np.float64),
     )  # fmt: skip
     return sigma
@@ -955,43 +955,49 @@ def _edge_sigma_kernel(
     terms_buffer: np.ndarray,
 ) -> None:
     """`_edge_sigma`; first and order: `_by_chain` of chain, or empty to compute them here; point_buffer,
-    cum_buffer, terms_buffer: float64 room for 3N, 3(N + 1) and 2N items, the working arrays below."""
+    cum_buffer, terms_buffer: float64 room for 5N, 3(N + 1) and 2N items, the working arrays below."""
     n = len(line)
     half = gain.shape[0] - 1
     smoothed = np.isfinite(gain[0, 0])
-    # Per point, in line order: the σ of its raw position for unit grey noise (model, px), its raw − smoothed
-    # residual and its shift, side by side. The loops below visit the points in chain order, a line's worth of
-    # points apart in memory: one cache line a point instead of one for each array (3.5 → 2.3 ms a 1024² frame).
-    point = point_buffer[: 3 * n].reshape((n, 3))
-    for p in range(n):
-        j = min(max(int(t_raw[p]), 0), n_samples - 2)
-        x = t_raw[p] - j
-        slope = max(slope_grey[p], 1e-3)
-        point[p, 0] = np.sqrt((1.0 - x) ** 2 + x * x) / slope
-        point[p, 1] = t_raw[p] - t_px[p]
-        point[p, 2] = shift_share * shift[p]
     if not smoothed:
         return
     n_chains = chain.max() + 1
     if len(first) != n_chains + 1:
         first, order = _by_chain(chain, n_chains)
+    # Lines each chain starts and ends on (a curve may skip a line: `_link_chains`).
+    ends = np.empty((n_chains, 2), np.int64)
+    for c in range(n_chains):
+        ends[c, 0], ends[c, 1] = line[order[first[c]]], line[order[first[c + 1] - 1]]
+    # Per point, in line order, what the passes in chain order below take of it, side by side: its raw − smoothed
+    # residual², the model's residual² and the model² (the σ of its raw position for unit grey noise, px), its
+    # smoothing's gain² and its shift². Those passes visit the points a line's worth of points apart in memory: one
+    # cache line a point instead of one for each array (3.5 → 2.3 ms a 1024² frame), and no read of its line.
+    point = point_buffer[: 5 * n].reshape((n, 5))
+    for p in range(n):
+        j = min(max(int(t_raw[p]), 0), n_samples - 2)
+        x = t_raw[p] - j
+        slope = max(slope_grey[p], 1e-3)
+        m = np.sqrt((1.0 - x) ** 2 + x * x) / slope
+        r = t_raw[p] - t_px[p]
+        # Lines of the curve before and after the point.
+        b, a = min(line[p] - ends[chain[p], 0], half), min(ends[chain[p], 1] - line[p], half)
+        point[p, 0] = r * r
+        point[p, 1] = (m * residual[b, a]) ** 2
+        point[p, 2] = m * m
+        point[p, 3] = gain[b, a] ** 2
+        point[p, 4] = (shift_share * shift[p]) ** 2
     # Prefix sums along the sorted order of: residual², the model's residual² for unit noise, the model².
     cum = cum_buffer[: 3 * (n + 1)].reshape((n + 1, 3))  # rows 1..n are written below, chain after chain
     cum[0] = 0.0
     # What the second pass needs of each point besides the sums, in the sorted order too: it reads nothing by point
     # (a cache miss each at 1024²) but writes σ.
     terms = terms_buffer[: 2 * n].reshape((n, 2))
-    for c in range(n_chains):
-        lo, hi = first[c], first[c + 1]
-        for q in range(lo, hi):
-            p = order[q]
-            m, r = point[p, 0], point[p, 1]
-            # Lines of the curve before and after the point (a curve may skip a line: `_link_chains`).
-            b, a = min(line[p] - line[order[lo]], half), min(line[order[hi - 1]] - line[p], half)
-            cum[q + 1, 0] = cum[q, 0] + r * r
-            cum[q + 1, 1] = cum[q, 1] + (m * residual[b, a]) ** 2
-            cum[q + 1, 2] = cum[q, 2] + m * m
-            terms[q, 0], terms[q, 1] = gain[b, a] ** 2, point[p, 2] ** 2
+    for q in range(n):
+        p = order[q]
+        cum[q + 1, 0] = cum[q, 0] + point[p, 0]
+        cum[q + 1, 1] = cum[q, 1] + point[p, 1]
+        cum[q + 1, 2] = cum[q, 2] + point[p, 2]
+        terms[q, 0], terms[q, 1] = point[p, 3], point[p, 4]
     frame_noise2 = cum[n, 0] / cum[n, 1] if cum[n, 1] > 0 else np.nan
     reach = 3 * half
     for c in range(n_chains):
