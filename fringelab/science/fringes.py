@@ -1603,14 +1603,19 @@ def _uneven_edges_kernel(
     if alternations:
         _width_alternations_kernel(t, polarity, linked, max_alternation, np.empty(0), uneven)
     if departures:
+        # Where the levels of the edges inside a run (centred, next to its end) are infinite (only the ends judged,
+        # the default), only each run's first and last edge can be rejected: the rest are not measured.
+        ends_only = levels[0] == np.inf and levels[1] == np.inf
         start = 0
         while start < n:
             stop = start
             while linked[stop]:
                 stop += 1
-            for i in range(start, stop + 1):
+            i = start
+            while i <= stop:
                 departure, place = _departure(t, i, min(i - start, 4), min(stop - i, 4))
                 uneven[i] |= (abs(departure) > levels[place]) | (place == 3)
+                i = stop if ends_only and i < stop else i + 1
             start = stop + 1
     return uneven
 
