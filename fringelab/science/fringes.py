@@ -593,8 +593,7 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     bright_level = percentile(scan[::4, ::4], 95)
     dark_window = _odd(period_px)
     stripe_max = _dilate_along_lines(scan, dark_window, out=scratch("stripe_max", np.float32))
-    across = cv2.dilate(stripe_max, np.ones((3, 1), np.uint8), dst=scratch("float", np.float32))
-    dark = np.less(across, settings.dark_fraction * bright_level, out=scratch("dark", np.bool_))
+    dark = _dim_across(stripe_max, np.float32(settings.dark_fraction * bright_level), scratch("dark", np.bool_))
     # Black: well below the dark stripes around it. A crack or a cut narrower than a stripe is not "dark" by the
     # test above (bright stripes lie within half a period of it), but it is darker than any dark stripe, and
     # an edge that touches it is the crack's rim, not a stripe edge. The margin of 8 grey levels keeps noise
@@ -1168,6 +1167,20 @@ def _reflect_101(index: int, n: int) -> int:
     while index < 0 or index >= n:
         index = -index if index < 0 else 2 * (n - 1) - index
     return index
+
+
+@numba.njit(cache=True, nogil=True)
+def _dim_across(stripe_max: np.ndarray, level: np.float32, dark: np.ndarray) -> np.ndarray:
+    """dark (S, T) bool, filled and returned: stripe_max (S, T) float32 below level (compared in float32) on the line
+    and on the lines either side that exist, i.e. its maximum over three lines below it, in one pass (OpenCV's
+    3 × 1 dilation and the comparison took 0.19 ms a 512 × 480 frame)."""
+    n_lines, n_samples = stripe_max.shape
+    for i in range(n_lines):
+        before, here, after = stripe_max[max(i - 1, 0)], stripe_max[i], stripe_max[min(i + 1, n_lines - 1)]
+        row = dark[i]
+        for j in range(n_samples):
+            row[j] = (before[j] < level) & (here[j] < level) & (after[j] < level)
+    return dark
 
 
 @numba.njit(cache=True, nogil=True)
