@@ -842,20 +842,29 @@ def _edge_sigma(
         gain = residual = np.full((1, 1), np.nan)
     first, order = by_chain if by_chain is not None else (np.zeros(0, np.int64), np.zeros(0, np.int64))
     # The kernel's working arrays are the thread's (`_FrameScratch`): fresh, their 80 bytes a point were faulted in
-    # page by page each frame (2.1 of 3.9 ms a 1024² frame).
+    # page by page each frame (2.1 of 3.9 ms a 1024² frame). Beyond SIGMA_SCRATCH_MAX_BYTES an array (frames of
+    # millions of edges) they are fresh again, so that what a thread keeps stays bounded (32 MiB in all).
     n = len(line)
+
+    def work(name: str, length: int) -> np.ndarray:
+        if length * 8 > SIGMA_SCRATCH_MAX_BYTES:
+            return np.empty(length)
+        return _SCRATCH.buffer(name, length, np.float64)
+
     _edge_sigma_kernel(
         np.ascontiguousarray(slope_grey, np.float32), int(n_samples), _int_labels(line),
         np.ascontiguousarray(t_raw, np.float64), np.ascontiguousarray(t_px, np.float64),
         _int_labels(chain), gain, residual, np.ascontiguousarray(shift_px, np.float64), float(shift_share), sigma,
-        first, order, _SCRATCH.buffer("sigma_point", 5 * n, np.float64),
-        _SCRATCH.buffer("sigma_sums", 3 * (n + 1), np.float64), _SCRATCH.buffer("sigma_terms", 2 * n, np.float64),
+        first, order, work("sigma_point", 5 * n), work("sigma_sums", 3 * (n + 1)), work("sigma_terms", 2 * n),
     )  # fmt: skip
     return sigma
 
 
 # Weight, in edge points, of the frame's own noise level against an edge's local one (`_edge_sigma`).
 FRAME_NOISE_WEIGHT_POINTS = 20.0
+# The largest working array of `_edge_sigma` a thread keeps from frame to frame (`_FrameScratch`): 16 MiB, the points'
+# terms of 400 000 edges (a 2048² frame of 10 px stripes); larger ones are allocated for the frame.
+SIGMA_SCRATCH_MAX_BYTES = 16 * 2**20
 
 
 @numba.njit(cache=True, nogil=True)
