@@ -685,10 +685,8 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     # edge: no crossings there.
     margin_lines = half if settings.presmooth_px > 0 else 0
     keep_beside = any_area
-    if keep_beside:
-        scratch("zeros", np.uint8).fill(0)
     line, t_raw, polarity, mid_at, slope_at, contrast_at = _crossings(
-        scan, mid, contrast, local_max, scratch("zeros", np.uint8) if keep_beside else cut,
+        scan, mid, contrast, local_max, None if keep_beside else cut,
         min_contrast_grey=float(settings.min_contrast_grey), saturation_grey=float(settings.saturation_grey),
         margin_lines=margin_lines,
     )  # fmt: skip
@@ -1297,7 +1295,7 @@ def _crossings(
     mid: np.ndarray,
     contrast: np.ndarray,
     local_max: np.ndarray,
-    near_dark: np.ndarray,
+    near_dark: np.ndarray | None,
     *,
     min_contrast_grey: float,
     saturation_grey: float,
@@ -1310,7 +1308,8 @@ def _crossings(
     levels (gathered here, where the lines are read in order, rather than later from the whole frame). They are views
     of the thread's buffers, valid until its next call.
 
-    scan, mid, contrast, local_max: (S, T) float32; near_dark: (S, T) uint8, non-zero where edges are rejected.
+    scan, mid, contrast, local_max: (S, T) float32; near_dark: (S, T) uint8, non-zero where edges are rejected, or
+    None where none is (no frame of zeros to read).
     A sample is usable where the contrast reaches min_contrast_grey, the window's brightest sample stays below
     saturation_grey and no dark area is near. The first and last `margin_lines` lines and the first and last
     sample of every line give none (the sub-pixel fit needs a sample either side of the straddling pair).
@@ -1329,12 +1328,13 @@ def _crossings(
     n_lines, n_samples = scan.shape
     names = ("crossing_line", "crossing_t", "crossing_polarity", "crossing_mid", "crossing_slope", "crossing_contrast")
     types = (np.int32, np.float64, np.int8, np.float64, np.float32, np.float32)
+    near = np.zeros((1, n_samples), np.uint8) if near_dark is None else near_dark  # one line of zeros read for all
     m, next_line, end_line = 0, margin_lines, n_lines - margin_lines
     length = n_samples
     while True:
         buffers = tuple(_SCRATCH.buffer(name, length, dtype, kept=m) for name, dtype in zip(names, types, strict=True))
-        m, next_line = _crossings_kernel(scan, mid, contrast, local_max, near_dark, min_contrast_grey, saturation_grey,
-                                         next_line, end_line, m, *buffers)  # fmt: skip
+        m, next_line = _crossings_kernel(scan, mid, contrast, local_max, near, near_dark is not None, min_contrast_grey,
+                                         saturation_grey, next_line, end_line, m, *buffers)  # fmt: skip
         if next_line >= end_line:
             return tuple(buffer[:m] for buffer in buffers)  # type: ignore[return-value]
         length = m + n_samples
@@ -1372,6 +1372,7 @@ def _crossings_kernel(
     contrast: np.ndarray,
     local_max: np.ndarray,
     near_dark: np.ndarray,
+    by_line: bool,
     min_contrast: float,
     saturation: float,
     first_line: int,
@@ -1384,9 +1385,9 @@ def _crossings_kernel(
     slope_out: np.ndarray,
     contrast_out: np.ndarray,
 ) -> tuple[int, int]:
-    """`_crossings` of lines first_line … end_line − 1, written into the buffers (each of one length) from item m
-    on: the number of items written in all and the line before which it stopped, because that line might not fit
-    (a crossing a sample), or end_line."""
+    """`_crossings` of lines first_line … end_line − 1 (near_dark: (S, T) by_line, else its one line for every line),
+    written into the buffers (each of one length) from item m on: the number of items written in all and the line
+    before which it stopped, because that line might not fit (a crossing a sample), or end_line."""
     capacity = min(len(line_out), len(t_out), len(polarity_out), len(mid_out), len(slope_out), len(contrast_out))
     n_samples = scan.shape[1]
     usable = np.empty(n_samples, np.uint8)
@@ -1395,7 +1396,8 @@ def _crossings_kernel(
     for i in range(first_line, end_line):
         if m + n_samples > capacity:
             return m, i
-        scan_row, mid_row, contrast_row, max_row, near_row = scan[i], mid[i], contrast[i], local_max[i], near_dark[i]
+        scan_row, mid_row, contrast_row, max_row = scan[i], mid[i], contrast[i], local_max[i]
+        near_row = near_dark[i if by_line else 0]
         # Branch-free first: which samples are usable and above the mid-level (vectorised), then which pairs
         # straddle it; the crossings, a few per period, are placed in a second loop over those pairs only.
         for j in range(n_samples):
