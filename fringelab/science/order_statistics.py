@@ -1,17 +1,18 @@
-"""Medians and percentiles equal to numpy's, from one partition: for the per-frame levels of the edge locator and
+"""Medians and percentiles equal to numpy's, from one selection: for the per-frame levels of the edge locator and
 the σ checks, where np.median and np.percentile cost 0.2–1 ms on a frame (they partition around two or three ranks
 at once, which numpy does several times slower than around one).
 
 Belongs here: `median` and `percentile` of 1-D float data, the same values as np.median and np.percentile (the
-default "linear" method) for float32 and float64: np.partition around the lower wanted rank, the next rank the
-least value above it, and numpy's own interpolation arithmetic. Not here: weighted quantiles, other interpolation
-methods, integer data.
+default "linear" method) for float32 and float64: the value of the lower wanted rank (float32: a radix selection on
+the bits, `_ranks_float32`; float64: np.partition around it), the next rank's, and numpy's own interpolation
+arithmetic. Not here: weighted quantiles, other interpolation methods, integer data.
 """
 
 from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 
 
@@ -65,7 +66,77 @@ def _flat(values: np.ndarray) -> np.ndarray:
 def _ranks(flat: np.ndarray, low: int, high: int) -> tuple[bool, float, float]:
     """The values of ranks low ≤ high ≤ low + 1 (0 = smallest) of flat (N,), and False instead where any value is
     NaN (np.partition puts NaN last, so one lies at or after rank low, and min passes it on)."""
+    if flat.dtype == np.float32:
+        # np.partition of float32 took 89 µs for a 512 × 480 frame's 15 360 samples, the selection 15 µs.
+        found, key_low, key_high = _ranks_float32(flat.view(np.uint32), low, high)
+        if not found:
+            return False, math.nan, math.nan
+        a, b = _float32_from_keys(np.array([key_low, key_high], np.uint32))
+        return True, float(a), float(b)
     part = np.partition(flat, low)
     if np.isnan(part[low:].min()):
         return False, math.nan, math.nan
     return True, float(part[low]), float(part[high] if high == low else part[high:].min())
+
+
+def _float32_from_keys(keys: np.ndarray) -> np.ndarray:
+    """The float32 values of `_ranks_float32`'s ordered keys (N,) uint32."""
+    negative = keys < np.uint32(0x80000000)
+    return np.where(negative, ~keys, keys ^ np.uint32(0x80000000)).view(np.float32)
+
+
+@numba.njit(cache=True, nogil=True)
+def _ranks_float32(bits: np.ndarray, low: int, high: int) -> tuple[bool, np.uint32, np.uint32]:
+    """The ranks low ≤ high ≤ low + 1 of float32 values given as their bits (N,) uint32, as ordered keys (the bits
+    with the sign bit flipped, all bits of negative values flipped: unsigned order is the values' order, −0 just below
+    +0); False where any value is NaN. A radix selection, 12 + 12 + 8 bits: each digit's histogram over the values
+    whose higher digits are the wanted rank's, O(N)."""
+    n = len(bits)
+    keys = np.empty(n, np.uint32)
+    magnitude_max = np.uint32(0)
+    for i in range(n):  # without branches, so that it vectorises
+        b = bits[i]
+        magnitude_max = max(magnitude_max, b & np.uint32(0x7FFFFFFF))
+        keys[i] = b ^ ((b >> np.uint32(31)) * np.uint32(0x7FFFFFFF) | np.uint32(0x80000000))
+    if magnitude_max > np.uint32(0x7F800000):
+        return False, np.uint32(0), np.uint32(0)
+    histogram = np.zeros(4096, np.int64)
+    for i in range(n):
+        histogram[keys[i] >> np.uint32(20)] += 1
+    rank = low
+    candidates = keys
+    prefix = np.uint32(0)
+    # (shift, digit mask, histogram length) of the three digits, high to low
+    for level in range(3):
+        if level == 0:
+            shift, mask, size = 20, 0xFFF, 4096
+        elif level == 1:
+            shift, mask, size = 8, 0xFFF, 4096
+        else:
+            shift, mask, size = 0, 0xFF, 256
+        if level > 0:
+            histogram[:size] = 0
+            for key in candidates:
+                histogram[(key >> np.uint32(shift)) & np.uint32(mask)] += 1
+        digit = 0
+        while rank >= histogram[digit]:
+            rank -= histogram[digit]
+            digit += 1
+        prefix |= np.uint32(digit) << np.uint32(shift)
+        if level < 2:
+            kept = np.empty(histogram[digit], np.uint32)
+            m = 0
+            for key in candidates:
+                if (key >> np.uint32(shift)) & np.uint32(mask) == digit:
+                    kept[m] = key
+                    m += 1
+            candidates = kept
+        if high > low and rank + 1 == histogram[digit]:
+            # rank low is the greatest of this digit's values, rank high the least key above them
+            above = np.uint32(0xFFFFFFFF)
+            top = prefix | np.uint32((1 << shift) - 1)
+            for key in keys:
+                if key > top and key < above:
+                    above = key
+            return True, prefix if level == 2 else candidates.max(), above
+    return True, prefix, prefix

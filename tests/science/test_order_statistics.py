@@ -49,3 +49,19 @@ def test_refuses_integers_and_empty() -> None:
         median(np.arange(5))
     with pytest.raises(ValueError, match="at least one"):
         percentile(np.zeros(0), 50)
+
+
+def test_float32_selection_across_its_digits() -> None:
+    # The float32 radix selection's paths: the wanted rank the last of its 12-bit, 12-bit or 8-bit digit's values
+    # (the next rank then the least value above), ties across digits, both signs, ±0 and ±inf.
+    rng = np.random.default_rng(41)
+    for trial in range(200):
+        n = int(rng.integers(2, 30000))
+        x = rng.standard_normal(n).astype(np.float32) * np.float32(10.0 ** rng.integers(-3, 4))
+        if trial % 3 == 0:
+            x = np.round(x).astype(np.float32)  # many ties
+        if trial % 7 == 0:
+            x[rng.integers(0, n, 3)] = np.array([np.inf, -np.inf, 0.0], np.float32)
+        for q in (0, 1, 5, 10, 50, 95, 99, 100):
+            assert _same(percentile(x, q), float(np.percentile(x, q)))
+        assert _same(median(x), float(np.median(x)))
