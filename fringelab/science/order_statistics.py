@@ -4,8 +4,9 @@ at once, which numpy does several times slower than around one).
 
 Belongs here: `median` and `percentile` of 1-D float data, the same values as np.median and np.percentile (the
 default "linear" method) for float32 and float64: the value of the lower wanted rank (float32: a radix selection on
-the bits, `_ranks_float32`; float64: np.partition around it), the next rank's, and numpy's own interpolation
-arithmetic. Not here: weighted quantiles, other interpolation methods, integer data.
+the bits, `_ranks_float32`; float64: np.partition around it, from RADIX_MIN_VALUES values on a radix selection too,
+`_radix_ranks`), the next rank's, and numpy's own interpolation arithmetic. Not here: weighted quantiles, other
+interpolation methods, integer data.
 """
 
 from __future__ import annotations
@@ -63,6 +64,11 @@ def _flat(values: np.ndarray) -> np.ndarray:
     return flat
 
 
+# From this many float64 values on, the ranks are selected by their bits (`_radix_ranks`): np.partition takes
+# about 10 ns a value (0.24 ms for a 512 x 480 frame's 24 000 σ checks), the radix passes 2-3 ns.
+RADIX_MIN_VALUES = 4096
+
+
 def _ranks(flat: np.ndarray, low: int, high: int) -> tuple[bool, float, float]:
     """The values of ranks low ≤ high ≤ low + 1 (0 = smallest) of flat (N,), and False instead where any value is
     NaN (np.partition puts NaN last, so one lies at or after rank low, and min passes it on)."""
@@ -73,6 +79,8 @@ def _ranks(flat: np.ndarray, low: int, high: int) -> tuple[bool, float, float]:
             return False, math.nan, math.nan
         a, b = _float32_from_keys(np.array([key_low, key_high], np.uint32))
         return True, float(a), float(b)
+    if flat.dtype == np.float64 and flat.size >= RADIX_MIN_VALUES:
+        return _radix_ranks(np.ascontiguousarray(flat), low, high)
     part = np.partition(flat, low)
     if np.isnan(part[low:].min()):
         return False, math.nan, math.nan
@@ -140,3 +148,81 @@ def _ranks_float32(bits: np.ndarray, low: int, high: int) -> tuple[bool, np.uint
                     above = key
             return True, prefix if level == 2 else candidates.max(), above
     return True, prefix, prefix
+
+
+_SIGN = np.uint64(1) << np.uint64(63)
+# Levels of `_radix_ranks`: the key's bits from the top, 12 at a time (4096 counts), the last 4.
+_RADIX_SHIFTS = np.array([52, 40, 28, 16, 4, 0], np.uint64)
+_RADIX_BINS = 4096
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _key(bits: np.uint64) -> np.uint64:
+    """An unsigned key in the order of the float64 whose bits these are (−0 just below +0)."""
+    if bits & _SIGN:
+        return ~bits
+    return bits | _SIGN
+
+
+@numba.njit(cache=True, nogil=True)
+def _radix_ranks(x: np.ndarray, low: int, high: int) -> tuple[bool, float, float]:
+    """`_ranks` of float64 x (N,) by most-significant-digit radix selection over the values' keys: each level
+    counts the candidates' next bits, keeps those in the digit where rank `low` falls (indices, compacted in place
+    after the first level) and the least key of a higher digit (rank `high`'s value when it lies beyond rank low's
+    equal values). The values are the data's own, so they are numpy's (which of −0 and +0 aside)."""
+    n = len(x)
+    bits = x.view(np.uint64)
+    # Four interleaved counts: the keys crowd into a few digits, and one count's increments would wait on each other.
+    counts = np.zeros((4, _RADIX_BINS), np.int64)
+    any_nan = False
+    for i in range(n):
+        any_nan |= x[i] != x[i]
+        counts[i & 3, _key(bits[i]) >> _RADIX_SHIFTS[0]] += 1
+    if any_nan:
+        return False, np.nan, np.nan
+    for d in range(_RADIX_BINS):
+        counts[0, d] += counts[1, d] + counts[2, d] + counts[3, d]
+    below = 0
+    digit = 0
+    while below + counts[0, digit] <= low:
+        below += counts[0, digit]
+        digit += 1
+    size = counts[0, digit]
+    selected = np.uint64(digit)  # compared with the keys' digits unsigned (mixed with a signed one: as floats)
+    candidates = np.empty(size + 1, np.int64)  # one slot beyond: the branch-free compaction writes every index
+    no_key = ~np.uint64(0)
+    successor = no_key  # the least key above the selected digits
+    m = 0
+    for i in range(n):
+        key = _key(bits[i])
+        d = key >> _RADIX_SHIFTS[0]
+        candidates[m] = i
+        m += d == selected
+        successor = min(successor, key if d > selected else no_key)
+    mask = np.uint64(_RADIX_BINS - 1)
+    for level in range(1, len(_RADIX_SHIFTS)):
+        shift = _RADIX_SHIFTS[level]
+        counts[0, :] = 0
+        for j in range(size):
+            counts[0, (_key(bits[candidates[j]]) >> shift) & mask] += 1
+        digit = 0
+        while below + counts[0, digit] <= low:
+            below += counts[0, digit]
+            digit += 1
+        selected = np.uint64(digit)
+        m = 0
+        for j in range(size):
+            i = candidates[j]
+            key = _key(bits[i])
+            d = (key >> shift) & mask
+            candidates[m] = i
+            m += d == selected
+            successor = min(successor, key if d > selected else no_key)
+        size = m
+    # The candidates left are equal values (every bit of their keys selected): ranks below … below + size − 1.
+    a = x[candidates[0]]
+    if high < below + size:
+        return True, a, a
+    found = np.empty(1, np.uint64)
+    found[0] = successor ^ _SIGN if successor & _SIGN else ~successor
+    return True, a, found.view(np.float64)[0]

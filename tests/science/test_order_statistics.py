@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fringelab.science.order_statistics import median, percentile
+from fringelab.science.order_statistics import RADIX_MIN_VALUES, median, percentile
 
 
 def _same(a: float, b: float) -> bool:
@@ -65,3 +65,27 @@ def test_float32_selection_across_its_digits() -> None:
         for q in (0, 1, 5, 10, 50, 95, 99, 100):
             assert _same(percentile(x, q), float(np.percentile(x, q)))
         assert _same(median(x), float(np.median(x)))
+
+
+@pytest.mark.parametrize("kind", ["chi-square", "ties", "binades", "infinities", "nan"])
+def test_radix_ranks_equal_to_numpy(kind: str) -> None:
+    """From RADIX_MIN_VALUES float64 values on, the ranks are selected by their bits: the same values as numpy's."""
+    rng = np.random.default_rng(31)
+    for _ in range(20):
+        n = int(rng.integers(RADIX_MIN_VALUES, 3 * RADIX_MIN_VALUES))
+        if kind == "chi-square":
+            x = rng.chisquare(1, n)
+        elif kind == "ties":
+            x = rng.integers(-3, 3, n).astype(float)
+        elif kind == "binades":
+            x = rng.standard_normal(n) * 10.0 ** rng.integers(-300, 300, n)
+        elif kind == "infinities":
+            x = np.where(rng.random(n) < 0.3, np.inf, rng.standard_normal(n))
+            x[rng.random(n) < 0.2] = -np.inf
+        else:
+            x = rng.standard_normal(n)
+            x[rng.integers(0, n)] = np.nan
+        assert _same(median(x), float(np.median(x)))
+        assert _same(median(x[:-1]), float(np.median(x[:-1])))
+        for q in (0, 0.1, 37.5, 99.9, 100):
+            assert _same(percentile(x, q), float(np.percentile(x, q)))
