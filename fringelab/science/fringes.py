@@ -582,13 +582,17 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
         else:
             np.copyto(transposed, image.T)
         image = transposed
-    scan = _grey_image(image, out=scratch("grey", np.float32))
-    n_lines, n_samples = scan.shape
-
     half = max(1, int(np.ceil(3.0 * settings.presmooth_px)))
     if settings.presmooth_px > 0:
         kernel = cv2.getGaussianKernel(2 * half + 1, settings.presmooth_px).astype(np.float32)
-        scan = cv2.sepFilter2D(scan, cv2.CV_32F, np.ones((1, 1), np.float32), kernel, dst=scratch("scan", np.float32))
+        # 8-bit frames go to OpenCV as they are: its pass along the lines (× 1) makes them float32 exactly, the
+        # same scan as from a float32 copy, which took 0.04 ms a 512 × 480 frame.
+        as_is = image.dtype == np.uint8 and image.flags.c_contiguous
+        grey = image if as_is else _grey_image(image, out=scratch("grey", np.float32))
+        scan = cv2.sepFilter2D(grey, cv2.CV_32F, np.ones((1, 1), np.float32), kernel, dst=scratch("scan", np.float32))
+    else:
+        scan = _grey_image(image, out=scratch("grey", np.float32))
+    n_lines, n_samples = scan.shape
 
     # Dark: no bright sample within half a period either way (a dark stripe is only half a period wide). The
     # mask starts half a period inside a dark area (clamp ring, hole, background); grown by half a period
