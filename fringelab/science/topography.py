@@ -465,45 +465,105 @@ def frame_coverage(
     missing["out_of_range"] = float(np.sum(beyond_mm2))
     if len(rk):
         t_now = _displaced_reference(positions, reference.reference_t_px, rk, rs)
-        code = np.full(len(rk), -1, np.int64)
-        # Unordered edge points lend their reason to the missing point nearest them on their line.
-        unordered = np.flatnonzero(k < 0)
-        if len(unordered):
-            stride = float(edges.n_samples + 1000.0)
-            keys = rs.astype(np.float64) * stride + t_now
-            order = np.argsort(keys)
-            query = edges.line[unordered].astype(np.float64) * stride + edges.t_px[unordered]
-            pos = (
-                np.clip(np.searchsorted(keys[order], query), 1, len(order) - 1)
-                if len(order) > 1
-                else np.zeros(len(query), np.int64)
-            )
-            lo, hi = order[np.maximum(pos - 1, 0)], order[pos]
-            nearest = np.where(np.abs(keys[lo] - query) <= np.abs(keys[hi] - query), lo, hi)
-            close = np.abs(keys[nearest] - query) <= 0.25 * projector.period_px
-            code[nearest[close]] = np.where(reason[unordered[close]] == ORDER_CONFLICT, 4, 3)
-        if edges.unusable is not None:
-            block = UNUSABLE_BLOCK_PX
-            rows = np.clip(rs // block, 0, edges.unusable.shape[0] - 1)
-            cols = np.clip(np.round(t_now).astype(np.int64) // block, 0, edges.unusable.shape[1] - 1)
-            image_code = edges.unusable[rows, cols]
-            from_image = np.select(
-                [image_code == UNUSABLE_BLACK, image_code == UNUSABLE_DARK, image_code == UNUSABLE_UNEVEN_LIGHT],
-                [0, 1, MISSING_REASONS.index("uneven_light")], default=2,
-            )  # fmt: skip
-        else:
-            from_image = np.full(len(rk), 2)
-        code = np.where(code >= 0, code, from_image)
+        # Unordered edge points lend their reason to the missing point nearest them on their line, found in the
+        # missing points' (line, t) order (np.argsort's, as the ties fall).
+        stride = float(edges.n_samples + 1000.0)
+        keys = rs.astype(np.float64) * stride + t_now
+        unusable = np.zeros((0, 0), np.uint8) if edges.unusable is None else edges.unusable
+        areas, starts = _missing_areas(
+            rk, rs, t_now, keys, np.argsort(keys), stride, np.ascontiguousarray(k, np.int64),
+            np.ascontiguousarray(edges.line), np.ascontiguousarray(edges.t_px), np.ascontiguousarray(reason),
+            0.25 * float(projector.period_px), unusable, edges.unusable is not None, area,
+        )  # fmt: skip
         for index, name in enumerate(MISSING_REASONS):
             if name == "out_of_range":
                 continue
-            missing[name] = float(np.sum(area[rk[code == index], rs[code == index]]))
+            missing[name] = float(np.sum(areas[starts[index] : starts[index + 1]]))
     return FrameCoverage(
         visible_area_mm2=reference.seen_area_mm2,
         measured_area_mm2=float(np.sum(measured_mm2)),
         missing_mm2=missing,
         n_order_conflicts=0,
     )
+
+
+_UNEVEN_LIGHT_INDEX = MISSING_REASONS.index("uneven_light")
+_N_MISSING_REASONS = len(MISSING_REASONS)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _missing_areas(
+    rk: np.ndarray,
+    rs: np.ndarray,
+    t_now: np.ndarray,
+    keys: np.ndarray,
+    order: np.ndarray,
+    stride: float,
+    k: np.ndarray,
+    line: np.ndarray,
+    t_px: np.ndarray,
+    reason: np.ndarray,
+    max_distance_px: float,
+    unusable: np.ndarray,
+    has_unusable: bool,
+    area_mm2: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """`frame_coverage`'s reasons for the missing reference points (rk, rs) (M,), now at t_now (M,): an unordered
+    edge point (k < 0 of the frame's (N,)) within max_distance_px of the nearest of them on its line (keys (M,)
+    line × stride + t, sorted by order (M,)) lends its reason (the last such point wins), else the `unusable`
+    block there does (has_unusable; low contrast without). Returns their areas grouped by reason (M,) (each group
+    in the points' order, as `area[mask]` gives them) and where each MISSING_REASONS index's group starts (R + 1,).
+    One pass over the edge points, one over the missing points; numpy took 0.16 ms a 512 × 480 frame in calls."""
+    m = len(rk)
+    code = np.full(m, -1, np.int64)
+    if m > 0:
+        for i in range(len(k)):
+            if k[i] >= 0:
+                continue
+            query = np.float64(line[i]) * stride + np.float64(t_px[i])
+            lo, hi = 0, m  # np.searchsorted(keys[order], query): the first sorted key ≥ query
+            while lo < hi:
+                mid = (lo + hi) // 2
+                if keys[order[mid]] < query:
+                    lo = mid + 1
+                else:
+                    hi = mid
+            pos = min(max(lo, 1), m - 1) if m > 1 else 0
+            below, above = order[max(pos - 1, 0)], order[pos]
+            nearest = below if abs(keys[below] - query) <= abs(keys[above] - query) else above
+            if abs(keys[nearest] - query) <= max_distance_px:
+                code[nearest] = 4 if reason[i] == ORDER_CONFLICT else 3
+    n_reasons = _N_MISSING_REASONS
+    counts = np.zeros(n_reasons + 1, np.int64)
+    for j in range(m):
+        if code[j] < 0:
+            image_code = 2
+            if has_unusable:
+                row = min(max(rs[j] // UNUSABLE_BLOCK_PX, 0), unusable.shape[0] - 1)
+                rounded = 0  # as np.round(t).astype(np.int64): half to even; what a NaN gives clipped to 0
+                if np.isfinite(t_now[j]):
+                    rounded = int(np.floor(t_now[j]))
+                    fraction = t_now[j] - rounded
+                    if fraction > 0.5 or (fraction == 0.5 and rounded % 2 != 0):
+                        rounded += 1
+                col = min(max(rounded // UNUSABLE_BLOCK_PX, 0), unusable.shape[1] - 1)
+                block = unusable[row, col]
+                if block == UNUSABLE_BLACK:
+                    image_code = 0
+                elif block == UNUSABLE_DARK:
+                    image_code = 1
+                elif block == UNUSABLE_UNEVEN_LIGHT:
+                    image_code = _UNEVEN_LIGHT_INDEX
+            code[j] = image_code
+        counts[code[j] + 1] += 1
+    for r in range(n_reasons):
+        counts[r + 1] += counts[r]
+    starts = counts.copy()
+    areas = np.empty(m)
+    for j in range(m):
+        areas[counts[code[j]]] = area_mm2[rk[j], rs[j]]
+        counts[code[j]] += 1
+    return areas, starts
 
 
 SEEN_MEASURED, SEEN_BEYOND, SEEN_UNPLACED = 0, 1, 2  # `_seen_kind`; -1: not seen
