@@ -515,28 +515,18 @@ def order_frame(
     k_near, distance = match_to_reference(
         edges.line, edges.t_px, edges.polarity, reference.rim_lines, projector.polarity
     )
-    near = (k_near >= 0) & (np.abs(distance) <= settings.anchor_tolerance_fraction * projector.period_px)
     # Edges beside a dark area are no anchor either: they are cut off from their curves and neighbours
     # (`order_edges`), so a stretch of them would be anchored by its own rim votes alone, and their places are
     # not sure enough for that (their mid-level is set from one side: beside the clamp ring 1.8 mm off in w under
     # a soft shadow, docs/method.md §5). They stay "order unresolved".
-    on_rim = near & (relative >= 0) & ~beside_dark_points(edges)
     n_groups = int(order.part_component.max()) + 1 if np.any(order.part_component >= 0) else 0
     if n_groups:
-        offset_votes = k_near[on_rim] - relative[on_rim]
-        lowest = int(offset_votes.min()) if len(offset_votes) else 0
-        span = int(offset_votes.max()) - lowest + 1 if len(offset_votes) else 1
-        codes, counts = np.unique(component[on_rim] * span + (offset_votes - lowest), return_counts=True)
-        group_of, offset_of = codes // span, codes % span + lowest
-        total = np.bincount(group_of, weights=counts, minlength=n_groups)
-        best = np.zeros(n_groups, np.int64)
-        best_offset = np.zeros(n_groups, np.int64)
-        ascending = np.argsort(counts, kind="stable")  # the largest count per group is written last
-        best[group_of[ascending]] = counts[ascending]
-        best_offset[group_of[ascending]] = offset_of[ascending]
-        anchored = (best >= settings.min_anchor_points) & (best >= settings.min_anchor_agreement * total)
+        anchored, split, best_offset = _rim_anchors(
+            k_near, distance, relative, component, beside_dark_points(edges),
+            settings.anchor_tolerance_fraction * projector.period_px, n_groups, settings.min_anchor_points,
+            settings.min_anchor_agreement,
+        )  # fmt: skip
         # A group whose rim votes split (a miscount somewhere in it) is a conflict, not a guess.
-        split = (total >= settings.min_anchor_points) & ~anchored
         n_conflicts += int(np.count_nonzero(split))
         bad = _anchored_order(
             relative, component, anchored, split, best_offset, np.ascontiguousarray(projector.polarity, np.int8),
@@ -557,6 +547,54 @@ def order_frame(
         k[drop] = -1
         reason[drop] = ORDER_CONFLICT
     return FrameOrder(k=k, reason=reason, n_conflicts=n_conflicts)
+
+
+@numba.njit(cache=True, nogil=True)
+def _rim_anchors(
+    k_near: np.ndarray,
+    distance: np.ndarray,
+    relative: np.ndarray,
+    component: np.ndarray,
+    beside_dark: np.ndarray,
+    max_distance_px: float,
+    n_groups: int,
+    min_anchor_points: int,
+    min_anchor_agreement: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`order_frame`'s rim votes (N,) counted by group (n_groups,): a point votes when it is near a rim edge
+    (k_near ≥ 0, |distance| ≤ max_distance_px), has a relative order and is not beside a dark area, for the offset
+    k_near − relative of its group (component). Per group: anchored (the most common offset has at least
+    min_anchor_points votes and min_anchor_agreement of them), split (as many votes, not anchored) and that offset
+    (the larger of those tied). Votes sorted by group in a counting pass, then each group's offsets sorted."""
+    n = len(relative)
+    start = np.zeros(n_groups + 1, np.int64)
+    for i in range(n):
+        if k_near[i] >= 0 and abs(distance[i]) <= max_distance_px and relative[i] >= 0 and not beside_dark[i]:
+            start[component[i] + 1] += 1
+    for g in range(n_groups):
+        start[g + 1] += start[g]
+    offsets = np.empty(start[n_groups], np.int64)
+    filled = start[:-1].copy()
+    for i in range(n):
+        if k_near[i] >= 0 and abs(distance[i]) <= max_distance_px and relative[i] >= 0 and not beside_dark[i]:
+            offsets[filled[component[i]]] = k_near[i] - relative[i]
+            filled[component[i]] += 1
+    anchored = np.zeros(n_groups, np.bool_)
+    split = np.zeros(n_groups, np.bool_)
+    best_offset = np.zeros(n_groups, np.int64)
+    for g in range(n_groups):
+        votes = np.sort(offsets[start[g] : start[g + 1]])
+        best = 0
+        run = 0
+        for j in range(len(votes)):
+            run = run + 1 if j > 0 and votes[j] == votes[j - 1] else 1
+            # At the end of each run; ties go to the larger offset, as the stable order of the counts left them.
+            if (j + 1 == len(votes) or votes[j + 1] != votes[j]) and run >= best:
+                best, best_offset[g] = run, votes[j]
+        total = float(len(votes))
+        anchored[g] = best >= min_anchor_points and best >= min_anchor_agreement * total
+        split[g] = total >= min_anchor_points and not anchored[g]
+    return anchored, split, best_offset
 
 
 @numba.njit(cache=True, nogil=True)
