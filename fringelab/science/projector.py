@@ -263,19 +263,27 @@ TABLE_SIGMA_Z = 5  # the table's σ_Z (mm)
 def table_z_at(table: np.ndarray, k: int, line: int, t_px: float) -> tuple[float, int]:
     """Z (mm) and status of one edge point from `ProjectorCalibration.lookup_table`, as `z_from_t` gives them: for
     compiled loops over many points."""
+    value, status, _ = table_z_tau_at(table, k, line, t_px)
+    return value, status
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def table_z_tau_at(table: np.ndarray, k: int, line: int, t_px: float) -> tuple[float, int, float]:
+    """`table_z_at`, and the point's place τ in the entry's fitted range (the polynomial's variable; NaN where the
+    status is not 0), for loops that need both (one division, not two)."""
     n_lines, n_edges, n_fields = table.shape
     if k < 0 or k >= n_edges or line < 0 or line >= n_lines:
-        return np.nan, 2
+        return np.nan, 2, np.nan
     entry = table[line, k]
     if not np.isfinite(entry[0]):
-        return np.nan, 2
+        return np.nan, 2, np.nan
     if not (entry[0] <= t_px <= entry[1]):
-        return np.nan, 1
+        return np.nan, 1, np.nan
     tau = (t_px - entry[2]) / entry[3]
     value = entry[n_fields - 1]
     for j in range(n_fields - 2, TABLE_SIGMA_Z, -1):
         value = value * tau + entry[j]
-    return value, 0
+    return value, 0, tau
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")

@@ -65,9 +65,10 @@ from .projector import (
     CameraModel,
     ProjectorCalibration,
     camera_fingerprint,
-    table_z_at,
+    table_z_tau_at,
 )
 from .uncertainty import (
+    contiguous_index_array,
     edge_sigmas_px,
     fit_leverage_ratio,
     leverage_polynomials,
@@ -413,7 +414,8 @@ def order_positions(
     """The positions (K, S) of one frame's edges by their order (`order.order_frame`): a pure function of the
     frame and the reference, so a frame ordered alone equals the same frame ordered within its sequence."""
     frame_order = order_frame(edges, reference, projector, settings=settings.order)
-    if np.count_nonzero(frame_order.reason == ORDER_CONFLICT) > 0.5 * len(edges):
+    n_conflict_points = int(np.count_nonzero(frame_order.reason == ORDER_CONFLICT))
+    if n_conflict_points > 0.5 * len(edges):
         # Mostly conflicts: say so when it is the table that disagrees with the whole frame.
         check_order_against_table(edges, reference, projector, settings=settings.order)
     # The ordered points (k ≥ 0) and their σ, in one pass (`projector._scatter`'s rule for duplicates).
@@ -428,7 +430,7 @@ def order_positions(
     counts = {
         "n_tracks": n_ordered,
         "n_order_unresolved": int(np.count_nonzero(frame_order.reason == ORDER_UNRESOLVED)),
-        "n_order_conflict_points": int(np.count_nonzero(frame_order.reason == ORDER_CONFLICT)),
+        "n_order_conflict_points": n_conflict_points,
         "n_order_conflicts": int(frame_order.n_conflicts),
         "n_unmatched": len(edges) - n_ordered,
     }
@@ -775,7 +777,7 @@ class ScanRays:
         centre = camera_centre_obj_mm(self.camera)
         direction_from_ideal = self.camera.rotation.T * np.array([1.0, 1.0, self.camera.f_mm])  # d = Mᵀ·[ũ, ṽ, f]
         return _scan_rays_to_z(
-            self.ut_mm, self.vt_mm, np.ascontiguousarray(line, np.int64), np.ascontiguousarray(t_px, np.float64),
+            self.ut_mm, self.vt_mm, contiguous_index_array(line), np.ascontiguousarray(t_px, np.float64),
             np.ascontiguousarray(z_mm, np.float64), direction_from_ideal, centre,
         )  # fmt: skip
 
@@ -841,16 +843,15 @@ def _measure(
     points = scan_rays(camera_model, projector.axis).backproject_to_z(ll, t, z)
     # The local check across neighbouring edges adds what the errors have beyond σ near each point
     # (`uncertainty.local_excess_variance`); the frame's own check (`uncertainty.cross_edge_scale`) then scales.
-    centre, d2, predicted = _fourth_difference_checks(kk, ll, z, sigma_z)
+    centre, k_centre, line_centre, d2, predicted = _fourth_difference_checks(kk, ll, z, sigma_z)
     shape = (int(positions.shape[0]), int(positions.shape[1]))
-    local_variance = local_excess_variance(kk[centre], ll[centre], d2, predicted, shape, k=kk, line=ll)
-    sigma_z, ratios = _with_local_variance(sigma_z, local_variance, centre, d2, predicted)
-    sigma_scale = scale_from_ratios(ratios)
-    sigma_z = sigma_z * sigma_scale
+    local_variance = local_excess_variance(k_centre, line_centre, d2, predicted, shape, k=kk, line=ll)
+    sigma_scale = scale_from_ratios(_check_ratios(local_variance, centre, d2, predicted))
+    _with_local_variance(sigma_z, local_variance, sigma_scale)  # in place: the array is this frame's own
     return FrameMeasurement(
         frame=int(frame),
-        k=kk.astype(np.int32),
-        line=ll.astype(np.int32),
+        k=kk,
+        line=ll,
         points_obj_mm=points,
         n_tracks=n_placed,
         n_ended=0,
@@ -871,13 +872,14 @@ def _measure(
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _fourth_difference_checks(
     kk: np.ndarray, ll: np.ndarray, z: np.ndarray, sigma: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Every fourth difference of five neighbouring edges (k … k + 4) on a scan line (`uncertainty.cross_edge_scale`),
-    from the points (N,) sorted by (line, k) as `_looked_up_points` gives them: the index of its middle point,
-    d² and its predicted variance Σc²σ² (M,) each."""
+    from the points (N,) sorted by (line, k) as `_looked_up_points` gives them: the index of its middle point, that
+    point's k and line (kk's and ll's type), d² and its predicted variance Σc²σ² (M,) each."""
     n = len(kk)
     size = max(n - 4, 0)
     centre = np.empty(size, np.int64)
+    k_centre, line_centre = np.empty(size, kk.dtype), np.empty(size, ll.dtype)
     d2, predicted = np.empty(size), np.empty(size)
     m = 0
     for i in range(n - 4):
@@ -888,24 +890,28 @@ def _fourth_difference_checks(
              + sigma[i + 4] ** 2)  # fmt: skip
         if np.isfinite(d) and p > 0:
             centre[m], d2[m], predicted[m] = i + 2, d * d, p
+            k_centre[m], line_centre[m] = kk[i + 2], ll[i + 2]
             m += 1
-    return centre[:m], d2[:m], predicted[:m]
+    return centre[:m], k_centre[:m], line_centre[:m], d2[:m], predicted[:m]
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _with_local_variance(
-    sigma_z: np.ndarray, local_variance: np.ndarray, centre: np.ndarray, d2: np.ndarray, predicted: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """The points' σ_Z (N,) with the local check's τ² (N,) added in quadrature, and each check's (M,) d² over its
-    variance with τ² counted, for the frame's check (`uncertainty.scale_from_ratios`): τ² varies little over the
-    five edges of a check, so its middle's (centre (M,)) stands for them (Σc² = 70). One pass each, no temporaries."""
-    out = np.empty(len(sigma_z))
-    for i in range(len(sigma_z)):
-        out[i] = np.sqrt(sigma_z[i] * sigma_z[i] + local_variance[i])
+def _check_ratios(local_variance: np.ndarray, centre: np.ndarray, d2: np.ndarray, predicted: np.ndarray) -> np.ndarray:
+    """Each check's (M,) d² over its variance with the local check's τ² (N,) counted, for the frame's check
+    (`uncertainty.scale_from_ratios`): τ² varies little over the five edges of a check, so its middle's (centre
+    (M,)) stands for them (Σc² = 70)."""
     ratios = np.empty(len(d2))
     for m in range(len(d2)):
         ratios[m] = d2[m] / (predicted[m] + 70.0 * local_variance[centre[m]])
-    return out, ratios
+    return ratios
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _with_local_variance(sigma_z: np.ndarray, local_variance: np.ndarray, sigma_scale: float) -> None:
+    """The points' σ_Z (N,), in place, with the local check's τ² (N,) added in quadrature, then times the frame's
+    scale: one pass, no temporaries."""
+    for i in range(len(sigma_z)):
+        sigma_z[i] = np.sqrt(sigma_z[i] * sigma_z[i] + local_variance[i]) * sigma_scale
 
 
 def _leverage(projector: ProjectorCalibration) -> np.ndarray:
@@ -931,7 +937,7 @@ def _looked_up_points(
         for s in range(n_lines):
             if np.isfinite(positions[k, s]):
                 capacity += 1
-    kk, ll = np.empty(capacity, np.int64), np.empty(capacity, np.int64)
+    kk, ll = np.empty(capacity, np.int32), np.empty(capacity, np.int32)  # as FrameMeasurement keeps them
     t, z, sigma_z, table_sigma_z = np.empty(capacity), np.empty(capacity), np.empty(capacity), np.empty(capacity)
     m = n_placed = n_out_of_range = 0
     for s in range(n_lines):
@@ -939,13 +945,12 @@ def _looked_up_points(
             if not np.isfinite(positions[k, s]):
                 continue
             n_placed += 1
-            value, status = table_z_at(table, k, s, positions[k, s])
+            value, status, tau = table_z_tau_at(table, k, s, positions[k, s])
             if status == 1:
                 n_out_of_range += 1
             if status != 0:
                 continue
             kk[m], ll[m], t[m], z[m] = k, s, positions[k, s], value
-            tau = (positions[k, s] - table[s, k, 2]) / table[s, k, 3]
             spread = fit_leverage_ratio(tau, leverage, n_heights[s, k])
             table_sigma_z[m] = table[s, k, TABLE_SIGMA_Z] * spread
             sigma_z[m] = point_sigma_z_at(table[s, k, TABLE_SENSITIVITY], table_sigma_z[m], edge_sigma_px[k, s])

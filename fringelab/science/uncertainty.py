@@ -197,10 +197,17 @@ def local_excess_variance(
     §7, "Error budget").
     """
     return _local_excess_at(
-        np.ascontiguousarray(k_centre, np.int64), np.ascontiguousarray(line_centre, np.int64),
-        np.ascontiguousarray(d2, np.float64), np.ascontiguousarray(predicted, np.float64), int(shape[0]),
-        int(shape[1]), np.ascontiguousarray(k, np.int64), np.ascontiguousarray(line, np.int64),
+        contiguous_index_array(k_centre), contiguous_index_array(line_centre), np.ascontiguousarray(d2, np.float64),
+        np.ascontiguousarray(predicted, np.float64), int(shape[0]), int(shape[1]), contiguous_index_array(k),
+        contiguous_index_array(line),
     )  # fmt: skip
+
+
+def contiguous_index_array(values: np.ndarray) -> np.ndarray:
+    """values (indices: edges, lines) as a contiguous int32 or int64 array for compiled kernels, which take either
+    (the measurement keeps int32): copied only when it is neither or not contiguous."""
+    values = np.asarray(values)
+    return np.ascontiguousarray(values, values.dtype if values.dtype in (np.int32, np.int64) else np.int64)
 
 
 @numba.njit(cache=True, nogil=True)
