@@ -2062,26 +2062,30 @@ def _near_dark_kernel(
     for k in range(len(line)):
         i = line[k]
         first = min(int(t[k]), n_samples - 1)
-        for s in (first, first + 1):
-            if s >= n_samples or cut[i, s] == 0:
-                continue
-            rejected = False
-            for ii in range(max(i - half_lines, 0), min(i + half_lines + 1, n_lines)):
-                for ss in range(max(s - half_inside, 0), min(s + half_inside + 1, n_samples)):
-                    rejected |= area[ii, ss] != 0
-                if rejected:
-                    break
-                for ss in range(max(s - half_black, 0), min(s + half_black + 1, n_samples)):
-                    if black[ii, ss]:
-                        rejected = True
-                        break
-                if rejected:
+        in_first = cut[i, first] != 0
+        in_second = first + 1 < n_samples and cut[i, first + 1] != 0
+        if not (in_first or in_second):
+            continue
+        # Either sample rejects the crossing: where both lie within the reach, their windows are read as one (they
+        # differ by one sample; read apart, a kept crossing's were read twice).
+        low = first if in_first else first + 1
+        high = first + 1 if in_second else first
+        rejected = False
+        for ii in range(max(i - half_lines, 0), min(i + half_lines + 1, n_lines)):
+            for ss in range(max(low - half_inside, 0), min(high + half_inside + 1, n_samples)):
+                rejected |= area[ii, ss] != 0
+            if rejected:
+                break
+            for ss in range(max(low - half_black, 0), min(high + half_black + 1, n_samples)):
+                if black[ii, ss]:
+                    rejected = True
                     break
             if rejected:
-                code[k] = NEAR_DARK_REJECTED
                 break
-            if s == first:
-                code[k] = NEAR_DARK_BESIDE
+        if rejected:
+            code[k] = NEAR_DARK_REJECTED
+        elif in_first:
+            code[k] = NEAR_DARK_BESIDE
     return code
 
 
