@@ -1554,15 +1554,21 @@ def uneven_light_shift_px(
     """
     if len(line) == 0:
         return np.zeros(0)
+    # Whether the means' two periods around a sample reach a dark area, by OpenCV's dilation (uint8, vectorised)
+    # read at the crossings: a sweep along the lines through dark_area took 0.17 ms a 512 × 480 frame.
+    dark_reach = dark_area
+    if from_means:
+        width = 2 * int(np.ceil(period_px - 0.5)) + 1
+        dark_reach = _dilate_along_lines(dark_area, width, out=_SCRATCH.array("dark_reach", dark_area.shape, np.uint8))
     return _uneven_light_shift_kernel(
-        dark_area, line, t_px, polarity, mid_grey, np.ascontiguousarray(slope_grey, np.float32), float(period_px),
+        dark_reach, line, t_px, polarity, mid_grey, np.ascontiguousarray(slope_grey, np.float32), float(period_px),
         bool(from_means), UNEVEN_LIGHT_SHIFT_PER_BEND,
     )  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _uneven_light_shift_kernel(
-    dark_area: np.ndarray,
+    dark_reach: np.ndarray,
     line: np.ndarray,
     t: np.ndarray,
     polarity: np.ndarray,
@@ -1572,29 +1578,21 @@ def _uneven_light_shift_kernel(
     from_means: bool,
     per_bend: float,
 ) -> np.ndarray:
-    """`uneven_light_shift_px` in one pass: the kind of each crossing's mid-level read at the crossings themselves
-    (no image-wide dilation), then the bend and the shift it predicts."""
+    """`uneven_light_shift_px` in one pass: the kind of each crossing's mid-level read at the crossings themselves,
+    then the bend and the shift it predicts. dark_reach (S, T) uint8: where means are taken (from_means), the dark
+    area dilated by `first` = ⌈P − ½⌉ samples either way along the lines (non-zero: a dark-area sample within the
+    two periods of the means centred there); unread otherwise."""
     n = len(line)
-    n_samples = dark_area.shape[1]
+    n_samples = dark_reach.shape[1]
     from_envelopes = np.ones(n, np.bool_)
     if from_means:
         first = int(np.ceil(period - 0.5))
-        # One sweep along each line (the crossings are sorted by (line, t), so the windows [j − first,
-        # j + first + 1] only move on): samples before `at` from the window's start are not dark, and a dark
-        # sample found stays the answer while windows reach it.
-        row = -1
-        at = 0
         for p in range(n):
-            if line[p] != row:
-                row = line[p]
-                at = 0
             j = min(max(int(t[p]), 0), n_samples - 2)
             if j < first or j + 1 >= n_samples - first:
                 continue
-            at = max(at, j - first)
-            while at <= j + first + 1 and dark_area[row, at] == 0:
-                at += 1
-            from_envelopes[p] = at <= j + first + 1
+            # a dark-area sample in [j − first, j + first + 1], the two periods of either straddling sample
+            from_envelopes[p] = (dark_reach[line[p], j] | dark_reach[line[p], j + 1]) != 0
     # Each crossing's nearest crossing of its polarity on its line before and after it (−1: none), by one sweep
     # each way, without a walk per crossing (branch mispredictions).
     before = _same_polarity_sweep(line, polarity, 0, n, 1)
