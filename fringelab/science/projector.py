@@ -29,7 +29,7 @@ from . import Cancelled, MeasurementError
 from .calibration import ProgressCallback
 from .camera import Camera, InverseModel, backproject_to_z, fit_inverse_model
 from .fringes import Axis, EdgeSettings, FrameEdges, detect_stripes, locate_edges, order_edges
-from .uncertainty import table_sigma_z_mm
+from .uncertainty import contiguous_index_array, table_sigma_z_mm
 
 
 class ProjectorCalibrationError(MeasurementError):
@@ -336,8 +336,12 @@ def match_to_reference(
     reference_polarity: (K,). Returns k (N,) (−1 where the line has no reference edge of that polarity) and the
     signed distance t − reference (N,) in px (NaN where k is −1).
     """
+    # A frame's line (int32) and t (float32) go in as they are, widened as they are read (compared and subtracted
+    # in float64, as converted copies were).
+    t_px = np.asarray(t_px)
+    t_type = np.float32 if t_px.dtype == np.float32 else np.float64
     return _match_kernel(
-        np.ascontiguousarray(line, np.int64), np.ascontiguousarray(t_px, np.float64),
+        contiguous_index_array(line), np.ascontiguousarray(t_px, t_type),
         np.ascontiguousarray(polarity, np.int8), reference.start, reference.t_px,
         np.ascontiguousarray(reference_polarity, np.int8)[reference.k], reference.k,
     )  # fmt: skip
