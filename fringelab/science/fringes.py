@@ -673,7 +673,11 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     reach_lines = 2 * half + 3
     grow = np.ones((reach_lines, 2 * dark_window - 1), np.uint8)
     quarter = 2 * max(1, int(round(0.25 * local_period_px))) + 1
-    if any_area or any_crack:
+    if (any_area or any_crack) and period_px <= MAX_PERIOD_PX and dark_window <= _OPENCV_MAX_WIDTH:
+        # dark_area is dark_u8 dilated by dark_window along the lines: dilated by dark_window more (and across the
+        # lines) it is the same as dark_u8 by grow (2·dark_window − 1), at a narrower kernel (0.067 -> 0.049 ms).
+        cut = cv2.dilate(dark_area, np.ones((reach_lines, dark_window), np.uint8), dst=scratch("cut", np.uint8))
+    elif any_area or any_crack:
         cut = _dilate_along_lines(dark_u8, grow.shape[1], lines=reach_lines, out=scratch("cut", np.uint8))
     else:
         cut = scratch("cut", np.uint8)
@@ -739,13 +743,15 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     chain = _link_chains(line, t_raw, polarity, n_samples=n_samples, max_step_px=settings.max_link_step_px_per_line,
                          across_gaps=settings.link_across_lost_crossing)  # fmt: skip
     long_enough, chain = _long_chains(chain, int(settings.min_edge_length_lines))
-    line, t_raw, polarity = line[long_enough], t_raw[long_enough], polarity[long_enough]
-    shift_px, beside = shift_px[long_enough], beside[long_enough]
-    slope_at, contrast_at = slope_at[long_enough], contrast_at[long_enough]
+    line, t_raw, polarity, shift_px, beside, slope_at, contrast_at = _selected(
+        long_enough, len(chain), line, t_raw, polarity, shift_px, beside, slope_at, contrast_at
+    )
 
     if settings.edge_smoothing_lines > 0 and len(line):
         t_px, by_chain = _smooth_along_chains(line, t_raw, chain, sigma_lines=settings.edge_smoothing_lines)
-        noise_px = float(np.sqrt(np.mean((t_raw - t_px) ** 2)))
+        # the residuals in the thread's buffer: a fresh one is faulted in page by page (np.square is numpy's ** 2)
+        residual = np.subtract(t_raw, t_px, out=_SCRATCH.buffer("residual", len(t_raw), np.float64)[: len(t_raw)])
+        noise_px = float(np.sqrt(np.mean(np.square(residual, out=residual))))
     else:
         t_px, by_chain = t_raw, None
         noise_px = float("nan")
@@ -879,6 +885,33 @@ def _by_chain(chain: np.ndarray, n_chains: int) -> tuple[np.ndarray, np.ndarray]
         order[fill[chain[i]]] = i
         fill[chain[i]] += 1
     return first, order
+
+
+@numba.njit(cache=True, nogil=True)
+def _selected(
+    keep: np.ndarray,
+    m: int,
+    line: np.ndarray,
+    t: np.ndarray,
+    polarity: np.ndarray,
+    shift: np.ndarray,
+    beside: np.ndarray,
+    slope: np.ndarray,
+    contrast: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The crossings' arrays (N,) at keep (N,) bool, of which m are true, in one pass (seven boolean selections took
+    0.1 ms a 512 × 480 frame)."""
+    out = (
+        np.empty(m, line.dtype), np.empty(m, t.dtype), np.empty(m, polarity.dtype), np.empty(m, shift.dtype),
+        np.empty(m, beside.dtype), np.empty(m, slope.dtype), np.empty(m, contrast.dtype),
+    )  # fmt: skip
+    k = 0
+    for i in range(len(keep)):
+        if keep[i]:
+            out[0][k], out[1][k], out[2][k], out[3][k] = line[i], t[i], polarity[i], shift[i]
+            out[4][k], out[5][k], out[6][k] = beside[i], slope[i], contrast[i]
+            k += 1
+    return out
 
 
 @numba.njit(cache=True, nogil=True)
