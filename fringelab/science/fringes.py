@@ -318,7 +318,8 @@ class _FrameScratch(threading.local):
     Fresh frame-sized arrays cost more than their use: the allocator hands their pages back to the system when a
     frame's arrays are freed and the next frame faults them in again, zeroed (at 1024² about 4 000 minor faults and
     11–18 ms of system time a frame of 60–65 ms). Only intermediate arrays come from here, never one a caller
-    gets; each name is one array alive within a frame."""
+    gets; each name is one array alive within a frame. What a thread keeps once a frame is done is bounded
+    (`trim`, SCRATCH_KEPT_MAX_BYTES): beyond, the largest are allocated afresh for each frame."""
 
     def __init__(self) -> None:
         self.arrays: dict[str, np.ndarray] = {}
@@ -343,8 +344,21 @@ class _FrameScratch(threading.local):
             array = grown
         return array
 
+    def trim(self, max_bytes: int) -> None:
+        """Let go of the largest arrays until those kept hold at most `max_bytes` (a worker that once measured a
+        huge recording does not keep its frames' working memory for the process's life)."""
+        kept_bytes = sum(array.nbytes for array in self.arrays.values())
+        for name, array in sorted(self.arrays.items(), key=lambda item: item[1].nbytes, reverse=True):
+            if kept_bytes <= max_bytes:
+                break
+            del self.arrays[name]
+            kept_bytes -= array.nbytes
+
 
 _SCRATCH = _FrameScratch()
+# The most a thread keeps of `locate_edges`' working arrays between frames: 128 MiB, all of a 1024² frame's (about
+# 60 MB) and half of a 2048² frame's, whose largest then fault in afresh each frame.
+SCRATCH_KEPT_MAX_BYTES = 128 * 2**20
 # Grey-level types `cv2.transpose` takes (others, as long double, are transposed by numpy).
 _CV_TRANSPOSABLE = tuple(np.dtype(t) for t in (np.uint8, np.uint16, np.float16, np.float32, np.float64))
 
@@ -786,6 +800,7 @@ def locate_edges(image: np.ndarray, settings: EdgeSettings | None = None) -> Fra
     unusable = _unusable_blocks(scan, dark, contrast, local_max, grow, black_level=black_level, settings=settings)
     unusable[uneven_blocks] = np.where(unusable[uneven_blocks] == UNUSABLE_NONE, UNUSABLE_UNEVEN_LIGHT,
                                        unusable[uneven_blocks])  # fmt: skip
+    _SCRATCH.trim(SCRATCH_KEPT_MAX_BYTES)
     return FrameEdges(
         axis=axis,
         period_px=float(period_px),
@@ -844,13 +859,10 @@ def _edge_sigma(
         gain = residual = np.full((1, 1), np.nan)
     first, order = by_chain if by_chain is not None else (np.zeros(0, np.int64), np.zeros(0, np.int64))
     # The kernel's working arrays are the thread's (`_FrameScratch`): fresh, their 80 bytes a point were faulted in
-    # page by page each frame (2.1 of 3.9 ms a 1024² frame). Beyond SIGMA_SCRATCH_MAX_BYTES an array (frames of
-    # millions of edges) they are fresh again, so that what a thread keeps stays bounded (32 MiB in all).
+    # page by page each frame (2.1 of 3.9 ms a 1024² frame).
     n = len(line)
 
     def work(name: str, length: int) -> np.ndarray:
-        if length * 8 > SIGMA_SCRATCH_MAX_BYTES:
-            return np.empty(length)
         return _SCRATCH.buffer(name, length, np.float64)
 
     _edge_sigma_kernel(
@@ -864,9 +876,6 @@ def _edge_sigma(
 
 # Weight, in edge points, of the frame's own noise level against an edge's local one (`_edge_sigma`).
 FRAME_NOISE_WEIGHT_POINTS = 20.0
-# The largest working array of `_edge_sigma` a thread keeps from frame to frame (`_FrameScratch`): 16 MiB, the points'
-# terms of 400 000 edges (a 2048² frame of 10 px stripes); larger ones are allocated for the frame.
-SIGMA_SCRATCH_MAX_BYTES = 16 * 2**20
 
 
 @numba.njit(cache=True, nogil=True)

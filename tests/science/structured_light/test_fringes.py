@@ -8,6 +8,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 
+from fringelab.science import fringes
 from fringelab.science.fringes import (
     EdgeSettings,
     FrameEdges,
@@ -151,6 +152,22 @@ def test_a_frames_edges_are_its_own_whatever_frames_come_after_it_or_beside_it()
     for edges, copies in zip(first, kept, strict=True):
         for name, a in edges.items():
             np.testing.assert_array_equal(a, copies[name], err_msg=name)
+
+
+def test_what_a_thread_keeps_between_frames_is_bounded_and_changes_no_edge(monkeypatch: pytest.MonkeyPatch) -> None:
+    # Beyond SCRATCH_KEPT_MAX_BYTES the largest working arrays are let go once a frame is done (a 4096² frame's
+    # would be about 1 GB a thread): here a bound of 1 MiB against the ~13 MiB a 480² frame uses.
+    image = render_straight_stripes((480, 480), period_px=PERIOD_PX, angle_deg=3.0, phase_px=0.3,
+                                    rng=np.random.default_rng(8))  # fmt: skip
+    unbounded = locate_edges(image)
+    assert sum(a.nbytes for a in fringes._SCRATCH.arrays.values()) > 8 * 2**20
+    monkeypatch.setattr(fringes, "SCRATCH_KEPT_MAX_BYTES", 2**20)
+    for _ in range(2):  # from the unbounded set, then from what the bound kept
+        bounded = locate_edges(image)
+        assert sum(a.nbytes for a in fringes._SCRATCH.arrays.values()) <= 2**20
+        np.testing.assert_array_equal(bounded.t_px, unbounded.t_px)
+        np.testing.assert_array_equal(bounded.sigma_px, unbounded.sigma_px)
+        np.testing.assert_array_equal(bounded.unusable, unbounded.unusable)
 
 
 def test_dark_areas_give_no_edges_near_them() -> None:
